@@ -1,0 +1,350 @@
+"""Scenario configuration: TOML files validated into frozen, typed objects (SI units).
+
+This is the one place where configuration is parsed. Every key carries its unit in its
+name (``mass_kg``, ``length_m``) or, for gain vectors whose rows have mixed units, in the
+docstring of its field. Vectors of 8 follow the state order of DESIGN.md section 2:
+``q = [x, y, z, phi, theta, psi, eta1, eta2]``.
+
+Errors are raised as :class:`ConfigError`, whose message names the file, the dotted key
+and the reason; nothing is read unless a path is passed explicitly.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+__all__ = [
+    "Arm",
+    "ConfigError",
+    "Controller",
+    "Environment",
+    "Estimator",
+    "Link",
+    "Payload",
+    "Scenario",
+    "Simulation",
+    "Theta",
+    "Trajectory",
+    "Vehicle",
+    "load_scenario",
+    "parse_scenario",
+]
+
+N_Q = 8
+"""Number of generalized coordinates (DESIGN.md section 2)."""
+
+_REL_TOL = 1e-9
+"""Relative tolerance for the consistency check m4 >= m3^2 / m2 (equality is a point mass)."""
+
+
+class ConfigError(ValueError):
+    """A configuration file is missing, malformed or physically impossible.
+
+    Attributes
+    ----------
+    path : str
+        The file (or ``"<string>"``).
+    key : str
+        Dotted key inside the file (``"arm.link2.com_m"``), empty for file-level errors.
+    reason : str
+        Human-readable reason.
+    """
+
+    def __init__(self, path: str, key: str, reason: str) -> None:
+        self.path = path
+        self.key = key
+        self.reason = reason
+        where = f"{path}: {key}" if key else path
+        super().__init__(f"{where}: {reason}")
+
+
+Real = Annotated[float, Field(strict=True, allow_inf_nan=False)]
+Positive = Annotated[float, Field(strict=True, gt=0.0, allow_inf_nan=False)]
+NonNegative = Annotated[float, Field(strict=True, ge=0.0, allow_inf_nan=False)]
+Vec3 = Annotated[tuple[Real, ...], Field(min_length=3, max_length=3)]
+PositiveVec3 = Annotated[tuple[Positive, ...], Field(min_length=3, max_length=3)]
+VecQ = Annotated[tuple[Real, ...], Field(min_length=N_Q, max_length=N_Q)]
+PositiveVecQ = Annotated[tuple[Positive, ...], Field(min_length=N_Q, max_length=N_Q)]
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
+
+
+class Environment(_Section):
+    """World constants."""
+
+    gravity_m_s2: Positive
+    """Gravitational acceleration along -z of the ENU world frame [m/s^2]."""
+
+
+class Vehicle(_Section):
+    """The hexacopter body without the arm."""
+
+    mass_kg: Positive
+    """Mass m_b of the vehicle body [kg]."""
+    inertia_kg_m2: PositiveVec3
+    """Principal moments (Ixx, Iyy, Izz) about the body CoM, FLU axes [kg m^2]."""
+
+
+class Link(_Section):
+    """One arm link whose mass lies on its own axis (DESIGN.md section 3).
+
+    Such a link is described exactly by its mass, first moment ``mass_kg * com_m`` and
+    second moment ``mass_kg * com_m**2 + inertia_about_com_kg_m2`` about its joint.
+    """
+
+    length_m: Positive
+    """Joint-to-joint (or joint-to-end-effector) length [m]."""
+    mass_kg: Positive
+    """Link mass [kg]."""
+    com_m: NonNegative
+    """Distance of the centre of mass from the link's joint along the link axis [m]."""
+    inertia_about_com_kg_m2: NonNegative
+    """Moment of inertia about an axis through the CoM perpendicular to the link [kg m^2]."""
+    armature_kg_m2: NonNegative
+    """Reflected rotor inertia of the joint's servo, added on the joint axis [kg m^2]."""
+
+    @property
+    def first_moment_kg_m(self) -> float:
+        """Mass times CoM distance from the joint [kg m]."""
+        return self.mass_kg * self.com_m
+
+    @property
+    def second_moment_kg_m2(self) -> float:
+        """Moment of inertia about the joint axis, without armature [kg m^2]."""
+        return self.mass_kg * self.com_m**2 + self.inertia_about_com_kg_m2
+
+
+class Arm(_Section):
+    """The 2-DOF arm; both joint axes are parallel to the body y axis."""
+
+    mount_point_m: Vec3
+    """Position r_a of joint 1 in the body frame (FLU, from the vehicle CoM) [m]."""
+    link1: Link
+    link2: Link
+    """Link 2 empty (with gripper, without payload): the nominal, known values."""
+
+
+class Payload(_Section):
+    """A grasped object, rigidly attached to link 2 on its axis."""
+
+    mass_kg: NonNegative
+    """Payload mass [kg]."""
+    position_m: NonNegative
+    """Distance of the payload CoM from joint 2 along link 2 [m]."""
+    inertia_about_com_kg_m2: NonNegative
+    """Moment of inertia about its CoM, perpendicular to link 2 [kg m^2]."""
+
+
+class Theta(_Section):
+    """Link-2 parameters theta = (m2, m3, m4) of the paper's parametrization."""
+
+    m2_kg: Positive
+    """Total mass of link 2 with payload [kg]."""
+    m3_kg_m: NonNegative
+    """First moment m2 * lc about joint 2 [kg m]."""
+    m4_kg_m2: NonNegative
+    """Second moment about joint 2 (m2 * lc^2 for a point mass) [kg m^2]."""
+
+    @property
+    def lc_m(self) -> float:
+        """Centre of mass of link 2 (with payload) from joint 2 [m]."""
+        return self.m3_kg_m / self.m2_kg
+
+    def as_tuple(self) -> tuple[float, float, float]:
+        """(m2, m3, m4) in kg, kg m, kg m^2."""
+        return (self.m2_kg, self.m3_kg_m, self.m4_kg_m2)
+
+
+class Estimator(_Section):
+    """Gains and initial values of the paper's on-line estimator (eqs. estimator, update)."""
+
+    gamma: PositiveVec3
+    """Learning rates (gamma_1, gamma_2, gamma_3) of m2, m3, m4."""
+    c_star: PositiveVecQ
+    """Diagonal of the damping-like gain C* (positive definite), one entry per row of q."""
+    k_star: PositiveVecQ
+    """Diagonal of the stiffness-like gain K* (positive definite), one entry per row of q."""
+    initial_theta: Theta
+    """Initial estimates (m2, m3, m4)."""
+    initial_qhat_dot: VecQ
+    """Initial estimated velocity qhat_dot(0) in the units of q_dot (m/s, rad/s)."""
+
+
+class Controller(_Section):
+    """Gains of the augmented passivity-based controller (eq. tau2)."""
+
+    k: PositiveVecQ
+    """Diagonal of k (N s/m on positions, N m s/rad on angles and joints)."""
+    lambda_: PositiveVecQ = Field(alias="lambda")
+    """Diagonal of Lambda [1/s]."""
+
+
+class Trajectory(_Section):
+    """Desired trajectory q_d(t) (paper section IV); roll and pitch come from eq. phid."""
+
+    kind: Literal["paper_sinusoid"]
+    """``paper_sinusoid``: x = ax cos(w t), y = ay cos(w t), eta_i = c_i + a_i sin(w t)."""
+    period_s: Positive
+    """Period 2 pi / w of every sinusoid [s]."""
+    amplitude_x_m: Real
+    amplitude_y_m: Real
+    altitude_m: Real
+    """Constant desired z (ENU, up) [m]."""
+    yaw_rad: Real
+    eta1_center_rad: Real
+    eta1_amplitude_rad: Real
+    eta2_center_rad: Real
+    eta2_amplitude_rad: Real
+
+
+class Simulation(_Section):
+    """Offline simulation settings."""
+
+    duration_s: Positive
+    initial_q: VecQ
+    """Initial generalized coordinates q(0) (m, rad); q_dot(0) = 0."""
+
+
+class Scenario(_Section):
+    """A complete scenario: vehicle, arm, payload, gains, trajectory and initial estimates."""
+
+    name: str
+    description: str
+    environment: Environment
+    vehicle: Vehicle
+    arm: Arm
+    payload: Payload
+    estimator: Estimator
+    controller: Controller
+    trajectory: Trajectory
+    simulation: Simulation
+
+    @property
+    def nominal_theta(self) -> Theta:
+        """theta of the empty link 2 (the non-adaptive baseline's parameters)."""
+        link = self.arm.link2
+        return Theta(
+            m2_kg=link.mass_kg,
+            m3_kg_m=link.first_moment_kg_m,
+            m4_kg_m2=link.second_moment_kg_m2,
+        )
+
+    @property
+    def true_theta(self) -> Theta:
+        """theta of link 2 with the payload attached (the simulation's truth)."""
+        link, load = self.arm.link2, self.payload
+        return Theta(
+            m2_kg=link.mass_kg + load.mass_kg,
+            m3_kg_m=link.first_moment_kg_m + load.mass_kg * load.position_m,
+            m4_kg_m2=link.second_moment_kg_m2
+            + load.mass_kg * load.position_m**2
+            + load.inertia_about_com_kg_m2,
+        )
+
+
+def _dotted(loc: tuple[int | str, ...]) -> str:
+    key = ""
+    for part in loc:
+        key += f"[{part}]" if isinstance(part, int) else (f".{part}" if key else str(part))
+    return key
+
+
+def check_theta(theta: Theta, link2_length_m: float, path: str, key: str) -> None:
+    """Reject theta that no rigid link 2 can have: lc outside [0, l2] or m4 < m3^2 / m2.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``path`` and ``key`` and the violated condition.
+    """
+    lc = theta.lc_m
+    if not 0.0 <= lc <= link2_length_m:
+        raise ConfigError(
+            path, key, f"lc = m3/m2 = {lc:.6g} m lies outside [0, l2] = [0, {link2_length_m:g}] m"
+        )
+    floor = theta.m3_kg_m**2 / theta.m2_kg
+    if theta.m4_kg_m2 < floor * (1.0 - _REL_TOL):
+        raise ConfigError(
+            path,
+            key,
+            f"m4 = {theta.m4_kg_m2:.6g} kg m^2 < m3^2/m2 = {floor:.6g} kg m^2: "
+            "no mass distribution has this second moment",
+        )
+
+
+def _check_physics(cfg: Scenario, path: str) -> None:
+    for name in ("link1", "link2"):
+        link: Link = getattr(cfg.arm, name)
+        if link.com_m > link.length_m:
+            raise ConfigError(
+                path,
+                f"arm.{name}.com_m",
+                f"{link.com_m:g} m lies beyond the link length {link.length_m:g} m",
+            )
+    l2 = cfg.arm.link2.length_m
+    if cfg.payload.position_m > l2:
+        raise ConfigError(
+            path,
+            "payload.position_m",
+            f"{cfg.payload.position_m:g} m lies beyond link 2 (length {l2:g} m)",
+        )
+    check_theta(cfg.estimator.initial_theta, l2, path, "estimator.initial_theta")
+
+
+def parse_scenario(data: dict, path: str = "<string>") -> Scenario:
+    """Validate a parsed TOML document into a :class:`Scenario`.
+
+    Raises
+    ------
+    ConfigError
+        On unknown or missing keys, wrong types, or physically impossible values.
+    """
+    try:
+        cfg = Scenario.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        key = _dotted(err["loc"])
+        if err["type"] == "extra_forbidden":
+            reason = "unknown key (misspelt?)"
+        elif err["type"] == "missing":
+            reason = "missing key"
+        else:
+            reason = f"{err['msg']} (got {err['input']!r})"
+        extra = len(exc.errors()) - 1
+        if extra:
+            reason += f" [and {extra} more problem{'s' if extra > 1 else ''}]"
+        raise ConfigError(path, key, reason) from None
+    _check_physics(cfg, path)
+    return cfg
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario TOML file.
+
+    Parameters
+    ----------
+    path : str or Path
+        Explicit path of the file; nothing is looked up implicitly.
+
+    Raises
+    ------
+    ConfigError
+        If the file cannot be read, is not TOML, or does not validate.
+    """
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(str(p), "", f"cannot read file ({exc.strerror or exc})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(str(p), "", f"invalid TOML: {exc}") from None
+    return parse_scenario(data, str(p))
+
