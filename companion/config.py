@@ -11,6 +11,7 @@ and the reason; nothing is read unless a path is passed explicitly.
 
 from __future__ import annotations
 
+import difflib
 import tomllib
 from pathlib import Path
 from typing import Annotated, Literal
@@ -48,18 +49,20 @@ class ConfigError(ValueError):
     ----------
     path : str
         The file (or ``"<string>"``).
-    key : str
-        Dotted key inside the file (``"arm.link2.com_m"``), empty for file-level errors.
-    reason : str
-        Human-readable reason.
+    problems : tuple of (key, reason)
+        Every problem found; ``key`` is dotted inside the file (``"arm.link2.com_m"``),
+        empty for file-level errors.
+    key, reason : str
+        The first problem.
     """
 
-    def __init__(self, path: str, key: str, reason: str) -> None:
+    def __init__(self, path: str, key: str, reason: str, *more: tuple[str, str]) -> None:
         self.path = path
-        self.key = key
-        self.reason = reason
-        where = f"{path}: {key}" if key else path
-        super().__init__(f"{where}: {reason}")
+        self.problems = ((key, reason), *more)
+        self.key, self.reason = key, reason
+        super().__init__(
+            "\n".join(f"{path}: {k}: {r}" if k else f"{path}: {r}" for k, r in self.problems)
+        )
 
 
 Real = Annotated[float, Field(strict=True, allow_inf_nan=False)]
@@ -255,6 +258,32 @@ def _dotted(loc: tuple[int | str, ...]) -> str:
     return key
 
 
+def _describe(err: dict) -> tuple[str, str]:
+    """(dotted key, reason) of one pydantic error, suggesting the key meant for a typo."""
+    key = _dotted(err["loc"])
+    if err["type"] == "extra_forbidden":
+        section = _section_model(err["loc"][:-1])
+        names = [f.alias or n for n, f in section.model_fields.items()] if section else []
+        close = difflib.get_close_matches(str(err["loc"][-1]), names, n=1)
+        hint = f"; did you mean '{close[0]}'?" if close else ""
+        return key, f"unknown key{hint}"
+    if err["type"] == "missing":
+        return key, "missing key"
+    return key, f"{err['msg']} (got {err['input']!r})"
+
+
+def _section_model(loc: tuple[int | str, ...]) -> type[BaseModel] | None:
+    """The pydantic class validating the table at ``loc`` (None inside lists)."""
+    model: type[BaseModel] = Scenario
+    for part in loc:
+        field = model.model_fields.get(str(part)) if isinstance(part, str) else None
+        annotation = field.annotation if field else None
+        if not (isinstance(annotation, type) and issubclass(annotation, BaseModel)):
+            return None
+        model = annotation
+    return model
+
+
 def check_theta(theta: Theta, link2_length_m: float, path: str, key: str) -> None:
     """Reject theta that no rigid link 2 can have: lc outside [0, l2] or m4 < m3^2 / m2.
 
@@ -308,18 +337,11 @@ def parse_scenario(data: dict, path: str = "<string>") -> Scenario:
     try:
         cfg = Scenario.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        key = _dotted(err["loc"])
-        if err["type"] == "extra_forbidden":
-            reason = "unknown key (misspelt?)"
-        elif err["type"] == "missing":
-            reason = "missing key"
-        else:
-            reason = f"{err['msg']} (got {err['input']!r})"
-        extra = len(exc.errors()) - 1
-        if extra:
-            reason += f" [and {extra} more problem{'s' if extra > 1 else ''}]"
-        raise ConfigError(path, key, reason) from None
+        problems = sorted(
+            (_describe(err) for err in exc.errors()),
+            key=lambda kr: not kr[1].startswith("unknown key"),
+        )
+        raise ConfigError(path, *problems[0], *problems[1:]) from None
     _check_physics(cfg, path)
     return cfg
 
