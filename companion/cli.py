@@ -26,7 +26,6 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     add_completion=False,
 )
-_err = Console(stderr=True)
 
 
 @app.callback()
@@ -40,7 +39,7 @@ def load_or_exit(path: Path) -> Scenario:
         return load_scenario(path)
     except ConfigError as exc:
         for line in str(exc).splitlines():
-            _err.print(f"error: {line}", markup=False, highlight=False)
+            typer.echo(f"error: {line}", err=True)
         raise typer.Exit(EXIT_USAGE) from None
 
 

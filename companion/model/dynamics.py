@@ -22,13 +22,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from companion.config import Scenario, load_scenario
 from companion.model import _mcg
-from companion.model.derive import PARAM_NAMES
+from companion.model.layout import N_Q, N_XI, PARAM_NAMES, ROW
 
 __all__ = ["ManipulatorModel", "ModelParameters", "ModelTerms"]
-
-N_Q = 8
-N_XI = 4
-_MCG_SIZE = 2 * N_XI * N_Q * N_Q + N_XI * N_Q
 
 FloatArray = NDArray[np.float64]
 
@@ -90,42 +86,45 @@ class ModelParameters:
         return np.array([values[name] for name in PARAM_NAMES], dtype=np.float64)
 
 
-def xi_of(theta: ArrayLike) -> FloatArray:
-    """xi = [m2, m3, m4, 1] from theta = (m2 [kg], m3 [kg m], m4 [kg m^2])."""
-    xi = np.ones(N_XI)
-    xi[:3] = theta
-    return xi
-
-
 @dataclass(frozen=True)
 class ModelTerms:
     """M, C, G pieces at one state, as coefficients of xi = [m2, m3, m4, 1].
 
-    Attributes
-    ----------
-    M : ndarray, shape (4, 8, 8)
-        ``M[0..2]`` = M2, M3, M4 (unknown parts), ``M[3]`` = M1 (known part).
-    C : ndarray, shape (4, 8, 8)
-        Same order for C(q, q_dot).
-    G : ndarray, shape (4, 8)
-        Same order for G(q); ``G[2]`` (the m4 piece) is identically zero.
+    ``pieces`` has shape (4, 136) in the layout of :mod:`companion.model.layout`; piece
+    k = 0, 1, 2 belongs to m2, m3, m4 (M2, M3, M4, the unknown parts), k = 3 to the known
+    part (M1). ``M``, ``C`` (4, 8, 8) and ``G`` (4, 8) are views on it; ``G[2]`` is zero.
     """
 
-    M: FloatArray
-    C: FloatArray
-    G: FloatArray
+    pieces: FloatArray
+
+    @property
+    def M(self) -> FloatArray:
+        return self.pieces.reshape(N_XI, N_Q, ROW)[:, :, :N_Q]
+
+    @property
+    def C(self) -> FloatArray:
+        return self.pieces.reshape(N_XI, N_Q, ROW)[:, :, N_Q : 2 * N_Q]
+
+    @property
+    def G(self) -> FloatArray:
+        return self.pieces.reshape(N_XI, N_Q, ROW)[:, :, 2 * N_Q]
+
+    def evaluate(self, theta: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(M, C, G) for theta = (m2, m3, m4), shapes (8, 8), (8, 8), (8,)."""
+        rows = (np.dot(theta, self.pieces[:3]) + self.pieces[3]).reshape(N_Q, ROW)
+        return rows[:, :N_Q], rows[:, N_Q : 2 * N_Q], rows[:, 2 * N_Q]
 
     def mass_matrix(self, theta: ArrayLike) -> FloatArray:
         """M(q) for theta = (m2, m3, m4), shape (8, 8)."""
-        return np.tensordot(xi_of(theta), self.M, axes=1)
+        return self.evaluate(theta)[0]
 
     def coriolis_matrix(self, theta: ArrayLike) -> FloatArray:
         """C(q, q_dot) for theta, shape (8, 8)."""
-        return np.tensordot(xi_of(theta), self.C, axes=1)
+        return self.evaluate(theta)[1]
 
     def gravity(self, theta: ArrayLike) -> FloatArray:
         """G(q) for theta, shape (8,)."""
-        return xi_of(theta) @ self.G
+        return self.evaluate(theta)[2]
 
     def regressor(self, qr_dot: ArrayLike, qr_ddot: ArrayLike) -> FloatArray:
         """Y with Y xi = M qr_ddot + C qr_dot + G (paper eq. reg), shape (8, 4).
@@ -133,7 +132,11 @@ class ModelTerms:
         Columns multiply [m2, m3, m4, 1]; with qr = q this is also the estimator's
         M_i q_ddot + C_i q_dot + G_i (eqs. estimator, update).
         """
-        return (self.M @ qr_ddot + self.C @ qr_dot + self.G).T
+        w = np.concatenate((qr_ddot, qr_dot, _ONE))
+        return np.dot(self.pieces.reshape(N_XI * N_Q, ROW), w).reshape(N_XI, N_Q).T
+
+
+_ONE = np.ones(1)
 
 
 class ManipulatorModel:
@@ -173,14 +176,9 @@ class ManipulatorModel:
         q_dot : array_like, shape (8,)
             Time derivative of q (m/s, rad/s).
         """
-        out = np.empty(_MCG_SIZE)
+        out = np.empty((N_XI, N_Q * ROW))
         _mcg.mcg(_vector(q, "q"), _vector(q_dot, "q_dot"), self._p, out)
-        n_mat = N_XI * N_Q * N_Q
-        return ModelTerms(
-            M=out[:n_mat].reshape(N_XI, N_Q, N_Q),
-            C=out[n_mat : 2 * n_mat].reshape(N_XI, N_Q, N_Q),
-            G=out[2 * n_mat :].reshape(N_XI, N_Q),
-        )
+        return ModelTerms(out)
 
     def mass_matrix(self, q: ArrayLike, theta: ArrayLike) -> FloatArray:
         """M(q) for theta = (m2, m3, m4), shape (8, 8)."""
@@ -205,7 +203,7 @@ class ManipulatorModel:
         """Gravitational potential energy V(q) [J], zero at z = 0 of the world frame."""
         out = np.empty(N_XI)
         _mcg.potential(_vector(q, "q"), self._p, out)
-        return float(xi_of(theta) @ out)
+        return float(np.dot(theta, out[:3]) + out[3])
 
     def kinetic_energy(self, q: ArrayLike, q_dot: ArrayLike, theta: ArrayLike) -> float:
         """Kinetic energy 1/2 q_dot^T M(q) q_dot [J]."""

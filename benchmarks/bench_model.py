@@ -1,0 +1,86 @@
+"""Benchmark: M, C, G and the regressor Y for one state, beside Pinocchio.
+
+Prints median and p99 microseconds of
+  - companion.model: terms(q, q_dot), then evaluate(theta) -> (M, C, G), then
+    regressor(qr_dot, qr_ddot) -> Y
+  - Pinocchio (same model, Translation -> RZ -> RY -> RX base): crba + computeCoriolisMatrix
+    + computeGeneralizedGravity
+Target (issue 2): <= 20 us median for companion.model on the project machine.
+
+Usage: python benchmarks/bench_model.py [--config configs/paper_sim.toml] [--n 20000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from companion.config import load_scenario
+from companion.model import ManipulatorModel
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+from test_model_pinocchio import PERM, reference_model  # noqa: E402
+
+
+def timed(fn, states, repeats: int = 1) -> np.ndarray:
+    samples = np.empty(len(states))
+    clock = time.perf_counter_ns
+    for i, args in enumerate(states):
+        start = clock()
+        for _ in range(repeats):
+            fn(*args)
+        samples[i] = (clock() - start) / repeats / 1e3
+    return samples
+
+
+def report(name: str, us: np.ndarray) -> None:
+    print(f"{name:58s} median {np.median(us):7.2f} us   p99 {np.percentile(us, 99):7.2f} us")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", default=str(ROOT / "configs" / "paper_sim.toml"))
+    parser.add_argument("--n", type=int, default=20000, help="number of random states")
+    args = parser.parse_args()
+
+    cfg = load_scenario(args.config)
+    model = ManipulatorModel.from_scenario(cfg)
+    theta = np.array(cfg.true_theta.as_tuple())
+    rng = np.random.default_rng(0)
+    states = [
+        (rng.uniform(-1, 1, 8), rng.normal(size=8), rng.normal(size=8), rng.normal(size=8))
+        for _ in range(args.n)
+    ]
+
+    def ours(q, q_dot, qr_dot, qr_ddot):
+        terms = model.terms(q, q_dot)
+        return terms.evaluate(theta), terms.regressor(qr_dot, qr_ddot)
+
+    def ours_terms(q, q_dot, qr_dot, qr_ddot):
+        return model.terms(q, q_dot)
+
+    ref = reference_model(cfg, tuple(theta))
+    data = ref.createData()
+
+    def pinocchio(q, q_dot, qr_dot, qr_ddot):
+        qp, vp = q[PERM], q_dot[PERM]
+        pin.crba(ref, data, qp)
+        pin.computeCoriolisMatrix(ref, data, qp, vp)
+        pin.computeGeneralizedGravity(ref, data, qp)
+
+    for fn in (ours, pinocchio):  # warm up caches and allocators
+        timed(fn, states[:500])
+    print(f"config {args.config}, {args.n} random states, one call per sample")
+    report("companion.model: M, C, G, Y (all pieces, theta applied)", timed(ours, states))
+    report("companion.model: terms() only (generated C + wrapping)", timed(ours_terms, states))
+    report("pinocchio: crba + computeCoriolisMatrix + gravity", timed(pinocchio, states))
+
+
+if __name__ == "__main__":
+    main()
