@@ -33,6 +33,7 @@ from companion.model.layout import PARAM_NAMES, XI_ORDER
 
 TARGET = Path(__file__).with_name("_mcg.c")
 
+
 def derive():
     """Return (q, qd, params, theta, M, C, G, V) as sympy objects."""
     import sympy as sp

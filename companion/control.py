@@ -1,0 +1,167 @@
+"""Controllers of the aerial manipulator (paper sections III-B and IV-A).
+
+All return the generalized force tau (conjugate to q, DESIGN.md section 2) from the state,
+the desired trajectory and the model terms at this step; none keeps a clock.
+
+- :class:`PassivityController`: the augmented passivity-based law (eq. tau2) with the
+  estimator's theta; :meth:`PassivityController.nonadaptive` is the paper's baseline (the
+  same law with theta frozen at the empty-arm values).
+- :class:`SlidingModeController`: the adaptive sliding-mode controller (eq. asc1) with the
+  total-mass read-out of eq. asc2.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from companion.model import ModelTerms
+
+__all__ = ["DesiredState", "PassivityController", "SlidingModeController", "wrap_angle_error"]
+
+FloatArray = NDArray[np.float64]
+YAW = 5
+
+
+@dataclass(frozen=True)
+class DesiredState:
+    """q_d and its first two derivatives, each shape (8,) (m, rad and their rates)."""
+
+    q: FloatArray
+    q_dot: FloatArray
+    q_ddot: FloatArray
+
+
+def wrap_angle_error(e: FloatArray) -> FloatArray:
+    """e with the yaw entry wrapped to [-pi, pi) (a copy)."""
+    out = e.copy()
+    out[YAW] = (out[YAW] + np.pi) % (2.0 * np.pi) - np.pi
+    return out
+
+
+class PassivityController:
+    """Augmented passivity-based control, eq. tau2:
+
+    ``tau = Mhat qd_ddot + Chat qd_dot + Ghat - k (e_c_dot + Lambda e_c)``, ``e_c = q - q_d``,
+    with ``Mhat qd_ddot + Chat qd_dot + Ghat = Y(q, q_dot, qd_dot, qd_ddot) [thetahat, 1]``.
+
+    Parameters
+    ----------
+    k, lam : array_like, shape (8,)
+        Diagonals of k (N s/m, N m s/rad) and Lambda (1/s).
+    fixed_theta : array_like, shape (3,), optional
+        If given, theta is frozen at this value and the estimate passed to :meth:`torque`
+        is ignored (the non-adaptive baseline).
+    """
+
+    def __init__(self, k: ArrayLike, lam: ArrayLike, fixed_theta: ArrayLike | None = None):
+        self.k = np.asarray(k, dtype=float)
+        self.k_lam = self.k * np.asarray(lam, dtype=float)
+        self.fixed_theta = None if fixed_theta is None else np.asarray(fixed_theta, dtype=float)
+
+    @classmethod
+    def nonadaptive(cls, k: ArrayLike, lam: ArrayLike, nominal_theta: ArrayLike):
+        """The paper's conventional controller: eq. tau2 with the empty-arm theta."""
+        return cls(k, lam, fixed_theta=nominal_theta)
+
+    def torque(
+        self,
+        terms: ModelTerms,
+        q: FloatArray,
+        q_dot: FloatArray,
+        desired: DesiredState,
+        theta_hat: ArrayLike,
+    ) -> FloatArray:
+        """tau, shape (8,), for ``terms = model.terms(q, q_dot)``."""
+        theta = self.fixed_theta if self.fixed_theta is not None else theta_hat
+        feedforward = terms.regressor(desired.q_dot, desired.q_ddot) @ np.append(theta, 1.0)
+        e = wrap_angle_error(q - desired.q)
+        return feedforward - self.k * (q_dot - desired.q_dot) - self.k_lam * e
+
+
+class SlidingModeController:
+    """Adaptive sliding-mode control (eq. asc1) with the mass read-out of eq. asc2.
+
+    ``s = q_dot - qr_dot``, ``qr_dot = qd_dot - Lambda (q - q_d)``,
+    ``tau = Mhat qr_ddot + Chat qr_dot + Ghat + Deltahat - K1 s - K2 sat(s / phi)``,
+    ``Deltahat_dot = -gamma_delta s``. The model terms use m2hat with the centre of mass
+    held at the empty-arm lc (the law estimates the mass only). ``sat`` is sgn with a
+    boundary layer of width phi (a pure sgn chatters at the control rate).
+
+    Mass read-out (eq. asc2), read as Newton's law for the vertical row: the third rows of
+    Mhat and Chat give ``m z_ddot_com`` for the previous estimate, so
+    ``mhat = tau_3 / (g + (Mhat_3 q_ddot + Chat_3 q_dot) / mhat_prev)`` and
+    ``m2hat = mhat - (m_b + m1)``, low-passed with time constant ``mass_filter_s`` and kept
+    within [m2_min, m2_max].
+    """
+
+    def __init__(
+        self,
+        k1: ArrayLike,
+        k2: ArrayLike,
+        lam: ArrayLike,
+        boundary_layer: ArrayLike,
+        gamma_delta: ArrayLike,
+        known_mass_kg: float,
+        gravity_m_s2: float,
+        nominal_lc_m: float,
+        m2_0: float,
+        m2_bounds_kg: tuple[float, float],
+        mass_filter_s: float,
+    ) -> None:
+        self.k1 = np.asarray(k1, dtype=float)
+        self.k2 = np.asarray(k2, dtype=float)
+        self.lam = np.asarray(lam, dtype=float)
+        self.phi = np.asarray(boundary_layer, dtype=float)
+        self.gamma_delta = np.asarray(gamma_delta, dtype=float)
+        self.known_mass_kg = known_mass_kg
+        self.g = gravity_m_s2
+        self.lc = nominal_lc_m
+        self.m2_bounds = m2_bounds_kg
+        self.mass_filter_s = mass_filter_s
+        self.m2 = m2_0
+        self.delta = np.zeros(8)
+
+    @property
+    def theta(self) -> FloatArray:
+        """(m2, m3, m4) the law uses: m2hat at the empty-arm lc (point mass)."""
+        return np.array((self.m2, self.m2 * self.lc, self.m2 * self.lc**2))
+
+    def torque(
+        self,
+        dt: float,
+        terms: ModelTerms,
+        q: FloatArray,
+        q_dot: FloatArray,
+        q_ddot: FloatArray,
+        desired: DesiredState,
+    ) -> FloatArray:
+        """tau, shape (8,); advances Deltahat and the mass read-out by dt [s]."""
+        e = wrap_angle_error(q - desired.q)
+        qr_dot = desired.q_dot - self.lam * e
+        qr_ddot = desired.q_ddot - self.lam * (q_dot - desired.q_dot)
+        s = q_dot - qr_dot
+        xi = np.append(self.theta, 1.0)
+        tau = (
+            terms.regressor(qr_dot, qr_ddot) @ xi
+            + self.delta
+            - self.k1 * s
+            - self.k2 * np.clip(s / self.phi, -1.0, 1.0)
+        )
+        self.delta = self.delta - dt * self.gamma_delta * s
+        self._read_mass(dt, terms, q_dot, q_ddot, tau[2], xi)
+        return tau
+
+    def _read_mass(self, dt, terms, q_dot, q_ddot, force_z, xi) -> None:
+        """Eq. asc2 with the previous estimate; first-order low-pass, then bounds."""
+        total_prev = self.known_mass_kg + self.m2
+        # Row 3 of M q_ddot + C q_dot + G is m (g + z_ddot_com) for the previous estimate.
+        specific_force = (terms.regressor(q_dot, q_ddot)[2] @ xi) / total_prev
+        if specific_force <= 0.1 * self.g:
+            return  # near free fall the read-out is meaningless: keep the estimate
+        m2_read = force_z / specific_force - self.known_mass_kg
+        a = min(dt / self.mass_filter_s, 1.0)
+        m2 = self.m2 + a * (m2_read - self.m2)
+        self.m2 = min(max(m2, self.m2_bounds[0]), self.m2_bounds[1])

@@ -1,0 +1,377 @@
+"""On-line estimators of the link-2 parameters theta = (m2, m3, m4) (paper section III-A).
+
+Both estimators work on the regressor of :mod:`companion.model`,
+``Y(q, q_dot, q_dot, q_ddot) [m2, m3, m4, 1]^T = M q_ddot + C q_dot + G = tau``, restricted
+to the rows of q whose generalized force is known (in flight: the translational rows, from
+the thrust model and measured attitude, and the joint rows, from servo current).
+
+- :class:`PaperEstimator`: the paper's state observer (eq. estimator) and gradient update
+  (eq. update), integrated with forward Euler at the control period.
+- :class:`RlsEstimator`: recursive least squares with exponential forgetting on the same
+  regression ``tau - Y[:, 3] = Y[:, :3] theta`` (beyond the paper).
+
+Beyond the paper, both project onto physically consistent values after every step
+(:class:`ThetaBounds`), can be frozen (take-off, landing: tau is not what the model assumes
+while touching the ground), resumed and reset (payload released), and publish an
+:class:`Estimate` with an excitation measure and a confidence flag. Neither ever sees truth.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from companion.model import ModelTerms
+
+__all__ = [
+    "TRANSLATION_AND_JOINT_ROWS",
+    "Estimate",
+    "ExcitationMonitor",
+    "PaperEstimator",
+    "RlsEstimator",
+    "ThetaBounds",
+]
+
+FloatArray = NDArray[np.float64]
+
+ALL_ROWS = (0, 1, 2, 3, 4, 5, 6, 7)
+TRANSLATION_AND_JOINT_ROWS = (0, 1, 2, 6, 7)
+"""Rows of q with a known generalized force in flight (x, y, z, eta1, eta2)."""
+
+
+@dataclass(frozen=True)
+class ThetaBounds:
+    """Physically consistent set for theta = (m2 [kg], m3 [kg m], m4 [kg m^2]).
+
+    m2 in [m2_min_kg, m2_max_kg]; lc = m3/m2 in [0, l2]; m3^2/m2 <= m4 <= m2 l2^2 (a mass
+    distribution on [0, l2] of link 2). The set is convex; :meth:`project` clips in that
+    order, which always lands inside it.
+    """
+
+    m2_min_kg: float
+    m2_max_kg: float
+    link2_length_m: float
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.m2_min_kg < self.m2_max_kg:
+            raise ValueError("need 0 < m2_min_kg < m2_max_kg")
+        if self.link2_length_m <= 0.0:
+            raise ValueError("link2_length_m must be positive")
+
+    def project(self, theta: ArrayLike) -> FloatArray:
+        """The clipped copy of theta; raises FloatingPointError on NaN or infinity."""
+        m2, m3, m4 = (float(v) for v in theta)
+        if not (math.isfinite(m2) and math.isfinite(m3) and math.isfinite(m4)):
+            raise FloatingPointError(f"non-finite parameter estimate {(m2, m3, m4)}")
+        l2 = self.link2_length_m
+        m2 = min(max(m2, self.m2_min_kg), self.m2_max_kg)
+        m3 = min(max(m3, 0.0), m2 * l2)
+        m4 = min(max(m4, m3 * m3 / m2), m2 * l2 * l2)
+        return np.array((m2, m3, m4))
+
+    def contains(self, theta: ArrayLike, rel_tol: float = 1e-9) -> bool:
+        """True if theta lies in the set (with a relative tolerance for rounding)."""
+        m2, m3, m4 = theta
+        l2 = self.link2_length_m
+        tol = 1.0 + rel_tol
+        return bool(
+            self.m2_min_kg / tol <= m2 <= self.m2_max_kg * tol
+            and -rel_tol <= m3 <= m2 * l2 * tol
+            and m3 * m3 / m2 / tol <= m4 <= m2 * l2 * l2 * tol
+        )
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """What an estimator publishes each step."""
+
+    theta: FloatArray
+    """(m2 [kg], m3 [kg m], m4 [kg m^2])."""
+    excitation: float
+    """Smallest eigenvalue of the windowed, scaled information matrix (dimensionless);
+    near zero when the recent motion cannot distinguish the parameters."""
+    spread: float
+    """Windowed standard deviation of m2 relative to its mean (dimensionless)."""
+    confident: bool
+    """Excitation above its threshold, spread below its threshold, and not frozen."""
+    frozen: bool
+
+    @property
+    def m2_kg(self) -> float:
+        return float(self.theta[0])
+
+    @property
+    def lc_m(self) -> float:
+        """Centre of mass of link 2 with payload, from joint 2 [m]."""
+        return float(self.theta[1] / self.theta[0])
+
+
+class ExcitationMonitor:
+    """Excitation and settling of an estimate over an exponential window.
+
+    Information: ``I <- I + (dt/T)(S Y_theta^T W Y_theta S - I)`` with S = diag(scale) so the
+    three parameters weigh alike, W = diag(1/row_scale^2); excitation = lambda_min(I).
+    Spread: exponentially weighted standard deviation of m2 over the same window.
+
+    Parameters
+    ----------
+    window_s : float
+        Window time constant T [s].
+    theta_scale : array_like, shape (3,)
+        Typical magnitudes of (m2, m3, m4) (for example the bounds' maxima).
+    row_scale : array_like, shape (n_rows,)
+        Typical generalized-force magnitude of each used row (N or N m).
+    excitation_min, spread_max : float
+        Thresholds of the confidence flag.
+    eval_period_s : float
+        The smallest eigenvalue is recomputed at most this often (it changes on the scale of
+        the window; a 3x3 eigen-solve every control step costs more than the estimator).
+    """
+
+    def __init__(
+        self,
+        window_s: float,
+        theta_scale: ArrayLike,
+        row_scale: ArrayLike,
+        excitation_min: float,
+        spread_max: float,
+        eval_period_s: float = 0.05,
+    ) -> None:
+        self.window_s = window_s
+        self.eval_period_s = eval_period_s
+        self.weight = np.outer(1.0 / np.asarray(row_scale, dtype=float), theta_scale)
+        self.excitation_min = excitation_min
+        self.spread_max = spread_max
+        self.reset()
+
+    def reset(self) -> None:
+        self.info = np.zeros((3, 3))
+        self.mean: float | None = None
+        self.var = 0.0
+        self.excitation = 0.0
+        self._since_eval = float("inf")
+
+    def update(self, dt: float, y_theta: FloatArray, m2: float) -> tuple[float, float]:
+        """Add one step; returns (excitation, spread)."""
+        a = min(dt / self.window_s, 1.0)
+        scaled = y_theta * self.weight
+        self.info += a * (scaled.T @ scaled - self.info)
+        if self.mean is None:
+            self.mean = m2
+        else:
+            delta = m2 - self.mean
+            self.mean += a * delta
+            self.var = (1.0 - a) * (self.var + a * delta * delta)
+        self._since_eval += dt
+        if self._since_eval >= self.eval_period_s:
+            self.excitation = float(np.linalg.eigvalsh(self.info)[0])
+            self._since_eval = 0.0
+        return self.excitation, self.spread
+
+    @property
+    def spread(self) -> float:
+        if self.mean is None:
+            return float("inf")
+        return float(np.sqrt(self.var) / max(abs(self.mean), 1e-12))
+
+    def confident(self) -> bool:
+        return self.excitation >= self.excitation_min and self.spread <= self.spread_max
+
+
+class _Base(ABC):
+    """Shared policy: row selection, projection, freeze/resume/reset, publication."""
+
+    def __init__(
+        self,
+        theta0: ArrayLike,
+        bounds: ThetaBounds,
+        monitor: ExcitationMonitor,
+        rows: tuple[int, ...],
+    ) -> None:
+        if not rows or sorted(set(rows)) != list(rows) or rows[0] < 0 or rows[-1] > 7:
+            raise ValueError(f"rows must be increasing indices into q (0..7), got {rows}")
+        self.rows = np.asarray(rows)
+        self.bounds = bounds
+        self.monitor = monitor
+        self.frozen = False
+        self.theta = bounds.project(np.asarray(theta0, dtype=float))
+
+    def freeze(self) -> None:
+        """Hold theta (for example on the ground, where tau is not the model's)."""
+        self.frozen = True
+
+    def resume(self) -> None:
+        """Continue estimating from the held theta."""
+        self.frozen = False
+        self._restart()
+
+    def reset(self, theta: ArrayLike) -> None:
+        """Restart from theta (for example the empty-arm values after a release)."""
+        self.theta = self.bounds.project(np.asarray(theta, dtype=float))
+        self.monitor.reset()
+        self._restart()
+
+    @abstractmethod
+    def _restart(self) -> None:
+        """Reset internal states other than theta."""
+
+    def _publish(self, dt: float, y_theta: FloatArray) -> Estimate:
+        excitation, spread = self.monitor.update(dt, y_theta, float(self.theta[0]))
+        return Estimate(
+            theta=self.theta.copy(),
+            excitation=excitation,
+            spread=spread,
+            confident=(not self.frozen) and self.monitor.confident(),
+            frozen=self.frozen,
+        )
+
+    def update(
+        self,
+        dt: float,
+        terms: ModelTerms,
+        q: FloatArray,
+        q_dot: FloatArray,
+        q_ddot: FloatArray,
+        tau: FloatArray,
+    ) -> Estimate:
+        """Advance one control period.
+
+        Parameters
+        ----------
+        dt : float
+            Control period [s].
+        terms : ModelTerms
+            ``model.terms(q, q_dot)`` at this step (shared with the controller).
+        q, q_dot, q_ddot : ndarray, shape (8,)
+            Measured/filtered state and derivatives (m, rad and their rates).
+        tau : ndarray, shape (8,)
+            Generalized force actually applied; only ``rows`` are read.
+        """
+        y = terms.regressor(q_dot, q_ddot)[self.rows]
+        if not self.frozen:
+            self._step(dt, y, q[self.rows], q_dot[self.rows], tau[self.rows])
+        return self._publish(dt, y[:, :3])
+
+    @abstractmethod
+    def _step(self, dt, y, q, q_dot, tau) -> None:
+        """Update ``self.theta`` from the used rows of Y, q, q_dot and tau."""
+
+
+class PaperEstimator(_Base):
+    """The paper's estimator (eqs. estimator, update) on the selected rows.
+
+    Observer: ``C* qhat_dot = U - sum_i mhat_i Y_i + C* q_dot + K* (q - qhat)`` with
+    ``U = tau - Y_4`` (the known part), and update ``mhat_i_dot = gamma_i e^T Y_i``,
+    ``e = qhat - q``; forward Euler at the control period, then projection.
+
+    Parameters
+    ----------
+    gamma : array_like, shape (3,)
+        Learning rates of m2, m3, m4.
+    c_star, k_star : array_like, shape (8,)
+        Diagonals of C* and K* (only ``rows`` are used).
+    qhat_dot0 : array_like, shape (8,)
+        Initial qhat_dot. The observer is first order, so after the start qhat_dot is set by
+        the observer equation; qhat_dot0 is the rate of the first step from qhat = q, which
+        makes e != 0 when qhat_dot0 != q_dot (the paper's condition for estimation).
+    """
+
+    def __init__(
+        self,
+        theta0: ArrayLike,
+        bounds: ThetaBounds,
+        monitor: ExcitationMonitor,
+        gamma: ArrayLike,
+        c_star: ArrayLike,
+        k_star: ArrayLike,
+        qhat_dot0: ArrayLike,
+        rows: tuple[int, ...] = ALL_ROWS,
+    ) -> None:
+        super().__init__(theta0, bounds, monitor, rows)
+        self.gamma = np.asarray(gamma, dtype=float)
+        self.c_star = np.asarray(c_star, dtype=float)[self.rows]
+        self.k_star = np.asarray(k_star, dtype=float)[self.rows]
+        self.qhat_dot0 = np.asarray(qhat_dot0, dtype=float)[self.rows]
+        yaw = np.flatnonzero(self.rows == 5)
+        self.yaw = int(yaw[0]) if yaw.size else None
+        self.qhat: FloatArray | None = None
+
+    def _restart(self) -> None:
+        self.qhat = None
+
+    def _step(self, dt, y, q, q_dot, tau) -> None:
+        if self.qhat is None:
+            self.qhat = q + dt * self.qhat_dot0
+            return
+        e = self.qhat - q
+        if self.yaw is not None:
+            e[self.yaw] = (e[self.yaw] + math.pi) % (2.0 * math.pi) - math.pi
+        # theta first, with the error of this step (eq. update), then the observer.
+        self.theta = self.bounds.project(self.theta + dt * self.gamma * (e @ y[:, :3]))
+        rhs = tau - y[:, :3] @ self.theta - y[:, 3] + self.c_star * q_dot - self.k_star * e
+        self.qhat = q + e + dt * rhs / self.c_star
+
+
+class RlsEstimator(_Base):
+    """Recursive least squares with exponential forgetting on ``tau - Y_4 = Y_theta theta``.
+
+    Each step fuses the used rows as one vector measurement with per-row noise std
+    ``row_noise`` (N or N m):
+    ``K = P H^T (H P H^T + R / lambda)^-1``, ``theta += K (z - H theta)``,
+    ``P = (P - K H P) / lambda``, then projection. To avoid covariance wind-up while the
+    motion is not exciting, P is bounded by its initial value ``p0`` (trace-limited).
+
+    Parameters
+    ----------
+    forgetting : float
+        lambda in (0, 1]; memory about ``dt / (1 - lambda)`` seconds.
+    p0 : array_like, shape (3,)
+        Initial variances of (m2, m3, m4), also the cap on P's trace.
+    row_noise : array_like, shape (8,)
+        Noise std of each row's generalized-force residual.
+    """
+
+    def __init__(
+        self,
+        theta0: ArrayLike,
+        bounds: ThetaBounds,
+        monitor: ExcitationMonitor,
+        forgetting: float,
+        p0: ArrayLike,
+        row_noise: ArrayLike,
+        rows: tuple[int, ...] = ALL_ROWS,
+    ) -> None:
+        super().__init__(theta0, bounds, monitor, rows)
+        if not 0.0 < forgetting <= 1.0:
+            raise ValueError("forgetting must lie in (0, 1]")
+        self.forgetting = forgetting
+        self.p0 = np.diag(np.asarray(p0, dtype=float))
+        self.p_trace_max = float(np.trace(self.p0))
+        self.r = np.diag(np.asarray(row_noise, dtype=float)[self.rows] ** 2)
+        self.p = self.p0.copy()
+
+    def _restart(self) -> None:
+        self.p = self.p0.copy()
+
+    @property
+    def std(self) -> FloatArray:
+        """Standard deviations of (m2, m3, m4) from the covariance."""
+        return np.sqrt(np.diag(self.p))
+
+    def _step(self, dt, y, q, q_dot, tau) -> None:
+        h = y[:, :3]
+        z = tau - y[:, 3]
+        ph = self.p @ h.T
+        s = h @ ph + self.r / self.forgetting
+        gain = np.linalg.solve(s, ph.T).T
+        self.theta = self.bounds.project(self.theta + gain @ (z - h @ self.theta))
+        p = (self.p - gain @ ph.T) / self.forgetting
+        p = 0.5 * (p + p.T)
+        trace = np.trace(p)
+        if trace > self.p_trace_max:
+            p *= self.p_trace_max / trace
+        self.p = p

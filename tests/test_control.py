@@ -1,0 +1,170 @@
+"""companion.control, companion.setpoints and companion.trajectory."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from companion.config import load_scenario
+from companion.control import DesiredState, PassivityController, SlidingModeController
+from companion.model import ManipulatorModel
+from companion.setpoints import ThrustCurve, attitude_thrust_setpoint, tilt_from_force
+from companion.trajectory import PaperSinusoid, TiltReference
+
+CFG = load_scenario(Path(__file__).parent.parent / "configs" / "paper_sim.toml")
+MODEL = ManipulatorModel.from_scenario(CFG)
+TRUE = np.array(CFG.true_theta.as_tuple())
+NOMINAL = np.array(CFG.nominal_theta.as_tuple())
+
+
+def rot(phi, theta, psi):
+    cx, sx, cy, sy, cz, sz = (f(a) for a in (phi, theta, psi) for f in (math.cos, math.sin))
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    return rz @ ry @ rx
+
+
+def test_passivity_is_exact_inverse_dynamics_on_the_trajectory() -> None:
+    """At q = q_d, q_dot = q_d_dot with the true theta, the plant accelerates at q_d_ddot."""
+    traj = PaperSinusoid(CFG.trajectory)
+    ctl = PassivityController(CFG.controller.k, CFG.controller.lambda_)
+    for t in (0.3, 2.1, 7.7):
+        d = traj(t)
+        terms = MODEL.terms(d.q, d.q_dot)
+        tau = ctl.torque(terms, d.q, d.q_dot, d, TRUE)
+        m, c, g = terms.evaluate(TRUE)
+        np.testing.assert_allclose(np.linalg.solve(m, tau - c @ d.q_dot - g), d.q_ddot, atol=1e-9)
+
+
+def test_passivity_feedback_opposes_errors_and_wraps_yaw() -> None:
+    ctl = PassivityController(CFG.controller.k, CFG.controller.lambda_)
+    zero = np.zeros(8)
+    desired = DesiredState(
+        q=np.array([0, 0, 1, 0, 0, -math.pi + 0.01, 0, 0]), q_dot=zero, q_ddot=zero
+    )
+    q = desired.q.copy()
+    terms = MODEL.terms(q, zero)
+    base = ctl.torque(terms, q, zero, desired, TRUE)
+    q_off = q.copy()
+    q_off[0] += 0.1
+    assert ctl.torque(MODEL.terms(q_off, zero), q_off, zero, desired, TRUE)[0] < base[0]
+    q_wrap = q.copy()
+    q_wrap[5] = math.pi - 0.01  # 0.02 rad from the target across the +-pi seam
+    tau = ctl.torque(MODEL.terms(q_wrap, zero), q_wrap, zero, desired, TRUE)
+    k_lam = CFG.controller.k[5] * CFG.controller.lambda_[5]
+    assert abs(tau[5] - base[5]) < 0.05 * k_lam
+
+
+def test_nonadaptive_ignores_the_estimate() -> None:
+    ctl = PassivityController.nonadaptive(CFG.controller.k, CFG.controller.lambda_, NOMINAL)
+    d = PaperSinusoid(CFG.trajectory)(1.0)
+    terms = MODEL.terms(d.q, d.q_dot)
+    np.testing.assert_array_equal(
+        ctl.torque(terms, d.q, d.q_dot, d, TRUE), ctl.torque(terms, d.q, d.q_dot, d, NOMINAL)
+    )
+
+
+def smc() -> SlidingModeController:
+    return SlidingModeController(
+        k1=CFG.controller.k,
+        k2=np.full(8, 0.5),
+        lam=CFG.controller.lambda_,
+        boundary_layer=np.full(8, 0.05),
+        gamma_delta=np.full(8, 0.5),
+        known_mass_kg=CFG.vehicle.mass_kg + CFG.arm.link1.mass_kg,
+        gravity_m_s2=CFG.environment.gravity_m_s2,
+        nominal_lc_m=CFG.nominal_theta.lc_m,
+        m2_0=0.1,
+        m2_bounds_kg=(0.05, 2.0),
+        mass_filter_s=0.2,
+    )
+
+
+def test_sliding_mode_mass_readout_finds_the_hover_mass() -> None:
+    """Holding still, tau_3 equals the true weight: the read-out must converge to m2."""
+    ctl = smc()
+    q = np.array([0, 0, 1.0, 0, 0, 0, -math.pi / 2, 0])
+    zero = np.zeros(8)
+    desired = DesiredState(q=q, q_dot=zero, q_ddot=zero)
+    weight = MODEL.gravity(q, TRUE)
+    readout = smc()
+    for _ in range(2000):
+        ctl.torque(1e-3, MODEL.terms(q, zero), q, zero, zero, desired)
+        readout._read_mass(
+            1e-3, MODEL.terms(q, zero), zero, zero, weight[2], np.append(readout.theta, 1.0)
+        )
+    assert readout.m2 == pytest.approx(0.5, rel=1e-3)
+    assert 0.05 <= ctl.m2 <= 2.0
+
+
+def test_tilt_mapping_small_angle_matches_rotation() -> None:
+    """R(phi_d, theta_d, psi) e3 points along the desired force, to first order."""
+    for psi in (0.0, 0.7, -2.5):
+        force = np.array([0.4, -0.3, 15.0])
+        phi, theta, sat = tilt_from_force(force, psi, 0.6)
+        assert not sat
+        direction = rot(phi, theta, psi) @ np.array([0, 0, 1.0])
+        np.testing.assert_allclose(direction, force / force[2], atol=2e-3)
+
+
+def test_tilt_limit_keeps_direction() -> None:
+    phi, theta, sat = tilt_from_force(np.array([10.0, 10.0, 10.0]), 0.0, 0.3)
+    assert sat
+    assert math.hypot(phi, theta) == pytest.approx(0.3)
+    assert theta / -phi == pytest.approx(1.0)
+    assert tilt_from_force(np.array([1.0, 0.0, -5.0]), 0.0, 0.3) == (0.0, 0.0, True)
+
+
+@pytest.mark.parametrize("fac", [0.0, 0.3, 1.0])
+def test_thrust_curve_round_trip(fac: float) -> None:
+    curve = ThrustCurve(max_thrust_n=40.0, thr_mdl_fac=fac)
+    for u in np.linspace(0.0, 1.0, 11):
+        back, sat = curve.normalized(curve.thrust_n(u))
+        assert back == pytest.approx(u, abs=1e-12)
+        assert not sat
+    assert curve.normalized(50.0) == (1.0, True)
+    assert curve.normalized(-1.0) == (0.0, True)
+    assert curve.thrust_n(0.5) == pytest.approx(40.0 * (fac * 0.25 + (1 - fac) * 0.5))
+
+
+def test_attitude_thrust_setpoint_vertical_component_is_exact() -> None:
+    curve = ThrustCurve(max_thrust_n=40.0, thr_mdl_fac=0.3)
+    sp = attitude_thrust_setpoint(np.array([1.0, -0.5, 15.7]), 0.2, 0.1, 0.6, curve)
+    thrust_w = rot(sp.roll_rad, sp.pitch_rad, 0.2) @ np.array([0, 0, sp.thrust_n])
+    assert thrust_w[2] == pytest.approx(15.7)
+    assert sp.yaw_rad == 0.1
+    assert curve.thrust_n(sp.thrust_normalized) == pytest.approx(sp.thrust_n)
+
+
+def test_paper_trajectory_formula_and_derivatives() -> None:
+    traj = PaperSinusoid(CFG.trajectory)
+    t, h = 1.7, 1e-5
+    d = traj(t)
+    w = math.pi / 5
+    expected = [
+        0.5 * math.cos(w * t),
+        -0.5 * math.cos(w * t),
+        0.7,
+        0,
+        0,
+        0,
+        -math.pi / 2 + math.pi / 4 * math.sin(w * t),
+        math.pi / 8 * math.sin(w * t),
+    ]
+    np.testing.assert_allclose(d.q, expected, atol=1e-12)
+    np.testing.assert_allclose((traj(t + h).q - traj(t - h).q) / (2 * h), d.q_dot, atol=1e-8)
+    np.testing.assert_allclose(
+        (traj(t + h).q_dot - traj(t - h).q_dot) / (2 * h), d.q_ddot, atol=1e-8
+    )
+
+
+def test_tilt_reference_settles_and_rejects_too_high_bandwidth() -> None:
+    ref = TiltReference(20.0)
+    for _ in range(1000):
+        ref.step(1e-3, (0.1, -0.05))
+    assert ref.x == pytest.approx([0.1, -0.05], abs=1e-5)
+    assert ref.v == pytest.approx([0.0, 0.0], abs=1e-3)
+    with pytest.raises(ValueError, match="too high"):
+        TiltReference(600.0).step(1e-3, (0.0, 0.0))
