@@ -20,12 +20,15 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 __all__ = [
     "Arm",
+    "AttitudeControl",
     "ConfigError",
     "Controller",
     "Environment",
     "Estimator",
     "Link",
     "Payload",
+    "Plant",
+    "Rotors",
     "Scenario",
     "Simulation",
     "Theta",
@@ -72,6 +75,11 @@ Vec3 = Annotated[tuple[Real, ...], Field(min_length=3, max_length=3)]
 PositiveVec3 = Annotated[tuple[Positive, ...], Field(min_length=3, max_length=3)]
 VecQ = Annotated[tuple[Real, ...], Field(min_length=N_Q, max_length=N_Q)]
 PositiveVecQ = Annotated[tuple[Positive, ...], Field(min_length=N_Q, max_length=N_Q)]
+NonNegativeVec3 = Annotated[tuple[NonNegative, ...], Field(min_length=3, max_length=3)]
+Fraction = Annotated[float, Field(strict=True, ge=0.0, le=1.0, allow_inf_nan=False)]
+
+MIN_PLANT_RATE_HZ = 1000.0
+"""Lowest accepted integration rate of the SITL truth plant [Hz]."""
 
 
 class _Section(BaseModel):
@@ -85,6 +93,31 @@ class Environment(_Section):
     """Gravitational acceleration along -z of the ENU world frame [m/s^2]."""
 
 
+class Rotors(_Section):
+    """The six rotors of the hexacopter and their thrust model (what the companion believes).
+
+    Layout (fixed, as the AscTec Firefly): rotor i (i = 0..5) sits in the body x-y plane at
+    azimuth 30 deg + 60 deg * i, counter-clockwise from body x seen from above (FLU), at
+    ``arm_length_m`` from the vehicle CoM; rotor 0 spins counter-clockwise, then the spin
+    direction alternates. The truth plant (``sitl.physics``) scales the thrust by
+    ``plant.thrust_mismatch``.
+    """
+
+    arm_length_m: Positive
+    """Distance of each rotor axis from the vehicle CoM in the body x-y plane [m]."""
+    max_thrust_per_rotor_n: Positive
+    """Static thrust of one rotor at full command u = 1 [N]."""
+    thr_mdl_fac: Fraction
+    """Shape f of the static thrust curve rel_thrust = f u^2 + (1 - f) u, u the normalized
+    motor command in [0, 1] (PX4's THR_MDL_FAC model) [-]. The simulated PX4 does not
+    linearize it (PX4 with THR_MDL_FAC = 0), so PX4's normalized thrust setpoint maps to
+    thrust through this curve."""
+    motor_time_constant_s: Positive
+    """Time constant of the first-order lag from commanded to produced thrust [s]."""
+    yaw_moment_per_thrust_m: NonNegative
+    """Reaction (drag) moment about the rotor axis per unit thrust [N m / N = m]."""
+
+
 class Vehicle(_Section):
     """The hexacopter body without the arm."""
 
@@ -92,6 +125,7 @@ class Vehicle(_Section):
     """Mass m_b of the vehicle body [kg]."""
     inertia_kg_m2: PositiveVec3
     """Principal moments (Ixx, Iyy, Izz) about the body CoM, FLU axes [kg m^2]."""
+    rotors: Rotors
 
 
 class Link(_Section):
@@ -214,6 +248,54 @@ class Simulation(_Section):
     """Initial generalized coordinates q(0) (m, rad); q_dot(0) = 0."""
 
 
+class AttitudeControl(_Section):
+    """Gains of the PX4-like attitude and rate loops inside the SITL plant.
+
+    Vectors are (roll, pitch, yaw) about the body x, y, z axes. The rate loop outputs
+    torques normalized as in PX4's control allocation (see ``sitl.physics.rotors``).
+    """
+
+    attitude_p: PositiveVec3
+    """P gains on the quaternion attitude error (MC_ROLL_P, MC_PITCH_P, MC_YAW_P)
+    [rad/s per rad]."""
+    yaw_weight: Fraction
+    """De-prioritisation of yaw against roll and pitch (MC_YAW_WEIGHT) [-]."""
+    rate_max_rad_s: PositiveVec3
+    """Body-rate setpoint limits (MC_ROLLRATE_MAX, MC_PITCHRATE_MAX, MC_YAWRATE_MAX) [rad/s]."""
+    rate_p: NonNegativeVec3
+    """Rate P gains (MC_*RATE_P) [normalized torque per rad/s]."""
+    rate_i: NonNegativeVec3
+    """Rate I gains (MC_*RATE_I) [normalized torque per rad]."""
+    rate_d: NonNegativeVec3
+    """Rate D gains on the measured angular acceleration (MC_*RATE_D)
+    [normalized torque per rad/s^2]."""
+    rate_integrator_limit: NonNegativeVec3
+    """Limits of the rate integrators (MC_RR_INT_LIM, MC_PR_INT_LIM, MC_YR_INT_LIM)
+    [normalized torque]."""
+    rate_d_cutoff_hz: Positive
+    """Low-pass cutoff of the angular-acceleration estimate for the D term
+    (IMU_DGYRO_CUTOFF) [Hz]."""
+
+
+class Plant(_Section):
+    """The SITL truth plant: integration rate, truth-only effects and the PX4-like loops."""
+
+    rate_hz: Annotated[float, Field(strict=True, ge=MIN_PLANT_RATE_HZ, allow_inf_nan=False)]
+    """Fixed integration rate of the truth dynamics, at least 1000 [Hz]."""
+    integrator: Literal["semi_implicit_euler", "rk4"]
+    """Fixed-step scheme: ``semi_implicit_euler`` (one dynamics evaluation per step, first
+    order) or ``rk4`` (four, fourth order); see ``sitl.physics.integration``."""
+    thrust_mismatch: Positive
+    """True maximum rotor thrust over the believed ``vehicle.rotors.max_thrust_per_rotor_n``
+    (1 = the companion's thrust model is exact) [-]."""
+    linear_drag_n_s_m: NonNegativeVec3
+    """Diagonal D of the linear drag force -D v on the vehicle, v the world-frame (ENU)
+    velocity of the vehicle CoM [N s/m]; underactuated plant only."""
+    servo_torque_limit_n_m: Positive
+    """Magnitude limit of each joint torque the simulated servos can apply [N m]."""
+    attitude_control: AttitudeControl
+
+
 class Scenario(_Section):
     """A complete scenario: vehicle, arm, payload, gains, trajectory and initial estimates."""
 
@@ -227,6 +309,7 @@ class Scenario(_Section):
     controller: Controller
     trajectory: Trajectory
     simulation: Simulation
+    plant: Plant
 
     @property
     def nominal_theta(self) -> Theta:
@@ -369,4 +452,3 @@ def load_scenario(path: str | Path) -> Scenario:
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(str(p), "", f"invalid TOML: {exc}") from None
     return parse_scenario(data, str(p))
-
