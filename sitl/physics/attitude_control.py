@@ -1,0 +1,340 @@
+"""PX4-like attitude and rate control of the simulated hexacopter (in our ENU / FLU frames).
+
+The loop that PX4 closes on the vehicle when the companion streams SET_ATTITUDE_TARGET:
+
+1. :class:`AttitudeController` - PX4 ``AttitudeControl::update``: P control on the quaternion
+   error, with roll/pitch prioritized over yaw (the yaw part of the error is scaled by
+   MC_YAW_WEIGHT and the yaw gain divided by it), producing body-rate setpoints clipped to
+   MC_*RATE_MAX. No reference model, no yaw-rate feed-forward.
+2. :class:`RateController` - PX4 ``RateControl::update``: PID on the body rates, the D term
+   on the measured angular acceleration (finite difference of the rates through a first-order
+   low-pass at IMU_DGYRO_CUTOFF; PX4 uses a second-order one), integrators clipped to
+   MC_*_INT_LIM, with PX4's i-factor and its anti-windup from the mixer's saturation flags.
+   The vehicle is never "landed", so the integrators always run. No yaw-torque low-pass.
+3. :class:`~sitl.physics.rotors.SequentialDesaturationMixer` turns the normalized torques and
+   the collective thrust into motor commands.
+
+Both loops run at the plant rate. PX4 works in NED / FRD; the control laws are frame
+covariant, so running them on ENU / FLU quantities with the same per-axis gains gives the
+same physical behaviour. Quaternions are ``[w, x, y, z]``, body to world.
+
+References: PX4-Autopilot ``src/modules/mc_att_control/AttitudeControl/AttitudeControl.cpp``,
+``src/modules/mc_rate_control/RateControl/RateControl.cpp`` and their parameter files.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from companion.config import AttitudeControl as AttitudeControlConfig
+from sitl.physics.frames import quaternion_from_euler
+from sitl.physics.rotors import MixerOutput, SequentialDesaturationMixer
+
+__all__ = [
+    "AttitudeController",
+    "AttitudeSetpoint",
+    "ControllerOutput",
+    "Px4AttitudeLoop",
+    "RateController",
+]
+
+FloatArray = NDArray[np.float64]
+Quat = tuple[float, float, float, float]
+
+_I_FACTOR_RATE_RAD_S = math.radians(400.0)
+"""PX4: the I gain fades to zero as the rate error approaches 400 deg/s."""
+
+
+@dataclass(frozen=True)
+class AttitudeSetpoint:
+    """What the companion asks of the autopilot: an attitude and a collective thrust.
+
+    Attributes
+    ----------
+    quaternion_wxyz : ndarray, shape (4,)
+        Desired attitude, body (FLU) to world (ENU), ``[w, x, y, z]``; normalized on
+        construction.
+    thrust : float
+        Normalized collective thrust in [0, 1] (PX4's thrust setpoint; maps to newtons
+        through the rotors' thrust curve).
+
+    Raises
+    ------
+    ValueError
+        On a non-finite or zero quaternion or a thrust outside [0, 1].
+    """
+
+    quaternion_wxyz: FloatArray
+    thrust: float
+
+    def __post_init__(self) -> None:
+        q = np.array(self.quaternion_wxyz, dtype=np.float64).reshape(-1)
+        norm = float(np.linalg.norm(q)) if q.shape == (4,) else 0.0
+        if not math.isfinite(norm) or norm < 1e-9:
+            raise ValueError(f"quaternion_wxyz must be 4 finite values, not all zero: {q!r}")
+        q /= norm
+        q.flags.writeable = False
+        object.__setattr__(self, "quaternion_wxyz", q)
+        thrust = float(self.thrust)
+        if not 0.0 <= thrust <= 1.0:
+            raise ValueError(f"thrust must lie in [0, 1], got {self.thrust!r}")
+        object.__setattr__(self, "thrust", thrust)
+
+    @classmethod
+    def from_euler(cls, phi: float, theta: float, psi: float, thrust: float) -> AttitudeSetpoint:
+        """Setpoint from ZYX Euler angles [rad] (R = Rz(psi) Ry(theta) Rx(phi)) and thrust."""
+        return cls(quaternion_from_euler(phi, theta, psi), thrust)
+
+
+def _mul(a: Quat, b: Quat) -> Quat:
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+def _inv(q: Quat) -> Quat:
+    return (q[0], -q[1], -q[2], -q[3])
+
+
+def _canonical(q: Quat) -> Quat:
+    return q if q[0] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
+
+
+def _dcm_z(q: Quat) -> tuple[float, float, float]:
+    w, x, y, z = q
+    return (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y))
+
+
+def _between(src: tuple[float, float, float], dst: tuple[float, float, float]) -> Quat:
+    """Shortest rotation taking unit vector ``src`` to ``dst`` (PX4 Quaternion(src, dst))."""
+    sx, sy, sz = src
+    dx, dy, dz = dst
+    cr = (sy * dz - sz * dy, sz * dx - sx * dz, sx * dy - sy * dx)
+    dot = sx * dx + sy * dy + sz * dz
+    if math.sqrt(cr[0] ** 2 + cr[1] ** 2 + cr[2] ** 2) < 1e-5 and dot < 0.0:
+        a = (abs(sx), abs(sy), abs(sz))
+        if a[0] < a[1]:
+            axis = (1.0, 0.0, 0.0) if a[0] < a[2] else (0.0, 0.0, 1.0)
+        else:
+            axis = (0.0, 1.0, 0.0) if a[1] < a[2] else (0.0, 0.0, 1.0)
+        cr = (sy * axis[2] - sz * axis[1], sz * axis[0] - sx * axis[2], sx * axis[1] - sy * axis[0])
+        w = 0.0
+    else:
+        w = dot + math.sqrt((sx * sx + sy * sy + sz * sz) * (dx * dx + dy * dy + dz * dz))
+    n = math.sqrt(w * w + cr[0] ** 2 + cr[1] ** 2 + cr[2] ** 2)
+    return (w / n, cr[0] / n, cr[1] / n, cr[2] / n)
+
+
+class AttitudeController:
+    """PX4 attitude P controller: quaternion error to body-rate setpoint.
+
+    Parameters
+    ----------
+    attitude_p : array_like, shape (3,)
+        Roll, pitch, yaw P gains [rad/s per rad] (MC_ROLL_P, MC_PITCH_P, MC_YAW_P).
+    yaw_weight : float
+        MC_YAW_WEIGHT in [0, 1].
+    rate_max_rad_s : array_like, shape (3,)
+        Rate setpoint limits [rad/s].
+    """
+
+    def __init__(self, attitude_p: ArrayLike, yaw_weight: float, rate_max_rad_s: ArrayLike) -> None:
+        gains = [float(g) for g in attitude_p]
+        self.yaw_weight = min(max(float(yaw_weight), 0.0), 1.0)
+        if self.yaw_weight > 1e-4:
+            gains[2] /= self.yaw_weight
+        self._gains = tuple(gains)
+        self._rate_max = tuple(float(r) for r in rate_max_rad_s)
+
+    def rate_setpoint(
+        self, q_wxyz: ArrayLike, q_setpoint_wxyz: ArrayLike
+    ) -> tuple[float, float, float]:
+        """Body-rate setpoint (FLU) [rad/s] for attitude q and its setpoint (both wxyz)."""
+        q: Quat = tuple(float(c) for c in q_wxyz)  # type: ignore[assignment]
+        qd: Quat = tuple(float(c) for c in q_setpoint_wxyz)  # type: ignore[assignment]
+        qd_red = _between(_dcm_z(q), _dcm_z(qd))
+        if abs(qd_red[1]) > 1.0 - 1e-5 or abs(qd_red[2]) > 1.0 - 1e-5:
+            qd_red = qd
+        else:
+            qd_red = _mul(qd_red, q)
+        dyaw = _canonical(_mul(_inv(qd_red), qd))
+        w = min(max(dyaw[0], -1.0), 1.0)
+        z = min(max(dyaw[3], -1.0), 1.0)
+        yw = self.yaw_weight
+        qd = _mul(qd_red, (math.cos(yw * math.acos(w)), 0.0, 0.0, math.sin(yw * math.asin(z))))
+        qe = _canonical(_mul(_inv(q), qd))
+        out = [0.0, 0.0, 0.0]
+        for i in range(3):
+            r = 2.0 * qe[i + 1] * self._gains[i]
+            out[i] = min(max(r, -self._rate_max[i]), self._rate_max[i])
+        return (out[0], out[1], out[2])
+
+
+class RateController:
+    """PX4 body-rate PID producing normalized torques.
+
+    Parameters
+    ----------
+    rate_p, rate_i, rate_d : array_like, shape (3,)
+        Gains (MC_*RATE_P, _I, _D) [normalized torque per rad/s, per rad, per rad/s^2].
+    integrator_limit : array_like, shape (3,)
+        |integral| limits (MC_*_INT_LIM) [normalized torque].
+    d_cutoff_hz : float
+        Low-pass cutoff of the angular-acceleration estimate [Hz].
+    dt_s : float
+        Update period [s].
+    """
+
+    def __init__(
+        self,
+        rate_p: ArrayLike,
+        rate_i: ArrayLike,
+        rate_d: ArrayLike,
+        integrator_limit: ArrayLike,
+        d_cutoff_hz: float,
+        dt_s: float,
+    ) -> None:
+        self._p = [float(g) for g in rate_p]
+        self._i = [float(g) for g in rate_i]
+        self._d = [float(g) for g in rate_d]
+        self._limit = [float(g) for g in integrator_limit]
+        self._dt = float(dt_s)
+        self._alpha = 1.0 - math.exp(-2.0 * math.pi * d_cutoff_hz * self._dt)
+        self._integral = [0.0, 0.0, 0.0]
+        self._previous_rate = [0.0, 0.0, 0.0]
+        self._angular_accel = [0.0, 0.0, 0.0]
+
+    @property
+    def integral(self) -> FloatArray:
+        """Integrator states [normalized torque], shape (3,) (a new array)."""
+        return np.array(self._integral)
+
+    @property
+    def angular_acceleration_estimate(self) -> FloatArray:
+        """Filtered angular acceleration used by the D term [rad/s^2], shape (3,)."""
+        return np.array(self._angular_accel)
+
+    def reset(self, rate_rad_s: ArrayLike = (0.0, 0.0, 0.0)) -> None:
+        """Zero the integrators and the acceleration filter; start from body rate ``rate_rad_s``."""
+        self._integral = [0.0, 0.0, 0.0]
+        self._previous_rate = [float(r) for r in rate_rad_s]  # type: ignore[union-attr]
+        self._angular_accel = [0.0, 0.0, 0.0]
+
+    def update(
+        self,
+        rate_rad_s: tuple[float, float, float],
+        rate_setpoint_rad_s: tuple[float, float, float],
+        saturation_positive: tuple[bool, bool, bool],
+        saturation_negative: tuple[bool, bool, bool],
+    ) -> tuple[float, float, float]:
+        """One PID step; returns normalized torques (roll, pitch, yaw).
+
+        The saturation flags are the mixer's from the previous step (PX4 feeds back the
+        control allocator status the same way).
+        """
+        torque = [0.0, 0.0, 0.0]
+        for i in range(3):
+            rate = rate_rad_s[i]
+            accel = self._angular_accel[i]
+            accel += self._alpha * ((rate - self._previous_rate[i]) / self._dt - accel)
+            self._angular_accel[i] = accel
+            self._previous_rate[i] = rate
+            error = rate_setpoint_rad_s[i] - rate
+            torque[i] = self._p[i] * error + self._integral[i] - self._d[i] * accel
+            if saturation_positive[i]:
+                error = min(error, 0.0)
+            if saturation_negative[i]:
+                error = max(error, 0.0)
+            i_factor = max(0.0, 1.0 - (error / _I_FACTOR_RATE_RAD_S) ** 2)
+            integral = self._integral[i] + i_factor * self._i[i] * error * self._dt
+            self._integral[i] = min(max(integral, -self._limit[i]), self._limit[i])
+        return (torque[0], torque[1], torque[2])
+
+
+@dataclass(frozen=True)
+class ControllerOutput:
+    """Signals of one autopilot step (for logging; units in the names).
+
+    Attributes
+    ----------
+    motor_commands : list of 6 float
+        Normalized motor commands in [0, 1].
+    rate_setpoint_rad_s : tuple of 3 float
+        Body-rate setpoint (FLU) [rad/s].
+    torque_normalized : tuple of 3 float
+        Rate-controller output (roll, pitch, yaw) before allocation [-].
+    thrust_normalized : float
+        Collective thrust setpoint passed to the mixer [-].
+    """
+
+    motor_commands: list[float]
+    rate_setpoint_rad_s: tuple[float, float, float]
+    torque_normalized: tuple[float, float, float]
+    thrust_normalized: float
+
+
+@dataclass
+class Px4AttitudeLoop:
+    """Attitude P -> rate PID -> mixer, one :meth:`update` per plant step."""
+
+    attitude: AttitudeController
+    rate: RateController
+    mixer: SequentialDesaturationMixer
+    _last_mix: MixerOutput | None = field(default=None, repr=False)
+
+    @classmethod
+    def from_config(
+        cls, config: AttitudeControlConfig, mixer: SequentialDesaturationMixer, dt_s: float
+    ) -> Px4AttitudeLoop:
+        """Loop with the gains of a validated ``[plant.attitude_control]`` section."""
+        return cls(
+            attitude=AttitudeController(
+                config.attitude_p, config.yaw_weight, config.rate_max_rad_s
+            ),
+            rate=RateController(
+                config.rate_p,
+                config.rate_i,
+                config.rate_d,
+                config.rate_integrator_limit,
+                config.rate_d_cutoff_hz,
+                dt_s,
+            ),
+            mixer=mixer,
+        )
+
+    def reset(self, rate_rad_s: ArrayLike = (0.0, 0.0, 0.0)) -> None:
+        """Clear integrators, filters and the saturation feedback."""
+        self.rate.reset(rate_rad_s)
+        self._last_mix = None
+
+    def update(
+        self,
+        q_wxyz: tuple[float, float, float, float],
+        rate_rad_s: tuple[float, float, float],
+        setpoint: AttitudeSetpoint,
+    ) -> ControllerOutput:
+        """Motor commands for measured attitude ``q_wxyz`` and body rate ``rate_rad_s`` (FLU)."""
+        rate_sp = self.attitude.rate_setpoint(q_wxyz, setpoint.quaternion_wxyz)
+        if self._last_mix is None:
+            sat_pos = sat_neg = (False, False, False)
+        else:
+            sat_pos = self._last_mix.saturation_positive
+            sat_neg = self._last_mix.saturation_negative
+        torque = self.rate.update(rate_rad_s, rate_sp, sat_pos, sat_neg)
+        mixed = self.mixer.mix(torque, setpoint.thrust)
+        self._last_mix = mixed
+        return ControllerOutput(
+            motor_commands=mixed.commands,
+            rate_setpoint_rad_s=rate_sp,
+            torque_normalized=torque,
+            thrust_normalized=setpoint.thrust,
+        )

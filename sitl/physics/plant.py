@@ -1,0 +1,520 @@
+"""The SITL truth plant: hexacopter + 2-DOF arm + payload, integrated with Pinocchio.
+
+Two modes (DESIGN.md sections 2-4):
+
+``ideal``
+    The paper's simulation: a generalized force tau, conjugate to
+    q = [x, y, z, phi, theta, psi, eta1, eta2], acts on all 8 coordinates
+    (:meth:`TruthPlant.step_ideal`). No drag.
+``underactuated``
+    The vehicle as flown: a PX4-like attitude/rate loop tracks an
+    :class:`~sitl.physics.attitude_control.AttitudeSetpoint`, six lagged rotors with
+    PX4's thrust curve push the body, linear drag -D v acts on the vehicle CoM, and the
+    servos apply joint torques clipped to ``plant.servo_torque_limit_n_m``
+    (:meth:`TruthPlant.step`).
+
+Generalized forces. Pinocchio's free-flyer velocity is (v_B, omega_B), body axes, so with
+J = blockdiag(R^T, W(Phi), I2) mapping our q_dot to it, power balance gives
+tau_pin = J^-T tau: the world force becomes the body force R^T f_W, the Euler-angle
+generalized torques become the body torque W^-T tau_Phi (raises
+:class:`~sitl.physics.errors.EulerSingularityError` at theta = +-90 deg), the joint torques
+pass unchanged (see :mod:`sitl.physics.articulation` for the joint sign).
+
+Integration: fixed step at ``plant.rate_hz`` (>= 1 kHz) with ``plant.integrator``,
+semi-implicit Euler or RK4 on the configuration manifold (quaternion base), inputs held
+over the step; see :mod:`sitl.physics.integration` for the scheme and its energy
+behaviour (tested in tests/test_sitl_physics.py).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+import pinocchio as pin
+from numpy.typing import ArrayLike, NDArray
+
+from companion.config import Scenario, Theta
+from sitl.physics.articulation import ETA2_JOINT, build_articulation, theta_of
+from sitl.physics.attitude_control import AttitudeSetpoint, Px4AttitudeLoop
+from sitl.physics.errors import PlantDivergedError, PlantError, PlantModeError
+from sitl.physics.frames import (
+    euler_from_rotation9,
+    euler_rate_matrix,
+    euler_rate_matrix_dot_times,
+    euler_rate_matrix_inverse9,
+    quaternion_from_euler,
+    rotation9_from_quaternion,
+)
+from sitl.physics.integration import (
+    ArticulatedIntegrator,
+    BodyWrench,
+    DivergedError,
+    GeneralizedForce,
+)
+from sitl.physics.rotors import (
+    N_ROTORS,
+    RotorBank,
+    RotorGeometry,
+    SequentialDesaturationMixer,
+    inverse_thrust_curve,
+)
+from sitl.physics.state import ActuatorState, PlantState, frozen_array
+
+__all__ = ["PlantMode", "TruthPlant"]
+
+FloatArray = NDArray[np.float64]
+PlantMode = Literal["ideal", "underactuated"]
+N_Q = 8
+
+
+class TruthPlant:
+    """Truth dynamics of the aerial manipulator; see the module docstring.
+
+    Pure: no I/O, no clock, no randomness. Not thread-safe (it owns Pinocchio data).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Validated scenario (vehicle, arm, payload, rotors, plant sections).
+    mode : {"ideal", "underactuated"}
+        Which input the plant takes.
+    payload_attached : bool
+        Start with the payload grasped (the paper's simulation) or not.
+
+    Examples
+    --------
+    >>> scenario = load_scenario("configs/paper_sim.toml")
+    >>> plant = TruthPlant.from_scenario(scenario, payload_attached=True)
+    >>> state = plant.step_ideal(tau)            # one step of 1 / plant.rate_hz s
+    >>> state.q, state.q_dot, plant.true_theta   # q_ddot: truth, for tests only
+
+    >>> flyer = TruthPlant.from_scenario(scenario, "underactuated")
+    >>> flyer.step(AttitudeSetpoint.from_euler(0.0, 0.1, 0.0, 0.45), [0.0, 0.3])
+    >>> flyer.actuators.rotor_thrusts_n          # for logging
+    """
+
+    def __init__(
+        self, scenario: Scenario, mode: PlantMode = "ideal", *, payload_attached: bool = False
+    ) -> None:
+        if mode not in ("ideal", "underactuated"):
+            raise ValueError(f"mode must be 'ideal' or 'underactuated', got {mode!r}")
+        self.scenario = scenario
+        self.mode: PlantMode = mode
+        self.rate_hz = float(scenario.plant.rate_hz)
+        self.dt_s = 1.0 / self.rate_hz
+        self.gravity_m_s2 = scenario.environment.gravity_m_s2
+
+        art = build_articulation(scenario)
+        self._model = art.model
+        self._integrator = ArticulatedIntegrator(self._model, self.dt_s, scenario.plant.integrator)
+        self._link2_empty = art.link2_empty
+        self._payload = art.payload
+        self._payload_attached = False
+
+        rotors = scenario.vehicle.rotors
+        self._geometry = RotorGeometry.hexa_x(rotors.arm_length_m, rotors.yaw_moment_per_thrust_m)
+        self._rotor_wrench = self._geometry.wrench_matrix()[:3].tolist()
+        self._rotors = RotorBank(
+            rotors.max_thrust_per_rotor_n * scenario.plant.thrust_mismatch,
+            rotors.thr_mdl_fac,
+            rotors.motor_time_constant_s,
+            self.dt_s,
+        )
+        mixer = SequentialDesaturationMixer(self._geometry, rotors.max_thrust_per_rotor_n)
+        self._autopilot = Px4AttitudeLoop.from_config(
+            scenario.plant.attitude_control, mixer, self.dt_s
+        )
+        self._drag: tuple[float, float, float] = tuple(  # type: ignore[assignment]
+            float(d) for d in scenario.plant.linear_drag_n_s_m
+        )
+        self._servo_limit = scenario.plant.servo_torque_limit_n_m
+        self._actuators: ActuatorState | None = None
+        self._actuator_signals: tuple = ()
+
+        self._x = pin.neutral(self._model).tolist()
+        self._u = [0.0] * N_Q
+        self._qdd = [0.0] * N_Q
+        self._euler = (0.0, 0.0, 0.0)
+        self._state_cache: PlantState | None = None
+        self._steps = 0
+        self._t0 = 0.0
+        if payload_attached:
+            self._set_payload(True)
+        self.reset(scenario.simulation.initial_q)
+
+    @classmethod
+    def from_scenario(
+        cls, scenario: Scenario, mode: PlantMode = "ideal", *, payload_attached: bool = False
+    ) -> TruthPlant:
+        """Plant of a validated scenario, at rest at ``simulation.initial_q``."""
+        return cls(scenario, mode, payload_attached=payload_attached)
+
+    # ------------------------------------------------------------------ state
+
+    def reset(
+        self,
+        q: ArrayLike,
+        q_dot: ArrayLike | None = None,
+        *,
+        time_s: float = 0.0,
+        rotor_thrusts_n: ArrayLike | None = None,
+    ) -> PlantState:
+        """Put the plant in state (q, q_dot) at ``time_s``; returns the state.
+
+        Parameters
+        ----------
+        q : array_like, shape (8,)
+            Generalized coordinates [m, rad] (DESIGN.md section 2).
+        q_dot : array_like, shape (8,), optional
+            Their rates [m/s, rad/s]; zero by default.
+        time_s : float
+            Simulation time of this state [s].
+        rotor_thrusts_n : array_like, shape (6,), optional
+            Underactuated mode: the rotors' produced thrusts [N]; by default each carries
+            1/6 of the total weight (hover trim). Ignored in ideal mode.
+
+        The autopilot's integrators and filters are cleared; the payload stays as it is.
+
+        Raises
+        ------
+        ValueError
+            On wrong shapes or non-finite values.
+        EulerSingularityError
+            At theta = +-90 deg.
+        """
+        q_arr = np.array(_vector(q, "q"))
+        qd_arr = np.zeros(N_Q) if q_dot is None else np.array(_vector(q_dot, "q_dot"))
+        phi, theta, psi = (float(a) for a in q_arr[3:6])
+        w, x, y, z = quaternion_from_euler(phi, theta, psi).tolist()
+        self._x = [*q_arr[0:3].tolist(), x, y, z, w, *q_arr[6:8].tolist()]
+        omega = euler_rate_matrix(phi, theta) @ qd_arr[3:6]
+        self._u = [*qd_arr[0:3].tolist(), *omega.tolist(), *qd_arr[6:8].tolist()]
+        self._euler = (phi, theta, psi)
+        self._qdd = [0.0] * N_Q
+        self._steps = 0
+        self._t0 = float(time_s)
+        self._update_kinematics()
+        if self.mode == "underactuated":
+            if rotor_thrusts_n is None:
+                each = self.total_mass_kg * self.gravity_m_s2 / N_ROTORS
+                thrusts = np.full(N_ROTORS, min(each, self._rotors.max_thrust_n))
+            else:
+                thrusts = np.asarray(rotor_thrusts_n, dtype=np.float64)
+            self._rotors.reset(thrusts)
+            self._autopilot.reset(self._omega)
+            commands = inverse_thrust_curve(
+                np.clip(thrusts / self._rotors.max_thrust_n, 0.0, 1.0), self._rotors.thr_mdl_fac
+            )
+            self._actuator_signals = (commands, thrusts, (0.0, 0.0), (0.0,) * 3, (0.0,) * 3)
+            self._actuators = None
+        return self.state
+
+    @property
+    def time_s(self) -> float:
+        """Simulation time [s] (``reset`` time + steps * dt, no accumulated rounding)."""
+        return self._t0 + self._steps * self.dt_s
+
+    @property
+    def state(self) -> PlantState:
+        """The current truth state (frozen; built once per step, on first access)."""
+        if self._state_cache is None:
+            flat = np.array(
+                self._q_ours
+                + self._qd_ours
+                + self._qdd
+                + list(self._quat)
+                + list(self._R9)
+                + list(self._omega)
+            )
+            flat.flags.writeable = False
+            self._state_cache = PlantState(
+                time_s=self.time_s,
+                q=flat[0:8],
+                q_dot=flat[8:16],
+                q_ddot=flat[16:24],
+                quaternion_wxyz=flat[24:28],
+                rotation_world_body=flat[28:37].reshape(3, 3),
+                omega_body_rad_s=flat[37:40],
+                payload_attached=self._payload_attached,
+            )
+        return self._state_cache
+
+    @property
+    def actuators(self) -> ActuatorState:
+        """Actuator signals of the last step (underactuated mode only).
+
+        Raises
+        ------
+        PlantModeError
+            In ideal mode, which has no actuators.
+        """
+        if self.mode != "underactuated":
+            raise PlantModeError("actuator signals exist only in underactuated mode")
+        if self._actuators is None:
+            commands, thrusts, joint, rate_sp, torque = self._actuator_signals
+            self._actuators = ActuatorState(
+                motor_commands=frozen_array(commands),
+                rotor_thrusts_n=frozen_array(thrusts),
+                joint_torques_n_m=frozen_array(joint),
+                rate_setpoint_rad_s=frozen_array(rate_sp),
+                torque_normalized=frozen_array(torque),
+            )
+        return self._actuators
+
+    @property
+    def rotor_thrusts_n(self) -> FloatArray:
+        """Thrust each rotor produces now [N], shape (6,) (zeros in ideal mode)."""
+        if self.mode != "underactuated":
+            return np.zeros(N_ROTORS)
+        return self._rotors.thrusts_n
+
+    # ---------------------------------------------------------------- payload
+
+    @property
+    def payload_attached(self) -> bool:
+        """Whether link 2 currently carries the payload."""
+        return self._payload_attached
+
+    def attach_payload(self) -> None:
+        """Grasp the payload: link 2's inertia becomes empty link 2 + payload.
+
+        The payload is taken to be at rest in the world when grasped (an inelastic
+        capture): the generalized momentum M(q) v is conserved, so v changes unless the
+        gripper was at rest. Raises :class:`PlantError` if it is already attached.
+        """
+        if self._payload_attached:
+            raise PlantError("payload is already attached")
+        q, v = self._integrator.pinocchio_state(self._x, self._u)
+        momentum = self._mass_matrix(q) @ v
+        self._set_payload(True)
+        v = np.linalg.solve(self._mass_matrix(q), momentum).tolist()
+        r = self._R9
+        self._u = [
+            r[0] * v[0] + r[1] * v[1] + r[2] * v[2],
+            r[3] * v[0] + r[4] * v[1] + r[5] * v[2],
+            r[6] * v[0] + r[7] * v[1] + r[8] * v[2],
+            *v[3:8],
+        ]
+        self._update_kinematics()
+
+    def detach_payload(self) -> None:
+        """Release the payload: link 2 goes back to its empty inertia; velocities unchanged.
+
+        Raises :class:`PlantError` if no payload is attached.
+        """
+        if not self._payload_attached:
+            raise PlantError("no payload is attached")
+        self._set_payload(False)
+
+    @property
+    def true_theta(self) -> Theta:
+        """(m2, m3, m4) of link 2 as it is now (with the payload if attached)."""
+        return theta_of(self._model.inertias[ETA2_JOINT])
+
+    @property
+    def total_mass_kg(self) -> float:
+        """Mass of vehicle + arm (+ payload if attached) [kg]."""
+        return float(sum(self._model.inertias[j].mass for j in range(1, self._model.njoints)))
+
+    def _set_payload(self, attached: bool) -> None:
+        inertia = self._link2_empty + self._payload if attached else self._link2_empty
+        self._model.inertias[ETA2_JOINT] = inertia
+        self._integrator.set_model(self._model)
+        self._payload_attached = attached
+        self._state_cache = None
+
+    # ----------------------------------------------------------------- energy
+
+    @property
+    def kinetic_energy_j(self) -> float:
+        """Kinetic energy 1/2 v^T M v, armature included [J]."""
+        q, v = self._integrator.pinocchio_state(self._x, self._u)
+        return 0.5 * float(v @ self._mass_matrix(q) @ v)
+
+    @property
+    def potential_energy_j(self) -> float:
+        """Gravitational potential energy, zero at world z = 0 [J]."""
+        q = np.array(self._x)
+        return float(pin.computePotentialEnergy(self._model, self._model.createData(), q))
+
+    def _mass_matrix(self, q: FloatArray) -> FloatArray:
+        m = pin.crba(self._model, self._model.createData(), q)
+        return np.triu(m) + np.triu(m, 1).T
+
+    # ------------------------------------------------------------------ steps
+
+    def acceleration(self, tau: ArrayLike) -> FloatArray:
+        """q_ddot at the current state under generalized force tau (conjugate to q); no step.
+
+        Pure rigid-body dynamics (no drag, no actuators), valid in both modes:
+        M(q) q_ddot + C q_dot + G = tau.
+        """
+        force = GeneralizedForce(_vector(tau, "tau"))
+        try:
+            k = self._integrator.accelerations(self._x, self._u, force, self._R9)
+        except DivergedError:
+            raise PlantDivergedError(self.time_s) from None
+        return np.array(self._to_q_ddot(k))
+
+    def step_ideal(self, tau: ArrayLike) -> PlantState:
+        """Advance one step under generalized force tau (ideal mode); returns the new state.
+
+        Parameters
+        ----------
+        tau : array_like, shape (8,)
+            [world force on the vehicle (N, ENU), generalized forces conjugate to
+            (phi, theta, psi) (N m), joint torques (N m)] (DESIGN.md section 2).
+
+        Raises
+        ------
+        PlantModeError
+            In underactuated mode.
+        EulerSingularityError
+            At theta = +-90 deg.
+        PlantDivergedError
+            If the state became non-finite.
+        """
+        if self.mode != "ideal":
+            raise PlantModeError("step_ideal() needs mode='ideal'; use step() instead")
+        self._advance(GeneralizedForce(_vector(tau, "tau")))
+        return self.state
+
+    def step(self, setpoint: AttitudeSetpoint, joint_torques_n_m: ArrayLike) -> PlantState:
+        """Advance one step under an attitude/thrust setpoint and joint torques (underactuated).
+
+        Parameters
+        ----------
+        setpoint : AttitudeSetpoint
+            Attitude (ENU/FLU quaternion) and normalized collective thrust for the
+            PX4-like loop.
+        joint_torques_n_m : array_like, shape (2,)
+            Servo torque commands [N m], clipped to +-``plant.servo_torque_limit_n_m``.
+
+        The autopilot runs once per step on the true attitude and body rate; the rotors
+        push with the thrust their lag state has at the start of the step, which then
+        moves toward the new commands.
+
+        Raises
+        ------
+        PlantModeError
+            In ideal mode.
+        ValueError
+            On joint torques that are not 2 finite values.
+        EulerSingularityError
+            If the vehicle reaches theta = +-90 deg (q cannot be reported).
+        PlantDivergedError
+            If the state became non-finite.
+        """
+        if self.mode != "underactuated":
+            raise PlantModeError("step() needs mode='underactuated'; use step_ideal() instead")
+        joint_arr = np.asarray(joint_torques_n_m, dtype=np.float64)
+        if joint_arr.shape != (2,) or not math.isfinite(float(joint_arr.sum())):
+            raise ValueError(
+                f"joint_torques_n_m must be 2 finite values, got {joint_torques_n_m!r}"
+            )
+        lim = self._servo_limit
+        joint = [min(max(j, -lim), lim) for j in joint_arr.tolist()]
+        out = self._autopilot.update(self._quat, self._omega, setpoint)
+        thrusts = self._rotors.thrust_list_n
+        w = self._rotor_wrench
+        torque = (
+            sum(a * t for a, t in zip(w[0], thrusts, strict=True)),
+            sum(a * t for a, t in zip(w[1], thrusts, strict=True)),
+            sum(a * t for a, t in zip(w[2], thrusts, strict=True)),
+        )
+        self._advance(BodyWrench(sum(thrusts), torque, self._drag, (joint[0], joint[1])))
+        self._rotors.advance(out.motor_commands)
+        self._actuator_signals = (
+            out.motor_commands,
+            thrusts,
+            joint,
+            out.rate_setpoint_rad_s,
+            out.torque_normalized,
+        )
+        self._actuators = None
+        return self.state
+
+    # -------------------------------------------------------------- internals
+    # The per-step path works on Python floats (lists, tuples): on 3-vectors that is several
+    # times faster than numpy. Row-major 9-tuples hold R and W^-1.
+
+    def _advance(self, force: GeneralizedForce | BodyWrench) -> None:
+        """One integration step under ``force``; records the step's q_ddot."""
+        try:
+            x, u, k1 = self._integrator.step(self._x, self._u, force, self._R9)
+        except DivergedError:
+            raise PlantDivergedError(self.time_s) from None
+        self._qdd = self._to_q_ddot(k1)
+        self._x, self._u = x, u
+        self._steps += 1
+        self._update_kinematics()
+
+    def _update_kinematics(self) -> None:
+        """Renormalize the quaternion and cache R, Euler angles, W^-1 and our q, q_dot."""
+        x, u = self._x, self._u
+        if not math.isfinite(sum(x) + sum(u)):
+            raise PlantDivergedError(self.time_s)
+        px, py, pz, qx, qy, qz, qw, e1, e2 = x
+        n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+        if qw < 0.0:
+            n = -n
+        qx, qy, qz, qw = qx / n, qy / n, qz / n, qw / n
+        x[3:7] = (qx, qy, qz, qw)
+        self._quat = (qw, qx, qy, qz)
+        r = rotation9_from_quaternion(qw, qx, qy, qz)
+        self._R9 = r
+        self._euler = euler_from_rotation9(r, self._euler)
+        phi, theta, psi = self._euler
+        wi = euler_rate_matrix_inverse9(phi, theta)
+        self._w_inv9 = wi
+        ox, oy, oz = u[3], u[4], u[5]
+        self._omega = (ox, oy, oz)
+        self._q_ours = [px, py, pz, phi, theta, psi, e1, e2]
+        self._qd_ours = [
+            u[0],
+            u[1],
+            u[2],
+            ox + wi[1] * oy + wi[2] * oz,
+            wi[4] * oy + wi[5] * oz,
+            wi[7] * oy + wi[8] * oz,
+            u[6],
+            u[7],
+        ]
+        self._state_cache = None
+
+    def _to_q_ddot(self, k: list[float]) -> list[float]:
+        """Our q_ddot from du/dt = (p_ddot, omega_dot, eta_ddot) at the cached state.
+
+        Phi_ddot = W^-1 (omega_dot - W_dot Phi_dot).
+        """
+        wi = self._w_inv9
+        phi, theta, _ = self._euler
+        ed = self._qd_ours
+        c0, c1, c2 = euler_rate_matrix_dot_times(phi, theta, ed[3], ed[4], ed[5])
+        d0, d1, d2 = k[3] - c0, k[4] - c1, k[5] - c2
+        return [
+            k[0],
+            k[1],
+            k[2],
+            d0 + wi[1] * d1 + wi[2] * d2,
+            wi[4] * d1 + wi[5] * d2,
+            wi[7] * d1 + wi[8] * d2,
+            k[6],
+            k[7],
+        ]
+
+
+def _vector(values: ArrayLike, name: str) -> list[float]:
+    """An (8,) input as a list of floats (cheap on the per-step path)."""
+    if isinstance(values, np.ndarray) and values.shape == (N_Q,) and values.dtype == np.float64:
+        out = values.tolist()
+    else:
+        arr = np.asarray(values, dtype=np.float64)
+        if arr.shape != (N_Q,):
+            raise ValueError(f"{name} must have shape ({N_Q},), got {arr.shape}")
+        out = arr.tolist()
+    if not math.isfinite(sum(out)):
+        raise ValueError(f"{name} must be finite, got {values!r}")
+    return out

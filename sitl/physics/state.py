@@ -1,0 +1,82 @@
+"""Frozen outputs of the truth plant: the rigid-body state and the actuator signals."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["ActuatorState", "PlantState", "frozen_array"]
+
+FloatArray = NDArray[np.float64]
+
+
+def frozen_array(values: ArrayLike) -> FloatArray:
+    """A read-only float64 copy of ``values``."""
+    arr = np.array(values, dtype=np.float64)
+    arr.flags.writeable = False
+    return arr
+
+
+@dataclass(frozen=True)
+class PlantState:
+    """Truth state of the plant at one instant (arrays are read-only).
+
+    Attributes
+    ----------
+    time_s : float
+        Simulation time [s].
+    q : ndarray, shape (8,)
+        [x, y, z] vehicle CoM in the world (ENU) [m], [phi, theta, psi] ZYX Euler angles
+        [rad] (phi and psi unwrapped: continuous, not wrapped to +-pi), [eta1, eta2] [rad].
+    q_dot : ndarray, shape (8,)
+        Time derivative of q: world velocity [m/s], Euler rates and joint rates [rad/s].
+    q_ddot : ndarray, shape (8,)
+        Acceleration of the step that led here: evaluated at the previous state (time_s -
+        dt) under the input held over that step [m/s^2, rad/s^2]. Zero after a reset.
+        Truth for tests only - never hand it to an estimator.
+    quaternion_wxyz : ndarray, shape (4,)
+        Attitude, body (FLU) to world (ENU), ``[w, x, y, z]``.
+    rotation_world_body : ndarray, shape (3, 3)
+        R = Rz(psi) Ry(theta) Rx(phi), body to world.
+    omega_body_rad_s : ndarray, shape (3,)
+        Angular velocity of the body in body (FLU) axes [rad/s].
+    payload_attached : bool
+        Whether the payload is part of link 2.
+    """
+
+    time_s: float
+    q: FloatArray
+    q_dot: FloatArray
+    q_ddot: FloatArray
+    quaternion_wxyz: FloatArray
+    rotation_world_body: FloatArray
+    omega_body_rad_s: FloatArray
+    payload_attached: bool
+
+
+@dataclass(frozen=True)
+class ActuatorState:
+    """Actuator signals of the last underactuated step (for logging; arrays read-only).
+
+    Attributes
+    ----------
+    motor_commands : ndarray, shape (6,)
+        Normalized motor commands in [0, 1] from the mixer.
+    rotor_thrusts_n : ndarray, shape (6,)
+        Thrust of each rotor applied over the step [N] (rotor order: see
+        :mod:`sitl.physics.rotors`).
+    joint_torques_n_m : ndarray, shape (2,)
+        Joint torques applied after the servo limit [N m].
+    rate_setpoint_rad_s : ndarray, shape (3,)
+        Body-rate setpoint of the attitude loop (FLU) [rad/s].
+    torque_normalized : ndarray, shape (3,)
+        Rate-controller output (roll, pitch, yaw) [-].
+    """
+
+    motor_commands: FloatArray
+    rotor_thrusts_n: FloatArray
+    joint_torques_n_m: FloatArray
+    rate_setpoint_rad_s: FloatArray
+    torque_normalized: FloatArray
