@@ -29,6 +29,7 @@ from sitl.physics.errors import EulerSingularityError
 __all__ = [
     "COS_THETA_MIN",
     "Rot9",
+    "euler_accelerations",
     "euler_from_rotation",
     "euler_from_rotation9",
     "euler_rate_matrix",
@@ -189,3 +190,21 @@ def euler_rate_matrix_dot_times(
         -sf * phi_dot * theta_dot + (cf * ct * phi_dot - sf * st * theta_dot) * psi_dot,
         -cf * phi_dot * theta_dot - (sf * ct * phi_dot + cf * st * theta_dot) * psi_dot,
     )
+
+
+def euler_accelerations(
+    phi: float,
+    theta: float,
+    euler_dot: list[float],
+    omega_dot: list[float],
+    w_inv9: Rot9,
+) -> tuple[float, float, float]:
+    """Phi_ddot = W^-1 (omega_dot - W_dot Phi_dot), from body angular acceleration [rad/s^2].
+
+    ``w_inv9`` is :func:`euler_rate_matrix_inverse9` (phi, theta), passed in because the
+    caller already has it.
+    """
+    c0, c1, c2 = euler_rate_matrix_dot_times(phi, theta, *euler_dot)
+    d0, d1, d2 = omega_dot[0] - c0, omega_dot[1] - c1, omega_dot[2] - c2
+    wi = w_inv9
+    return (d0 + wi[1] * d1 + wi[2] * d2, wi[4] * d1 + wi[5] * d2, wi[7] * d1 + wi[8] * d2)

@@ -40,9 +40,9 @@ from sitl.physics.articulation import ETA2_JOINT, build_articulation, theta_of
 from sitl.physics.attitude_control import AttitudeSetpoint, Px4AttitudeLoop
 from sitl.physics.errors import PlantDivergedError, PlantError, PlantModeError
 from sitl.physics.frames import (
+    euler_accelerations,
     euler_from_rotation9,
     euler_rate_matrix,
-    euler_rate_matrix_dot_times,
     euler_rate_matrix_inverse9,
     quaternion_from_euler,
     rotation9_from_quaternion,
@@ -485,25 +485,10 @@ class TruthPlant:
         self._state_cache = None
 
     def _to_q_ddot(self, k: list[float]) -> list[float]:
-        """Our q_ddot from du/dt = (p_ddot, omega_dot, eta_ddot) at the cached state.
-
-        Phi_ddot = W^-1 (omega_dot - W_dot Phi_dot).
-        """
-        wi = self._w_inv9
+        """Our q_ddot from du/dt = (p_ddot, omega_dot, eta_ddot) at the cached state."""
         phi, theta, _ = self._euler
-        ed = self._qd_ours
-        c0, c1, c2 = euler_rate_matrix_dot_times(phi, theta, ed[3], ed[4], ed[5])
-        d0, d1, d2 = k[3] - c0, k[4] - c1, k[5] - c2
-        return [
-            k[0],
-            k[1],
-            k[2],
-            d0 + wi[1] * d1 + wi[2] * d2,
-            wi[4] * d1 + wi[5] * d2,
-            wi[7] * d1 + wi[8] * d2,
-            k[6],
-            k[7],
-        ]
+        euler_ddot = euler_accelerations(phi, theta, self._qd_ours[3:6], k[3:6], self._w_inv9)
+        return [k[0], k[1], k[2], *euler_ddot, k[6], k[7]]
 
 
 def _vector(values: ArrayLike, name: str) -> list[float]:
