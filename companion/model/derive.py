@@ -125,6 +125,8 @@ _C_TEMPLATE = """\
  * coefficients of xi = [m2, m3, m4, 1]. Piece k holds 8 rows [M_k[i, 0:8] | C_k[i, 0:8] |
  * G_k[i]] (see companion/model/layout.py).
  * potential(q, p, out): fills out (float64[4]) with the potential energy pieces.
+ * combine(pieces, xi, out) and regress(pieces, qr_dot, qr_ddot, out) are the two products
+ * the controller needs on those pieces (hand-written, not generated).
  * q, qd: float64[8]; p: float64[{n_params}] = {param_names}.
  */
 #define PY_SSIZE_T_CLEAN
@@ -180,9 +182,55 @@ static PyObject *py_potential(PyObject *self, PyObject *args)
     return result;
 }}
 
+/* combine(pieces, xi, out): out[j] = sum_k xi[k] pieces[k][j]  (M, C, G rows for one theta) */
+static PyObject *py_combine(PyObject *self, PyObject *args)
+{{
+    Py_buffer pieces, xi, out;
+    PyObject *result = NULL;
+    if (!PyArg_ParseTuple(args, "y*y*w*", &pieces, &xi, &out)) return NULL;
+    if (check(&pieces, 4 * {piece_size}, "pieces") && check(&xi, 4, "xi")
+        && check(&out, {piece_size}, "out")) {{
+        const double *p = (const double *)pieces.buf, *w = (const double *)xi.buf;
+        double *o = (double *)out.buf;
+        for (int j = 0; j < {piece_size}; ++j)
+            o[j] = w[0] * p[j] + w[1] * p[{piece_size} + j] + w[2] * p[2 * {piece_size} + j]
+                   + w[3] * p[3 * {piece_size} + j];
+        result = Py_NewRef(Py_None);
+    }}
+    PyBuffer_Release(&pieces); PyBuffer_Release(&xi); PyBuffer_Release(&out);
+    return result;
+}}
+
+/* regress(pieces, qr_dot, qr_ddot, out): out[k][i] = M_k[i] qr_ddot + C_k[i] qr_dot + G_k[i],
+ * that is Y^T (4 x 8) */
+static PyObject *py_regress(PyObject *self, PyObject *args)
+{{
+    Py_buffer pieces, qrd, qrdd, out;
+    PyObject *result = NULL;
+    if (!PyArg_ParseTuple(args, "y*y*y*w*", &pieces, &qrd, &qrdd, &out)) return NULL;
+    if (check(&pieces, 4 * {piece_size}, "pieces") && check(&qrd, 8, "qr_dot")
+        && check(&qrdd, 8, "qr_ddot") && check(&out, 32, "out")) {{
+        const double *p = (const double *)pieces.buf;
+        const double *v = (const double *)qrd.buf, *a = (const double *)qrdd.buf;
+        double *o = (double *)out.buf;
+        for (int r = 0; r < 32; ++r, p += 17) {{
+            double acc = p[16];
+            for (int j = 0; j < 8; ++j) acc += p[j] * a[j] + p[8 + j] * v[j];
+            o[r] = acc;
+        }}
+        result = Py_NewRef(Py_None);
+    }}
+    PyBuffer_Release(&pieces); PyBuffer_Release(&qrd); PyBuffer_Release(&qrdd);
+    PyBuffer_Release(&out);
+    return result;
+}}
+
 static PyMethodDef methods[] = {{
     {{"mcg", py_mcg, METH_VARARGS, "mcg(q, qd, p, out): stacked M, C, G pieces into out."}},
     {{"potential", py_potential, METH_VARARGS, "potential(q, p, out): V pieces into out."}},
+    {{"combine", py_combine, METH_VARARGS, "combine(pieces, xi, out): xi @ pieces into out."}},
+    {{"regress", py_regress, METH_VARARGS,
+      "regress(pieces, qr_dot, qr_ddot, out): Y^T (4 x 8) into out."}},
     {{NULL, NULL, 0, NULL}}
 }};
 
@@ -229,6 +277,7 @@ def generate() -> str:
             flat.append(gravity_parts[i][k])
     return _C_TEMPLATE.format(
         mcg_size=len(flat),
+        piece_size=len(flat) // 4,
         n_params=len(params),
         param_names=", ".join(PARAM_NAMES),
         mcg_body=_c_body([("q", q), ("qd", qd), ("p", params)], flat),

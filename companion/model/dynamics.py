@@ -111,7 +111,10 @@ class ModelTerms:
 
     def evaluate(self, theta: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
         """(M, C, G) for theta = (m2, m3, m4), shapes (8, 8), (8, 8), (8,)."""
-        rows = (np.dot(theta, self.pieces[:3]) + self.pieces[3]).reshape(N_Q, ROW)
+        m2, m3, m4 = (float(v) for v in theta)
+        out = np.empty(N_Q * ROW)
+        _mcg.combine(self.pieces, np.array((m2, m3, m4, 1.0)), out)
+        rows = out.reshape(N_Q, ROW)
         return rows[:, :N_Q], rows[:, N_Q : 2 * N_Q], rows[:, 2 * N_Q]
 
     def mass_matrix(self, theta: ArrayLike) -> FloatArray:
@@ -132,11 +135,9 @@ class ModelTerms:
         Columns multiply [m2, m3, m4, 1]; with qr = q this is also the estimator's
         M_i q_ddot + C_i q_dot + G_i (eqs. estimator, update).
         """
-        w = np.concatenate((qr_ddot, qr_dot, _ONE))
-        return np.dot(self.pieces.reshape(N_XI * N_Q, ROW), w).reshape(N_XI, N_Q).T
-
-
-_ONE = np.ones(1)
+        out = np.empty((N_XI, N_Q))
+        _mcg.regress(self.pieces, _vector(qr_dot, "qr_dot"), _vector(qr_ddot, "qr_ddot"), out)
+        return out.T
 
 
 class ManipulatorModel:
