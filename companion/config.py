@@ -21,6 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 __all__ = [
     "Arm",
     "AttitudeControl",
+    "Confidence",
     "ConfigError",
     "Controller",
     "Environment",
@@ -28,9 +29,12 @@ __all__ = [
     "Link",
     "Payload",
     "Plant",
+    "Rls",
     "Rotors",
     "Scenario",
+    "Sensors",
     "Simulation",
+    "SlidingMode",
     "Theta",
     "Trajectory",
     "Vehicle",
@@ -198,6 +202,28 @@ class Theta(_Section):
         return (self.m2_kg, self.m3_kg_m, self.m4_kg_m2)
 
 
+class Confidence(_Section):
+    """When an estimate is published as confident (companion.estimation.ExcitationMonitor)."""
+
+    window_s: Positive
+    """Time constant of the exponential window [s]."""
+    excitation_min: Positive
+    """Smallest eigenvalue of the scaled information matrix to call the motion exciting [-]."""
+    spread_max: Positive
+    """Largest windowed std of m2 relative to its mean [-]."""
+
+
+class Rls(_Section):
+    """Recursive least squares with forgetting (companion.estimation.RlsEstimator)."""
+
+    forgetting: Annotated[float, Field(strict=True, gt=0.0, le=1.0, allow_inf_nan=False)]
+    """Forgetting factor per control step, in (0, 1] [-]."""
+    initial_std: PositiveVec3
+    """Initial standard deviation of (m2 [kg], m3 [kg m], m4 [kg m^2])."""
+    row_noise: PositiveVecQ
+    """Noise std of each row's generalized-force residual (N on x, y, z; N m otherwise)."""
+
+
 class Estimator(_Section):
     """Gains and initial values of the paper's on-line estimator (eqs. estimator, update)."""
 
@@ -211,6 +237,34 @@ class Estimator(_Section):
     """Initial estimates (m2, m3, m4)."""
     initial_qhat_dot: VecQ
     """Initial estimated velocity qhat_dot(0) in the units of q_dot (m/s, rad/s)."""
+    kind: Literal["paper", "rls"]
+    """Default estimator: the paper's (``paper``) or recursive least squares (``rls``)."""
+    rows: Annotated[
+        tuple[Annotated[int, Field(strict=True, ge=0, le=N_Q - 1)], ...],
+        Field(min_length=1, max_length=N_Q),
+    ]
+    """Rows of q whose generalized force is known, increasing (flight: [0, 1, 2, 6, 7])."""
+    m2_bounds_kg: Annotated[tuple[Positive, ...], Field(min_length=2, max_length=2)]
+    """Projection bounds [min, max] of m2 [kg]."""
+    confidence: Confidence
+    rls: Rls
+
+
+class SlidingMode(_Section):
+    """Adaptive sliding-mode baseline (eqs. asc1, asc2); the paper gives no gains."""
+
+    k1: PositiveVecQ
+    """Diagonal of K1 (N s/m, N m s/rad)."""
+    k2: PositiveVecQ
+    """Diagonal of K2, the switching gain (N, N m)."""
+    lambda_: PositiveVecQ = Field(alias="lambda")
+    """Diagonal of Lambda of the sliding surface [1/s]."""
+    boundary_layer: PositiveVecQ
+    """Width phi of sat(s / phi) replacing sgn(s) (m/s, rad/s)."""
+    gamma_delta: PositiveVecQ
+    """Adaptation rate of Deltahat (N per m/s s, ...)."""
+    mass_filter_s: Positive
+    """Time constant of the low-pass on the eq. asc2 mass read-out [s]."""
 
 
 class Controller(_Section):
@@ -220,6 +274,11 @@ class Controller(_Section):
     """Diagonal of k (N s/m on positions, N m s/rad on angles and joints)."""
     lambda_: PositiveVecQ = Field(alias="lambda")
     """Diagonal of Lambda [1/s]."""
+    tilt_max_rad: Annotated[float, Field(strict=True, gt=0.0, lt=1.2, allow_inf_nan=False)]
+    """Limit of the commanded tilt of the small-angle mapping (eq. phid) [rad]."""
+    tilt_reference_bandwidth_rad_s: Positive
+    """Natural frequency of the filter that smooths roll/pitch commands [rad/s]."""
+    sliding_mode: SlidingMode
 
 
 class Trajectory(_Section):
@@ -246,6 +305,36 @@ class Simulation(_Section):
     duration_s: Positive
     initial_q: VecQ
     """Initial generalized coordinates q(0) (m, rad); q_dot(0) = 0."""
+    control_rate_hz: Positive
+    """Rate of the companion's control step (a divisor of plant.rate_hz) [Hz]."""
+    payload_attached_at_start: bool
+    """Start with the payload grasped (the paper's scenario)."""
+
+
+class Sensors(_Section):
+    """Measurements the companion gets in noisy runs, and its state filter.
+
+    In noise-free runs q and q_dot are measured exactly at the control rate and only the
+    filter's tuning (``jerk_psd``) is used.
+    """
+
+    pose_rate_hz: Positive
+    """Motion-capture rate of position and attitude [Hz]."""
+    position_std_m: NonNegative
+    attitude_std_rad: NonNegative
+    pose_latency_s: NonNegative
+    gyro_rate_hz: Positive
+    """Body-rate (IMU gyro) rate [Hz]."""
+    gyro_std_rad_s: NonNegative
+    joint_rate_hz: Positive
+    """Servo position read-back rate [Hz]."""
+    joint_std_rad: NonNegative
+    joint_velocity_unit_rad_s: Positive
+    """Resolution of the servo's velocity read-back (XM430: 0.229 rev/min) [rad/s]."""
+    joint_torque_std_n_m: NonNegative
+    """Noise of the joint torque read back from servo present current [N m]."""
+    jerk_psd: PositiveVecQ
+    """Process noise of the constant-acceleration state filter per row (m^2/s^5, rad^2/s^5)."""
 
 
 class AttitudeControl(_Section):
@@ -309,6 +398,7 @@ class Scenario(_Section):
     controller: Controller
     trajectory: Trajectory
     simulation: Simulation
+    sensors: Sensors
     plant: Plant
 
     @property
@@ -407,6 +497,26 @@ def _check_physics(cfg: Scenario, path: str) -> None:
             f"{cfg.payload.position_m:g} m lies beyond link 2 (length {l2:g} m)",
         )
     check_theta(cfg.estimator.initial_theta, l2, path, "estimator.initial_theta")
+    est = cfg.estimator
+    if list(est.rows) != sorted(set(est.rows)):
+        raise ConfigError(path, "estimator.rows", f"must be increasing and unique, got {est.rows}")
+    low, high = est.m2_bounds_kg
+    if not low < high:
+        raise ConfigError(path, "estimator.m2_bounds_kg", f"need min < max, got {est.m2_bounds_kg}")
+    if not low <= est.initial_theta.m2_kg <= high:
+        raise ConfigError(
+            path,
+            "estimator.initial_theta.m2_kg",
+            f"{est.initial_theta.m2_kg:g} kg lies outside m2_bounds_kg {est.m2_bounds_kg}",
+        )
+    ratio = cfg.plant.rate_hz / cfg.simulation.control_rate_hz
+    if ratio < 1.0 - 1e-9 or abs(ratio - round(ratio)) > 1e-9:
+        raise ConfigError(
+            path,
+            "simulation.control_rate_hz",
+            f"{cfg.simulation.control_rate_hz:g} Hz must divide plant.rate_hz "
+            f"({cfg.plant.rate_hz:g} Hz) into a whole number of plant steps",
+        )
 
 
 def parse_scenario(data: dict, path: str = "<string>") -> Scenario:

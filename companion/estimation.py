@@ -127,9 +127,10 @@ class ExcitationMonitor:
         Typical generalized-force magnitude of each used row (N or N m).
     excitation_min, spread_max : float
         Thresholds of the confidence flag.
-    eval_period_s : float
-        The smallest eigenvalue is recomputed at most this often (it changes on the scale of
-        the window; a 3x3 eigen-solve every control step costs more than the estimator).
+    sample_period_s : float
+        The window is sampled at most this often, and the smallest eigenvalue recomputed
+        at most every 5 samples: both change on the scale of the window, and doing them
+        every control step costs more than the estimator itself.
     """
 
     def __init__(
@@ -139,10 +140,10 @@ class ExcitationMonitor:
         row_scale: ArrayLike,
         excitation_min: float,
         spread_max: float,
-        eval_period_s: float = 0.05,
+        sample_period_s: float = 0.01,
     ) -> None:
         self.window_s = window_s
-        self.eval_period_s = eval_period_s
+        self.sample_period_s = sample_period_s
         self.weight = np.outer(1.0 / np.asarray(row_scale, dtype=float), theta_scale)
         self.excitation_min = excitation_min
         self.spread_max = spread_max
@@ -153,11 +154,18 @@ class ExcitationMonitor:
         self.mean: float | None = None
         self.var = 0.0
         self.excitation = 0.0
-        self._since_eval = float("inf")
+        self._since_sample = float("inf")
+        self._samples = 0
 
     def update(self, dt: float, y_theta: FloatArray, m2: float) -> tuple[float, float]:
-        """Add one step; returns (excitation, spread)."""
-        a = min(dt / self.window_s, 1.0)
+        """Add one step (sampled at most every ``sample_period_s``); returns (excitation,
+        spread)."""
+        self._since_sample += dt
+        if self._since_sample < self.sample_period_s:
+            return self.excitation, self.spread
+        elapsed = dt if math.isinf(self._since_sample) else self._since_sample
+        self._since_sample = 0.0
+        a = min(elapsed / self.window_s, 1.0)
         scaled = y_theta * self.weight
         self.info += a * (scaled.T @ scaled - self.info)
         if self.mean is None:
@@ -166,10 +174,9 @@ class ExcitationMonitor:
             delta = m2 - self.mean
             self.mean += a * delta
             self.var = (1.0 - a) * (self.var + a * delta * delta)
-        self._since_eval += dt
-        if self._since_eval >= self.eval_period_s:
+        self._samples += 1
+        if self._samples % 5 == 0:
             self.excitation = float(np.linalg.eigvalsh(self.info)[0])
-            self._since_eval = 0.0
         return self.excitation, self.spread
 
     @property
@@ -198,6 +205,7 @@ class _Base(ABC):
         self.bounds = bounds
         self.monitor = monitor
         self.frozen = False
+        self.skipped_steps = 0
         self.theta = bounds.project(np.asarray(theta0, dtype=float))
 
     def freeze(self) -> None:
@@ -249,11 +257,17 @@ class _Base(ABC):
         q, q_dot, q_ddot : ndarray, shape (8,)
             Measured/filtered state and derivatives (m, rad and their rates).
         tau : ndarray, shape (8,)
-            Generalized force actually applied; only ``rows`` are read.
+            Generalized force actually applied; only ``rows`` are read. A step whose used
+            rows are not all finite (no force known yet, a corrupt read-back) is skipped:
+            theta is held and the step is counted in :attr:`skipped_steps`.
         """
         y = terms.regressor(q_dot, q_ddot)[self.rows]
+        tau_rows = tau[self.rows]
         if not self.frozen:
-            self._step(dt, y, q[self.rows], q_dot[self.rows], tau[self.rows])
+            if np.isfinite(tau_rows).all() and np.isfinite(y).all():
+                self._step(dt, y, q[self.rows], q_dot[self.rows], tau_rows)
+            else:
+                self.skipped_steps += 1
         return self._publish(dt, y[:, :3])
 
     @abstractmethod

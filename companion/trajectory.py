@@ -50,15 +50,21 @@ class PaperSinusoid:
 
 
 class TiltReference:
-    """Critically damped second-order filter per axis: raw (phi_d, theta_d) -> smooth
+    """Critically damped third-order filter per axis: raw (phi_d, theta_d) -> smooth
     angle, rate and acceleration [rad, rad/s, rad/s^2].
 
-    ``a = w^2 (raw - x) - 2 w v``, integrated with semi-implicit Euler at the caller's dt.
+    ``jerk = w^3 (raw - x) - 3 w^2 v - 3 w a`` (triple pole at -w), integrated with
+    semi-implicit Euler at the caller's dt. Third order, not second: the raw command comes
+    from the controller's own force, and the feedforward ``Mhat qd_ddot`` feeds the
+    reference acceleration back into that force through the translation-attitude coupling
+    of M. With a second-order filter the acceleration jumps with the command (gain w^2)
+    and that loop oscillates at the control rate; through the jerk its one-step gain is
+    only w^3 dt.
 
     Parameters
     ----------
     bandwidth_rad_s : float
-        Natural frequency w; must stay well below the control rate (w dt < 0.5).
+        Pole w; must stay well below the control rate (w dt < 0.2).
     """
 
     def __init__(self, bandwidth_rad_s: float) -> None:
@@ -75,10 +81,12 @@ class TiltReference:
     def step(self, dt: float, raw: tuple[float, float]) -> None:
         """Advance by dt [s] toward the raw command (roll, pitch) [rad]."""
         w = self.w
-        if w * dt >= 0.5:
+        if w * dt >= 0.2:
             raise ValueError(f"tilt reference bandwidth {w} rad/s too high for dt = {dt} s")
+        w2, w3 = w * w, w * w * w
         for i in (0, 1):
-            self.a[i] = w * w * (raw[i] - self.x[i]) - 2.0 * w * self.v[i]
+            jerk = w3 * (raw[i] - self.x[i]) - 3.0 * w2 * self.v[i] - 3.0 * w * self.a[i]
+            self.a[i] += dt * jerk
             self.v[i] += dt * self.a[i]
             self.x[i] += dt * self.v[i]
 

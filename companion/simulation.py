@@ -1,0 +1,408 @@
+"""Offline closed-loop simulation: the companion's math against the SITL truth plant.
+
+One loop, two sides. The truth side (``sitl.physics.TruthPlant`` at ``plant.rate_hz``,
+``sitl.sensors`` for noisy measurements) shares no code with ``companion.model``. The
+companion side sees only measurements and its own commands: it filters them
+(:class:`companion.state.StateAssembler`), estimates theta, runs the controller and maps
+the force to setpoints, every ``1 / simulation.control_rate_hz`` seconds.
+
+Plants: ``ideal`` applies the controller's tau on all 8 coordinates (the paper's
+simulation); ``underactuated`` sends attitude + normalized thrust to the PX4-like loop and
+torques to the servos, and the estimator then uses only the rows with a known force
+(x, y, z from the commanded thrust and the measured attitude; joints from the servo torque
+read-back).
+
+Gripper events (pick-up, release) are commands of the companion, so it may act on them:
+on a release the estimator restarts from the empty-arm values, on a pick-up it restarts
+its confidence (and RLS covariance) from its current estimate.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from companion.config import Scenario
+from companion.control import PassivityController, SlidingModeController
+from companion.estimation import (
+    TRANSLATION_AND_JOINT_ROWS,
+    ExcitationMonitor,
+    PaperEstimator,
+    RlsEstimator,
+    ThetaBounds,
+)
+from companion.model import ManipulatorModel
+from companion.setpoints import ThrustCurve, attitude_thrust_setpoint, tilt_from_force
+from companion.state import StateAssembler, thrust_force_world
+from companion.trajectory import PaperSinusoid, TiltReference
+from sitl.physics import AttitudeSetpoint, TruthPlant
+from sitl.sensors import GyroSensor, JointEncoders, PoseSensor
+
+__all__ = ["COLUMNS", "SimOptions", "SimResult", "make_estimator", "simulate"]
+
+ControllerName = Literal["passivity", "nonadaptive", "asmc"]
+EstimatorName = Literal["paper", "rls"]
+PlantName = Literal["ideal", "underactuated"]
+
+_Q = ("x", "y", "z", "phi", "theta", "psi", "eta1", "eta2")
+COLUMNS: tuple[str, ...] = (
+    "t_s",
+    *(f"q_{n}" for n in _Q),
+    *(f"qd_{n}" for n in _Q),
+    *(f"qfilt_{n}" for n in _Q),
+    *(f"qhat_{n}" for n in _Q),
+    *("m2_hat", "m3_hat", "m4_hat", "lc_hat", "excitation", "confident"),
+    *("m2_true", "m3_true", "m4_true", "lc_true", "payload_attached"),
+    *(f"tau_{n}" for n in _Q),
+    *("sp_roll_rad", "sp_pitch_rad", "sp_yaw_rad", "sp_thrust_n", "sp_thrust_norm"),
+    "step_time_us",
+)
+"""Time-series columns: truth q, desired q_d, filtered q, the paper observer's qhat (NaN
+for unused rows or other estimators), estimates, truth theta, tau, setpoint, step cost."""
+_COL = {name: i for i, name in enumerate(COLUMNS)}
+
+
+@dataclass(frozen=True)
+class SimOptions:
+    """What to run; ``None`` fields take the scenario's values."""
+
+    controller: ControllerName = "passivity"
+    estimator: EstimatorName | None = None
+    plant: PlantName = "ideal"
+    duration_s: float | None = None
+    seed: int = 0
+    noise: bool = False
+    pickup_at_s: float | None = None
+    release_at_s: float | None = None
+
+
+@dataclass
+class SimResult:
+    """Per-control-step records (``data[:, COLUMNS.index(name)]``) and the summary."""
+
+    options: SimOptions
+    data: np.ndarray
+    summary: dict = field(default_factory=dict)
+
+    def column(self, name: str) -> np.ndarray:
+        return self.data[:, _COL[name]]
+
+
+def make_estimator(scenario: Scenario, kind: EstimatorName, rows: tuple[int, ...]):
+    """The configured estimator on ``rows``."""
+    est = scenario.estimator
+    bounds = ThetaBounds(est.m2_bounds_kg[0], est.m2_bounds_kg[1], scenario.arm.link2.length_m)
+    m2_max, l2 = est.m2_bounds_kg[1], scenario.arm.link2.length_m
+    monitor = ExcitationMonitor(
+        window_s=est.confidence.window_s,
+        theta_scale=(m2_max, m2_max * l2, m2_max * l2 * l2),
+        row_scale=np.asarray(est.rls.row_noise)[list(rows)] * 10.0,
+        excitation_min=est.confidence.excitation_min,
+        spread_max=est.confidence.spread_max,
+    )
+    theta0 = est.initial_theta.as_tuple()
+    if kind == "paper":
+        return PaperEstimator(
+            theta0, bounds, monitor, est.gamma, est.c_star, est.k_star, est.initial_qhat_dot, rows
+        )
+    return RlsEstimator(
+        theta0,
+        bounds,
+        monitor,
+        forgetting=est.rls.forgetting,
+        p0=np.square(est.rls.initial_std),
+        row_noise=est.rls.row_noise,
+        rows=rows,
+    )
+
+
+def _sliding_mode(scenario: Scenario) -> SlidingModeController:
+    sm = scenario.controller.sliding_mode
+    return SlidingModeController(
+        k1=sm.k1,
+        k2=sm.k2,
+        lam=sm.lambda_,
+        boundary_layer=sm.boundary_layer,
+        gamma_delta=sm.gamma_delta,
+        known_mass_kg=scenario.vehicle.mass_kg + scenario.arm.link1.mass_kg,
+        gravity_m_s2=scenario.environment.gravity_m_s2,
+        nominal_lc_m=scenario.nominal_theta.lc_m,
+        m2_0=scenario.estimator.initial_theta.m2_kg,
+        m2_bounds_kg=tuple(scenario.estimator.m2_bounds_kg),
+        mass_filter_s=sm.mass_filter_s,
+    )
+
+
+class _Measurements:
+    """Truth -> what the companion receives this control step (noisy or exact)."""
+
+    def __init__(self, scenario: Scenario, noise: bool, rng: np.random.Generator) -> None:
+        s = scenario.sensors
+        self.noise = noise
+        self.rng = rng
+        self.torque_std = s.joint_torque_std_n_m if noise else 0.0
+        if not noise:
+            self.assembler = StateAssembler.noise_free(s.jerk_psd)
+            return
+        # Encoder quantisation (4096 ticks/rev) acts as uniform noise of step/sqrt(12).
+        joint_std = max(s.joint_std_rad, 2.0 * math.pi / 4096 / math.sqrt(12.0))
+        self.assembler = StateAssembler(
+            s.jerk_psd,
+            position_std=[s.position_std_m] * 3 + [s.attitude_std_rad] * 3 + [joint_std] * 2,
+            velocity_std=[1.0] * 3
+            + [s.gyro_std_rad_s] * 3
+            + [s.joint_velocity_unit_rad_s / math.sqrt(12.0)] * 2,
+        )
+        if noise:
+            self.pose = PoseSensor(
+                rng,
+                position_std_m=s.position_std_m,
+                attitude_std_rad=s.attitude_std_rad,
+                rate_hz=s.pose_rate_hz,
+                latency_s=s.pose_latency_s,
+            )
+            self.gyro = GyroSensor(rng, rate_std_rad_s=s.gyro_std_rad_s, rate_hz=s.gyro_rate_hz)
+            self.joints = JointEncoders(rng, angle_std_rad=s.joint_std_rad, rate_hz=s.joint_rate_hz)
+            # Servo Present Velocity: the same delayed, quantised sampler on the joint rates,
+            # in units of the XM430's 0.229 rev/min (2 pi / 262 rad/s).
+            self.joint_rates = JointEncoders(
+                rng,
+                angle_std_rad=0.0,
+                ticks_per_rev=round(2.0 * math.pi / s.joint_velocity_unit_rad_s),
+                rate_hz=s.joint_rate_hz,
+            )
+
+    def feed(self, t: float, state, dt: float | None) -> None:
+        a = self.assembler
+        if dt is not None:
+            a.predict(dt)
+        if not self.noise:
+            a.exact(state.q, state.q_dot)
+            return
+        pose = self.pose.sample(t, state.q)
+        if pose is not None:
+            a.pose(pose.position_m, pose.euler_rad, t - pose.stamp_s)
+        joints = self.joints.sample(t, state.q[6:8])
+        if joints is not None:
+            a.joints(joints.eta_rad, t - joints.stamp_s)
+        rates = self.joint_rates.sample(t, state.q_dot[6:8])
+        if rates is not None:
+            a.joint_rates(rates.eta_rad, t - rates.stamp_s)
+        gyro = self.gyro.sample(t, state.omega_body_rad_s)
+        if gyro is not None:
+            a.body_rates(gyro.omega_body_rad_s, t - gyro.stamp_s)
+
+    def joint_torques(self, applied_n_m: np.ndarray) -> np.ndarray:
+        """Servo torque read-back (present current x torque constant), with noise."""
+        if self.torque_std == 0.0:
+            return applied_n_m
+        return applied_n_m + self.rng.normal(0.0, self.torque_std, 2)
+
+
+def simulate(
+    scenario: Scenario,
+    options: SimOptions = SimOptions(),
+    progress: Callable[[float], None] | None = None,
+) -> SimResult:
+    """Run one closed-loop simulation; see the module docstring.
+
+    Parameters
+    ----------
+    progress : callable, optional
+        Called about every simulated second with the simulated time [s].
+    """
+    opts = options
+    duration = opts.duration_s if opts.duration_s is not None else scenario.simulation.duration_s
+    kind = opts.estimator or scenario.estimator.kind
+    rows = tuple(scenario.estimator.rows)
+    if opts.plant == "underactuated":
+        rows = tuple(r for r in rows if r in TRANSLATION_AND_JOINT_ROWS)
+    if not rows:
+        raise ValueError("no estimator row has a known generalized force on this plant")
+
+    rng = np.random.default_rng(opts.seed)
+    plant = TruthPlant.from_scenario(
+        scenario, opts.plant, payload_attached=scenario.simulation.payload_attached_at_start
+    )
+    model = ManipulatorModel.from_scenario(scenario)
+    estimator = make_estimator(scenario, kind, rows)
+    ctl = scenario.controller
+    if opts.controller == "asmc":
+        smc, passivity = _sliding_mode(scenario), None
+    elif opts.controller == "nonadaptive":
+        passivity = PassivityController.nonadaptive(
+            ctl.k, ctl.lambda_, scenario.nominal_theta.as_tuple()
+        )
+        smc = None
+    else:
+        passivity, smc = PassivityController(ctl.k, ctl.lambda_), None
+    traj = PaperSinusoid(scenario.trajectory)
+    tilt = TiltReference(ctl.tilt_reference_bandwidth_rad_s)
+    rotors = scenario.vehicle.rotors
+    curve = ThrustCurve(6 * rotors.max_thrust_per_rotor_n, rotors.thr_mdl_fac)
+    sensing = _Measurements(scenario, opts.noise, rng)
+    nominal = scenario.nominal_theta.as_tuple()
+
+    sub = round(plant.rate_hz / scenario.simulation.control_rate_hz)
+    dt_c = sub * plant.dt_s
+    n_ctrl = math.floor(duration / dt_c + 1e-9)
+    data = np.full((n_ctrl, len(COLUMNS)), np.nan)
+    qhat_cols = [_COL[f"qhat_{_Q[r]}"] for r in rows]
+    start = time.perf_counter()
+
+    # Until the filter has a first measurement of every row, hold gravity compensation at
+    # the scenario's start pose with the initial estimate (a few ms with latency).
+    q0 = np.asarray(scenario.simulation.initial_q)
+    tau = model.gravity(q0, scenario.estimator.initial_theta.as_tuple())
+    setpoint = attitude_thrust_setpoint(tau[0:3], q0[5], q0[5], ctl.tilt_max_rad, curve)
+    known_tau = np.full(8, np.nan)
+    events = sorted(
+        (t, name)
+        for t, name in ((opts.pickup_at_s, "pickup"), (opts.release_at_s, "release"))
+        if t is not None
+    )
+    next_progress = 1.0
+    truth_row = _truth_row(plant)
+
+    for i in range(n_ctrl):
+        t = i * dt_c
+        while events and events[0][0] <= t:
+            _, name = events.pop(0)
+            if name == "pickup":
+                plant.attach_payload()
+                estimator.reset(estimator.theta)
+            else:
+                plant.detach_payload()
+                estimator.reset(nominal)
+            truth_row = _truth_row(plant)
+        state = plant.state
+        tick = time.perf_counter_ns()
+        sensing.feed(t, state, dt_c if i else None)
+        if sensing.assembler.ready:
+            f = sensing.assembler.estimate
+            q, q_dot, q_ddot = f.q, f.q_dot, f.q_ddot
+            terms = model.terms(q, q_dot)
+            est = estimator.update(dt_c, terms, q, q_dot, q_ddot, known_tau)
+            desired = tilt.apply(traj(t))
+            if smc is not None:
+                tau = smc.torque(dt_c, terms, q, q_dot, q_ddot, desired)
+                theta_hat = smc.theta
+            else:
+                tau = passivity.torque(terms, q, q_dot, desired, est.theta)
+                theta_hat = est.theta
+            setpoint = attitude_thrust_setpoint(
+                tau[0:3], q[5], desired.q[5], ctl.tilt_max_rad, curve
+            )
+            if opts.plant == "ideal":
+                tilt.step(dt_c, tilt_from_force(tau[0:3], q[5], ctl.tilt_max_rad)[:2])
+            else:
+                tilt.step(dt_c, (setpoint.roll_rad, setpoint.pitch_rad))
+            step_us = (time.perf_counter_ns() - tick) / 1e3
+            row = data[i]
+            row[_COL["qfilt_x"] : _COL["qfilt_x"] + 8] = q
+            row[_COL["qd_x"] : _COL["qd_x"] + 8] = desired.q
+            if isinstance(estimator, PaperEstimator) and estimator.qhat is not None:
+                row[qhat_cols] = estimator.qhat
+            row[_COL["m2_hat"] : _COL["m2_hat"] + 3] = theta_hat
+            row[_COL["lc_hat"]] = theta_hat[1] / theta_hat[0]
+            row[_COL["excitation"]] = est.excitation
+            row[_COL["confident"]] = est.confident
+            row[_COL["step_time_us"]] = step_us
+        row = data[i]
+        row[0] = t
+        row[_COL["q_x"] : _COL["q_x"] + 8] = state.q
+        row[_COL["m2_true"] : _COL["payload_attached"] + 1] = truth_row
+        row[_COL["tau_x"] : _COL["tau_x"] + 8] = tau
+        row[_COL["sp_roll_rad"] : _COL["sp_roll_rad"] + 5] = (
+            setpoint.roll_rad,
+            setpoint.pitch_rad,
+            setpoint.yaw_rad,
+            setpoint.thrust_n,
+            setpoint.thrust_normalized,
+        )
+
+        if opts.plant == "ideal":
+            for _ in range(sub):
+                plant.step_ideal(tau)
+            known_tau = tau
+        else:
+            command = AttitudeSetpoint.from_euler(
+                setpoint.roll_rad, setpoint.pitch_rad, setpoint.yaw_rad, setpoint.thrust_normalized
+            )
+            for _ in range(sub):
+                plant.step(command, tau[6:8])
+            known_tau = np.full(8, np.nan)
+            if sensing.assembler.ready:
+                attitude = sensing.assembler.estimate.q[3:6]
+                known_tau[0:3] = thrust_force_world(*attitude, setpoint.thrust_n)
+            known_tau[6:8] = sensing.joint_torques(plant.actuators.joint_torques_n_m)
+        if progress is not None and t >= next_progress:
+            progress(t)
+            next_progress += 1.0
+
+    result = SimResult(options=opts, data=data)
+    result.summary = summarize(result, scenario, kind, rows, time.perf_counter() - start)
+    return result
+
+
+def _truth_row(plant: TruthPlant) -> tuple[float, ...]:
+    """(m2, m3, m4, lc, attached) of the plant's link 2 now (logged, never shown to the
+    companion side)."""
+    truth = plant.true_theta
+    return (*truth.as_tuple(), truth.lc_m, float(plant.payload_attached))
+
+
+def _settle_time(t: np.ndarray, estimate: np.ndarray, truth: np.ndarray) -> float | None:
+    """Time after which |estimate - truth| <= 5 % of truth for good; None if never."""
+    bad = ~(np.abs(estimate - truth) <= 0.05 * np.abs(truth))
+    if bad[-1]:
+        return None
+    idx = np.flatnonzero(bad)
+    return float(t[idx[-1] + 1]) if idx.size else float(t[0])
+
+
+def summarize(
+    result: SimResult, scenario: Scenario, kind: str, rows: tuple[int, ...], wall_s: float
+) -> dict:
+    """The summary.json content of one run."""
+    c = result.column
+    t = c("t_s")
+    pos_err = np.linalg.norm(
+        np.column_stack([c(f"q_{n}") - c(f"qd_{n}") for n in ("x", "y", "z")]), axis=1
+    )
+    joint_err = np.column_stack([c(f"q_{n}") - c(f"qd_{n}") for n in ("eta1", "eta2")])
+    valid = ~np.isnan(pos_err)
+    names = ("m2", "m3", "m4", "lc")
+    final = {n: float(c(f"{n}_hat")[-1]) for n in names}
+    truth = {n: float(c(f"{n}_true")[-1]) for n in names}
+    steps = c("step_time_us")
+    steps = steps[~np.isnan(steps)]
+    opts = result.options
+    return {
+        "scenario": scenario.name,
+        "controller": opts.controller,
+        "estimator": "asmc_readout" if opts.controller == "asmc" else kind,
+        "estimator_rows": list(rows),
+        "plant": opts.plant,
+        "noise": opts.noise,
+        "seed": opts.seed,
+        "duration_s": float(t[-1] + (t[1] - t[0])) if t.size > 1 else 0.0,
+        "estimates": final,
+        "truth": truth,
+        "errors_pct": {n: 100.0 * (final[n] - truth[n]) / truth[n] for n in names},
+        "settle_time_s": {n: _settle_time(t, c(f"{n}_hat"), c(f"{n}_true")) for n in ("m2", "lc")},
+        "confident_at_end": bool(c("confident")[-1] == 1.0),
+        "rms_position_error_m": float(np.sqrt(np.mean(pos_err[valid] ** 2))),
+        "max_position_error_m": float(np.max(pos_err[valid])),
+        "rms_joint_error_rad": float(np.sqrt(np.nanmean(joint_err**2))),
+        "step_time_us": {
+            "median": float(np.median(steps)),
+            "p99": float(np.percentile(steps, 99)),
+        },
+        "wall_time_s": wall_s,
+    }
