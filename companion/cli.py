@@ -6,6 +6,8 @@ the reason and exit with status 2; they never print a traceback.
 
 from __future__ import annotations
 
+import sys
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
@@ -62,6 +64,174 @@ def check(
     out = Console()
     out.print(table)
     out.print(f"{config}: OK", markup=False, highlight=False)
+
+
+class ControllerChoice(StrEnum):
+    passivity = "passivity"
+    nonadaptive = "nonadaptive"
+    asmc = "asmc"
+
+
+class EstimatorChoice(StrEnum):
+    paper = "paper"
+    rls = "rls"
+
+
+class PlantChoice(StrEnum):
+    ideal = "ideal"
+    underactuated = "underactuated"
+
+
+ScenarioOpt = Annotated[
+    Path, typer.Option("--scenario", help="Scenario TOML file (see configs/).", show_default=False)
+]
+OutOpt = Annotated[
+    Path, typer.Option("--out", help="Output directory (created if missing).", show_default=False)
+]
+PlantOpt = Annotated[PlantChoice, typer.Option(help="Truth plant: tau on all 8 rows, or PX4-like.")]
+DurationOpt = Annotated[
+    float | None,
+    typer.Option(help="Simulated seconds [default: the scenario's simulation.duration_s]."),
+]
+SeedOpt = Annotated[int, typer.Option(help="Seed of the sensor-noise generator.")]
+NoiseOpt = Annotated[
+    bool, typer.Option("--noise/--no-noise", help="Noisy sensors ([sensors]) or exact ones.")
+]
+
+
+def _run(cfg: Scenario, options, label: str):
+    """Simulate with a progress bar on a terminal; plant failures exit 1 with a message."""
+    from rich.progress import Progress
+
+    from companion.simulation import simulate
+    from sitl.physics import PlantError
+
+    duration = options.duration_s or cfg.simulation.duration_s
+    with Progress(
+        transient=True, disable=not sys.stderr.isatty(), console=Console(stderr=True)
+    ) as bar:
+        task = bar.add_task(label, total=duration)
+        try:
+            return simulate(cfg, options, progress=lambda t: bar.update(task, completed=t))
+        except (PlantError, FloatingPointError) as exc:
+            typer.echo(f"error: {label}: the simulation failed: {exc}", err=True)
+            raise typer.Exit(1) from None
+
+
+def _check_times(cfg: Scenario, duration: float | None, *times: float | None) -> None:
+    end = duration if duration is not None else cfg.simulation.duration_s
+    if end <= 0.0:
+        typer.echo(f"error: --duration must be positive, got {end:g}", err=True)
+        raise typer.Exit(EXIT_USAGE)
+    for t in times:
+        if t is not None and not 0.0 <= t <= end:
+            typer.echo(f"error: event time {t:g} s lies outside the run [0, {end:g}] s", err=True)
+            raise typer.Exit(EXIT_USAGE)
+
+
+@app.command()
+def sim(
+    scenario: ScenarioOpt,
+    out: OutOpt,
+    controller: Annotated[
+        ControllerChoice, typer.Option(help="Control law.")
+    ] = ControllerChoice.passivity,
+    estimator: Annotated[
+        EstimatorChoice | None,
+        typer.Option(help="Payload estimator [default: the scenario's estimator.kind]."),
+    ] = None,
+    plant: PlantOpt = PlantChoice.ideal,
+    duration: DurationOpt = None,
+    seed: SeedOpt = 0,
+    noise: NoiseOpt = False,
+    pickup_at: Annotated[
+        float | None, typer.Option(help="Grasp the payload at this time [s].")
+    ] = None,
+    release_at: Annotated[
+        float | None, typer.Option(help="Release the payload at this time [s].")
+    ] = None,
+) -> None:
+    """Simulate the aerial manipulator offline; writes summary.json, timeseries.csv, figures."""
+    from companion.plots import plot_run
+    from companion.results import write_summary, write_timeseries
+    from companion.simulation import SimOptions
+
+    cfg = load_or_exit(scenario)
+    _check_times(cfg, duration, pickup_at, release_at)
+    options = SimOptions(
+        controller=controller.value,
+        estimator=estimator.value if estimator else None,
+        plant=plant.value,
+        duration_s=duration,
+        seed=seed,
+        noise=noise,
+        pickup_at_s=pickup_at,
+        release_at_s=release_at,
+    )
+    result = _run(cfg, options, f"{cfg.name}: {controller.value}")
+    out.mkdir(parents=True, exist_ok=True)
+    write_summary(result.summary, out / "summary.json")
+    write_timeseries(result, out / "timeseries.csv")
+    plot_run(result, out)
+    s = result.summary
+    Console().print(
+        f"{cfg.name} ({s['controller']}, {s['estimator']}, {s['plant']} plant"
+        f"{', noisy' if noise else ''}): m2 = {s['estimates']['m2']:.4f} kg "
+        f"({s['errors_pct']['m2']:+.1f} %), lc = {s['estimates']['lc']:.4f} m "
+        f"({s['errors_pct']['lc']:+.1f} %), RMS position error "
+        f"{s['rms_position_error_m'] * 100:.1f} cm; wrote {out}",
+        markup=False,
+        highlight=False,
+    )
+
+
+COMPARED = (
+    ("passivity + paper estimator", ControllerChoice.passivity, EstimatorChoice.paper),
+    ("passivity + rls", ControllerChoice.passivity, EstimatorChoice.rls),
+    ("non-adaptive", ControllerChoice.nonadaptive, EstimatorChoice.paper),
+    ("adaptive sliding mode", ControllerChoice.asmc, EstimatorChoice.paper),
+)
+"""Runs of ``companion compare``: the paper's controller with both estimators, and its two
+baselines (paper section IV)."""
+
+
+@app.command()
+def compare(
+    scenario: ScenarioOpt,
+    out: OutOpt,
+    plant: PlantOpt = PlantChoice.ideal,
+    duration: DurationOpt = None,
+    seed: SeedOpt = 0,
+    noise: NoiseOpt = False,
+) -> None:
+    """Run every controller and estimator on one scenario; writes compare.md and overlays."""
+    from companion.plots import plot_comparison
+    from companion.results import comparison_markdown, write_summary
+    from companion.simulation import SimOptions
+
+    cfg = load_or_exit(scenario)
+    _check_times(cfg, duration)
+    runs = []
+    for name, ctl, est in COMPARED:
+        options = SimOptions(
+            controller=ctl.value,
+            estimator=est.value,
+            plant=plant.value,
+            duration_s=duration,
+            seed=seed,
+            noise=noise,
+        )
+        runs.append((name, _run(cfg, options, f"{cfg.name}: {name}")))
+    out.mkdir(parents=True, exist_ok=True)
+    title = (
+        f"# {cfg.name}: {plant.value} plant, {'noisy' if noise else 'exact'} sensors, "
+        f"seed {seed}\n\n"
+    )
+    table = comparison_markdown([(name, r.summary) for name, r in runs])
+    (out / "compare.md").write_text(title + table)
+    write_summary({name: r.summary for name, r in runs}, out / "summaries.json")
+    plot_comparison(runs, out)
+    Console().print(table, markup=False, highlight=False)
 
 
 def main() -> None:
