@@ -1,7 +1,5 @@
 """companion.config: loading, validation and the CLI's handling of bad files."""
 
-import subprocess
-import sys
 import tomllib
 from pathlib import Path
 
@@ -153,22 +151,13 @@ def test_file_errors(tmp_path: Path) -> None:
     assert info.value.path == str(broken)
 
 
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-c", "from companion.cli import main; main()", *args],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-
-
-def test_cli_check_accepts_good_file() -> None:
+def test_cli_check_accepts_good_file(run_cli) -> None:
     result = run_cli("check", str(PAPER))
     assert result.returncode == 0, result.stderr
     assert "0.5, 0.08, 0.0128, 0.16" in result.stdout
 
 
-def test_cli_bad_config_exits_2_without_traceback(tmp_path: Path) -> None:
+def test_cli_bad_config_exits_2_without_traceback(run_cli, tmp_path: Path) -> None:
     bad = tmp_path / "typo.toml"
     bad.write_text(PAPER.read_text().replace("mass_kg = 1.0 ", "mas_kg = 1.0 "))
     result = run_cli("check", str(bad))
@@ -177,7 +166,7 @@ def test_cli_bad_config_exits_2_without_traceback(tmp_path: Path) -> None:
     assert f"{bad}: vehicle.mas_kg: unknown key; did you mean 'mass_kg'?" in result.stderr
 
 
-def test_cli_missing_file_exits_2(tmp_path: Path) -> None:
+def test_cli_missing_file_exits_2(run_cli, tmp_path: Path) -> None:
     result = run_cli("check", str(tmp_path / "nope.toml"))
     assert result.returncode == 2
     assert "Traceback" not in result.stderr

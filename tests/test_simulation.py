@@ -5,8 +5,6 @@ companion side sees only measurements (exact or noisy) and its own commands.
 """
 
 import json
-import subprocess
-import sys
 import tomllib
 from pathlib import Path
 
@@ -122,16 +120,7 @@ def test_estimates_stay_finite_and_bounded_for_120_s_under_noise(estimator: str)
     assert r.summary["max_position_error_m"] < 1.0
 
 
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-c", "from companion.cli import main; main()", *args],
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-
-
-def test_cli_sim_writes_summary_timeseries_and_figures(tmp_path: Path) -> None:
+def test_cli_sim_writes_summary_timeseries_and_figures(run_cli, tmp_path: Path) -> None:
     out = tmp_path / "run"
     result = run_cli(
         "sim",
@@ -170,7 +159,9 @@ def test_cli_sim_writes_summary_timeseries_and_figures(tmp_path: Path) -> None:
         (["--controller", "pid"], "Invalid value"),
     ],
 )
-def test_cli_sim_rejects_bad_options(tmp_path: Path, args: list[str], message: str) -> None:
+def test_cli_sim_rejects_bad_options(
+    run_cli, tmp_path: Path, args: list[str], message: str
+) -> None:
     result = run_cli("sim", "--scenario", str(PAPER), "--out", str(tmp_path), *args)
     assert result.returncode == 2
     assert message in result.stderr
@@ -178,7 +169,7 @@ def test_cli_sim_rejects_bad_options(tmp_path: Path, args: list[str], message: s
 
 
 @pytest.mark.slow
-def test_cli_compare_writes_table(tmp_path: Path) -> None:
+def test_cli_compare_writes_table(run_cli, tmp_path: Path) -> None:
     result = run_cli("compare", "--scenario", str(PAPER), "--duration", "2", "--out", str(tmp_path))
     assert result.returncode == 0, result.stderr
     table = (tmp_path / "compare.md").read_text()
