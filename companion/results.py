@@ -49,7 +49,7 @@ def _pct(value: float | None) -> str:
 
 
 def _time(value: float | None) -> str:
-    return "never" if value is None else f"{value:.1f} s"
+    return "never" if value is None else f"{value:.2f} s"
 
 
 def comparison_markdown(runs: Sequence[tuple[str, dict]]) -> str:
@@ -60,6 +60,8 @@ def comparison_markdown(runs: Sequence[tuple[str, dict]]) -> str:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for name, s in runs:
+        if s["controller"] == "nonadaptive":
+            name += " (estimator runs alongside, unused by the law)"
         estimated = s.get("estimated_parameters", ["m2", "m3", "m4"])
         lc_err = _pct(s["errors_pct"]["lc"]) if "m3" in estimated else "not estimated"
         lc_settle = _time(s["settle_time_s"]["lc"]) if "m3" in estimated else "n/a"
