@@ -1,0 +1,365 @@
+"""A pure model of an XM430-W350 servo: control-table bytes, current and position loops.
+
+No I/O and no clock: :class:`XM430Servo` answers decoded instructions
+(:meth:`~XM430Servo.handle`) and advances its loops by a time step the caller gives
+(:meth:`~XM430Servo.step`). :mod:`sitl.servo.pty_server` puts servos on a
+pseudo-terminal; the SITL couples each to a physics joint through :class:`ServoJoint`.
+
+What is modelled (addresses, sizes and units from
+:mod:`arm_driver.dynamixel.control_table`, defaults from the e-Manual's XM430-W350 page):
+
+- the control table as bytes (addresses 0-146), factory defaults; writes to read-only or
+  undefined addresses and EEPROM writes (addresses 0-63) while Torque Enable(64) is 1 are
+  refused with an Access Error, the servo's documented behaviour;
+- Status Return Level(68) and Return Delay Time(9) are kept for the server to honour;
+- current loop: a first-order lag from the commanded current to Present Current(126)
+  with time constant ``current_time_constant_s``, the command clamped to +-Current
+  Limit(38);
+- Current Control Mode: command = Goal Current(102);
+- Position and Current-based Position Control Modes: a PD law on Goal Position(116),
+  ``i = kp (theta_goal - theta) - kd omega`` [A], clamped to +-Current Limit, and in
+  Current-based Position mode also to +-|Goal Current| (the mode's torque limit);
+- output torque = ``torque_constant_n_m_per_a`` x present current (0 with torque off);
+- overload: a command at or above ``overload_current_fraction`` x Current Limit for
+  ``overload_time_s`` sets the Overload bit of Hardware Error Status(70); when
+  Shutdown(63) selects a bit that is set, torque turns off and stays off until a Reboot.
+
+Not modelled: velocity and PWM modes (refused: Data Range Error), profiles, indirect
+addresses, voltage and temperature dynamics, Drive Mode's reverse bit.
+
+Torque constant: 1.78 N m/A is the ratio of the datasheet's stall torque (4.1 N m) to
+stall current (2.3 A) at 12 V, an example value, not a calibration.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+from arm_driver.dynamixel import control_table as ct
+from arm_driver.dynamixel import units
+from arm_driver.dynamixel.instructions import encode_int
+from arm_driver.dynamixel.protocol import InstructionPacket
+from arm_driver.errors import HardwareErrorStatus, StatusError
+
+__all__ = [
+    "EXAMPLE_TORQUE_CONSTANT_N_M_PER_A",
+    "TABLE_SIZE",
+    "ServoJoint",
+    "ServoReply",
+    "XM430Parameters",
+    "XM430Servo",
+]
+
+EXAMPLE_TORQUE_CONSTANT_N_M_PER_A = 4.1 / 2.3
+"""Stall torque / stall current of the XM430-W350 datasheet at 12 V [N m/A] (~1.78)."""
+TABLE_SIZE = ct.PRESENT_TEMPERATURE.end
+"""Bytes of control table modelled: addresses 0-146."""
+
+_WRITABLE_EEPROM = range(ct.ID.address, ct.SHUTDOWN.end)
+# RAM entries the host may write: Torque Enable .. Status Return Level (64-68), then
+# Velocity/Position gains, feedforward gains, Bus Watchdog, Goal PWM/Current/Velocity,
+# profiles and Goal Position (76-119), per the e-Manual's RAM table.
+_WRITABLE_RAM = (range(64, 69), range(76, 120))
+_MODES = (
+    ct.OperatingMode.CURRENT,
+    ct.OperatingMode.POSITION,
+    ct.OperatingMode.EXTENDED_POSITION,
+    ct.OperatingMode.CURRENT_BASED_POSITION,
+)
+_FACTORY = (
+    (ct.MODEL_NUMBER, ct.XM430_W350_MODEL_NUMBER),
+    (ct.FIRMWARE_VERSION, 48),
+    (ct.BAUD_RATE, 1),
+    (ct.RETURN_DELAY_TIME, 250),
+    (ct.OPERATING_MODE, ct.OperatingMode.POSITION),
+    (ct.TEMPERATURE_LIMIT, 80),
+    (ct.MAX_VOLTAGE_LIMIT, 160),
+    (ct.MIN_VOLTAGE_LIMIT, 95),
+    (ct.CURRENT_LIMIT, 1193),
+    (ct.VELOCITY_LIMIT, 200),
+    (ct.MAX_POSITION_LIMIT, 4095),
+    (ct.MIN_POSITION_LIMIT, 0),
+    (ct.SHUTDOWN, 52),
+    (ct.STATUS_RETURN_LEVEL, ct.StatusReturnLevel.ALL),
+    (ct.PRESENT_INPUT_VOLTAGE, 120),
+    (ct.PRESENT_TEMPERATURE, 30),
+)
+
+
+@runtime_checkable
+class ServoJoint(Protocol):
+    """What a physics joint sees of a simulated servo: angle and rate in, torque out."""
+
+    def set_state(self, angle_rad: float, rate_rad_s: float) -> None:
+        """Give the servo its output shaft angle [rad] (0 at tick 2048) and rate [rad/s]."""
+
+    def torque_n_m(self) -> float:
+        """Torque the servo applies to the joint now [N m], counter-clockwise positive."""
+
+    def step(self, dt_s: float) -> None:
+        """Advance the servo's control loops by ``dt_s`` [s]."""
+
+
+@dataclass(frozen=True)
+class XM430Parameters:
+    """Physical and loop parameters of the model (not in the control table).
+
+    Attributes
+    ----------
+    torque_constant_n_m_per_a
+        Output torque per motor current [N m/A].
+    current_time_constant_s
+        Time constant of the current loop's first-order lag [s].
+    position_kp_a_per_rad
+        Position loop proportional gain [A/rad].
+    position_kd_a_s_per_rad
+        Position loop derivative gain [A s/rad].
+    overload_current_fraction
+        Fraction of Current Limit at or above which the command counts as overload [-].
+    overload_time_s
+        Sustained overload time before the Overload bit is set [s].
+    """
+
+    torque_constant_n_m_per_a: float = EXAMPLE_TORQUE_CONSTANT_N_M_PER_A
+    current_time_constant_s: float = 0.5e-3
+    position_kp_a_per_rad: float = 10.0
+    position_kd_a_s_per_rad: float = 0.3
+    overload_current_fraction: float = 0.95
+    overload_time_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("torque_constant_n_m_per_a", "current_time_constant_s", "overload_time_s"):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if not 0.0 < self.overload_current_fraction <= 1.0:
+            raise ValueError("overload_current_fraction must be in (0, 1]")
+
+
+@dataclass(frozen=True)
+class ServoReply:
+    """What the servo answers to one instruction (before framing).
+
+    Attributes
+    ----------
+    error
+        Error number (0: none).
+    params
+        Reply parameters.
+    alert
+        Alert bit: Hardware Error Status(70) is nonzero.
+    """
+
+    error: int = 0
+    params: bytes = b""
+    alert: bool = False
+
+
+class XM430Servo:
+    """One simulated XM430-W350; implements :class:`ServoJoint`.
+
+    Parameters
+    ----------
+    servo_id
+        ID(7), 0-252.
+    parameters
+        Loop and physical parameters.
+    angle_rad
+        Initial shaft angle [rad] (0 at tick 2048); Goal Position starts there.
+    """
+
+    def __init__(
+        self,
+        servo_id: int,
+        parameters: XM430Parameters | None = None,
+        *,
+        angle_rad: float = 0.0,
+    ) -> None:
+        if not 0 <= servo_id <= 252:
+            raise ValueError(f"servo id {servo_id} out of range (0-252)")
+        self.parameters = parameters if parameters is not None else XM430Parameters()
+        self.table = bytearray(TABLE_SIZE)
+        for entry, value in _FACTORY:
+            self._put(entry, int(value))
+        self._put(ct.ID, servo_id)
+        self._current_a = 0.0
+        self._overload_s = 0.0
+        self.set_state(angle_rad, 0.0)
+        self._put(ct.GOAL_POSITION, self.get(ct.PRESENT_POSITION))
+
+    # -- control-table access -------------------------------------------------------
+
+    def get(self, entry: ct.ControlTableEntry) -> int:
+        """Raw value of a control-table entry."""
+        return entry.decode(bytes(self.table[entry.address : entry.end]))
+
+    def _put(self, entry: ct.ControlTableEntry, value: int) -> None:
+        encode = encode_int if entry.signed else _encode_uint
+        self.table[entry.address : entry.end] = encode(value, entry.size)
+
+    @property
+    def servo_id(self) -> int:
+        """ID(7)."""
+        return self.get(ct.ID)
+
+    @property
+    def torque_enabled(self) -> bool:
+        """Torque Enable(64) is 1."""
+        return self.get(ct.TORQUE_ENABLE) == 1
+
+    @property
+    def hardware_error(self) -> HardwareErrorStatus:
+        """Hardware Error Status(70)."""
+        return HardwareErrorStatus(self.get(ct.HARDWARE_ERROR_STATUS))
+
+    @property
+    def return_delay_s(self) -> float:
+        """Return Delay Time(9) [s] (2 us per count)."""
+        return self.get(ct.RETURN_DELAY_TIME) * 2e-6
+
+    @property
+    def status_return_level(self) -> int:
+        """Status Return Level(68)."""
+        return self.get(ct.STATUS_RETURN_LEVEL)
+
+    def inject_hardware_error(self, bits: HardwareErrorStatus) -> None:
+        """Set bits of Hardware Error Status(70) as a fault would, with its shutdown."""
+        self._put(ct.HARDWARE_ERROR_STATUS, int(self.hardware_error | bits))
+        if self.get(ct.SHUTDOWN) & int(bits):
+            self._put(ct.TORQUE_ENABLE, 0)
+
+    # -- instructions -----------------------------------------------------------------
+
+    def read(self, address: int, length: int) -> ServoReply:
+        """Read ``length`` bytes at ``address`` (Read, Sync Read)."""
+        if length < 1 or address + length > TABLE_SIZE:
+            return self._reply(StatusError.ACCESS)
+        return self._reply(0, bytes(self.table[address : address + length]))
+
+    def write(self, address: int, data: bytes) -> ServoReply:
+        """Write ``data`` at ``address`` (Write, Sync Write); all or nothing."""
+        end = address + len(data)
+        if not data or not _writable(address, end):
+            return self._reply(StatusError.ACCESS)
+        if address < ct.TORQUE_ENABLE.address and self.torque_enabled:
+            return self._reply(StatusError.ACCESS)
+        new = bytearray(self.table)
+        new[address:end] = data
+        error = self._check(new)
+        if error:
+            return self._reply(error)
+        if self.hardware_error and new[ct.TORQUE_ENABLE.address] and not self.torque_enabled:
+            return self._reply(StatusError.RESULT_FAIL)  # only a Reboot re-enables torque
+        self.table[:] = new
+        return self._reply(0)
+
+    def reboot(self) -> ServoReply:
+        """Reboot: clear Hardware Error Status and turn torque off (RAM reset in part)."""
+        reply = self._reply(0)
+        self._put(ct.HARDWARE_ERROR_STATUS, 0)
+        self._put(ct.TORQUE_ENABLE, 0)
+        self._put(ct.GOAL_CURRENT, 0)
+        self._put(ct.GOAL_POSITION, self.get(ct.PRESENT_POSITION))
+        self._overload_s = 0.0
+        return reply
+
+    def handle(self, packet: InstructionPacket) -> ServoReply:
+        """Answer a Ping, Read, Write or Reboot addressed to this servo.
+
+        Sync Read and Sync Write are split per servo by the server, which calls
+        :meth:`read` and :meth:`write`. Other instructions get an Instruction Error.
+        """
+        params = packet.params
+        if packet.instruction == 0x01:
+            info = self.table[ct.MODEL_NUMBER.address : ct.MODEL_NUMBER.end]
+            return self._reply(0, bytes(info) + bytes((self.get(ct.FIRMWARE_VERSION),)))
+        if packet.instruction == 0x02 and len(params) == 4:
+            return self.read(
+                int.from_bytes(params[:2], "little"), int.from_bytes(params[2:], "little")
+            )
+        if packet.instruction == 0x03 and len(params) > 2:
+            return self.write(int.from_bytes(params[:2], "little"), params[2:])
+        if packet.instruction == 0x08 and not params:
+            return self.reboot()
+        if packet.instruction in (0x02, 0x03, 0x08):
+            return self._reply(StatusError.DATA_LENGTH)
+        return self._reply(StatusError.INSTRUCTION)
+
+    def _reply(self, error: int, params: bytes = b"") -> ServoReply:
+        return ServoReply(int(error), params, alert=bool(self.hardware_error))
+
+    def _check(self, new: bytearray) -> int:
+        mode = new[ct.OPERATING_MODE.address]
+        if mode not in _MODES:
+            return StatusError.DATA_RANGE
+        if new[ct.TORQUE_ENABLE.address] > 1 or new[ct.STATUS_RETURN_LEVEL.address] > 2:
+            return StatusError.DATA_RANGE
+        limit = int.from_bytes(new[ct.CURRENT_LIMIT.address : ct.CURRENT_LIMIT.end], "little")
+        goal = int.from_bytes(
+            new[ct.GOAL_CURRENT.address : ct.GOAL_CURRENT.end], "little", signed=True
+        )
+        if limit > 1193 or abs(goal) > limit:
+            return StatusError.DATA_LIMIT
+        return 0
+
+    # -- physics (ServoJoint) -----------------------------------------------------------
+
+    def set_state(self, angle_rad: float, rate_rad_s: float) -> None:
+        """Present Position(132) and Present Velocity(128) from the shaft's angle and rate."""
+        self._angle_rad = float(angle_rad)
+        self._rate_rad_s = float(rate_rad_s)
+        self._put(ct.PRESENT_POSITION, units.rad_to_ticks(self._angle_rad))
+        self._put(ct.PRESENT_VELOCITY, units.rad_s_to_velocity_units(self._rate_rad_s))
+
+    def torque_n_m(self) -> float:
+        """Output torque [N m]: torque constant x present current, 0 with torque off."""
+        if not self.torque_enabled:
+            return 0.0
+        return self.parameters.torque_constant_n_m_per_a * self._current_a
+
+    def commanded_current_a(self) -> float:
+        """Current the active control mode asks for now [A], clamped to the limits."""
+        if not self.torque_enabled:
+            return 0.0
+        limit_a = units.current_units_to_a(self.get(ct.CURRENT_LIMIT))
+        goal_a = units.current_units_to_a(self.get(ct.GOAL_CURRENT))
+        mode = self.get(ct.OPERATING_MODE)
+        if mode == ct.OperatingMode.CURRENT:
+            command = goal_a
+        else:
+            goal_rad = units.ticks_to_rad(self.get(ct.GOAL_POSITION))
+            p = self.parameters
+            command = p.position_kp_a_per_rad * (goal_rad - self._angle_rad)
+            command -= p.position_kd_a_s_per_rad * self._rate_rad_s
+            if mode == ct.OperatingMode.CURRENT_BASED_POSITION:
+                limit_a = min(limit_a, abs(goal_a))
+        return max(-limit_a, min(limit_a, command))
+
+    def step(self, dt_s: float) -> None:
+        """Advance the current loop and the overload detector by ``dt_s`` [s]."""
+        if not dt_s >= 0.0:
+            raise ValueError(f"time step {dt_s} s must be >= 0")
+        p = self.parameters
+        command = self.commanded_current_a()
+        self._current_a += (command - self._current_a) * -math.expm1(
+            -dt_s / p.current_time_constant_s
+        )
+        limit_a = units.current_units_to_a(self.get(ct.CURRENT_LIMIT))
+        overloaded = abs(command) >= p.overload_current_fraction * limit_a > 0.0
+        self._overload_s = self._overload_s + dt_s if overloaded else 0.0
+        if self._overload_s >= p.overload_time_s:
+            self.inject_hardware_error(HardwareErrorStatus.OVERLOAD)
+        if not self.torque_enabled:
+            self._current_a = 0.0
+        self._put(ct.PRESENT_CURRENT, units.a_to_current_units(self._current_a))
+
+
+def _encode_uint(value: int, size: int) -> bytes:
+    return int(value).to_bytes(size, "little", signed=False)
+
+
+def _writable(address: int, end: int) -> bool:
+    if address >= _WRITABLE_EEPROM.start and end <= _WRITABLE_EEPROM.stop:
+        return True
+    return any(address >= area.start and end <= area.stop for area in _WRITABLE_RAM)
