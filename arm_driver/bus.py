@@ -1,0 +1,603 @@
+"""The arm's servo bus: one asynchronous, joint-space API in SI units, several backends.
+
+Modelled on python-can's ``BusABC``: the public methods of :class:`ArmBus` hold the
+shared policy (bus state, one transaction at a time, unknown joints, limits checked
+before anything is sent, operating-mode checks, counting link failures and the safe
+state); a backend overrides small ``_..._hook`` methods that only talk to its hardware.
+The lifecycle lives in the base class and never relies on a subclass calling ``super()``.
+
+Backends are registered by name (the URL scheme) as ``"module:Class"`` strings and
+imported only when chosen, so a missing optional dependency of one backend never breaks
+another::
+
+    async with open_bus("dynamixel:///dev/ttyUSB0?baud=1000000", joints) as bus:
+        await bus.set_operating_mode(OperatingMode.CURRENT)
+        await bus.enable_torque()
+        states = await bus.read_joint_states()
+        await bus.write_joint_torques({"shoulder": 0.4, "elbow": -0.1})
+
+Conventions: angles [rad], rates [rad/s], torques [N m], all in the *joint* frame,
+counter-clockwise positive about the joint axis as the arm's model defines it; a joint's
+``direction`` and ``zero_offset_rad`` map it to the servo shaft (see :class:`JointConfig`).
+Timestamps are ``time.monotonic()`` [s] when the reply was received.
+
+Failure and safe state: a transaction that times out or returns garbage (after the
+backend's bounded retries) counts as a link failure; ``max_consecutive_failures`` in a
+row mark the bus FAILED. A failed bus raises :class:`BusFailedError` for every command
+until it is closed and opened again, and the backend makes a best-effort attempt at the
+safe state, which :meth:`ArmBus.close` also applies:
+
+- joints in current (torque) mode, or in an unknown mode, get zero torque and then torque
+  off: they go limp. A torque command is only right for the state it was computed for;
+  held after the controller lost the bus it can drive the arm into its stops or into the
+  vehicle at full current. A limp two-joint arm under a multirotor settles hanging down,
+  a bounded disturbance the attitude controller rejects;
+- joints in a position mode and the gripper are left as they are: each servo keeps
+  tracking its last goal position with its own current limit, a bounded and stable
+  behaviour, and a gripper that went limp would drop its payload in flight.
+
+Only a broken link counts as a failure: a servo that answers with an error
+(:class:`~arm_driver.errors.InstructionError`, :class:`~arm_driver.errors.HardwareError`)
+proves the link works and is reported to the caller, not acted on.
+"""
+
+from __future__ import annotations
+
+import abc
+import asyncio
+import enum
+import importlib
+import logging
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from arm_driver.errors import ArmDriverError, BusTimeoutError, CommunicationError, LimitError
+from arm_driver.url import parse_bus_url
+
+__all__ = [
+    "ArmBus",
+    "BackendUnavailableError",
+    "BusFailedError",
+    "BusState",
+    "BusStateError",
+    "GripperConfig",
+    "JointConfig",
+    "JointState",
+    "OperatingMode",
+    "available_backends",
+    "backend_class",
+    "open_bus",
+    "open_buses",
+    "register_backend",
+]
+
+_LOG = logging.getLogger(__name__)
+
+
+class OperatingMode(enum.Enum):
+    """How the servos are driven."""
+
+    CURRENT = "current"
+    """Torque control: goal current from a joint torque."""
+    POSITION = "position"
+    """Position control with the servo's own loop and current limit."""
+    CURRENT_BASED_POSITION = "current_based_position"
+    """Position control whose current is limited by the joint's torque limit."""
+
+
+class BusState(enum.Enum):
+    """Lifecycle of a bus."""
+
+    CLOSED = "closed"
+    OPEN = "open"
+    FAILED = "failed"
+
+
+class BusStateError(ArmDriverError, RuntimeError):
+    """The bus cannot do this now (closed, wrong operating mode, torque on, no gripper)."""
+
+
+class BusFailedError(BusStateError):
+    """The bus failed (repeated link failures); close it and open it again."""
+
+
+class BackendUnavailableError(ArmDriverError, LookupError):
+    """No backend of that name, or one that is planned but not implemented."""
+
+
+@dataclass(frozen=True)
+class JointConfig:
+    """One arm joint and the servo that drives it.
+
+    Attributes
+    ----------
+    name
+        Joint name, the key of every joint-space command and state.
+    servo_id
+        The servo's id on its bus.
+    torque_constant_n_m_per_a
+        Calibrated output torque per motor current [N m/A]. For the XM430-W350, the
+        datasheet's stall torque over stall current (4.1 N m / 2.3 A = 1.78 N m/A at
+        12 V) is an example value, not a calibration.
+    torque_max_n_m
+        Largest torque magnitude a command may ask for [N m].
+    direction
+        +1 if a positive joint angle turns the servo counter-clockwise seen from its
+        front, -1 if clockwise.
+    zero_offset_rad
+        Servo shaft angle [rad] (0 at the servo's centre position) where the joint angle
+        is 0: ``servo = zero_offset_rad + direction * joint``.
+    position_min_rad, position_max_rad
+        Joint angle limits [rad].
+    """
+
+    name: str
+    servo_id: int
+    torque_constant_n_m_per_a: float
+    torque_max_n_m: float
+    direction: int = 1
+    zero_offset_rad: float = 0.0
+    position_min_rad: float = -math.pi
+    position_max_rad: float = math.pi
+
+    def __post_init__(self) -> None:
+        if not self.name:
+            raise ValueError("a joint needs a name")
+        if self.direction not in (1, -1):
+            raise ValueError(f"joint {self.name!r}: direction must be +1 or -1")
+        if not (
+            math.isfinite(self.torque_constant_n_m_per_a) and self.torque_constant_n_m_per_a > 0
+        ):
+            raise ValueError(f"joint {self.name!r}: torque constant must be positive and finite")
+        if not (math.isfinite(self.torque_max_n_m) and self.torque_max_n_m >= 0):
+            raise ValueError(f"joint {self.name!r}: torque_max_n_m must be >= 0 and finite")
+        if not math.isfinite(self.zero_offset_rad):
+            raise ValueError(f"joint {self.name!r}: zero_offset_rad must be finite")
+        if not self.position_min_rad < self.position_max_rad:
+            raise ValueError(f"joint {self.name!r}: position_min_rad must be < position_max_rad")
+
+    def servo_angle_rad(self, joint_angle_rad: float) -> float:
+        """Servo shaft angle [rad] for a joint angle [rad]."""
+        return self.zero_offset_rad + self.direction * joint_angle_rad
+
+    def joint_angle_rad(self, servo_angle_rad: float) -> float:
+        """Joint angle [rad] for a servo shaft angle [rad]."""
+        return self.direction * (servo_angle_rad - self.zero_offset_rad)
+
+
+@dataclass(frozen=True)
+class GripperConfig:
+    """The gripper's servo, driven in a position mode between two shaft angles.
+
+    Attributes
+    ----------
+    servo_id
+        The servo's id on the arm's bus.
+    open_position_rad, closed_position_rad
+        Servo shaft angles [rad] (0 at the servo's centre position) of open and closed.
+    """
+
+    servo_id: int
+    open_position_rad: float
+    closed_position_rad: float
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.open_position_rad) and math.isfinite(self.closed_position_rad)):
+            raise ValueError("gripper positions must be finite")
+
+
+@dataclass(frozen=True)
+class JointState:
+    """One joint's measured state.
+
+    Attributes
+    ----------
+    name
+        Joint name.
+    position_rad
+        Joint angle [rad].
+    velocity_rad_s
+        Joint rate [rad/s].
+    torque_n_m
+        Joint torque from the measured current and the torque constant [N m].
+    timestamp_s
+        ``time.monotonic()`` when the reply was received [s].
+    """
+
+    name: str
+    position_rad: float
+    velocity_rad_s: float
+    torque_n_m: float
+    timestamp_s: float
+
+
+_OPEN_BUSES: set[ArmBus] = set()
+
+
+def open_buses() -> tuple[ArmBus, ...]:
+    """Buses opened and not closed yet (a test fixture fails tests that leak one)."""
+    return tuple(_OPEN_BUSES)
+
+
+class ArmBus(abc.ABC):
+    """An arm's servo bus in joint space; open with ``async with`` or :meth:`open`.
+
+    Parameters
+    ----------
+    joints
+        The arm's joints, in the order states are returned.
+    gripper
+        The gripper's servo, if any.
+    max_consecutive_failures
+        Link failures in a row that mark the bus FAILED.
+    """
+
+    def __init__(
+        self,
+        joints: Sequence[JointConfig],
+        *,
+        gripper: GripperConfig | None = None,
+        max_consecutive_failures: int = 3,
+    ) -> None:
+        joints = tuple(joints)
+        if not joints:
+            raise ValueError("an arm bus needs at least one joint")
+        names = [joint.name for joint in joints]
+        if len(set(names)) != len(names):
+            raise ValueError(f"duplicate joint names in {names}")
+        ids = [joint.servo_id for joint in joints] + ([gripper.servo_id] if gripper else [])
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"duplicate servo ids in {ids}")
+        if max_consecutive_failures < 1:
+            raise ValueError("max_consecutive_failures must be >= 1")
+        self._joints = {joint.name: joint for joint in joints}
+        self._gripper = gripper
+        self._torque_max = {joint.name: joint.torque_max_n_m for joint in joints}
+        self._max_failures = max_consecutive_failures
+        self._failures = 0
+        self._state = BusState.CLOSED
+        self._mode: OperatingMode | None = None
+        self._torque: bool | None = None
+        self._lock = asyncio.Lock()
+
+    # -- properties ---------------------------------------------------------------------
+
+    @property
+    def joints(self) -> tuple[JointConfig, ...]:
+        """The joints, in configuration order."""
+        return tuple(self._joints.values())
+
+    @property
+    def gripper(self) -> GripperConfig | None:
+        """The gripper's configuration, if any."""
+        return self._gripper
+
+    @property
+    def state(self) -> BusState:
+        """CLOSED, OPEN or FAILED."""
+        return self._state
+
+    @property
+    def operating_mode(self) -> OperatingMode | None:
+        """The joints' operating mode, None if unknown or mixed."""
+        return self._mode
+
+    @property
+    def torque_enabled(self) -> bool | None:
+        """Torque is on for every servo (True), off for all (False), or unknown (None)."""
+        return self._torque
+
+    def torque_limit_n_m(self, joint: str) -> float:
+        """Largest torque magnitude a command to ``joint`` may ask for [N m]."""
+        return self._torque_max[joint]
+
+    # -- lifecycle ----------------------------------------------------------------------
+
+    async def open(self) -> None:
+        """Open the link and check the servos; a no-op if already open.
+
+        Raises
+        ------
+        BusFailedError
+            The bus failed and was not closed since.
+        ArmDriverError
+            The link cannot be opened or a servo is missing or wrong; nothing stays open.
+        """
+        if self._state is BusState.OPEN:
+            return
+        if self._state is BusState.FAILED:
+            raise BusFailedError("the bus failed; close it before opening it again")
+        try:
+            self._mode, self._torque = await self._open_hook()
+        except BaseException:
+            await self._close_hook()
+            raise
+        self._failures = 0
+        self._state = BusState.OPEN
+        _OPEN_BUSES.add(self)
+
+    async def close(self) -> None:
+        """Apply the safe state (best effort) and close the link; safe to call twice."""
+        if self._state is BusState.CLOSED:
+            return
+        self._state = BusState.CLOSED
+        _OPEN_BUSES.discard(self)
+        try:
+            async with self._lock:
+                await self._safe_state_logged()
+        finally:
+            await self._close_hook()
+
+    async def __aenter__(self) -> ArmBus:
+        await self.open()
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        await self.close()
+
+    async def _safe_state_logged(self) -> None:
+        try:
+            await self._safe_state_hook()
+        except ArmDriverError as error:
+            _LOG.warning("could not apply the safe state: %s", error)
+
+    # -- commands -----------------------------------------------------------------------
+
+    async def enable_torque(self) -> None:
+        """Turn torque on for every joint servo and the gripper."""
+        await self._transact(self._set_torque_hook, True)
+        self._torque = True
+
+    async def disable_torque(self) -> None:
+        """Turn torque off for every joint servo and the gripper: the arm goes limp."""
+        await self._transact(self._set_torque_hook, False)
+        self._torque = False
+
+    async def set_operating_mode(self, mode: OperatingMode) -> None:
+        """Set the joints' operating mode; torque must be off (the mode is in EEPROM).
+
+        Raises
+        ------
+        BusStateError
+            Torque is on or unknown: the driver does not turn it off for you, as the arm
+            would go limp.
+        """
+        mode = OperatingMode(mode)
+        if self._torque is not False:
+            raise BusStateError(
+                f"cannot set {mode.value} mode with torque on or unknown; "
+                "call disable_torque() first (the arm goes limp)"
+            )
+        self._mode = None
+        await self._transact(self._set_mode_hook, mode)
+        self._mode = mode
+
+    async def write_joint_torques(self, torques_n_m: Mapping[str, float]) -> None:
+        """Command joint torques [N m] (current mode); every limit is checked first.
+
+        Raises
+        ------
+        LimitError
+            A torque above the joint's limit (or not finite); nothing was sent.
+        BusStateError
+            The bus is not in current mode.
+        """
+        self._require_mode(OperatingMode.CURRENT)
+        commands = self._joint_commands(torques_n_m)
+        for joint, torque in commands.items():
+            limit = self._torque_max[joint.name]
+            if not abs(torque) <= limit:
+                raise LimitError(
+                    joint.name, torque, -limit, limit, unit="N m", servo_id=joint.servo_id
+                )
+        await self._transact(self._write_torques_hook, commands)
+
+    async def write_joint_positions(self, positions_rad: Mapping[str, float]) -> None:
+        """Command joint angles [rad] (a position mode); every limit is checked first.
+
+        Raises
+        ------
+        LimitError
+            An angle outside the joint's limits (or not finite); nothing was sent.
+        BusStateError
+            The bus is not in a position mode.
+        """
+        self._require_mode(OperatingMode.POSITION, OperatingMode.CURRENT_BASED_POSITION)
+        commands = self._joint_commands(positions_rad)
+        for joint, angle in commands.items():
+            lower, upper = joint.position_min_rad, joint.position_max_rad
+            if not lower <= angle <= upper:
+                raise LimitError(
+                    joint.name, angle, lower, upper, unit="rad", servo_id=joint.servo_id
+                )
+        await self._transact(self._write_positions_hook, commands)
+
+    async def read_joint_states(self) -> dict[str, JointState]:
+        """Every joint's position, velocity and torque, read in one transaction."""
+        return await self._transact(self._read_states_hook)
+
+    async def open_gripper(self) -> None:
+        """Move the gripper to its open position."""
+        gripper = self._require_gripper()
+        await self._transact(self._write_gripper_hook, gripper.open_position_rad)
+
+    async def close_gripper(self) -> None:
+        """Move the gripper to its closed position."""
+        gripper = self._require_gripper()
+        await self._transact(self._write_gripper_hook, gripper.closed_position_rad)
+
+    # -- shared policy --------------------------------------------------------------------
+
+    def _check_open(self) -> None:
+        if self._state is BusState.FAILED:
+            raise BusFailedError("the bus failed (link lost); close it and open it again")
+        if self._state is BusState.CLOSED:
+            raise BusStateError("the bus is not open")
+
+    def _require_mode(self, *modes: OperatingMode) -> None:
+        if self._mode not in modes:
+            wanted = " or ".join(mode.value for mode in modes)
+            have = "unknown" if self._mode is None else self._mode.value
+            raise BusStateError(f"this command needs {wanted} mode; the bus is in {have} mode")
+
+    def _require_gripper(self) -> GripperConfig:
+        if self._gripper is None:
+            raise BusStateError("this bus has no gripper configured")
+        return self._gripper
+
+    def _joint_commands(self, values: Mapping[str, float]) -> dict[JointConfig, float]:
+        unknown = sorted(set(values) - set(self._joints))
+        if unknown:
+            raise ValueError(f"unknown joint(s) {unknown}; joints are {list(self._joints)}")
+        if not values:
+            raise ValueError("no joint given")
+        return {self._joints[name]: float(value) for name, value in values.items()}
+
+    def _limit_torque(self, joint: str, limit_n_m: float) -> None:
+        """Lower a joint's torque limit (for backends: e.g. to the servo's current limit)."""
+        self._torque_max[joint] = min(self._torque_max[joint], limit_n_m)
+
+    async def _transact(self, hook: Any, *args: Any) -> Any:
+        self._check_open()
+        async with self._lock:
+            self._check_open()
+            try:
+                result = await hook(*args)
+            except (BusTimeoutError, CommunicationError) as error:
+                self._failures += 1
+                if self._failures >= self._max_failures:
+                    self._state = BusState.FAILED
+                    error.add_note(
+                        f"{self._failures} link failures in a row: the bus is marked failed "
+                        "and the safe state was attempted"
+                    )
+                    await self._safe_state_logged()
+                raise
+            except ArmDriverError:
+                self._failures = 0
+                raise
+            self._failures = 0
+            return result
+
+    # -- backend hooks --------------------------------------------------------------------
+
+    @abc.abstractmethod
+    async def _open_hook(self) -> tuple[OperatingMode | None, bool | None]:
+        """Open the link, check every servo; return the joints' mode and torque state."""
+
+    @abc.abstractmethod
+    async def _close_hook(self) -> None:
+        """Close the link; called once per open, also after a failed open."""
+
+    @abc.abstractmethod
+    async def _set_torque_hook(self, enabled: bool) -> None:
+        """Turn torque on or off for the joints and the gripper."""
+
+    @abc.abstractmethod
+    async def _set_mode_hook(self, mode: OperatingMode) -> None:
+        """Set the joints' operating mode (torque is off)."""
+
+    @abc.abstractmethod
+    async def _write_torques_hook(self, torques_n_m: Mapping[JointConfig, float]) -> None:
+        """Send joint torques [N m], already checked."""
+
+    @abc.abstractmethod
+    async def _write_positions_hook(self, positions_rad: Mapping[JointConfig, float]) -> None:
+        """Send joint angles [rad], already checked."""
+
+    @abc.abstractmethod
+    async def _read_states_hook(self) -> dict[str, JointState]:
+        """Read every joint's state in one transaction, in joint order."""
+
+    @abc.abstractmethod
+    async def _write_gripper_hook(self, servo_angle_rad: float) -> None:
+        """Send the gripper servo's goal shaft angle [rad]."""
+
+    @abc.abstractmethod
+    async def _safe_state_hook(self) -> None:
+        """Best effort: limp joints in current or unknown mode (see the module docstring)."""
+
+    @classmethod
+    def options_from_url(cls, options: Mapping[str, str]) -> dict[str, Any]:
+        """Convert a URL's query options to constructor keywords; reject unknown ones."""
+        if options:
+            raise ValueError(f"{cls.__name__} takes no URL options, got {sorted(options)}")
+        return {}
+
+
+_BACKENDS: dict[str, str] = {"dynamixel": "arm_driver.dynamixel.bus:DynamixelBus"}
+_PLANNED = {
+    "dronecan": "the DroneCAN backend is not available yet (planned: python-can + DroneCAN "
+    "actuator messages); use a dynamixel:// bus",
+}
+
+
+def register_backend(name: str, target: str) -> None:
+    """Register a backend: URL scheme ``name`` -> ``"module:Class"`` (imported when used)."""
+    module, _, cls = target.partition(":")
+    if not name.isidentifier() or not module or not cls:
+        raise ValueError(f"bad backend registration {name!r} -> {target!r}")
+    _BACKENDS[name.lower()] = target
+
+
+def available_backends() -> tuple[str, ...]:
+    """Names of the registered backends."""
+    return tuple(sorted(_BACKENDS))
+
+
+def backend_class(name: str) -> type[ArmBus]:
+    """Import and return the backend registered as ``name``.
+
+    Raises
+    ------
+    BackendUnavailableError
+        No such backend, or a planned one that is not implemented yet.
+    """
+    name = name.lower()
+    if name not in _BACKENDS:
+        if name in _PLANNED:
+            raise BackendUnavailableError(f"backend {name!r}: {_PLANNED[name]}")
+        raise BackendUnavailableError(
+            f"unknown bus backend {name!r}; available: {', '.join(available_backends())}"
+        )
+    module, _, cls = _BACKENDS[name].partition(":")
+    return getattr(importlib.import_module(module), cls)
+
+
+def open_bus(
+    url: str,
+    joints: Sequence[JointConfig],
+    *,
+    gripper: GripperConfig | None = None,
+    **options: Any,
+) -> ArmBus:
+    """Make the bus a URL names; it opens with ``async with`` (or ``await bus.open()``).
+
+    Parameters
+    ----------
+    url
+        ``backend://device?option=value&...``, e.g.
+        ``dynamixel:///dev/ttyUSB0?baud=1000000``.
+    joints
+        The arm's joints.
+    gripper
+        The gripper's servo, if any.
+    **options
+        Backend keywords; one also given in the URL is an error.
+
+    Raises
+    ------
+    BackendUnavailableError
+        Unknown or not yet implemented backend.
+    ValueError
+        Bad URL, unknown or conflicting options, bad joint configuration.
+    """
+    parsed = parse_bus_url(url)
+    cls = backend_class(parsed.backend)
+    from_url = cls.options_from_url(parsed.options)
+    both = sorted(set(from_url) & set(options))
+    if both:
+        raise ValueError(f"option(s) {both} given both in the URL and as keywords")
+    return cls(parsed.device, joints, gripper=gripper, **from_url, **options)

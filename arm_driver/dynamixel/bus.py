@@ -1,0 +1,445 @@
+"""The Dynamixel backend of :class:`~arm_driver.bus.ArmBus`: XM430-W350 servos, Protocol 2.0.
+
+URL: ``dynamixel:///dev/ttyUSB0?baud=1000000`` with options ``baud`` [bit/s],
+``timeout_margin_ms`` [ms], ``crc_retries`` and ``low_latency`` (``0``/``1``).
+
+Transactions (one at a time; the base class holds the lock):
+
+- open: Ping every servo (model number checked), then one Read of addresses 9-70 each:
+  Return Delay Time(9), Operating Mode(11), Current Limit(38), Torque Enable(64),
+  Status Return Level(68), Hardware Error Status(70). A joint's torque limit is lowered
+  to what its Current Limit allows;
+- joint states: one Sync Read of Present Current/Velocity/Position (addresses 126-135,
+  10 bytes) from every joint servo;
+- torques and positions: one Sync Write of Goal Current(102) or Goal Position(116)
+  (never answered, so it costs only its own bytes on the line);
+- torque on/off, operating mode, gripper: a Write per servo, each answered and checked
+  when Status Return Level(68) is 2. The mode is in EEPROM: a servo with torque on
+  refuses it (Access Error), reported as :class:`~arm_driver.errors.InstructionError`.
+  Entering current-based position mode writes each joint's torque limit as its Goal
+  Current, which that mode uses as its current limit.
+
+Deadlines: each transaction waits at most the time its bytes take on the line (request
+and every expected reply, 10 bits per byte), plus each replying servo's Return Delay
+Time, plus ``timeout_margin_s`` (default 3 ms: USB latency with low-latency mode and
+scheduling). At 1 Mbit/s a missing servo in a Sync Read of two costs about 4.5 ms, then
+:class:`~arm_driver.errors.BusTimeoutError`. Timeouts are not retried: a retry doubles
+the stall of the control cycle, and the caller decides (the base class counts them).
+
+Damaged replies (CRC, framing) and a servo's own CRC Error are retried up to
+``crc_retries`` times (default 2), then raised as
+:class:`~arm_driver.errors.CommunicationError`. A reply with the Alert bit makes the bus
+read Hardware Error Status(70) and raise :class:`~arm_driver.errors.HardwareError` with
+the decoded bits.
+
+Safe state (see :mod:`arm_driver.bus`): joints in current or unknown mode get a Sync
+Write of Goal Current 0, then of Torque Enable 0; both are unanswered, so they work
+even when only the servos' replies are lost.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import functools
+import time
+from collections.abc import Awaitable, Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+from arm_driver.bus import (
+    ArmBus,
+    BusStateError,
+    GripperConfig,
+    JointConfig,
+    JointState,
+    OperatingMode,
+)
+from arm_driver.dynamixel import control_table as ct
+from arm_driver.dynamixel import units
+from arm_driver.dynamixel.instructions import (
+    encode_ping,
+    encode_read,
+    encode_sync_read,
+    encode_sync_write,
+    encode_write,
+    parse_ping_reply,
+    parse_read_reply,
+    parse_sync_read_replies,
+    parse_write_reply,
+)
+from arm_driver.dynamixel.protocol import MAX_ID, StatusPacket
+from arm_driver.dynamixel.stream import StatusParser
+from arm_driver.dynamixel.transport import SerialTransport
+from arm_driver.errors import (
+    ArmDriverError,
+    BusTimeoutError,
+    CommunicationError,
+    HardwareError,
+    HardwareErrorStatus,
+    InstructionError,
+    StatusError,
+)
+
+__all__ = ["DynamixelBus"]
+
+_STATUS_OVERHEAD = 11
+"""Bytes of a status packet besides its parameters: header 4, id, length 2, 0x55, error, CRC 2."""
+_UNKNOWN_RETURN_DELAY_S = 255 * 2e-6
+"""Return delay assumed before a servo's Return Delay Time(9) is read: the largest [s]."""
+_INFO_START = ct.RETURN_DELAY_TIME.address
+_INFO_LENGTH = ct.HARDWARE_ERROR_STATUS.end - _INFO_START
+_STATE_START = ct.PRESENT_CURRENT.address
+_STATE_LENGTH = ct.PRESENT_POSITION.end - _STATE_START
+_MODES = {
+    OperatingMode.CURRENT: ct.OperatingMode.CURRENT,
+    OperatingMode.POSITION: ct.OperatingMode.POSITION,
+    OperatingMode.CURRENT_BASED_POSITION: ct.OperatingMode.CURRENT_BASED_POSITION,
+}
+_POSITION_MODES = {
+    ct.OperatingMode.POSITION,
+    ct.OperatingMode.EXTENDED_POSITION,
+    ct.OperatingMode.CURRENT_BASED_POSITION,
+}
+
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class _Servo:
+    """What the bus learnt about a servo when it opened."""
+
+    return_delay_s: float
+    mode: int
+    current_limit_units: int
+    torque_enabled: bool
+    answers_writes: bool
+
+
+def _field(data: bytes, entry: ct.ControlTableEntry) -> int:
+    return entry.decode(data[entry.address - _INFO_START : entry.end - _INFO_START])
+
+
+def _hardware_details(
+    method: Callable[..., Awaitable[T]],
+) -> Callable[..., Awaitable[T]]:
+    """On an Alert, read Hardware Error Status(70) and raise HardwareError with its bits."""
+
+    @functools.wraps(method)
+    async def wrapper(self: DynamixelBus, *args: Any) -> T:
+        try:
+            return await method(self, *args)
+        except HardwareError as error:
+            if error.status is not None:
+                raise
+            servo_id = error.servo_id
+            data = await self._read(servo_id, ct.HARDWARE_ERROR_STATUS, ignore_alert=True)
+            bits = HardwareErrorStatus(ct.HARDWARE_ERROR_STATUS.decode(data))
+            raise HardwareError(servo_id, bits, error_number=error.error_number) from error
+
+    return wrapper
+
+
+class DynamixelBus(ArmBus):
+    """XM430-W350 servos on a Protocol 2.0 serial bus, in joint space.
+
+    Parameters
+    ----------
+    device
+        Serial device, e.g. ``/dev/ttyUSB0``.
+    joints
+        The arm's joints (servo ids 0-252).
+    gripper
+        The gripper's servo, if any (in a position mode, set in its EEPROM).
+    baudrate
+        Line rate [bit/s]; must match the servos' Baud Rate(8).
+    timeout_margin_s
+        Added to each transaction's computed deadline [s].
+    crc_retries
+        Retries of a transaction whose reply was damaged.
+    max_consecutive_failures
+        Link failures in a row that mark the bus failed.
+    model_number
+        Model Number(0) every servo must report (1020: XM430-W350).
+    low_latency
+        Ask for the serial driver's low-latency mode.
+    """
+
+    def __init__(
+        self,
+        device: str,
+        joints: Sequence[JointConfig],
+        *,
+        gripper: GripperConfig | None = None,
+        baudrate: int = 1_000_000,
+        timeout_margin_s: float = 0.003,
+        crc_retries: int = 2,
+        max_consecutive_failures: int = 3,
+        model_number: int = ct.XM430_W350_MODEL_NUMBER,
+        low_latency: bool = True,
+    ) -> None:
+        super().__init__(joints, gripper=gripper, max_consecutive_failures=max_consecutive_failures)
+        ids = [joint.servo_id for joint in self.joints] + ([gripper.servo_id] if gripper else [])
+        for servo_id in ids:
+            if not 0 <= servo_id <= MAX_ID:
+                raise ValueError(f"Dynamixel servo id {servo_id} out of range (0-{MAX_ID})")
+        if not timeout_margin_s >= 0.0:
+            raise ValueError(f"timeout_margin_s {timeout_margin_s} must be >= 0")
+        if crc_retries < 0:
+            raise ValueError(f"crc_retries {crc_retries} must be >= 0")
+        self._ids = ids
+        self._joint_ids = [joint.servo_id for joint in self.joints]
+        self._margin_s = timeout_margin_s
+        self._crc_retries = crc_retries
+        self._model_number = model_number
+        self._transport = SerialTransport(device, baudrate, low_latency=low_latency)
+        self._parser = StatusParser()
+        self._servos: dict[int, _Servo] = {}
+
+    @classmethod
+    def options_from_url(cls, options: Mapping[str, str]) -> dict[str, Any]:
+        """``baud``, ``timeout_margin_ms``, ``crc_retries``, ``low_latency`` -> keywords."""
+        convert: dict[str, tuple[str, Callable[[str], Any]]] = {
+            "baud": ("baudrate", int),
+            "timeout_margin_ms": ("timeout_margin_s", lambda text: float(text) / 1e3),
+            "crc_retries": ("crc_retries", int),
+            "low_latency": ("low_latency", _flag),
+        }
+        unknown = sorted(set(options) - set(convert))
+        if unknown:
+            raise ValueError(f"unknown dynamixel option(s) {unknown}; known: {sorted(convert)}")
+        kwargs = {}
+        for name, text in options.items():
+            keyword, parse = convert[name]
+            try:
+                kwargs[keyword] = parse(text)
+            except ValueError:
+                raise ValueError(f"dynamixel option {name}={text!r} is not valid") from None
+        return kwargs
+
+    # -- transactions -------------------------------------------------------------------
+
+    def _timeout_s(self, request_bytes: int, repliers: Sequence[int], reply_params: int) -> float:
+        line_bytes = request_bytes + len(repliers) * (_STATUS_OVERHEAD + reply_params)
+        delays = sum(
+            self._servos[i].return_delay_s if i in self._servos else _UNKNOWN_RETURN_DELAY_S
+            for i in repliers
+        )
+        return line_bytes * self._transport.byte_time_s + delays + self._margin_s
+
+    async def _exchange(
+        self, packet: bytes, repliers: Sequence[int], reply_params: int
+    ) -> list[StatusPacket]:
+        """Send ``packet``; return one status packet per id in ``repliers`` (retrying CRC)."""
+        for attempt in range(self._crc_retries + 1):
+            try:
+                return await self._exchange_once(packet, repliers, reply_params)
+            except BusTimeoutError:
+                raise
+            except (CommunicationError, InstructionError) as error:
+                retry = isinstance(error, CommunicationError) or error.error is StatusError.CRC
+                if not retry:
+                    raise
+                if attempt == self._crc_retries:
+                    error.add_note(f"gave up after {attempt + 1} attempt(s)")
+                    raise
+        raise AssertionError("unreachable")
+
+    async def _exchange_once(
+        self, packet: bytes, repliers: Sequence[int], reply_params: int
+    ) -> list[StatusPacket]:
+        transport, parser = self._transport, self._parser
+        transport.discard_input()
+        parser.clear()
+        transport.write(packet)
+        if not repliers:
+            return []
+        timeout_s = self._timeout_s(len(packet), repliers, reply_params)
+        deadline = asyncio.get_running_loop().time() + timeout_s
+        replies: list[StatusPacket] = []
+        damaged: CommunicationError | None = None
+        received = 0
+        while len(replies) < len(repliers):
+            chunk = await transport.read(deadline)
+            if not chunk:
+                break
+            received += len(chunk)
+            parser.feed(chunk)
+            while True:
+                try:
+                    reply = parser.next_packet()
+                except CommunicationError as error:
+                    damaged = damaged or error
+                    continue
+                if reply is None:
+                    break
+                replies.append(reply)
+        if damaged is not None:
+            raise damaged
+        if len(replies) < len(repliers):
+            answered = {reply.servo_id for reply in replies}
+            missing = [i for i in repliers if i not in answered]
+            error = BusTimeoutError(missing[0], timeout_s, received_bytes=received)
+            if len(missing) > 1:
+                error.add_note(f"servos {missing} did not answer")
+            raise error
+        for reply in replies:
+            if reply.servo_id not in repliers:
+                raise CommunicationError(f"reply from servo {reply.servo_id}, which was not asked")
+            if reply.error == StatusError.CRC:  # the servo got our packet damaged
+                raise InstructionError(reply.servo_id, reply.error)
+        return replies
+
+    async def _read(
+        self, servo_id: int, entry: ct.ControlTableEntry, *, ignore_alert: bool = False
+    ) -> bytes:
+        return await self._read_range(
+            servo_id, entry.address, entry.size, ignore_alert=ignore_alert
+        )
+
+    async def _read_range(
+        self, servo_id: int, address: int, length: int, *, ignore_alert: bool = False
+    ) -> bytes:
+        (reply,) = await self._exchange(encode_read(servo_id, address, length), [servo_id], length)
+        return parse_read_reply(reply, servo_id, length, ignore_alert=ignore_alert)
+
+    async def _write(self, servo_id: int, entry: ct.ControlTableEntry, value: int) -> None:
+        answers = self._servos[servo_id].answers_writes
+        packet = encode_write(servo_id, entry.address, entry.encode(value))
+        replies = await self._exchange(packet, [servo_id] if answers else [], 0)
+        for reply in replies:
+            parse_write_reply(reply, servo_id)
+
+    async def _sync_write(self, entry: ct.ControlTableEntry, values: Mapping[int, int]) -> None:
+        data = {servo_id: entry.encode(value) for servo_id, value in values.items()}
+        await self._exchange(encode_sync_write(entry.address, entry.size, data), [], 0)
+
+    # -- hooks ------------------------------------------------------------------------------
+
+    async def _open_hook(self) -> tuple[OperatingMode | None, bool | None]:
+        self._servos.clear()
+        await self._transport.open()
+        for servo_id in self._ids:
+            (reply,) = await self._exchange(encode_ping(servo_id), [servo_id], 3)
+            model = parse_ping_reply(reply, servo_id, ignore_alert=True).model_number
+            if model != self._model_number:
+                raise ArmDriverError(
+                    f"servo {servo_id} is model {model}, expected {self._model_number}",
+                    servo_id=servo_id,
+                )
+            info = await self._read_range(servo_id, _INFO_START, _INFO_LENGTH, ignore_alert=True)
+            bits = HardwareErrorStatus(_field(info, ct.HARDWARE_ERROR_STATUS))
+            if bits:
+                raise HardwareError(servo_id, bits)
+            self._servos[servo_id] = _Servo(
+                return_delay_s=_field(info, ct.RETURN_DELAY_TIME) * 2e-6,
+                mode=_field(info, ct.OPERATING_MODE),
+                current_limit_units=_field(info, ct.CURRENT_LIMIT),
+                torque_enabled=_field(info, ct.TORQUE_ENABLE) == 1,
+                answers_writes=_field(info, ct.STATUS_RETURN_LEVEL) == ct.StatusReturnLevel.ALL,
+            )
+        for joint in self.joints:
+            limit_a = units.current_units_to_a(self._servos[joint.servo_id].current_limit_units)
+            self._limit_torque(joint.name, limit_a * joint.torque_constant_n_m_per_a)
+        modes = {self._servos[i].mode for i in self._joint_ids}
+        by_raw = {raw: mode for mode, raw in _MODES.items()}
+        mode = by_raw.get(modes.pop()) if len(modes) == 1 else None
+        torques = {servo.torque_enabled for servo in self._servos.values()}
+        return mode, (torques.pop() if len(torques) == 1 else None)
+
+    async def _close_hook(self) -> None:
+        self._transport.close()
+
+    @_hardware_details
+    async def _set_torque_hook(self, enabled: bool) -> None:
+        for servo_id in self._ids:
+            await self._write(servo_id, ct.TORQUE_ENABLE, int(enabled))
+
+    @_hardware_details
+    async def _set_mode_hook(self, mode: OperatingMode) -> None:
+        for servo_id in self._joint_ids:
+            try:
+                await self._write(servo_id, ct.OPERATING_MODE, _MODES[mode])
+            except InstructionError as error:
+                if error.error is StatusError.ACCESS:
+                    error.add_note("Operating Mode(11) is in EEPROM: the servo's torque is on")
+                raise
+            self._servos[servo_id] = dataclasses.replace(self._servos[servo_id], mode=_MODES[mode])
+        if mode is OperatingMode.CURRENT_BASED_POSITION:
+            await self._sync_write(
+                ct.GOAL_CURRENT,
+                {
+                    joint.servo_id: self._current_units(joint, self.torque_limit_n_m(joint.name))
+                    for joint in self.joints
+                },
+            )
+
+    def _current_units(self, joint: JointConfig, torque_n_m: float) -> int:
+        """Goal Current [2.69 mA] for a joint torque [N m], within the Current Limit."""
+        current_a = joint.direction * torque_n_m / joint.torque_constant_n_m_per_a
+        limit = self._servos[joint.servo_id].current_limit_units
+        return max(-limit, min(limit, units.a_to_current_units(current_a)))
+
+    @_hardware_details
+    async def _write_torques_hook(self, torques_n_m: Mapping[JointConfig, float]) -> None:
+        values = {joint.servo_id: self._current_units(joint, t) for joint, t in torques_n_m.items()}
+        await self._sync_write(ct.GOAL_CURRENT, values)
+
+    @_hardware_details
+    async def _write_positions_hook(self, positions_rad: Mapping[JointConfig, float]) -> None:
+        values = {
+            joint.servo_id: units.rad_to_ticks(joint.servo_angle_rad(angle))
+            for joint, angle in positions_rad.items()
+        }
+        await self._sync_write(ct.GOAL_POSITION, values)
+
+    @_hardware_details
+    async def _read_states_hook(self) -> dict[str, JointState]:
+        ids = self._joint_ids
+        packet = encode_sync_read(_STATE_START, _STATE_LENGTH, ids)
+        replies = await self._exchange(packet, ids, _STATE_LENGTH)
+        stamp = time.monotonic()
+        data = parse_sync_read_replies(replies, ids, _STATE_LENGTH)
+        states = {}
+        for joint in self.joints:
+            raw = data[joint.servo_id]
+            current = ct.PRESENT_CURRENT.decode(raw[0:2])
+            velocity = ct.PRESENT_VELOCITY.decode(raw[2:6])
+            position = ct.PRESENT_POSITION.decode(raw[6:10])
+            states[joint.name] = JointState(
+                name=joint.name,
+                position_rad=joint.joint_angle_rad(units.ticks_to_rad(position)),
+                velocity_rad_s=joint.direction * units.velocity_units_to_rad_s(velocity),
+                torque_n_m=joint.direction
+                * joint.torque_constant_n_m_per_a
+                * units.current_units_to_a(current),
+                timestamp_s=stamp,
+            )
+        return states
+
+    @_hardware_details
+    async def _write_gripper_hook(self, servo_angle_rad: float) -> None:
+        gripper = self.gripper
+        assert gripper is not None
+        if self._servos[gripper.servo_id].mode not in _POSITION_MODES:
+            raise BusStateError(
+                f"gripper servo {gripper.servo_id} is not in a position mode "
+                f"(Operating Mode(11) = {self._servos[gripper.servo_id].mode})"
+            )
+        await self._write(gripper.servo_id, ct.GOAL_POSITION, units.rad_to_ticks(servo_angle_rad))
+
+    async def _safe_state_hook(self) -> None:
+        if self.operating_mode not in (OperatingMode.CURRENT, None):
+            return
+        if not self._transport.is_open:
+            return
+        await self._sync_write(ct.GOAL_CURRENT, dict.fromkeys(self._joint_ids, 0))
+        await self._sync_write(ct.TORQUE_ENABLE, dict.fromkeys(self._joint_ids, 0))
+
+
+def _flag(text: str) -> bool:
+    if text.lower() in ("1", "true", "yes", "on"):
+        return True
+    if text.lower() in ("0", "false", "no", "off"):
+        return False
+    raise ValueError(text)
