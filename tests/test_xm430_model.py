@@ -1,0 +1,170 @@
+"""The pure XM430-W350 model: control table rules, loops, overload, joint coupling."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from arm_driver.dynamixel import control_table as ct
+from arm_driver.dynamixel import units
+from arm_driver.dynamixel.protocol import Instruction, InstructionPacket
+from arm_driver.errors import HardwareErrorStatus, StatusError
+from sitl.servo import EXAMPLE_TORQUE_CONSTANT_N_M_PER_A, ServoJoint, XM430Parameters, XM430Servo
+
+
+def write(servo: XM430Servo, entry: ct.ControlTableEntry, value: int) -> int:
+    return servo.write(entry.address, entry.encode(value)).error
+
+
+def settle(servo: XM430Servo, seconds: float = 0.05, dt_s: float = 1e-3) -> None:
+    for _ in range(round(seconds / dt_s)):
+        servo.step(dt_s)
+
+
+def test_factory_control_table() -> None:
+    servo = XM430Servo(4)
+    assert servo.get(ct.MODEL_NUMBER) == ct.XM430_W350_MODEL_NUMBER
+    assert servo.get(ct.ID) == 4
+    assert servo.get(ct.OPERATING_MODE) == ct.OperatingMode.POSITION
+    assert servo.get(ct.CURRENT_LIMIT) == 1193
+    assert servo.get(ct.STATUS_RETURN_LEVEL) == ct.StatusReturnLevel.ALL
+    assert servo.return_delay_s == pytest.approx(500e-6)
+    assert servo.get(ct.GOAL_POSITION) == servo.get(ct.PRESENT_POSITION) == 2048
+    assert isinstance(servo, ServoJoint)
+
+
+def test_ping_reply_carries_model_and_firmware() -> None:
+    reply = XM430Servo(1).handle(InstructionPacket(1, Instruction.PING))
+    assert reply.error == 0
+    assert int.from_bytes(reply.params[:2], "little") == ct.XM430_W350_MODEL_NUMBER
+    assert len(reply.params) == 3
+
+
+def test_unsupported_instruction_is_an_instruction_error() -> None:
+    reply = XM430Servo(1).handle(InstructionPacket(1, Instruction.REG_WRITE, b"\x40\x00\x01"))
+    assert reply.error == StatusError.INSTRUCTION
+
+
+def test_eeprom_write_refused_while_torque_is_on() -> None:
+    servo = XM430Servo(1)
+    assert write(servo, ct.TORQUE_ENABLE, 1) == 0
+    assert write(servo, ct.OPERATING_MODE, ct.OperatingMode.CURRENT) == StatusError.ACCESS
+    assert servo.get(ct.OPERATING_MODE) == ct.OperatingMode.POSITION
+    assert write(servo, ct.TORQUE_ENABLE, 0) == 0
+    assert write(servo, ct.OPERATING_MODE, ct.OperatingMode.CURRENT) == 0
+    assert servo.get(ct.OPERATING_MODE) == ct.OperatingMode.CURRENT
+
+
+@pytest.mark.parametrize(
+    ("address", "data", "error"),
+    [
+        (ct.MODEL_NUMBER.address, b"\x00\x00", StatusError.ACCESS),  # read-only
+        (ct.HARDWARE_ERROR_STATUS.address, b"\x20", StatusError.ACCESS),  # read-only
+        (ct.PRESENT_POSITION.address, b"\x00" * 4, StatusError.ACCESS),  # read-only
+        (ct.OPERATING_MODE.address, b"\x02", StatusError.DATA_RANGE),  # no such mode
+        (ct.OPERATING_MODE.address, b"\x01", StatusError.DATA_RANGE),  # velocity: not modelled
+        (ct.GOAL_CURRENT.address, (1194).to_bytes(2, "little"), StatusError.DATA_LIMIT),
+    ],
+)
+def test_bad_writes_are_refused_and_change_nothing(address: int, data: bytes, error: int) -> None:
+    servo = XM430Servo(1)
+    before = bytes(servo.table)
+    assert servo.write(address, data).error == error
+    assert bytes(servo.table) == before
+
+
+def test_read_beyond_the_table_is_refused() -> None:
+    assert XM430Servo(1).read(140, 10).error == StatusError.ACCESS
+
+
+def test_current_mode_tracks_goal_current_with_a_lag_and_gives_kt_torque() -> None:
+    servo = XM430Servo(1)
+    write(servo, ct.OPERATING_MODE, ct.OperatingMode.CURRENT)
+    goal = units.a_to_current_units(-0.8)
+    write(servo, ct.GOAL_CURRENT, goal)
+    servo.step(1e-3)
+    assert servo.torque_n_m() == 0.0  # torque off: no output whatever the goal
+    write(servo, ct.TORQUE_ENABLE, 1)
+    servo.step(0.25e-3)  # half the 0.5 ms time constant: partway there
+    assert 0 > servo.get(ct.PRESENT_CURRENT) > goal
+    settle(servo)
+    assert servo.get(ct.PRESENT_CURRENT) == goal
+    expected_n_m = EXAMPLE_TORQUE_CONSTANT_N_M_PER_A * units.current_units_to_a(goal)
+    assert servo.torque_n_m() == pytest.approx(expected_n_m, rel=1e-3)
+
+
+def test_position_mode_pd_drives_toward_the_goal_and_is_current_limited() -> None:
+    params = XM430Parameters(position_kp_a_per_rad=4.0, position_kd_a_s_per_rad=0.5)
+    servo = XM430Servo(1, params)
+    write(servo, ct.GOAL_POSITION, units.rad_to_ticks(0.1))
+    write(servo, ct.TORQUE_ENABLE, 1)
+    servo.set_state(0.0, 0.2)
+    expected = 4.0 * units.ticks_to_rad(units.rad_to_ticks(0.1)) - 0.5 * 0.2
+    assert servo.commanded_current_a() == pytest.approx(expected)
+    write(servo, ct.GOAL_POSITION, units.rad_to_ticks(3.0))
+    limit_a = units.current_units_to_a(1193)
+    assert servo.commanded_current_a() == pytest.approx(limit_a)  # 11.9 A clamped to 3.2 A
+    write(servo, ct.GOAL_POSITION, units.rad_to_ticks(-3.0))
+    assert servo.commanded_current_a() == pytest.approx(-limit_a)
+
+
+def test_current_based_position_limits_current_to_the_goal_current() -> None:
+    servo = XM430Servo(1)
+    write(servo, ct.OPERATING_MODE, ct.OperatingMode.CURRENT_BASED_POSITION)
+    write(servo, ct.GOAL_CURRENT, units.a_to_current_units(0.3))
+    write(servo, ct.GOAL_POSITION, units.rad_to_ticks(-1.0))
+    write(servo, ct.TORQUE_ENABLE, 1)
+    assert servo.commanded_current_a() == pytest.approx(-units.current_units_to_a(112))
+
+
+def test_closed_loop_with_a_physics_joint_settles_on_the_goal() -> None:
+    """GIVEN an inertia driven through ServoJoint, WHEN the goal steps, THEN it settles."""
+    servo: ServoJoint = XM430Servo(1)
+    assert isinstance(servo, XM430Servo)
+    write(servo, ct.GOAL_POSITION, units.rad_to_ticks(0.5))
+    write(servo, ct.TORQUE_ENABLE, 1)
+    inertia_kg_m2, angle, rate, dt = 0.01, 0.0, 0.0, 1e-3
+    for _ in range(2000):
+        servo.set_state(angle, rate)
+        servo.step(dt)
+        rate += servo.torque_n_m() / inertia_kg_m2 * dt
+        angle += rate * dt
+    assert angle == pytest.approx(0.5, abs=2 * units.RAD_PER_TICK)
+    assert abs(rate) < 1e-2
+    assert not servo.hardware_error
+
+
+def test_sustained_overload_sets_the_bit_shuts_down_and_needs_a_reboot() -> None:
+    servo = XM430Servo(1, XM430Parameters(overload_time_s=0.2))
+    write(servo, ct.OPERATING_MODE, ct.OperatingMode.CURRENT)
+    write(servo, ct.GOAL_CURRENT, 1193)
+    write(servo, ct.TORQUE_ENABLE, 1)
+    settle(servo, 0.15)
+    assert not servo.hardware_error  # not sustained long enough yet
+    settle(servo, 0.1)
+    assert servo.hardware_error == HardwareErrorStatus.OVERLOAD
+    assert not servo.torque_enabled and servo.torque_n_m() == 0.0  # Shutdown(63) = 52
+    assert servo.read(ct.HARDWARE_ERROR_STATUS.address, 1).alert
+    assert write(servo, ct.TORQUE_ENABLE, 1) == StatusError.RESULT_FAIL
+    servo.handle(InstructionPacket(1, Instruction.REBOOT))
+    assert not servo.hardware_error
+    assert write(servo, ct.TORQUE_ENABLE, 1) == 0
+
+
+def test_status_return_level_and_id_are_writable_in_their_areas() -> None:
+    servo = XM430Servo(1)
+    assert write(servo, ct.STATUS_RETURN_LEVEL, 1) == 0
+    assert servo.status_return_level == 1
+    assert write(servo, ct.ID, 9) == 0
+    assert servo.servo_id == 9
+
+
+def test_parameters_are_validated() -> None:
+    with pytest.raises(ValueError):
+        XM430Parameters(torque_constant_n_m_per_a=0.0)
+    with pytest.raises(ValueError):
+        XM430Parameters(overload_current_fraction=1.5)
+    with pytest.raises(ValueError):
+        XM430Servo(253)
+    assert math.isclose(EXAMPLE_TORQUE_CONSTANT_N_M_PER_A, 1.78, rel_tol=2e-3)
