@@ -48,12 +48,11 @@ import asyncio
 import enum
 import importlib
 import logging
-import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 from arm_driver.errors import ArmDriverError, BusTimeoutError, CommunicationError, LimitError
+from arm_driver.joint import GripperConfig, JointConfig, JointState
 from arm_driver.url import parse_bus_url
 
 __all__ = [
@@ -105,112 +104,6 @@ class BusFailedError(BusStateError):
 
 class BackendUnavailableError(ArmDriverError, LookupError):
     """No backend of that name, or one that is planned but not implemented."""
-
-
-@dataclass(frozen=True)
-class JointConfig:
-    """One arm joint and the servo that drives it.
-
-    Attributes
-    ----------
-    name
-        Joint name, the key of every joint-space command and state.
-    servo_id
-        The servo's id on its bus.
-    torque_constant_n_m_per_a
-        Calibrated output torque per motor current [N m/A]. For the XM430-W350, the
-        datasheet's stall torque over stall current (4.1 N m / 2.3 A = 1.78 N m/A at
-        12 V) is an example value, not a calibration.
-    torque_max_n_m
-        Largest torque magnitude a command may ask for [N m].
-    direction
-        +1 if a positive joint angle turns the servo counter-clockwise seen from its
-        front, -1 if clockwise.
-    zero_offset_rad
-        Servo shaft angle [rad] (0 at the servo's centre position) where the joint angle
-        is 0: ``servo = zero_offset_rad + direction * joint``.
-    position_min_rad, position_max_rad
-        Joint angle limits [rad].
-    """
-
-    name: str
-    servo_id: int
-    torque_constant_n_m_per_a: float
-    torque_max_n_m: float
-    direction: int = 1
-    zero_offset_rad: float = 0.0
-    position_min_rad: float = -math.pi
-    position_max_rad: float = math.pi
-
-    def __post_init__(self) -> None:
-        if not self.name:
-            raise ValueError("a joint needs a name")
-        if self.direction not in (1, -1):
-            raise ValueError(f"joint {self.name!r}: direction must be +1 or -1")
-        if not (
-            math.isfinite(self.torque_constant_n_m_per_a) and self.torque_constant_n_m_per_a > 0
-        ):
-            raise ValueError(f"joint {self.name!r}: torque constant must be positive and finite")
-        if not (math.isfinite(self.torque_max_n_m) and self.torque_max_n_m >= 0):
-            raise ValueError(f"joint {self.name!r}: torque_max_n_m must be >= 0 and finite")
-        if not math.isfinite(self.zero_offset_rad):
-            raise ValueError(f"joint {self.name!r}: zero_offset_rad must be finite")
-        if not self.position_min_rad < self.position_max_rad:
-            raise ValueError(f"joint {self.name!r}: position_min_rad must be < position_max_rad")
-
-    def servo_angle_rad(self, joint_angle_rad: float) -> float:
-        """Servo shaft angle [rad] for a joint angle [rad]."""
-        return self.zero_offset_rad + self.direction * joint_angle_rad
-
-    def joint_angle_rad(self, servo_angle_rad: float) -> float:
-        """Joint angle [rad] for a servo shaft angle [rad]."""
-        return self.direction * (servo_angle_rad - self.zero_offset_rad)
-
-
-@dataclass(frozen=True)
-class GripperConfig:
-    """The gripper's servo, driven in a position mode between two shaft angles.
-
-    Attributes
-    ----------
-    servo_id
-        The servo's id on the arm's bus.
-    open_position_rad, closed_position_rad
-        Servo shaft angles [rad] (0 at the servo's centre position) of open and closed.
-    """
-
-    servo_id: int
-    open_position_rad: float
-    closed_position_rad: float
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.open_position_rad) and math.isfinite(self.closed_position_rad)):
-            raise ValueError("gripper positions must be finite")
-
-
-@dataclass(frozen=True)
-class JointState:
-    """One joint's measured state.
-
-    Attributes
-    ----------
-    name
-        Joint name.
-    position_rad
-        Joint angle [rad].
-    velocity_rad_s
-        Joint rate [rad/s].
-    torque_n_m
-        Joint torque from the measured current and the torque constant [N m].
-    timestamp_s
-        ``time.monotonic()`` when the reply was received [s].
-    """
-
-    name: str
-    position_rad: float
-    velocity_rad_s: float
-    torque_n_m: float
-    timestamp_s: float
 
 
 _OPEN_BUSES: set[ArmBus] = set()

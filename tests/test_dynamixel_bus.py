@@ -352,3 +352,35 @@ def test_slow_replies_within_the_margin_still_succeed(sim: PtyServoBus) -> None:
             assert set(states) == {"shoulder", "elbow"}
 
     run(body)
+
+
+def test_servos_that_do_not_answer_writes_still_take_them(sim: PtyServoBus) -> None:
+    with sim.lock:
+        for servo in sim.servos.values():
+            servo.write(ct.STATUS_RETURN_LEVEL.address, b"\x01")  # Ping and Read only
+
+    async def body() -> None:
+        async with make_bus(sim) as bus:
+            start = time.perf_counter()
+            await bus.enable_torque()  # no reply awaited, so no timeout either
+            assert time.perf_counter() - start < 0.2
+            await bus.read_joint_states()
+            with sim.lock:
+                assert all(servo.torque_enabled for servo in sim.servos.values())
+            await bus.disable_torque()
+
+    run(body)
+
+
+def test_a_servo_in_hardware_error_refuses_to_open_with_its_bits(sim: PtyServoBus) -> None:
+    with sim.lock:
+        sim.servos[1].inject_hardware_error(HardwareErrorStatus.OVERHEATING)
+
+    async def body() -> None:
+        bus = make_bus(sim)
+        with pytest.raises(HardwareError) as caught:
+            await bus.open()
+        assert caught.value.status == HardwareErrorStatus.OVERHEATING
+        assert bus.state is BusState.CLOSED
+
+    run(body)
