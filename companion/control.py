@@ -23,6 +23,8 @@ __all__ = ["DesiredState", "PassivityController", "SlidingModeController", "wrap
 
 FloatArray = NDArray[np.float64]
 YAW = 5
+_ONE = np.ones(1)
+"""The last entry of xi = [m2, m3, m4, 1]."""
 
 
 @dataclass(frozen=True)
@@ -37,7 +39,7 @@ class DesiredState:
 def wrap_angle_error(e: FloatArray) -> FloatArray:
     """e with the yaw entry wrapped to [-pi, pi) (a copy)."""
     out = e.copy()
-    out[YAW] = (out[YAW] + np.pi) % (2.0 * np.pi) - np.pi
+    out[YAW] = (float(out[YAW]) + np.pi) % (2.0 * np.pi) - np.pi
     return out
 
 
@@ -60,6 +62,7 @@ class PassivityController:
         self.k = np.asarray(k, dtype=float)
         self.k_lam = self.k * np.asarray(lam, dtype=float)
         self.fixed_theta = None if fixed_theta is None else np.asarray(fixed_theta, dtype=float)
+        self._fixed_xi = None if fixed_theta is None else np.concatenate((self.fixed_theta, _ONE))
 
     @classmethod
     def nonadaptive(cls, k: ArrayLike, lam: ArrayLike, nominal_theta: ArrayLike):
@@ -75,8 +78,8 @@ class PassivityController:
         theta_hat: ArrayLike,
     ) -> FloatArray:
         """tau, shape (8,), for ``terms = model.terms(q, q_dot)``."""
-        theta = self.fixed_theta if self.fixed_theta is not None else theta_hat
-        feedforward = terms.regressor(desired.q_dot, desired.q_ddot) @ np.append(theta, 1.0)
+        xi = self._fixed_xi if self._fixed_xi is not None else np.concatenate((theta_hat, _ONE))
+        feedforward = terms.regressor(desired.q_dot, desired.q_ddot) @ xi
         e = wrap_angle_error(q - desired.q)
         return feedforward - self.k * (q_dot - desired.q_dot) - self.k_lam * e
 
@@ -127,7 +130,12 @@ class SlidingModeController:
     @property
     def theta(self) -> FloatArray:
         """(m2, m3, m4) the law uses: m2hat at the empty-arm lc (point mass)."""
-        return np.array((self.m2, self.m2 * self.lc, self.m2 * self.lc**2))
+        return self._xi()[:3]
+
+    def _xi(self) -> FloatArray:
+        """xi = [theta, 1] (eq. reg)."""
+        m2, lc = self.m2, self.lc
+        return np.array((m2, m2 * lc, m2 * lc**2, 1.0))
 
     def torque(
         self,
@@ -143,22 +151,18 @@ class SlidingModeController:
         qr_dot = desired.q_dot - self.lam * e
         qr_ddot = desired.q_ddot - self.lam * (q_dot - desired.q_dot)
         s = q_dot - qr_dot
-        xi = np.append(self.theta, 1.0)
-        tau = (
-            terms.regressor(qr_dot, qr_ddot) @ xi
-            + self.delta
-            - self.k1 * s
-            - self.k2 * np.clip(s / self.phi, -1.0, 1.0)
-        )
+        xi = self._xi()
+        sat = np.minimum(np.maximum(s / self.phi, -1.0), 1.0)
+        tau = terms.regressor(qr_dot, qr_ddot) @ xi + self.delta - self.k1 * s - self.k2 * sat
         self.delta = self.delta - dt * self.gamma_delta * s
-        self._read_mass(dt, terms, q_dot, q_ddot, tau[2], xi)
+        self._read_mass(dt, terms, q_dot, q_ddot, float(tau[2]), xi)
         return tau
 
     def _read_mass(self, dt, terms, q_dot, q_ddot, force_z, xi) -> None:
         """Eq. asc2 with the previous estimate; first-order low-pass, then bounds."""
         total_prev = self.known_mass_kg + self.m2
         # Row 3 of M q_ddot + C q_dot + G is m (g + z_ddot_com) for the previous estimate.
-        specific_force = (terms.regressor(q_dot, q_ddot)[2] @ xi) / total_prev
+        specific_force = float(terms.regressor(q_dot, q_ddot)[2] @ xi) / total_prev
         if specific_force <= 0.1 * self.g:
             return  # near free fall the read-out is meaningless: keep the estimate
         m2_read = force_z / specific_force - self.known_mass_kg

@@ -64,14 +64,18 @@ class ThetaBounds:
 
     def project(self, theta: ArrayLike) -> FloatArray:
         """The clipped copy of theta; raises FloatingPointError on NaN or infinity."""
-        m2, m3, m4 = (float(v) for v in theta)
+        m2, m3, m4 = np.asarray(theta, dtype=float).tolist()
+        return np.array(self.clip(m2, m3, m4))
+
+    def clip(self, m2: float, m3: float, m4: float) -> tuple[float, float, float]:
+        """:meth:`project` on the three parameters as floats."""
         if not (math.isfinite(m2) and math.isfinite(m3) and math.isfinite(m4)):
             raise FloatingPointError(f"non-finite parameter estimate {(m2, m3, m4)}")
         l2 = self.link2_length_m
         m2 = min(max(m2, self.m2_min_kg), self.m2_max_kg)
         m3 = min(max(m3, 0.0), m2 * l2)
         m4 = min(max(m4, m3 * m3 / m2), m2 * l2 * l2)
-        return np.array((m2, m3, m4))
+        return m2, m3, m4
 
     def contains(self, theta: ArrayLike, rel_tol: float = 1e-9) -> bool:
         """True if theta lies in the set (with a relative tolerance for rounding)."""
@@ -115,7 +119,9 @@ class ExcitationMonitor:
 
     Information: ``I <- I + (dt/T)(S Y_theta^T W Y_theta S - I)`` with S = diag(scale) so the
     three parameters weigh alike, W = diag(1/row_scale^2); excitation = lambda_min(I).
-    Spread: exponentially weighted standard deviation of m2 over the same window.
+    Spread: exponentially weighted standard deviation of m2 over the same window, relative
+    to its mean (infinite before the first sample). Both are held in :attr:`excitation` and
+    :attr:`spread` between samples.
 
     Parameters
     ----------
@@ -154,6 +160,7 @@ class ExcitationMonitor:
         self.mean: float | None = None
         self.var = 0.0
         self.excitation = 0.0
+        self.spread = float("inf")
         self._since_sample = float("inf")
         self._samples = 0
 
@@ -174,19 +181,20 @@ class ExcitationMonitor:
             delta = m2 - self.mean
             self.mean += a * delta
             self.var = (1.0 - a) * (self.var + a * delta * delta)
+        self.spread = math.sqrt(self.var) / max(abs(self.mean), 1e-12)
         self._samples += 1
         if self._samples % 5 == 0:
             self.excitation = float(np.linalg.eigvalsh(self.info)[0])
         return self.excitation, self.spread
 
-    @property
-    def spread(self) -> float:
-        if self.mean is None:
-            return float("inf")
-        return float(np.sqrt(self.var) / max(abs(self.mean), 1e-12))
-
     def confident(self) -> bool:
         return self.excitation >= self.excitation_min and self.spread <= self.spread_max
+
+
+def _all_finite(values: FloatArray) -> bool:
+    """True if values hold no NaN or infinity, read from their sum (finite values large
+    enough for the sum to overflow are not forces or regressors either)."""
+    return math.isfinite(values.sum())
 
 
 class _Base(ABC):
@@ -202,6 +210,9 @@ class _Base(ABC):
         if not rows or sorted(set(rows)) != list(rows) or rows[0] < 0 or rows[-1] > 7:
             raise ValueError(f"rows must be increasing indices into q (0..7), got {rows}")
         self.rows = np.asarray(rows)
+        contiguous = rows[-1] - rows[0] + 1 == len(rows)
+        # A slice takes a view (no copy) of the rows of Y, q, q_dot and tau each step.
+        self._select = slice(rows[0], rows[-1] + 1) if contiguous else self.rows
         self.bounds = bounds
         self.monitor = monitor
         self.frozen = False
@@ -261,11 +272,12 @@ class _Base(ABC):
             rows are not all finite (no force known yet, a corrupt read-back) is skipped:
             theta is held and the step is counted in :attr:`skipped_steps`.
         """
-        y = terms.regressor(q_dot, q_ddot)[self.rows]
-        tau_rows = tau[self.rows]
+        select = self._select
+        y = terms.regressor(q_dot, q_ddot)[select]
+        tau_rows = tau[select]
         if not self.frozen:
-            if np.isfinite(tau_rows).all() and np.isfinite(y).all():
-                self._step(dt, y, q[self.rows], q_dot[self.rows], tau_rows)
+            if _all_finite(tau_rows) and _all_finite(y):
+                self._step(dt, y, q[select], q_dot[select], tau_rows)
             else:
                 self.skipped_steps += 1
         return self._publish(dt, y[:, :3])
@@ -307,12 +319,16 @@ class PaperEstimator(_Base):
     ) -> None:
         super().__init__(theta0, bounds, monitor, rows)
         self.gamma = np.asarray(gamma, dtype=float)
+        self._gamma = tuple(self.gamma.tolist())
         self.c_star = np.asarray(c_star, dtype=float)[self.rows]
         self.k_star = np.asarray(k_star, dtype=float)[self.rows]
         self.qhat_dot0 = np.asarray(qhat_dot0, dtype=float)[self.rows]
         yaw = np.flatnonzero(self.rows == 5)
         self.yaw = int(yaw[0]) if yaw.size else None
         self.qhat: FloatArray | None = None
+        # Forward Euler factors dt C*^-1 and 1 - dt C*^-1 K*, and the dt they are for.
+        self._euler_dt = math.nan
+        self._dt_over_c = self._e_gain = np.zeros_like(self.c_star)
 
     def _restart(self) -> None:
         self.qhat = None
@@ -323,11 +339,23 @@ class PaperEstimator(_Base):
             return
         e = self.qhat - q
         if self.yaw is not None:
-            e[self.yaw] = (e[self.yaw] + math.pi) % (2.0 * math.pi) - math.pi
-        # theta first, with the error of this step (eq. update), then the observer.
-        self.theta = self.bounds.project(self.theta + dt * self.gamma * (e @ y[:, :3]))
-        rhs = tau - y[:, :3] @ self.theta - y[:, 3] + self.c_star * q_dot - self.k_star * e
-        self.qhat = q + e + dt * rhs / self.c_star
+            e[self.yaw] = (float(e[self.yaw]) + math.pi) % (2.0 * math.pi) - math.pi
+        # theta first, with the error of this step (eq. update), as floats.
+        m2, m3, m4 = self.theta.tolist()
+        g2, g3, g4 = self._gamma
+        ey2, ey3, ey4, _ = (e @ y).tolist()
+        m2, m3, m4 = self.bounds.clip(m2 + dt * g2 * ey2, m3 + dt * g3 * ey3, m4 + dt * g4 * ey4)
+        xi = np.array((m2, m3, m4, 1.0))
+        self.theta = xi[:3]
+        # Then the observer (eq. estimator) with this theta, forward Euler from qhat = q + e:
+        # qhat + dt C*^-1 (tau - Y xi + C* q_dot - K* e)
+        #   = q + dt q_dot + (1 - dt C*^-1 K*) e + dt C*^-1 (tau - Y xi),
+        # with the two diagonal factors computed again only when dt changes.
+        if dt != self._euler_dt:
+            self._euler_dt = dt
+            self._dt_over_c = dt / self.c_star
+            self._e_gain = 1.0 - self._dt_over_c * self.k_star
+        self.qhat = q + dt * q_dot + self._e_gain * e + self._dt_over_c * (tau - y @ xi)
 
 
 class RlsEstimator(_Base):
@@ -366,6 +394,7 @@ class RlsEstimator(_Base):
         self.p0 = np.diag(np.asarray(p0, dtype=float))
         self.p_trace_max = float(np.trace(self.p0))
         self.r = np.diag(np.asarray(row_noise, dtype=float)[self.rows] ** 2)
+        self._r_forgotten = self.r / forgetting
         self.p = self.p0.copy()
 
     def _restart(self) -> None:
@@ -380,12 +409,12 @@ class RlsEstimator(_Base):
         h = y[:, :3]
         z = tau - y[:, 3]
         ph = self.p @ h.T
-        s = h @ ph + self.r / self.forgetting
+        s = h @ ph + self._r_forgotten
         gain = np.linalg.solve(s, ph.T).T
         self.theta = self.bounds.project(self.theta + gain @ (z - h @ self.theta))
         p = (self.p - gain @ ph.T) / self.forgetting
         p = 0.5 * (p + p.T)
-        trace = np.trace(p)
+        trace = p[0, 0] + p[1, 1] + p[2, 2]
         if trace > self.p_trace_max:
             p *= self.p_trace_max / trace
         self.p = p

@@ -37,7 +37,7 @@ from companion.estimation import (
     ThetaBounds,
 )
 from companion.model import ManipulatorModel
-from companion.setpoints import ThrustCurve, attitude_thrust_setpoint, tilt_from_force
+from companion.setpoints import ThrustCurve, attitude_thrust_setpoint
 from companion.state import StateAssembler, thrust_force_world
 from companion.trajectory import PaperSinusoid, TiltReference
 from sitl.physics import AttitudeSetpoint, TruthPlant
@@ -251,8 +251,9 @@ def simulate(
     sub = round(plant.rate_hz / scenario.simulation.control_rate_hz)
     dt_c = sub * plant.dt_s
     n_ctrl = math.floor(duration / dt_c + 1e-9)
-    data = np.full((n_ctrl, len(COLUMNS)), np.nan)
-    qhat_cols = [_COL[f"qhat_{_Q[r]}"] for r in rows]
+    data = np.empty((n_ctrl, len(COLUMNS)))
+    observer = estimator if isinstance(estimator, PaperEstimator) else None
+    not_ready = (math.nan,) * (_COL["confident"] + 1 - _COL["qd_x"])  # columns qd_x..confident
     start = time.perf_counter()
 
     # Until the filter has a first measurement of every row, hold gravity compensation at
@@ -283,7 +284,8 @@ def simulate(
         state = plant.state
         tick = time.perf_counter_ns()
         sensing.feed(t, state, dt_c if i else None)
-        if sensing.assembler.ready:
+        ready = sensing.assembler.ready
+        if ready:
             f = sensing.assembler.estimate
             q, q_dot, q_ddot = f.q, f.q_dot, f.q_ddot
             terms = model.terms(q, q_dot)
@@ -298,32 +300,40 @@ def simulate(
             setpoint = attitude_thrust_setpoint(
                 tau[0:3], q[5], desired.q[5], ctl.tilt_max_rad, curve
             )
-            if opts.plant == "ideal":
-                tilt.step(dt_c, tilt_from_force(tau[0:3], q[5], ctl.tilt_max_rad)[:2])
-            else:
-                tilt.step(dt_c, (setpoint.roll_rad, setpoint.pitch_rad))
+            # The tilt of eq. phid at the measured yaw, whether or not the plant flies it.
+            tilt.step(dt_c, (setpoint.roll_rad, setpoint.pitch_rad))
             step_us = (time.perf_counter_ns() - tick) / 1e3
-            row = data[i]
-            row[_COL["qfilt_x"] : _COL["qfilt_x"] + 8] = q
-            row[_COL["qd_x"] : _COL["qd_x"] + 8] = desired.q
-            if isinstance(estimator, PaperEstimator) and estimator.qhat is not None:
-                row[qhat_cols] = estimator.qhat
-            row[_COL["m2_hat"] : _COL["m2_hat"] + 3] = theta_hat
-            row[_COL["lc_hat"]] = theta_hat[1] / theta_hat[0]
-            row[_COL["excitation"]] = est.excitation
-            row[_COL["confident"]] = est.confident
-            row[_COL["step_time_us"]] = step_us
-        row = data[i]
-        row[0] = t
-        row[_COL["q_x"] : _COL["q_x"] + 8] = state.q
-        row[_COL["m2_true"] : _COL["payload_attached"] + 1] = truth_row
-        row[_COL["tau_x"] : _COL["tau_x"] + 8] = tau
-        row[_COL["sp_roll_rad"] : _COL["sp_roll_rad"] + 5] = (
+            qhat = [math.nan] * 8  # the paper observer's qhat on its rows
+            if observer is not None and observer.qhat is not None:
+                for r, value in zip(rows, observer.qhat.tolist(), strict=True):
+                    qhat[r] = value
+            m2_hat, m3_hat, m4_hat = theta_hat.tolist()
+            companion = (
+                *desired.q.tolist(),
+                *q.tolist(),
+                *qhat,
+                m2_hat,
+                m3_hat,
+                m4_hat,
+                m3_hat / m2_hat,
+                est.excitation,
+                est.confident,
+            )
+        else:
+            companion, step_us = not_ready, math.nan
+        # One row in the order of COLUMNS.
+        data[i] = (
+            t,
+            *state.q.tolist(),
+            *companion,
+            *truth_row,
+            *tau.tolist(),
             setpoint.roll_rad,
             setpoint.pitch_rad,
             setpoint.yaw_rad,
             setpoint.thrust_n,
             setpoint.thrust_normalized,
+            step_us,
         )
 
         if opts.plant == "ideal":
@@ -337,9 +347,8 @@ def simulate(
             for _ in range(sub):
                 plant.step(command, tau[6:8])
             known_tau = np.full(8, np.nan)
-            if sensing.assembler.ready:
-                attitude = sensing.assembler.estimate.q[3:6]
-                known_tau[0:3] = thrust_force_world(*attitude, setpoint.thrust_n)
+            if ready:  # the thrust along the filtered attitude of this step
+                known_tau[0:3] = thrust_force_world(q[3], q[4], q[5], setpoint.thrust_n)
             known_tau[6:8] = sensing.joint_torques(plant.actuators.joint_torques_n_m)
         if progress is not None and t >= next_progress:
             progress(t)

@@ -19,9 +19,10 @@ from companion.filters import FilteredState, StateFilter
 __all__ = ["StateAssembler", "euler_rates_from_body_rates", "thrust_force_world"]
 
 FloatArray = NDArray[np.float64]
-_POSE_ROWS = np.arange(6)
-_EULER_ROWS = np.array([3, 4, 5])
-_JOINT_ROWS = np.array([6, 7])
+# Tuples: the filter caches its row selections by them without a conversion.
+_POSE_ROWS = (0, 1, 2, 3, 4, 5)
+_EULER_ROWS = (3, 4, 5)
+_JOINT_ROWS = (6, 7)
 
 
 def euler_rates_from_body_rates(phi: float, theta: float, omega_body: ArrayLike) -> FloatArray:
@@ -90,7 +91,7 @@ class StateAssembler:
 
     def pose(self, position_m: ArrayLike, euler_rad: ArrayLike, age_s: float = 0.0) -> None:
         """Motion-capture pose: ENU position [m] and ZYX Euler angles [rad]."""
-        values = np.concatenate((np.asarray(position_m, float), np.asarray(euler_rad, float)))
+        values = np.concatenate((position_m, euler_rad), dtype=float)
         self.filter.update_position(values, latency_s=age_s, rows=_POSE_ROWS)
 
     def body_rates(self, omega_body_rad_s: ArrayLike, age_s: float = 0.0) -> None:

@@ -93,5 +93,7 @@ class TiltReference:
     def apply(self, desired: DesiredState) -> DesiredState:
         """``desired`` with rows phi, theta replaced by this reference."""
         q, q_dot, q_ddot = desired.q.copy(), desired.q_dot.copy(), desired.q_ddot.copy()
-        q[3:5], q_dot[3:5], q_ddot[3:5] = self.x, self.v, self.a
+        q[3], q[4] = self.x
+        q_dot[3], q_dot[4] = self.v
+        q_ddot[3], q_ddot[4] = self.a
         return DesiredState(q=q, q_dot=q_dot, q_ddot=q_ddot)

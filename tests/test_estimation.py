@@ -175,3 +175,22 @@ def test_projection_lands_inside_and_is_idempotent(m2, m3, m4) -> None:
 def test_projection_rejects_nan() -> None:
     with pytest.raises(FloatingPointError):
         BOUNDS.project((np.nan, 0.0, 0.0))
+
+
+@pytest.mark.parametrize("rows", [tuple(range(8)), (2, 3, 4, 5, 6, 7), TRANSLATION_AND_JOINT_ROWS])
+def test_non_finite_force_on_a_used_row_skips_the_step(rows) -> None:
+    """Contiguous rows are read as a slice, others by index: both skip the same steps."""
+    for estimator in (paper(rows), rls(rows)):
+        run(estimator, 0.5)
+        q, q_dot, q_ddot = motion(0.5)
+        held = estimator.theta.copy()
+        for bad in (np.nan, np.inf, -np.inf):
+            tau = exact_tau(q, q_dot, q_ddot)
+            tau[rows[-1]] = bad
+            est = estimator.update(DT, MODEL.terms(q, q_dot), q, q_dot, q_ddot, tau)
+            np.testing.assert_array_equal(est.theta, held)
+        assert estimator.skipped_steps == 3
+        tau = exact_tau(q, q_dot, q_ddot)
+        tau[[r for r in range(8) if r not in rows]] = np.nan
+        estimator.update(DT, MODEL.terms(q, q_dot), q, q_dot, q_ddot, tau)
+        assert estimator.skipped_steps == 3
