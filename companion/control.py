@@ -12,6 +12,7 @@ the desired trajectory and the model terms at this step; none keeps a clock.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -145,8 +146,16 @@ class SlidingModeController:
         q_dot: FloatArray,
         q_ddot: FloatArray,
         desired: DesiredState,
+        applied_force_z_n: float,
     ) -> FloatArray:
-        """tau, shape (8,); advances Deltahat and the mass read-out by dt [s]."""
+        """tau, shape (8,); advances Deltahat and the mass read-out by dt [s].
+
+        ``applied_force_z_n`` is the vertical world force actually applied during the last
+        control period [N] (in flight: the thrust model's force along the measured body z),
+        the force that produced ``q_ddot``; NaN (not known yet) skips the read-out. Using
+        this step's commanded tau_3 instead lets the read-out run away once thrust
+        saturates: the command then exceeds the force that produced the acceleration.
+        """
         e = wrap_angle_error(q - desired.q)
         qr_dot = desired.q_dot - self.lam * e
         qr_ddot = desired.q_ddot - self.lam * (q_dot - desired.q_dot)
@@ -155,7 +164,8 @@ class SlidingModeController:
         sat = np.minimum(np.maximum(s / self.phi, -1.0), 1.0)
         tau = terms.regressor(qr_dot, qr_ddot) @ xi + self.delta - self.k1 * s - self.k2 * sat
         self.delta = self.delta - dt * self.gamma_delta * s
-        self._read_mass(dt, terms, q_dot, q_ddot, float(tau[2]), xi)
+        if math.isfinite(applied_force_z_n):
+            self._read_mass(dt, terms, q_dot, q_ddot, applied_force_z_n, xi)
         return tau
 
     def _read_mass(self, dt, terms, q_dot, q_ddot, force_z, xi) -> None:

@@ -292,7 +292,7 @@ def simulate(
             est = estimator.update(dt_c, terms, q, q_dot, q_ddot, known_tau)
             desired = tilt.apply(traj(t))
             if smc is not None:
-                tau = smc.torque(dt_c, terms, q, q_dot, q_ddot, desired)
+                tau = smc.torque(dt_c, terms, q, q_dot, q_ddot, desired, float(known_tau[2]))
                 theta_hat = smc.theta
             else:
                 tau = passivity.torque(terms, q, q_dot, desired, est.theta)
