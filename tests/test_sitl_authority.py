@@ -1,7 +1,5 @@
 """sitl.authority and the sitl command line."""
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -34,16 +32,7 @@ def test_authority_is_positive_and_ordered() -> None:
     assert loaded.unsaturated_torque_n_m[1] > empty.unsaturated_torque_n_m[1]
 
 
-def run_sitl(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-c", "from sitl.cli import main; main()", *args],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-
-
-def test_cli_authority_prints_table_and_rejects_bad_config(tmp_path: Path) -> None:
+def test_cli_authority_prints_table_and_rejects_bad_config(run_sitl, tmp_path: Path) -> None:
     ok = run_sitl("authority", "--config", str(CONFIGS / "paper_sim.toml"))
     assert ok.returncode == 0, ok.stderr
     assert "pitch torque" in ok.stdout
