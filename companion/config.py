@@ -210,7 +210,7 @@ class Confidence(_Section):
     excitation_min: Positive
     """Smallest eigenvalue of the scaled information matrix to call the motion exciting [-]."""
     spread_max: Positive
-    """Largest windowed std of m2 relative to its mean [-]."""
+    """Largest (max - min) / mean of m2 and of lc over the window [-]."""
 
 
 class Rls(_Section):

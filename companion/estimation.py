@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -114,14 +115,21 @@ class Estimate:
         return float(self.theta[1] / self.theta[0])
 
 
+def _relative_range(values: deque[float]) -> float:
+    """(max - min) / mean of positive samples."""
+    low, high = min(values), max(values)
+    return (high - low) / max(0.5 * (high + low), 1e-12)
+
+
 class ExcitationMonitor:
     """Excitation and settling of an estimate over an exponential window.
 
     Information: ``I <- I + (dt/T)(S Y_theta^T W Y_theta S - I)`` with S = diag(scale) so the
     three parameters weigh alike, W = diag(1/row_scale^2); excitation = lambda_min(I).
-    Spread: exponentially weighted standard deviation of m2 over the same window, relative
-    to its mean (infinite before the first sample). Both are held in :attr:`excitation` and
-    :attr:`spread` between samples.
+    Spread: (max - min) / mean over the samples of the last T seconds, the larger of m2's
+    and lc's, i.e. how steady the mass and the centre of mass have been over the window
+    (infinite until the window is full). Both are
+    held in :attr:`excitation` and :attr:`spread` between samples.
 
     Parameters
     ----------
@@ -153,18 +161,19 @@ class ExcitationMonitor:
         self.weight = np.outer(1.0 / np.asarray(row_scale, dtype=float), theta_scale)
         self.excitation_min = excitation_min
         self.spread_max = spread_max
+        self._window_samples = max(2, round(window_s / sample_period_s))
         self.reset()
 
     def reset(self) -> None:
         self.info = np.zeros((3, 3))
-        self.mean: float | None = None
-        self.var = 0.0
+        self._m2: deque[float] = deque(maxlen=self._window_samples)
+        self._lc: deque[float] = deque(maxlen=self._window_samples)
         self.excitation = 0.0
         self.spread = float("inf")
         self._since_sample = float("inf")
         self._samples = 0
 
-    def update(self, dt: float, y_theta: FloatArray, m2: float) -> tuple[float, float]:
+    def update(self, dt: float, y_theta: FloatArray, m2: float, lc: float) -> tuple[float, float]:
         """Add one step (sampled at most every ``sample_period_s``); returns (excitation,
         spread)."""
         self._since_sample += dt
@@ -175,13 +184,10 @@ class ExcitationMonitor:
         a = min(elapsed / self.window_s, 1.0)
         scaled = y_theta * self.weight
         self.info += a * (scaled.T @ scaled - self.info)
-        if self.mean is None:
-            self.mean = m2
-        else:
-            delta = m2 - self.mean
-            self.mean += a * delta
-            self.var = (1.0 - a) * (self.var + a * delta * delta)
-        self.spread = math.sqrt(self.var) / max(abs(self.mean), 1e-12)
+        self._m2.append(m2)
+        self._lc.append(lc)
+        if len(self._m2) == self._window_samples:
+            self.spread = max(_relative_range(self._m2), _relative_range(self._lc))
         self._samples += 1
         if self._samples % 5 == 0:
             self.excitation = float(np.linalg.eigvalsh(self.info)[0])
@@ -239,7 +245,8 @@ class _Base(ABC):
         """Reset internal states other than theta."""
 
     def _publish(self, dt: float, y_theta: FloatArray) -> Estimate:
-        excitation, spread = self.monitor.update(dt, y_theta, float(self.theta[0]))
+        m2 = float(self.theta[0])
+        excitation, spread = self.monitor.update(dt, y_theta, m2, float(self.theta[1]) / m2)
         return Estimate(
             theta=self.theta.copy(),
             excitation=excitation,

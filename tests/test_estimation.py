@@ -194,3 +194,25 @@ def test_non_finite_force_on_a_used_row_skips_the_step(rows) -> None:
         tau[[r for r in range(8) if r not in rows]] = np.nan
         estimator.update(DT, MODEL.terms(q, q_dot), q, q_dot, q_ddot, tau)
         assert estimator.skipped_steps == 3
+
+
+def test_monitor_spread_is_the_range_over_a_full_window() -> None:
+    mon = ExcitationMonitor(
+        window_s=1.0,
+        theta_scale=(1.0, 1.0, 1.0),
+        row_scale=np.ones(1),
+        excitation_min=0.5,
+        spread_max=0.02,
+        sample_period_s=0.1,
+    )
+    y = np.array([[1.0, 1.0, 1.0]]) * np.array([1.0, 0.0, 0.0])  # excites m2 only
+    for _ in range(9):
+        mon.update(0.1, y, 0.5, 0.16)
+    assert mon.spread == float("inf")  # window not full yet
+    mon.update(0.1, y, 0.5, 0.16)
+    assert mon.spread == 0.0
+    mon.update(0.1, y, 0.505, 0.16)  # m2 moves by 1 %
+    assert mon.spread == pytest.approx(0.01, rel=1e-2)
+    mon.update(0.1, y, 0.505, 0.168)  # lc moves by 5 %: the larger range counts
+    assert mon.spread == pytest.approx(0.049, rel=2e-2)
+    assert not mon.confident()  # and m3, m4 were never excited
