@@ -94,6 +94,7 @@ def plot_comparison(results: Sequence[tuple[str, SimResult]], out_dir: Path) -> 
     axes[1].plot(truth("t_s"), truth("m2_true"), "k--", label="truth")
     axes[2].plot(truth("t_s"), truth("lc_true"), "k--", label="truth")
     axes[0].set_ylabel("|p - p_d| [m]")
+    axes[0].set_yscale("symlog", linthresh=0.01)  # a diverging run must not flatten the rest
     axes[1].set_ylabel("m2 estimate [kg]")
     axes[2].set_ylabel("lc estimate [m]")
     axes[2].set_xlabel("t [s]")
