@@ -103,6 +103,7 @@ def _run(cfg: Scenario, options, label: str):
     """Simulate with a progress bar on a terminal; plant failures exit 1 with a message."""
     from rich.progress import Progress
 
+    from companion.control import ControlRateError
     from companion.simulation import simulate
     from sitl.physics import PlantError
 
@@ -113,6 +114,9 @@ def _run(cfg: Scenario, options, label: str):
         task = bar.add_task(label, total=duration)
         try:
             return simulate(cfg, options, progress=lambda t: bar.update(task, completed=t))
+        except ControlRateError as exc:
+            typer.echo(f"error: {label}: {exc}", err=True)
+            raise typer.Exit(EXIT_USAGE) from None
         except (PlantError, FloatingPointError) as exc:
             typer.echo(f"error: {label}: the simulation failed: {exc}", err=True)
             raise typer.Exit(1) from None

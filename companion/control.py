@@ -20,12 +20,61 @@ from numpy.typing import ArrayLike, NDArray
 
 from companion.model import ModelTerms
 
-__all__ = ["DesiredState", "PassivityController", "SlidingModeController", "wrap_angle_error"]
+__all__ = [
+    "ControlRateError",
+    "DesiredState",
+    "PassivityController",
+    "SlidingModeController",
+    "check_control_rate",
+    "damping_step_ratio",
+    "wrap_angle_error",
+]
 
 FloatArray = NDArray[np.float64]
 YAW = 5
 _ONE = np.ones(1)
 """The last entry of xi = [m2, m3, m4, 1]."""
+
+
+class ControlRateError(ValueError):
+    """The control period is too long for the controller's velocity gains."""
+
+
+def damping_step_ratio(
+    mass_matrix: FloatArray, k: ArrayLike, dt_s: float, rows: tuple[int, ...]
+) -> float:
+    """``dt * lambda_max(M_rr^-1 k_rr)`` on the rows the controller actuates.
+
+    The velocity feedback ``-k q_dot`` of eqs. tau2 and asc1, held constant for one control
+    period, is a discrete damping loop that is unstable when this ratio exceeds 2 (each
+    step overshoots the velocity it damps). Computed with the Cholesky factor of M_rr, so
+    the eigenvalues are those of a symmetric matrix.
+    """
+    idx = np.asarray(rows)
+    chol = np.linalg.cholesky(mass_matrix[np.ix_(idx, idx)])
+    inv = np.linalg.inv(chol)
+    k_rr = np.diag(np.asarray(k, dtype=float)[idx])
+    return float(dt_s * np.linalg.eigvalsh(inv @ k_rr @ inv.T)[-1])
+
+
+def check_control_rate(
+    mass_matrix: FloatArray,
+    k: ArrayLike,
+    dt_s: float,
+    rows: tuple[int, ...],
+    limit: float = 1.0,
+) -> float:
+    """Raise :class:`ControlRateError` if :func:`damping_step_ratio` reaches ``limit``
+    (default 1: half the stability bound, for margin); return the ratio otherwise."""
+    ratio = damping_step_ratio(mass_matrix, k, dt_s, rows)
+    if ratio >= limit:
+        raise ControlRateError(
+            f"control period {dt_s * 1e3:.3g} ms is too long for the velocity gains: "
+            f"dt * max eig(M^-1 k) = {ratio:.2f} (the discrete loop is unstable above 2; "
+            f"keep it below {limit:g}); raise the control rate to at least "
+            f"{ratio / (limit * dt_s):.0f} Hz or lower k"
+        )
+    return ratio
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ from typing import Literal
 import numpy as np
 
 from companion.config import Scenario
-from companion.control import PassivityController, SlidingModeController
+from companion.control import PassivityController, SlidingModeController, check_control_rate
 from companion.estimation import (
     TRANSLATION_AND_JOINT_ROWS,
     ExcitationMonitor,
@@ -241,6 +241,17 @@ def simulate(
         smc = None
     else:
         passivity, smc = PassivityController(ctl.k, ctl.lambda_), None
+    # The rows the companion actuates: all on the ideal plant; on the underactuated one PX4
+    # closes the attitude loop itself.
+    actuated = tuple(range(8)) if opts.plant == "ideal" else TRANSLATION_AND_JOINT_ROWS
+    check_control_rate(
+        model.mass_matrix(
+            scenario.simulation.initial_q, scenario.estimator.initial_theta.as_tuple()
+        ),
+        scenario.controller.sliding_mode.k1 if opts.controller == "asmc" else ctl.k,
+        1.0 / scenario.simulation.control_rate_hz,
+        actuated,
+    )
     traj = PaperSinusoid(scenario.trajectory)
     tilt = TiltReference(ctl.tilt_reference_bandwidth_rad_s)
     rotors = scenario.vehicle.rotors

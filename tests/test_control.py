@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 
 from companion.config import load_scenario
-from companion.control import DesiredState, PassivityController, SlidingModeController
+from companion.control import (
+    ControlRateError,
+    DesiredState,
+    PassivityController,
+    SlidingModeController,
+    check_control_rate,
+    damping_step_ratio,
+)
 from companion.model import ManipulatorModel
 from companion.setpoints import ThrustCurve, attitude_thrust_setpoint, tilt_from_force
 from companion.trajectory import PaperSinusoid, TiltReference
@@ -172,3 +179,16 @@ def test_tilt_reference_settles_and_rejects_too_high_bandwidth() -> None:
     assert ref.v == pytest.approx([0.0, 0.0], abs=1e-3)
     with pytest.raises(ValueError, match="too high"):
         TiltReference(250.0).step(1e-3, (0.0, 0.0))
+
+
+def test_control_rate_check_predicts_the_discrete_damping_limit() -> None:
+    """experiment_arm's attitude damping diverged on the ideal plant at 250 Hz, not at 1 kHz."""
+    cfg = load_scenario(Path(__file__).parent.parent / "configs" / "experiment_arm.toml")
+    model = ManipulatorModel.from_scenario(cfg)
+    m = model.mass_matrix(cfg.simulation.initial_q, cfg.estimator.initial_theta.as_tuple())
+    k, every = cfg.controller.k, tuple(range(8))
+    assert check_control_rate(m, k, 1e-3, every) == pytest.approx(0.6, abs=0.05)
+    with pytest.raises(ControlRateError, match=r"at least 5[0-9][0-9] Hz"):
+        check_control_rate(m, k, 4e-3, every)
+    # with PX4 closing the attitude loop only translation and joints are the companion's
+    assert damping_step_ratio(m, k, 4e-3, (0, 1, 2, 6, 7)) < 1.0

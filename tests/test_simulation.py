@@ -168,6 +168,16 @@ def test_cli_sim_rejects_bad_options(
     assert "Traceback" not in result.stderr
 
 
+def test_cli_sim_rejects_a_control_rate_too_low_for_the_gains(run_cli, tmp_path: Path) -> None:
+    config = tmp_path / "slow_loop.toml"
+    text = (CONFIGS / "experiment_arm.toml").read_text()
+    config.write_text(text.replace("control_rate_hz = 1000.0", "control_rate_hz = 250.0", 1))
+    result = run_cli("sim", "--scenario", str(config), "--out", str(tmp_path / "out"))
+    assert result.returncode == 2
+    assert "too long for the velocity gains" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
 @pytest.mark.slow
 def test_cli_compare_writes_table(run_cli, tmp_path: Path) -> None:
     result = run_cli("compare", "--scenario", str(PAPER), "--duration", "2", "--out", str(tmp_path))
