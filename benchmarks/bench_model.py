@@ -25,7 +25,7 @@ from companion.model import ManipulatorModel
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
-from test_model_pinocchio import PERM, reference_model  # noqa: E402
+from pinocchio_reference import PERM, reference_model  # noqa: E402
 
 
 def timed(fn, states, repeats: int = 1) -> np.ndarray:

@@ -9,7 +9,9 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
+import pinocchio_reference
 import pytest
+from pinocchio_reference import PERM
 
 from companion.config import Scenario, load_scenario
 from sitl.physics import (
@@ -23,51 +25,11 @@ from sitl.physics import (
 CONFIGS = Path(__file__).parent.parent / "configs"
 PAPER = load_scenario(CONFIGS / "paper_sim.toml")
 EXPERIMENT = load_scenario(CONFIGS / "experiment_arm.toml")
-PERM = np.array([0, 1, 2, 5, 4, 3, 6, 7])
-"""Our q index <-> reference model index (psi, theta, phi order); its own inverse."""
-
-
-def line_inertia(mass: float, com: float, i_com: float) -> pin.Inertia:
-    return pin.Inertia(mass, np.array([com, 0.0, 0.0]), np.diag([0.0, i_com, i_com]))
 
 
 def reference_model(cfg: Scenario, with_payload: bool) -> pin.Model:
-    model = pin.Model()
-    model.gravity.linear = np.array([0.0, 0.0, -cfg.environment.gravity_m_s2])
-    parent = 0
-    for joint in (pin.JointModelTranslation(), pin.JointModelRZ(), pin.JointModelRY()):
-        parent = model.addJoint(parent, joint, pin.SE3.Identity(), joint.shortname())
-    base = model.addJoint(parent, pin.JointModelRX(), pin.SE3.Identity(), "rx")
-    model.appendBodyToJoint(
-        base,
-        pin.Inertia(cfg.vehicle.mass_kg, np.zeros(3), np.diag(cfg.vehicle.inertia_kg_m2)),
-        pin.SE3.Identity(),
-    )
-    axis = np.array([0.0, -1.0, 0.0])
-    l1, l2, load = cfg.arm.link1, cfg.arm.link2, cfg.payload
-    j1 = model.addJoint(
-        base,
-        pin.JointModelRevoluteUnaligned(axis),
-        pin.SE3(np.eye(3), np.array(cfg.arm.mount_point_m)),
-        "eta1",
-    )
-    model.appendBodyToJoint(
-        j1, line_inertia(l1.mass_kg, l1.com_m, l1.inertia_about_com_kg_m2), pin.SE3.Identity()
-    )
-    j2 = model.addJoint(
-        j1,
-        pin.JointModelRevoluteUnaligned(axis),
-        pin.SE3(np.eye(3), np.array([l1.length_m, 0.0, 0.0])),
-        "eta2",
-    )
-    link2 = line_inertia(l2.mass_kg, l2.com_m, l2.inertia_about_com_kg_m2)
-    if with_payload:
-        link2 = link2 + line_inertia(load.mass_kg, load.position_m, load.inertia_about_com_kg_m2)
-    model.appendBodyToJoint(j2, link2, pin.SE3.Identity())
-    armature = np.zeros(model.nv)
-    armature[6:8] = (l1.armature_kg_m2, l2.armature_kg_m2)
-    model.armature = armature
-    return model
+    theta = cfg.true_theta if with_payload else cfg.nominal_theta
+    return pinocchio_reference.reference_model(cfg, theta.as_tuple())
 
 
 def reference_acceleration(model: pin.Model, q, q_dot, tau) -> np.ndarray:
