@@ -13,13 +13,20 @@ from __future__ import annotations
 
 import difflib
 import tomllib
+import typing
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
+
+if TYPE_CHECKING:
+    from arm_driver.joint import GripperConfig, JointConfig
 
 __all__ = [
     "Arm",
+    "ArmBusGripper",
+    "ArmBusJoint",
+    "ArmBusSection",
     "AttitudeControl",
     "Confidence",
     "ConfigError",
@@ -38,6 +45,7 @@ __all__ = [
     "Theta",
     "Trajectory",
     "Vehicle",
+    "arm_bus_configs",
     "load_scenario",
     "parse_scenario",
 ]
@@ -385,6 +393,63 @@ class Plant(_Section):
     attitude_control: AttitudeControl
 
 
+def _sign(value: int) -> int:
+    if value not in (1, -1):
+        raise ValueError("must be 1 or -1")
+    return value
+
+
+ServoId = Annotated[int, Field(strict=True, ge=0, le=255)]
+"""A servo's id on its bus: Dynamixel ids are 0..252, DroneCAN actuator ids 0..255; the
+bus backend rejects ids its protocol cannot address."""
+
+
+class ArmBusJoint(_Section):
+    """One arm joint and its servo (fields of ``arm_driver.joint.JointConfig``).
+
+    Angles are in the joint frame, counter-clockwise positive about the joint axis;
+    ``servo angle = zero_offset_rad + direction * joint angle``, the servo angle 0 at the
+    servo's centre position.
+    """
+
+    name: Annotated[str, Field(strict=True, min_length=1)]
+    """Joint name, the key of joint-space commands and states (e.g. ``"eta1"``)."""
+    servo_id: ServoId
+    torque_constant_n_m_per_a: Positive
+    """Calibrated output torque per motor current [N m/A]."""
+    torque_max_n_m: NonNegative
+    """Largest torque magnitude a command may ask for [N m]."""
+    direction: Annotated[int, Field(strict=True), AfterValidator(_sign)]
+    """+1 if a positive joint angle turns the servo counter-clockwise seen from its front."""
+    zero_offset_rad: Real
+    """Servo shaft angle where the joint angle is 0 [rad]."""
+    position_min_rad: Real
+    """Lower joint angle limit [rad]."""
+    position_max_rad: Real
+    """Upper joint angle limit [rad]."""
+
+
+class ArmBusGripper(_Section):
+    """The gripper's servo (fields of ``arm_driver.joint.GripperConfig``)."""
+
+    servo_id: ServoId
+    open_position_rad: Real
+    """Servo shaft angle of the open gripper (0 at the servo's centre) [rad]."""
+    closed_position_rad: Real
+    """Servo shaft angle of the closed gripper [rad]."""
+
+
+class ArmBusSection(_Section):
+    """The arm's servo bus for the companion (``arm_driver.open_bus``); optional."""
+
+    url: Annotated[str, Field(strict=True, min_length=1)]
+    """Bus URL, e.g. ``dynamixel:///dev/ttyUSB0?baud=1000000`` or
+    ``dronecan://can0?interface=socketcan&node_id=10``."""
+    joints: Annotated[tuple[ArmBusJoint, ...], Field(min_length=1)]
+    """The joints, in the order their states are returned (eta1, eta2 of q)."""
+    gripper: ArmBusGripper | None = None
+
+
 class Scenario(_Section):
     """A complete scenario: vehicle, arm, payload, gains, trajectory and initial estimates."""
 
@@ -400,6 +465,8 @@ class Scenario(_Section):
     simulation: Simulation
     sensors: Sensors
     plant: Plant
+    arm_bus: ArmBusSection | None = None
+    """The arm's servo bus; absent in scenarios that only simulate."""
 
     @property
     def nominal_theta(self) -> Theta:
@@ -446,14 +513,25 @@ def _describe(err: dict) -> tuple[str, str]:
 
 
 def _section_model(loc: tuple[int | str, ...]) -> type[BaseModel] | None:
-    """The pydantic class validating the table at ``loc`` (None inside lists)."""
+    """The pydantic class validating the table at ``loc`` (through optional sections and
+    arrays of tables; None if there is none)."""
     model: type[BaseModel] = Scenario
     for part in loc:
-        field = model.model_fields.get(str(part)) if isinstance(part, str) else None
-        annotation = field.annotation if field else None
-        if not (isinstance(annotation, type) and issubclass(annotation, BaseModel)):
+        if isinstance(part, int):
+            continue
+        field = model.model_fields.get(part)
+        tables = (
+            [
+                arg
+                for arg in (field.annotation, *typing.get_args(field.annotation))
+                if isinstance(arg, type) and issubclass(arg, BaseModel)
+            ]
+            if field
+            else []
+        )
+        if not tables:
             return None
-        model = annotation
+        model = tables[0]
     return model
 
 
@@ -478,6 +556,50 @@ def check_theta(theta: Theta, link2_length_m: float, path: str, key: str) -> Non
             f"m4 = {theta.m4_kg_m2:.6g} kg m^2 < m3^2/m2 = {floor:.6g} kg m^2: "
             "no mass distribution has this second moment",
         )
+
+
+def _check_arm_bus(section: ArmBusSection, path: str) -> None:
+    """Joint names and servo ids unique, angle limits ordered."""
+    names: set[str] = set()
+    ids: dict[int, str] = {}
+    for i, joint in enumerate(section.joints):
+        key = f"arm_bus.joints[{i}]"
+        if joint.name in names:
+            raise ConfigError(path, f"{key}.name", f"joint {joint.name!r} is named twice")
+        names.add(joint.name)
+        if not joint.position_min_rad < joint.position_max_rad:
+            raise ConfigError(
+                path,
+                f"{key}.position_max_rad",
+                f"{joint.position_max_rad:g} rad must exceed position_min_rad "
+                f"{joint.position_min_rad:g} rad",
+            )
+        if joint.servo_id in ids:
+            raise ConfigError(
+                path, f"{key}.servo_id", f"id {joint.servo_id} is also {ids[joint.servo_id]}"
+            )
+        ids[joint.servo_id] = f"joint {joint.name!r}"
+    if section.gripper is not None and section.gripper.servo_id in ids:
+        gid = section.gripper.servo_id
+        raise ConfigError(path, "arm_bus.gripper.servo_id", f"id {gid} is also {ids[gid]}")
+
+
+def arm_bus_configs(
+    section: ArmBusSection,
+) -> tuple[tuple[JointConfig, ...], GripperConfig | None]:
+    """The ``arm_driver`` joint and gripper configurations of an ``arm_bus`` section.
+
+    Returns
+    -------
+    joints, gripper
+        ``arm_driver.joint.JointConfig`` per joint in file order, and the
+        ``GripperConfig`` or None; ready for ``arm_driver.bus.open_bus(section.url, ...)``.
+    """
+    from arm_driver.joint import GripperConfig, JointConfig
+
+    joints = tuple(JointConfig(**joint.model_dump()) for joint in section.joints)
+    gripper = None if section.gripper is None else GripperConfig(**section.gripper.model_dump())
+    return joints, gripper
 
 
 def _check_physics(cfg: Scenario, path: str) -> None:
@@ -536,6 +658,8 @@ def parse_scenario(data: dict, path: str = "<string>") -> Scenario:
         )
         raise ConfigError(path, *problems[0], *problems[1:]) from None
     _check_physics(cfg, path)
+    if cfg.arm_bus is not None:
+        _check_arm_bus(cfg.arm_bus, path)
     return cfg
 
 
