@@ -45,6 +45,7 @@ __all__ = [
     "Theta",
     "Trajectory",
     "Vehicle",
+    "WorldSection",
     "arm_bus_configs",
     "load_scenario",
     "parse_scenario",
@@ -450,6 +451,31 @@ class ArmBusSection(_Section):
     gripper: ArmBusGripper | None = None
 
 
+class WorldSection(_Section):
+    """The SITL's world around the vehicle (``sitl run``); optional, not used by the companion.
+
+    Positions are world ENU [m] (z up, ground at z = 0).
+    """
+
+    landing_gear_height_m: Positive
+    """Height of the base's centre of mass above the ground when it stands [m]."""
+    start_position_m: Annotated[tuple[Real, ...], Field(min_length=2, max_length=2)]
+    """(x, y) where the vehicle stands at the start [m]."""
+    start_yaw_rad: Real
+    """Heading at the start, ENU (0 = east, counter-clockwise positive) [rad]."""
+    start_joints_rad: Annotated[tuple[Real, ...], Field(min_length=2, max_length=2)]
+    """(eta1, eta2) at the start [rad]."""
+    payload_position_m: Vec3 | None = None
+    """Where the payload object's centre of mass rests (the ``[payload]`` section's mass and
+    inertia); absent: no object in the world."""
+    grasp_tolerance_m: Positive
+    """Largest distance between the object and link 2's payload point at which closing the
+    gripper grasps it [m]."""
+    autopilot_params: dict[str, Real] = Field(default_factory=dict)
+    """PX4 parameter overrides of the simulated autopilot (name -> value), checked against
+    the simulated parameter table when the SITL starts."""
+
+
 class Scenario(_Section):
     """A complete scenario: vehicle, arm, payload, gains, trajectory and initial estimates."""
 
@@ -467,6 +493,8 @@ class Scenario(_Section):
     plant: Plant
     arm_bus: ArmBusSection | None = None
     """The arm's servo bus; absent in scenarios that only simulate."""
+    world: WorldSection | None = None
+    """The SITL's world (ground, start pose, payload object); absent: defaults of ``sitl``."""
 
     @property
     def nominal_theta(self) -> Theta:
@@ -639,6 +667,13 @@ def _check_physics(cfg: Scenario, path: str) -> None:
             f"{cfg.simulation.control_rate_hz:g} Hz must divide plant.rate_hz "
             f"({cfg.plant.rate_hz:g} Hz) into a whole number of plant steps",
         )
+    if cfg.world is not None and cfg.world.payload_position_m is not None:
+        if cfg.world.payload_position_m[2] < 0.0:
+            raise ConfigError(
+                path,
+                "world.payload_position_m",
+                f"the object lies below the ground (z = {cfg.world.payload_position_m[2]:g} m)",
+            )
 
 
 def parse_scenario(data: dict, path: str = "<string>") -> Scenario:

@@ -1,0 +1,383 @@
+"""The simulated world: truth plant, arm servos, gripper, payload object, ground and battery.
+
+Pure: no I/O, no clock, no threads. The SITL runner calls :meth:`World.step` once per
+plant step (``1 / plant.rate_hz`` of simulation time) while holding the servo bus lock,
+because the servo models are also read and written by the bus thread.
+
+Coupling of the servos (:class:`~sitl.servo.ServoJoint`): before each step every joint
+servo gets its shaft angle ``zero_offset + direction * eta`` and rate, and its output
+torque (present current x torque constant) times ``direction`` becomes the joint torque
+the plant applies - the same mapping :class:`arm_driver.joint.JointConfig` uses on the
+companion side, so a wrong direction in a config moves the arm the wrong way in the SITL
+as it would on the vehicle.
+
+Simplifications, all stated here:
+
+- Ground: flat, at world z = 0. The base stands when its CoM is ``landing_gear_height_m``
+  above it. When a step ends with the CoM below that height, the base is put back on the
+  ground level, at rest (position and attitude velocity zeroed, roll and pitch zeroed,
+  yaw kept): a perfectly inelastic contact with static friction. The arm and the payload
+  do not collide with the ground.
+- Gripper: one jaw shaft (inertia, viscous friction, hard stops at the open and closed
+  positions) driven by the gripper servo. It counts as closed past the middle of its
+  travel toward the closed position. When it closes with the payload's centre of mass
+  within ``grasp_tolerance_m`` of the object, the plant attaches the payload (an inelastic
+  capture, see :meth:`~sitl.physics.TruthPlant.attach_payload`); when it opens, the
+  object is released where it is and falls straight down to its resting height.
+- Battery: voltage falls linearly from full to empty with the charge drawn, the current
+  being proportional to the total rotor thrust.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from arm_driver.joint import GripperConfig, JointConfig
+from sitl.physics import AttitudeSetpoint, PlantState
+from sitl.physics.frames import quaternion_from_euler
+from sitl.servo import ServoJoint
+
+__all__ = ["Battery", "GripperJaw", "World", "WorldSettings", "WorldTruth"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class WorldSettings:
+    """What the world holds besides the vehicle (SI units, world ENU).
+
+    Attributes
+    ----------
+    landing_gear_height_m
+        Height of the base's centre of mass above the ground when it stands [m].
+    payload_position_m
+        Where the payload object's centre of mass rests at the start, world ENU [m];
+        ``None`` for no object.
+    grasp_tolerance_m
+        Largest distance between the object and the payload point of link 2 (the
+        configured ``payload.position_m`` along it) at which closing the gripper grasps [m].
+    start_position_m
+        Base CoM position at the start, world ENU [m]; its z is replaced by the landing
+        gear height (the vehicle starts standing on the ground).
+    start_yaw_rad
+        Heading at the start (ENU: 0 = east, counter-clockwise positive) [rad].
+    start_joints_rad
+        (eta1, eta2) at the start [rad].
+    """
+
+    landing_gear_height_m: float = 0.25
+    payload_position_m: tuple[float, float, float] | None = None
+    grasp_tolerance_m: float = 0.05
+    start_position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    start_yaw_rad: float = 0.0
+    start_joints_rad: tuple[float, float] = (0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if not self.landing_gear_height_m > 0.0:
+            raise ValueError("landing_gear_height_m must be > 0")
+        if not self.grasp_tolerance_m > 0.0:
+            raise ValueError("grasp_tolerance_m must be > 0")
+        values = [*self.start_position_m, self.start_yaw_rad, *self.start_joints_rad]
+        if self.payload_position_m is not None:
+            values += list(self.payload_position_m)
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError("world positions and angles must be finite")
+
+
+class GripperJaw:
+    """The gripper's jaw: a shaft between hard stops, turned by the gripper servo.
+
+    Parameters
+    ----------
+    config
+        Open and closed servo shaft angles [rad].
+    inertia_kg_m2
+        Reflected inertia of jaw and gear train [kg m^2].
+    friction_n_m_s
+        Viscous friction [N m s/rad].
+    """
+
+    def __init__(
+        self,
+        config: GripperConfig,
+        *,
+        inertia_kg_m2: float = 2e-3,
+        friction_n_m_s: float = 0.02,
+    ) -> None:
+        self.config = config
+        self._low = min(config.open_position_rad, config.closed_position_rad)
+        self._high = max(config.open_position_rad, config.closed_position_rad)
+        self._inertia = inertia_kg_m2
+        self._friction = friction_n_m_s
+        self.angle_rad = config.open_position_rad
+        self.rate_rad_s = 0.0
+
+    @property
+    def closed(self) -> bool:
+        """Past the middle of the travel toward the closed position."""
+        middle = 0.5 * (self.config.open_position_rad + self.config.closed_position_rad)
+        closing = self.config.closed_position_rad - self.config.open_position_rad
+        return (self.angle_rad - middle) * closing > 0.0
+
+    def advance(self, torque_n_m: float, dt_s: float) -> None:
+        """Semi-implicit Euler step under the servo's torque [N m] for ``dt_s`` [s]."""
+        accel = (torque_n_m - self._friction * self.rate_rad_s) / self._inertia
+        self.rate_rad_s += accel * dt_s
+        self.angle_rad += self.rate_rad_s * dt_s
+        if self.angle_rad <= self._low or self.angle_rad >= self._high:
+            self.angle_rad = min(max(self.angle_rad, self._low), self._high)
+            self.rate_rad_s = 0.0
+
+
+class Battery:
+    """Linear battery: voltage from full to empty with the charge drawn.
+
+    Parameters
+    ----------
+    capacity_ah
+        Usable charge [A h].
+    full_v, empty_v
+        Pack voltage full and empty [V] (4S LiPo by default).
+    amps_per_newton
+        Current drawn per newton of total rotor thrust [A/N].
+    """
+
+    def __init__(
+        self,
+        capacity_ah: float = 5.0,
+        full_v: float = 16.8,
+        empty_v: float = 14.0,
+        amps_per_newton: float = 0.8,
+    ) -> None:
+        self.capacity_ah = capacity_ah
+        self.full_v = full_v
+        self.empty_v = empty_v
+        self.amps_per_newton = amps_per_newton
+        self.used_ah = 0.0
+        self.current_a = 0.0
+
+    @property
+    def remaining(self) -> float:
+        """Remaining charge, 0 to 1."""
+        return max(0.0, 1.0 - self.used_ah / self.capacity_ah)
+
+    @property
+    def voltage_v(self) -> float:
+        """Pack voltage [V]."""
+        return self.empty_v + (self.full_v - self.empty_v) * self.remaining
+
+    def draw(self, total_thrust_n: float, dt_s: float) -> None:
+        """Discharge for ``dt_s`` [s] at the current of ``total_thrust_n`` [N]."""
+        self.current_a = self.amps_per_newton * total_thrust_n
+        self.used_ah += self.current_a * dt_s / 3600.0
+
+
+@dataclass(frozen=True)
+class WorldTruth:
+    """Ground truth of one instant, for the truth log and tests (never sent on MAVLink)."""
+
+    time_s: float
+    """Simulation time [s]."""
+    plant: PlantState
+    """The truth plant's state (q, q_dot in world ENU / ZYX Euler / joint angles)."""
+    on_ground: bool
+    """The base stands on the ground."""
+    payload_attached: bool
+    """The payload is in the gripper."""
+    object_position_m: FloatArray | None
+    """Payload object's centre of mass, world ENU [m] (``None``: no object)."""
+    gripper_angle_rad: float | None
+    """Gripper servo shaft angle [rad] (``None``: no gripper)."""
+    joint_torques_n_m: FloatArray
+    """Joint torques the servos applied over the last step [N m]."""
+    true_theta: tuple[float, float, float]
+    """(m2 [kg], m3 [kg m], m4 [kg m^2]) of link 2 as it is now."""
+
+
+class World:
+    """Truth plant plus what surrounds it; see the module docstring.
+
+    Parameters
+    ----------
+    plant
+        Underactuated truth plant (``sitl.physics.TruthPlant`` or a backend with its
+        interface).
+    joints
+        (config, servo) for eta1 and eta2, in that order.
+    gripper
+        (config, servo) of the gripper, or ``None``.
+    settings
+        Ground, object and start pose.
+    """
+
+    def __init__(
+        self,
+        plant,
+        joints: Sequence[tuple[JointConfig, ServoJoint]],
+        gripper: tuple[GripperConfig, ServoJoint] | None,
+        settings: WorldSettings,
+    ) -> None:
+        if len(joints) != 2:
+            raise ValueError(f"the arm has 2 joints, got {len(joints)} servos")
+        self.plant = plant
+        self.settings = settings
+        self._joints = list(joints)
+        self._gripper_servo = gripper[1] if gripper else None
+        self.jaw = GripperJaw(gripper[0]) if gripper else None
+        self.battery = Battery()
+        self.dt_s = 1.0 / plant.rate_hz
+        scenario = plant.scenario
+        self._mount = np.array(scenario.arm.mount_point_m, dtype=np.float64)
+        self._l1 = scenario.arm.link1.length_m
+        self._lc = scenario.payload.position_m
+        self._gravity = scenario.environment.gravity_m_s2
+        self._object = (
+            np.array(settings.payload_position_m, dtype=np.float64)
+            if settings.payload_position_m is not None
+            else None
+        )
+        self._object_rest_z = None if self._object is None else float(self._object[2])
+        self._was_closed = self.jaw.closed if self.jaw else False
+        self._torques = np.zeros(2)
+        self.on_ground = True
+        self.grasps = 0
+        self._state = plant.reset(start_state(settings))
+        self._motors_off = AttitudeSetpoint(quaternion_from_euler(0.0, 0.0, 0.0), 0.0)
+
+    # ------------------------------------------------------------------ stepping
+
+    @property
+    def state(self) -> PlantState:
+        """The plant's current truth state."""
+        return self._state
+
+    @property
+    def time_s(self) -> float:
+        """Simulation time [s]."""
+        return self._state.time_s
+
+    def step(self, setpoint: AttitudeSetpoint | None) -> PlantState:
+        """Advance one plant step; ``None`` means disarmed (rotors commanded to zero thrust).
+
+        Raises the plant's errors (:class:`~sitl.physics.PlantError`) if it diverges.
+        """
+        state = self._state
+        dt = self.dt_s
+        torques = self._torques
+        for i, (config, servo) in enumerate(self._joints):
+            servo.set_state(
+                config.servo_angle_rad(float(state.q[6 + i])),
+                config.direction * float(state.q_dot[6 + i]),
+            )
+            torques[i] = config.direction * servo.torque_n_m()
+        if self._gripper_servo is not None and self.jaw is not None:
+            self._gripper_servo.set_state(self.jaw.angle_rad, self.jaw.rate_rad_s)
+            self.jaw.advance(self._gripper_servo.torque_n_m(), dt)
+        state = self.plant.step(setpoint if setpoint is not None else self._motors_off, torques)
+        for _, servo in self._joints:
+            servo.step(dt)
+        if self._gripper_servo is not None:
+            self._gripper_servo.step(dt)
+        self.battery.draw(float(np.sum(self.plant.rotor_thrusts_n)), dt)
+        state = self._ground_contact(state)
+        self._state = state
+        self._update_payload()
+        return state
+
+    def _ground_contact(self, state: PlantState) -> PlantState:
+        height = self.settings.landing_gear_height_m
+        if state.q[2] >= height:
+            self.on_ground = False
+            return state
+        self.on_ground = True
+        q = np.array(state.q)
+        q_dot = np.array(state.q_dot)
+        q[2] = height
+        q[3:5] = 0.0
+        q_dot[0:6] = 0.0
+        return self.plant.reset(
+            q, q_dot, time_s=state.time_s, rotor_thrusts_n=self.plant.rotor_thrusts_n
+        )
+
+    # ------------------------------------------------------------------- payload
+
+    def payload_point_m(self) -> FloatArray:
+        """World ENU position [m] of the payload point of link 2 (where a grasped CoM sits)."""
+        q = self._state.q
+        e1, e2 = float(q[6]), float(q[7])
+        arm_b = self._mount + np.array(
+            [
+                self._l1 * math.cos(e1) + self._lc * math.cos(e1 + e2),
+                0.0,
+                self._l1 * math.sin(e1) + self._lc * math.sin(e1 + e2),
+            ]
+        )
+        return q[0:3] + self._state.rotation_world_body @ arm_b
+
+    @property
+    def object_position_m(self) -> FloatArray | None:
+        """The object's CoM, world ENU [m]: on link 2 while grasped, else where it rests."""
+        if self._object is None:
+            return None
+        return self.payload_point_m() if self.plant.payload_attached else self._object.copy()
+
+    def _update_payload(self) -> None:
+        if self.jaw is None:
+            return
+        closed = self.jaw.closed
+        if closed and not self._was_closed and self._object is not None:
+            if not self.plant.payload_attached:
+                gap = float(np.linalg.norm(self.payload_point_m() - self._object))
+                if gap <= self.settings.grasp_tolerance_m:
+                    self.plant.attach_payload()
+                    self._state = self.plant.state
+                    self.grasps += 1
+        elif not closed and self._was_closed and self.plant.payload_attached:
+            released = self.payload_point_m()
+            self.plant.detach_payload()
+            self._state = self.plant.state
+            assert self._object_rest_z is not None
+            released[2] = min(released[2], self._object_rest_z)
+            self._object = released
+        self._was_closed = closed
+
+    # --------------------------------------------------------------------- truth
+
+    def specific_force_flu_m_s2(self) -> FloatArray:
+        """What an accelerometer on the base reads: R^T (a - g), body FLU [m/s^2]."""
+        state = self._state
+        accel = np.zeros(3) if self.on_ground else np.array(state.q_ddot[0:3])
+        accel[2] += self._gravity
+        return state.rotation_world_body.T @ accel
+
+    def truth(self) -> WorldTruth:
+        """Ground truth now."""
+        state = self._state
+        theta = self.plant.true_theta
+        return WorldTruth(
+            time_s=state.time_s,
+            plant=state,
+            on_ground=self.on_ground,
+            payload_attached=self.plant.payload_attached,
+            object_position_m=self.object_position_m,
+            gripper_angle_rad=None if self.jaw is None else self.jaw.angle_rad,
+            joint_torques_n_m=self._torques.copy(),
+            true_theta=(theta.m2_kg, theta.m3_kg_m, theta.m4_kg_m2),
+        )
+
+
+def start_state(settings: WorldSettings) -> ArrayLike:
+    """q at the start: standing on the ground at the configured position, yaw and joints."""
+    return [
+        *settings.start_position_m[:2],
+        settings.landing_gear_height_m,
+        0.0,
+        0.0,
+        settings.start_yaw_rad,
+        *settings.start_joints_rad,
+    ]

@@ -1,0 +1,137 @@
+"""The SITL world: ground contact, servo coupling, gripper, payload grasp and release."""
+
+import math
+
+import numpy as np
+import pytest
+
+from arm_driver.dynamixel import control_table as ct
+from arm_driver.dynamixel import units
+from arm_driver.joint import GripperConfig, JointConfig
+from companion.config import load_scenario
+from sitl.physics import AttitudeSetpoint, TruthPlant
+from sitl.servo import XM430Servo
+from sitl.world import World, WorldSettings
+
+SCENARIO = load_scenario("configs/experiment_arm.toml")
+GRIPPER = GripperConfig(3, open_position_rad=0.8, closed_position_rad=-0.25)
+GEAR_M = 0.25
+
+
+def _position_mode(servo: XM430Servo, goal_rad: float) -> None:
+    """What the companion's driver does over the bus, written straight into the model."""
+    assert servo.write(ct.OPERATING_MODE.address, bytes([ct.OperatingMode.POSITION])).error == 0
+    goal = int(units.rad_to_ticks(goal_rad)).to_bytes(4, "little", signed=True)
+    assert servo.write(ct.GOAL_POSITION.address, goal).error == 0
+    assert servo.write(ct.TORQUE_ENABLE.address, b"\x01").error == 0
+
+
+def _world(joints=(-1.2, 0.3), direction=1, object_at=None, tolerance=0.05):
+    plant = TruthPlant.from_scenario(SCENARIO, "underactuated")
+    configs = [
+        JointConfig("eta1", 1, 1.78, 4.1, direction=direction),
+        JointConfig("eta2", 2, 1.78, 4.1, direction=direction),
+    ]
+    servos = {i: XM430Servo(i) for i in (1, 2, 3)}
+    settings = WorldSettings(
+        landing_gear_height_m=GEAR_M,
+        payload_position_m=object_at,
+        grasp_tolerance_m=tolerance,
+        start_joints_rad=joints,
+    )
+    world = World(
+        plant, [(configs[0], servos[1]), (configs[1], servos[2])], (GRIPPER, servos[3]), settings
+    )
+    for config, servo, angle in zip(configs, servos.values(), joints, strict=False):
+        _position_mode(servo, config.servo_angle_rad(angle))
+    _position_mode(servos[3], GRIPPER.open_position_rad)
+    return world, servos
+
+
+def test_disarmed_vehicle_stands_still_and_accelerometer_reads_plus_g():
+    world, _ = _world()
+    for _ in range(500):
+        state = world.step(None)
+    assert world.on_ground
+    assert state.q[2] == pytest.approx(GEAR_M)
+    np.testing.assert_allclose(state.q_dot[0:6], 0.0, atol=1e-12)
+    np.testing.assert_allclose(
+        world.specific_force_flu_m_s2(), [0.0, 0.0, SCENARIO.environment.gravity_m_s2], atol=1e-9
+    )
+    # The servos hold the arm where it started.
+    np.testing.assert_allclose(state.q[6:8], [-1.2, 0.3], atol=0.03)
+
+
+def test_thrust_above_hover_lifts_off_and_below_hover_does_not():
+    world, _ = _world()
+    for _ in range(300):
+        world.step(AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, 0.15))
+    assert world.on_ground
+    for _ in range(800):
+        state = world.step(AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, 0.7))
+    assert not world.on_ground
+    assert state.q[2] > GEAR_M + 0.2
+    assert world.specific_force_flu_m_s2()[2] > SCENARIO.environment.gravity_m_s2
+    assert world.battery.voltage_v < world.battery.full_v
+
+
+def test_servo_direction_reverses_the_joint_torque():
+    torques = []
+    for direction in (1, -1):
+        world, servos = _world(joints=(0.0, 0.0), direction=direction)
+        # Drive joint 1's servo to a shaft angle of +0.3 rad.
+        goal = int(units.rad_to_ticks(0.3)).to_bytes(4, "little", signed=True)
+        servos[1].write(ct.GOAL_POSITION.address, goal)
+        for _ in range(20):
+            world.step(None)
+        torques.append(world.truth().joint_torques_n_m[0])
+    assert torques[0] * torques[1] < 0.0
+
+
+def _close_gripper(world, servos, steps=400):
+    goal = int(units.rad_to_ticks(GRIPPER.closed_position_rad)).to_bytes(4, "little", signed=True)
+    servos[3].write(ct.GOAL_POSITION.address, goal)
+    for _ in range(steps):
+        world.step(None)
+
+
+def _open_gripper(world, servos, steps=400):
+    goal = int(units.rad_to_ticks(GRIPPER.open_position_rad)).to_bytes(4, "little", signed=True)
+    servos[3].write(ct.GOAL_POSITION.address, goal)
+    for _ in range(steps):
+        world.step(None)
+
+
+def test_gripper_grasps_an_object_within_tolerance_and_releases_it():
+    probe, _ = _world()
+    point = probe.payload_point_m()
+    world, servos = _world(object_at=tuple(np.add(point, [0.02, 0.0, 0.0])))
+    empty = world.truth().true_theta
+    _close_gripper(world, servos)
+    truth = world.truth()
+    assert world.jaw.closed
+    assert truth.payload_attached
+    assert truth.true_theta[0] == pytest.approx(empty[0] + SCENARIO.payload.mass_kg)
+    np.testing.assert_allclose(truth.object_position_m, world.payload_point_m())
+    _open_gripper(world, servos)
+    truth = world.truth()
+    assert not truth.payload_attached
+    assert truth.true_theta[0] == pytest.approx(empty[0])
+    assert truth.object_position_m[2] <= point[2] + 1e-9
+
+
+def test_gripper_closing_far_from_the_object_grasps_nothing():
+    probe, _ = _world()
+    point = probe.payload_point_m()
+    world, servos = _world(object_at=tuple(np.add(point, [0.2, 0.0, 0.0])))
+    _close_gripper(world, servos)
+    assert world.jaw.closed
+    assert not world.truth().payload_attached
+    np.testing.assert_allclose(world.truth().object_position_m, np.add(point, [0.2, 0.0, 0.0]))
+
+
+def test_settings_reject_nonsense():
+    with pytest.raises(ValueError, match="landing_gear"):
+        WorldSettings(landing_gear_height_m=0.0)
+    with pytest.raises(ValueError, match="finite"):
+        WorldSettings(start_yaw_rad=math.nan)
