@@ -1,0 +1,142 @@
+"""One control cycle of the flying companion: estimator, controller and setpoint mapping.
+
+Pure (no I/O, no clock): the flight application (:mod:`companion.app`) calls
+:meth:`FlightControl.step` once per control period with the filtered state, the desired
+state of the mission and the generalized force applied over the last period, and sends the
+result to PX4 and the servos. The pieces are the paper's (section III):
+
+- the on-line estimator (eq. est1-est3, or RLS) on the rows whose force is known in flight:
+  x, y, z from the commanded thrust along the measured attitude and the joints from the
+  servos' present current (DESIGN.md section 4),
+- the augmented passivity-based controller (eq. tau2) with the estimate, or frozen at the
+  empty-arm values (the non-adaptive baseline),
+- the small-angle tilt mapping (eq. phid) and PX4's thrust curve, with the tilt fed back
+  as the attitude reference through a third-order filter (:class:`TiltReference`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from companion.config import Scenario
+from companion.control import DesiredState, PassivityController
+from companion.estimation import TRANSLATION_AND_JOINT_ROWS, Estimate
+from companion.filters import FilteredState
+from companion.model import ManipulatorModel
+from companion.setpoints import AttitudeThrustSetpoint, ThrustCurve, attitude_thrust_setpoint
+from companion.simulation import make_estimator
+from companion.state import thrust_force_world
+from companion.trajectory import TiltReference
+
+__all__ = ["ControlOutput", "FlightControl", "FlightControllerName"]
+
+FloatArray = NDArray[np.float64]
+FlightControllerName = Literal["passivity", "nonadaptive"]
+
+
+@dataclass(frozen=True)
+class ControlOutput:
+    """Result of one control cycle (arrays shape (8,) follow q's order)."""
+
+    tau: FloatArray
+    """Generalized force of eq. tau2 [N, N m]."""
+    setpoint: AttitudeThrustSetpoint
+    """Attitude (ENU/FLU, ZYX) and thrust for PX4."""
+    estimate: Estimate
+    """The estimator's output this cycle (theta, excitation, confidence)."""
+    theta_hat: FloatArray
+    """theta the controller used, shape (3,): the estimate, or the nominal values."""
+    desired: DesiredState
+    """The desired state after the tilt reference replaced phi_d and theta_d."""
+
+
+class FlightControl:
+    """Estimator + controller + tilt/thrust mapping for flight; see the module docstring.
+
+    Parameters
+    ----------
+    scenario
+        Gains, estimator settings, vehicle thrust model.
+    controller
+        ``"passivity"`` (eq. tau2 with the estimate) or ``"nonadaptive"`` (eq. tau2 with
+        the empty-arm theta; the estimator still runs, for the log).
+    """
+
+    def __init__(self, scenario: Scenario, controller: FlightControllerName = "passivity") -> None:
+        if controller not in ("passivity", "nonadaptive"):
+            raise ValueError(f"controller must be 'passivity' or 'nonadaptive', got {controller!r}")
+        self.scenario = scenario
+        self.model = ManipulatorModel.from_scenario(scenario)
+        rows = tuple(r for r in scenario.estimator.rows if r in TRANSLATION_AND_JOINT_ROWS)
+        if not rows:
+            raise ValueError("estimator.rows has no row with a force known in flight (0-2, 6-7)")
+        self.rows = rows
+        self.estimator = make_estimator(scenario, scenario.estimator.kind, rows)
+        ctl = scenario.controller
+        self.nominal_theta = np.array(scenario.nominal_theta.as_tuple())
+        if controller == "nonadaptive":
+            self.controller = PassivityController.nonadaptive(
+                ctl.k, ctl.lambda_, self.nominal_theta
+            )
+        else:
+            self.controller = PassivityController(ctl.k, ctl.lambda_)
+        self.tilt = TiltReference(ctl.tilt_reference_bandwidth_rad_s)
+        rotors = scenario.vehicle.rotors
+        self.thrust_curve = ThrustCurve(6 * rotors.max_thrust_per_rotor_n, rotors.thr_mdl_fac)
+        self.tilt_max_rad = ctl.tilt_max_rad
+
+    def hold_force(self, q: FloatArray) -> FloatArray:
+        """Gravity compensation at ``q`` with the current estimate (tau before the first step)."""
+        return self.model.gravity(q, tuple(self.estimator.theta))
+
+    def step(
+        self,
+        dt_s: float,
+        state: FilteredState,
+        desired: DesiredState,
+        known_tau: FloatArray,
+    ) -> ControlOutput:
+        """One control cycle of ``dt_s`` [s].
+
+        ``known_tau`` is the generalized force applied over the last cycle on the rows the
+        estimator uses (NaN elsewhere): see :meth:`applied_force`.
+        """
+        q, q_dot, q_ddot = state.q, state.q_dot, state.q_ddot
+        terms = self.model.terms(q, q_dot)
+        estimate = self.estimator.update(dt_s, terms, q, q_dot, q_ddot, known_tau)
+        reference = self.tilt.apply(desired)
+        theta_hat = (
+            self.controller.fixed_theta
+            if self.controller.fixed_theta is not None
+            else estimate.theta
+        )
+        tau = self.controller.torque(terms, q, q_dot, reference, estimate.theta)
+        setpoint = attitude_thrust_setpoint(
+            tau[0:3], float(q[5]), float(reference.q[5]), self.tilt_max_rad, self.thrust_curve
+        )
+        self.tilt.step(dt_s, (setpoint.roll_rad, setpoint.pitch_rad))
+        return ControlOutput(
+            tau=tau,
+            setpoint=setpoint,
+            estimate=estimate,
+            theta_hat=np.asarray(theta_hat, dtype=np.float64),
+            desired=reference,
+        )
+
+    def applied_force(
+        self, q: FloatArray, thrust_n: float, joint_torques_n_m: FloatArray
+    ) -> FloatArray:
+        """Generalized force applied over a cycle, NaN on rows not known in flight.
+
+        x, y, z: the thrust [N] PX4 was commanded, along the measured attitude of ``q``;
+        joints: the servos' torque read-back [N m] (present current x torque constant).
+        """
+        tau = np.full(8, math.nan)
+        tau[0:3] = thrust_force_world(float(q[3]), float(q[4]), float(q[5]), thrust_n)
+        tau[6:8] = joint_torques_n_m
+        return tau

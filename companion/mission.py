@@ -1,0 +1,344 @@
+"""The payload-pickup mission as a pure state machine over vehicle time.
+
+PX4 takes off and lands (AUTO.TAKEOFF, AUTO.LAND); between the two the companion flies in
+OFFBOARD and this planner gives it, every control cycle, the desired state q_d (with
+q_d_dot, q_d_ddot) in world ENU and joint angles, the gripper command and what the
+estimator should do. Phases, in order:
+
+``to_object``   fly at cruise altitude to above the object, arm lowered (straight down)
+``descend``     lower until link 2's payload point meets the object
+``grasp``       close the gripper, wait ``grasp_wait_s``; the estimator restarts its confidence
+``lift``        climb back to cruise altitude with the payload
+``excite``      swing the arm and circle until the estimator is confident (or time out)
+``to_place``    carry to above the place point
+``lower``       lower until the payload point is at the place point
+``release``     open the gripper, wait; the estimate returns to the empty-arm values
+``climb``       climb to cruise altitude
+``to_home``     fly back above the start point; then the app asks PX4 to land
+
+Every move is a minimum-jerk (quintic) segment, so q_d_dot and q_d_ddot are continuous and
+at rest at both ends; a phase ends when its segment is over and the vehicle is within
+``arrive_tolerance_m`` of its end point (the tracking error is part of the mission, not
+hidden by a timer). Geometry: with the arm straight down (eta1 = -pi/2, eta2 = 0) the
+payload point lies ``mount_z + l1 + payload_position`` below the base CoM (DESIGN.md
+section 3), so the base flies that much above the object.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+from numpy.typing import NDArray
+
+from companion.config import Scenario
+from companion.control import DesiredState
+
+__all__ = [
+    "EstimatorAction",
+    "GripperAction",
+    "MissionCommand",
+    "Phase",
+    "PickupMission",
+    "PickupPlan",
+    "min_jerk",
+]
+
+FloatArray = NDArray[np.float64]
+ARM_DOWN = (-0.5 * math.pi, 0.0)
+"""(eta1, eta2) with the arm straight down [rad]."""
+
+
+class Phase(StrEnum):
+    """Mission phases flown in OFFBOARD, in order."""
+
+    TO_OBJECT = "to_object"
+    DESCEND = "descend"
+    GRASP = "grasp"
+    LIFT = "lift"
+    EXCITE = "excite"
+    TO_PLACE = "to_place"
+    LOWER = "lower"
+    RELEASE = "release"
+    CLIMB = "climb"
+    TO_HOME = "to_home"
+    DONE = "done"
+
+
+class GripperAction(StrEnum):
+    """What the gripper should do this cycle."""
+
+    HOLD = "hold"
+    OPEN = "open"
+    CLOSE = "close"
+
+
+class EstimatorAction(StrEnum):
+    """What the estimator should do this cycle."""
+
+    RUN = "run"
+    FREEZE = "freeze"
+    RESTART = "restart"
+    """Keep theta, restart confidence: the payload was just grasped."""
+    RESET_EMPTY = "reset_empty"
+    """Back to the empty-arm values: the payload was just released."""
+
+
+@dataclass(frozen=True)
+class PickupPlan:
+    """Where and how to fly the pickup (world ENU [m], [m/s], [s], [rad]).
+
+    ``payload_at`` and ``place_at`` are where the object's centre of mass is and should
+    end up.
+    """
+
+    home_m: tuple[float, float]
+    payload_at_m: tuple[float, float, float]
+    place_at_m: tuple[float, float, float]
+    yaw_rad: float = 0.0
+    cruise_altitude_m: float = 1.5
+    cruise_speed_m_s: float = 0.5
+    vertical_speed_m_s: float = 0.3
+    arm_move_s: float = 3.0
+    grasp_wait_s: float = 1.5
+    excite_min_s: float = 6.0
+    excite_max_s: float = 30.0
+    excite_period_s: float = 4.0
+    excite_eta1_rad: float = 0.5
+    excite_eta2_rad: float = 0.4
+    excite_radius_m: float = 0.15
+    arrive_tolerance_m: float = 0.15
+    arrive_timeout_s: float = 20.0
+
+    def __post_init__(self) -> None:
+        values = [*self.home_m, *self.payload_at_m, *self.place_at_m, self.yaw_rad]
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError("mission positions must be finite")
+        for name in ("cruise_speed_m_s", "vertical_speed_m_s", "arm_move_s", "excite_period_s"):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f"{name} must be positive")
+        if not self.excite_max_s >= self.excite_min_s + self.excite_period_s:
+            raise ValueError("need excite_max_s >= excite_min_s + excite_period_s")
+
+
+def min_jerk(t_s: float, duration_s: float, start: FloatArray, end: FloatArray):
+    """Quintic from ``start`` to ``end`` over ``duration_s``, at rest at both ends.
+
+    Returns (position, velocity, acceleration) at ``t_s`` (clamped to [0, duration]).
+    """
+    tau = min(max(t_s / duration_s, 0.0), 1.0)
+    s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau * tau)
+    ds = 30.0 * tau**2 * (1.0 - tau) ** 2 / duration_s
+    dds = 60.0 * tau * (1.0 - tau) * (1.0 - 2.0 * tau) / duration_s**2
+    delta = end - start
+    return start + s * delta, ds * delta, dds * delta
+
+
+@dataclass(frozen=True)
+class MissionCommand:
+    """The planner's output for one control cycle."""
+
+    phase: Phase
+    desired: DesiredState
+    """q_d, q_d_dot, q_d_ddot, shape (8,) each (roll and pitch rows are replaced by the
+    controller's tilt reference)."""
+    gripper: GripperAction
+    estimator: EstimatorAction
+    phase_changed: bool
+
+
+@dataclass
+class _Segment:
+    start_s: float
+    duration_s: float
+    q_from: FloatArray
+    q_to: FloatArray
+    check_arrival: bool = True
+
+
+@dataclass
+class PickupMission:
+    """The OFFBOARD part of the pickup; see the module docstring.
+
+    Parameters
+    ----------
+    plan
+        Mission geometry and timing.
+    scenario
+        Arm geometry (mount point, l1, payload position along link 2).
+    """
+
+    plan: PickupPlan
+    scenario: Scenario
+    phase: Phase = Phase.TO_OBJECT
+    confident_when_done: bool = False
+    phase_log: list[tuple[float, Phase]] = field(default_factory=list)
+    _segment: _Segment | None = None
+    _excite_stop_s: float = math.nan
+
+    @property
+    def hang_m(self) -> float:
+        """Height of the base CoM above the payload point with the arm down [m]."""
+        arm = self.scenario.arm
+        return -arm.mount_point_m[2] + arm.link1.length_m + self.scenario.payload.position_m
+
+    def _pose(self, xyz: tuple[float, float, float] | FloatArray, eta) -> FloatArray:
+        return np.array([xyz[0], xyz[1], xyz[2], 0.0, 0.0, self.plan.yaw_rad, eta[0], eta[1]])
+
+    def _targets(self, phase: Phase) -> FloatArray:
+        p = self.plan
+        cruise = p.cruise_altitude_m
+        obj, place = p.payload_at_m, p.place_at_m
+        hang = self.hang_m
+        return {
+            Phase.TO_OBJECT: self._pose((obj[0], obj[1], cruise), ARM_DOWN),
+            Phase.DESCEND: self._pose((obj[0], obj[1], obj[2] + hang), ARM_DOWN),
+            Phase.GRASP: self._pose((obj[0], obj[1], obj[2] + hang), ARM_DOWN),
+            Phase.LIFT: self._pose((obj[0], obj[1], cruise), ARM_DOWN),
+            Phase.EXCITE: self._pose((obj[0], obj[1], cruise), ARM_DOWN),
+            Phase.TO_PLACE: self._pose((place[0], place[1], cruise), ARM_DOWN),
+            Phase.LOWER: self._pose((place[0], place[1], place[2] + hang), ARM_DOWN),
+            Phase.RELEASE: self._pose((place[0], place[1], place[2] + hang), ARM_DOWN),
+            Phase.CLIMB: self._pose((place[0], place[1], cruise), ARM_DOWN),
+            Phase.TO_HOME: self._pose((p.home_m[0], p.home_m[1], cruise), ARM_DOWN),
+        }[phase]
+
+    def start(self, t_s: float, q_now: FloatArray) -> None:
+        """Begin at vehicle time ``t_s`` [s] from the current configuration ``q_now``."""
+        self.phase = Phase.TO_OBJECT
+        self.phase_log = [(t_s, self.phase)]
+        self._begin(t_s, np.asarray(q_now, dtype=np.float64), Phase.TO_OBJECT)
+
+    def _begin(self, t_s: float, q_from: FloatArray, phase: Phase) -> None:
+        p = self.plan
+        q_from = q_from.copy()
+        q_from[3:5] = 0.0
+        q_from[5] = p.yaw_rad
+        q_to = self._targets(phase)
+        horizontal = float(np.linalg.norm(q_to[0:2] - q_from[0:2]))
+        vertical = abs(float(q_to[2] - q_from[2]))
+        joints = float(np.max(np.abs(q_to[6:8] - q_from[6:8])))
+        # Minimum-jerk peak speed is 1.875 x the mean speed.
+        duration = max(
+            1.875 * horizontal / p.cruise_speed_m_s,
+            1.875 * vertical / p.vertical_speed_m_s,
+            p.arm_move_s * joints / (0.5 * math.pi),
+            1.0,
+        )
+        if phase in (Phase.GRASP, Phase.RELEASE):
+            duration = p.grasp_wait_s
+        if phase == Phase.EXCITE:
+            duration = p.excite_max_s
+            self._excite_stop_s = math.nan
+        self._segment = _Segment(
+            t_s, duration, q_from, q_to, check_arrival=phase not in (Phase.GRASP, Phase.RELEASE)
+        )
+
+    def update(self, t_s: float, q: FloatArray, confident: bool) -> MissionCommand:
+        """Desired state, gripper and estimator actions at vehicle time ``t_s`` [s].
+
+        ``q`` is the filtered configuration, ``confident`` the estimator's confidence flag.
+        """
+        if self._segment is None:
+            raise RuntimeError("call start() before update()")
+        changed = False
+        gripper, estimator = GripperAction.HOLD, EstimatorAction.RUN
+        if self.phase != Phase.DONE and self._finished(t_s, q, confident):
+            q_end = self._desired(t_s).q
+            finished = self.phase
+            order = list(Phase)
+            self.phase = order[order.index(self.phase) + 1]
+            self.phase_log.append((t_s, self.phase))
+            changed = True
+            if finished == Phase.GRASP:
+                estimator = EstimatorAction.RESTART
+            if finished == Phase.RELEASE:
+                estimator = EstimatorAction.RESET_EMPTY
+            if self.phase != Phase.DONE:
+                self._begin(t_s, q_end, self.phase)
+        if changed and self.phase == Phase.GRASP:
+            gripper = GripperAction.CLOSE
+        if changed and self.phase == Phase.RELEASE:
+            gripper = GripperAction.OPEN
+        if self.phase in (Phase.GRASP, Phase.RELEASE, Phase.DONE):
+            estimator = estimator if estimator != EstimatorAction.RUN else EstimatorAction.FREEZE
+        return MissionCommand(self.phase, self._desired(t_s), gripper, estimator, changed)
+
+    def _finished(self, t_s: float, q: FloatArray, confident: bool) -> bool:
+        seg = self._segment
+        assert seg is not None
+        elapsed = t_s - seg.start_s
+        if self.phase == Phase.EXCITE:
+            period = self.plan.excite_period_s
+            if not math.isfinite(self._excite_stop_s):
+                enough = confident and elapsed >= self.plan.excite_min_s
+                if enough or elapsed >= seg.duration_s - period:
+                    self._excite_stop_s = t_s
+                    self.confident_when_done = confident
+                return False
+            return t_s >= self._excite_stop_s + period
+        if elapsed < seg.duration_s:
+            return False
+        if not seg.check_arrival:
+            return True
+        error = float(np.linalg.norm(q[0:3] - seg.q_to[0:3]))
+        return error <= self.plan.arrive_tolerance_m or elapsed >= (
+            seg.duration_s + self.plan.arrive_timeout_s
+        )
+
+    def _desired(self, t_s: float) -> DesiredState:
+        seg = self._segment
+        assert seg is not None
+        elapsed = t_s - seg.start_s
+        if self.phase == Phase.EXCITE:
+            return self._excitation(elapsed, seg.q_to)
+        if self.phase == Phase.DONE:
+            zero = np.zeros(8)
+            return DesiredState(seg.q_to.copy(), zero, zero.copy())
+        q, q_dot, q_ddot = min_jerk(elapsed, seg.duration_s, seg.q_from, seg.q_to)
+        return DesiredState(q, q_dot, q_ddot)
+
+    def _excitation(self, elapsed_s: float, centre: FloatArray) -> DesiredState:
+        """Arm swing and a horizontal circle under an envelope that fades in over the first
+        period and out over the period after the stop, so q_d stays smooth (C2) and ends
+        at rest at the centre."""
+        p = self.plan
+        period = p.excite_period_s
+        w = 2.0 * math.pi / period
+        env_in = _smoothstep(elapsed_s / period, period)
+        stop = self._excite_stop_s - self._segment_start_s()
+        env_out = _smoothstep((elapsed_s - stop) / period, period) if math.isfinite(stop) else None
+        e, de, dde = env_in
+        if env_out is not None:
+            o, do, ddo = 1.0 - env_out[0], -env_out[1], -env_out[2]
+            e, de, dde = e * o, de * o + e * do, dde * o + 2.0 * de * do + e * ddo
+        s, c = math.sin(w * elapsed_s), math.cos(w * elapsed_s)
+        f = np.zeros(8)
+        df = np.zeros(8)
+        ddf = np.zeros(8)
+        amp = np.zeros(8)
+        amp[0] = amp[1] = p.excite_radius_m
+        amp[6], amp[7] = p.excite_eta1_rad, p.excite_eta2_rad
+        # x: r (1 - cos) keeps the circle through the centre; y: r sin; joints: sin.
+        f[0], df[0], ddf[0] = 1.0 - c, w * s, w * w * c
+        for row in (1, 6, 7):
+            f[row], df[row], ddf[row] = s, w * c, -w * w * s
+        q = centre + amp * e * f
+        q_dot = amp * (de * f + e * df)
+        q_ddot = amp * (dde * f + 2.0 * de * df + e * ddf)
+        return DesiredState(q, q_dot, q_ddot)
+
+    def _segment_start_s(self) -> float:
+        assert self._segment is not None
+        return self._segment.start_s
+
+
+def _smoothstep(x: float, scale_s: float) -> tuple[float, float, float]:
+    """Quintic 0 -> 1 over x in [0, 1] and its first two time derivatives (x = t / scale)."""
+    x = min(max(x, 0.0), 1.0)
+    value = x**3 * (10.0 - 15.0 * x + 6.0 * x * x)
+    rate = 30.0 * x**2 * (1.0 - x) ** 2 / scale_s
+    accel = 60.0 * x * (1.0 - x) * (1.0 - 2.0 * x) / scale_s**2
+    return value, rate, accel

@@ -1,0 +1,114 @@
+"""The pickup mission planner: phases, gripper and estimator actions, smooth references."""
+
+import math
+
+import numpy as np
+import pytest
+
+from companion.config import load_scenario
+from companion.mission import (
+    EstimatorAction,
+    GripperAction,
+    Phase,
+    PickupMission,
+    PickupPlan,
+    min_jerk,
+)
+
+SCENARIO = load_scenario("configs/sitl_pickup.toml")
+PLAN = PickupPlan(home_m=(0.0, 0.0), payload_at_m=(1.5, 1.0, 0.05), place_at_m=(-1.0, 0.5, 0.05))
+DT = 0.004
+
+
+def fly(plan=PLAN, confident_after_s=8.0, lag=0):
+    """Track q_d perfectly (or ``lag`` cycles late); return the per-cycle record."""
+    mission = PickupMission(plan, SCENARIO)
+    q = np.array([0.0, 0.0, 1.5, 0.0, 0.0, 0.0, 0.0, -1.5])
+    mission.start(0.0, q)
+    history = [q.copy()] * (lag + 1)
+    records = []
+    t = 0.0
+    excite_start = None
+    while mission.phase != Phase.DONE and t < 600.0:
+        conf = excite_start is not None and t - excite_start >= confident_after_s
+        cmd = mission.update(t, history[0], conf)
+        if cmd.phase == Phase.EXCITE and excite_start is None:
+            excite_start = t
+        records.append((t, cmd))
+        history = [*history[1:], cmd.desired.q.copy()]
+        t += DT
+    return mission, records
+
+
+def test_min_jerk_is_at_rest_at_both_ends():
+    a, b = np.zeros(2), np.array([1.0, -2.0])
+    for t, expected in ((0.0, a), (3.0, b)):
+        q, qd, qdd = min_jerk(t, 3.0, a, b)
+        np.testing.assert_allclose(q, expected)
+        np.testing.assert_allclose(qd, 0.0, atol=1e-12)
+        np.testing.assert_allclose(qdd, 0.0, atol=1e-12)
+    # Peak speed of a minimum-jerk move is 1.875 x the mean speed.
+    assert min_jerk(1.5, 3.0, a, b)[1][0] == pytest.approx(1.875 / 3.0)
+
+
+def test_phases_run_in_order_with_gripper_and_estimator_actions():
+    mission, records = fly()
+    assert [p for _, p in mission.phase_log] == list(Phase)
+    closes = [cmd for _, cmd in records if cmd.gripper == GripperAction.CLOSE]
+    opens = [cmd for _, cmd in records if cmd.gripper == GripperAction.OPEN]
+    assert [c.phase for c in closes] == [Phase.GRASP]
+    assert [c.phase for c in opens] == [Phase.RELEASE]
+    actions = [cmd.estimator for _, cmd in records]
+    assert actions.count(EstimatorAction.RESTART) == 1
+    assert actions.count(EstimatorAction.RESET_EMPTY) == 1
+    assert mission.confident_when_done
+
+
+def test_grasp_puts_the_payload_point_on_the_object():
+    _, records = fly()
+    grasp = next(cmd for _, cmd in records if cmd.phase == Phase.GRASP)
+    q = grasp.desired.q
+    arm = SCENARIO.arm
+    # Arm straight down: payload point = base + mount + (l1 + lc) down.
+    point_z = q[2] + arm.mount_point_m[2] - arm.link1.length_m - SCENARIO.payload.position_m
+    assert q[6] == pytest.approx(-math.pi / 2) and q[7] == pytest.approx(0.0)
+    np.testing.assert_allclose([q[0], q[1], point_z], PLAN.payload_at_m, atol=1e-9)
+
+
+def test_references_are_continuous_and_bounded():
+    _, records = fly()
+    qs = np.array([cmd.desired.q for _, cmd in records])
+    qds = np.array([cmd.desired.q_dot for _, cmd in records])
+    steps = np.abs(np.diff(qs, axis=0))
+    # No jump bigger than what the peak rates allow in one cycle.
+    assert steps[:, 0:3].max() < 1.0 * DT
+    assert steps[:, 6:8].max() < 1.5 * DT
+    speed = np.linalg.norm(qds[:, 0:2], axis=1)
+    assert speed.max() < PLAN.cruise_speed_m_s * 1.3
+    # q_dot is the derivative of q (central differences).
+    fd = (qs[2:] - qs[:-2]) / (2 * DT)
+    assert np.max(np.abs(fd - qds[1:-1])) < 0.02
+
+
+def test_excitation_stops_at_the_time_limit_without_confidence():
+    mission, records = fly(confident_after_s=1e9)
+    assert mission.phase == Phase.DONE
+    assert not mission.confident_when_done
+    excite = [t for t, cmd in records if cmd.phase == Phase.EXCITE]
+    assert excite[-1] - excite[0] == pytest.approx(PLAN.excite_max_s, abs=0.05)
+
+
+def test_phase_waits_for_the_vehicle_to_arrive():
+    # A vehicle that lags far behind the reference keeps the phase from ending on time.
+    quick, _ = fly()
+    slow, _ = fly(lag=1500)
+    t_quick = dict((p, t) for t, p in quick.phase_log)[Phase.DESCEND]
+    t_slow = dict((p, t) for t, p in slow.phase_log)[Phase.DESCEND]
+    assert t_slow > t_quick + 2.0
+
+
+def test_plan_rejects_nonsense():
+    with pytest.raises(ValueError, match="finite"):
+        PickupPlan(home_m=(0.0, math.nan), payload_at_m=(1, 1, 0), place_at_m=(0, 0, 0))
+    with pytest.raises(ValueError, match="excite_max_s"):
+        PickupPlan((0, 0), (1, 1, 0), (0, 0, 0), excite_min_s=10.0, excite_max_s=11.0)
