@@ -65,6 +65,7 @@ __all__ = [
     "JointConfig",
     "JointState",
     "OperatingMode",
+    "UnsupportedModeError",
     "available_backends",
     "backend_class",
     "open_bus",
@@ -102,6 +103,10 @@ class BusFailedError(BusStateError):
     """The bus failed (repeated link failures); close it and open it again."""
 
 
+class UnsupportedModeError(ArmDriverError, ValueError):
+    """The backend's protocol cannot drive the joints in this operating mode."""
+
+
 class BackendUnavailableError(ArmDriverError, LookupError):
     """No backend of that name, or one that is planned but not implemented."""
 
@@ -126,6 +131,10 @@ class ArmBus(abc.ABC):
     max_consecutive_failures
         Link failures in a row that mark the bus FAILED.
     """
+
+    supported_modes: frozenset[OperatingMode] = frozenset(OperatingMode)
+    """Operating modes the backend's protocol can drive; others raise
+    :class:`UnsupportedModeError` before anything is sent."""
 
     def __init__(
         self,
@@ -253,11 +262,18 @@ class ArmBus(abc.ABC):
 
         Raises
         ------
+        UnsupportedModeError
+            The backend cannot drive this mode (see :attr:`supported_modes`).
         BusStateError
             Torque is on or unknown: the driver does not turn it off for you, as the arm
             would go limp.
         """
         mode = OperatingMode(mode)
+        if mode not in self.supported_modes:
+            have = ", ".join(sorted(m.value for m in self.supported_modes))
+            raise UnsupportedModeError(
+                f"{type(self).__name__} cannot drive {mode.value} mode; it supports {have}"
+            )
         if self._torque is not False:
             raise BusStateError(
                 f"cannot set {mode.value} mode with torque on or unknown; "
@@ -420,10 +436,9 @@ class ArmBus(abc.ABC):
         return {}
 
 
-_BACKENDS: dict[str, str] = {"dynamixel": "arm_driver.dynamixel.bus:DynamixelBus"}
-_PLANNED = {
-    "dronecan": "the DroneCAN backend is not available yet (planned: python-can + DroneCAN "
-    "actuator messages); use a dynamixel:// bus",
+_BACKENDS: dict[str, str] = {
+    "dronecan": "arm_driver.dronecan.bus:DroneCanBus",
+    "dynamixel": "arm_driver.dynamixel.bus:DynamixelBus",
 }
 
 
@@ -446,17 +461,20 @@ def backend_class(name: str) -> type[ArmBus]:
     Raises
     ------
     BackendUnavailableError
-        No such backend, or a planned one that is not implemented yet.
+        No such backend, or one whose dependencies are not installed.
     """
     name = name.lower()
     if name not in _BACKENDS:
-        if name in _PLANNED:
-            raise BackendUnavailableError(f"backend {name!r}: {_PLANNED[name]}")
         raise BackendUnavailableError(
             f"unknown bus backend {name!r}; available: {', '.join(available_backends())}"
         )
     module, _, cls = _BACKENDS[name].partition(":")
-    return getattr(importlib.import_module(module), cls)
+    try:
+        return getattr(importlib.import_module(module), cls)
+    except ImportError as error:
+        raise BackendUnavailableError(
+            f"backend {name!r} cannot be imported ({error}); is its dependency installed?"
+        ) from error
 
 
 def open_bus(

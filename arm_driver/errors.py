@@ -8,6 +8,7 @@
     │   └── CrcError         a frame whose CRC-16 does not match its bytes
     ├── InstructionError     the servo answered, rejecting the instruction (error number)
     ├── HardwareError        the servo reports a hardware fault (Alert bit, address 70)
+    │   └── NodeHealthError  a DroneCAN actuator node reports health ERROR or CRITICAL
     └── LimitError           (also a ValueError) a joint-space command outside its limits,
                              refused before anything is sent
 
@@ -41,6 +42,8 @@ __all__ = [
     "HardwareErrorStatus",
     "InstructionError",
     "LimitError",
+    "NodeHealth",
+    "NodeHealthError",
     "StatusError",
 ]
 
@@ -286,6 +289,55 @@ class HardwareError(ArmDriverError):
         )
         self.status = status
         self.error_number = error_number
+
+
+class NodeHealth(enum.IntEnum):
+    """Health of a DroneCAN node (``uavcan.protocol.NodeStatus.health``, DSDL 341)."""
+
+    OK = 0
+    """The node is functioning properly."""
+    WARNING = 1
+    """A critical parameter went out of range or the node encountered a minor failure."""
+    ERROR = 2
+    """The node encountered a major failure."""
+    CRITICAL = 3
+    """The node suffered a fatal malfunction."""
+
+
+class NodeHealthError(HardwareError):
+    """A DroneCAN node driving an actuator reports health ERROR or CRITICAL.
+
+    DroneCAN says only *how bad* (``NodeStatus.health``); *what* is in the node's
+    ``vendor_specific_status_code``, whose meaning the vendor defines (the emulator in
+    :mod:`sitl.servo.dronecan_node` puts :class:`HardwareErrorStatus` bits there).
+
+    Parameters
+    ----------
+    servo_id
+        Actuator id of the joint concerned.
+    node_id
+        DroneCAN node id of the node hosting the actuator.
+    health
+        The reported health.
+    vendor_status_code
+        ``NodeStatus.vendor_specific_status_code`` (uint16), undecoded.
+    """
+
+    def __init__(
+        self, servo_id: int, node_id: int, health: NodeHealth, vendor_status_code: int
+    ) -> None:
+        ArmDriverError.__init__(
+            self,
+            f"actuator {servo_id}: its DroneCAN node {node_id} reports health "
+            f"{health.name} (vendor status code 0x{vendor_status_code:04X}); the node "
+            "decides whether its output is still driven",
+            servo_id=servo_id,
+        )
+        self.status = None
+        self.error_number = 0
+        self.node_id = node_id
+        self.health = health
+        self.vendor_status_code = vendor_status_code
 
 
 class LimitError(ArmDriverError, ValueError):

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import asyncio
 import math
+import subprocess
+import sys
 from collections.abc import Awaitable, Callable, Iterator, Mapping
 from typing import Any
 
@@ -155,9 +157,36 @@ def test_dynamixel_is_registered_and_imported_lazily() -> None:
     assert backend_class("dynamixel") is DynamixelBus
 
 
-def test_dronecan_is_an_honest_not_available_error() -> None:
-    with pytest.raises(BackendUnavailableError, match="DroneCAN backend is not available yet"):
-        open_bus("dronecan://can0?interface=socketcan&node_id=10", JOINTS)
+def test_dronecan_is_registered_and_imported_only_when_chosen() -> None:
+    code = (
+        "import sys, arm_driver.bus as b; assert 'dronecan' not in sys.modules; "
+        "cls = b.backend_class('dronecan'); assert 'dronecan' in sys.modules; "
+        "print(cls.__name__)"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "DroneCanBus"
+
+
+def test_dronecan_url_options_are_converted_and_unknown_ones_refused() -> None:
+    bus = open_bus(
+        "dronecan://can0?interface=virtual&node_id=11&timeout_ms=4&max_status_age_ms=30"
+        "&open_timeout_ms=200&arming=0",
+        JOINTS,
+    )
+    assert bus.state is BusState.CLOSED
+    with pytest.raises(ValueError, match="unknown dronecan option"):
+        open_bus("dronecan://can0?baud=1", JOINTS)
+    with pytest.raises(ValueError, match="node_id"):
+        open_bus("dronecan://can0?node_id=x", JOINTS)
+    with pytest.raises(ValueError, match="node id 0 out of range"):
+        open_bus("dronecan://can0?node_id=0", JOINTS)
+
+
+def test_a_backend_whose_dependency_is_missing_is_unavailable() -> None:
+    register_backend("missingdep", "arm_driver.no_such_module:Bus")
+    with pytest.raises(BackendUnavailableError, match="cannot be imported"):
+        open_bus("missingdep://x", JOINTS)
 
 
 def test_unknown_backend_lists_the_known_ones() -> None:
