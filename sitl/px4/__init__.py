@@ -1,0 +1,63 @@
+"""The simulated vehicle's PX4 personality over MAVLink 2 (issue 5).
+
+Pure logic driven by simulation time, plus a thin UDP endpoint::
+
+    from sitl.px4 import MavlinkEndpoint, Px4Params, Px4Vehicle, VehicleMeasurement
+
+    vehicle = Px4Vehicle(Px4Params.from_scenario(scenario))
+    links = {"onboard": MavlinkEndpoint(14580, 14540), "gcs": MavlinkEndpoint(18570, 14550)}
+    for endpoint in links.values():
+        endpoint.open()
+    # every plant step (simulation time t, measurement m in ENU / FLU):
+    for name, endpoint in links.items():
+        for msg in endpoint.receive():
+            for link, reply in vehicle.handle(msg, name, t):
+                links[link].send(reply)
+    setpoint = vehicle.control(t, m)          # AttitudeSetpoint or None (disarmed)
+    for link, msg in vehicle.telemetry(t, m):
+        links[link].send(msg)
+
+Modules: :mod:`~sitl.px4.vehicle` (message handling, the facade),
+:mod:`~sitl.px4.commander` (arming, modes, offboard, failsafe, landing),
+:mod:`~sitl.px4.position_control` (AUTO / POSCTL position loop),
+:mod:`~sitl.px4.telemetry` (streams, rates, NED / FRD messages),
+:mod:`~sitl.px4.params` (parameter table and encoding), :mod:`~sitl.px4.modes`
+(custom_mode encoding), :mod:`~sitl.px4.geo` (flat-earth lat / lon),
+:mod:`~sitl.px4.measurement` (input), :mod:`~sitl.px4.endpoint` (UDP, signing).
+"""
+
+from sitl.px4.commander import Home
+from sitl.px4.endpoint import (
+    GCS_PORTS,
+    ONBOARD_PORTS,
+    MavlinkEndpoint,
+    SigningKeyError,
+    load_signing_key,
+)
+from sitl.px4.geo import GeoReference
+from sitl.px4.measurement import VehicleMeasurement
+from sitl.px4.modes import Px4Mode
+from sitl.px4.params import PARAMETERS, ParamError, ParamSpec, Px4Params, UnknownParamError
+from sitl.px4.telemetry import GCS_RATES_HZ, ONBOARD_RATES_HZ
+from sitl.px4.vehicle import FLIGHT_SW_VERSION, Px4Vehicle
+
+__all__ = [
+    "FLIGHT_SW_VERSION",
+    "GCS_PORTS",
+    "GCS_RATES_HZ",
+    "ONBOARD_PORTS",
+    "ONBOARD_RATES_HZ",
+    "PARAMETERS",
+    "GeoReference",
+    "Home",
+    "MavlinkEndpoint",
+    "ParamError",
+    "ParamSpec",
+    "Px4Mode",
+    "Px4Params",
+    "Px4Vehicle",
+    "SigningKeyError",
+    "UnknownParamError",
+    "VehicleMeasurement",
+    "load_signing_key",
+]

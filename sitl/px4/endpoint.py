@@ -1,0 +1,255 @@
+"""The vehicle's only I/O: one non-blocking UDP MAVLink 2 endpoint per link.
+
+PX4 SITL opens its onboard/API link on local UDP 14580 sending to 127.0.0.1:14540 and its
+GCS link on local 18570 sending to 127.0.0.1:14550; :data:`ONBOARD_PORTS` and
+:data:`GCS_PORTS` are those defaults. Like PX4's UDP transport, the endpoint sends to the
+configured remote until it hears from a client and then answers the address the last
+valid message came from (a client on another port, e.g. ``mavutil`` with ``udpout``).
+Only correctly decoded (and, with signing, correctly signed) datagrams move the remote,
+so garbage from a stray port cannot hijack the link.
+
+Robust input: each datagram is parsed on its own (a frame cut off at the end of a
+datagram is not glued to the next one). Random bytes, truncated frames, bad CRCs,
+unknown message ids, bad lengths and flags, unsigned or wrongly signed frames (when a
+signing key is set) are dropped and counted per reason in :attr:`MavlinkEndpoint.counters`;
+nothing raises out of :meth:`MavlinkEndpoint.receive`. MAVLink 1 frames are accepted
+without signing, as PX4 does.
+
+Signing (MAVLink 2, pymavlink's implementation): with a 32-byte secret key every outgoing
+frame is signed (link id configurable, timestamps in 10 us units since 2015-01-01 from
+the wall clock at :meth:`~MavlinkEndpoint.open`), and incoming frames must carry a valid
+signature with a timestamp newer than the last one of their stream; others are counted
+(``unsigned`` / ``bad_signature``) and dropped. Key files hold the 32 raw bytes or 64 hex
+characters (:func:`load_signing_key`).
+"""
+
+from __future__ import annotations
+
+import errno
+import socket
+import time
+from collections import Counter
+from pathlib import Path
+
+from pymavlink.dialects.v20 import common as mavlink
+
+__all__ = [
+    "GCS_PORTS",
+    "ONBOARD_PORTS",
+    "MavlinkEndpoint",
+    "SigningKeyError",
+    "load_signing_key",
+]
+
+ONBOARD_PORTS = (14580, 14540)
+"""PX4 SITL onboard/API link: (local port, remote port)."""
+GCS_PORTS = (18570, 14550)
+"""PX4 SITL GCS link: (local port, remote port)."""
+
+_SIGNING_EPOCH_S = 1_420_070_400
+"""2015-01-01 00:00:00 UTC, the MAVLink signing timestamp epoch [s since 1970]."""
+_MAX_DATAGRAM = 65_535
+_REASONS = (
+    ("Bad prefix", "garbage"),
+    ("invalid MAVLink CRC", "bad_crc"),
+    ("Invalid signature", "bad_signature"),
+    ("invalid MAVLink message length", "bad_length"),
+    ("invalid incompat_flags", "bad_flags"),
+)
+
+
+class SigningKeyError(ValueError):
+    """A signing key file that is neither 32 raw bytes nor 64 hex characters."""
+
+
+def load_signing_key(path: str | Path) -> bytes:
+    """Read a MAVLink 2 signing key: 32 raw bytes, or 64 hex characters (whitespace ok)."""
+    data = Path(path).read_bytes()
+    if len(data) == 32:
+        return data
+    try:
+        key = bytes.fromhex(data.decode("ascii").strip())
+    except (UnicodeDecodeError, ValueError):
+        key = b""
+    if len(key) != 32:
+        raise SigningKeyError(f"{path}: expected 32 raw bytes or 64 hex characters")
+    return key
+
+
+class MavlinkEndpoint:
+    """A UDP MAVLink 2 endpoint; see the module docstring.
+
+    Parameters
+    ----------
+    local_port : int
+        UDP port to bind (0: any free port; see :attr:`local_address`).
+    remote_port : int
+        Port to send to until a client is heard from.
+    host : str
+        Address to bind and default remote host (loopback).
+    system_id, component_id : int
+        Source ids of outgoing frames (PX4 autopilot: 1, 1).
+    signing_key : bytes, optional
+        32-byte secret: sign outgoing frames and require signed incoming ones.
+    link_id : int
+        Signing link id of outgoing frames (0..255).
+
+    Nothing is opened in the constructor; :meth:`open` binds, :meth:`close` (idempotent)
+    releases. Also a context manager.
+    """
+
+    def __init__(
+        self,
+        local_port: int,
+        remote_port: int,
+        *,
+        host: str = "127.0.0.1",
+        system_id: int = 1,
+        component_id: int = 1,
+        signing_key: bytes | None = None,
+        link_id: int = 0,
+    ) -> None:
+        if signing_key is not None and len(signing_key) != 32:
+            raise SigningKeyError("signing_key must be 32 bytes")
+        self._local = (host, int(local_port))
+        self.remote_address: tuple[str, int] = (host, int(remote_port))
+        """Where frames go: the configured remote, then the last valid sender."""
+        self._system_id = int(system_id)
+        self._component_id = int(component_id)
+        self._key = signing_key
+        self._link_id = int(link_id)
+        self._sock: socket.socket | None = None
+        self._mav: mavlink.MAVLink | None = None
+        self.counters: Counter[str] = Counter()
+        """Datagrams / frames by outcome: ``received``, ``sent`` and the drop reasons."""
+
+    # ------------------------------------------------------------ lifecycle
+
+    def open(self) -> None:
+        """Bind the socket (non-blocking) and set up the codec; no-op when open."""
+        if self._sock is not None:
+            return
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            sock.setblocking(False)
+            sock.bind(self._local)
+        except OSError:
+            sock.close()
+            raise
+        mav = mavlink.MAVLink(None, self._system_id, self._component_id)
+        mav.robust_parsing = True
+        if self._key is not None:
+            mav.signing.secret_key = self._key
+            mav.signing.sign_outgoing = True
+            mav.signing.link_id = self._link_id
+            mav.signing.timestamp = int((time.time() - _SIGNING_EPOCH_S) * 1e5)
+        self._sock, self._mav = sock, mav
+
+    def close(self) -> None:
+        """Release the socket; safe to call more than once."""
+        if self._sock is not None:
+            self._sock.close()
+        self._sock = None
+        self._mav = None
+
+    def __enter__(self) -> MavlinkEndpoint:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def is_open(self) -> bool:
+        """Whether :meth:`open` has bound the socket."""
+        return self._sock is not None
+
+    @property
+    def local_address(self) -> tuple[str, int]:
+        """The bound (host, port) (the free port chosen when ``local_port`` was 0)."""
+        if self._sock is None:
+            raise RuntimeError("endpoint is not open")
+        return self._sock.getsockname()
+
+    # ----------------------------------------------------------------- I/O
+
+    def send(self, msg: mavlink.MAVLink_message) -> None:
+        """Encode (MAVLink 2, signed when a key is set) and send one message.
+
+        Send errors (e.g. ICMP port unreachable reported by the kernel while no client
+        listens) are counted as ``send_error`` and dropped: the vehicle keeps flying.
+        """
+        sock, mav = self._require_open()
+        buf = msg.pack(mav)
+        mav.seq = (mav.seq + 1) % 256
+        try:
+            sock.sendto(buf, self.remote_address)
+        except OSError:
+            self.counters["send_error"] += 1
+            return
+        self.counters["sent"] += 1
+
+    def receive(self, max_datagrams: int = 256) -> list[mavlink.MAVLink_message]:
+        """Every valid message of the datagrams waiting (at most ``max_datagrams``)."""
+        sock, mav = self._require_open()
+        out: list[mavlink.MAVLink_message] = []
+        for _ in range(max_datagrams):
+            try:
+                data, sender = sock.recvfrom(_MAX_DATAGRAM)
+            except BlockingIOError:
+                break
+            except OSError as exc:  # ECONNREFUSED from an earlier send, and the like
+                self.counters[
+                    "receive_error" if exc.errno != errno.ECONNREFUSED else "refused"
+                ] += 1
+                continue
+            self.counters["datagrams"] += 1
+            valid = self._parse(mav, data)
+            if valid:
+                self.remote_address = (sender[0], sender[1])
+                out.extend(valid)
+        return out
+
+    def _parse(self, mav: mavlink.MAVLink, data: bytes) -> list[mavlink.MAVLink_message]:
+        """Decode one datagram; count and drop everything that is not a valid message."""
+        valid: list[mavlink.MAVLink_message] = []
+        try:
+            messages = mav.parse_buffer(data) or []
+        except Exception:  # pymavlink must never take the vehicle down
+            self.counters["parser_error"] += 1
+            messages = []
+        for msg in messages:
+            kind = msg.get_type()
+            if kind == "BAD_DATA":
+                self.counters[self._reason(msg)] += 1
+            elif kind.startswith("UNKNOWN_"):
+                self.counters["unknown_id"] += 1
+            else:
+                self.counters["received"] += 1
+                valid.append(msg)
+        if mav.buf_len() > 0:
+            self.counters["truncated"] += 1
+        mav.buf = bytearray()
+        mav.buf_index = 0
+        mav.expected_length = mavlink.HEADER_LEN_V1 + 2
+        return valid
+
+    @staticmethod
+    def _reason(bad: mavlink.MAVLink_bad_data) -> str:
+        reason = str(bad.reason)
+        for prefix, name in _REASONS:
+            if reason.startswith(prefix):
+                if name == "bad_signature" and not _is_signed(bytes(bad.data)):
+                    return "unsigned"
+                return name
+        return "malformed"
+
+    def _require_open(self) -> tuple[socket.socket, mavlink.MAVLink]:
+        if self._sock is None or self._mav is None:
+            raise RuntimeError("endpoint is not open; call open() first")
+        return self._sock, self._mav
+
+
+def _is_signed(frame: bytes) -> bool:
+    """A MAVLink 2 frame with the signed incompat flag."""
+    return len(frame) > 2 and frame[0] == mavlink.PROTOCOL_MARKER_V2 and bool(frame[2] & 1)

@@ -1,0 +1,83 @@
+"""What the simulated autopilot measures of its vehicle each step (input from the world).
+
+Frames and units are ours (DESIGN.md section 2): world ENU, body FLU, SI. The conversion
+to PX4's NED / FRD happens only when telemetry is encoded, through :mod:`companion.frames`.
+The measurement carries what PX4's estimator would know (state estimate, IMU, battery,
+ground contact) and nothing of the world's truth that PX4 could not observe (payload
+attached, arm parameters).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["VehicleMeasurement"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class VehicleMeasurement:
+    """The vehicle state as PX4 would estimate it, at one instant.
+
+    Attributes
+    ----------
+    time_s : float
+        Simulation time since boot [s].
+    position_enu_m : ndarray, shape (3,)
+        Vehicle position in the world (ENU) [m]; the world origin is the geodetic
+        reference of :class:`~sitl.px4.geo.GeoReference` and the local NED origin.
+    velocity_enu_m_s : ndarray, shape (3,)
+        Vehicle velocity in the world (ENU) [m/s].
+    quaternion_enu_flu_wxyz : ndarray, shape (4,)
+        Attitude, body FLU to world ENU, ``[w, x, y, z]``.
+    omega_flu_rad_s : ndarray, shape (3,)
+        Body angular velocity in FLU axes [rad/s].
+    specific_force_flu_m_s2 : ndarray, shape (3,)
+        Accelerometer reading (specific force, ``+g`` up at rest) in FLU axes [m/s^2].
+    on_ground : bool
+        The world's ground contact is holding the vehicle (PX4's land detector input).
+    battery_voltage_v : float
+        Battery voltage [V].
+    battery_remaining : float
+        Remaining charge as a fraction in [0, 1].
+
+    Raises
+    ------
+    ValueError
+        On arrays of the wrong shape or non-finite values.
+    """
+
+    time_s: float
+    position_enu_m: FloatArray
+    velocity_enu_m_s: FloatArray
+    quaternion_enu_flu_wxyz: FloatArray
+    omega_flu_rad_s: FloatArray
+    specific_force_flu_m_s2: FloatArray
+    on_ground: bool
+    battery_voltage_v: float = 16.0
+    battery_remaining: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name, size in (
+            ("position_enu_m", 3),
+            ("velocity_enu_m_s", 3),
+            ("quaternion_enu_flu_wxyz", 4),
+            ("omega_flu_rad_s", 3),
+            ("specific_force_flu_m_s2", 3),
+        ):
+            arr = np.array(getattr(self, name), dtype=np.float64).reshape(-1)
+            if arr.shape != (size,) or not np.all(np.isfinite(arr)):
+                raise ValueError(f"{name} must be {size} finite values, got {arr!r}")
+            arr.flags.writeable = False
+            object.__setattr__(self, name, arr)
+        for name in ("time_s", "battery_voltage_v", "battery_remaining"):
+            value = float(getattr(self, name))
+            if not math.isfinite(value):
+                raise ValueError(f"{name} must be finite, got {value!r}")
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "on_ground", bool(self.on_ground))

@@ -1,0 +1,142 @@
+"""The PX4-like position controller of the AUTO modes (takeoff, hold, land) and POSCTL.
+
+A reduced PX4 ``PositionControl`` (``src/modules/mc_pos_control/PositionControl``), written
+in ENU (the cascade is frame covariant, so PX4's per-axis gains carry over):
+
+1. position P: ``v_sp = MPC_XY_P (p_sp - p) + v_ff`` horizontally (norm clipped to
+   MPC_XY_VEL_MAX) and ``MPC_Z_P (z_sp - z) + v_ff,z`` vertically (clipped to
+   [-MPC_Z_VEL_MAX_DN, MPC_Z_VEL_MAX_UP], and to a climb limit such as MPC_TKO_SPEED); a
+   target without a height is velocity-only vertically (AUTO.LAND descends at v_ff,z);
+2. velocity PI: ``a_sp = K_P (v_sp - v) + K_I integral(v_sp - v) dt`` with the
+   MPC_*_VEL_P_ACC / MPC_*_VEL_I_ACC gains; the vertical integral learns the hover-thrust
+   error (e.g. a grasped payload), both integrals are clipped to +-INTEGRAL_LIMIT_M_S2;
+3. acceleration to thrust (PX4 ``_accelerationControl``): the thrust axis is
+   ``normalize(a_x, a_y, g)`` (tilt limited to MPC_TILTMAX_AIR), the collective thrust is
+   ``MPC_THR_HOVER (1 + a_z / g) / cos(tilt)`` clipped to [MPC_THR_MIN, 1];
+4. attitude: the thrust axis and the held yaw give roll and pitch (ZYX Euler angles).
+
+No jerk-limited trajectory smoothing, no velocity D term and no acceleration feed-forward:
+the gains are PX4's defaults, not tuned to this vehicle.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from sitl.physics import AttitudeSetpoint
+from sitl.px4.measurement import VehicleMeasurement
+from sitl.px4.params import Px4Params
+
+__all__ = ["INTEGRAL_LIMIT_M_S2", "PositionController", "PositionTarget"]
+
+INTEGRAL_LIMIT_M_S2 = 5.0
+"""Clip of each velocity-integral component [m/s^2]: about half of g, enough for a payload
+of half the vehicle's weight."""
+
+
+@dataclass(frozen=True)
+class PositionTarget:
+    """What the position controller holds or tracks (world ENU).
+
+    Attributes
+    ----------
+    east_m, north_m : float
+        Horizontal position setpoint [m].
+    up_m : float or None
+        Height setpoint [m]; None tracks the vertical velocity ``climb_m_s`` only.
+    yaw_rad : float
+        Heading setpoint, ZYX yaw about z up from east [rad].
+    climb_m_s : float
+        Vertical velocity feed-forward [m/s] (up positive).
+    climb_limit_m_s : float
+        Largest climb velocity setpoint [m/s] (on top of MPC_Z_VEL_MAX_UP).
+    """
+
+    east_m: float
+    north_m: float
+    up_m: float | None
+    yaw_rad: float
+    climb_m_s: float = 0.0
+    climb_limit_m_s: float = math.inf
+
+
+class PositionController:
+    """Position + velocity cascade to an :class:`~sitl.physics.AttitudeSetpoint`.
+
+    Parameters
+    ----------
+    params : Px4Params
+        Read at every update, so PARAM_SET takes effect at once.
+    gravity_m_s2 : float
+        Gravity [m/s^2] (PX4: CONSTANTS_ONE_G).
+    """
+
+    def __init__(self, params: Px4Params, gravity_m_s2: float = 9.80665) -> None:
+        self._params = params
+        self._g = float(gravity_m_s2)
+        self._integral = [0.0, 0.0, 0.0]
+
+    def reset(self) -> None:
+        """Zero the velocity integrals (when the controller takes over)."""
+        self._integral = [0.0, 0.0, 0.0]
+
+    @property
+    def integral_m_s2(self) -> tuple[float, float, float]:
+        """Velocity-integral acceleration (east, north, up) [m/s^2]."""
+        return (self._integral[0], self._integral[1], self._integral[2])
+
+    def update(
+        self, target: PositionTarget, m: VehicleMeasurement, dt_s: float
+    ) -> AttitudeSetpoint:
+        """One controller step of ``dt_s`` seconds toward ``target`` from measurement ``m``."""
+        p = self._params
+        pos = m.position_enu_m
+        vel = m.velocity_enu_m_s
+        vx = p["MPC_XY_P"] * (target.east_m - pos[0])
+        vy = p["MPC_XY_P"] * (target.north_m - pos[1])
+        horizontal = math.hypot(vx, vy)
+        if horizontal > p["MPC_XY_VEL_MAX"]:
+            scale = p["MPC_XY_VEL_MAX"] / horizontal
+            vx, vy = vx * scale, vy * scale
+        vz = target.climb_m_s
+        if target.up_m is not None:
+            vz += p["MPC_Z_P"] * (target.up_m - pos[2])
+        up_limit = min(p["MPC_Z_VEL_MAX_UP"], target.climb_limit_m_s)
+        vz = min(max(vz, -p["MPC_Z_VEL_MAX_DN"]), up_limit)
+
+        errors = (vx - vel[0], vy - vel[1], vz - vel[2])
+        gains_p = (p["MPC_XY_VEL_P_ACC"], p["MPC_XY_VEL_P_ACC"], p["MPC_Z_VEL_P_ACC"])
+        gains_i = (p["MPC_XY_VEL_I_ACC"], p["MPC_XY_VEL_I_ACC"], p["MPC_Z_VEL_I_ACC"])
+        acc = []
+        for i in range(3):
+            self._integral[i] = min(
+                max(self._integral[i] + gains_i[i] * errors[i] * dt_s, -INTEGRAL_LIMIT_M_S2),
+                INTEGRAL_LIMIT_M_S2,
+            )
+            acc.append(gains_p[i] * errors[i] + self._integral[i])
+        return self._attitude(acc, target.yaw_rad)
+
+    def _attitude(self, acc: list[float], yaw_rad: float) -> AttitudeSetpoint:
+        """Thrust axis, tilt limit and collective thrust of an ENU acceleration setpoint."""
+        p = self._params
+        ax, ay, az = acc
+        g = self._g
+        norm = math.sqrt(ax * ax + ay * ay + g * g)
+        zx, zy, zz = ax / norm, ay / norm, g / norm
+        tilt_max = math.radians(p["MPC_TILTMAX_AIR"])
+        if math.acos(min(zz, 1.0)) > tilt_max:
+            h = math.hypot(zx, zy)
+            zx, zy, zz = (
+                zx / h * math.sin(tilt_max),
+                zy / h * math.sin(tilt_max),
+                math.cos(tilt_max),
+            )
+        thrust = p["MPC_THR_HOVER"] * (1.0 + az / g) / zz
+        thrust = min(max(thrust, p["MPC_THR_MIN"]), 1.0)
+        cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
+        x_h = cy * zx + sy * zy
+        y_h = -sy * zx + cy * zy
+        phi = math.asin(max(-1.0, min(1.0, -y_h)))
+        theta = math.atan2(x_h, zz)
+        return AttitudeSetpoint.from_euler(phi, theta, yaw_rad, thrust)

@@ -1,0 +1,417 @@
+"""The simulated PX4 as seen over MAVLink: messages in, replies, setpoints and telemetry out.
+
+Pure: no sockets, no clock, no asyncio. The runner drives it with simulation time:
+``handle()`` every decoded incoming message, ``control()`` once per plant step, and
+``telemetry()`` once per plant step; each returns what goes out, as ``(link, message)``.
+
+Message handling follows PX4's ``mavlink_receiver.cpp`` where it matters to clients:
+
+- COMMAND_LONG / COMMAND_INT addressed to this system (and to component 1 or 0) are
+  answered with COMMAND_ACK on the link they came from, ``target_system`` /
+  ``target_component`` set to the sender; commands for other systems or components are
+  dropped and counted (PX4 would ACK them FAILED). Unhandled commands: UNSUPPORTED.
+- SET_MODE (#11) is executed as DO_SET_MODE and ACKed as command 176, as PX4 does.
+- SET_ATTITUDE_TARGET that does not ignore attitude is proof of life; setpoints with a
+  non-finite or zero quaternion or a thrust outside [0, 1] are dropped and counted. A
+  setpoint that ignores thrust has thrust 0, as in PX4. Body-rate setpoints (attitude
+  ignored) are not supported by the simulated attitude loop: dropped and counted.
+- PARAM_REQUEST_LIST / _READ / PARAM_SET per :mod:`sitl.px4.params`; a PARAM_SET of an
+  unknown name gets PX4's STATUSTEXT ``[pm] unknown param: NAME``; a refused value gets a
+  STATUSTEXT and a PARAM_VALUE with the unchanged value; an accepted one is echoed on
+  every link.
+- TIMESYNC requests are answered with the simulation time in nanoseconds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Mapping
+from typing import ClassVar
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from companion.frames import quaternion_enu_flu_from_ned_frd
+from sitl.physics import AttitudeSetpoint
+from sitl.px4.commander import FORCE_MAGIC, Commander, Home, StatusText
+from sitl.px4.geo import GeoReference
+from sitl.px4.measurement import VehicleMeasurement
+from sitl.px4.modes import Px4Mode
+from sitl.px4.params import PARAMETERS, ParamError, Px4Params, UnknownParamError
+from sitl.px4.telemetry import (
+    GCS_RATES_HZ,
+    ONBOARD_RATES_HZ,
+    StreamScheduler,
+    TelemetryEncoder,
+    VehicleStatus,
+)
+
+__all__ = ["FLIGHT_SW_VERSION", "Outgoing", "Px4Vehicle"]
+
+M = mavlink
+Outgoing = list[tuple[str, mavlink.MAVLink_message]]
+
+FLIGHT_SW_VERSION = (1 << 24) | (14 << 16) | (3 << 8) | 0xFF
+"""AUTOPILOT_VERSION.flight_sw_version: PX4 v1.14.3, release (PX4's byte layout)."""
+
+_BROADCAST_TARGET_COMMANDS = (
+    M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,
+    M.MAV_CMD_REQUEST_PROTOCOL_VERSION,
+)
+_RELATIVE_FRAMES = (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
+
+
+def _finite_int(value: float) -> int | None:
+    return round(value) if math.isfinite(value) else None
+
+
+class Px4Vehicle:
+    """The PX4 side of the simulated vehicle; see the module docstring.
+
+    Parameters
+    ----------
+    params : Px4Params
+        Parameter values (shared with the commander; PARAM_SET changes them).
+    system_id, component_id : int
+        MAVLink ids of the autopilot (PX4: 1, 1).
+    link_rates_hz : mapping of link name to {message id: rate [Hz]}, optional
+        The links and their default stream rates; default ``{"onboard":
+        ONBOARD_RATES_HZ, "gcs": GCS_RATES_HZ}``.
+    geo : GeoReference, optional
+        Geodetic position of the world origin (PX4 SITL's default home).
+    gravity_m_s2 : float
+        Gravity used by the position controller [m/s^2].
+    """
+
+    def __init__(
+        self,
+        params: Px4Params,
+        *,
+        system_id: int = 1,
+        component_id: int = 1,
+        link_rates_hz: Mapping[str, Mapping[int, float]] | None = None,
+        geo: GeoReference | None = None,
+        gravity_m_s2: float = 9.80665,
+    ) -> None:
+        self.params = params
+        self.system_id = int(system_id)
+        self.component_id = int(component_id)
+        rates = link_rates_hz or {"onboard": ONBOARD_RATES_HZ, "gcs": GCS_RATES_HZ}
+        self._schedulers = {link: StreamScheduler(r) for link, r in rates.items()}
+        self.geo = geo or GeoReference()
+        self._encoder = TelemetryEncoder(self.geo, FLIGHT_SW_VERSION)
+        self._commander = Commander(params, gravity_m_s2)
+        self._last: VehicleMeasurement | None = None
+        self.counters: Counter[str] = Counter()
+        """Dropped or ignored input by reason (e.g. ``invalid_setpoint``, ``not_for_us``)."""
+
+    # ---------------------------------------------------------------- state
+
+    @property
+    def links(self) -> list[str]:
+        """Link names, as given in ``link_rates_hz``."""
+        return list(self._schedulers)
+
+    @property
+    def mode(self) -> Px4Mode:
+        """Current flight mode."""
+        return self._commander.mode
+
+    @property
+    def armed(self) -> bool:
+        """Motors armed."""
+        return self._commander.armed
+
+    @property
+    def landed(self) -> bool:
+        """The land detector's verdict at the last step."""
+        return self._commander.landed
+
+    @property
+    def landed_state(self) -> int:
+        """MAV_LANDED_STATE_* as reported in EXTENDED_SYS_STATE."""
+        return self._commander.landed_state
+
+    @property
+    def failsafe(self) -> bool:
+        """An offboard-loss failsafe is active."""
+        return self._commander.failsafe
+
+    @property
+    def home(self) -> Home | None:
+        """Home position (world ENU), set at the first step and at each arming."""
+        return self._commander.home
+
+    def offboard_alive(self, now_s: float) -> bool:
+        """The offboard setpoint stream is fresher than COM_OF_LOSS_T at ``now_s`` [s]."""
+        return self._commander.offboard_alive(now_s)
+
+    # ----------------------------------------------------------- time steps
+
+    def control(self, now_s: float, m: VehicleMeasurement) -> AttitudeSetpoint | None:
+        """Run the state machine at ``now_s`` [s] and return the attitude setpoint for this
+        plant step (body FLU -> world ENU, normalized thrust), or None while disarmed."""
+        self._last = m
+        self._commander.update(now_s, m)
+        return self._commander.setpoint(now_s, m)
+
+    def telemetry(self, now_s: float, m: VehicleMeasurement) -> Outgoing:
+        """Every stream message due at ``now_s`` [s] on each link, then pending STATUSTEXTs.
+
+        After a mode, arming or landed change the HEARTBEAT is due at once on every link.
+        """
+        self._last = m
+        now_us = round(now_s * 1e6)
+        if self._commander.state_changed:
+            self._commander.state_changed = False
+            for scheduler in self._schedulers.values():
+                scheduler.trigger(M.MAVLINK_MSG_ID_HEARTBEAT, now_us)
+        status = self._status()
+        built: dict[int, mavlink.MAVLink_message] = {}
+        out: Outgoing = []
+        for link, scheduler in self._schedulers.items():
+            for msg_id in scheduler.due(now_us):
+                if msg_id not in built:
+                    built[msg_id] = self._encoder.build(msg_id, now_s, m, status)
+                out.append((link, built[msg_id]))
+        return out + self._drain_statustext()
+
+    def handle(self, msg: mavlink.MAVLink_message, link: str, now_s: float) -> Outgoing:
+        """Process one decoded message received on ``link`` at simulation time ``now_s``
+        [s]; returns the replies (COMMAND_ACK to the sender's link, PARAM_VALUE, ...).
+
+        Raises
+        ------
+        ValueError
+            For a link name that is not one of :attr:`links` (a runner bug, not input).
+        """
+        if link not in self._schedulers:
+            raise ValueError(f"unknown link {link!r}; links are {self.links}")
+        kind = msg.get_type()
+        handler = self._handlers.get(kind)
+        if handler is None:
+            if kind != "HEARTBEAT":
+                self.counters["ignored_message"] += 1
+            return []
+        return handler(self, msg, link, now_s) + self._drain_statustext()
+
+    # ------------------------------------------------------------ handlers
+
+    def _for_us(self, target_system: int, target_component: int, broadcast_ok: bool) -> bool:
+        system_ok = target_system == self.system_id or (broadcast_ok and target_system == 0)
+        component_ok = target_component in (self.component_id, 0)
+        if system_ok and component_ok:
+            return True
+        self.counters["not_for_us"] += 1
+        return False
+
+    def _attitude_target(self, msg, link: str, now_s: float) -> Outgoing:
+        if not self._for_us(msg.target_system, msg.target_component, broadcast_ok=True):
+            return []
+        if msg.type_mask & M.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE:
+            self.counters["rate_setpoint_unsupported"] += 1
+            return []
+        thrust = 0.0
+        if not msg.type_mask & M.ATTITUDE_TARGET_TYPEMASK_THROTTLE_IGNORE:
+            thrust = float(msg.thrust)
+        try:
+            q_enu = quaternion_enu_flu_from_ned_frd(msg.q)
+            setpoint = AttitudeSetpoint(q_enu, thrust)
+        except ValueError:
+            self.counters["invalid_setpoint"] += 1
+            return []
+        self._commander.offboard_setpoint(setpoint, now_s)
+        return []
+
+    def _command(self, msg, link: str, now_s: float) -> Outgoing:
+        command = msg.command
+        if not self._for_us(
+            msg.target_system, msg.target_component, command in _BROADCAST_TARGET_COMMANDS
+        ):
+            return []
+        p = [msg.param1, msg.param2, msg.param3, msg.param4]
+        frame = None
+        if msg.get_type() == "COMMAND_INT":
+            p += [msg.x / 1e7, msg.y / 1e7, msg.z]
+            frame = msg.frame
+        else:
+            p += [msg.param5, msg.param6, msg.param7]
+        extra: Outgoing = []
+        result = self._run_command(command, p, frame, link, now_s, extra)
+        ack = M.MAVLink_command_ack_message(
+            command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
+        )
+        return [*extra, (link, ack)]
+
+    def _run_command(
+        self, command: int, p: list[float], frame: int | None, link: str, now_s: float,
+        extra: Outgoing,
+    ) -> int:  # fmt: skip
+        """Execute one command; messages it emits go to ``extra``; returns MAV_RESULT_*."""
+        c = self._commander
+        if command == M.MAV_CMD_COMPONENT_ARM_DISARM:
+            force = p[1] == FORCE_MAGIC
+            if p[0] == 1.0:
+                return c.arm(now_s, force)
+            if p[0] == 0.0:
+                return c.disarm(force)
+            return M.MAV_RESULT_DENIED
+        if command == M.MAV_CMD_DO_SET_MODE:
+            return self._set_mode(p[0], p[1], p[2], now_s)
+        if command == M.MAV_CMD_NAV_TAKEOFF:
+            return c.takeoff(self._takeoff_height(p[6], frame))
+        if command == M.MAV_CMD_NAV_LAND:
+            return c.request_mode(Px4Mode.AUTO_LAND, now_s)
+        if command == M.MAV_CMD_SET_MESSAGE_INTERVAL:
+            msg_id = _finite_int(p[0])
+            try:
+                self._schedulers[link].set_interval(msg_id, p[1], round(now_s * 1e6))
+            except (KeyError, ValueError):
+                return M.MAV_RESULT_FAILED
+            return M.MAV_RESULT_ACCEPTED
+        if command == M.MAV_CMD_GET_MESSAGE_INTERVAL:
+            msg_id = _finite_int(p[0])
+            scheduler = self._schedulers[link]
+            interval = scheduler.interval_us(msg_id) if msg_id in scheduler.streams else 0
+            reply = M.MAVLink_message_interval_message(
+                msg_id or 0, -1 if interval is None else interval
+            )
+            extra.append((link, reply))
+            return M.MAV_RESULT_ACCEPTED
+        requested = {
+            M.MAV_CMD_REQUEST_MESSAGE: _finite_int(p[0]),
+            M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: M.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
+            M.MAV_CMD_GET_HOME_POSITION: M.MAVLINK_MSG_ID_HOME_POSITION,
+            M.MAV_CMD_REQUEST_PROTOCOL_VERSION: M.MAVLINK_MSG_ID_PROTOCOL_VERSION,
+        }
+        if command in requested:
+            reply = self._requested_message(requested[command], now_s)
+            if reply is None:
+                return M.MAV_RESULT_DENIED
+            extra.append((link, reply))
+            return M.MAV_RESULT_ACCEPTED
+        self.counters["unsupported_command"] += 1
+        return M.MAV_RESULT_UNSUPPORTED
+
+    def _requested_message(
+        self, msg_id: int | None, now_s: float
+    ) -> mavlink.MAVLink_message | None:
+        if msg_id == M.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+            return self._encoder.autopilot_version(self.system_id)
+        if msg_id == M.MAVLINK_MSG_ID_PROTOCOL_VERSION:
+            return M.MAVLink_protocol_version_message(200, 100, 200, [0] * 8, [0] * 8)
+        if msg_id is None or self._last is None or not self._encoder.can_build(msg_id):
+            return None
+        return self._encoder.build(msg_id, now_s, self._last, self._status())
+
+    def _takeoff_height(self, z: float, frame: int | None) -> float | None:
+        """NAV_TAKEOFF altitude as a world height [m]: AMSL (COMMAND_LONG param7, global
+        frames) or above home (relative frames); None for NaN (use MIS_TAKEOFF_ALT)."""
+        if not math.isfinite(z):
+            return None
+        if frame in _RELATIVE_FRAMES:
+            home = self._commander.home
+            return z + (home.up_m if home is not None else 0.0)
+        return z - self.geo.altitude_amsl_m
+
+    def _set_mode(self, base_mode: float, main: float, sub: float, now_s: float) -> int:
+        base, main_i, sub_i = _finite_int(base_mode), _finite_int(main), _finite_int(sub or 0.0)
+        if base is None or not base & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED or main_i is None:
+            return M.MAV_RESULT_DENIED
+        mode = Px4Mode.from_main_sub(main_i, sub_i or 0)
+        if mode is None:
+            return M.MAV_RESULT_DENIED
+        return self._commander.request_mode(mode, now_s)
+
+    def _set_mode_message(self, msg, link: str, now_s: float) -> Outgoing:
+        if msg.target_system != self.system_id:
+            self.counters["not_for_us"] += 1
+            return []
+        result = self._set_mode(
+            float(msg.base_mode),
+            float((msg.custom_mode >> 16) & 0xFF),
+            float((msg.custom_mode >> 24) & 0xFF),
+            now_s,
+        )
+        ack = M.MAVLink_command_ack_message(
+            M.MAV_CMD_DO_SET_MODE, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
+        )
+        return [(link, ack)]
+
+    def _param_value(self, name: str) -> mavlink.MAVLink_param_value_message:
+        p = self.params
+        return M.MAVLink_param_value_message(
+            name.encode(),
+            p.wire_value(name),
+            PARAMETERS[name].mav_type,
+            len(p.names),
+            p.index(name),
+        )
+
+    def _param_request_list(self, msg, link: str, now_s: float) -> Outgoing:
+        if not self._for_us(msg.target_system, msg.target_component, broadcast_ok=False):
+            return []
+        return [(link, self._param_value(name)) for name in self.params.names]
+
+    def _param_request_read(self, msg, link: str, now_s: float) -> Outgoing:
+        if not self._for_us(msg.target_system, msg.target_component, broadcast_ok=False):
+            return []
+        names = self.params.names
+        if msg.param_index >= 0:
+            if msg.param_index < len(names):
+                return [(link, self._param_value(names[msg.param_index]))]
+            self._statustext(M.MAV_SEVERITY_INFO, f"[pm] unknown param ID: {msg.param_index}")
+            return []
+        if msg.param_id in PARAMETERS:
+            return [(link, self._param_value(msg.param_id))]
+        self.counters["unknown_param"] += 1
+        return []
+
+    def _param_set(self, msg, link: str, now_s: float) -> Outgoing:
+        if not self._for_us(msg.target_system, msg.target_component, broadcast_ok=False):
+            return []
+        name = msg.param_id
+        try:
+            self.params.set(name, Px4Params.decode_wire(name, msg.param_value))
+        except UnknownParamError:
+            self.counters["unknown_param"] += 1
+            self._statustext(M.MAV_SEVERITY_INFO, f"[pm] unknown param: {name}")
+            return []
+        except ParamError as exc:
+            self.counters["refused_param"] += 1
+            self._statustext(M.MAV_SEVERITY_WARNING, f"[pm] refused {exc}")
+            return [(link, self._param_value(name))]
+        return [(each, self._param_value(name)) for each in self.links]
+
+    def _timesync(self, msg, link: str, now_s: float) -> Outgoing:
+        if msg.tc1 != 0:
+            return []
+        return [(link, M.MAVLink_timesync_message(round(now_s * 1e9), msg.ts1))]
+
+    _handlers: ClassVar[dict] = {
+        "SET_ATTITUDE_TARGET": _attitude_target,
+        "COMMAND_LONG": _command,
+        "COMMAND_INT": _command,
+        "SET_MODE": _set_mode_message,
+        "PARAM_REQUEST_LIST": _param_request_list,
+        "PARAM_REQUEST_READ": _param_request_read,
+        "PARAM_SET": _param_set,
+        "TIMESYNC": _timesync,
+    }
+
+    # ------------------------------------------------------------ helpers
+
+    def _status(self) -> VehicleStatus:
+        c = self._commander
+        return VehicleStatus(c.mode, c.armed, c.landed_state, c.failsafe, c.prearm_ok, c.home)
+
+    def _statustext(self, severity: int, text: str) -> None:
+        self._commander.outbox.append(StatusText(severity, text))
+
+    def _drain_statustext(self) -> Outgoing:
+        out: Outgoing = []
+        for item in self._commander.outbox:
+            message = M.MAVLink_statustext_message(item.severity, item.text.encode()[:50])
+            out.extend((link, message) for link in self.links)
+        self._commander.outbox.clear()
+        return out
