@@ -1,0 +1,450 @@
+"""The companion's MAVLink 2 link to a PX4 autopilot, over pymavlink, on asyncio.
+
+One reader task per link (STYLE.md habit 6). The port is non-blocking; the event loop's
+``add_reader`` sets an event when its file descriptor is readable, and the reader task
+then drains every available datagram / byte chunk, parses it with pymavlink's MAVLink 2
+codec and fans each message out (:mod:`companion.link.fanout`): to the latest-value cache
+of its type, to every subscriber of its type, and, for the vehicle's telemetry, as
+samples in our frames (:mod:`companion.link.telemetry`). No threads, except one
+short-lived worker that opens the port in ``__aenter__`` (a TCP connect may wait).
+
+Besides the reader, two small tasks run while the link is open: the companion's own
+HEARTBEAT at 1 Hz (MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, component
+MAV_COMP_ID_ONBOARD_COMPUTER) and a watchdog that publishes :class:`LinkLost` when the
+vehicle's heartbeat or telemetry is silent for longer than configured. If any of the three
+fails, the link closes and every subscriber's ``get`` raises :class:`LinkClosedError`
+carrying the cause.
+
+The vehicle is the first PX4 autopilot heard (HEARTBEAT with MAV_AUTOPILOT_PX4, optionally
+of a given system id); commands and setpoints go to its system and component id.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections import Counter
+from collections.abc import Hashable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from numpy.typing import ArrayLike
+from pymavlink.dialects.v20 import common as mavlink2
+
+from companion.link.errors import LinkClosedError, LinkLostError, VehicleNotFoundError
+from companion.link.events import LinkLost, LinkRegained, VehicleDetected, VehicleId
+from companion.link.fanout import FanOut, Subscription
+from companion.link.px4_commands import Px4Commands
+from companion.link.setpoint import (
+    ATTITUDE_ONLY_TYPE_MASK,
+    attitude_target_ned_frd,
+    quaternion_from_euler_zyx,
+)
+from companion.link.signing import SigningConfig, advance_timestamp
+from companion.link.telemetry import PoseSource, TelemetryDecoder
+from companion.link.transport import Transport, open_transport
+from companion.link.url import LinkUrl, parse_link_url
+
+if TYPE_CHECKING:
+    from companion.setpoints import AttitudeThrustSetpoint
+
+__all__ = ["LinkStats", "MavlinkLink"]
+
+_MAX_READS_PER_WAKE = 64
+"""Datagrams / chunks read before the reader yields to other tasks once."""
+
+
+@dataclass(frozen=True)
+class LinkStats:
+    """Counters of a link since it opened (a snapshot)."""
+
+    messages_received: int
+    """Frames decoded into known messages (any sender)."""
+    messages_sent: int
+    bad_frames: int
+    """Frames with a bad CRC, length or flags."""
+    garbage_bytes: int
+    """Bytes that were not the start of any frame."""
+    signature_rejected: int
+    """Unsigned or badly signed frames refused by signing."""
+    unknown_messages: int
+    """Well-formed frames of message ids outside the common dialect."""
+    sequence_lost: int
+    """Frames missing from the senders' sequence numbers."""
+    unsent_frames: int
+    """Frames that could not be sent (full buffer, or no ``udpin`` peer yet)."""
+    telemetry_rejected: dict[str, int]
+    """Vehicle messages dropped by the telemetry decoder, per reason."""
+
+
+class MavlinkLink(Px4Commands):
+    """MAVLink 2 link to a PX4 vehicle; use ``async with MavlinkLink(url) as link``.
+
+    Nothing happens in the constructor: the port opens in ``__aenter__`` (or
+    :meth:`open`), and :meth:`close` is idempotent.
+
+    Parameters
+    ----------
+    url : str or LinkUrl
+        Connection URL, e.g. ``udpin://0.0.0.0:14540`` (see :mod:`companion.link.url`).
+    system_id : int
+        Our MAVLink system id, 1..255. MAVLink recommends that components on one vehicle
+        share the autopilot's system id, hence the default 1.
+    component_id : int
+        Our component id [default MAV_COMP_ID_ONBOARD_COMPUTER = 191].
+    signing : SigningConfig, optional
+        MAVLink 2 signing (see :mod:`companion.link.signing`); None sends unsigned frames.
+    vehicle_system_id : int, optional
+        Accept only this autopilot system id as the vehicle [default: the first PX4].
+    heartbeat_timeout_s : float
+        Vehicle heartbeat silence that counts as a lost link [s] (PX4 sends 1 Hz).
+    telemetry_timeout_s : float
+        Telemetry silence (poses, rates, IMU) that counts as a lost link [s]; watched
+        from the first telemetry sample on.
+    pose_from : {"odometry", "local_position"}
+        Source of :class:`VehiclePose` (see :class:`TelemetryDecoder`).
+    heartbeat_period_s : float
+        Period of our own HEARTBEAT [s].
+    """
+
+    def __init__(
+        self,
+        url: str | LinkUrl,
+        *,
+        system_id: int = 1,
+        component_id: int = mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER,
+        signing: SigningConfig | None = None,
+        vehicle_system_id: int | None = None,
+        heartbeat_timeout_s: float = 3.0,
+        telemetry_timeout_s: float = 0.5,
+        pose_from: PoseSource = "odometry",
+        heartbeat_period_s: float = 1.0,
+    ) -> None:
+        self.url = url if isinstance(url, LinkUrl) else parse_link_url(url)
+        for name, value in (("system_id", system_id), ("component_id", component_id)):
+            if not 1 <= value <= 255:
+                raise ValueError(f"{name} {value} is outside 1..255")
+        for name, value in (
+            ("heartbeat_timeout_s", heartbeat_timeout_s),
+            ("telemetry_timeout_s", telemetry_timeout_s),
+            ("heartbeat_period_s", heartbeat_period_s),
+        ):
+            if not value > 0.0:
+                raise ValueError(f"{name} must be positive, got {value}")
+        self.system_id = system_id
+        self.component_id = component_id
+        self.signing = signing
+        self.vehicle_system_id = vehicle_system_id
+        self.heartbeat_timeout_s = heartbeat_timeout_s
+        self.telemetry_timeout_s = telemetry_timeout_s
+        self.heartbeat_period_s = heartbeat_period_s
+        self._decoder = TelemetryDecoder(pose_from)
+        self._fanout = FanOut()
+        self._transport: Transport | None = None
+        self._mav: mavlink2.MAVLink | None = None
+        self._tasks: list[asyncio.Task[None]] = []
+        self._closed = False
+        self._vehicle: VehicleId | None = None
+        self._vehicle_found: asyncio.Event | None = None
+        self._readable: asyncio.Event | None = None
+        self._last_heartbeat: float | None = None
+        self._last_telemetry: float | None = None
+        self._lost: LinkLost | None = None
+        self._lost_at = 0.0
+        self._sequence: dict[tuple[int, int], int] = {}
+        self._counts: Counter[str] = Counter()
+        self._rejected: Counter[str] = Counter()
+        self._command_locks: dict[int, asyncio.Lock] = {}
+
+    # --- lifecycle -----------------------------------------------------------------
+
+    async def __aenter__(self) -> MavlinkLink:
+        await self.open()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    async def open(self) -> None:
+        """Open the port and start the reader, heartbeat and watchdog tasks."""
+        if self._transport is not None or self._closed:
+            raise LinkClosedError("a MavlinkLink opens once; make a new one")
+        loop = asyncio.get_running_loop()
+        transport = await asyncio.to_thread(
+            open_transport, self.url, self.system_id, self.component_id
+        )
+        self._transport = transport
+        self._mav = mavlink2.MAVLink(transport, self.system_id, self.component_id)
+        self._mav.robust_parsing = True
+        if self.signing is not None:
+            self.signing.apply(self._mav)
+        self._vehicle_found = asyncio.Event()
+        self._readable = asyncio.Event()
+        loop.add_reader(transport.fd, self._readable.set)
+        for work in (self._read_loop(), self._heartbeat_loop(), self._watchdog_loop()):
+            task = loop.create_task(work)
+            task.add_done_callback(self._task_done)
+            self._tasks.append(task)
+
+    async def close(self) -> None:
+        """Stop the tasks and close the port (idempotent); subscribers see the end."""
+        tasks = self._shutdown(None)
+        await asyncio.gather(*tasks, return_exceptions=True)
+
+    def _shutdown(self, error: BaseException | None) -> list[asyncio.Task[None]]:
+        tasks, self._tasks = self._tasks, []
+        if self._closed:
+            return tasks
+        self._closed = True
+        current = asyncio.current_task()
+        for task in tasks:
+            if task is not current:
+                task.cancel()
+        if self._transport is not None:
+            asyncio.get_running_loop().remove_reader(self._transport.fd)
+            self._transport.close()
+        self._fanout.close(error)
+        return [t for t in tasks if t is not current]
+
+    def _task_done(self, task: asyncio.Task[None]) -> None:
+        if not task.cancelled() and task.exception() is not None:
+            self._shutdown(task.exception())
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    # --- subscriptions and state -------------------------------------------------
+
+    def subscribe(self, *keys: Hashable, maxsize: int = 64) -> Subscription:
+        """A new queue of the items of ``keys``: MAVLink message names (``"HEARTBEAT"``,
+        pymavlink message objects) and/or sample and event classes (``VehiclePose``,
+        ``LinkLost``, ...). Each subscription gets every item; a full queue drops its
+        oldest item (``Subscription.dropped``)."""
+        return self._fanout.subscribe(keys, maxsize)
+
+    def latest(self, key: Hashable) -> Any:
+        """The latest item of a key (see :meth:`subscribe`), or None if none yet."""
+        return self._fanout.latest.get(key)
+
+    @property
+    def vehicle(self) -> VehicleId | None:
+        """The detected autopilot, or None before its first HEARTBEAT."""
+        return self._vehicle
+
+    async def wait_vehicle(self, timeout_s: float = 10.0) -> VehicleId:
+        """Wait for the first PX4 HEARTBEAT; raises ``VehicleNotFoundError``."""
+        if self._vehicle_found is None:
+            raise LinkClosedError("the link is not open")
+        try:
+            async with asyncio.timeout(timeout_s):
+                await self._vehicle_found.wait()
+        except TimeoutError:
+            raise VehicleNotFoundError(
+                f"{self.url}: no PX4 heartbeat within {timeout_s:g} s"
+            ) from None
+        assert self._vehicle is not None
+        return self._vehicle
+
+    @property
+    def lost(self) -> LinkLost | None:
+        """The current loss, or None while heartbeat and telemetry are fresh."""
+        return self._lost
+
+    def raise_if_lost(self) -> None:
+        """Raise ``LinkLostError`` during a loss, ``LinkClosedError`` after close."""
+        if self._closed:
+            raise LinkClosedError("the link is closed") from self._fanout.error
+        if self._lost is not None:
+            silent = asyncio.get_running_loop().time() - self._lost_at + self._lost.silent_s
+            raise LinkLostError(self._lost.reason, silent)
+
+    @property
+    def stats(self) -> LinkStats:
+        c = self._counts
+        return LinkStats(
+            messages_received=c["received"],
+            messages_sent=c["sent"],
+            bad_frames=c["bad_frames"],
+            garbage_bytes=c["garbage_bytes"],
+            signature_rejected=c["signature_rejected"],
+            unknown_messages=c["unknown"],
+            sequence_lost=c["sequence_lost"],
+            unsent_frames=self._transport.unsent_frames if self._transport else 0,
+            telemetry_rejected=dict(self._rejected),
+        )
+
+    # --- sending ---------------------------------------------------------------------
+
+    @property
+    def mav(self) -> mavlink2.MAVLink:
+        """pymavlink's codec of this link, to build messages (``link.mav.xxx_encode``)."""
+        if self._mav is None:
+            raise LinkClosedError("the link is not open")
+        return self._mav
+
+    def send_message(self, msg: Any) -> None:
+        """Send a pymavlink message object now (signed if signing is on)."""
+        if self._closed or self._mav is None:
+            raise LinkClosedError("the link is closed") from self._fanout.error
+        if self.signing is not None:
+            advance_timestamp(self._mav)
+        self._mav.send(msg)
+        self._counts["sent"] += 1
+
+    def _require_vehicle(self) -> VehicleId:
+        if self._vehicle is None:
+            raise VehicleNotFoundError(f"{self.url}: no vehicle detected yet")
+        return self._vehicle
+
+    def send_attitude_target(
+        self, q_enu_flu: ArrayLike, thrust_normalized: float, time_boot_ms: int
+    ) -> None:
+        """SET_ATTITUDE_TARGET to the vehicle: attitude body FLU -> world ENU ``[w, x, y,
+        z]`` (sent as FRD -> NED), PX4-normalized thrust in [0, 1], type_mask 7 (body
+        rates ignored), and ``time_boot_ms`` [ms] (sent modulo 2^32).
+
+        Raises ``SetpointError`` for a bad value (nothing is sent), and
+        ``VehicleNotFoundError`` before the vehicle is detected.
+        """
+        vehicle = self._require_vehicle()
+        q, thrust = attitude_target_ned_frd(q_enu_flu, thrust_normalized)
+        msg = self.mav.set_attitude_target_encode(
+            int(time_boot_ms) & 0xFFFFFFFF,
+            vehicle.system_id,
+            vehicle.component_id,
+            ATTITUDE_ONLY_TYPE_MASK,
+            q,
+            0.0,
+            0.0,
+            0.0,
+            thrust,
+        )
+        self.send_message(msg)
+
+    def send_setpoint(self, setpoint: AttitudeThrustSetpoint, time_boot_ms: int) -> None:
+        """:meth:`send_attitude_target` of a :class:`companion.setpoints.AttitudeThrustSetpoint`
+        (its ZYX Euler angles as a quaternion, and its normalized thrust)."""
+        q = quaternion_from_euler_zyx(setpoint.roll_rad, setpoint.pitch_rad, setpoint.yaw_rad)
+        self.send_attitude_target(q, setpoint.thrust_normalized, time_boot_ms)
+
+    # --- tasks -------------------------------------------------------------------------
+
+    async def _read_loop(self) -> None:
+        assert self._readable is not None and self._transport is not None
+        loop = asyncio.get_running_loop()
+        readable, transport = self._readable, self._transport
+        while True:
+            await readable.wait()
+            readable.clear()
+            for _ in range(_MAX_READS_PER_WAKE):
+                data = transport.read()
+                if not data:
+                    break
+                self._receive(data, loop.time())
+            else:
+                readable.set()
+                await asyncio.sleep(0)
+
+    def _receive(self, data: bytes, now: float) -> None:
+        assert self._mav is not None
+        for msg in self._mav.parse_buffer(data) or ():
+            kind = msg.get_type()
+            if kind == "BAD_DATA":
+                if msg.reason == "Bad prefix":
+                    self._counts["garbage_bytes"] += len(msg.data)
+                elif msg.reason == "Invalid signature":
+                    self._counts["signature_rejected"] += 1
+                else:
+                    self._counts["bad_frames"] += 1
+                continue
+            if kind.startswith("UNKNOWN_"):
+                self._counts["unknown"] += 1
+                continue
+            self._counts["received"] += 1
+            self._dispatch(msg, kind, now)
+
+    def _dispatch(self, msg: Any, kind: str, now: float) -> None:
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        seq = msg.get_seq()
+        last = self._sequence.get(src)
+        if last is not None:
+            self._counts["sequence_lost"] += (seq - last - 1) % 256
+        self._sequence[src] = seq
+        self._fanout.publish(kind, msg)
+        if kind == "HEARTBEAT":
+            if not self._is_vehicle_heartbeat(msg, src):
+                return
+            self._last_heartbeat = now
+        elif self._vehicle is None or src[0] != self._vehicle.system_id:
+            return
+        try:
+            samples = self._decoder.decode(msg)
+        except Exception as exc:  # TelemetryError, or a field pymavlink left unusable
+            self._rejected[getattr(exc, "reason", type(exc).__name__)] += 1
+            return
+        for sample in samples:
+            self._fanout.publish(type(sample), sample)
+        if samples and kind not in ("HEARTBEAT", "EXTENDED_SYS_STATE"):
+            self._last_telemetry = now
+        if self._lost is not None:
+            self._check_regained(now)
+
+    def _is_vehicle_heartbeat(self, msg: Any, src: tuple[int, int]) -> bool:
+        if self._vehicle is None:
+            if msg.autopilot != mavlink2.MAV_AUTOPILOT_PX4:
+                return False
+            if self.vehicle_system_id not in (None, src[0]):
+                return False
+            self._vehicle = VehicleId(*src)
+            self._fanout.publish(VehicleDetected, VehicleDetected(self._vehicle))
+            assert self._vehicle_found is not None
+            self._vehicle_found.set()
+        return src == (self._vehicle.system_id, self._vehicle.component_id)
+
+    def _deadlines(self) -> list[tuple[str, float]]:
+        out = []
+        if self._last_heartbeat is not None:
+            out.append(("heartbeat", self._last_heartbeat + self.heartbeat_timeout_s))
+        if self._last_telemetry is not None:
+            out.append(("telemetry", self._last_telemetry + self.telemetry_timeout_s))
+        return out
+
+    def _check_regained(self, now: float) -> None:
+        if all(deadline > now for _, deadline in self._deadlines()):
+            assert self._lost is not None
+            regained = LinkRegained(self._lost.reason, now - self._lost_at + self._lost.silent_s)
+            self._lost = None
+            self._fanout.publish(LinkRegained, regained)
+
+    async def _watchdog_loop(self) -> None:
+        loop = asyncio.get_running_loop()
+        idle = min(self.heartbeat_timeout_s, self.telemetry_timeout_s)
+        while True:
+            now = loop.time()
+            deadlines = self._deadlines()
+            expired = [(reason, d) for reason, d in deadlines if d <= now]
+            if self._lost is None and expired:
+                reason, deadline = expired[0]
+                timeout = (
+                    self.heartbeat_timeout_s
+                    if reason == "heartbeat"
+                    else (self.telemetry_timeout_s)
+                )
+                self._lost = LinkLost(reason, now - deadline + timeout)
+                self._lost_at = now
+                self._fanout.publish(LinkLost, self._lost)
+            pending = [d - now for _, d in deadlines if d > now]
+            await asyncio.sleep(min(pending) if pending else idle)
+
+    async def _heartbeat_loop(self) -> None:
+        while True:
+            self.send_message(
+                self.mav.heartbeat_encode(
+                    mavlink2.MAV_TYPE_ONBOARD_CONTROLLER,
+                    mavlink2.MAV_AUTOPILOT_INVALID,
+                    0,
+                    0,
+                    mavlink2.MAV_STATE_ACTIVE,
+                )
+            )
+            await asyncio.sleep(self.heartbeat_period_s)

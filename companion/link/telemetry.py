@@ -1,0 +1,247 @@
+"""What the application uses from the vehicle's telemetry, in our frames (DESIGN.md section 2).
+
+PX4 sends NED/FRD; every sample here is converted through :mod:`companion.frames`:
+positions and velocities world ENU, attitudes body FLU -> world ENU (quaternions
+``[w, x, y, z]``), rates and specific force body FLU. Each sample carries the vehicle's
+clock, ``time_boot_ms`` [ms since the autopilot booted], so that the application also
+runs against a simulator faster than real time. Messages with ``time_usec`` (ODOMETRY,
+HIGHRES_IMU) are PX4 boot times in microseconds and are truncated to milliseconds.
+
+The decoders are pure: a bad message (NaN, a zero quaternion, an unsupported frame)
+raises :class:`~companion.link.errors.TelemetryError` with a short ``reason``, which the
+link's reader counts and drops.
+
+=====================  =========================================================
+sample                 from
+=====================  =========================================================
+:class:`VehiclePose`   ODOMETRY (``pose_from="odometry"``), or LOCAL_POSITION_NED
+                       with the latest ATTITUDE_QUATERNION (``"local_position"``)
+:class:`BodyRates`     the same message as the attitude (ODOMETRY or
+                       ATTITUDE_QUATERNION)
+:class:`ImuSample`     HIGHRES_IMU
+:class:`VehicleStatus` HEARTBEAT of the vehicle (armed, PX4 mode)
+:class:`LandedState`   EXTENDED_SYS_STATE
+=====================  =========================================================
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from companion.frames import (
+    enu_from_ned,
+    flu_from_frd,
+    quaternion_enu_flu_from_ned_frd,
+    rotation_from_quaternion,
+)
+from companion.link.errors import TelemetryError
+from companion.link.px4_modes import Px4Mode, decode_custom_mode
+
+__all__ = [
+    "BodyRates",
+    "ImuSample",
+    "LandedState",
+    "PoseSource",
+    "TelemetryDecoder",
+    "VehiclePose",
+    "VehicleStatus",
+]
+
+Vec3 = tuple[float, float, float]
+Quat = tuple[float, float, float, float]
+PoseSource = Literal["odometry", "local_position"]
+
+_LANDED_NAMES = {
+    mavlink2.MAV_LANDED_STATE_UNDEFINED: "UNDEFINED",
+    mavlink2.MAV_LANDED_STATE_ON_GROUND: "ON_GROUND",
+    mavlink2.MAV_LANDED_STATE_IN_AIR: "IN_AIR",
+    mavlink2.MAV_LANDED_STATE_TAKEOFF: "TAKEOFF",
+    mavlink2.MAV_LANDED_STATE_LANDING: "LANDING",
+}
+
+
+@dataclass(frozen=True)
+class VehiclePose:
+    """Vehicle pose in ENU / FLU."""
+
+    time_boot_ms: int
+    position_enu_m: Vec3
+    velocity_enu_m_s: Vec3 | None
+    """None when the autopilot reports no valid velocity (NaN)."""
+    q_enu_flu: Quat
+    """Attitude, body FLU -> world ENU, ``[w, x, y, z]`` with w >= 0."""
+
+    def euler_zyx_rad(self) -> Vec3:
+        """(phi, theta, psi) [rad] with R = Rz(psi) Ry(theta) Rx(phi) (DESIGN.md section 2)."""
+        r = rotation_from_quaternion(self.q_enu_flu)
+        theta = -math.asin(max(-1.0, min(1.0, float(r[2, 0]))))
+        return (
+            math.atan2(float(r[2, 1]), float(r[2, 2])),
+            theta,
+            math.atan2(float(r[1, 0]), float(r[0, 0])),
+        )
+
+
+@dataclass(frozen=True)
+class BodyRates:
+    """Angular velocity of the body, body FLU [rad/s]."""
+
+    time_boot_ms: int
+    omega_flu_rad_s: Vec3
+
+
+@dataclass(frozen=True)
+class ImuSample:
+    """One HIGHRES_IMU sample: accelerometer specific force [m/s^2] (about +9.81 on z at
+    rest) and gyro rates [rad/s], both body FLU."""
+
+    time_boot_ms: int
+    specific_force_flu_m_s2: Vec3
+    omega_flu_rad_s: Vec3
+
+
+@dataclass(frozen=True)
+class VehicleStatus:
+    """The vehicle's HEARTBEAT: armed flag and PX4 mode.
+
+    ``time_boot_ms`` is the latest vehicle time seen before it (HEARTBEAT has no clock),
+    or None before any timed message.
+    """
+
+    time_boot_ms: int | None
+    armed: bool
+    mode: Px4Mode
+    system_status: int
+    """MAV_STATE (3 standby, 4 active, 5 critical, 6 emergency, ...)."""
+
+    @property
+    def mode_name(self) -> str:
+        return self.mode.name
+
+
+@dataclass(frozen=True)
+class LandedState:
+    """EXTENDED_SYS_STATE's landed state (MAV_LANDED_STATE) and its name."""
+
+    time_boot_ms: int | None
+    landed_state: int
+    name: str
+
+    @property
+    def on_ground(self) -> bool:
+        return self.landed_state == mavlink2.MAV_LANDED_STATE_ON_GROUND
+
+
+def _finite(reason: str, values: Any) -> tuple[float, ...]:
+    out = tuple(float(v) for v in values)
+    if not all(math.isfinite(v) for v in out):
+        raise TelemetryError(reason, f"non-finite value in {out}")
+    return out
+
+
+def _vec3_enu(values: Any, reason: str) -> Vec3:
+    n, e, d = _finite(reason, values)
+    x, y, z = enu_from_ned((n, e, d))
+    return (float(x), float(y), float(z))
+
+
+def _vec3_flu(values: Any, reason: str) -> Vec3:
+    x, y, z = flu_from_frd(_finite(reason, values))
+    return (float(x), float(y), float(z))
+
+
+def _q_enu_flu(q_ned_frd: Any) -> Quat:
+    q = _finite("bad_quaternion", q_ned_frd)
+    norm = math.sqrt(sum(c * c for c in q))
+    if abs(norm - 1.0) > 1e-2:
+        raise TelemetryError("bad_quaternion", f"norm {norm:.4g} is not 1")
+    w, x, y, z = quaternion_enu_flu_from_ned_frd(q)
+    return (float(w), float(x), float(y), float(z))
+
+
+class TelemetryDecoder:
+    """Turns the vehicle's MAVLink messages into the samples above (pure, no I/O).
+
+    Parameters
+    ----------
+    pose_from : {"odometry", "local_position"}
+        Which stream makes :class:`VehiclePose` and :class:`BodyRates` (one source only, so
+        that two estimator outputs are never interleaved).
+    """
+
+    def __init__(self, pose_from: PoseSource = "odometry") -> None:
+        if pose_from not in ("odometry", "local_position"):
+            raise ValueError(f"pose_from must be 'odometry' or 'local_position', not {pose_from!r}")
+        self.pose_from = pose_from
+        self.time_boot_ms: int | None = None
+        """Latest vehicle time seen [ms]."""
+        self._attitude: Quat | None = None
+
+    def _clock(self, time_boot_ms: int) -> int:
+        self.time_boot_ms = int(time_boot_ms)
+        return self.time_boot_ms
+
+    def decode(self, msg: Any) -> tuple[object, ...]:
+        """Samples made by one message (none for a message type not listed above)."""
+        kind = msg.get_type()
+        if kind == "ODOMETRY":
+            return self._odometry(msg) if self.pose_from == "odometry" else ()
+        if kind == "ATTITUDE_QUATERNION":
+            return self._attitude_quaternion(msg) if self.pose_from == "local_position" else ()
+        if kind == "LOCAL_POSITION_NED":
+            return self._local_position(msg) if self.pose_from == "local_position" else ()
+        if kind == "HIGHRES_IMU":
+            t = self._clock(msg.time_usec // 1000)
+            force = _vec3_flu((msg.xacc, msg.yacc, msg.zacc), "bad_imu")
+            gyro = _vec3_flu((msg.xgyro, msg.ygyro, msg.zgyro), "bad_imu")
+            return (ImuSample(t, force, gyro),)
+        if kind == "HEARTBEAT":
+            armed = bool(msg.base_mode & mavlink2.MAV_MODE_FLAG_SAFETY_ARMED)
+            mode = decode_custom_mode(msg.custom_mode)
+            return (VehicleStatus(self.time_boot_ms, armed, mode, int(msg.system_status)),)
+        if kind == "EXTENDED_SYS_STATE":
+            state = int(msg.landed_state)
+            if state not in _LANDED_NAMES:
+                raise TelemetryError("bad_landed_state", str(state))
+            return (LandedState(self.time_boot_ms, state, _LANDED_NAMES[state]),)
+        return ()
+
+    def _odometry(self, msg: Any) -> tuple[object, ...]:
+        if msg.frame_id != mavlink2.MAV_FRAME_LOCAL_NED:
+            raise TelemetryError("unsupported_frame", f"ODOMETRY frame_id {msg.frame_id}")
+        q = _q_enu_flu(msg.q)
+        position = _vec3_enu((msg.x, msg.y, msg.z), "bad_position")
+        velocity: Vec3 | None = None
+        v = (float(msg.vx), float(msg.vy), float(msg.vz))
+        if all(math.isfinite(c) for c in v):
+            if msg.child_frame_id == mavlink2.MAV_FRAME_LOCAL_NED:
+                velocity = _vec3_enu(v, "bad_velocity")
+            elif msg.child_frame_id == mavlink2.MAV_FRAME_BODY_FRD:
+                world = rotation_from_quaternion(q) @ flu_from_frd(v)
+                velocity = (float(world[0]), float(world[1]), float(world[2]))
+            else:
+                raise TelemetryError(
+                    "unsupported_frame", f"ODOMETRY child_frame_id {msg.child_frame_id}"
+                )
+        rates = _vec3_flu((msg.rollspeed, msg.pitchspeed, msg.yawspeed), "bad_rates")
+        t = self._clock(msg.time_usec // 1000)
+        return (VehiclePose(t, position, velocity, q), BodyRates(t, rates))
+
+    def _attitude_quaternion(self, msg: Any) -> tuple[object, ...]:
+        q = _q_enu_flu((msg.q1, msg.q2, msg.q3, msg.q4))
+        rates = _vec3_flu((msg.rollspeed, msg.pitchspeed, msg.yawspeed), "bad_rates")
+        self._attitude = q
+        return (BodyRates(self._clock(msg.time_boot_ms), rates),)
+
+    def _local_position(self, msg: Any) -> tuple[object, ...]:
+        if self._attitude is None:
+            raise TelemetryError("no_attitude_yet", "LOCAL_POSITION_NED before any attitude")
+        position = _vec3_enu((msg.x, msg.y, msg.z), "bad_position")
+        v = (float(msg.vx), float(msg.vy), float(msg.vz))
+        velocity = _vec3_enu(v, "bad_velocity") if all(map(math.isfinite, v)) else None
+        t = self._clock(msg.time_boot_ms)
+        return (VehiclePose(t, position, velocity, self._attitude),)

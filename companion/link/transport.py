@@ -1,0 +1,100 @@
+"""Non-blocking byte I/O over pymavlink's connection objects (UDP, TCP, serial).
+
+pymavlink opens the port (``mavutil.mavlink_connection`` with the string from
+:class:`~companion.link.url.LinkUrl`); this module only reads and writes bytes on its
+non-blocking file descriptor (the socket, or the serial port opened with timeout 0), so
+that the link's reader can wait with the event loop's ``add_reader`` and parse with its
+own MAVLink 2 codec. Reads and writes go to the socket / port directly: a closed peer
+becomes :class:`LinkClosedError` instead of pymavlink's reconnect attempts and prints.
+``udpin`` answers the sender of the latest datagram (PX4's onboard link); before the
+first datagram there is nobody to send to and frames are dropped (counted).
+"""
+
+from __future__ import annotations
+
+import socket
+from typing import Any
+
+from pymavlink import mavutil
+
+from companion.link.errors import LinkClosedError
+from companion.link.url import LinkUrl
+
+__all__ = ["Transport", "open_transport"]
+
+_READ_SIZE = 65536
+
+
+class Transport:
+    """A pymavlink connection seen as non-blocking ``read()`` / ``write()`` of bytes."""
+
+    def __init__(self, url: LinkUrl, conn: Any) -> None:
+        self.url = url
+        self._conn = conn
+        self.fd: int = conn.fd if url.scheme == "serial" else conn.port.fileno()
+        self.peer: tuple[str, int] | None = None
+        """UDP: where frames go; for ``udpin`` the sender of the latest datagram."""
+        if url.scheme == "udpout":
+            self.peer = (socket.gethostbyname(url.host), url.port)
+        self.unsent_frames = 0
+        """Frames dropped: full socket buffer, or no peer yet (``udpin`` before the first
+        datagram arrived)."""
+
+    def read(self) -> bytes:
+        """Bytes available now (one datagram for UDP), or ``b""`` if none."""
+        try:
+            if self.url.scheme == "tcpout":
+                try:
+                    data = self._conn.port.recv(_READ_SIZE)
+                except BlockingIOError:
+                    return b""
+                if not data:
+                    raise LinkClosedError(f"{self.url}: the peer closed the connection")
+                return data
+            if self.url.scheme == "serial":
+                return bytes(self._conn.port.read(_READ_SIZE))
+            try:
+                data, sender = self._conn.port.recvfrom(_READ_SIZE)
+            except (BlockingIOError, ConnectionRefusedError):
+                return b""
+            if self.url.scheme == "udpin":
+                self.peer = sender
+            return data
+        except LinkClosedError:
+            raise
+        except Exception as exc:  # pyserial raises SerialException, sockets OSError
+            raise LinkClosedError(f"{self.url}: read failed: {exc}") from exc
+
+    def write(self, buf: bytes) -> None:
+        """Send one frame, without waiting (see :attr:`unsent_frames`)."""
+        try:
+            if self.url.scheme == "tcpout":
+                self._conn.port.send(buf)
+            elif self.url.scheme == "serial":
+                self._conn.port.write(buf)
+            elif self.peer is None:
+                self.unsent_frames += 1
+            else:
+                self._conn.port.sendto(buf, self.peer)
+        except BlockingIOError:
+            self.unsent_frames += 1
+        except Exception as exc:
+            raise LinkClosedError(f"{self.url}: write failed: {exc}") from exc
+
+    def close(self) -> None:
+        self._conn.close()
+
+
+def open_transport(url: LinkUrl, system_id: int, component_id: int) -> Transport:
+    """Open the port (blocking: a TCP connect waits for the peer; call it in a thread)."""
+    try:
+        conn = mavutil.mavlink_connection(
+            url.pymavlink_device,
+            baud=url.baud or 115200,
+            source_system=system_id,
+            source_component=component_id,
+            retries=0,
+        )
+        return Transport(url, conn)
+    except Exception as exc:  # OSError, ValueError, pyserial's SerialException
+        raise LinkClosedError(f"{url}: cannot open: {exc}") from exc
