@@ -64,12 +64,12 @@ class JointRig:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
-    def set_angle(self, servo_id: int, angle_rad: float) -> None:
-        """Put a shaft at an angle [rad], at rest."""
+    def set_state(self, servo_id: int, angle_rad: float, rate_rad_s: float = 0.0) -> None:
+        """Put a shaft at an angle [rad] turning at a rate [rad/s]."""
         with self.lock:
             self.angle_rad[servo_id] = angle_rad
-            self.rate_rad_s[servo_id] = 0.0
-            self.servos[servo_id].set_state(angle_rad, 0.0)
+            self.rate_rad_s[servo_id] = rate_rad_s
+            self.servos[servo_id].set_state(angle_rad, rate_rad_s)
 
     def step(self, dt_s: float) -> None:
         """Advance every servo and shaft by ``dt_s`` [s] (the lock is held by the caller)."""
