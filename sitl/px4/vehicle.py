@@ -54,10 +54,7 @@ Outgoing = list[tuple[str, mavlink.MAVLink_message]]
 FLIGHT_SW_VERSION = (1 << 24) | (14 << 16) | (3 << 8) | 0xFF
 """AUTOPILOT_VERSION.flight_sw_version: PX4 v1.14.3, release (PX4's byte layout)."""
 
-_BROADCAST_TARGET_COMMANDS = (
-    M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,
-    M.MAV_CMD_REQUEST_PROTOCOL_VERSION,
-)
+_BROADCAST_TARGET_COMMANDS = (M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,)
 _RELATIVE_FRAMES = (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
 
 
@@ -282,7 +279,6 @@ class Px4Vehicle:
             M.MAV_CMD_REQUEST_MESSAGE: _finite_int(p[0]),
             M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: M.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
             M.MAV_CMD_GET_HOME_POSITION: M.MAVLINK_MSG_ID_HOME_POSITION,
-            M.MAV_CMD_REQUEST_PROTOCOL_VERSION: M.MAVLINK_MSG_ID_PROTOCOL_VERSION,
         }
         if command in requested:
             reply = self._requested_message(requested[command], now_s)
@@ -298,8 +294,6 @@ class Px4Vehicle:
     ) -> mavlink.MAVLink_message | None:
         if msg_id == M.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return self._encoder.autopilot_version(self.system_id)
-        if msg_id == M.MAVLINK_MSG_ID_PROTOCOL_VERSION:
-            return M.MAVLink_protocol_version_message(200, 100, 200, [0] * 8, [0] * 8)
         if msg_id is None or self._last is None or not self._encoder.can_build(msg_id):
             return None
         return self._encoder.build(msg_id, now_s, self._last, self._status())
