@@ -10,11 +10,15 @@ measurements, never from truth.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from companion.filters import FilteredState, StateFilter
+
+if TYPE_CHECKING:
+    from companion.config import Sensors
 
 __all__ = ["StateAssembler", "euler_rates_from_body_rates", "thrust_force_world"]
 
@@ -66,6 +70,24 @@ class StateAssembler:
             jerk_psd=jerk_psd,
             position_std=np.maximum(position_std, 1e-9),
             velocity_std=np.maximum(velocity_std, 1e-9),
+        )
+
+    @classmethod
+    def from_sensors(cls, sensors: Sensors) -> StateAssembler:
+        """For the measurement noise of a scenario's ``[sensors]`` section.
+
+        Encoder quantisation (4096 ticks/rev) acts as uniform noise of step/sqrt(12), and
+        the servos' Present Velocity unit likewise; the vehicle's velocity is not measured
+        directly (std 1 m/s: the filter differentiates the positions).
+        """
+        s = sensors
+        joint_std = max(s.joint_std_rad, 2.0 * math.pi / 4096 / math.sqrt(12.0))
+        return cls(
+            s.jerk_psd,
+            position_std=[s.position_std_m] * 3 + [s.attitude_std_rad] * 3 + [joint_std] * 2,
+            velocity_std=[1.0] * 3
+            + [s.gyro_std_rad_s] * 3
+            + [s.joint_velocity_unit_rad_s / math.sqrt(12.0)] * 2,
         )
 
     @classmethod

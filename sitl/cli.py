@@ -1,11 +1,14 @@
-"""The ``sitl`` command line: tools around the simulated vehicle.
+"""The ``sitl`` command line: the simulated vehicle and tools around it.
 
-``sitl authority`` reports the torque the simulated vehicle can produce at hover. The
-MAVLink vehicle process (``sitl run``) is not part of this package yet.
+``sitl run`` runs the PX4-like vehicle process (MAVLink on UDP, servos on a pty);
+``sitl authority`` reports the torque the simulated vehicle can produce at hover.
 """
 
 from __future__ import annotations
 
+import json
+import signal
+import threading
 from pathlib import Path
 from typing import Annotated
 
@@ -14,8 +17,11 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from companion.cli import load_or_exit
+from companion.cli import EXIT_USAGE, load_or_exit
 from sitl.authority import hover_authority
+from sitl.physics import PlantError
+from sitl.px4 import ParamError, SigningKeyError
+from sitl.runner import LinkPorts, RunOptions, SitlVehicle
 
 app = typer.Typer(
     name="sitl",
@@ -56,6 +62,85 @@ def authority(
     for label, fmt in rows:
         table.add_row(escape(label), fmt(empty), fmt(loaded))
     Console().print(table)
+
+
+@app.command()
+def run(
+    config: Annotated[Path, typer.Option("--config", help="Scenario TOML file.")],
+    speed: Annotated[
+        float, typer.Option(help="Simulated seconds per wall-clock second (e.g. 5 for 5x).")
+    ] = 1.0,
+    seed: Annotated[int, typer.Option(help="Seed of the sensor noise.")] = 0,
+    noise: Annotated[
+        bool, typer.Option("--noise/--no-noise", help="Noisy autopilot measurements.")
+    ] = True,
+    duration: Annotated[
+        float | None, typer.Option(help="Stop after this many simulated seconds.")
+    ] = None,
+    truth_log: Annotated[
+        Path | None, typer.Option(help="Write ground truth here (JSON lines).")
+    ] = None,
+    onboard_port: Annotated[
+        int, typer.Option(help="Remote UDP port of the onboard (API) link.")
+    ] = 14540,
+    onboard_local_port: Annotated[int, typer.Option(help="Local UDP port of that link.")] = 14580,
+    gcs_port: Annotated[int, typer.Option(help="Remote UDP port of the GCS link.")] = 14550,
+    gcs_local_port: Annotated[int, typer.Option(help="Local UDP port of that link.")] = 18570,
+    signing_key: Annotated[
+        Path | None,
+        typer.Option(help="MAVLink 2 signing key file (32 bytes); unsigned input is rejected."),
+    ] = None,
+) -> None:
+    """Run the simulated vehicle until interrupted (Ctrl-C) or --duration."""
+    cfg = load_or_exit(config)
+    if duration is not None and not duration > 0.0:
+        _fail(f"--duration must be positive, got {duration:g}")
+    if signing_key is not None and not signing_key.is_file():
+        _fail(f"signing key {signing_key}: no such file")
+    try:
+        options = RunOptions(
+            speed=speed,
+            seed=seed,
+            noise=noise,
+            ports=LinkPorts(
+                onboard_local=onboard_local_port,
+                onboard_remote=onboard_port,
+                gcs_local=gcs_local_port,
+                gcs_remote=gcs_port,
+            ),
+            signing_key=signing_key,
+            truth_log=truth_log,
+        )
+        vehicle = SitlVehicle(cfg, options)
+    except (ValueError, ParamError, SigningKeyError) as exc:
+        _fail(f"{config}: {exc}")
+    stop = threading.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: stop.set())
+    try:
+        with vehicle:
+            where = vehicle.describe()
+            typer.echo(f"sitl: {cfg.name} at {speed:g}x real time")
+            for key, value in where.items():
+                typer.echo(f"  {key:<8} {value}")
+            typer.echo("ready " + json.dumps(where), color=False)
+            stats = vehicle.run(stop, until_s=duration)
+    except OSError as exc:
+        _fail(f"cannot open the vehicle's links: {exc}")
+    except PlantError as exc:
+        typer.echo(f"error: the simulated vehicle's physics failed: {exc}", err=True)
+        raise typer.Exit(1) from None
+    median, p99 = stats.jitter_us()
+    typer.echo(
+        f"sitl: stopped at t = {stats.sim_time_s:.3f} s; real-time factor "
+        f"{stats.real_time_factor:.2f}; step jitter median {median:.0f} us, p99 {p99:.0f} us; "
+        f"{stats.overruns} overruns"
+    )
+
+
+def _fail(message: str) -> None:
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(EXIT_USAGE)
 
 
 def main() -> None:

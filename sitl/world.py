@@ -14,10 +14,10 @@ as it would on the vehicle.
 Simplifications, all stated here:
 
 - Ground: flat, at world z = 0. The base stands when its CoM is ``landing_gear_height_m``
-  above it. When a step ends with the CoM below that height, the base is put back on the
-  ground level, at rest (position and attitude velocity zeroed, roll and pitch zeroed,
-  yaw kept): a perfectly inelastic contact with static friction. The arm and the payload
-  do not collide with the ground.
+  above it. When a step ends with the CoM below that height, the base is pinned level and
+  at rest where it touched down (x, y and yaw of the touch-down; roll, pitch and all base
+  velocities zero): a perfectly inelastic contact with static friction. The arm and the
+  payload do not collide with the ground.
 - Gripper: one jaw shaft (inertia, viscous friction, hard stops at the open and closed
   positions) driven by the gripper servo. It counts as closed past the middle of its
   travel toward the closed position. When it closes with the payload's centre of mass
@@ -245,6 +245,7 @@ class World:
         self._was_closed = self.jaw.closed if self.jaw else False
         self._torques = np.zeros(2)
         self.on_ground = True
+        self._ground_pose: tuple[float, float, float] | None = None
         self.grasps = 0
         self._state = plant.reset(start_state(settings))
         self._motors_off = AttitudeSetpoint(quaternion_from_euler(0.0, 0.0, 0.0), 0.0)
@@ -293,16 +294,13 @@ class World:
         height = self.settings.landing_gear_height_m
         if state.q[2] >= height:
             self.on_ground = False
+            self._ground_pose = None
             return state
         self.on_ground = True
-        q = np.array(state.q)
-        q_dot = np.array(state.q_dot)
-        q[2] = height
-        q[3:5] = 0.0
-        q_dot[0:6] = 0.0
-        return self.plant.reset(
-            q, q_dot, time_s=state.time_s, rotor_thrusts_n=self.plant.rotor_thrusts_n
-        )
+        if self._ground_pose is None:  # touch-down: stay where the gear met the ground
+            self._ground_pose = (float(state.q[0]), float(state.q[1]), float(state.q[5]))
+        x, y, yaw = self._ground_pose
+        return self.plant.hold_base((x, y, height), yaw)
 
     # ------------------------------------------------------------------- payload
 

@@ -211,6 +211,23 @@ class TruthPlant:
             self._actuators = None
         return self.state
 
+    def hold_base(self, position_m: tuple[float, float, float], yaw_rad: float) -> PlantState:
+        """Pin the base level at ``position_m`` (world ENU [m]) and ``yaw_rad``, at rest.
+
+        A rigid contact for a SITL's ground: the joints keep their angles and rates, the
+        rotors their thrust, time goes on; the autopilot's integrators are cleared, as
+        PX4 does while landed. Cheaper than :meth:`reset` (called every step on the ground).
+        """
+        half = 0.5 * yaw_rad
+        x = self._x
+        x[0:7] = (*position_m, 0.0, 0.0, math.sin(half), math.cos(half))
+        self._u[0:6] = (0.0,) * 6
+        self._euler = (0.0, 0.0, yaw_rad)
+        if self.mode == "underactuated":
+            self._autopilot.reset()
+        self._update_kinematics()
+        return self.state
+
     @property
     def time_s(self) -> float:
         """Simulation time [s] (``reset`` time + steps * dt, no accumulated rounding)."""

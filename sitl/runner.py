@@ -1,0 +1,302 @@
+"""The SITL vehicle process: one simulation clock driving world, autopilot, links and logs.
+
+Every plant step (``1 / plant.rate_hz`` of simulation time) the runner
+
+1. hands each MAVLink message received on the two links to the simulated autopilot
+   (:class:`~sitl.px4.Px4Vehicle`) and sends its replies,
+2. measures the vehicle (:class:`~sitl.navigation.Navigation`) and asks the autopilot
+   for the attitude/thrust setpoint of this step (``None``: disarmed),
+3. steps the world under the servo bus lock (the bus thread reads and writes the same
+   servo models),
+4. sends the telemetry due at this time and, at its rate, writes a truth-log line.
+
+Time is simulation time everywhere (message rates, offboard loss, auto-disarm,
+``time_boot_ms``); the wall clock only paces the loop at ``speed`` times real time. When
+the loop cannot keep up, it runs as fast as it can and the real-time factor it reached is
+reported. Step jitter is the lateness of each step's start behind its wall-clock slot.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+
+from arm_driver.joint import GripperConfig, JointConfig
+from companion.config import Scenario, arm_bus_configs
+from sitl.navigation import Navigation
+from sitl.physics import TruthPlant
+from sitl.px4 import MavlinkEndpoint, Px4Params, Px4Vehicle, load_signing_key
+from sitl.servo import PtyServoBus, XM430Parameters, XM430Servo
+from sitl.world import World, WorldSettings
+
+__all__ = ["LinkPorts", "RunOptions", "RunStats", "SitlVehicle", "world_settings"]
+
+_MAX_LAG_S = 0.25
+"""Wall-clock lag behind schedule [s] after which the schedule is re-based (overrun)."""
+
+DEFAULT_JOINTS = (
+    JointConfig("eta1", 1, 1.78, 4.1, position_min_rad=-2.6, position_max_rad=0.6),
+    JointConfig("eta2", 2, 1.78, 4.1, position_min_rad=-2.1, position_max_rad=2.1),
+)
+"""Servos of a scenario without an ``[arm_bus]`` section: XM430-W350 ids 1 and 2."""
+DEFAULT_GRIPPER = GripperConfig(3, open_position_rad=0.785, closed_position_rad=-0.26)
+"""Gripper servo of a scenario without an ``[arm_bus]`` section: id 3."""
+
+
+@dataclass(frozen=True)
+class LinkPorts:
+    """UDP ports of the two MAVLink links, as PX4 SITL's defaults.
+
+    The onboard (API) link sends from ``onboard_local`` to ``host:onboard_remote``; the
+    ground-station link from ``gcs_local`` to ``host:gcs_remote``.
+    """
+
+    host: str = "127.0.0.1"
+    onboard_local: int = 14580
+    onboard_remote: int = 14540
+    gcs_local: int = 18570
+    gcs_remote: int = 14550
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How to run the vehicle.
+
+    Attributes
+    ----------
+    speed
+        Simulation seconds per wall-clock second (> 0).
+    seed
+        Seed of the sensor noise.
+    noise
+        Noisy, delayed autopilot measurements (scenario ``[sensors]``) or exact ones.
+    ports
+        MAVLink UDP ports.
+    signing_key
+        32-byte MAVLink 2 signing key file; ``None``: signing off.
+    truth_log
+        JSON-lines ground-truth file; ``None``: none written.
+    truth_rate_hz
+        Truth-log lines per simulated second.
+    """
+
+    speed: float = 1.0
+    seed: int = 0
+    noise: bool = True
+    ports: LinkPorts = field(default_factory=LinkPorts)
+    signing_key: Path | None = None
+    truth_log: Path | None = None
+    truth_rate_hz: float = 50.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.speed) and self.speed > 0.0):
+            raise ValueError(f"speed must be a positive factor, got {self.speed!r}")
+        if not (math.isfinite(self.truth_rate_hz) and self.truth_rate_hz > 0.0):
+            raise ValueError(f"truth_rate_hz must be positive, got {self.truth_rate_hz!r}")
+
+
+@dataclass
+class RunStats:
+    """What one run achieved (printed by ``sitl run`` when it stops)."""
+
+    sim_time_s: float = 0.0
+    wall_time_s: float = 0.0
+    steps: int = 0
+    overruns: int = 0
+    lateness_us: list[float] = field(default_factory=list)
+
+    @property
+    def real_time_factor(self) -> float:
+        """Simulated seconds per wall-clock second."""
+        return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else 0.0
+
+    def jitter_us(self) -> tuple[float, float]:
+        """Median and 99th percentile of the step-start lateness [us]."""
+        if not self.lateness_us:
+            return (0.0, 0.0)
+        arr = np.asarray(self.lateness_us)
+        return float(np.median(arr)), float(np.percentile(arr, 99))
+
+
+def world_settings(scenario: Scenario) -> WorldSettings:
+    """World settings of a scenario (``[world]``), or defaults: standing at the origin."""
+    world = scenario.world
+    if world is None:
+        return WorldSettings()
+    return WorldSettings(
+        landing_gear_height_m=world.landing_gear_height_m,
+        payload_position_m=world.payload_position_m,
+        grasp_tolerance_m=world.grasp_tolerance_m,
+        start_position_m=(*world.start_position_m, 0.0),
+        start_yaw_rad=world.start_yaw_rad,
+        start_joints_rad=world.start_joints_rad,
+    )
+
+
+class SitlVehicle:
+    """Everything of one SITL vehicle; open it as a context manager, then :meth:`run`.
+
+    Nothing is opened in the constructor: ``__enter__`` starts the servo bus and binds the
+    MAVLink ports, ``__exit__`` (safe twice) closes them and the truth log.
+    """
+
+    def __init__(self, scenario: Scenario, options: RunOptions) -> None:
+        self.scenario = scenario
+        self.options = options
+        if scenario.arm_bus is not None:
+            joints, gripper = arm_bus_configs(scenario.arm_bus)
+            if len(joints) != 2:
+                raise ValueError(f"the simulated arm has 2 joints, arm_bus lists {len(joints)}")
+        else:
+            joints, gripper = list(DEFAULT_JOINTS), DEFAULT_GRIPPER
+        gripper = gripper if gripper is not None else DEFAULT_GRIPPER
+        self.joints = list(joints)
+        self.gripper = gripper
+        servos = {
+            j.servo_id: XM430Servo(
+                j.servo_id, XM430Parameters(torque_constant_n_m_per_a=j.torque_constant_n_m_per_a)
+            )
+            for j in self.joints
+        }
+        servos[gripper.servo_id] = XM430Servo(gripper.servo_id)
+        self.servo_bus = PtyServoBus(servos, step_servos=False)
+        plant = TruthPlant.from_scenario(scenario, "underactuated")
+        self.world = World(
+            plant,
+            [(j, servos[j.servo_id]) for j in self.joints],
+            (gripper, servos[gripper.servo_id]),
+            world_settings(scenario),
+        )
+        rng = np.random.default_rng(options.seed)
+        self.navigation = Navigation(scenario, rng, noise=options.noise)
+        overrides = dict(scenario.world.autopilot_params) if scenario.world else {}
+        self.autopilot = Px4Vehicle(Px4Params.from_scenario(scenario, overrides))
+        ports = options.ports
+        key = load_signing_key(options.signing_key) if options.signing_key else None
+        self.links = {
+            "onboard": MavlinkEndpoint(
+                ports.onboard_local, ports.onboard_remote, host=ports.host, signing_key=key
+            ),
+            "gcs": MavlinkEndpoint(
+                ports.gcs_local, ports.gcs_remote, host=ports.host, signing_key=key, link_id=1
+            ),
+        }
+        self._truth_file: IO[str] | None = None
+        self._open = False
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def __enter__(self) -> SitlVehicle:
+        try:
+            self.servo_bus.start()
+            for link in self.links.values():
+                link.open()
+            if self.options.truth_log is not None:
+                self._truth_file = open(self.options.truth_log, "w", encoding="utf-8")
+        except BaseException:
+            self.close()
+            raise
+        self._open = True
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Stop the servo bus, close the links and the truth log; safe twice."""
+        self.servo_bus.stop()
+        for link in self.links.values():
+            link.close()
+        if self._truth_file is not None:
+            self._truth_file.close()
+            self._truth_file = None
+        self._open = False
+
+    def describe(self) -> dict[str, str]:
+        """Where to connect: MAVLink links and the servo bus URL."""
+        p = self.options.ports
+        return {
+            "onboard": f"udp {p.host}:{p.onboard_local} -> {p.host}:{p.onboard_remote}",
+            "gcs": f"udp {p.host}:{p.gcs_local} -> {p.host}:{p.gcs_remote}",
+            "connect": f"udpin://0.0.0.0:{p.onboard_remote}",
+            "arm_bus": f"dynamixel://{self.servo_bus.device}?baud=1000000",
+        }
+
+    # ---------------------------------------------------------------------- loop
+
+    def run(self, stop: threading.Event, until_s: float | None = None) -> RunStats:
+        """Step until ``stop`` is set or simulation time reaches ``until_s`` [s].
+
+        Raises :class:`~sitl.physics.PlantError` if the plant diverges.
+        """
+        if not self._open:
+            raise RuntimeError("open the SitlVehicle (with ...) before running it")
+        world, autopilot, links = self.world, self.autopilot, self.links
+        dt_s = world.dt_s
+        wall_dt = dt_s / self.options.speed
+        truth_every = max(1, round(1.0 / (self.options.truth_rate_hz * dt_s)))
+        stats = RunStats()
+        sim0 = world.time_s
+        wall0 = time.perf_counter()
+        slot = wall0
+        step = 0
+        while not stop.is_set() and (until_s is None or world.time_s < until_s - 0.5 * dt_s):
+            now_wall = time.perf_counter()
+            lateness = now_wall - slot
+            if lateness > _MAX_LAG_S:
+                stats.overruns += 1
+                slot = now_wall
+                lateness = 0.0
+            stats.lateness_us.append(lateness * 1e6)
+            now_s = world.time_s
+            for name, link in links.items():
+                for message in link.receive():
+                    for reply_link, reply in autopilot.handle(message, name, now_s):
+                        links[reply_link].send(reply)
+            measurement = self.navigation.measure(world)
+            setpoint = autopilot.control(now_s, measurement)
+            with self.servo_bus.lock:
+                world.step(setpoint)
+            for link_name, message in autopilot.telemetry(now_s, measurement):
+                links[link_name].send(message)
+            if self._truth_file is not None and step % truth_every == 0:
+                self._write_truth()
+            step += 1
+            slot += wall_dt
+            wait = slot - time.perf_counter()
+            if wait > 0.0:
+                time.sleep(wait)
+        stats.steps = step
+        stats.sim_time_s = world.time_s - sim0
+        stats.wall_time_s = time.perf_counter() - wall0
+        if self._truth_file is not None:
+            self._truth_file.flush()
+        return stats
+
+    def _write_truth(self) -> None:
+        assert self._truth_file is not None
+        truth = self.world.truth()
+        state = truth.plant
+        obj = truth.object_position_m
+        record = {
+            "t_s": round(truth.time_s, 6),
+            "q": state.q.tolist(),
+            "q_dot": state.q_dot.tolist(),
+            "armed": self.autopilot.armed,
+            "mode": self.autopilot.mode.name,
+            "on_ground": truth.on_ground,
+            "payload_attached": truth.payload_attached,
+            "object_position_m": None if obj is None else obj.tolist(),
+            "gripper_angle_rad": truth.gripper_angle_rad,
+            "joint_torques_n_m": truth.joint_torques_n_m.tolist(),
+            "true_theta": list(truth.true_theta),
+            "battery_v": round(self.world.battery.voltage_v, 3),
+        }
+        self._truth_file.write(json.dumps(record) + "\n")
