@@ -1,0 +1,409 @@
+"""Flight log: one CSV row per control cycle, and a CSV of events beside it.
+
+Format
+------
+``LOG.csv`` (e.g. ``flight.csv``): UTF-8 CSV, one header row, then one row per control
+cycle; it opens as is in pandas (``pd.read_csv``), spreadsheets and
+:func:`read_flight_log`. Column names carry their SI unit (``x_m``, ``thrust_norm``);
+frames are ours (world ENU, body FLU, ZYX Euler angles, DESIGN.md section 2). Numbers are
+written exactly (Python's shortest round-trip repr); an empty cell is a value that was
+not available that cycle (read back as NaN); flags are 0 / 1.
+
+=================================  =========================================================
+columns                            content
+=================================  =========================================================
+``t_vehicle_s``, ``t_wall_s``      vehicle clock (time_boot_ms / 1000) and Unix time [s]
+``q_<i>_<u>``                      q: x y z [m], phi theta psi eta1 eta2 [rad]
+``qdot_<i>_<u>_s``                 filtered q_dot [m/s, rad/s]
+``qddot_<i>_<u>_s2``               filtered q_ddot [m/s^2, rad/s^2]
+``qd_<i>_<u>``                     desired q
+``theta_hat_m2_kg`` ...            estimates m2 [kg], m3 [kg m], m4 [kg m^2], lc = m3/m2 [m]
+``theta_excitation``, ``_spread``  the estimator's confidence inputs (dimensionless)
+``theta_confident``, ``_frozen``   its flags
+``tau_<i>_<u>``                    controller output tau: x y z [N], phi theta psi eta1 eta2
+                                   [N m] (generalized forces, DESIGN.md section 2)
+``sp_roll_rad`` ... ``thrust_norm`` attitude setpoint (ENU/FLU Euler), thrust [N], PX4
+                                   normalized thrust, saturation flags
+``servo_tau_cmd_eta<j>_n_m``       joint torque commanded / measured (present current)
+``servo_tau_meas_eta<j>_n_m``      [N m]
+``servo_pos_eta<j>_rad``           joint position read from the servos [rad]
+``px4_mode``, ``armed``            PX4 mode name, armed flag
+``phase``, ``faults``              mission phase; active faults, ``;``-separated
+=================================  =========================================================
+
+``LOG.events.csv``: columns ``t_vehicle_s, t_wall_s, kind, detail``, one row per event.
+Kinds written by the writer itself: ``mode`` (PX4 mode changed; detail ``OLD->NEW``),
+``phase`` (mission phase changed), ``fault`` / ``fault_cleared`` (a fault name appeared in
+/ left ``faults``); the application adds its own with :meth:`FlightLogWriter.event`.
+
+Timing
+------
+Writing never waits on the disk for long: a row is formatted (tens of microseconds) into
+a 1 MiB user-space buffer; every ``flush_every_rows`` rows (default 250, one second at
+250 Hz) and at each event the buffer is handed to the operating system (a copy into the
+page cache, well under a millisecond, no fsync). :meth:`FlightLogWriter.close` flushes and
+fsyncs. A crash loses at most the last ``flush_every_rows`` rows.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+if TYPE_CHECKING:
+    from companion.setpoints import AttitudeThrustSetpoint
+
+__all__ = [
+    "COLUMNS",
+    "TEXT_COLUMNS",
+    "CycleRecord",
+    "FlightLog",
+    "FlightLogError",
+    "FlightLogWriter",
+    "events_path",
+    "format_row",
+    "read_flight_log",
+]
+
+Q_NAMES = ("x", "y", "z", "phi", "theta", "psi", "eta1", "eta2")
+_Q_UNITS = ("m", "m", "m", "rad", "rad", "rad", "rad", "rad")
+_TAU_UNITS = ("n", "n", "n", "n_m", "n_m", "n_m", "n_m", "n_m")
+_JOINTS = ("eta1", "eta2")
+
+_THETA = ("theta_hat_m2_kg", "theta_hat_m3_kg_m", "theta_hat_m4_kg_m2", "theta_hat_lc_m")
+_SETPOINT = (
+    "sp_roll_rad",
+    "sp_pitch_rad",
+    "sp_yaw_rad",
+    "sp_thrust_n",
+    "thrust_norm",
+    "sp_tilt_saturated",
+    "sp_thrust_saturated",
+)
+TEXT_COLUMNS = ("px4_mode", "phase", "faults")
+"""Columns holding text; every other column is numeric."""
+
+COLUMNS: tuple[str, ...] = (
+    "t_vehicle_s",
+    "t_wall_s",
+    *(f"q_{n}_{u}" for n, u in zip(Q_NAMES, _Q_UNITS, strict=True)),
+    *(f"qdot_{n}_{u}_s" for n, u in zip(Q_NAMES, _Q_UNITS, strict=True)),
+    *(f"qddot_{n}_{u}_s2" for n, u in zip(Q_NAMES, _Q_UNITS, strict=True)),
+    *(f"qd_{n}_{u}" for n, u in zip(Q_NAMES, _Q_UNITS, strict=True)),
+    *_THETA,
+    "theta_excitation",
+    "theta_spread",
+    "theta_confident",
+    "theta_frozen",
+    *(f"tau_{n}_{u}" for n, u in zip(Q_NAMES, _TAU_UNITS, strict=True)),
+    *_SETPOINT,
+    *(f"servo_tau_cmd_{j}_n_m" for j in _JOINTS),
+    *(f"servo_tau_meas_{j}_n_m" for j in _JOINTS),
+    *(f"servo_pos_{j}_rad" for j in _JOINTS),
+    "px4_mode",
+    "armed",
+    "phase",
+    "faults",
+)
+"""Every column of a flight log, in file order."""
+
+EVENT_COLUMNS = ("t_vehicle_s", "t_wall_s", "kind", "detail")
+
+
+class FlightLogError(Exception):
+    """A flight log that cannot be written or read; the message names the file."""
+
+
+def events_path(log_path: str | Path) -> Path:
+    """``flight.csv`` -> ``flight.events.csv``."""
+    path = Path(log_path)
+    return path.with_name(f"{path.stem}.events.csv")
+
+
+@dataclass(frozen=True)
+class CycleRecord:
+    """What one control cycle logs. Arrays are in q order (:data:`Q_NAMES`); parts that
+    are None are written as empty cells.
+
+    Parameters
+    ----------
+    t_vehicle_s : float
+        Vehicle time (time_boot_ms / 1000) [s].
+    q, q_dot, q_ddot, q_d : array_like, shape (8,)
+        Measured / filtered state and its desired value (SI, ENU/FLU, ZYX Euler).
+    theta_hat : array_like, shape (3,)
+        (m2 [kg], m3 [kg m], m4 [kg m^2]).
+    tau : array_like, shape (8,)
+        Controller output (generalized forces: N, N m).
+    setpoint : AttitudeThrustSetpoint
+        What was sent to PX4.
+    servo_torque_cmd_n_m, servo_torque_meas_n_m, servo_position_rad : array_like, shape (2,)
+        Joint torque commands, torques from present current, joint positions.
+    faults : sequence of str
+        Names of the active faults (no ``;`` in a name).
+    t_wall_s : float, optional
+        Unix time [s]; the writer reads the clock if None.
+    """
+
+    t_vehicle_s: float
+    q: ArrayLike | None = None
+    q_dot: ArrayLike | None = None
+    q_ddot: ArrayLike | None = None
+    q_d: ArrayLike | None = None
+    theta_hat: ArrayLike | None = None
+    theta_excitation: float | None = None
+    theta_spread: float | None = None
+    theta_confident: bool | None = None
+    theta_frozen: bool | None = None
+    tau: ArrayLike | None = None
+    setpoint: AttitudeThrustSetpoint | None = None
+    servo_torque_cmd_n_m: ArrayLike | None = None
+    servo_torque_meas_n_m: ArrayLike | None = None
+    servo_position_rad: ArrayLike | None = None
+    px4_mode: str = ""
+    armed: bool | None = None
+    phase: str = ""
+    faults: Sequence[str] = ()
+    t_wall_s: float | None = None
+
+
+def _num(value: float | None) -> str:
+    return "" if value is None else repr(float(value))
+
+
+def _flag(value: bool | None) -> str:
+    return "" if value is None else ("1" if value else "0")
+
+
+def _vec(name: str, values: ArrayLike | None, n: int) -> list[str]:
+    if values is None:
+        return [""] * n
+    arr = np.asarray(values, dtype=np.float64).reshape(-1)
+    if arr.size != n:
+        raise FlightLogError(f"{name} must have {n} entries, got {arr.size}")
+    return [repr(float(v)) for v in arr]
+
+
+def format_row(record: CycleRecord, t_wall_s: float) -> list[str]:
+    """The cells of one row, in :data:`COLUMNS` order (pure)."""
+    r = record
+    if r.theta_hat is None:
+        theta = [""] * 4
+    else:
+        theta = _vec("theta_hat", r.theta_hat, 3)
+        m2, m3 = float(theta[0]), float(theta[1])
+        theta.append(repr(m3 / m2) if m2 != 0.0 else "nan")
+    sp = r.setpoint
+    setpoint = (
+        [""] * 7
+        if sp is None
+        else [
+            *(_num(v) for v in (sp.roll_rad, sp.pitch_rad, sp.yaw_rad, sp.thrust_n)),
+            _num(sp.thrust_normalized),
+            _flag(sp.tilt_saturated),
+            _flag(sp.thrust_saturated),
+        ]
+    )
+    return [
+        _num(r.t_vehicle_s),
+        _num(t_wall_s),
+        *_vec("q", r.q, 8),
+        *_vec("q_dot", r.q_dot, 8),
+        *_vec("q_ddot", r.q_ddot, 8),
+        *_vec("q_d", r.q_d, 8),
+        *theta,
+        _num(r.theta_excitation),
+        _num(r.theta_spread),
+        _flag(r.theta_confident),
+        _flag(r.theta_frozen),
+        *_vec("tau", r.tau, 8),
+        *setpoint,
+        *_vec("servo_torque_cmd_n_m", r.servo_torque_cmd_n_m, 2),
+        *_vec("servo_torque_meas_n_m", r.servo_torque_meas_n_m, 2),
+        *_vec("servo_position_rad", r.servo_position_rad, 2),
+        r.px4_mode,
+        _flag(r.armed),
+        r.phase,
+        ";".join(r.faults),
+    ]
+
+
+class FlightLogWriter:
+    """Writes ``LOG.csv`` and ``LOG.events.csv`` (see the module docstring).
+
+    Nothing is opened in the constructor; use ``with FlightLogWriter(path) as log`` or
+    :meth:`open` / :meth:`close` (idempotent). Existing files are replaced.
+
+    Parameters
+    ----------
+    path : str or Path
+        The cycle log; its directory must exist.
+    flush_every_rows : int
+        Hand buffered rows to the OS every this many rows.
+    """
+
+    def __init__(self, path: str | Path, flush_every_rows: int = 250) -> None:
+        if flush_every_rows < 1:
+            raise ValueError("flush_every_rows must be at least 1")
+        self.path = Path(path)
+        self.events_path = events_path(self.path)
+        self.flush_every_rows = flush_every_rows
+        self.rows = 0
+        self._files: list[IO[str]] = []
+        self._rows: Any = None
+        self._events: Any = None
+        self._mode = ""
+        self._phase = ""
+        self._faults: frozenset[str] = frozenset()
+        self._closed = False
+
+    def __enter__(self) -> FlightLogWriter:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def open(self) -> None:
+        if self._files or self._closed:
+            raise FlightLogError(f"{self.path}: a FlightLogWriter opens once")
+        try:
+            for p in (self.path, self.events_path):
+                f = open(p, "w", newline="", encoding="utf-8", buffering=1 << 20)
+                self._files.append(f)
+        except OSError as exc:
+            self.close()
+            raise FlightLogError(f"{exc.filename}: cannot write: {exc.strerror}") from None
+        self._rows = csv.writer(self._files[0])
+        self._events = csv.writer(self._files[1])
+        self._rows.writerow(COLUMNS)
+        self._events.writerow(EVENT_COLUMNS)
+
+    def write(self, record: CycleRecord) -> None:
+        """Append one cycle; writes ``mode`` / ``phase`` / ``fault`` events on changes."""
+        if self._rows is None:
+            raise FlightLogError(f"{self.path}: the log is not open")
+        t_wall = time.time() if record.t_wall_s is None else record.t_wall_s
+        self._rows.writerow(format_row(record, t_wall))
+        self.rows += 1
+        t = record.t_vehicle_s
+        if record.px4_mode != self._mode:
+            self.event("mode", f"{self._mode}->{record.px4_mode}", t, t_wall)
+            self._mode = record.px4_mode
+        if record.phase != self._phase:
+            self.event("phase", f"{self._phase}->{record.phase}", t, t_wall)
+            self._phase = record.phase
+        faults = frozenset(record.faults)
+        if faults != self._faults:
+            for name in sorted(faults - self._faults):
+                self.event("fault", name, t, t_wall)
+            for name in sorted(self._faults - faults):
+                self.event("fault_cleared", name, t, t_wall)
+            self._faults = faults
+        if self.rows % self.flush_every_rows == 0:
+            self._files[0].flush()
+
+    def event(
+        self, kind: str, detail: str, t_vehicle_s: float, t_wall_s: float | None = None
+    ) -> None:
+        """Append an event (flushed at once: events are rare and matter after a crash)."""
+        if self._events is None:
+            raise FlightLogError(f"{self.path}: the log is not open")
+        t_wall = time.time() if t_wall_s is None else t_wall_s
+        self._events.writerow((_num(t_vehicle_s), _num(t_wall), kind, detail))
+        self._files[1].flush()
+
+    def close(self) -> None:
+        """Flush, fsync and close both files (idempotent)."""
+        self._closed = True
+        files, self._files = self._files, []
+        self._rows = self._events = None
+        for f in files:
+            f.flush()
+            os.fsync(f.fileno())
+            f.close()
+
+
+@dataclass(frozen=True)
+class FlightLog:
+    """A flight log read back: one numpy array per column, and the events."""
+
+    path: Path
+    columns: dict[str, NDArray]
+    """Numeric columns as float64 (empty cells NaN); :data:`TEXT_COLUMNS` as str arrays."""
+    events: dict[str, NDArray]
+    """Event columns (``t_vehicle_s``, ``t_wall_s`` float64; ``kind``, ``detail`` str)."""
+
+    def __getitem__(self, name: str) -> NDArray:
+        return self.columns[name]
+
+    def __len__(self) -> int:
+        return len(self.columns["t_vehicle_s"])
+
+
+def _read_csv(path: Path, expected: Sequence[str], text: Iterable[str]) -> dict[str, NDArray]:
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            rows = list(csv.reader(f))
+    except OSError as exc:
+        raise FlightLogError(f"{path}: cannot read: {exc.strerror}") from None
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise FlightLogError(f"{path}: not a CSV flight log: {exc}") from None
+    if not rows:
+        raise FlightLogError(f"{path}: empty file, expected a header row")
+    header = rows[0]
+    if tuple(header) != tuple(expected):
+        missing = [c for c in expected if c not in header]
+        unknown = [c for c in header if c not in expected]
+        raise FlightLogError(
+            f"{path}: not a flight log header (missing {missing[:5]}, unknown {unknown[:5]})"
+        )
+    text = set(text)
+    values: dict[str, list] = {name: [] for name in header}
+    for line_no, row in enumerate(rows[1:], start=2):
+        if len(row) != len(header):
+            raise FlightLogError(
+                f"{path}, line {line_no}: {len(row)} cells, expected {len(header)}"
+            )
+        for name, cell in zip(header, row, strict=True):
+            if name in text:
+                values[name].append(cell)
+                continue
+            try:
+                values[name].append(float(cell) if cell else math.nan)
+            except ValueError:
+                raise FlightLogError(
+                    f"{path}, line {line_no}: {name} = {cell!r} is not a number"
+                ) from None
+    return {
+        name: np.array(v, dtype=str) if name in text else np.array(v, dtype=np.float64)
+        for name, v in values.items()
+    }
+
+
+def read_flight_log(path: str | Path) -> FlightLog:
+    """Read ``LOG.csv`` and ``LOG.events.csv`` (absent events file: no events).
+
+    Raises ``FlightLogError`` naming the file and line for a missing file, a foreign
+    header, a ragged row or a non-numeric cell.
+    """
+    path = Path(path)
+    columns = _read_csv(path, COLUMNS, TEXT_COLUMNS)
+    ev_path = events_path(path)
+    if ev_path.exists():
+        events = _read_csv(ev_path, EVENT_COLUMNS, ("kind", "detail"))
+    else:
+        events = {
+            name: np.array([], dtype=str if name in ("kind", "detail") else np.float64)
+            for name in EVENT_COLUMNS
+        }
+    return FlightLog(path, columns, events)

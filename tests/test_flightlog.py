@@ -1,0 +1,168 @@
+"""Flight log: write cycles and events, read them back exactly; clear errors for bad files."""
+
+import csv
+import math
+
+import numpy as np
+import pytest
+
+from companion.flightlog import (
+    COLUMNS,
+    CycleRecord,
+    FlightLogError,
+    FlightLogWriter,
+    events_path,
+    read_flight_log,
+)
+from companion.setpoints import AttitudeThrustSetpoint
+
+
+def record(i, mode="POSCTL", phase="takeoff", faults=()):
+    rng = np.random.default_rng(i)
+    return CycleRecord(
+        t_vehicle_s=10.0 + 0.004 * i,
+        t_wall_s=1.7e9 + 0.004 * i,
+        q=rng.normal(size=8),
+        q_dot=rng.normal(size=8),
+        q_ddot=rng.normal(size=8),
+        q_d=rng.normal(size=8),
+        theta_hat=(0.35, 0.035, 0.0035),
+        theta_excitation=0.02,
+        theta_spread=float("inf") if i == 0 else 0.01,
+        theta_confident=i > 2,
+        theta_frozen=False,
+        tau=rng.normal(size=8),
+        setpoint=AttitudeThrustSetpoint(0.01, -0.02, 0.3, 14.2, 0.47, False, i == 4),
+        servo_torque_cmd_n_m=(0.1, -0.2),
+        servo_torque_meas_n_m=(0.09, -0.21),
+        servo_position_rad=(-1.5, 0.3),
+        px4_mode=mode,
+        armed=True,
+        phase=phase,
+        faults=faults,
+    )
+
+
+def test_round_trip_is_exact(tmp_path):
+    path = tmp_path / "flight.csv"
+    records = [record(i) for i in range(5)]
+    with FlightLogWriter(path, flush_every_rows=2) as log:
+        for r in records:
+            log.write(r)
+    out = read_flight_log(path)
+    assert len(out) == 5
+    assert tuple(out.columns) == COLUMNS
+    q = np.stack([out[c] for c in COLUMNS if c.startswith("q_")], axis=1)
+    np.testing.assert_array_equal(q, np.stack([r.q for r in records]))
+    tau = np.stack([out[c] for c in COLUMNS if c.startswith("tau_")], axis=1)
+    np.testing.assert_array_equal(tau, np.stack([r.tau for r in records]))
+    np.testing.assert_array_equal(out["t_vehicle_s"], [r.t_vehicle_s for r in records])
+    assert out["theta_hat_lc_m"] == pytest.approx([0.1] * 5)
+    assert out["theta_spread"][0] == math.inf
+    np.testing.assert_array_equal(out["theta_confident"], [0, 0, 0, 1, 1])
+    np.testing.assert_array_equal(out["sp_thrust_saturated"], [0, 0, 0, 0, 1])
+    assert out["thrust_norm"] == pytest.approx([0.47] * 5)
+    assert list(out["px4_mode"]) == ["POSCTL"] * 5
+
+
+def test_header_is_one_row_with_units_and_pandas_style(tmp_path):
+    path = tmp_path / "flight.csv"
+    with FlightLogWriter(path) as log:
+        log.write(record(0))
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == list(COLUMNS)
+    assert len(rows) == 2 and len(rows[1]) == len(COLUMNS)
+    for name in ("q_x_m", "qdot_phi_rad_s", "qddot_eta2_rad_s2", "theta_hat_m2_kg",
+                 "tau_z_n", "tau_eta1_n_m", "thrust_norm", "servo_tau_meas_eta2_n_m"):  # fmt: skip
+        assert name in COLUMNS
+
+
+def test_missing_parts_are_empty_cells_read_as_nan(tmp_path):
+    path = tmp_path / "flight.csv"
+    with FlightLogWriter(path) as log:
+        log.write(CycleRecord(t_vehicle_s=1.0, q=np.zeros(8)))
+    out = read_flight_log(path)
+    assert out["q_x_m"][0] == 0.0
+    assert np.isnan(out["tau_x_n"][0]) and np.isnan(out["theta_hat_lc_m"][0])
+    assert np.isnan(out["armed"][0])
+    assert out["faults"][0] == ""
+
+
+def test_mode_phase_and_fault_changes_become_events(tmp_path):
+    path = tmp_path / "flight.csv"
+    with FlightLogWriter(path) as log:
+        log.write(record(0, mode="POSCTL"))
+        log.write(record(1, mode="OFFBOARD", phase="grasp"))
+        log.write(record(2, mode="OFFBOARD", phase="grasp", faults=("servo_timeout",)))
+        log.write(record(3, mode="LAND", phase="grasp", faults=("servo_timeout", "tilt_sat")))
+        log.write(record(4, mode="LAND", phase="grasp"))
+        log.event("note", "operator abort, with a comma", 10.02)
+    events = read_flight_log(path).events
+    got = list(zip(events["kind"], events["detail"], strict=True))
+    assert got == [
+        ("mode", "->POSCTL"),
+        ("phase", "->takeoff"),
+        ("mode", "POSCTL->OFFBOARD"),
+        ("phase", "takeoff->grasp"),
+        ("fault", "servo_timeout"),
+        ("mode", "OFFBOARD->LAND"),
+        ("fault", "tilt_sat"),
+        ("fault_cleared", "servo_timeout"),
+        ("fault_cleared", "tilt_sat"),
+        ("note", "operator abort, with a comma"),
+    ]
+    assert events["t_vehicle_s"][2] == pytest.approx(10.004)
+    assert read_flight_log(path)["faults"][3] == "servo_timeout;tilt_sat"
+
+
+def test_rows_reach_the_file_every_n_rows_before_close(tmp_path):
+    path = tmp_path / "flight.csv"
+    log = FlightLogWriter(path, flush_every_rows=3)
+    log.open()
+    for i in range(3):
+        log.write(record(i))
+    assert len(read_flight_log(path)) == 3  # flushed, still open
+    log.write(record(3))
+    log.close()
+    log.close()
+    assert len(read_flight_log(path)) == 4
+    with pytest.raises(FlightLogError, match="not open"):
+        log.write(record(5))
+
+
+def test_bad_records_and_paths(tmp_path):
+    with pytest.raises(FlightLogError, match="cannot write"):
+        FlightLogWriter(tmp_path / "no" / "dir.csv").open()
+    with FlightLogWriter(tmp_path / "f.csv") as log, pytest.raises(FlightLogError, match="q must"):
+        log.write(CycleRecord(t_vehicle_s=0.0, q=np.zeros(7)))
+    with pytest.raises(ValueError):
+        FlightLogWriter(tmp_path / "g.csv", flush_every_rows=0)
+
+
+@pytest.mark.parametrize(
+    ("content", "reason"),
+    [
+        ("", "empty file"),
+        ("a,b,c\n1,2,3\n", "not a flight log header"),
+        (",".join(COLUMNS) + "\n1,2\n", "line 2: 2 cells"),
+        (",".join(COLUMNS) + "\n" + ",".join(["x"] * len(COLUMNS)) + "\n", "is not a number"),
+    ],
+)
+def test_malformed_logs_raise_with_file_and_line(tmp_path, content, reason):
+    path = tmp_path / "bad.csv"
+    path.write_text(content)
+    with pytest.raises(FlightLogError, match=reason) as info:
+        read_flight_log(path)
+    assert str(path) in str(info.value)
+
+
+def test_missing_log_and_missing_events_file(tmp_path):
+    with pytest.raises(FlightLogError, match="cannot read"):
+        read_flight_log(tmp_path / "absent.csv")
+    path = tmp_path / "flight.csv"
+    with FlightLogWriter(path) as log:
+        log.write(record(0))
+    events_path(path).unlink()
+    assert len(read_flight_log(path).events["kind"]) == 0
+    assert events_path(path).name == "flight.events.csv"
