@@ -49,6 +49,7 @@ import enum
 import importlib
 import logging
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from arm_driver.errors import ArmDriverError, BusTimeoutError, CommunicationError, LimitError
@@ -61,6 +62,7 @@ __all__ = [
     "BusFailedError",
     "BusState",
     "BusStateError",
+    "DeviceInfo",
     "GripperConfig",
     "JointConfig",
     "JointState",
@@ -71,6 +73,7 @@ __all__ = [
     "open_bus",
     "open_buses",
     "register_backend",
+    "scan_bus",
 ]
 
 _LOG = logging.getLogger(__name__)
@@ -109,6 +112,25 @@ class UnsupportedModeError(ArmDriverError, ValueError):
 
 class BackendUnavailableError(ArmDriverError, LookupError):
     """No backend of that name, or one that is planned but not implemented."""
+
+
+@dataclass(frozen=True)
+class DeviceInfo:
+    """A servo found by :func:`scan_bus`.
+
+    Attributes
+    ----------
+    servo_id
+        Its id on the bus (Dynamixel id, DroneCAN actuator id).
+    model
+        What it says it is (Dynamixel model number, DroneCAN node id and name).
+    firmware
+        Its firmware or software version, as the device reports it.
+    """
+
+    servo_id: int
+    model: str
+    firmware: str
 
 
 _OPEN_BUSES: set[ArmBus] = set()
@@ -429,6 +451,17 @@ class ArmBus(abc.ABC):
         """Best effort: limp joints in current or unknown mode (see the module docstring)."""
 
     @classmethod
+    async def scan(cls, device: str, ids: Sequence[int], **options: Any) -> list[DeviceInfo]:
+        """Find the servos on a bus without opening it for control (bench bring-up).
+
+        Raises
+        ------
+        BackendUnavailableError
+            The backend cannot scan.
+        """
+        raise BackendUnavailableError(f"{cls.__name__} cannot scan a bus")
+
+    @classmethod
     def options_from_url(cls, options: Mapping[str, str]) -> dict[str, Any]:
         """Convert a URL's query options to constructor keywords; reject unknown ones."""
         if options:
@@ -512,3 +545,29 @@ def open_bus(
     if both:
         raise ValueError(f"option(s) {both} given both in the URL and as keywords")
     return cls(parsed.device, joints, gripper=gripper, **from_url, **options)
+
+
+async def scan_bus(url: str, ids: Sequence[int] | None = None) -> list[DeviceInfo]:
+    """The servos answering on the bus a URL names, in id order.
+
+    Parameters
+    ----------
+    url
+        Bus URL, as for :func:`open_bus`.
+    ids
+        Ids to look for; None: every id the backend can address.
+
+    Raises
+    ------
+    BackendUnavailableError, ValueError
+        As :func:`open_bus`.
+    ArmDriverError
+        The link cannot be opened.
+    """
+    parsed = parse_bus_url(url)
+    cls = backend_class(parsed.backend)
+    return await cls.scan(
+        parsed.device,
+        list(range(256)) if ids is None else list(ids),
+        **cls.options_from_url(parsed.options),
+    )

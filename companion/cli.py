@@ -16,6 +16,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from companion.cli_arm import app as arm_app
 from companion.config import ConfigError, Scenario, load_scenario
 
 EXIT_USAGE = 2
@@ -236,6 +237,9 @@ def compare(
     write_summary({name: r.summary for name, r in runs}, out / "summaries.json")
     plot_comparison(runs, out)
     Console().print(table, markup=False, highlight=False)
+
+
+app.add_typer(arm_app, name="arm")
 
 
 def main() -> None:

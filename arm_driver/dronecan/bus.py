@@ -63,7 +63,14 @@ import dronecan
 from dronecan.node import Node
 from dronecan.transport import TransferError
 
-from arm_driver.bus import ArmBus, GripperConfig, JointConfig, JointState, OperatingMode
+from arm_driver.bus import (
+    ArmBus,
+    DeviceInfo,
+    GripperConfig,
+    JointConfig,
+    JointState,
+    OperatingMode,
+)
 from arm_driver.dronecan.can_driver import PythonCanDriver
 from arm_driver.errors import (
     ArmDriverError,
@@ -80,6 +87,8 @@ _NODE_STATUS = dronecan.uavcan.protocol.NodeStatus
 _ARMING = dronecan.uavcan.equipment.safety.ArmingStatus
 MAX_COMMANDS_PER_MESSAGE = 15
 """``actuator.ArrayCommand`` carries at most 15 commands (DSDL ``Command[<=15]``)."""
+_SCAN_LISTEN_S = 1.1
+_SCAN_INFO_TIMEOUT_S = 0.5
 FORCE = _ACTUATOR.Command().COMMAND_TYPE_FORCE
 POSITION = _ACTUATOR.Command().COMMAND_TYPE_POSITION
 
@@ -282,7 +291,8 @@ class DroneCanBus(ArmBus):
 
     # -- hooks ------------------------------------------------------------------------------
 
-    async def _open_hook(self) -> tuple[OperatingMode | None, bool | None]:
+    def _start_node(self) -> None:
+        """Open the CAN bus, start receiving and make our node (nothing is awaited)."""
         self._status.clear()
         self._health.clear()
         self.damaged_transfers = 0
@@ -312,9 +322,55 @@ class DroneCanBus(ArmBus):
         )
         self._node.add_handler(_ACTUATOR.Status, self._on_status)
         self._node.add_handler(_NODE_STATUS, self._on_node_status)
+
+    async def _open_hook(self) -> tuple[OperatingMode | None, bool | None]:
+        self._start_node()
         await self._wait_for_status(self._ids, -math.inf, self._open_timeout_s)
         self._check_health(self._ids)
         return None, None
+
+    @classmethod
+    async def scan(cls, device: str, ids: Sequence[int], **options: Any) -> list[DeviceInfo]:
+        """Listen for ``listen_s`` (1.1 s: NodeStatus comes at least every second) for the
+        actuators in ``ids`` publishing Status, then ask each hosting node for its
+        ``protocol.GetNodeInfo`` (name, software version)."""
+        probe = cls(device, [JointConfig("probe", 0, 1.0, 0.0)], **options)
+        probe._start_node()
+        node = probe._node
+        assert node is not None
+        infos: dict[int, Any] = {}
+        try:
+            loop = asyncio.get_running_loop()
+            end = loop.time() + _SCAN_LISTEN_S
+            while loop.time() < end:
+                probe._pump()
+                await asyncio.sleep(0.01)
+            nodes = {s.node_id for i, s in probe._status.items() if i in ids}
+            for node_id in sorted(nodes):
+                node.request(
+                    dronecan.uavcan.protocol.GetNodeInfo.Request(),
+                    node_id,
+                    lambda event, n=node_id: infos.__setitem__(n, event),
+                    timeout=_SCAN_INFO_TIMEOUT_S,
+                )
+            end = loop.time() + _SCAN_INFO_TIMEOUT_S
+            while loop.time() < end and len(infos) < len(nodes):
+                probe._pump()
+                await asyncio.sleep(0.01)
+        finally:
+            await probe._close_hook()
+        found = []
+        for actuator_id in sorted(i for i in probe._status if i in ids):
+            node_id = probe._status[actuator_id].node_id
+            event = infos.get(node_id)
+            if event is None:
+                name, version = "no GetNodeInfo answer", "?"
+            else:
+                name = bytes(event.response.name).decode("ascii", "replace")
+                sw = event.response.software_version
+                version = f"{sw.major}.{sw.minor}"
+            found.append(DeviceInfo(actuator_id, f"DroneCAN node {node_id} {name!r}", version))
+        return found
 
     async def _close_hook(self) -> None:
         if self._node is not None:

@@ -54,6 +54,7 @@ from typing import Any, TypeVar
 from arm_driver.bus import (
     ArmBus,
     BusStateError,
+    DeviceInfo,
     GripperConfig,
     JointConfig,
     JointState,
@@ -107,6 +108,7 @@ _POSITION_MODES = {
 }
 
 T = TypeVar("T")
+_MODEL_NAMES = {ct.XM430_W350_MODEL_NUMBER: "XM430-W350"}
 
 
 @dataclass(frozen=True)
@@ -220,6 +222,32 @@ class DynamixelBus(ArmBus):
             except ValueError:
                 raise ValueError(f"dynamixel option {name}={text!r} is not valid") from None
         return kwargs
+
+    @classmethod
+    async def scan(cls, device: str, ids: Sequence[int], **options: Any) -> list[DeviceInfo]:
+        """Ping each id in ``ids`` (those above 252 are skipped); one deadline per id."""
+        ids = [i for i in ids if 0 <= i <= MAX_ID]
+        probe = cls(device, [JointConfig("probe", 0, 1.0, 0.0)], **options)
+        found = []
+        await probe._transport.open()
+        try:
+            for servo_id in ids:
+                try:
+                    (reply,) = await probe._exchange(encode_ping(servo_id), [servo_id], 3)
+                except BusTimeoutError:
+                    continue
+                info = parse_ping_reply(reply, servo_id, ignore_alert=True)
+                name = _MODEL_NAMES.get(info.model_number, "unknown model")
+                found.append(
+                    DeviceInfo(
+                        servo_id,
+                        f"Dynamixel model {info.model_number} ({name})",
+                        str(info.firmware_version),
+                    )
+                )
+        finally:
+            probe._transport.close()
+        return found
 
     # -- transactions -------------------------------------------------------------------
 

@@ -55,7 +55,10 @@ from arm_driver.errors import NodeHealth
 from sitl.servo.can_actuator import CanActuator
 from sitl.servo.pty_server import Faults
 
-__all__ = ["RESTART_MAGIC", "DroneCanActuatorNode"]
+__all__ = ["NODE_NAME", "RESTART_MAGIC", "DroneCanActuatorNode"]
+
+NODE_NAME = "org.sitl.servo.actuator"
+"""Name the emulated node gives in ``protocol.GetNodeInfo`` (software version 1.0)."""
 
 _ACTUATOR = dronecan.uavcan.equipment.actuator
 _NODE_STATUS = dronecan.uavcan.protocol.NodeStatus
@@ -170,6 +173,8 @@ class DroneCanActuatorNode:
             mode=_NODE_STATUS().MODE_OPERATIONAL,
             node_status_interval=self._node_status_period_s,
         )
+        node.node_info.name = list(NODE_NAME.encode())
+        node.node_info.software_version.major, node.node_info.software_version.minor = 1, 0
         node.add_handler(_ACTUATOR.ArrayCommand, self._on_command)
         node.add_handler(dronecan.uavcan.equipment.safety.ArmingStatus, self._on_arming)
         node.add_handler(dronecan.uavcan.protocol.RestartNode, self._on_restart)

@@ -1,0 +1,196 @@
+"""``companion arm ...``: bench bring-up of the arm's servo bus.
+
+- ``companion arm scan --bus URL [--ids 1-10]``: the servos that answer, with model and
+  firmware (Dynamixel: a Ping per id, 0-252 by default; DroneCAN: actuators publishing
+  Status within 1.1 s, and their node's GetNodeInfo);
+- ``companion arm status --bus URL [--config FILE]``: mode, torque and every joint's
+  position [deg], velocity [deg/s] and torque [N m];
+- ``companion arm move --bus URL --joint NAME|INDEX --deg D [--config FILE]``: puts the
+  joints in position mode if needed (torque off, mode, torque on: the arm is limp for a
+  moment), commands one joint to ``D`` degrees and waits up to 5 s for it to get there.
+  The servos keep holding the position after the command exits.
+
+Joints come from the ``[arm_bus]`` section of ``--config`` (a scenario TOML), or, without
+it, from :data:`DEFAULT_JOINTS`: ``joint1`` and ``joint2`` on ids 1 and 2, direction +1,
+zero offset 0, limits +-180 deg, torque limit 1 N m, torque constant 1.78 N m/A (the
+XM430-W350 datasheet's stall torque over stall current). User mistakes (bad URL, no such
+device, a servo that does not answer, a limit) print one ``error: ...`` line and exit
+with status 2.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+from typing import Annotated, Any, TypeVar
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from arm_driver.bus import ArmBus, GripperConfig, JointConfig, OperatingMode, open_bus, scan_bus
+from arm_driver.errors import ArmDriverError
+from companion.config import ConfigError, arm_bus_configs, load_scenario
+
+__all__ = ["DEFAULT_JOINTS", "app"]
+
+EXIT_USAGE = 2
+T = TypeVar("T")
+
+DEFAULT_JOINTS = (
+    JointConfig("joint1", 1, 4.1 / 2.3, torque_max_n_m=1.0),
+    JointConfig("joint2", 2, 4.1 / 2.3, torque_max_n_m=1.0),
+)
+"""Joints used without ``--config`` (see the module docstring)."""
+_MOVE_TIMEOUT_S = 5.0
+_MOVE_TOLERANCE_RAD = math.radians(1.0)
+
+app = typer.Typer(
+    name="arm",
+    help="Bench bring-up of the arm's servo bus (Dynamixel or DroneCAN).",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+
+BusOption = Annotated[
+    str,
+    typer.Option(
+        "--bus",
+        help="Bus URL, e.g. dynamixel:///dev/ttyUSB0?baud=1000000 or "
+        "dronecan://can0?interface=socketcan&node_id=10.",
+    ),
+]
+ConfigOption = Annotated[
+    Path | None,
+    typer.Option("--config", help="Scenario TOML whose [arm_bus] section gives the joints."),
+]
+
+
+def _fail(message: str) -> typer.Exit:
+    typer.echo(f"error: {message}", err=True)
+    return typer.Exit(EXIT_USAGE)
+
+
+def _run(work: Callable[[], Awaitable[T]]) -> T:
+    """Run async work; driver errors and bad input become one line and exit status 2."""
+    try:
+        return asyncio.run(work())
+    except (ArmDriverError, ValueError) as error:
+        raise _fail(str(error).splitlines()[0]) from None
+
+
+def _joints(config: Path | None) -> tuple[tuple[JointConfig, ...], GripperConfig | None]:
+    if config is None:
+        return DEFAULT_JOINTS, None
+    try:
+        section = load_scenario(config).arm_bus
+    except ConfigError as error:
+        raise _fail(str(error).splitlines()[0]) from None
+    if section is None:
+        raise _fail(f"{config}: no [arm_bus] section")
+    return arm_bus_configs(section)
+
+
+def _parse_ids(text: str | None) -> list[int] | None:
+    if text is None:
+        return None
+    ids: list[int] = []
+    try:
+        for part in text.split(","):
+            low, _, high = part.partition("-")
+            ids.extend(range(int(low), int(high or low) + 1))
+    except ValueError:
+        raise _fail(f"--ids {text!r}: expected ids and ranges like 1-5,7") from None
+    return ids
+
+
+@app.command()
+def scan(
+    bus: BusOption,
+    ids: Annotated[
+        str | None, typer.Option("--ids", help="Ids to look for, e.g. 1-5,7 (default: all).")
+    ] = None,
+) -> None:
+    """List the servos that answer: id, model, firmware."""
+    wanted = _parse_ids(ids)
+    found = _run(lambda: scan_bus(bus, wanted))
+    if not found:
+        raise _fail(f"no servo answered on {bus}")
+    table = Table(show_header=True)
+    for column in ("id", "model", "firmware"):
+        table.add_column(column)
+    for device in found:
+        table.add_row(str(device.servo_id), device.model, device.firmware)
+    Console().print(table)
+
+
+def _state_table(bus: ArmBus, states: dict[str, Any]) -> Table:
+    mode = "unknown" if bus.operating_mode is None else bus.operating_mode.value
+    torque = {True: "on", False: "off", None: "unknown"}[bus.torque_enabled]
+    table = Table(title=f"mode {mode}, torque {torque}", show_header=True)
+    for column in ("joint", "id", "position [deg]", "velocity [deg/s]", "torque [N m]"):
+        table.add_column(column, justify="right")
+    for joint in bus.joints:
+        s = states[joint.name]
+        table.add_row(
+            joint.name,
+            str(joint.servo_id),
+            f"{math.degrees(s.position_rad):.2f}",
+            f"{math.degrees(s.velocity_rad_s):.2f}",
+            f"{s.torque_n_m:.3f}",
+        )
+    return table
+
+
+@app.command()
+def status(bus: BusOption, config: ConfigOption = None) -> None:
+    """Read every joint's state once."""
+    joints, gripper = _joints(config)
+
+    async def work() -> Table:
+        async with open_bus(bus, joints, gripper=gripper) as arm:
+            return _state_table(arm, await arm.read_joint_states())
+
+    Console().print(_run(work))
+
+
+@app.command()
+def move(
+    bus: BusOption,
+    joint: Annotated[str, typer.Option("--joint", help="Joint name, or its 1-based index.")],
+    deg: Annotated[float, typer.Option("--deg", help="Goal joint angle [deg].")],
+    config: ConfigOption = None,
+) -> None:
+    """Move one joint to an angle in position mode and wait for it."""
+    joints, gripper = _joints(config)
+    names = [j.name for j in joints]
+    if joint.isdigit() and 1 <= int(joint) <= len(joints):
+        joint = names[int(joint) - 1]
+    if joint not in names:
+        raise _fail(f"--joint {joint!r}: joints are {names} (or 1-{len(names)})")
+    goal = math.radians(deg)
+
+    async def work() -> Table:
+        async with open_bus(bus, joints, gripper=gripper) as arm:
+            if arm.operating_mode is not OperatingMode.POSITION or arm.torque_enabled is not True:
+                await arm.disable_torque()
+                await arm.set_operating_mode(OperatingMode.POSITION)
+                await arm.enable_torque()
+            await arm.write_joint_positions({joint: goal})
+            deadline = time.monotonic() + _MOVE_TIMEOUT_S
+            while True:
+                states = await arm.read_joint_states()
+                if abs(states[joint].position_rad - goal) <= _MOVE_TOLERANCE_RAD:
+                    return _state_table(arm, states)
+                if time.monotonic() > deadline:
+                    raise ArmDriverError(
+                        f"joint {joint!r} is at {math.degrees(states[joint].position_rad):.1f} "
+                        f"deg, not {deg:g} deg, after {_MOVE_TIMEOUT_S:g} s"
+                    )
+                await asyncio.sleep(0.02)
+
+    Console().print(_run(work))
