@@ -17,6 +17,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from companion.cli_arm import app as arm_app
+from companion.cli_plot import plot as plot_command
 from companion.config import ConfigError, Scenario, load_scenario
 
 EXIT_USAGE = 2
@@ -240,6 +241,7 @@ def compare(
 
 
 app.add_typer(arm_app, name="arm")
+app.command(name="plot")(plot_command)
 
 
 def main() -> None:

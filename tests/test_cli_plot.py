@@ -1,0 +1,77 @@
+"""``companion plot LOG --out DIR``: figures from a flight log; exit 2 for a bad log."""
+
+import numpy as np
+import pytest
+
+from companion.flightlog import CycleRecord, FlightLogWriter
+from companion.setpoints import AttitudeThrustSetpoint
+
+
+@pytest.fixture
+def flight_log(tmp_path):
+    path = tmp_path / "flight.csv"
+    with FlightLogWriter(path) as log:
+        for i in range(200):
+            t = 0.004 * i
+            q = np.array([0.5 * np.cos(t), -0.5 * np.cos(t), 0.7, 0.01, -0.01, 0.0, -1.5, 0.2])
+            log.write(
+                CycleRecord(
+                    t_vehicle_s=100.0 + t,
+                    q=q,
+                    q_dot=np.zeros(8),
+                    q_ddot=np.zeros(8),
+                    q_d=q + 0.01,
+                    theta_hat=(0.1 + 0.001 * i, 0.01, 0.001),
+                    theta_excitation=1e-3 * (i + 1),
+                    theta_spread=1.0 / (i + 1),
+                    theta_confident=i > 120,
+                    theta_frozen=False,
+                    tau=np.ones(8),
+                    setpoint=AttitudeThrustSetpoint(0.01, -0.01, 0.0, 14.0, 0.5, False, False),
+                    servo_torque_cmd_n_m=(0.1, 0.02),
+                    servo_torque_meas_n_m=(0.11, 0.019),
+                    servo_position_rad=(-1.5, 0.2),
+                    px4_mode="POSCTL" if i < 50 else "OFFBOARD",
+                    armed=True,
+                    phase="excite",
+                )
+            )
+    return path
+
+
+def test_plot_writes_the_three_figures(run_cli, flight_log, tmp_path):
+    out = tmp_path / "figures"
+    result = run_cli("plot", str(flight_log), "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    for name in ("tracking.png", "estimation.png", "arm.png"):
+        data = (out / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n"
+        assert len(data) > 10_000  # drawn, not an empty canvas
+    assert "200 rows" in result.stdout
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (None, "cannot read"),
+        ("time,x\n0,1\n", "not a flight log header"),
+    ],
+)
+def test_bad_log_is_one_error_line_and_exit_2(run_cli, tmp_path, content, message):
+    log = tmp_path / "flight.csv"
+    if content is not None:
+        log.write_text(content)
+    result = run_cli("plot", str(log), "--out", str(tmp_path / "out"))
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and message in lines[0]
+    assert not (tmp_path / "out").exists()
+
+
+def test_empty_log_is_refused(run_cli, tmp_path):
+    log = tmp_path / "flight.csv"
+    with FlightLogWriter(log):
+        pass  # header only
+    result = run_cli("plot", str(log), "--out", str(tmp_path / "out"))
+    assert result.returncode == 2
+    assert "no rows" in result.stderr
