@@ -91,8 +91,8 @@ class PositionController:
     ) -> AttitudeSetpoint:
         """One controller step of ``dt_s`` seconds toward ``target`` from measurement ``m``."""
         p = self._params
-        pos = m.position_enu_m
-        vel = m.velocity_enu_m_s
+        pos = m.position_enu_m.tolist()
+        vel = m.velocity_enu_m_s.tolist()
         vx = p["MPC_XY_P"] * (target.east_m - pos[0])
         vy = p["MPC_XY_P"] * (target.north_m - pos[1])
         horizontal = math.hypot(vx, vy)
