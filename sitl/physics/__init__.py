@@ -17,6 +17,7 @@ Modules: :mod:`~sitl.physics.plant` (integration, modes, payload),
 """
 
 from sitl.physics.attitude_control import AttitudeSetpoint
+from sitl.physics.backends import PHYSICS_BACKENDS, BackendError, PhysicsBackend, make_plant
 from sitl.physics.errors import (
     EulerSingularityError,
     PlantDivergedError,
@@ -27,13 +28,17 @@ from sitl.physics.plant import PlantMode, TruthPlant
 from sitl.physics.state import ActuatorState, PlantState
 
 __all__ = [
+    "PHYSICS_BACKENDS",
     "ActuatorState",
     "AttitudeSetpoint",
+    "BackendError",
     "EulerSingularityError",
+    "PhysicsBackend",
     "PlantDivergedError",
     "PlantError",
     "PlantMode",
     "PlantModeError",
     "PlantState",
     "TruthPlant",
+    "make_plant",
 ]

@@ -1,0 +1,83 @@
+"""Choose the physics backend of the truth plant: Pinocchio (ours) or JSBSim (issue 7).
+
+Both plants have the same public interface in underactuated mode (``reset``, ``step``,
+``state``, ``time_s``, ``actuators``, payload handling, ``true_theta``,
+``total_mass_kg``, ``rate_hz``, ``dt_s``), so the offline simulator and the SITL vehicle
+take either::
+
+    plant = make_plant(scenario, "jsbsim", "underactuated", payload_attached=True,
+                       wind=Wind((3.0, 0.0, 0.0), "milspec", 7.7))
+
+``ideal`` mode (a generalized force on all 8 coordinates) exists only on Pinocchio, and
+wind only on JSBSim (the Pinocchio plant has no atmosphere); asking for either elsewhere
+raises :class:`BackendError`. The JSBSim backend is imported only when asked for.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Literal
+
+from companion.config import Scenario
+from sitl.physics.errors import PlantModeError
+from sitl.physics.plant import PlantMode, TruthPlant
+
+if TYPE_CHECKING:
+    from sitl.physics.jsbsim import JsbsimPlant, Wind
+
+__all__ = ["PHYSICS_BACKENDS", "BackendError", "PhysicsBackend", "make_plant"]
+
+PhysicsBackend = Literal["pinocchio", "jsbsim"]
+PHYSICS_BACKENDS: tuple[PhysicsBackend, ...] = ("pinocchio", "jsbsim")
+
+
+class BackendError(PlantModeError, ValueError):
+    """The backend cannot build this plant (unknown backend, mode or option it lacks)."""
+
+
+def make_plant(
+    scenario: Scenario,
+    physics: PhysicsBackend = "pinocchio",
+    mode: PlantMode = "underactuated",
+    *,
+    payload_attached: bool = False,
+    wind: Wind | None = None,
+) -> TruthPlant | JsbsimPlant:
+    """The truth plant of ``scenario`` on the chosen backend, at rest at ``initial_q``.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Validated scenario.
+    physics : {"pinocchio", "jsbsim"}
+        Backend.
+    mode : {"ideal", "underactuated"}
+        Plant input; ``ideal`` needs ``physics="pinocchio"``.
+    payload_attached : bool
+        Start with the payload grasped.
+    wind : sitl.physics.jsbsim.Wind, optional
+        Steady wind and turbulence; needs ``physics="jsbsim"`` unless calm.
+
+    Raises
+    ------
+    BackendError
+        Unknown backend or mode, ideal mode on JSBSim, or wind on Pinocchio.
+    """
+    if physics not in PHYSICS_BACKENDS:
+        raise BackendError(f"physics must be one of {PHYSICS_BACKENDS}, got {physics!r}")
+    if mode not in ("ideal", "underactuated"):
+        raise BackendError(f"mode must be 'ideal' or 'underactuated', got {mode!r}")
+    if physics == "pinocchio":
+        if wind is not None and not wind.calm:
+            raise BackendError(
+                "wind and turbulence need physics='jsbsim': the Pinocchio plant has no "
+                "atmosphere (its drag acts on the ground velocity)"
+            )
+        return TruthPlant.from_scenario(scenario, mode, payload_attached=payload_attached)
+    if mode == "ideal":
+        raise BackendError(
+            "ideal mode (tau on all 8 rows) exists only with physics='pinocchio': JSBSim "
+            "flies the vehicle through its rotors and attitude loop (mode='underactuated')"
+        )
+    from sitl.physics.jsbsim import JsbsimPlant
+
+    return JsbsimPlant.from_scenario(scenario, payload_attached=payload_attached, wind=wind)

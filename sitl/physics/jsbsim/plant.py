@@ -1,0 +1,570 @@
+"""The JSBSim truth plant: the same vehicle as :class:`sitl.physics.TruthPlant`, other physics.
+
+JSBSim integrates the vehicle (6-DOF rigid body on a non-rotating spherical planet, its own
+multistep integrators, ground contact, wind and Dryden turbulence acting through the
+drag); this module flies it the way the Pinocchio plant's underactuated mode does: the
+PX4-like attitude loop (:class:`~sitl.physics.attitude_control.Px4AttitudeLoop`), PX4's
+mixer, and six lagged rotors with the THR_MDL_FAC thrust curve
+(:class:`~sitl.physics.rotors.RotorBank`), whose thrusts act as JSBSim external forces at
+the rotor hubs. The arm is integrated outside JSBSim (:mod:`sitl.physics.jsbsim.arm`).
+
+Why external rotor forces and not JSBSim's propulsion (electric engine + propeller
+tables): the rotor forces must be those of the configured rotors, so that a difference
+between the backends measures the physics around them, not a re-fitted actuator. JSBSim's
+electric engine has no motor time constant (spin-up follows from power and propeller
+inertia) and its static thrust grows as throttle^(2/3), not along THR_MDL_FAC; matching
+both would take a calibration layer that hides exactly what the comparison should show.
+What that leaves out: propeller inflow (thrust loss in climb and in wind) and rotor drag
+other than the configured linear drag.
+
+One step of 1 / ``plant.rate_hz`` s. JSBSim's ``run()`` first integrates the step with the
+accelerations it computed at the end of the previous ``run()``, then recomputes forces and
+accelerations at the new state with the inputs as they are now; so an input written
+before ``run()`` acts over the *next* step. The plant therefore writes each input one
+step ahead:
+
+1. the autopilot maps the setpoint and the true attitude/rate to motor commands; the rotor
+   lags advance, and the thrusts of the next step are written (the current step's were
+   written one step earlier), so rotor forces act exactly as in the Pinocchio plant;
+2. the arm's joint accelerations follow from the servo torques, the external force on the
+   vehicle and JSBSim's angular acceleration for this step (both already computed by
+   JSBSim; the CoM's motion does not depend on the arm, so the translational coupling is
+   exact); the arm advances and its new pose is written as point masses;
+3. the coupling moment of this step is written: it acts over the next step (the one-step
+   lag of the coupling);
+4. ``run()``.
+
+Where it departs from the Pinocchio plant (besides JSBSim's integrators):
+
+- the rotational coupling with the arm lags one step (see :mod:`sitl.physics.jsbsim.arm`
+  for why it converges: the loop gain is below 1, up to 0.68
+  for the paper arm with payload hanging straight down, 0.29 for the experiment arm);
+- the drag acts at the vehicle CoM O on the velocity of the CG relative to the air
+  (Pinocchio: the velocity of O over the ground); they differ by omega x (CG - O) and by
+  the wind;
+- ground contact: four gear feet (:class:`~sitl.physics.jsbsim.airframe.GearGeometry`)
+  on flat ground at world z = 0; the arm and payload pass through the ground;
+- on a grasp, only the joints' momentum is conserved (the base's share of the impulse is
+  neglected); q_ddot is a finite difference over the step for the base rows.
+
+Units: SI outside, English (ft, lbf, slug, in) at the JSBSim property boundary, converted
+here and in :mod:`sitl.physics.jsbsim.airframe` only.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+from pathlib import Path
+
+import jsbsim
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from companion.config import Scenario, Theta
+from sitl.physics.attitude_control import AttitudeSetpoint, Px4AttitudeLoop
+from sitl.physics.errors import PlantDivergedError, PlantError, PlantModeError
+from sitl.physics.frames import (
+    euler_from_rotation9,
+    euler_rate_matrix,
+    euler_rate_matrix_inverse9,
+    quaternion_from_euler,
+    rotation_from_euler,
+)
+from sitl.physics.jsbsim.airframe import (
+    AIRCRAFT_NAME,
+    ARM_POINT_MASSES,
+    FT_M,
+    LBF_N,
+    LBM_KG,
+    PACKAGE_ROOT,
+    SEA_LEVEL_RADIUS_M,
+    GearGeometry,
+    airframe_xml,
+    structural_in,
+)
+from sitl.physics.jsbsim.arm import ArmDynamics
+from sitl.physics.jsbsim.wind import Wind
+from sitl.physics.rotors import (
+    N_ROTORS,
+    RotorBank,
+    RotorGeometry,
+    SequentialDesaturationMixer,
+    inverse_thrust_curve,
+)
+from sitl.physics.state import ActuatorState, PlantState, frozen_array
+
+__all__ = ["JsbsimError", "JsbsimPlant"]
+
+FloatArray = NDArray[np.float64]
+N_Q = 8
+_LBF_FT_N_M = LBF_N * FT_M
+_HALF_PI = 0.5 * math.pi
+
+_STATE_PROPERTIES = (
+    "position/lat-geod-rad",
+    "position/long-gc-rad",
+    "position/h-sl-ft",
+    "velocities/v-north-fps",
+    "velocities/v-east-fps",
+    "velocities/v-down-fps",
+    "velocities/p-rad_sec",
+    "velocities/q-rad_sec",
+    "velocities/r-rad_sec",
+    "accelerations/pdot-rad_sec2",
+    "accelerations/qdot-rad_sec2",
+    "accelerations/rdot-rad_sec2",
+    "forces/fbx-total-lbs",
+    "forces/fby-total-lbs",
+    "forces/fbz-total-lbs",
+    "attitude/phi-rad",
+    "attitude/theta-rad",
+    "attitude/psi-rad",
+)
+"""Read after every ``run()``: CG position and velocity (NED), body rates (FRD), JSBSim's
+accelerations for the next step, total non-gravitational body force, attitude."""
+
+
+class JsbsimError(PlantError):
+    """JSBSim refused the generated airframe or an initial condition."""
+
+
+def _load_fdm(scenario: Scenario, gear: GearGeometry, dt_s: float) -> jsbsim.FGFDMExec:
+    """An FGFDMExec with this scenario's airframe, rooted in this package's directory.
+
+    The airframe is generated into a temporary aircraft directory that only lives while
+    JSBSim parses it (JSBSim has no load-from-string); engines and systems paths stay in
+    the package, so nothing of JSBSim's shipped aircraft is used.
+    """
+    jsbsim.FGJSBBase().debug_lvl = 0  # JSBSim prints its banner and load log otherwise
+    fdm = jsbsim.FGFDMExec(str(PACKAGE_ROOT))
+    fdm.set_debug_level(0)
+    with tempfile.TemporaryDirectory(prefix="hexarotor-") as tmp:
+        folder = Path(tmp) / AIRCRAFT_NAME
+        folder.mkdir()
+        (folder / f"{AIRCRAFT_NAME}.xml").write_text(airframe_xml(scenario, gear))
+        ok = fdm.load_model_with_paths(AIRCRAFT_NAME, tmp, str(PACKAGE_ROOT), str(PACKAGE_ROOT))
+    if not ok:
+        raise JsbsimError(f"JSBSim could not load the airframe of scenario {scenario.name!r}")
+    fdm.set_dt(dt_s)
+    return fdm
+
+
+class JsbsimPlant:
+    """Underactuated truth plant on JSBSim; the public interface of ``TruthPlant``'s
+    underactuated mode (see the module docstring for what differs).
+
+    Pure in the sense of the project (no I/O after construction, no clock); turbulence is
+    random with JSBSim's generator, seeded by ``wind.seed``. Not thread-safe.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Validated scenario.
+    mode : {"underactuated"}
+        The only mode: JSBSim has no generalized-force input on the Euler rows.
+    payload_attached : bool
+        Start with the payload grasped.
+    wind : Wind, optional
+        Steady wind and turbulence (calm by default).
+    gear : GearGeometry, optional
+        Landing gear of the airframe.
+
+    Raises
+    ------
+    PlantModeError
+        For ``mode="ideal"``.
+    JsbsimError
+        If JSBSim cannot load the generated airframe.
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        mode: str = "underactuated",
+        *,
+        payload_attached: bool = False,
+        wind: Wind | None = None,
+        gear: GearGeometry | None = None,
+    ) -> None:
+        if mode != "underactuated":
+            raise PlantModeError(
+                f"the JSBSim backend has only mode 'underactuated', got {mode!r}: ideal mode "
+                "(tau on all 8 rows) exists only on the Pinocchio plant"
+            )
+        self.scenario = scenario
+        self.mode = "underactuated"
+        self.rate_hz = float(scenario.plant.rate_hz)
+        self.dt_s = 1.0 / self.rate_hz
+        self.gravity_m_s2 = scenario.environment.gravity_m_s2
+        self.wind = wind if wind is not None else Wind()
+        self.gear = gear if gear is not None else GearGeometry()
+        self._fdm = _load_fdm(scenario, self.gear, self.dt_s)
+        self._properties = self._fdm.get_property_manager()
+        self._state_nodes = [self._node(p) for p in _STATE_PROPERTIES]
+        self._rotor_nodes = [self._node(f"external_reactions/rotor{i}/magnitude") for i in range(6)]
+        self._yaw_node = self._node("external_reactions/rotor-yaw/magnitude-lbsft")
+        self._arm_moment_nodes = [
+            self._node(f"external_reactions/arm-moment/{c}") for c in ("l", "m", "n")
+        ]
+        self._mass_nodes = [
+            [
+                self._node(f"inertia/pointmass-weight-lbs[{i}]"),
+                self._node(f"inertia/pointmass-location-X-inches[{i}]"),
+                self._node(f"inertia/pointmass-location-Y-inches[{i}]"),
+                self._node(f"inertia/pointmass-location-Z-inches[{i}]"),
+            ]
+            for i in range(ARM_POINT_MASSES)
+        ]
+        self._node("external_reactions/arm-moment/magnitude-lbsft").set_double_value(1.0)
+
+        rotors = scenario.vehicle.rotors
+        geometry = RotorGeometry.hexa_x(rotors.arm_length_m, rotors.yaw_moment_per_thrust_m)
+        self._yaw_per_thrust = geometry.wrench_matrix()[2].tolist()
+        self._rotors = RotorBank(
+            rotors.max_thrust_per_rotor_n * scenario.plant.thrust_mismatch,
+            rotors.thr_mdl_fac,
+            rotors.motor_time_constant_s,
+            self.dt_s,
+        )
+        mixer = SequentialDesaturationMixer(geometry, rotors.max_thrust_per_rotor_n)
+        self._autopilot = Px4AttitudeLoop.from_config(
+            scenario.plant.attitude_control, mixer, self.dt_s
+        )
+        self._servo_limit = scenario.plant.servo_torque_limit_n_m
+        self._arm = ArmDynamics(scenario, self.dt_s)
+        self._actuators: ActuatorState | None = None
+        self._actuator_signals: tuple = ()
+        self._state_cache: PlantState | None = None
+        self._euler = (0.0, 0.0, 0.0)
+        if payload_attached:
+            self._arm.set_payload(True)
+        self.reset(scenario.simulation.initial_q)
+
+    @classmethod
+    def from_scenario(
+        cls,
+        scenario: Scenario,
+        mode: str = "underactuated",
+        *,
+        payload_attached: bool = False,
+        wind: Wind | None = None,
+        gear: GearGeometry | None = None,
+    ) -> JsbsimPlant:
+        """Plant of a validated scenario, at rest at ``simulation.initial_q``."""
+        return cls(scenario, mode, payload_attached=payload_attached, wind=wind, gear=gear)
+
+    # ------------------------------------------------------------------ state
+
+    def reset(
+        self,
+        q: ArrayLike,
+        q_dot: ArrayLike | None = None,
+        *,
+        time_s: float = 0.0,
+        rotor_thrusts_n: ArrayLike | None = None,
+    ) -> PlantState:
+        """Put the plant in state (q, q_dot) at ``time_s`` (as ``TruthPlant.reset``).
+
+        The height above ground is set explicitly: world z = 0 is the ground, and
+        ``ic/h-agl-ft`` puts the CG where q[2] puts the vehicle CoM.
+
+        Raises
+        ------
+        ValueError
+            On wrong shapes or non-finite values.
+        JsbsimError
+            If JSBSim rejects the initial condition.
+        """
+        q_arr = _vector(q, "q")
+        qd_arr = np.zeros(N_Q) if q_dot is None else _vector(q_dot, "q_dot")
+        if rotor_thrusts_n is None:
+            each = self.total_mass_kg * self.gravity_m_s2 / N_ROTORS
+            thrusts = np.full(N_ROTORS, min(each, self._rotors.max_thrust_n))
+        else:
+            thrusts = np.asarray(rotor_thrusts_n, dtype=np.float64)
+        self._rotors.reset(thrusts)
+        self._arm.eta_ddot = [0.0, 0.0]
+        # The forces of the IC pass seed JSBSim's multistep integrators: make them the
+        # first step's (rotors as reset, no coupling moment yet).
+        self._set_rotor_forces(self._rotors.thrust_list_n)
+        for node in self._arm_moment_nodes:
+            node.set_double_value(0.0)
+        self._apply_ic(q_arr, qd_arr)
+        self._steps = 0
+        self._t0 = float(time_s)
+        self._qdd = [0.0] * N_Q
+        self._autopilot.reset(self._omega)
+        commands = inverse_thrust_curve(
+            np.clip(thrusts / self._rotors.max_thrust_n, 0.0, 1.0), self._rotors.thr_mdl_fac
+        )
+        self._actuator_signals = (commands, thrusts, (0.0, 0.0), (0.0,) * 3, (0.0,) * 3)
+        self._actuators = None
+        return self.state
+
+    def _apply_ic(self, q: np.ndarray, q_dot: np.ndarray) -> None:
+        """Start JSBSim at (q, q_dot): arm pose, CG location and velocity, attitude, rates."""
+        phi, theta, psi = (float(a) for a in q[3:6])
+        self._arm.eta = [float(q[6]), float(q[7])]
+        self._arm.eta_dot = [float(q_dot[6]), float(q_dot[7])]
+        self._set_point_masses()
+        omega = euler_rate_matrix(phi, theta) @ q_dot[3:6]
+        c, c_dot = (np.array(v) for v in self._arm.centre_of_mass())
+        rot = rotation_from_euler(phi, theta, psi)
+        p_cg = q[0:3] + rot @ c
+        v_cg = q_dot[0:3] + rot @ (np.cross(omega, c) + c_dot)
+        fdm = self._fdm
+        for path, value in (
+            ("ic/phi-rad", phi),
+            ("ic/theta-rad", -theta),
+            ("ic/psi-true-rad", (_HALF_PI - psi) % (2.0 * math.pi)),
+            ("ic/lat-geod-rad", p_cg[1] / SEA_LEVEL_RADIUS_M),
+            ("ic/long-gc-rad", p_cg[0] / SEA_LEVEL_RADIUS_M),
+            ("ic/terrain-elevation-ft", 0.0),
+            ("ic/h-agl-ft", p_cg[2] / FT_M),
+            ("ic/vn-fps", v_cg[1] / FT_M),
+            ("ic/ve-fps", v_cg[0] / FT_M),
+            ("ic/vd-fps", -v_cg[2] / FT_M),
+            ("ic/p-rad_sec", omega[0]),
+            ("ic/q-rad_sec", -omega[1]),
+            ("ic/r-rad_sec", -omega[2]),
+        ):
+            fdm[path] = float(value)
+        if not fdm.run_ic():
+            raise JsbsimError("JSBSim rejected the initial condition")
+        for path, value in self.wind.properties().items():  # run_ic resets the wind
+            fdm[path] = value
+        self._euler = (phi, theta, psi)
+        self._read_state()
+
+    @property
+    def time_s(self) -> float:
+        """Simulation time [s] (``reset`` time + steps * dt)."""
+        return self._t0 + self._steps * self.dt_s
+
+    @property
+    def state(self) -> PlantState:
+        """The current truth state (frozen; built once per step, on first access)."""
+        if self._state_cache is None:
+            flat = np.array(
+                self._q
+                + self._qd
+                + self._qdd
+                + list(self._quat)
+                + list(self._r9)
+                + list(self._omega)
+            )
+            flat.flags.writeable = False
+            self._state_cache = PlantState(
+                time_s=self.time_s,
+                q=flat[0:8],
+                q_dot=flat[8:16],
+                q_ddot=flat[16:24],
+                quaternion_wxyz=flat[24:28],
+                rotation_world_body=flat[28:37].reshape(3, 3),
+                omega_body_rad_s=flat[37:40],
+                payload_attached=self._arm.payload_attached,
+            )
+        return self._state_cache
+
+    @property
+    def actuators(self) -> ActuatorState:
+        """Actuator signals of the last step."""
+        if self._actuators is None:
+            commands, thrusts, joint, rate_sp, torque = self._actuator_signals
+            self._actuators = ActuatorState(
+                motor_commands=frozen_array(commands),
+                rotor_thrusts_n=frozen_array(thrusts),
+                joint_torques_n_m=frozen_array(joint),
+                rate_setpoint_rad_s=frozen_array(rate_sp),
+                torque_normalized=frozen_array(torque),
+            )
+        return self._actuators
+
+    @property
+    def rotor_thrusts_n(self) -> FloatArray:
+        """Thrust each rotor produces now [N], shape (6,)."""
+        return self._rotors.thrusts_n
+
+    @property
+    def height_above_ground_m(self) -> float:
+        """JSBSim's height of the CG above the ground [m]."""
+        return self._fdm["position/h-agl-ft"] * FT_M
+
+    @property
+    def coupling_ratio(self) -> float:
+        """Loop gain of the lagged arm coupling at the current pose (below 1: converges)."""
+        return self._arm.coupling_ratio()
+
+    # ---------------------------------------------------------------- payload
+
+    @property
+    def payload_attached(self) -> bool:
+        """Whether link 2 currently carries the payload."""
+        return self._arm.payload_attached
+
+    def attach_payload(self) -> None:
+        """Grasp the payload (joint momentum kept; raises :class:`PlantError` if attached)."""
+        if self._arm.payload_attached:
+            raise PlantError("payload is already attached")
+        self._regrasp(True)
+
+    def detach_payload(self) -> None:
+        """Release the payload (raises :class:`PlantError` if none is attached)."""
+        if not self._arm.payload_attached:
+            raise PlantError("no payload is attached")
+        self._regrasp(False)
+
+    def _regrasp(self, attached: bool) -> None:
+        """Change link 2 and restart JSBSim at the same q (JSBSim would keep the CG still
+        and move the vehicle instead); the autopilot and rotors carry on."""
+        q, q_dot = np.array(self._q), np.array(self._qd)
+        self._arm.set_payload(attached)
+        q_dot[6:8] = self._arm.eta_dot
+        self._apply_ic(q, q_dot)
+
+    @property
+    def true_theta(self) -> Theta:
+        """(m2, m3, m4) of link 2 as it is now (with the payload if attached)."""
+        return self._arm.link2.theta
+
+    @property
+    def total_mass_kg(self) -> float:
+        """Mass of vehicle + arm (+ payload if attached) [kg]."""
+        return self._arm.total_mass_kg
+
+    # ------------------------------------------------------------------- step
+
+    def step_ideal(self, tau: ArrayLike) -> PlantState:
+        """Not available: raises :class:`PlantModeError` (ideal mode is Pinocchio-only)."""
+        raise PlantModeError("the JSBSim backend has no ideal mode; use step()")
+
+    def step(self, setpoint: AttitudeSetpoint, joint_torques_n_m: ArrayLike) -> PlantState:
+        """Advance one step under an attitude/thrust setpoint and joint torques.
+
+        Same contract as ``TruthPlant.step`` in underactuated mode.
+
+        Raises
+        ------
+        ValueError
+            On joint torques that are not 2 finite values.
+        PlantDivergedError
+            If the state became non-finite.
+        """
+        joint_arr = np.asarray(joint_torques_n_m, dtype=np.float64)
+        if joint_arr.shape != (2,) or not math.isfinite(float(joint_arr.sum())):
+            raise ValueError(
+                f"joint_torques_n_m must be 2 finite values, got {joint_torques_n_m!r}"
+            )
+        lim = self._servo_limit
+        joint = (min(max(joint_arr[0], -lim), lim), min(max(joint_arr[1], -lim), lim))
+        out = self._autopilot.update(self._quat, self._omega, setpoint)
+        thrusts = self._rotors.thrust_list_n  # acting over this step (written last step)
+        self._rotors.advance(out.motor_commands)
+        self._set_rotor_forces(self._rotors.thrust_list_n)
+        qd_before = self._qd
+        mx, my, mz = self._arm.step(joint, self._specific_force, self._omega, self._omega_dot)
+        for node, value in zip(self._arm_moment_nodes, (mx, -my, -mz), strict=True):
+            node.set_double_value(value / _LBF_FT_N_M)
+        self._set_point_masses()
+        self._fdm.run()
+        self._steps += 1
+        self._read_state()
+        dt = self.dt_s
+        qd = self._qd
+        self._qdd = [(a - b) / dt for a, b in zip(qd[0:6], qd_before[0:6], strict=True)] + list(
+            self._arm.eta_ddot
+        )
+        self._actuator_signals = (
+            out.motor_commands,
+            thrusts,
+            joint,
+            out.rate_setpoint_rad_s,
+            out.torque_normalized,
+        )
+        self._actuators = None
+        return self.state
+
+    # -------------------------------------------------------------- internals
+
+    def _node(self, path: str) -> jsbsim.FGPropertyNode:
+        """JSBSim property node (created if missing), for fast reads and writes."""
+        return self._properties.get_node(path, True)
+
+    def _set_rotor_forces(self, thrusts: list[float]) -> None:
+        """Rotor thrusts [N] at the hubs and their summed reaction moment about body z."""
+        for node, thrust in zip(self._rotor_nodes, thrusts, strict=True):
+            node.set_double_value(thrust / LBF_N)
+        yaw_flu = sum(k * t for k, t in zip(self._yaw_per_thrust, thrusts, strict=True))
+        self._yaw_node.set_double_value(-yaw_flu / _LBF_FT_N_M)
+
+    def _set_point_masses(self) -> None:
+        for nodes, (mass, s) in zip(self._mass_nodes, self._arm.point_masses(), strict=True):
+            x, y, z = structural_in(s)
+            nodes[0].set_double_value(mass / LBM_KG)
+            nodes[1].set_double_value(x)
+            nodes[2].set_double_value(y)
+            nodes[3].set_double_value(z)
+
+    def _read_state(self) -> None:
+        """JSBSim (CG, NED/FRD, English) -> our q, q_dot at the vehicle CoM O (ENU/FLU, SI)."""
+        values = [n.get_double_value() for n in self._state_nodes]
+        if not math.isfinite(sum(values)):
+            raise PlantDivergedError(self.time_s)
+        lat, lon, h, vn, ve, vd, p, q, r, pd, qd, rd, fx, fy, fz = values[:15]
+        phi_n, theta_n, psi_n = values[15:]
+        # JSBSim's accelerations for the next step: external force per unit mass, body rate
+        per_kg = LBF_N / self._arm.total_mass_kg
+        self._specific_force = (fx * per_kg, -fy * per_kg, -fz * per_kg)
+        self._omega_dot = (pd, -qd, -rd)
+        rot = rotation_from_euler(phi_n, -theta_n, _HALF_PI - psi_n).reshape(9).tolist()
+        euler = euler_from_rotation9(tuple(rot), self._euler)  # type: ignore[arg-type]
+        self._euler = euler
+        self._r9 = rot
+        omega = (p, -q, -r)
+        self._omega = omega
+        (cx, cy, cz), (ux, uy, uz) = self._arm.centre_of_mass()
+        rc = (
+            rot[0] * cx + rot[1] * cy + rot[2] * cz,
+            rot[3] * cx + rot[4] * cy + rot[5] * cz,
+            rot[6] * cx + rot[7] * cy + rot[8] * cz,
+        )
+        # velocity of the CG relative to O in the body: omega x c + c_dot
+        wx = omega[1] * cz - omega[2] * cy + ux
+        wy = omega[2] * cx - omega[0] * cz + uy
+        wz = omega[0] * cy - omega[1] * cx + uz
+        rwc = (
+            rot[0] * wx + rot[1] * wy + rot[2] * wz,
+            rot[3] * wx + rot[4] * wy + rot[5] * wz,
+            rot[6] * wx + rot[7] * wy + rot[8] * wz,
+        )
+        position = (
+            lon * SEA_LEVEL_RADIUS_M - rc[0],
+            lat * SEA_LEVEL_RADIUS_M - rc[1],
+            h * FT_M - rc[2],
+        )
+        velocity = (ve * FT_M - rwc[0], vn * FT_M - rwc[1], -vd * FT_M - rwc[2])
+        phi, theta, psi = euler
+        wi = euler_rate_matrix_inverse9(phi, theta)
+        ox, oy, oz = omega
+        eta, eta_dot = self._arm.eta, self._arm.eta_dot
+        self._q = [*position, phi, theta, psi, eta[0], eta[1]]
+        self._qd = [
+            *velocity,
+            ox + wi[1] * oy + wi[2] * oz,
+            wi[4] * oy + wi[5] * oz,
+            wi[7] * oy + wi[8] * oz,
+            eta_dot[0],
+            eta_dot[1],
+        ]
+        self._quat = tuple(quaternion_from_euler(phi, theta, psi).tolist())
+        self._state_cache = None
+
+
+def _vector(values: ArrayLike, name: str) -> np.ndarray:
+    arr = np.asarray(values, dtype=np.float64)
+    if arr.shape != (N_Q,):
+        raise ValueError(f"{name} must have shape ({N_Q},), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {values!r}")
+    return arr
