@@ -12,6 +12,10 @@ torques to the servos, and the estimator then uses only the rows with a known fo
 (x, y, z from the commanded thrust and the measured attitude; joints from the servo torque
 read-back).
 
+Physics (``SimOptions.physics``): ``pinocchio`` (``sitl.physics.TruthPlant``) or ``jsbsim``
+(``sitl.physics.jsbsim.JsbsimPlant``: underactuated only, with optional wind and
+turbulence), built by ``sitl.physics.make_plant``.
+
 Gripper events (pick-up, release) are commands of the companion, so it may act on them:
 on a release the estimator restarts from the empty-arm values, on a pick-up it restarts
 its confidence (and RLS covariance) from its current estimate.
@@ -19,6 +23,7 @@ its confidence (and RLS covariance) from its current estimate.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable
@@ -40,7 +45,8 @@ from companion.model import ManipulatorModel
 from companion.setpoints import ThrustCurve, attitude_thrust_setpoint
 from companion.state import StateAssembler, thrust_force_world
 from companion.trajectory import PaperSinusoid, TiltReference
-from sitl.physics import AttitudeSetpoint, TruthPlant
+from sitl.physics import AttitudeSetpoint, PhysicsBackend, TruthPlant, make_plant
+from sitl.physics.jsbsim.wind import Wind
 from sitl.sensors import GyroSensor, JointEncoders, PoseSensor
 
 __all__ = ["COLUMNS", "SimOptions", "SimResult", "make_estimator", "simulate"]
@@ -79,6 +85,8 @@ class SimOptions:
     noise: bool = False
     pickup_at_s: float | None = None
     release_at_s: float | None = None
+    physics: PhysicsBackend = "pinocchio"
+    wind: Wind | None = None
 
 
 @dataclass
@@ -226,8 +234,12 @@ def simulate(
         raise ValueError("no estimator row has a known generalized force on this plant")
 
     rng = np.random.default_rng(opts.seed)
-    plant = TruthPlant.from_scenario(
-        scenario, opts.plant, payload_attached=scenario.simulation.payload_attached_at_start
+    plant = make_plant(
+        scenario,
+        opts.physics,
+        opts.plant,
+        payload_attached=scenario.simulation.payload_attached_at_start,
+        wind=opts.wind,
     )
     model = ManipulatorModel.from_scenario(scenario)
     estimator = make_estimator(scenario, kind, rows)
@@ -414,6 +426,8 @@ def summarize(
         "estimator": "asmc_readout" if opts.controller == "asmc" else kind,
         "estimator_rows": list(rows),
         "plant": opts.plant,
+        "physics": opts.physics,
+        "wind": None if opts.wind is None else dataclasses.asdict(opts.wind),
         "noise": opts.noise,
         "seed": opts.seed,
         "duration_s": float(t[-1] + (t[1] - t[0])) if t.size > 1 else 0.0,
