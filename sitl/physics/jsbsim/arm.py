@@ -132,6 +132,8 @@ class ArmDynamics:
         self.eta_dot = [0.0, 0.0]
         self.eta_ddot = [0.0, 0.0]
         self.payload_attached = False
+        self._kin_key: tuple | None = None
+        self._kin: list = []
         self._set_masses()
 
     # ------------------------------------------------------------------ bodies
@@ -163,9 +165,15 @@ class ArmDynamics:
     # -------------------------------------------------------------- kinematics
 
     def _kinematics(self) -> list[tuple[float, Vec3, Vec3, Vec3, Vec3, Vec3]]:
-        """Per point mass: (m, s, s_dot, s_ddot0, J column 1, J column 2), body FLU."""
+        """Per point mass: (m, s, s_dot, s_ddot0, J column 1, J column 2), body FLU.
+
+        Cached for the current (eta, eta_dot, masses): the plant asks several times a step.
+        """
         e1, e2 = self.eta
         d1, d2 = self.eta_dot
+        key = (e1, e2, d1, d2, self._masses)
+        if key == self._kin_key:
+            return self._kin
         c1, s1 = math.cos(e1), math.sin(e1)
         c2, s2 = math.cos(e1 + e2), math.sin(e1 + e2)
         p2 = d1 + d2
@@ -190,6 +198,7 @@ class ArmDynamics:
                 j2 = (-a * s2, 0.0, a * c2)
                 j1 = (-l1 * s1 + j2[0], 0.0, l1 * c1 + j2[2])
             out.append((m, s, sd, s0, j1, j2))
+        self._kin_key, self._kin = key, out
         return out
 
     def point_masses(self) -> list[tuple[float, Vec3]]:
