@@ -8,8 +8,9 @@ Entry point::
                                       wind=Wind((3.0, 0.0, 0.0), "milspec", 7.7))
     state = plant.step(AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, 0.45), [0.0, 0.0])
 
-Modules: :mod:`~sitl.physics.jsbsim.plant` (the plant, stepping, frames and units at the
-JSBSim boundary), :mod:`~sitl.physics.jsbsim.airframe` (the aircraft file from a scenario),
+Modules: :mod:`~sitl.physics.jsbsim.plant` (the plant and its stepping),
+:mod:`~sitl.physics.jsbsim.fdm` (the JSBSim boundary: frames and units),
+:mod:`~sitl.physics.jsbsim.airframe` (the aircraft file from a scenario),
 :mod:`~sitl.physics.jsbsim.arm` (arm dynamics and the coupling wrench),
 :mod:`~sitl.physics.jsbsim.wind` (wind and turbulence). ``aircraft/hexarotor/hexarotor.xml``
 is the airframe of ``configs/paper_sim_flight.toml`` as generated (a reference copy that

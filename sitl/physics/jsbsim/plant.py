@@ -34,11 +34,15 @@ step ahead:
    lag of the coupling);
 4. ``run()``.
 
-Where it departs from the Pinocchio plant (besides JSBSim's integrators):
+Where it departs from the Pinocchio plant:
 
+- integration: JSBSim's defaults (body rates and attitude: rectangular Euler; velocity:
+  Adams-Bashforth 2; position: Adams-Bashforth 3), Pinocchio's ``plant.integrator`` on
+  the other side; the arm always uses semi-implicit Euler;
 - the rotational coupling with the arm lags one step (see :mod:`sitl.physics.jsbsim.arm`
-  for why it converges: the loop gain is below 1, up to 0.68
-  for the paper arm with payload hanging straight down, 0.29 for the experiment arm);
+  for why it converges: the loop gain is below 1, up to 0.68 for the paper arm with
+  payload hanging straight down, 0.29 for the experiment arm); the cross-validation
+  (tests/test_sitl_jsbsim_crossval.py) shows the difference is first order in the step;
 - the drag acts at the vehicle CoM O on the velocity of the CG relative to the air
   (Pinocchio: the velocity of O over the ground); they differ by omega x (CG - O) and by
   the wind;
@@ -47,17 +51,14 @@ Where it departs from the Pinocchio plant (besides JSBSim's integrators):
 - on a grasp, only the joints' momentum is conserved (the base's share of the impulse is
   neglected); q_ddot is a finite difference over the step for the base rows.
 
-Units: SI outside, English (ft, lbf, slug, in) at the JSBSim property boundary, converted
-here and in :mod:`sitl.physics.jsbsim.airframe` only.
+Units and frames: SI, ENU/FLU here; English units, NED/FRD and the CG only inside
+:mod:`sitl.physics.jsbsim.fdm` (the JSBSim boundary) and the airframe file.
 """
 
 from __future__ import annotations
 
 import math
-import tempfile
-from pathlib import Path
 
-import jsbsim
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -71,19 +72,9 @@ from sitl.physics.frames import (
     quaternion_from_euler,
     rotation_from_euler,
 )
-from sitl.physics.jsbsim.airframe import (
-    AIRCRAFT_NAME,
-    ARM_POINT_MASSES,
-    FT_M,
-    LBF_N,
-    LBM_KG,
-    PACKAGE_ROOT,
-    SEA_LEVEL_RADIUS_M,
-    GearGeometry,
-    airframe_xml,
-    structural_in,
-)
+from sitl.physics.jsbsim.airframe import FT_M, GearGeometry
 from sitl.physics.jsbsim.arm import ArmDynamics
+from sitl.physics.jsbsim.fdm import FdmReading, HexarotorFdm, JsbsimError
 from sitl.physics.jsbsim.wind import Wind
 from sitl.physics.rotors import (
     N_ROTORS,
@@ -98,56 +89,6 @@ __all__ = ["JsbsimError", "JsbsimPlant"]
 
 FloatArray = NDArray[np.float64]
 N_Q = 8
-_LBF_FT_N_M = LBF_N * FT_M
-_HALF_PI = 0.5 * math.pi
-
-_STATE_PROPERTIES = (
-    "position/lat-geod-rad",
-    "position/long-gc-rad",
-    "position/h-sl-ft",
-    "velocities/v-north-fps",
-    "velocities/v-east-fps",
-    "velocities/v-down-fps",
-    "velocities/p-rad_sec",
-    "velocities/q-rad_sec",
-    "velocities/r-rad_sec",
-    "accelerations/pdot-rad_sec2",
-    "accelerations/qdot-rad_sec2",
-    "accelerations/rdot-rad_sec2",
-    "forces/fbx-total-lbs",
-    "forces/fby-total-lbs",
-    "forces/fbz-total-lbs",
-    "attitude/phi-rad",
-    "attitude/theta-rad",
-    "attitude/psi-rad",
-)
-"""Read after every ``run()``: CG position and velocity (NED), body rates (FRD), JSBSim's
-accelerations for the next step, total non-gravitational body force, attitude."""
-
-
-class JsbsimError(PlantError):
-    """JSBSim refused the generated airframe or an initial condition."""
-
-
-def _load_fdm(scenario: Scenario, gear: GearGeometry, dt_s: float) -> jsbsim.FGFDMExec:
-    """An FGFDMExec with this scenario's airframe, rooted in this package's directory.
-
-    The airframe is generated into a temporary aircraft directory that only lives while
-    JSBSim parses it (JSBSim has no load-from-string); engines and systems paths stay in
-    the package, so nothing of JSBSim's shipped aircraft is used.
-    """
-    jsbsim.FGJSBBase().debug_lvl = 0  # JSBSim prints its banner and load log otherwise
-    fdm = jsbsim.FGFDMExec(str(PACKAGE_ROOT))
-    fdm.set_debug_level(0)
-    with tempfile.TemporaryDirectory(prefix="hexarotor-") as tmp:
-        folder = Path(tmp) / AIRCRAFT_NAME
-        folder.mkdir()
-        (folder / f"{AIRCRAFT_NAME}.xml").write_text(airframe_xml(scenario, gear))
-        ok = fdm.load_model_with_paths(AIRCRAFT_NAME, tmp, str(PACKAGE_ROOT), str(PACKAGE_ROOT))
-    if not ok:
-        raise JsbsimError(f"JSBSim could not load the airframe of scenario {scenario.name!r}")
-    fdm.set_dt(dt_s)
-    return fdm
 
 
 class JsbsimPlant:
@@ -199,24 +140,7 @@ class JsbsimPlant:
         self.gravity_m_s2 = scenario.environment.gravity_m_s2
         self.wind = wind if wind is not None else Wind()
         self.gear = gear if gear is not None else GearGeometry()
-        self._fdm = _load_fdm(scenario, self.gear, self.dt_s)
-        self._properties = self._fdm.get_property_manager()
-        self._state_nodes = [self._node(p) for p in _STATE_PROPERTIES]
-        self._rotor_nodes = [self._node(f"external_reactions/rotor{i}/magnitude") for i in range(6)]
-        self._yaw_node = self._node("external_reactions/rotor-yaw/magnitude-lbsft")
-        self._arm_moment_nodes = [
-            self._node(f"external_reactions/arm-moment/{c}") for c in ("l", "m", "n")
-        ]
-        self._mass_nodes = [
-            [
-                self._node(f"inertia/pointmass-weight-lbs[{i}]"),
-                self._node(f"inertia/pointmass-location-X-inches[{i}]"),
-                self._node(f"inertia/pointmass-location-Y-inches[{i}]"),
-                self._node(f"inertia/pointmass-location-Z-inches[{i}]"),
-            ]
-            for i in range(ARM_POINT_MASSES)
-        ]
-        self._node("external_reactions/arm-moment/magnitude-lbsft").set_double_value(1.0)
+        self._fdm = HexarotorFdm(scenario, self.gear, self.dt_s)
 
         rotors = scenario.vehicle.rotors
         geometry = RotorGeometry.hexa_x(rotors.arm_length_m, rotors.yaw_moment_per_thrust_m)
@@ -288,8 +212,7 @@ class JsbsimPlant:
         # The forces of the IC pass seed JSBSim's multistep integrators: make them the
         # first step's (rotors as reset, no coupling moment yet).
         self._set_rotor_forces(self._rotors.thrust_list_n)
-        for node in self._arm_moment_nodes:
-            node.set_double_value(0.0)
+        self._fdm.set_coupling_moment((0.0, 0.0, 0.0))
         self._apply_ic(q_arr, qd_arr)
         self._steps = 0
         self._t0 = float(time_s)
@@ -307,35 +230,15 @@ class JsbsimPlant:
         phi, theta, psi = (float(a) for a in q[3:6])
         self._arm.eta = [float(q[6]), float(q[7])]
         self._arm.eta_dot = [float(q_dot[6]), float(q_dot[7])]
-        self._set_point_masses()
+        self._fdm.set_point_masses(self._arm.point_masses())
         omega = euler_rate_matrix(phi, theta) @ q_dot[3:6]
         c, c_dot = (np.array(v) for v in self._arm.centre_of_mass())
         rot = rotation_from_euler(phi, theta, psi)
         p_cg = q[0:3] + rot @ c
         v_cg = q_dot[0:3] + rot @ (np.cross(omega, c) + c_dot)
-        fdm = self._fdm
-        for path, value in (
-            ("ic/phi-rad", phi),
-            ("ic/theta-rad", -theta),
-            ("ic/psi-true-rad", (_HALF_PI - psi) % (2.0 * math.pi)),
-            ("ic/lat-geod-rad", p_cg[1] / SEA_LEVEL_RADIUS_M),
-            ("ic/long-gc-rad", p_cg[0] / SEA_LEVEL_RADIUS_M),
-            ("ic/terrain-elevation-ft", 0.0),
-            ("ic/h-agl-ft", p_cg[2] / FT_M),
-            ("ic/vn-fps", v_cg[1] / FT_M),
-            ("ic/ve-fps", v_cg[0] / FT_M),
-            ("ic/vd-fps", -v_cg[2] / FT_M),
-            ("ic/p-rad_sec", omega[0]),
-            ("ic/q-rad_sec", -omega[1]),
-            ("ic/r-rad_sec", -omega[2]),
-        ):
-            fdm[path] = float(value)
-        if not fdm.run_ic():
-            raise JsbsimError("JSBSim rejected the initial condition")
-        for path, value in self.wind.properties().items():  # run_ic resets the wind
-            fdm[path] = value
+        reading = self._fdm.start(p_cg, v_cg, (phi, theta, psi), omega, self.wind)
         self._euler = (phi, theta, psi)
-        self._read_state()
+        self._take(reading)
 
     @property
     def time_s(self) -> float:
@@ -390,6 +293,10 @@ class JsbsimPlant:
     def height_above_ground_m(self) -> float:
         """JSBSim's height of the CG above the ground [m]."""
         return self._fdm["position/h-agl-ft"] * FT_M
+
+    def property_value(self, path: str) -> float:
+        """A JSBSim property in JSBSim's (English) units, for diagnostics."""
+        return self._fdm[path]
 
     @property
     def coupling_ratio(self) -> float:
@@ -463,13 +370,12 @@ class JsbsimPlant:
         self._rotors.advance(out.motor_commands)
         self._set_rotor_forces(self._rotors.thrust_list_n)
         qd_before = self._qd
-        mx, my, mz = self._arm.step(joint, self._specific_force, self._omega, self._omega_dot)
-        for node, value in zip(self._arm_moment_nodes, (mx, -my, -mz), strict=True):
-            node.set_double_value(value / _LBF_FT_N_M)
-        self._set_point_masses()
-        self._fdm.run()
+        moment = self._arm.step(joint, self._specific_force, self._omega, self._omega_dot)
+        self._fdm.set_coupling_moment(moment)
+        self._fdm.set_point_masses(self._arm.point_masses())
+        reading = self._fdm.run()
         self._steps += 1
-        self._read_state()
+        self._take(reading)
         dt = self.dt_s
         qd = self._qd
         self._qdd = [(a - b) / dt for a, b in zip(qd[0:6], qd_before[0:6], strict=True)] + list(
@@ -487,41 +393,25 @@ class JsbsimPlant:
 
     # -------------------------------------------------------------- internals
 
-    def _node(self, path: str) -> jsbsim.FGPropertyNode:
-        """JSBSim property node (created if missing), for fast reads and writes."""
-        return self._properties.get_node(path, True)
-
     def _set_rotor_forces(self, thrusts: list[float]) -> None:
         """Rotor thrusts [N] at the hubs and their summed reaction moment about body z."""
-        for node, thrust in zip(self._rotor_nodes, thrusts, strict=True):
-            node.set_double_value(thrust / LBF_N)
-        yaw_flu = sum(k * t for k, t in zip(self._yaw_per_thrust, thrusts, strict=True))
-        self._yaw_node.set_double_value(-yaw_flu / _LBF_FT_N_M)
+        yaw = sum(k * t for k, t in zip(self._yaw_per_thrust, thrusts, strict=True))
+        self._fdm.set_rotors(thrusts, yaw)
 
-    def _set_point_masses(self) -> None:
-        for nodes, (mass, s) in zip(self._mass_nodes, self._arm.point_masses(), strict=True):
-            x, y, z = structural_in(s)
-            nodes[0].set_double_value(mass / LBM_KG)
-            nodes[1].set_double_value(x)
-            nodes[2].set_double_value(y)
-            nodes[3].set_double_value(z)
-
-    def _read_state(self) -> None:
-        """JSBSim (CG, NED/FRD, English) -> our q, q_dot at the vehicle CoM O (ENU/FLU, SI)."""
-        values = [n.get_double_value() for n in self._state_nodes]
-        if not math.isfinite(sum(values)):
+    def _take(self, reading: FdmReading) -> None:
+        """JSBSim's CG state -> our q, q_dot at the vehicle CoM O (ENU/FLU, SI)."""
+        if not reading.finite:
             raise PlantDivergedError(self.time_s)
-        lat, lon, h, vn, ve, vd, p, q, r, pd, qd, rd, fx, fy, fz = values[:15]
-        phi_n, theta_n, psi_n = values[15:]
-        # JSBSim's accelerations for the next step: external force per unit mass, body rate
-        per_kg = LBF_N / self._arm.total_mass_kg
-        self._specific_force = (fx * per_kg, -fy * per_kg, -fz * per_kg)
-        self._omega_dot = (pd, -qd, -rd)
-        rot = rotation_from_euler(phi_n, -theta_n, _HALF_PI - psi_n).reshape(9).tolist()
-        euler = euler_from_rotation9(tuple(rot), self._euler)  # type: ignore[arg-type]
+        # what JSBSim integrates over the next step: external force per kg, body rate
+        fx, fy, fz = reading.force_n
+        total = self._arm.total_mass_kg
+        self._specific_force = (fx / total, fy / total, fz / total)
+        self._omega_dot = reading.omega_dot_rad_s2
+        rot = reading.rotation
+        euler = euler_from_rotation9(rot, self._euler)
         self._euler = euler
         self._r9 = rot
-        omega = (p, -q, -r)
+        omega = reading.omega_rad_s
         self._omega = omega
         (cx, cy, cz), (ux, uy, uz) = self._arm.centre_of_mass()
         rc = (
@@ -538,12 +428,9 @@ class JsbsimPlant:
             rot[3] * wx + rot[4] * wy + rot[5] * wz,
             rot[6] * wx + rot[7] * wy + rot[8] * wz,
         )
-        position = (
-            lon * SEA_LEVEL_RADIUS_M - rc[0],
-            lat * SEA_LEVEL_RADIUS_M - rc[1],
-            h * FT_M - rc[2],
-        )
-        velocity = (ve * FT_M - rwc[0], vn * FT_M - rwc[1], -vd * FT_M - rwc[2])
+        pg, vg = reading.cg_position_m, reading.cg_velocity_m_s
+        position = (pg[0] - rc[0], pg[1] - rc[1], pg[2] - rc[2])
+        velocity = (vg[0] - rwc[0], vg[1] - rwc[1], vg[2] - rwc[2])
         phi, theta, psi = euler
         wi = euler_rate_matrix_inverse9(phi, theta)
         ox, oy, oz = omega
