@@ -1,0 +1,262 @@
+"""The whole SITL vehicle (``SitlVehicle.run``): real-time factor, telemetry rates, step jitter.
+
+Runs the vehicle of ``configs/sitl_pickup.toml`` in this process exactly as ``sitl run``
+does (1 kHz underactuated plant, three XM430 servo models on a pty, gripper, payload,
+ground, battery, noisy navigation, the PX4-like autopilot, both MAVLink links with their
+default telemetry streams, no truth log). Before the measured run the vehicle is armed
+and sent NAV_TAKEOFF through the autopilot's message handler, so it flies (take-off,
+then hold at MIS_TAKEOFF_ALT) rather than idling on the ground. A separate client
+process (pymavlink's parser on plain UDP sockets) listens on both links' remote ports
+and counts what arrives.
+
+1. Real-time factor: ``run`` flat out (``--speed 1000``, the pacing never sleeps) for
+   ``--seconds`` simulated seconds, once with nobody listening (datagrams to closed
+   loopback ports, refused by the kernel) and once with the client consuming both links.
+   Also the wall time per step split by phase (links in, navigation, autopilot,
+   world, telemetry out), from a separate instrumented loop with the same calls.
+2. At speed 1 for ``--rate-seconds``: each stream's rate as the client measures it
+   (messages after the first, over the wall time between first and last arrival)
+   against the configured rate, and the step-start lateness (jitter) median / p99 / max
+   that ``run`` reports. HEARTBEAT counts the extra ones sent at once after each arming
+   or mode change (arm, take-off, take-off complete), as PX4 does, so it reads above 1 Hz.
+
+Numbers only, no pass/fail; the machine's load shows in them (``os.getloadavg`` is
+printed). Run: ``python benchmarks/bench_sitl.py [--seconds 10] [--rate-seconds 20]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import select
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections import defaultdict
+from pathlib import Path
+
+os.environ.setdefault("MAVLINK20", "1")
+
+from pymavlink.dialects.v20 import common as mavlink
+
+CONFIG = Path(__file__).resolve().parent.parent / "configs" / "sitl_pickup.toml"
+
+
+# ------------------------------------------------------------------ client process
+
+
+def client(onboard_port: int, gcs_port: int) -> None:
+    """Count messages per link and type until stdin closes; print JSON arrival times."""
+    socks = {}
+    for name, port in (("onboard", onboard_port), ("gcs", gcs_port)):
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.bind(("127.0.0.1", port))
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+        socks[sock] = (name, mavlink.MAVLink(None))
+    arrivals: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    print("listening", flush=True)
+    watched = [*socks, sys.stdin]
+    while True:
+        ready, _, _ = select.select(watched, [], [], 1.0)
+        now = time.perf_counter()
+        if sys.stdin in ready and not sys.stdin.readline():
+            break
+        for sock in ready:
+            if sock is sys.stdin:
+                continue
+            name, mav = socks[sock]
+            data = sock.recv(65535)
+            try:
+                messages = mav.parse_buffer(data) or []
+            except Exception:  # count what decodes; a benchmark client never stops
+                messages = []
+            for msg in messages:
+                arrivals[name][msg.get_type()].append(now)
+    print(json.dumps(arrivals), flush=True)
+
+
+class Client:
+    """The client process: start, wait until it listens, stop and collect its counts."""
+
+    def __init__(self, onboard_port: int, gcs_port: int) -> None:
+        self._proc = subprocess.Popen(
+            [sys.executable, __file__, "--client", str(onboard_port), str(gcs_port)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert self._proc.stdout is not None
+        if self._proc.stdout.readline().strip() != "listening":
+            raise RuntimeError("benchmark client did not start")
+
+    def stop(self) -> dict[str, dict[str, list[float]]]:
+        assert self._proc.stdin is not None and self._proc.stdout is not None
+        self._proc.stdin.close()
+        out = self._proc.stdout.read()
+        self._proc.wait(timeout=30)
+        return json.loads(out)
+
+
+# ------------------------------------------------------------------ vehicle side
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def _vehicle(speed: float):
+    from companion.config import load_scenario
+    from sitl.runner import LinkPorts, RunOptions, SitlVehicle
+
+    ports = LinkPorts(
+        onboard_local=_free_port(),
+        onboard_remote=_free_port(),
+        gcs_local=_free_port(),
+        gcs_remote=_free_port(),
+    )
+    return SitlVehicle(load_scenario(CONFIG), RunOptions(speed=speed, seed=1, ports=ports))
+
+
+def _take_off(vehicle) -> None:
+    """Arm and NAV_TAKEOFF through the autopilot's handler, as if from the onboard link."""
+    client_mav = mavlink.MAVLink(None, 255, 190)
+    for command in (
+        mavlink.MAVLink_command_long_message(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0),
+        mavlink.MAVLink_command_long_message(1, 1, 22, 0, 0, 0, 0, 0, *[float("nan")] * 3),
+    ):
+        msg = mavlink.MAVLink(None).parse_buffer(command.pack(client_mav))[0]
+        for link, reply in vehicle.autopilot.handle(msg, "onboard", vehicle.world.time_s):
+            vehicle.links[link].send(reply)
+
+
+def real_time_factor(seconds: float, with_client: bool) -> tuple[float, str]:
+    """Simulated / wall seconds of ``run`` flat out for ``seconds``; and the flight state."""
+    vehicle = _vehicle(speed=1000.0)
+    ports = vehicle.options.ports
+    listener = Client(ports.onboard_remote, ports.gcs_remote) if with_client else None
+    try:
+        with vehicle:
+            vehicle.run(threading.Event(), until_s=0.5)  # settle on the ground
+            _take_off(vehicle)
+            stats = vehicle.run(threading.Event(), until_s=0.5 + seconds)
+            state = f"{vehicle.autopilot.mode.display_name}, z = {vehicle.world.state.q[2]:.2f} m"
+    finally:
+        counts = listener.stop() if listener else {}
+    received = sum(len(v) for link in counts.values() for v in link.values())
+    if with_client:
+        state += f", client got {received / seconds:.0f} msg per sim s"
+    return stats.real_time_factor, state
+
+
+def phase_split(seconds: float) -> dict[str, float]:
+    """Wall time per step [us] by phase, the same calls as ``SitlVehicle.run``."""
+    vehicle = _vehicle(speed=1000.0)
+    pc = time.perf_counter
+    totals = dict.fromkeys(("links in", "navigation", "autopilot", "world", "telemetry"), 0.0)
+    with vehicle:
+        vehicle.run(threading.Event(), until_s=0.5)
+        _take_off(vehicle)
+        world, autopilot, links = vehicle.world, vehicle.autopilot, vehicle.links
+        steps = round(seconds / world.dt_s)
+        for _ in range(steps):
+            t0 = pc()
+            now_s = world.time_s
+            for name, link in links.items():
+                for message in link.receive():
+                    for reply_link, reply in autopilot.handle(message, name, now_s):
+                        links[reply_link].send(reply)
+            t1 = pc()
+            measurement = vehicle.navigation.measure(world)
+            t2 = pc()
+            setpoint = autopilot.control(now_s, measurement)
+            t3 = pc()
+            with vehicle.servo_bus.lock:
+                world.step(setpoint)
+            t4 = pc()
+            for link_name, message in autopilot.telemetry(now_s, measurement):
+                links[link_name].send(message)
+            t5 = pc()
+            for key, a, b in (
+                ("links in", t0, t1),
+                ("navigation", t1, t2),
+                ("autopilot", t2, t3),
+                ("world", t3, t4),
+                ("telemetry", t4, t5),
+            ):
+                totals[key] += b - a
+    return {key: value / steps * 1e6 for key, value in totals.items()}
+
+
+def rates_and_jitter(seconds: float):
+    """At speed 1: measured stream rates per link and the run's statistics."""
+    from sitl.px4 import GCS_RATES_HZ, ONBOARD_RATES_HZ
+
+    vehicle = _vehicle(speed=1.0)
+    ports = vehicle.options.ports
+    listener = Client(ports.onboard_remote, ports.gcs_remote)
+    try:
+        with vehicle:
+            _take_off(vehicle)
+            stats = vehicle.run(threading.Event(), until_s=seconds)
+    finally:
+        arrivals = listener.stop()
+    rows = []
+    for link, configured in (("onboard", ONBOARD_RATES_HZ), ("gcs", GCS_RATES_HZ)):
+        for msg_id, rate in configured.items():
+            name = mavlink.mavlink_map[msg_id].msgname
+            times = arrivals.get(link, {}).get(name, [])
+            measured = (len(times) - 1) / (times[-1] - times[0]) if len(times) > 2 else 0.0
+            rows.append((link, name, rate, measured, len(times)))
+    return rows, stats
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=10.0, help="sim s per flat-out run")
+    parser.add_argument("--rate-seconds", type=float, default=20.0, help="sim s at speed 1")
+    parser.add_argument("--client", nargs=2, type=int, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.client:
+        client(*args.client)
+        return
+    print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs\n")
+
+    print(f"Real-time factor, 1 kHz plant, full telemetry, flat out, {args.seconds:g} sim s")
+    print(f"{'telemetry':<28} {'real-time factor':>16}  state at the end")
+    for with_client in (False, True):
+        rtf, state = real_time_factor(args.seconds, with_client)
+        label = "client consuming both links" if with_client else "nobody listening"
+        print(f"{label:<28} {rtf:>15.2f}x  {state}")
+
+    print("\nWall time per step by phase (no client)")
+    split = phase_split(min(args.seconds, 5.0))
+    for key, us in split.items():
+        print(f"  {key:<12} {us:7.1f} us")
+    total = sum(split.values())
+    print(f"  {'total':<12} {total:7.1f} us  (-> {1e3 / total:.2f}x real time)")
+
+    print(f"\nAt speed 1 for {args.rate_seconds:g} s, pymavlink client on loopback")
+    rows, stats = rates_and_jitter(args.rate_seconds)
+    print(f"{'link':<8} {'message':<22} {'configured':>10} {'measured':>9} {'error':>7}  n")
+    for link, name, rate, measured, count in rows:
+        error = (measured - rate) / rate * 100.0
+        flag = "" if abs(error) <= 10.0 else "  (outside 10 %)"
+        print(
+            f"{link:<8} {name:<22} {rate:>8.1f}Hz {measured:>7.2f}Hz {error:>+6.1f}%  {count}{flag}"
+        )
+    median, p99 = stats.jitter_us()
+    worst = max(stats.lateness_us) if stats.lateness_us else 0.0
+    print(
+        f"\nstep jitter (lateness of each 1 ms step's start): median {median:.0f} us, "
+        f"p99 {p99:.0f} us, max {worst:.0f} us; {stats.overruns} overruns; "
+        f"real-time factor {stats.real_time_factor:.3f}"
+    )
+
+
+if __name__ == "__main__":
+    main()
