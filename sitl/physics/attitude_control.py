@@ -90,6 +90,13 @@ class AttitudeSetpoint:
         return cls(quaternion_from_euler(phi, theta, psi), thrust)
 
 
+def _as_quat(q: ArrayLike) -> Quat:
+    """Four Python floats of a quaternion given as an array, tuple or list."""
+    if isinstance(q, np.ndarray):
+        return tuple(q.tolist())  # type: ignore[return-value]
+    return tuple(map(float, q))  # type: ignore[arg-type, return-value]
+
+
 def _mul(a: Quat, b: Quat) -> Quat:
     aw, ax, ay, az = a
     bw, bx, by, bz = b
@@ -159,8 +166,8 @@ class AttitudeController:
         self, q_wxyz: ArrayLike, q_setpoint_wxyz: ArrayLike
     ) -> tuple[float, float, float]:
         """Body-rate setpoint (FLU) [rad/s] for attitude q and its setpoint (both wxyz)."""
-        q: Quat = tuple(float(c) for c in q_wxyz)  # type: ignore[assignment]
-        qd: Quat = tuple(float(c) for c in q_setpoint_wxyz)  # type: ignore[assignment]
+        q: Quat = _as_quat(q_wxyz)
+        qd: Quat = _as_quat(q_setpoint_wxyz)
         qd_red = _between(_dcm_z(q), _dcm_z(qd))
         if abs(qd_red[1]) > 1.0 - 1e-5 or abs(qd_red[2]) > 1.0 - 1e-5:
             qd_red = qd

@@ -427,12 +427,17 @@ class TruthPlant:
         if self.mode != "underactuated":
             raise PlantModeError("step() needs mode='underactuated'; use step_ideal() instead")
         joint_arr = np.asarray(joint_torques_n_m, dtype=np.float64)
-        if joint_arr.shape != (2,) or not math.isfinite(float(joint_arr.sum())):
+        if joint_arr.shape != (2,):
+            raise ValueError(
+                f"joint_torques_n_m must be 2 finite values, got {joint_torques_n_m!r}"
+            )
+        j1, j2 = joint_arr.tolist()
+        if not math.isfinite(j1 + j2):
             raise ValueError(
                 f"joint_torques_n_m must be 2 finite values, got {joint_torques_n_m!r}"
             )
         lim = self._servo_limit
-        joint = [min(max(j, -lim), lim) for j in joint_arr.tolist()]
+        joint = [min(max(j1, -lim), lim), min(max(j2, -lim), lim)]
         out = self._autopilot.update(self._quat, self._omega, setpoint)
         thrusts = self._rotors.thrust_list_n
         w = self._rotor_wrench

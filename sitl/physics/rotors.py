@@ -242,6 +242,7 @@ class SequentialDesaturationMixer:
         self._pitch = mix[:, 1].tolist()
         self._yaw = mix[:, 2].tolist()
         self._thrust = mix[:, 3].tolist()
+        self._roll_pitch_thrust = list(zip(self._roll, self._pitch, self._thrust, strict=True))
         self._allocated_rows = [(scale[i] * wrench[i]).tolist() for i in range(3)]
         self._hi_yaw = 1.0 + MINIMUM_YAW_MARGIN
 
@@ -262,25 +263,29 @@ class SequentialDesaturationMixer:
         """
         c0, c1, c2 = (float(c) for c in torque_normalized)
         t = float(thrust_normalized)
-        u = [
-            r * c0 + p * c1 + th * t
-            for r, p, th in zip(self._roll, self._pitch, self._thrust, strict=True)
-        ]
-        _desaturate(u, self._thrust, 1.0, reduce_only=True)
-        _desaturate(u, self._roll, 1.0)
-        _desaturate(u, self._pitch, 1.0)
+        u = [r * c0 + p * c1 + th * t for r, p, th in self._roll_pitch_thrust]
+        # A desaturation step moves nothing while every command is inside its bounds (its
+        # gain is 0), so it is skipped then: the per-step cost in unsaturated flight.
+        if min(u) < 0.0 or max(u) > 1.0:
+            _desaturate(u, self._thrust, 1.0, reduce_only=True)
+            _desaturate(u, self._roll, 1.0)
+            _desaturate(u, self._pitch, 1.0)
         u = [ui + y * c2 for ui, y in zip(u, self._yaw, strict=True)]
-        _desaturate(u, self._yaw, self._hi_yaw)
-        _desaturate(u, self._thrust, 1.0, reduce_only=True)
-        u = [0.0 if ui < 0.0 else (1.0 if ui > 1.0 else ui) for ui in u]
-        unallocated = [
-            c - sum(a * ui for a, ui in zip(row, u, strict=True))
-            for c, row in zip((c0, c1, c2), self._allocated_rows, strict=True)
-        ]
+        if min(u) < 0.0 or max(u) > self._hi_yaw:
+            _desaturate(u, self._yaw, self._hi_yaw)
+        if min(u) < 0.0 or max(u) > 1.0:
+            _desaturate(u, self._thrust, 1.0, reduce_only=True)
+            u = [0.0 if ui < 0.0 else (1.0 if ui > 1.0 else ui) for ui in u]
+        u0, u1, u2, u3, u4, u5 = u
+        sat_pos, sat_neg = [], []
+        for c, (a0, a1, a2, a3, a4, a5) in zip((c0, c1, c2), self._allocated_rows, strict=True):
+            x = c - (a0 * u0 + a1 * u1 + a2 * u2 + a3 * u3 + a4 * u4 + a5 * u5)
+            sat_pos.append(x > _SATURATION_TOL)
+            sat_neg.append(x < -_SATURATION_TOL)
         return MixerOutput(
             commands=u,
-            saturation_positive=tuple(x > _SATURATION_TOL for x in unallocated),  # type: ignore[arg-type]
-            saturation_negative=tuple(x < -_SATURATION_TOL for x in unallocated),  # type: ignore[arg-type]
+            saturation_positive=tuple(sat_pos),  # type: ignore[arg-type]
+            saturation_negative=tuple(sat_neg),  # type: ignore[arg-type]
         )
 
 

@@ -192,11 +192,21 @@ class XM430Servo:
 
     def get(self, entry: ct.ControlTableEntry) -> int:
         """Raw value of a control-table entry."""
-        return entry.decode(bytes(self.table[entry.address : entry.end]))
+        # entry.decode() without its length check (an entry always fits the table): the
+        # servo loops read several entries every plant step.
+        address = entry.address
+        return int.from_bytes(
+            self.table[address : address + entry.size], "little", signed=entry.signed
+        )
 
     def _put(self, entry: ct.ControlTableEntry, value: int) -> None:
-        encode = encode_int if entry.signed else _encode_uint
-        self.table[entry.address : entry.end] = encode(value, entry.size)
+        address, size = entry.address, entry.size
+        try:
+            data = int(value).to_bytes(size, "little", signed=entry.signed)
+        except OverflowError:  # out of range: encode_int's ValueError, or _encode_uint's
+            encode = encode_int if entry.signed else _encode_uint
+            data = encode(value, size)
+        self.table[address : address + size] = data
 
     @property
     def servo_id(self) -> int:
