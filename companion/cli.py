@@ -17,6 +17,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from companion.cli_arm import app as arm_app
+from companion.cli_mission import demo as demo_command
+from companion.cli_mission import mission_app
 from companion.cli_plot import plot as plot_command
 from companion.config import ConfigError, Scenario, load_scenario
 
@@ -242,6 +244,8 @@ def compare(
 
 app.add_typer(arm_app, name="arm")
 app.command(name="plot")(plot_command)
+app.add_typer(mission_app, name="mission")
+app.command(name="demo")(demo_command)
 
 
 def main() -> None:

@@ -14,14 +14,15 @@ estimator should do. Phases, in order:
 ``lower``       lower until the payload point is at the place point
 ``release``     open the gripper, wait; the estimate returns to the empty-arm values
 ``climb``       climb to cruise altitude
-``to_home``     fly back above the start point; then the app asks PX4 to land
+``to_home``     fly back above the start point, arm stowed; then the app asks PX4 to land
 
 Every move is a minimum-jerk (quintic) segment, so q_d_dot and q_d_ddot are continuous and
 at rest at both ends; a phase ends when its segment is over and the vehicle is within
 ``arrive_tolerance_m`` of its end point (the tracking error is part of the mission, not
 hidden by a timer). Geometry: with the arm straight down (eta1 = -pi/2, eta2 = 0) the
-payload point lies ``mount_z + l1 + payload_position`` below the base CoM (DESIGN.md
-section 3), so the base flies that much above the object.
+grasp point lies ``mount_z + l1 + grasp_point`` below the base CoM (DESIGN.md
+section 3), so the base flies that much above the object. The companion does not know the
+payload: the grasp point is where its own jaws close (``PickupPlan.grasp_point_m``).
 """
 
 from __future__ import annotations
@@ -98,6 +99,10 @@ class PickupPlan:
     payload_at_m: tuple[float, float, float]
     place_at_m: tuple[float, float, float]
     yaw_rad: float = 0.0
+    stow_joints_rad: tuple[float, float] = (0.0, -0.5 * math.pi)
+    grasp_point_m: float | None = None
+    """Where along link 2 the closed jaws hold an object, from joint 2 [m]; default 2 cm
+    inside the tip (l2 - 0.02)."""
     cruise_altitude_m: float = 1.5
     cruise_speed_m_s: float = 0.5
     vertical_speed_m_s: float = 0.3
@@ -114,6 +119,7 @@ class PickupPlan:
 
     def __post_init__(self) -> None:
         values = [*self.home_m, *self.payload_at_m, *self.place_at_m, self.yaw_rad]
+        values += list(self.stow_joints_rad)
         if not all(math.isfinite(v) for v in values):
             raise ValueError("mission positions must be finite")
         for name in ("cruise_speed_m_s", "vertical_speed_m_s", "arm_move_s", "excite_period_s"):
@@ -180,9 +186,12 @@ class PickupMission:
 
     @property
     def hang_m(self) -> float:
-        """Height of the base CoM above the payload point with the arm down [m]."""
+        """Height of the base CoM above the jaws' grasp point with the arm down [m]."""
         arm = self.scenario.arm
-        return -arm.mount_point_m[2] + arm.link1.length_m + self.scenario.payload.position_m
+        grasp = self.plan.grasp_point_m
+        if grasp is None:
+            grasp = arm.link2.length_m - 0.02
+        return -arm.mount_point_m[2] + arm.link1.length_m + grasp
 
     def _pose(self, xyz: tuple[float, float, float] | FloatArray, eta) -> FloatArray:
         return np.array([xyz[0], xyz[1], xyz[2], 0.0, 0.0, self.plan.yaw_rad, eta[0], eta[1]])
@@ -202,7 +211,7 @@ class PickupMission:
             Phase.LOWER: self._pose((place[0], place[1], place[2] + hang), ARM_DOWN),
             Phase.RELEASE: self._pose((place[0], place[1], place[2] + hang), ARM_DOWN),
             Phase.CLIMB: self._pose((place[0], place[1], cruise), ARM_DOWN),
-            Phase.TO_HOME: self._pose((p.home_m[0], p.home_m[1], cruise), ARM_DOWN),
+            Phase.TO_HOME: self._pose((p.home_m[0], p.home_m[1], cruise), p.stow_joints_rad),
         }[phase]
 
     def start(self, t_s: float, q_now: FloatArray) -> None:

@@ -70,7 +70,7 @@ def test_grasp_puts_the_payload_point_on_the_object():
     q = grasp.desired.q
     arm = SCENARIO.arm
     # Arm straight down: payload point = base + mount + (l1 + lc) down.
-    point_z = q[2] + arm.mount_point_m[2] - arm.link1.length_m - SCENARIO.payload.position_m
+    point_z = q[2] + arm.mount_point_m[2] - arm.link1.length_m - (arm.link2.length_m - 0.02)
     assert q[6] == pytest.approx(-math.pi / 2) and q[7] == pytest.approx(0.0)
     np.testing.assert_allclose([q[0], q[1], point_z], PLAN.payload_at_m, atol=1e-9)
 
