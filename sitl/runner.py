@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -38,6 +39,8 @@ from sitl.world import World, WorldSettings
 
 __all__ = ["LinkPorts", "RunOptions", "RunStats", "SitlVehicle", "world_settings"]
 
+_SWITCH_INTERVAL_S = 2e-4
+"""Interpreter switch interval while running [s] (the servo bus thread's reply latency)."""
 _MAX_LAG_S = 0.25
 """Wall-clock lag behind schedule [s] after which the schedule is re-based (overrun)."""
 
@@ -226,7 +229,8 @@ class SitlVehicle:
             "onboard": f"udp {p.host}:{p.onboard_local} -> {p.host}:{p.onboard_remote}",
             "gcs": f"udp {p.host}:{p.gcs_local} -> {p.host}:{p.gcs_remote}",
             "connect": f"udpin://0.0.0.0:{p.onboard_remote}",
-            "arm_bus": f"dynamixel://{self.servo_bus.device}?baud=1000000",
+            # The emulator answers from a Python thread: allow for scheduling delays.
+            "arm_bus": f"dynamixel://{self.servo_bus.device}?baud=1000000&timeout_margin_ms=20",
         }
 
     # ---------------------------------------------------------------------- loop
@@ -238,6 +242,9 @@ class SitlVehicle:
         """
         if not self._open:
             raise RuntimeError("open the SitlVehicle (with ...) before running it")
+        # The servo bus thread must get the interpreter within a fraction of a millisecond
+        # to answer like a servo, not after Python's default 5 ms switch interval.
+        sys.setswitchinterval(_SWITCH_INTERVAL_S)
         world, autopilot, links = self.world, self.autopilot, self.links
         dt_s = world.dt_s
         wall_dt = dt_s / self.options.speed
