@@ -74,7 +74,7 @@ class Navigation:
         return VehicleMeasurement(
             time_s=state.time_s,
             position_enu_m=self._position,
-            velocity_enu_m_s=np.array(state.q_dot[0:3]),
+            velocity_enu_m_s=state.q_dot[0:3],  # copied by VehicleMeasurement
             quaternion_enu_flu_wxyz=self._quaternion,
             omega_flu_rad_s=self._omega,
             specific_force_flu_m_s2=world.specific_force_flu_m_s2(),

@@ -260,6 +260,27 @@ def test_set_message_interval_changes_one_link_only():
     assert reply[0][1].interval_us == round(1e6 / 7.0)
 
 
+def test_stream_scheduler_due_times_through_disable_enable_and_trigger():
+    from sitl.px4.telemetry import StreamScheduler
+
+    hb, att = M.MAVLINK_MSG_ID_HEARTBEAT, M.MAVLINK_MSG_ID_ATTITUDE
+    s = StreamScheduler({hb: 1.0, att: 100.0})
+    assert sorted(s.due(0)) == sorted([hb, att])
+    assert s.due(5_000) == [] and s.due(10_000) == [att]
+    s.trigger(hb, 12_000)  # due at once, before the next attitude
+    assert s.due(12_000) == [hb] and s.due(13_000) == []
+    s.set_interval(att, -1, 13_000)
+    s.set_interval(hb, -1, 13_000)
+    assert not any(s.due(t) for t in range(13_000, 2_100_000, 1_000))
+    s.set_interval(att, 0, 2_500_000)  # back to the default, due from now
+    assert s.due(2_499_000) == [] and s.due(2_500_000) == [att]
+    assert s.due(2_505_000) == [] and s.due(2_510_000) == [att]
+    s.trigger(hb, 2_511_000)  # a disabled stream stays disabled
+    assert s.due(2_511_000) == []
+    assert s.due(2_600_000) == [att]  # a late caller: sent once, rescheduled from now
+    assert s.due(2_605_000) == [] and s.due(2_610_000) == [att]
+
+
 def test_telemetry_is_ned_frd_of_a_known_enu_measurement():
     vehicle = Px4Vehicle(Px4Params())
     m = VehicleMeasurement(

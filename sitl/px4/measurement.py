@@ -70,7 +70,9 @@ class VehicleMeasurement:
             ("omega_flu_rad_s", 3),
             ("specific_force_flu_m_s2", 3),
         ):
-            arr = np.array(getattr(self, name), dtype=np.float64).reshape(-1)
+            arr = np.array(getattr(self, name), dtype=np.float64)
+            if arr.ndim != 1:
+                arr = arr.reshape(-1)
             # the sum of the entries is finite iff every entry is (cheaper than np.isfinite)
             if arr.shape != (size,) or not math.isfinite(sum(arr.tolist())):
                 raise ValueError(f"{name} must be {size} finite values, got {arr!r}")

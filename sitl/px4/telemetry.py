@@ -118,6 +118,8 @@ class StreamScheduler:
         }
         self._interval_us: dict[int, int | None] = dict(self._default_us)
         self._next_us: dict[int, int] = dict.fromkeys(self._default_us, 0)
+        self._earliest_us = 0
+        """No stream is due before this time [us] (``due`` returns at once before it)."""
 
     @property
     def streams(self) -> list[int]:
@@ -149,21 +151,35 @@ class StreamScheduler:
             self._default_us[msg_id] if interval_us == 0.0 else max(round(interval_us), 1)
         )
         self._next_us[msg_id] = now_us
+        self._earliest_us = min(self._earliest_us, now_us)
 
     def trigger(self, msg_id: int, now_us: int) -> None:
         """Make an enabled stream due now (a HEARTBEAT right after a mode change)."""
         if self._interval_us.get(msg_id) is not None:
             self._next_us[msg_id] = now_us
+            self._earliest_us = min(self._earliest_us, now_us)
 
     def due(self, now_us: int) -> list[int]:
         """Message ids due at ``now_us``; each is rescheduled one interval later."""
+        if now_us < self._earliest_us:
+            return []
         out = []
+        next_us = self._next_us
+        earliest = None
         for msg_id, interval in self._interval_us.items():
-            if interval is None or now_us < self._next_us[msg_id]:
+            if interval is None:
                 continue
-            out.append(msg_id)
-            nxt = self._next_us[msg_id] + interval
-            self._next_us[msg_id] = nxt if nxt > now_us else now_us + interval
+            nxt = next_us[msg_id]
+            if now_us >= nxt:
+                out.append(msg_id)
+                nxt += interval
+                if nxt <= now_us:
+                    nxt = now_us + interval
+                next_us[msg_id] = nxt
+            if earliest is None or nxt < earliest:
+                earliest = nxt
+        # Disabled streams are not waited for; with none enabled, check again every time.
+        self._earliest_us = now_us if earliest is None else earliest
         return out
 
 

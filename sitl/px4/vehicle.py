@@ -163,15 +163,19 @@ class Px4Vehicle:
             self._commander.state_changed = False
             for scheduler in self._schedulers.values():
                 scheduler.trigger(M.MAVLINK_MSG_ID_HEARTBEAT, now_us)
-        status = self._status()
+        status: VehicleStatus | None = None
         built: dict[int, mavlink.MAVLink_message] = {}
         out: Outgoing = []
         for link, scheduler in self._schedulers.items():
             for msg_id in scheduler.due(now_us):
                 if msg_id not in built:
+                    if status is None:
+                        status = self._status()
                     built[msg_id] = self._encoder.build(msg_id, now_s, m, status)
                 out.append((link, built[msg_id]))
-        return out + self._drain_statustext()
+        if self._commander.outbox:
+            out += self._drain_statustext()
+        return out
 
     def handle(self, msg: mavlink.MAVLink_message, link: str, now_s: float) -> Outgoing:
         """Process one decoded message received on ``link`` at simulation time ``now_s``
