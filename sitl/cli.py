@@ -10,7 +10,7 @@ import json
 import signal
 import threading
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, NoReturn
 
 import typer
 from rich.console import Console
@@ -90,6 +90,10 @@ def run(
         Path | None,
         typer.Option(help="MAVLink 2 signing key file (32 bytes); unsigned input is rejected."),
     ] = None,
+    servo_silent: Annotated[
+        str | None,
+        typer.Option(help="Fault injection 'ID@T': servo ID stops answering at T [s, sim time]."),
+    ] = None,
 ) -> None:
     """Run the simulated vehicle until interrupted (Ctrl-C) or --duration."""
     cfg = load_or_exit(config)
@@ -97,6 +101,7 @@ def run(
         _fail(f"--duration must be positive, got {duration:g}")
     if signing_key is not None and not signing_key.is_file():
         _fail(f"signing key {signing_key}: no such file")
+    silent = _servo_fault(servo_silent) if servo_silent is not None else None
     try:
         options = RunOptions(
             speed=speed,
@@ -110,6 +115,7 @@ def run(
             ),
             signing_key=signing_key,
             truth_log=truth_log,
+            servo_silent=silent,
         )
         vehicle = SitlVehicle(cfg, options)
     except (ValueError, ParamError, SigningKeyError) as exc:
@@ -138,7 +144,15 @@ def run(
     )
 
 
-def _fail(message: str) -> None:
+def _servo_fault(text: str) -> tuple[int, float]:
+    servo, _, at = text.partition("@")
+    try:
+        return int(servo), float(at)
+    except ValueError:
+        _fail(f"--servo-silent needs ID@SECONDS, e.g. 2@30, got {text!r}")
+
+
+def _fail(message: str) -> NoReturn:
     typer.echo(f"error: {message}", err=True)
     raise typer.Exit(EXIT_USAGE)
 

@@ -34,7 +34,7 @@ from companion.config import Scenario, arm_bus_configs
 from sitl.navigation import Navigation
 from sitl.physics import TruthPlant
 from sitl.px4 import MavlinkEndpoint, Px4Params, Px4Vehicle, load_signing_key
-from sitl.servo import PtyServoBus, XM430Parameters, XM430Servo
+from sitl.servo import Faults, PtyServoBus, XM430Parameters, XM430Servo
 from sitl.world import World, WorldSettings
 
 __all__ = ["LinkPorts", "RunOptions", "RunStats", "SitlVehicle", "world_settings"]
@@ -97,6 +97,9 @@ class RunOptions:
     signing_key: Path | None = None
     truth_log: Path | None = None
     truth_rate_hz: float = 50.0
+    servo_silent: tuple[int, float] | None = None
+    """Fault injection: (servo id, simulation time [s]) from which that servo carries out
+    instructions but never answers again (a broken TX line)."""
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.speed) and self.speed > 0.0):
@@ -249,6 +252,7 @@ class SitlVehicle:
         dt_s = world.dt_s
         wall_dt = dt_s / self.options.speed
         truth_every = max(1, round(1.0 / (self.options.truth_rate_hz * dt_s)))
+        silent = self.options.servo_silent
         stats = RunStats()
         sim0 = world.time_s
         wall0 = time.perf_counter()
@@ -273,6 +277,9 @@ class SitlVehicle:
                 world.step(setpoint)
             for link_name, message in autopilot.telemetry(now_s, measurement):
                 links[link_name].send(message)
+            if silent is not None and world.time_s >= silent[1]:
+                self.servo_bus.set_faults(Faults(silent_ids=frozenset({silent[0]})))
+                silent = None
             if self._truth_file is not None and step % truth_every == 0:
                 self._write_truth()
             step += 1
