@@ -270,11 +270,10 @@ class World:
         state = self._state
         dt = self.dt_s
         torques = self._torques
+        etas = state.q[6:8].tolist()
+        eta_rates = state.q_dot[6:8].tolist()
         for i, (config, servo) in enumerate(self._joints):
-            servo.set_state(
-                config.servo_angle_rad(float(state.q[6 + i])),
-                config.direction * float(state.q_dot[6 + i]),
-            )
+            servo.set_state(config.servo_angle_rad(etas[i]), config.direction * eta_rates[i])
             torques[i] = config.direction * servo.torque_n_m()
         if self._gripper_servo is not None and self.jaw is not None:
             self._gripper_servo.set_state(self.jaw.angle_rad, self.jaw.rate_rad_s)
@@ -284,7 +283,8 @@ class World:
             servo.step(dt)
         if self._gripper_servo is not None:
             self._gripper_servo.step(dt)
-        self.battery.draw(float(np.sum(self.plant.rotor_thrusts_n)), dt)
+        # sum() adds in order, as numpy does for six values: the same float, 3 us cheaper
+        self.battery.draw(sum(self.plant.rotor_thrusts_n.tolist()), dt)
         state = self._ground_contact(state)
         self._state = state
         self._update_payload()

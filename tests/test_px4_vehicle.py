@@ -260,6 +260,29 @@ def test_set_message_interval_changes_one_link_only():
     assert reply[0][1].interval_us == round(1e6 / 7.0)
 
 
+def test_measurement_copies_and_freezes_its_vectors_and_names_a_bad_one():
+    pos, vel, omega, force = np.array([1.0, 2, 3]), np.zeros(3), np.zeros(3), np.zeros(3)
+    quat = quaternion_from_euler(0.0, 0.0, 0.5)
+    m = VehicleMeasurement(0.5, pos, vel, quat, omega, force, False)
+    pos[0] = 9.0  # the caller's array is copied
+    assert m.position_enu_m.tolist() == [1.0, 2.0, 3.0]
+    assert m.quaternion_enu_flu_wxyz.tolist() == quat.tolist()
+    for arr in (m.position_enu_m, m.velocity_enu_m_s, m.quaternion_enu_flu_wxyz):
+        assert not arr.flags.writeable
+    # lists and other shapes take the per-field path: the same values
+    other = VehicleMeasurement(0.5, [9, 2, 3], [[0, 0, 0]], list(quat), omega, force, False)
+    assert other.velocity_enu_m_s.shape == (3,) and other.position_enu_m.dtype == np.float64
+    bad = np.array([0.0, np.nan, 0.0])
+    with pytest.raises(ValueError, match="omega_flu_rad_s"):
+        VehicleMeasurement(0.5, pos, vel, quat, bad, force, False)
+    with pytest.raises(ValueError, match="velocity_enu_m_s"):
+        VehicleMeasurement(0.5, pos, np.zeros(4), quat, omega, force, False)
+    # finite vectors whose values together overflow a float sum are still finite ones
+    huge = np.array([1e308, 0.0, 0.0])
+    m = VehicleMeasurement(0.5, huge, huge, quat, omega, force, False)
+    assert m.position_enu_m[0] == m.velocity_enu_m_s[0] == 1e308
+
+
 def test_stream_scheduler_due_times_through_disable_enable_and_trigger():
     from sitl.px4.telemetry import StreamScheduler
 

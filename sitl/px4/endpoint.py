@@ -26,6 +26,7 @@ characters (:func:`load_signing_key`).
 from __future__ import annotations
 
 import errno
+import select
 import socket
 import time
 from collections import Counter
@@ -120,6 +121,7 @@ class MavlinkEndpoint:
         self._link_id = int(link_id)
         self._sock: socket.socket | None = None
         self._mav: mavlink.MAVLink | None = None
+        self._poller = None
         self.counters: Counter[str] = Counter()
         """Datagrams / frames by outcome: ``received``, ``sent`` and the drop reasons."""
 
@@ -143,7 +145,9 @@ class MavlinkEndpoint:
             mav.signing.sign_outgoing = True
             mav.signing.link_id = self._link_id
             mav.signing.timestamp = int((time.time() - _SIGNING_EPOCH_S) * 1e5)
-        self._sock, self._mav = sock, mav
+        poller = select.poll()
+        poller.register(sock, select.POLLIN | select.POLLERR)
+        self._sock, self._mav, self._poller = sock, mav, poller
 
     def close(self) -> None:
         """Release the socket; safe to call more than once."""
@@ -151,6 +155,7 @@ class MavlinkEndpoint:
             self._sock.close()
         self._sock = None
         self._mav = None
+        self._poller = None
 
     def __enter__(self) -> MavlinkEndpoint:
         self.open()
@@ -193,6 +198,8 @@ class MavlinkEndpoint:
         """Every valid message of the datagrams waiting (at most ``max_datagrams``)."""
         sock, mav = self._require_open()
         out: list[mavlink.MAVLink_message] = []
+        if not self._poller.poll(0):  # nothing waiting, no error pending: the usual step
+            return out
         for _ in range(max_datagrams):
             try:
                 data, sender = sock.recvfrom(_MAX_DATAGRAM)

@@ -63,13 +63,36 @@ class VehicleMeasurement:
     battery_remaining: float = 1.0
 
     def __post_init__(self) -> None:
-        for name, size in (
-            ("position_enu_m", 3),
-            ("velocity_enu_m_s", 3),
-            ("quaternion_enu_flu_wxyz", 4),
-            ("omega_flu_rad_s", 3),
-            ("specific_force_flu_m_s2", 3),
-        ):
+        if not self._set_arrays_fast():
+            self._set_arrays()
+        for name in ("time_s", "battery_voltage_v", "battery_remaining"):
+            value = float(getattr(self, name))
+            if not math.isfinite(value):
+                raise ValueError(f"{name} must be finite, got {value!r}")
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "on_ground", bool(self.on_ground))
+
+    def _set_arrays_fast(self) -> bool:
+        """One read-only copy of all five vectors, each field a view of its part, when
+        they are 1-D float arrays of the right sizes with finite values (the simulator's
+        case, every plant step); False (nothing set) otherwise."""
+        values = [getattr(self, name) for name, _ in _ARRAYS]
+        for value, (_, size) in zip(values, _ARRAYS, strict=True):
+            if type(value) is not np.ndarray or value.shape != (size,):
+                return False
+            if value.dtype != np.float64:
+                return False
+        flat = np.concatenate(values)
+        # the sum of the entries is finite iff every entry is (cheaper than np.isfinite)
+        if not math.isfinite(sum(flat.tolist())):
+            return False  # the per-field check says which one (or accepts a sum overflow)
+        flat.flags.writeable = False
+        for (name, _), start, stop in _SLICES:
+            object.__setattr__(self, name, flat[start:stop])
+        return True
+
+    def _set_arrays(self) -> None:
+        for name, size in _ARRAYS:
             arr = np.array(getattr(self, name), dtype=np.float64)
             if arr.ndim != 1:
                 arr = arr.reshape(-1)
@@ -78,9 +101,17 @@ class VehicleMeasurement:
                 raise ValueError(f"{name} must be {size} finite values, got {arr!r}")
             arr.flags.writeable = False
             object.__setattr__(self, name, arr)
-        for name in ("time_s", "battery_voltage_v", "battery_remaining"):
-            value = float(getattr(self, name))
-            if not math.isfinite(value):
-                raise ValueError(f"{name} must be finite, got {value!r}")
-            object.__setattr__(self, name, value)
-        object.__setattr__(self, "on_ground", bool(self.on_ground))
+
+
+_ARRAYS = (
+    ("position_enu_m", 3),
+    ("velocity_enu_m_s", 3),
+    ("quaternion_enu_flu_wxyz", 4),
+    ("omega_flu_rad_s", 3),
+    ("specific_force_flu_m_s2", 3),
+)
+"""The vector fields and their sizes."""
+_SLICES = tuple(
+    (field, sum(n for _, n in _ARRAYS[:i]), sum(n for _, n in _ARRAYS[: i + 1]))
+    for i, field in enumerate(_ARRAYS)
+)
