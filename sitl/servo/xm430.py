@@ -322,27 +322,35 @@ class XM430Servo:
         self._put(ct.PRESENT_POSITION, units.rad_to_ticks(self._angle_rad))
         self._put(ct.PRESENT_VELOCITY, units.rad_s_to_velocity_units(self._rate_rad_s))
 
+    # The loops below run for every servo at every plant step: they read the few entries
+    # they need straight from the table (as get() does, without its per-call lookups).
+
     def torque_n_m(self) -> float:
         """Output torque [N m]: torque constant x present current, 0 with torque off."""
-        if not self.torque_enabled:
+        if self.table[_TORQUE_ENABLE] != 1:
             return 0.0
         return self.parameters.torque_constant_n_m_per_a * self._current_a
 
     def commanded_current_a(self) -> float:
         """Current the active control mode asks for now [A], clamped to the limits."""
-        if not self.torque_enabled:
+        table = self.table
+        if table[_TORQUE_ENABLE] != 1:
             return 0.0
-        limit_a = units.current_units_to_a(self.get(ct.CURRENT_LIMIT))
-        goal_a = units.current_units_to_a(self.get(ct.GOAL_CURRENT))
-        mode = self.get(ct.OPERATING_MODE)
-        if mode == ct.OperatingMode.CURRENT:
+        limit_a = units.current_units_to_a(int.from_bytes(table[_CURRENT_LIMIT], "little"))
+        goal_a = units.current_units_to_a(
+            int.from_bytes(table[_GOAL_CURRENT], "little", signed=True)
+        )
+        mode = table[_OPERATING_MODE]
+        if mode == _CURRENT_MODE:
             command = goal_a
         else:
-            goal_rad = units.ticks_to_rad(self.get(ct.GOAL_POSITION))
+            goal_rad = units.ticks_to_rad(
+                int.from_bytes(table[_GOAL_POSITION], "little", signed=True)
+            )
             p = self.parameters
             command = p.position_kp_a_per_rad * (goal_rad - self._angle_rad)
             command -= p.position_kd_a_s_per_rad * self._rate_rad_s
-            if mode == ct.OperatingMode.CURRENT_BASED_POSITION:
+            if mode == _CURRENT_BASED_POSITION_MODE:
                 limit_a = min(limit_a, abs(goal_a))
         return max(-limit_a, min(limit_a, command))
 
@@ -355,14 +363,29 @@ class XM430Servo:
         self._current_a += (command - self._current_a) * -math.expm1(
             -dt_s / p.current_time_constant_s
         )
-        limit_a = units.current_units_to_a(self.get(ct.CURRENT_LIMIT))
+        limit_a = units.current_units_to_a(int.from_bytes(self.table[_CURRENT_LIMIT], "little"))
         overloaded = abs(command) >= p.overload_current_fraction * limit_a > 0.0
         self._overload_s = self._overload_s + dt_s if overloaded else 0.0
         if self._overload_s >= p.overload_time_s:
             self.inject_hardware_error(HardwareErrorStatus.OVERLOAD)
-        if not self.torque_enabled:
+        if self.table[_TORQUE_ENABLE] != 1:
             self._current_a = 0.0
         self._put(ct.PRESENT_CURRENT, units.a_to_current_units(self._current_a))
+
+
+def _span(entry: ct.ControlTableEntry) -> slice:
+    return slice(entry.address, entry.end)
+
+
+assert ct.TORQUE_ENABLE.size == ct.OPERATING_MODE.size == 1
+assert not ct.CURRENT_LIMIT.signed and ct.GOAL_CURRENT.signed and ct.GOAL_POSITION.signed
+_TORQUE_ENABLE = ct.TORQUE_ENABLE.address
+_OPERATING_MODE = ct.OPERATING_MODE.address
+_CURRENT_LIMIT = _span(ct.CURRENT_LIMIT)
+_GOAL_CURRENT = _span(ct.GOAL_CURRENT)
+_GOAL_POSITION = _span(ct.GOAL_POSITION)
+_CURRENT_MODE = int(ct.OperatingMode.CURRENT)
+_CURRENT_BASED_POSITION_MODE = int(ct.OperatingMode.CURRENT_BASED_POSITION)
 
 
 def _encode_uint(value: int, size: int) -> bytes:
