@@ -86,6 +86,11 @@ class PlantChoice(StrEnum):
     underactuated = "underactuated"
 
 
+class PhysicsChoice(StrEnum):
+    pinocchio = "pinocchio"
+    jsbsim = "jsbsim"
+
+
 ScenarioOpt = Annotated[
     Path, typer.Option("--scenario", help="Scenario TOML file (see configs/).", show_default=False)
 ]
@@ -98,6 +103,21 @@ DurationOpt = Annotated[
     typer.Option(help="Simulated seconds [default: the scenario's simulation.duration_s]."),
 ]
 SeedOpt = Annotated[int, typer.Option(help="Seed of the sensor-noise generator.")]
+PhysicsOpt = Annotated[
+    PhysicsChoice,
+    typer.Option(help="Truth physics: our Pinocchio plant, or JSBSim (underactuated only)."),
+]
+WindOpt = Annotated[
+    str | None,
+    typer.Option(help="Steady wind 'E,N,U' [m/s], world ENU, e.g. '3,0,0' (jsbsim only)."),
+]
+TurbulenceOpt = Annotated[
+    float,
+    typer.Option(
+        help="Dryden turbulence intensity: MIL-F-8785C wind speed at 20 ft [m/s] "
+        "(jsbsim only; 0 = none; light 7.7, moderate 15)."
+    ),
+]
 NoiseOpt = Annotated[
     bool, typer.Option("--noise/--no-noise", help="Noisy sensors ([sensors]) or exact ones.")
 ]
@@ -126,6 +146,47 @@ def _run(cfg: Scenario, options, label: str):
             raise typer.Exit(1) from None
 
 
+def _check_physics(
+    physics: PhysicsChoice, plant: PlantChoice, wind: str | None, turbulence: float, seed: int
+):
+    """The ``Wind`` of the options (None when calm); usage errors exit 2."""
+    from sitl.physics.jsbsim.wind import Wind
+
+    if physics is PhysicsChoice.jsbsim and plant is PlantChoice.ideal:
+        typer.echo(
+            "error: --physics jsbsim needs --plant underactuated (ideal mode, tau on all 8 "
+            "rows, exists only on the Pinocchio plant)",
+            err=True,
+        )
+        raise typer.Exit(EXIT_USAGE)
+    if wind is None and turbulence == 0.0:
+        return None
+    if physics is not PhysicsChoice.jsbsim:
+        typer.echo("error: --wind and --turbulence need --physics jsbsim", err=True)
+        raise typer.Exit(EXIT_USAGE)
+    try:
+        velocity = tuple(float(v) for v in (wind or "0,0,0").split(","))
+        return Wind(
+            velocity_enu_m_s=velocity,  # type: ignore[arg-type]
+            turbulence="milspec" if turbulence > 0.0 else "none",
+            windspeed_20ft_m_s=turbulence,
+            seed=seed,
+        )
+    except ValueError as exc:
+        typer.echo(f"error: --wind {wind!r} / --turbulence {turbulence:g}: {exc}", err=True)
+        raise typer.Exit(EXIT_USAGE) from None
+
+
+def _wind_label(air) -> str:
+    if air is None:
+        return ""
+    east, north, up = air.velocity_enu_m_s
+    label = f", wind ({east:g}, {north:g}, {up:g}) m/s ENU"
+    if air.turbulence != "none":
+        label += f" + Dryden turbulence (W20 = {air.windspeed_20ft_m_s:g} m/s)"
+    return label
+
+
 def _check_times(cfg: Scenario, duration: float | None, *times: float | None) -> None:
     end = duration if duration is not None else cfg.simulation.duration_s
     if end <= 0.0:
@@ -149,6 +210,9 @@ def sim(
         typer.Option(help="Payload estimator [default: the scenario's estimator.kind]."),
     ] = None,
     plant: PlantOpt = PlantChoice.ideal,
+    physics: PhysicsOpt = PhysicsChoice.pinocchio,
+    wind: WindOpt = None,
+    turbulence: TurbulenceOpt = 0.0,
     duration: DurationOpt = None,
     seed: SeedOpt = 0,
     noise: NoiseOpt = False,
@@ -166,10 +230,13 @@ def sim(
 
     cfg = load_or_exit(scenario)
     _check_times(cfg, duration, pickup_at, release_at)
+    air = _check_physics(physics, plant, wind, turbulence, seed)
     options = SimOptions(
         controller=controller.value,
         estimator=estimator.value if estimator else None,
         plant=plant.value,
+        physics=physics.value,
+        wind=air,
         duration_s=duration,
         seed=seed,
         noise=noise,
@@ -183,7 +250,8 @@ def sim(
     plot_run(result, out)
     s = result.summary
     Console().print(
-        f"{cfg.name} ({s['controller']}, {s['estimator']}, {s['plant']} plant"
+        f"{cfg.name} ({s['controller']}, {s['estimator']}, {s['plant']} plant, "
+        f"{s['physics']}{', wind' if air else ''}"
         f"{', noisy' if noise else ''}): m2 = {s['estimates']['m2']:.4f} kg "
         f"({s['errors_pct']['m2']:+.1f} %), lc = {s['estimates']['lc']:.4f} m "
         f"({s['errors_pct']['lc']:+.1f} %), RMS position error "
@@ -208,6 +276,9 @@ def compare(
     scenario: ScenarioOpt,
     out: OutOpt,
     plant: PlantOpt = PlantChoice.ideal,
+    physics: PhysicsOpt = PhysicsChoice.pinocchio,
+    wind: WindOpt = None,
+    turbulence: TurbulenceOpt = 0.0,
     duration: DurationOpt = None,
     seed: SeedOpt = 0,
     noise: NoiseOpt = False,
@@ -219,12 +290,15 @@ def compare(
 
     cfg = load_or_exit(scenario)
     _check_times(cfg, duration)
+    air = _check_physics(physics, plant, wind, turbulence, seed)
     runs = []
     for name, ctl, est in COMPARED:
         options = SimOptions(
             controller=ctl.value,
             estimator=est.value,
             plant=plant.value,
+            physics=physics.value,
+            wind=air,
             duration_s=duration,
             seed=seed,
             noise=noise,
@@ -232,8 +306,8 @@ def compare(
         runs.append((name, _run(cfg, options, f"{cfg.name}: {name}")))
     out.mkdir(parents=True, exist_ok=True)
     title = (
-        f"# {cfg.name}: {plant.value} plant, {'noisy' if noise else 'exact'} sensors, "
-        f"seed {seed}\n\n"
+        f"# {cfg.name}: {plant.value} plant, {physics.value} physics"
+        f"{_wind_label(air)}, {'noisy' if noise else 'exact'} sensors, seed {seed}\n\n"
     )
     table = comparison_markdown([(name, r.summary) for name, r in runs])
     (out / "compare.md").write_text(title + table)

@@ -65,7 +65,7 @@ def test_another_config_gives_another_airframe() -> None:
     cfg = FLIGHT.model_copy(update={"vehicle": vehicle})
     assert airframe_xml(cfg) != airframe_xml(FLIGHT)
     plant = JsbsimPlant.from_scenario(cfg, payload_attached=True)
-    mass = plant._fdm["inertia/mass-slugs"] * SLUG_KG
+    mass = plant.property_value("inertia/mass-slugs") * SLUG_KG
     assert mass == pytest.approx(plant.total_mass_kg, rel=1e-6)
     assert plant.total_mass_kg == pytest.approx(2.5 + 0.1 + 0.1 + 0.4)
 
@@ -153,7 +153,7 @@ def test_reset_round_trips_the_state_through_jsbsim() -> None:
     np.testing.assert_allclose(state.q, q, atol=1e-8)
     np.testing.assert_allclose(state.q_dot, q_dot, atol=1e-8)
     assert state.time_s == 2.0
-    assert plant._fdm["inertia/mass-slugs"] * SLUG_KG == pytest.approx(1.6, rel=1e-6)
+    assert plant.property_value("inertia/mass-slugs") * SLUG_KG == pytest.approx(1.6, rel=1e-6)
 
 
 def test_hover_holds_still() -> None:
@@ -188,7 +188,7 @@ def test_steady_wind_pushes_through_the_drag() -> None:
     setpoint = AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, hover_command(plant))
     for _ in range(50):
         state = plant.step(setpoint, [0.0, 0.0])
-    com_east_m_s = plant._fdm["velocities/v-east-fps"] * 0.3048
+    com_east_m_s = plant.property_value("velocities/v-east-fps") * 0.3048
     expected = FLIGHT.plant.linear_drag_n_s_m[0] * 2.0 / plant.total_mass_kg
     assert com_east_m_s / state.time_s == pytest.approx(expected, rel=0.02)
     assert state.q_dot[0] > com_east_m_s
@@ -204,7 +204,7 @@ def test_turbulence_shakes_the_vehicle() -> None:
     north = []
     for _ in range(1000):
         state = plant.step(setpoint, [0.0, 0.0])
-        north.append(plant._fdm["atmosphere/total-wind-north-fps"] * 0.3048)
+        north.append(plant.property_value("atmosphere/total-wind-north-fps") * 0.3048)
     assert np.std(north) > 0.01
     assert np.all(np.isfinite(state.q))
 
@@ -248,3 +248,43 @@ def test_wind_options_are_validated() -> None:
         Wind(turbulence="tustin")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="3 finite values"):
         Wind(velocity_enu_m_s=(1.0, math.nan, 0.0))
+
+
+# --------------------------------------------------------------- command line
+
+
+def test_cli_refuses_jsbsim_ideal_and_wind_on_pinocchio(run_cli, tmp_path: Path) -> None:
+    scenario = str(CONFIGS / "paper_sim_flight.toml")
+    ideal = run_cli("sim", "--scenario", scenario, "--out", str(tmp_path), "--physics", "jsbsim")
+    assert ideal.returncode == 2
+    assert "--physics jsbsim needs --plant underactuated" in ideal.stderr
+    windy = run_cli(
+        "compare", "--scenario", scenario, "--out", str(tmp_path), "--plant", "underactuated",
+        "--wind", "3,0,0",
+    )  # fmt: skip
+    assert windy.returncode == 2
+    assert "need --physics jsbsim" in windy.stderr
+    bad = run_cli(
+        "sim", "--scenario", scenario, "--out", str(tmp_path), "--plant", "underactuated",
+        "--physics", "jsbsim", "--wind", "3,0",
+    )  # fmt: skip
+    assert bad.returncode == 2
+    assert "3 finite values" in bad.stderr
+
+
+@pytest.mark.slow
+def test_cli_sim_on_jsbsim_with_wind(run_cli, tmp_path: Path) -> None:
+    """companion sim --physics jsbsim --wind --turbulence: the run is recorded as such."""
+    import json
+
+    result = run_cli(
+        "sim", "--scenario", str(CONFIGS / "paper_sim_flight.toml"), "--out", str(tmp_path),
+        "--plant", "underactuated", "--physics", "jsbsim", "--wind", "2,1,0",
+        "--turbulence", "5", "--duration", "1",
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["physics"] == "jsbsim"
+    assert summary["wind"]["velocity_enu_m_s"] == [2.0, 1.0, 0.0]
+    assert summary["wind"]["turbulence"] == "milspec"
+    assert "jsbsim, wind" in result.stdout
