@@ -151,6 +151,8 @@ class PickupApp:
         self.plan = plan
         self.control_rate_hz = control_rate_hz
         self.control = FlightControl(scenario, controller)
+        q_stow = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0, *plan.stow_joints_rad])
+        self.control.check_rate(control_rate_hz, q_stow)
         self.mission = PickupMission(plan, scenario)
         self.failsafe = FailsafeMonitor()
         self.assembler = StateAssembler.from_sensors(scenario.sensors)
@@ -172,6 +174,7 @@ class PickupApp:
         self._servo_failures = 0
         self._faults: asyncio.Queue[FaultEvent] = asyncio.Queue()
         self._payload_errors: list[float] = []
+        self.control.estimator.freeze()  # until the mission flies in OFFBOARD
         self._estimate_frozen = True
         self._tick = asyncio.Condition()
         """Notified after every control cycle (vehicle time advanced)."""
@@ -462,9 +465,9 @@ class PickupApp:
         sp = out.setpoint
         if self._streaming:
             self.link.send_setpoint(sp, pose.time_boot_ms)
-            self._last_thrust_n = sp.thrust_n
-        else:
-            self._last_thrust_n = math.nan
+        # The thrust is known only while PX4 flies our setpoints (in OFFBOARD); before, PX4's
+        # own position loop decides it, and the estimator must not see ours as applied.
+        self._last_thrust_n = sp.thrust_n if self._streaming and self._offboard else math.nan
         tau_cmd = await self._write_joints(out.tau[6:8])
         self.report.cycle_latency_us.append((time.perf_counter() - received) * 1e6)
         self.report.control_cycles += 1

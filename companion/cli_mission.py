@@ -35,7 +35,8 @@ from arm_driver.errors import ArmDriverError
 from companion.app import MissionAborted, MissionError, MissionReport, PickupApp
 from companion.cli_plot import plot_flight_log
 from companion.config import Scenario, arm_bus_configs
-from companion.flight_control import FlightControllerName
+from companion.control import ControlRateError
+from companion.flight_control import FlightControl, FlightControllerName
 from companion.flightlog import FlightLogWriter, read_flight_log
 from companion.link import LinkError, MavlinkLink, SigningConfig
 from companion.mission import PickupPlan
@@ -94,6 +95,11 @@ async def fly_pickup(
     if scenario.arm_bus is None:
         raise UsageError(f"{scenario.name}: the scenario has no [arm_bus] section (joints)")
     joints, gripper = arm_bus_configs(scenario.arm_bus)
+    q_stow = [0.0, 0.0, 1.0, 0.0, 0.0, 0.0, *plan.stow_joints_rad]
+    try:
+        FlightControl(scenario, controller).check_rate(control_rate_hz, q_stow)
+    except ControlRateError as exc:
+        raise UsageError(f"{scenario.name}: {exc}") from None
     signing = SigningConfig.from_file(signing_key) if signing_key is not None else None
     log_path = out_dir / "flight.csv"
     try:

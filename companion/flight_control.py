@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from companion.config import Scenario
-from companion.control import DesiredState, PassivityController
+from companion.control import DesiredState, PassivityController, check_control_rate
 from companion.estimation import TRANSLATION_AND_JOINT_ROWS, Estimate
 from companion.filters import FilteredState
 from companion.model import ManipulatorModel
@@ -90,9 +90,14 @@ class FlightControl:
         self.thrust_curve = ThrustCurve(6 * rotors.max_thrust_per_rotor_n, rotors.thr_mdl_fac)
         self.tilt_max_rad = ctl.tilt_max_rad
 
-    def hold_force(self, q: FloatArray) -> FloatArray:
-        """Gravity compensation at ``q`` with the current estimate (tau before the first step)."""
-        return self.model.gravity(q, tuple(self.estimator.theta))
+    def check_rate(self, rate_hz: float, q: FloatArray) -> float:
+        """Raise :class:`~companion.control.ControlRateError` if ``rate_hz`` is too low for
+        the velocity gains on the rows flown (x, y, z, joints) at configuration ``q``;
+        returns the damping step ratio (see :func:`~companion.control.check_control_rate`)."""
+        m = self.model.mass_matrix(q, tuple(self.estimator.theta))
+        return check_control_rate(
+            m, self.scenario.controller.k, 1.0 / rate_hz, TRANSLATION_AND_JOINT_ROWS
+        )
 
     def step(
         self,
