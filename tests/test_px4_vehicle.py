@@ -283,6 +283,18 @@ def test_measurement_copies_and_freezes_its_vectors_and_names_a_bad_one():
     assert m.position_enu_m[0] == m.velocity_enu_m_s[0] == 1e308
 
 
+def test_ping_request_is_returned_to_its_sender_and_answers_are_not(vehicle):
+    out = vehicle.handle(received(M.MAVLink_ping_message(123_456, 7, 0, 0)), "onboard", 1.0)
+    assert len(out) == 1
+    link, pong = out[0]
+    assert link == "onboard" and pong.get_type() == "PING"
+    assert (pong.time_usec, pong.seq) == (123_456, 7)
+    assert (pong.target_system, pong.target_component) == GCS
+    answer = M.MAVLink_ping_message(5, 8, 1, 1)  # a reply to a ping of the vehicle's
+    assert vehicle.handle(received(answer), "gcs", 1.0) == []
+    assert vehicle.counters["ignored_message"] == 0
+
+
 def test_stream_scheduler_due_times_through_disable_enable_and_trigger():
     from sitl.px4.telemetry import StreamScheduler
 

@@ -20,6 +20,8 @@ Message handling follows PX4's ``mavlink_receiver.cpp`` where it matters to clie
   STATUSTEXT and a PARAM_VALUE with the unchanged value; an accepted one is echoed on
   every link.
 - TIMESYNC requests are answered with the simulation time in nanoseconds.
+- A PING request (target 0/0; MAVSDK sends them to measure latency) is returned to its
+  sender with the same time and sequence, the target set to the sender, as PX4 does.
 """
 
 from __future__ import annotations
@@ -381,6 +383,14 @@ class Px4Vehicle:
             return [(link, self._param_value(name))]
         return [(each, self._param_value(name)) for each in self.links]
 
+    def _ping(self, msg, link: str, now_s: float) -> Outgoing:
+        if msg.target_system != 0 or msg.target_component != 0:
+            return []  # an answer to a ping of ours (PX4 takes the latency), or not for us
+        reply = M.MAVLink_ping_message(
+            msg.time_usec, msg.seq, msg.get_srcSystem(), msg.get_srcComponent()
+        )
+        return [(link, reply)]
+
     def _timesync(self, msg, link: str, now_s: float) -> Outgoing:
         if msg.tc1 != 0:
             return []
@@ -395,6 +405,7 @@ class Px4Vehicle:
         "PARAM_REQUEST_READ": _param_request_read,
         "PARAM_SET": _param_set,
         "TIMESYNC": _timesync,
+        "PING": _ping,
     }
 
     # ------------------------------------------------------------ helpers
