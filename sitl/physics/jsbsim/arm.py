@@ -65,10 +65,6 @@ __all__ = ["ArmDynamics", "LinkBody"]
 Vec3 = tuple[float, float, float]
 
 
-def _cross(a: Vec3, b: Vec3) -> Vec3:
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
 @dataclass(frozen=True)
 class LinkBody:
     """A rigid body on a link axis: mass [kg], CoM distance from its joint [m], inertia about
@@ -199,6 +195,7 @@ class ArmDynamics:
                 j1 = (-l1 * s1 + j2[0], 0.0, l1 * c1 + j2[2])
             out.append((m, s, sd, s0, j1, j2))
         self._kin_key, self._kin = key, out
+        self._com = _centre(self.base_mass_kg, out)
         return out
 
     def point_masses(self) -> list[tuple[float, Vec3]]:
@@ -240,25 +237,42 @@ class ArmDynamics:
         """
         kin = self._kinematics()
         total = self.base_mass_kg + sum(k[0] for k in kin)
-        c, cd = _centre(self.base_mass_kg, kin)
+        c, cd = self._com
         cdd0 = [sum(k[0] * k[3][i] for k in kin) / total for i in range(3)]
         jg1 = [sum(k[0] * k[4][i] for k in kin) / total for i in range(3)]
         jg2 = [sum(k[0] * k[5][i] for k in kin) / total for i in range(3)]
         a11 = a12 = a22 = 0.0
         r1, r2 = joint_torques_n_m
+        wx, wy, wz = omega
+        ax, ay, az = omega_dot
+        wsq = wx * wx + wy * wy + wz * wz
         for m, s, sd, s0, j1, j2 in kin:
             a11 += m * (j1[0] ** 2 + j1[2] ** 2)
             a12 += m * (j1[0] * j2[0] + j1[2] * j2[2])
             a22 += m * (j2[0] ** 2 + j2[2] ** 2)
-            rho = (s[0] - c[0], s[1] - c[1], s[2] - c[2])
-            rho_dot = (sd[0] - cd[0], sd[1] - cd[1], sd[2] - cd[2])
-            wr = _cross(omega, rho)
-            wwr = _cross(omega, wr)
-            dwr = _cross(omega_dot, rho)
-            wrd = _cross(omega, rho_dot)
+            r0, r1_, r2_ = s[0] - c[0], s[1] - c[1], s[2] - c[2]
+            v0, v1, v2 = sd[0] - cd[0], sd[1] - cd[1], sd[2] - cd[2]
+            # f = b + omega_dot x rho + omega x (omega x rho) + 2 omega x rho_dot + s0 - c0
+            w0 = wx * r0 + wy * r1_ + wz * r2_  # omega . rho
             f = [
-                specific_force_body[i] + dwr[i] + wwr[i] + 2.0 * wrd[i] + s0[i] - cdd0[i]
-                for i in range(3)
+                specific_force_body[0]
+                + (ay * r2_ - az * r1_)
+                + (wx * w0 - wsq * r0)
+                + 2.0 * (wy * v2 - wz * v1)
+                + s0[0]
+                - cdd0[0],
+                specific_force_body[1]
+                + (az * r0 - ax * r2_)
+                + (wy * w0 - wsq * r1_)
+                + 2.0 * (wz * v0 - wx * v2)
+                + s0[1]
+                - cdd0[1],
+                specific_force_body[2]
+                + (ax * r1_ - ay * r0)
+                + (wz * w0 - wsq * r2_)
+                + 2.0 * (wx * v1 - wy * v0)
+                + s0[2]
+                - cdd0[2],
             ]
             r1 -= m * (j1[0] * f[0] + j1[1] * f[1] + j1[2] * f[2])
             r2 -= m * (j2[0] * f[0] + j2[1] * f[1] + j2[2] * f[2])
@@ -277,32 +291,37 @@ class ArmDynamics:
 
     def centre_of_mass(self) -> tuple[Vec3, Vec3]:
         """CG of vehicle + arm from O and its rate relative to the body (body FLU) [m, m/s]."""
-        return _centre(self.base_mass_kg, self._kinematics())
+        self._kinematics()
+        return self._com
 
     def _moment(self, kin, omega: Vec3, dd1: float, dd2: float) -> Vec3:
-        c, cd = _centre(self.base_mass_kg, kin)
-        h_dot = [0.0, 0.0, 0.0]
-        h = [0.0, 0.0, 0.0]
-        # J_dot omega, starting with the vehicle body (rho = -c, rho_dot = -c_dot).
-        jdw = list(
-            _jdot_omega(self.base_mass_kg, (-c[0], -c[1], -c[2]), (-cd[0], -cd[1], -cd[2]), omega)
+        """M_corr = -(J_dot omega + sum m rho x s_ddot + omega x sum m rho x s_dot)."""
+        c, cd = self._com
+        wx, wy, wz = omega
+        # J_dot omega of the vehicle body: a mass at O, rho = -c, rho_dot = -c_dot.
+        t0, t1, t2 = _jdot_omega(
+            self.base_mass_kg, (-c[0], -c[1], -c[2]), (-cd[0], -cd[1], -cd[2]), omega
         )
+        h0 = h1 = h2 = 0.0
         for m, s, sd, s0, j1, j2 in kin:
-            sdd = tuple(j1[i] * dd1 + j2[i] * dd2 + s0[i] for i in range(3))
-            rho = (s[0] - c[0], s[1] - c[1], s[2] - c[2])
-            rho_dot = (sd[0] - cd[0], sd[1] - cd[1], sd[2] - cd[2])
-            r_sdd = _cross(rho, sdd)  # type: ignore[arg-type]
-            r_sd = _cross(rho, sd)
-            jk = _jdot_omega(m, rho, rho_dot, omega)
-            for i in range(3):
-                h_dot[i] += m * r_sdd[i]
-                h[i] += m * r_sd[i]
-                jdw[i] += jk[i]
-        wh = _cross(omega, (h[0], h[1], h[2]))
+            a0 = j1[0] * dd1 + j2[0] * dd2 + s0[0]
+            a1 = j1[1] * dd1 + j2[1] * dd2 + s0[1]
+            a2 = j1[2] * dd1 + j2[2] * dd2 + s0[2]
+            r0, r1, r2 = s[0] - c[0], s[1] - c[1], s[2] - c[2]
+            v0, v1, v2 = sd[0] - cd[0], sd[1] - cd[1], sd[2] - cd[2]
+            rr = r0 * v0 + r1 * v1 + r2 * v2
+            rw = r0 * wx + r1 * wy + r2 * wz
+            vw = v0 * wx + v1 * wy + v2 * wz
+            t0 += m * (2.0 * rr * wx - v0 * rw - r0 * vw + r1 * a2 - r2 * a1)
+            t1 += m * (2.0 * rr * wy - v1 * rw - r1 * vw + r2 * a0 - r0 * a2)
+            t2 += m * (2.0 * rr * wz - v2 * rw - r2 * vw + r0 * a1 - r1 * a0)
+            h0 += m * (r1 * sd[2] - r2 * sd[1])
+            h1 += m * (r2 * sd[0] - r0 * sd[2])
+            h2 += m * (r0 * sd[1] - r1 * sd[0])
         return (
-            -(jdw[0] + h_dot[0] + wh[0]),
-            -(jdw[1] + h_dot[1] + wh[1]),
-            -(jdw[2] + h_dot[2] + wh[2]),
+            -(t0 + wy * h2 - wz * h1),
+            -(t1 + wz * h0 - wx * h2),
+            -(t2 + wx * h1 - wy * h0),
         )
 
     # ---------------------------------------------------------------- analysis
