@@ -22,11 +22,15 @@ import math
 from abc import ABC, abstractmethod
 from collections import deque
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from companion.model import ModelTerms
+
+if TYPE_CHECKING:
+    from companion.config import Scenario
 
 __all__ = [
     "TRANSLATION_AND_JOINT_ROWS",
@@ -35,6 +39,7 @@ __all__ = [
     "PaperEstimator",
     "RlsEstimator",
     "ThetaBounds",
+    "estimator_from_scenario",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -425,3 +430,32 @@ class RlsEstimator(_Base):
         if trace > self.p_trace_max:
             p *= self.p_trace_max / trace
         self.p = p
+
+
+def estimator_from_scenario(scenario: Scenario, kind: str, rows: tuple[int, ...]):
+    """The scenario's estimator of ``kind`` (``"paper"`` or ``"rls"``) on ``rows``, with its
+    bounds, confidence monitor and gains from the ``[estimator]`` section."""
+    est = scenario.estimator
+    bounds = ThetaBounds(est.m2_bounds_kg[0], est.m2_bounds_kg[1], scenario.arm.link2.length_m)
+    m2_max, l2 = est.m2_bounds_kg[1], scenario.arm.link2.length_m
+    monitor = ExcitationMonitor(
+        window_s=est.confidence.window_s,
+        theta_scale=(m2_max, m2_max * l2, m2_max * l2 * l2),
+        row_scale=np.asarray(est.rls.row_noise)[list(rows)] * 10.0,
+        excitation_min=est.confidence.excitation_min,
+        spread_max=est.confidence.spread_max,
+    )
+    theta0 = est.initial_theta.as_tuple()
+    if kind == "paper":
+        return PaperEstimator(
+            theta0, bounds, monitor, est.gamma, est.c_star, est.k_star, est.initial_qhat_dot, rows
+        )
+    return RlsEstimator(
+        theta0,
+        bounds,
+        monitor,
+        forgetting=est.rls.forgetting,
+        p0=np.square(est.rls.initial_std),
+        row_noise=est.rls.row_noise,
+        rows=rows,
+    )

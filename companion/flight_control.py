@@ -25,11 +25,10 @@ from numpy.typing import NDArray
 
 from companion.config import Scenario
 from companion.control import DesiredState, PassivityController, check_control_rate
-from companion.estimation import TRANSLATION_AND_JOINT_ROWS, Estimate
+from companion.estimation import TRANSLATION_AND_JOINT_ROWS, Estimate, estimator_from_scenario
 from companion.filters import FilteredState
 from companion.model import ManipulatorModel
 from companion.setpoints import AttitudeThrustSetpoint, ThrustCurve, attitude_thrust_setpoint
-from companion.simulation import make_estimator
 from companion.state import thrust_force_world
 from companion.trajectory import TiltReference
 
@@ -76,7 +75,7 @@ class FlightControl:
         if not rows:
             raise ValueError("estimator.rows has no row with a force known in flight (0-2, 6-7)")
         self.rows = rows
-        self.estimator = make_estimator(scenario, scenario.estimator.kind, rows)
+        self.estimator = estimator_from_scenario(scenario, scenario.estimator.kind, rows)
         ctl = scenario.controller
         self.nominal_theta = np.array(scenario.nominal_theta.as_tuple())
         if controller == "nonadaptive":

@@ -36,10 +36,8 @@ from companion.config import Scenario
 from companion.control import PassivityController, SlidingModeController, check_control_rate
 from companion.estimation import (
     TRANSLATION_AND_JOINT_ROWS,
-    ExcitationMonitor,
     PaperEstimator,
-    RlsEstimator,
-    ThetaBounds,
+    estimator_from_scenario,
 )
 from companion.model import ManipulatorModel
 from companion.setpoints import ThrustCurve, attitude_thrust_setpoint
@@ -49,7 +47,7 @@ from sitl.physics import AttitudeSetpoint, PhysicsBackend, TruthPlant, make_plan
 from sitl.physics.jsbsim.wind import Wind
 from sitl.sensors import GyroSensor, JointEncoders, PoseSensor
 
-__all__ = ["COLUMNS", "SimOptions", "SimResult", "make_estimator", "simulate"]
+__all__ = ["COLUMNS", "SimOptions", "SimResult", "simulate"]
 
 ControllerName = Literal["passivity", "nonadaptive", "asmc"]
 EstimatorName = Literal["paper", "rls"]
@@ -101,34 +99,6 @@ class SimResult:
         return self.data[:, _COL[name]]
 
 
-def make_estimator(scenario: Scenario, kind: EstimatorName, rows: tuple[int, ...]):
-    """The configured estimator on ``rows``."""
-    est = scenario.estimator
-    bounds = ThetaBounds(est.m2_bounds_kg[0], est.m2_bounds_kg[1], scenario.arm.link2.length_m)
-    m2_max, l2 = est.m2_bounds_kg[1], scenario.arm.link2.length_m
-    monitor = ExcitationMonitor(
-        window_s=est.confidence.window_s,
-        theta_scale=(m2_max, m2_max * l2, m2_max * l2 * l2),
-        row_scale=np.asarray(est.rls.row_noise)[list(rows)] * 10.0,
-        excitation_min=est.confidence.excitation_min,
-        spread_max=est.confidence.spread_max,
-    )
-    theta0 = est.initial_theta.as_tuple()
-    if kind == "paper":
-        return PaperEstimator(
-            theta0, bounds, monitor, est.gamma, est.c_star, est.k_star, est.initial_qhat_dot, rows
-        )
-    return RlsEstimator(
-        theta0,
-        bounds,
-        monitor,
-        forgetting=est.rls.forgetting,
-        p0=np.square(est.rls.initial_std),
-        row_noise=est.rls.row_noise,
-        rows=rows,
-    )
-
-
 def _sliding_mode(scenario: Scenario) -> SlidingModeController:
     sm = scenario.controller.sliding_mode
     return SlidingModeController(
@@ -157,15 +127,7 @@ class _Measurements:
         if not noise:
             self.assembler = StateAssembler.noise_free(s.jerk_psd)
             return
-        # Encoder quantisation (4096 ticks/rev) acts as uniform noise of step/sqrt(12).
-        joint_std = max(s.joint_std_rad, 2.0 * math.pi / 4096 / math.sqrt(12.0))
-        self.assembler = StateAssembler(
-            s.jerk_psd,
-            position_std=[s.position_std_m] * 3 + [s.attitude_std_rad] * 3 + [joint_std] * 2,
-            velocity_std=[1.0] * 3
-            + [s.gyro_std_rad_s] * 3
-            + [s.joint_velocity_unit_rad_s / math.sqrt(12.0)] * 2,
-        )
+        self.assembler = StateAssembler.from_sensors(s)
         if noise:
             self.pose = PoseSensor(
                 rng,
@@ -242,7 +204,7 @@ def simulate(
         wind=opts.wind,
     )
     model = ManipulatorModel.from_scenario(scenario)
-    estimator = make_estimator(scenario, kind, rows)
+    estimator = estimator_from_scenario(scenario, kind, rows)
     ctl = scenario.controller
     if opts.controller == "asmc":
         smc, passivity = _sliding_mode(scenario), None
