@@ -180,6 +180,19 @@ def test_vehicle_lands_on_its_gear() -> None:
     assert abs(state.q[3]) < 1e-3 and abs(state.q[4]) < 1e-3
 
 
+def test_a_flipped_vehicle_lands_on_its_rotor_hubs() -> None:
+    """Upside down with the rotors off: it comes to rest on the hub contacts, the vehicle
+    CoM just above the ground (not hanging from its feet below it)."""
+    plant = JsbsimPlant.from_scenario(FLIGHT)
+    q = np.array([0.0, 0.0, 0.5, math.pi, 0.0, 0.0, -math.pi / 2, 0.0])
+    plant.reset(q, rotor_thrusts_n=np.zeros(6))
+    setpoint = AttitudeSetpoint.from_euler(math.pi, 0.0, 0.0, 0.0)
+    for _ in range(2000):
+        state = plant.step(setpoint, [0.0, 0.0])
+    assert -0.005 < state.q[2] < 0.01
+    assert np.abs(state.q_dot[0:3]).max() < 1e-2
+
+
 def test_steady_wind_pushes_through_the_drag() -> None:
     """A 2 m/s wind toward the east on a level, hovering vehicle: its CoM accelerates east
     at D_x w / m (the vehicle body, O, first faster: the hanging arm lags), and not north."""

@@ -13,9 +13,11 @@ What goes into the aircraft file (``<fdm_config name="hexarotor">``):
     masses stand for the arm (two per link, see :mod:`sitl.physics.jsbsim.arm`); the plant
     moves them every step through ``inertia/pointmass-*`` properties.
 ``<ground_reactions>``
-    Four STRUCTURE contacts, the feet of the landing gear, ``gear.height_m`` below O on a
-    square of half-diagonal ``gear.radius_m``. Spring and damping carry the whole vehicle
-    with a few millimetres of deflection, near critical damping.
+    STRUCTURE contacts: the four feet of the landing gear, ``gear.height_m`` below O on a
+    square of half-diagonal ``gear.radius_m``, and the six rotor hubs (so that a vehicle
+    that flips over lands on them instead of hanging from its feet below the ground).
+    Spring and damping carry the whole vehicle with a few millimetres of deflection, near
+    critical damping.
 ``<aerodynamics>``
     Empty body axes: no aerodynamic model (the drag is an external reaction below).
 ``<external_reactions>``
@@ -161,16 +163,20 @@ def _mass_balance(root: ET.Element, scenario: Scenario) -> None:
         _triplet(pm, "location", mount, unit="IN")
 
 
-def _ground_reactions(root: ET.Element, gear: GearGeometry) -> None:
+def _ground_reactions(root: ET.Element, gear: GearGeometry, hubs: list[tuple]) -> None:
     ground = _sub(root, "ground_reactions")
     r = gear.radius_m / 2.0**0.5
-    for i, (x, y) in enumerate(((r, r), (-r, r), (-r, -r), (r, -r))):
-        foot = _sub(ground, "contact", type="STRUCTURE", name=f"foot{i}")
-        _triplet(foot, "location", (-x, -y, -gear.height_m), unit="M")
-        _sub(foot, "static_friction", gear.static_friction)
-        _sub(foot, "dynamic_friction", gear.dynamic_friction)
-        _sub(foot, "spring_coeff", gear.spring_n_m, unit="N/M")
-        _sub(foot, "damping_coeff", gear.damping_n_s_m, unit="N/M/SEC")
+    feet = [(r, r, -gear.height_m), (-r, r, -gear.height_m)]
+    feet += [(-r, -r, -gear.height_m), (r, -r, -gear.height_m)]
+    points = [(f"foot{i}", p) for i, p in enumerate(feet)]
+    points += [(f"hub{i}", p) for i, p in enumerate(hubs)]
+    for name, p in points:
+        contact = _sub(ground, "contact", type="STRUCTURE", name=name)
+        _triplet(contact, "location", structural_in(p), unit="IN")
+        _sub(contact, "static_friction", gear.static_friction)
+        _sub(contact, "dynamic_friction", gear.dynamic_friction)
+        _sub(contact, "spring_coeff", gear.spring_n_m, unit="N/M")
+        _sub(contact, "damping_coeff", gear.damping_n_s_m, unit="N/M/SEC")
 
 
 def _drag_function(parent: ET.Element, axis: str, drag_n_s_m: float) -> None:
@@ -215,7 +221,9 @@ def airframe_xml(scenario: Scenario, gear: GearGeometry = GearGeometry()) -> str
     _planet(root, scenario.environment.gravity_m_s2)
     _metrics(root, scenario)
     _mass_balance(root, scenario)
-    _ground_reactions(root, gear)
+    rotors = scenario.vehicle.rotors
+    geometry = RotorGeometry.hexa_x(rotors.arm_length_m, rotors.yaw_moment_per_thrust_m)
+    _ground_reactions(root, gear, [tuple(float(c) for c in p) for p in geometry.positions_m])
     _sub(root, "propulsion")
     aero = _sub(root, "aerodynamics")  # no aerodynamic model: drag is an external reaction
     for axis in ("X", "Y", "Z", "ROLL", "PITCH", "YAW"):
