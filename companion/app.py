@@ -79,9 +79,13 @@ class MissionReport:
     disarmed: bool = False
     control_cycles: int = 0
     cycle_latency_us: list[float] = field(default_factory=list)
+    """Pose taken from the link -> joint torques written, per cycle [us]."""
+    setpoint_latency_us: list[float] = field(default_factory=list)
+    """Pose taken from the link -> SET_ATTITUDE_TARGET sent (joint read included) [us]."""
+    cpu_share: float | None = None
+    """Process CPU time / wall time over the OFFBOARD part (1.0 = one core)."""
 
     def as_dict(self) -> dict[str, Any]:
-        lat = np.asarray(self.cycle_latency_us) if self.cycle_latency_us else np.zeros(1)
         return {
             "controller": self.controller,
             "completed": self.completed,
@@ -95,11 +99,17 @@ class MissionReport:
             "landed": self.landed,
             "disarmed": self.disarmed,
             "control_cycles": self.control_cycles,
-            "cycle_latency_us": {
-                "median": float(np.median(lat)),
-                "p99": float(np.percentile(lat, 99)),
-            },
+            "cycle_latency_us": _percentiles(self.cycle_latency_us),
+            "setpoint_latency_us": _percentiles(self.setpoint_latency_us),
+            "cpu_share_of_one_core": self.cpu_share,
         }
+
+
+def _percentiles(samples: list[float]) -> dict[str, float] | None:
+    if not samples:
+        return None
+    arr = np.asarray(samples)
+    return {"median": float(np.median(arr)), "p99": float(np.percentile(arr, 99))}
 
 
 LogSink = Callable[[CycleRecord], None]
@@ -304,10 +314,12 @@ class PickupApp:
         self._note("mode", "OFFBOARD")
         self.mission.start(self._t_s, self.assembler.estimate.q)
         self._mission_started = True
+        cpu0, wall0 = time.process_time(), time.perf_counter()
         async with self._tick:
             await self._tick.wait_for(
                 lambda: self.mission.phase == Phase.DONE or self._mode() not in ("OFFBOARD", None)
             )
+        self.report.cpu_share = (time.process_time() - cpu0) / (time.perf_counter() - wall0)
         if self.mission.phase != Phase.DONE:
             self._fault(Fault.OFFBOARD_LOST, f"PX4 left OFFBOARD (now {self._mode()})")
             return
@@ -465,6 +477,7 @@ class PickupApp:
         sp = out.setpoint
         if self._streaming:
             self.link.send_setpoint(sp, pose.time_boot_ms)
+            self.report.setpoint_latency_us.append((time.perf_counter() - received) * 1e6)
         # The thrust is known only while PX4 flies our setpoints (in OFFBOARD); before, PX4's
         # own position loop decides it, and the estimator must not see ours as applied.
         self._last_thrust_n = sp.thrust_n if self._streaming and self._offboard else math.nan

@@ -134,6 +134,8 @@ class SerialTransport:
             data = os.read(self._serial.fileno(), 4096)
         except BlockingIOError:
             return
+        except InterruptedError:
+            return
         except OSError as error:  # the device went away (USB unplugged, pty closed)
             self._lost = error
             self._loop.remove_reader(self._serial.fileno())  # type: ignore[union-attr]
@@ -143,12 +145,26 @@ class SerialTransport:
         self._ready.set()
 
     def discard_input(self) -> int:
-        """Drop bytes received and not yet read (stale replies); return how many."""
+        """Drop bytes received and not yet read (stale replies); return how many.
+
+        Also drains what the kernel holds and the event loop has not handed to us yet: a
+        reply that arrived while the loop was busy after its request timed out must not be
+        taken for the answer to the next request.
+        """
         self._port()
+        self._drain_kernel()
         dropped = len(self._buffer)
         self._buffer.clear()
         self._ready.clear()
         return dropped
+
+    def _drain_kernel(self) -> None:
+        """Move every byte the kernel holds into the buffer now (non-blocking)."""
+        for _ in range(64):
+            before = len(self._buffer)
+            self._on_readable()
+            if len(self._buffer) == before or self._serial is None:
+                return
 
     def write(self, data: bytes) -> None:
         """Send bytes; returns once the kernel has them (not once they are on the line).
@@ -188,7 +204,11 @@ class SerialTransport:
                 async with asyncio.timeout_at(deadline):
                     await self._ready.wait()
             except TimeoutError:
-                return b""
+                # The loop may have been busy past the deadline with the reply already in
+                # the kernel: look once more before calling it a timeout.
+                self._drain_kernel()
+                if not self._buffer:
+                    return b""
             self._port()
         data = bytes(self._buffer)
         self._buffer.clear()
