@@ -72,8 +72,11 @@ class AttitudeSetpoint:
     thrust: float
 
     def __post_init__(self) -> None:
-        q = np.array(self.quaternion_wxyz, dtype=np.float64).reshape(-1)
-        norm = float(np.linalg.norm(q)) if q.shape == (4,) else 0.0
+        q = np.array(self.quaternion_wxyz, dtype=np.float64)
+        if q.ndim != 1:
+            q = q.reshape(-1)
+        # np.linalg.norm of a real vector is sqrt(q.dot(q)): the same float, less overhead
+        norm = math.sqrt(float(q.dot(q))) if q.shape == (4,) else 0.0
         if not math.isfinite(norm) or norm < 1e-9:
             raise ValueError(f"quaternion_wxyz must be 4 finite values, not all zero: {q!r}")
         q /= norm
