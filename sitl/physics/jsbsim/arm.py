@@ -27,8 +27,9 @@ directions, with the eta_ddot terms of c_ddot moved to the left:
     A = sum_k m_k J_k^T J_k + diag(armature).
 
 The translational coupling is thus solved exactly; only omega_dot comes from the previous
-step (see below). The servo armature acts on the joint rows only, as in the Pinocchio
-plant.
+step (see below). These are the joint rows of the paper's M(q) q_ddot + C q_dot + G = tau
+(eq. mcg_model) with the base motion given. The servo armature acts on the joint rows
+only, as in the Pinocchio plant.
 
 Coupling moment. JSBSim integrates the vehicle as a rigid body frozen in the current arm
 pose: its state is the location and velocity of the CG (of vehicle + arm) and the body
