@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
-from arm_driver.bus import ArmBus, OperatingMode
+from arm_driver.bus import ArmBus, BusFailedError, OperatingMode
 from arm_driver.errors import ArmDriverError
 from companion.config import Scenario
 from companion.control import DesiredState
@@ -44,14 +44,27 @@ from companion.link.telemetry import BodyRates, LandedState, VehiclePose, Vehicl
 from companion.mission import EstimatorAction, GripperAction, Phase, PickupMission, PickupPlan
 from companion.state import StateAssembler
 
-__all__ = ["MissionAborted", "MissionError", "MissionReport", "PickupApp"]
+__all__ = [
+    "BUS_FAILURES",
+    "SERVO_FAILURE_S",
+    "MissionAborted",
+    "MissionError",
+    "MissionReport",
+    "PickupApp",
+]
 
 _ODOMETRY_ID = mavlink2.MAVLINK_MSG_ID_ODOMETRY
 _HANDOVER_STREAM_S = 1.0
 """Vehicle time the setpoint stream runs before OFFBOARD is requested [s] (PX4 wants
 proof of life first)."""
-_SERVO_FAILURES = 3
-"""Consecutive failed joint transactions that raise the servo_bus fault."""
+SERVO_FAILURE_S = 0.3
+"""Vehicle time over which every joint transaction failed that raises the servo_bus fault
+[s] (at least three failures): a transient stall is ridden through with the servos holding
+their last goal current; a servo that stopped answering is not. Open the bus with a
+``max_consecutive_failures`` that covers this time (see :data:`BUS_FAILURES`)."""
+BUS_FAILURES = 30
+"""``max_consecutive_failures`` for the arm bus: more than the transactions in
+:data:`SERVO_FAILURE_S`, so the app's fault, not the bus's, decides."""
 
 
 class MissionError(RuntimeError):
@@ -182,6 +195,7 @@ class PickupApp:
         self._last_output: ControlOutput | None = None
         self._last_thrust_n = math.nan
         self._servo_failures = 0
+        self._servo_failing_since = math.nan
         self._faults: asyncio.Queue[FaultEvent] = asyncio.Queue()
         self._payload_errors: list[float] = []
         self.control.estimator.freeze()  # until the mission flies in OFFBOARD
@@ -556,15 +570,25 @@ class PickupApp:
         )
         self.report.confident = bool(out.estimate.confident)
 
+    def _servo_failed(self, exc: ArmDriverError) -> None:
+        self._servo_failures += 1
+        if math.isnan(self._servo_failing_since):
+            self._servo_failing_since = self._t_s
+        lasting = self._t_s - self._servo_failing_since >= SERVO_FAILURE_S
+        if self._servo_failures >= 3 and (lasting or isinstance(exc, BusFailedError)):
+            self._fault(Fault.SERVO_BUS, str(exc))
+
+    def _servo_ok(self) -> None:
+        self._servo_failures = 0
+        self._servo_failing_since = math.nan
+
     async def _read_joints(self):
         try:
             joints = await self.bus.read_joint_states()
         except ArmDriverError as exc:
-            self._servo_failures += 1
-            if self._servo_failures >= _SERVO_FAILURES:
-                self._fault(Fault.SERVO_BUS, str(exc))
+            self._servo_failed(exc)
             return None
-        self._servo_failures = 0
+        self._servo_ok()
         return joints
 
     async def _write_joints(self, tau: np.ndarray) -> np.ndarray:
@@ -578,9 +602,7 @@ class PickupApp:
                 dict(zip(self._joint_names, sent.tolist(), strict=True))
             )
         except ArmDriverError as exc:
-            self._servo_failures += 1
-            if self._servo_failures >= _SERVO_FAILURES:
-                self._fault(Fault.SERVO_BUS, str(exc))
+            self._servo_failed(exc)
             return np.full(len(sent), math.nan)
         return sent
 

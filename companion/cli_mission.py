@@ -32,7 +32,7 @@ import typer
 
 from arm_driver.bus import open_bus
 from arm_driver.errors import ArmDriverError
-from companion.app import MissionAborted, MissionError, MissionReport, PickupApp
+from companion.app import BUS_FAILURES, MissionAborted, MissionError, MissionReport, PickupApp
 from companion.cli_plot import plot_flight_log
 from companion.config import Scenario, arm_bus_configs
 from companion.control import ControlRateError
@@ -107,7 +107,7 @@ async def fly_pickup(
     except (LinkError, ValueError) as exc:
         raise UsageError(str(exc)) from None
     try:
-        bus = open_bus(arm_bus_url, joints, gripper=gripper)
+        bus = open_bus(arm_bus_url, joints, gripper=gripper, max_consecutive_failures=BUS_FAILURES)
     except (ArmDriverError, ValueError) as exc:
         raise UsageError(f"arm bus {arm_bus_url}: {exc}") from None
     failure: BaseException | None = None
