@@ -451,6 +451,8 @@ class PickupApp:
                 if self.link.lost is not None:
                     continue
                 await self._cycle(pose, received)
+                async with self._tick:  # vehicle time advanced, whatever the cycle did
+                    self._tick.notify_all()
 
     async def _cycle(self, pose: VehiclePose, received: float) -> None:
         t_s = pose.time_boot_ms / 1000.0
@@ -465,6 +467,8 @@ class PickupApp:
         rates = self.link.latest(BodyRates)
         if rates is not None:
             a.body_rates(rates.omega_flu_rad_s)
+        if self.failsafe.has(Fault.SERVO_BUS):
+            return  # the bus is in its safe state; PX4 lands the vehicle
         joints = await self._read_joints()
         if joints is None:
             return
@@ -498,8 +502,6 @@ class PickupApp:
         tau_cmd = await self._write_joints(out.tau[6:8])
         self.report.cycle_latency_us.append((time.perf_counter() - received) * 1e6)
         self.report.control_cycles += 1
-        async with self._tick:
-            self._tick.notify_all()
         if self._offboard:
             for event in self.failsafe.update(
                 t_s,
