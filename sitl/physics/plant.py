@@ -440,11 +440,13 @@ class TruthPlant:
         joint = [min(max(j1, -lim), lim), min(max(j2, -lim), lim)]
         out = self._autopilot.update(self._quat, self._omega, setpoint)
         thrusts = self._rotors.thrust_list_n
-        w = self._rotor_wrench
+        t0, t1, t2, t3, t4, t5 = thrusts
+        wx, wy, wz = self._rotor_wrench
+        # each sum in index order, as sum() over the six products did
         torque = (
-            sum(a * t for a, t in zip(w[0], thrusts, strict=True)),
-            sum(a * t for a, t in zip(w[1], thrusts, strict=True)),
-            sum(a * t for a, t in zip(w[2], thrusts, strict=True)),
+            wx[0] * t0 + wx[1] * t1 + wx[2] * t2 + wx[3] * t3 + wx[4] * t4 + wx[5] * t5,
+            wy[0] * t0 + wy[1] * t1 + wy[2] * t2 + wy[3] * t3 + wy[4] * t4 + wy[5] * t5,
+            wz[0] * t0 + wz[1] * t1 + wz[2] * t2 + wz[3] * t3 + wz[4] * t4 + wz[5] * t5,
         )
         self._advance(BodyWrench(sum(thrusts), torque, self._drag, (joint[0], joint[1])))
         self._rotors.advance(out.motor_commands)
