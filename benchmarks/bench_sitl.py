@@ -11,12 +11,16 @@ and counts what arrives.
 
 1. Real-time factor: ``run`` flat out (``--speed 1000``, the pacing never sleeps) for
    ``--seconds`` simulated seconds, once with nobody listening (datagrams to closed
-   loopback ports, refused by the kernel) and once with the client consuming both links.
+   loopback ports) and once with the client consuming both links; with the CPU time of
+   this process per simulated second (less sensitive than wall time to other processes
+   on a loaded machine).
    Also the wall time per step split by phase (links in, navigation, autopilot,
    world, telemetry out), from a separate instrumented loop with the same calls.
 2. At speed 1 for ``--rate-seconds``: each stream's rate as the client measures it
    (messages after the first, over the wall time between first and last arrival)
-   against the configured rate, and the step-start lateness (jitter) median / p99 / max
+   against the configured rate (and the count per simulated second: the streams keep
+   their rates in simulation time even when the loaded machine cannot keep real time),
+   and the step-start lateness (jitter) median / p99 / max
    that ``run`` reports. HEARTBEAT counts the extra ones sent at once after each arming
    or mode change (arm, take-off, take-off complete), as PX4 does, so it reads above 1 Hz.
 
@@ -134,8 +138,9 @@ def _take_off(vehicle) -> None:
             vehicle.links[link].send(reply)
 
 
-def real_time_factor(seconds: float, with_client: bool) -> tuple[float, str]:
-    """Simulated / wall seconds of ``run`` flat out for ``seconds``; and the flight state."""
+def real_time_factor(seconds: float, with_client: bool) -> tuple[float, float, str]:
+    """Simulated / wall seconds of ``run`` flat out for ``seconds``, this process's CPU
+    seconds per simulated second, and the flight state at the end."""
     vehicle = _vehicle(speed=1000.0)
     ports = vehicle.options.ports
     listener = Client(ports.onboard_remote, ports.gcs_remote) if with_client else None
@@ -143,14 +148,16 @@ def real_time_factor(seconds: float, with_client: bool) -> tuple[float, str]:
         with vehicle:
             vehicle.run(threading.Event(), until_s=0.5)  # settle on the ground
             _take_off(vehicle)
+            cpu0 = time.process_time()
             stats = vehicle.run(threading.Event(), until_s=0.5 + seconds)
+            cpu = (time.process_time() - cpu0) / stats.sim_time_s
             state = f"{vehicle.autopilot.mode.display_name}, z = {vehicle.world.state.q[2]:.2f} m"
     finally:
         counts = listener.stop() if listener else {}
     received = sum(len(v) for link in counts.values() for v in link.values())
     if with_client:
         state += f", client got {received / seconds:.0f} msg per sim s"
-    return stats.real_time_factor, state
+    return stats.real_time_factor, cpu, state
 
 
 def phase_split(seconds: float) -> dict[str, float]:
@@ -227,11 +234,11 @@ def main() -> None:
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs\n")
 
     print(f"Real-time factor, 1 kHz plant, full telemetry, flat out, {args.seconds:g} sim s")
-    print(f"{'telemetry':<28} {'real-time factor':>16}  state at the end")
+    print(f"{'telemetry':<28} {'real-time factor':>16} {'CPU s / sim s':>14}  state at the end")
     for with_client in (False, True):
-        rtf, state = real_time_factor(args.seconds, with_client)
+        rtf, cpu, state = real_time_factor(args.seconds, with_client)
         label = "client consuming both links" if with_client else "nobody listening"
-        print(f"{label:<28} {rtf:>15.2f}x  {state}")
+        print(f"{label:<28} {rtf:>15.2f}x {cpu:>14.3f}  {state}")
 
     print("\nWall time per step by phase (no client)")
     split = phase_split(min(args.seconds, 5.0))
@@ -242,12 +249,17 @@ def main() -> None:
 
     print(f"\nAt speed 1 for {args.rate_seconds:g} s, pymavlink client on loopback")
     rows, stats = rates_and_jitter(args.rate_seconds)
-    print(f"{'link':<8} {'message':<22} {'configured':>10} {'measured':>9} {'error':>7}  n")
+    print(
+        f"{'link':<8} {'message':<22} {'configured':>10} {'measured':>9} {'error':>7}"
+        f" {'per sim s':>9}  n"
+    )
     for link, name, rate, measured, count in rows:
         error = (measured - rate) / rate * 100.0
         flag = "" if abs(error) <= 10.0 else "  (outside 10 %)"
+        per_sim_s = count / stats.sim_time_s
         print(
-            f"{link:<8} {name:<22} {rate:>8.1f}Hz {measured:>7.2f}Hz {error:>+6.1f}%  {count}{flag}"
+            f"{link:<8} {name:<22} {rate:>8.1f}Hz {measured:>7.2f}Hz {error:>+6.1f}%"
+            f" {per_sim_s:>7.2f}Hz  {count}{flag}"
         )
     median, p99 = stats.jitter_us()
     worst = max(stats.lateness_us) if stats.lateness_us else 0.0
