@@ -197,6 +197,12 @@ class ArmDynamics:
             out.append((m, s, sd, s0, j1, j2))
         self._kin_key, self._kin = key, out
         self._com = _centre(self.base_mass_kg, out)
+        total = self.base_mass_kg + sum(k[0] for k in out)
+        # c_ddot0 and the columns of J_G = sum m J / M
+        self._com_terms = tuple(
+            [sum(k[0] * k[col][i] for k in out) / total for i in range(3)] for col in (3, 4, 5)
+        )
+        self._total = total
         return out
 
     def point_masses(self) -> list[tuple[float, Vec3]]:
@@ -237,11 +243,9 @@ class ArmDynamics:
         semi-implicit Euler.
         """
         kin = self._kinematics()
-        total = self.base_mass_kg + sum(k[0] for k in kin)
+        total = self._total
         c, cd = self._com
-        cdd0 = [sum(k[0] * k[3][i] for k in kin) / total for i in range(3)]
-        jg1 = [sum(k[0] * k[4][i] for k in kin) / total for i in range(3)]
-        jg2 = [sum(k[0] * k[5][i] for k in kin) / total for i in range(3)]
+        cdd0, jg1, jg2 = self._com_terms
         a11 = a12 = a22 = 0.0
         r1, r2 = joint_torques_n_m
         wx, wy, wz = omega
