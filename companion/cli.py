@@ -165,13 +165,7 @@ def _check_physics(
         typer.echo("error: --wind and --turbulence need --physics jsbsim", err=True)
         raise typer.Exit(EXIT_USAGE)
     try:
-        velocity = tuple(float(v) for v in (wind or "0,0,0").split(","))
-        return Wind(
-            velocity_enu_m_s=velocity,  # type: ignore[arg-type]
-            turbulence="milspec" if turbulence > 0.0 else "none",
-            windspeed_20ft_m_s=turbulence,
-            seed=seed,
-        )
+        return Wind.from_text(wind, turbulence, seed)
     except ValueError as exc:
         typer.echo(f"error: --wind {wind!r} / --turbulence {turbulence:g}: {exc}", err=True)
         raise typer.Exit(EXIT_USAGE) from None

@@ -20,6 +20,7 @@ from rich.table import Table
 from companion.cli import EXIT_USAGE, load_or_exit
 from sitl.authority import hover_authority
 from sitl.physics import PlantError
+from sitl.physics.jsbsim import Wind
 from sitl.px4 import ParamError, SigningKeyError
 from sitl.runner import LinkPorts, RunOptions, SitlVehicle
 
@@ -90,6 +91,16 @@ def run(
         Path | None,
         typer.Option(help="MAVLink 2 signing key file (32 bytes); unsigned input is rejected."),
     ] = None,
+    physics: Annotated[
+        str, typer.Option(help="Truth physics: pinocchio (our plant) or jsbsim.")
+    ] = "pinocchio",
+    wind: Annotated[
+        str | None, typer.Option(help="Steady wind 'E,N,U' [m/s], world ENU (jsbsim only).")
+    ] = None,
+    turbulence: Annotated[
+        float,
+        typer.Option(help="Dryden turbulence, MIL-F-8785C wind speed at 20 ft [m/s] (jsbsim)."),
+    ] = 0.0,
     servo_silent: Annotated[
         str | None,
         typer.Option(help="Fault injection 'ID@T': servo ID stops answering at T [s, sim time]."),
@@ -102,6 +113,14 @@ def run(
     if signing_key is not None and not signing_key.is_file():
         _fail(f"signing key {signing_key}: no such file")
     silent = _servo_fault(servo_silent) if servo_silent is not None else None
+    if physics not in ("pinocchio", "jsbsim"):
+        _fail(f"--physics must be pinocchio or jsbsim, got {physics!r}")
+    try:
+        air = Wind.from_text(wind, turbulence, seed)
+    except ValueError as exc:
+        _fail(str(exc))
+    if air is not None and physics != "jsbsim":
+        _fail("--wind and --turbulence need --physics jsbsim")
     try:
         options = RunOptions(
             speed=speed,
@@ -116,6 +135,8 @@ def run(
             signing_key=signing_key,
             truth_log=truth_log,
             servo_silent=silent,
+            physics=physics,
+            wind=air,
         )
         vehicle = SitlVehicle(cfg, options)
     except (ValueError, ParamError, SigningKeyError) as exc:
@@ -126,7 +147,7 @@ def run(
     try:
         with vehicle:
             where = vehicle.describe()
-            typer.echo(f"sitl: {cfg.name} at {speed:g}x real time")
+            typer.echo(f"sitl: {cfg.name} on {physics} physics at {speed:g}x real time")
             for key, value in where.items():
                 typer.echo(f"  {key:<8} {value}")
             typer.echo("ready " + json.dumps(where), color=False)

@@ -32,7 +32,8 @@ import numpy as np
 from arm_driver.joint import GripperConfig, JointConfig
 from companion.config import Scenario, arm_bus_configs
 from sitl.navigation import Navigation
-from sitl.physics import TruthPlant
+from sitl.physics import make_plant
+from sitl.physics.jsbsim import GearGeometry, JsbsimPlant, Wind
 from sitl.px4 import MavlinkEndpoint, Px4Params, Px4Vehicle, load_signing_key
 from sitl.servo import Faults, PtyServoBus, XM430Parameters, XM430Servo
 from sitl.world import World, WorldSettings
@@ -97,6 +98,10 @@ class RunOptions:
     signing_key: Path | None = None
     truth_log: Path | None = None
     truth_rate_hz: float = 50.0
+    physics: str = "pinocchio"
+    """Truth physics backend: ``pinocchio`` or ``jsbsim`` (``sitl.physics.make_plant``)."""
+    wind: Wind | None = None
+    """Steady wind and turbulence (JSBSim only)."""
     servo_silent: tuple[int, float] | None = None
     """Fault injection: (servo id, simulation time [s]) from which that servo carries out
     instructions but never answers again (a broken TX line)."""
@@ -129,6 +134,14 @@ class RunStats:
             return (0.0, 0.0)
         arr = np.asarray(self.lateness_us)
         return float(np.median(arr)), float(np.percentile(arr, 99))
+
+
+def _plant(scenario: Scenario, options: RunOptions):
+    """The truth plant of the chosen backend; JSBSim's gear at the world's gear height."""
+    if options.physics == "jsbsim":
+        gear = GearGeometry(height_m=world_settings(scenario).landing_gear_height_m)
+        return JsbsimPlant.from_scenario(scenario, "underactuated", wind=options.wind, gear=gear)
+    return make_plant(scenario, options.physics, "underactuated", wind=options.wind)
 
 
 def world_settings(scenario: Scenario) -> WorldSettings:
@@ -173,7 +186,7 @@ class SitlVehicle:
         }
         servos[gripper.servo_id] = XM430Servo(gripper.servo_id)
         self.servo_bus = PtyServoBus(servos, step_servos=False)
-        plant = TruthPlant.from_scenario(scenario, "underactuated")
+        plant = _plant(scenario, options)
         self.world = World(
             plant,
             [(j, servos[j.servo_id]) for j in self.joints],
@@ -303,10 +316,10 @@ class SitlVehicle:
             "t_s": round(truth.time_s, 6),
             "q": state.q.tolist(),
             "q_dot": state.q_dot.tolist(),
-            "armed": self.autopilot.armed,
+            "armed": bool(self.autopilot.armed),
             "mode": self.autopilot.mode.name,
-            "on_ground": truth.on_ground,
-            "payload_attached": truth.payload_attached,
+            "on_ground": bool(truth.on_ground),
+            "payload_attached": bool(truth.payload_attached),
             "object_position_m": None if obj is None else obj.tolist(),
             "gripper_angle_rad": truth.gripper_angle_rad,
             "joint_torques_n_m": truth.joint_torques_n_m.tolist(),

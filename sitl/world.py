@@ -13,7 +13,8 @@ as it would on the vehicle.
 
 Simplifications, all stated here:
 
-- Ground: flat, at world z = 0. The base stands when its CoM is ``landing_gear_height_m``
+- Ground (plants without their own, ``plant.has_ground`` False; JSBSim's gear is its
+  own): flat, at world z = 0. The base stands when its CoM is ``landing_gear_height_m``
   above it. When a step ends with the CoM below that height, the base is pinned level and
   at rest where it touched down (x, y and yaw of the touch-down; roll, pitch and all base
   velocities zero): a perfectly inelastic contact with static friction. The arm and the
@@ -43,6 +44,10 @@ from sitl.physics.frames import quaternion_from_euler
 from sitl.servo import ServoJoint
 
 __all__ = ["Battery", "GripperJaw", "World", "WorldSettings", "WorldTruth"]
+
+_CONTACT_SLACK_M = 0.03
+"""A plant with its own gear stands when its CoM is within this of the gear height [m]
+(the gear's spring compresses and extends by millimetres) and hardly moves vertically."""
 
 FloatArray = NDArray[np.float64]
 
@@ -292,6 +297,9 @@ class World:
 
     def _ground_contact(self, state: PlantState) -> PlantState:
         height = self.settings.landing_gear_height_m
+        if self.plant.has_ground:  # the plant's own gear holds it (JSBSim)
+            self.on_ground = state.q[2] <= height + _CONTACT_SLACK_M and abs(state.q_dot[2]) < 0.1
+            return state
         if state.q[2] >= height:
             self.on_ground = False
             self._ground_pose = None

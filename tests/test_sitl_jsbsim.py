@@ -282,7 +282,7 @@ def test_cli_refuses_jsbsim_ideal_and_wind_on_pinocchio(run_cli, tmp_path: Path)
         "--physics", "jsbsim", "--wind", "3,0",
     )  # fmt: skip
     assert bad.returncode == 2
-    assert "3 finite values" in bad.stderr
+    assert "three values E,N,U" in bad.stderr
 
 
 @pytest.mark.slow

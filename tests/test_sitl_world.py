@@ -135,3 +135,24 @@ def test_settings_reject_nonsense():
         WorldSettings(landing_gear_height_m=0.0)
     with pytest.raises(ValueError, match="finite"):
         WorldSettings(start_yaw_rad=math.nan)
+
+
+def test_jsbsim_plant_stands_on_its_own_gear_in_the_world():
+    from sitl.physics.jsbsim import GearGeometry, JsbsimPlant
+
+    plant = JsbsimPlant.from_scenario(SCENARIO, "underactuated", gear=GearGeometry(height_m=GEAR_M))
+    servos = {i: XM430Servo(i) for i in (1, 2, 3)}
+    configs = [JointConfig("eta1", 1, 1.78, 4.1), JointConfig("eta2", 2, 1.78, 4.1)]
+    world = World(
+        plant,
+        [(configs[0], servos[1]), (configs[1], servos[2])],
+        (GRIPPER, servos[3]),
+        WorldSettings(landing_gear_height_m=GEAR_M, start_joints_rad=(-1.2, 0.3)),
+    )
+    for _ in range(500):
+        state = world.step(None)
+    assert world.on_ground
+    assert state.q[2] == pytest.approx(GEAR_M, abs=0.03)
+    for _ in range(800):
+        state = world.step(AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, 0.7))
+    assert not world.on_ground and state.q[2] > GEAR_M + 0.2

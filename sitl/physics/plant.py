@@ -95,6 +95,9 @@ class TruthPlant:
     >>> flyer.actuators.rotor_thrusts_n          # for logging
     """
 
+    has_ground = False
+    """This plant flies in free space: a SITL adds the ground (see :meth:`hold_base`)."""
+
     def __init__(
         self, scenario: Scenario, mode: PlantMode = "ideal", *, payload_attached: bool = False
     ) -> None:

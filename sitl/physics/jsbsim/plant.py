@@ -119,6 +119,9 @@ class JsbsimPlant:
         If JSBSim cannot load the generated airframe.
     """
 
+    has_ground = True
+    """JSBSim's landing gear is the ground contact (a SITL must not add its own)."""
+
     def __init__(
         self,
         scenario: Scenario,

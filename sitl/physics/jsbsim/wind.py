@@ -73,6 +73,26 @@ class Wind:
         if self.turbulence != "none" and self.windspeed_20ft_m_s == 0.0:
             raise ValueError("turbulence needs windspeed_20ft_m_s > 0 (its intensity)")
 
+    @classmethod
+    def from_text(cls, wind: str | None, turbulence_m_s: float, seed: int = 0) -> Wind | None:
+        """The wind of the command lines' ``--wind E,N,U`` [m/s] and ``--turbulence W20``
+        [m/s] options; None when calm. Raises ``ValueError`` with the reason."""
+        if wind is None and turbulence_m_s == 0.0:
+            return None
+        parts = (wind or "0,0,0").split(",")
+        try:
+            velocity = tuple(float(v) for v in parts)
+        except ValueError:
+            raise ValueError(f"--wind needs E,N,U in m/s, got {wind!r}") from None
+        if len(velocity) != 3:
+            raise ValueError(f"--wind needs three values E,N,U in m/s, got {wind!r}")
+        return cls(
+            velocity_enu_m_s=velocity,  # type: ignore[arg-type]
+            turbulence="milspec" if turbulence_m_s > 0.0 else "none",
+            windspeed_20ft_m_s=turbulence_m_s,
+            seed=seed,
+        )
+
     @property
     def calm(self) -> bool:
         """No wind and no turbulence."""
