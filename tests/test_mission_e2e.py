@@ -1,0 +1,231 @@
+"""Payload-pickup missions end to end: ``companion mission pickup`` against ``sitl run``.
+
+Two processes on loopback, as a user runs them: the simulated vehicle (free UDP ports, its
+servos on a pty) and the companion's mission command. The companion never reads the
+payload: it learns it in flight; the test compares with the SITL's truth.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import select
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.sitl_process import free_udp_port, start_sitl
+
+ROOT = Path(__file__).parent.parent
+CONFIG = ROOT / "configs" / "sitl_pickup.toml"
+PAYLOAD_AT = "1.5,1.0,0.05"
+PLACE_AT = "-1.0,0.5,0.05"
+TRUE_MASS_KG = 0.25
+TRUE_COM_M = 0.15
+SPEED = 1.0
+
+
+def run_mission(sitl, out: Path, *extra: str, port: int | None = None, timeout_s=900):
+    port = sitl.onboard_port if port is None else port
+    return subprocess.run(
+        [
+            sys.executable, "-c", "from companion.cli import main; main()",
+            "mission", "pickup", "--config", str(CONFIG),
+            "--connect", f"udpin://127.0.0.1:{port}", "--arm-bus", sitl.arm_bus,
+            "--payload-at", PAYLOAD_AT, "--place-at", PLACE_AT, "--out", str(out), *extra,
+        ],
+        capture_output=True, text=True, timeout=timeout_s,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+    )  # fmt: skip
+
+
+def truth(path: Path) -> list[dict]:
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def fly(tmp: Path, name: str, *extra_sitl: str, mission_args=(), relay=None):
+    truth_log = tmp / f"{name}.truth.jsonl"
+    sitl = start_sitl(CONFIG, "--seed", "1", *extra_sitl, speed=SPEED, truth_log=truth_log)
+    try:
+        if relay is not None:
+            relay.start(sitl)
+        result = run_mission(
+            sitl, tmp / name, *mission_args, port=None if relay is None else relay.app_port
+        )
+    finally:
+        if relay is not None:
+            relay.stop()
+        sitl.stop()
+    summary_path = tmp / name / "summary.json"
+    summary = json.loads(summary_path.read_text()) if summary_path.exists() else None
+    return result, summary, truth(truth_log)
+
+
+@pytest.fixture(scope="module")
+def adaptive(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("adaptive")
+    return (tmp, *fly(tmp, "passivity"))
+
+
+@pytest.mark.slow
+def test_pickup_learns_the_payload_places_it_and_lands(adaptive):
+    tmp, result, summary, log = adaptive
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "Traceback" not in result.stderr
+    assert summary["completed"] and summary["landed"] and summary["disarmed"]
+    # The grasp really happened in the SITL, and the object ended at the place point.
+    assert any(r["payload_attached"] for r in log)
+    last = log[-1]
+    assert not last["payload_attached"] and not last["armed"] and last["on_ground"]
+    placed = last["object_position_m"]
+    assert math.dist(placed[:2], [-1.0, 0.5]) < 0.10
+    # The estimate the companion made in flight, against the truth it never saw.
+    assert summary["payload_mass_kg"] == pytest.approx(TRUE_MASS_KG, rel=0.10)
+    assert summary["payload_com_along_link2_m"] == pytest.approx(TRUE_COM_M, rel=0.15)
+    # Log, events, summary and figures.
+    out = tmp / "passivity"
+    for name in ("flight.csv", "flight.events.csv", "tracking.png", "estimation.png", "arm.png"):
+        assert (out / name).stat().st_size > 0, name
+    assert "estimated payload" in result.stdout
+
+
+@pytest.mark.slow
+def test_nonadaptive_controller_flies_the_same_mission_for_comparison(adaptive, tmp_path):
+    _, _, adaptive_summary, _ = adaptive
+    result, summary, _ = fly(
+        tmp_path, "nonadaptive", mission_args=("--controller", "nonadaptive")
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert summary["controller"] == "nonadaptive" and summary["completed"]
+    # Reported beside each other (the README table comes from these two summaries).
+    comparison = {
+        "passivity": adaptive_summary["position_rms_with_payload_m"],
+        "nonadaptive": summary["position_rms_with_payload_m"],
+    }
+    (tmp_path / "comparison.json").write_text(json.dumps(comparison))
+    print("position RMS error with the payload [m]:", comparison)
+    assert all(v is not None and v > 0.0 for v in comparison.values())
+
+
+class LinkCutter:
+    """A UDP relay between the vehicle's onboard link and the companion that can go silent.
+
+    The vehicle sends to ``vehicle_side`` (its --onboard-port); the relay forwards to the
+    companion's port from a second socket, and the companion's replies back to the
+    vehicle's local port. ``cut_after_altitude`` starts a ``cut_s`` silence once the truth
+    log shows the vehicle above that altitude for ``delay_s``.
+    """
+
+    def __init__(self, truth_log: Path, cut_s=2.0, altitude_m=1.2, delay_s=3.0):
+        self.app_port = free_udp_port()
+        self.truth_log = truth_log
+        self.cut_s, self.altitude_m, self.delay_s = cut_s, altitude_m, delay_s
+        self.cut_at: float | None = None
+        self.dropped = 0
+        self._stop = threading.Event()
+
+    def start(self, sitl) -> None:
+        self.vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.vehicle.bind(("127.0.0.1", sitl.onboard_port))
+        self.app = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.app.bind(("127.0.0.1", 0))
+        self.vehicle_addr = ("127.0.0.1", sitl.onboard_local_port)
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _cutting(self) -> bool:
+        now = time.monotonic()
+        if self.cut_at is None:
+            try:
+                lines = self.truth_log.read_text().splitlines()
+            except OSError:
+                return False
+            airborne = [
+                json.loads(x)["t_s"]
+                for x in lines[-400:]
+                if x and json.loads(x)["q"][2] > self.altitude_m
+            ]
+            if airborne and airborne[-1] - airborne[0] >= self.delay_s:
+                self.cut_at = now
+        return self.cut_at is not None and now - self.cut_at < self.cut_s
+
+    def _run(self) -> None:
+        last_check = 0.0
+        cutting = False
+        while not self._stop.is_set():
+            ready, _, _ = select.select([self.vehicle, self.app], [], [], 0.05)
+            if time.monotonic() - last_check > 0.05:
+                cutting, last_check = self._cutting(), time.monotonic()
+            for sock in ready:
+                data, _ = sock.recvfrom(65536)
+                if cutting:
+                    self.dropped += 1
+                elif sock is self.vehicle:
+                    self.app.sendto(data, ("127.0.0.1", self.app_port))
+                else:
+                    self.vehicle.sendto(data, self.vehicle_addr)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self.thread.join(timeout=2.0)
+        self.vehicle.close()
+        self.app.close()
+
+
+@pytest.mark.slow
+def test_link_cut_mid_flight_is_detected_and_the_vehicle_lands(tmp_path):
+    relay = LinkCutter(tmp_path / "linkcut.truth.jsonl")
+    result, summary, log = fly(tmp_path, "linkcut", relay=relay)
+    assert relay.cut_at is not None and relay.dropped > 0
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "Traceback" not in result.stderr
+    assert [f["fault"] for f in summary["faults"]][:1] == ["link_lost"]
+    assert "link_lost" in result.stdout
+    # PX4 failsafed on the lost OFFBOARD stream, and the vehicle is down and disarmed.
+    modes = {r["mode"] for r in log}
+    assert modes & {"AUTO_LOITER", "POSCTL", "AUTO_LAND"}
+    assert log[-1]["on_ground"] and not log[-1]["armed"]
+
+
+@pytest.mark.slow
+def test_servo_that_stops_answering_makes_the_app_land(tmp_path):
+    result, summary, log = fly(tmp_path, "servo", "--servo-silent", "2@12")
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "Traceback" not in result.stderr
+    assert [f["fault"] for f in summary["faults"]][:1] == ["servo_bus"]
+    assert summary["landed"] and summary["disarmed"]
+    assert log[-1]["on_ground"] and not log[-1]["armed"]
+
+
+def test_wrong_config_is_one_line_and_status_2(run_cli, tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(CONFIG.read_text().replace("landing_gear_height_m", "landing_gear_hight_m"))
+    result = run_cli("mission", "pickup", "--config", str(bad), "--payload-at", PAYLOAD_AT,
+                     "--place-at", PLACE_AT, "--out", str(tmp_path / "o"))  # fmt: skip
+    assert result.returncode == 2
+    assert "landing_gear_hight_m" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_unreachable_vehicle_is_one_line_and_status_2(run_cli, tmp_path):
+    port = free_udp_port()
+    result = run_cli("mission", "pickup", "--config", str(CONFIG), "--payload-at", PAYLOAD_AT,
+                     "--place-at", PLACE_AT, "--connect", f"udpin://127.0.0.1:{port}",
+                     "--arm-bus", "dynamixel:///dev/null?baud=1000000",
+                     "--out", str(tmp_path / "o"))  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error:") and "heartbeat" in lines[0]
+
+
+def test_bad_arm_bus_url_is_one_line_and_status_2(run_cli, tmp_path):
+    result = run_cli("mission", "pickup", "--config", str(CONFIG), "--payload-at", PAYLOAD_AT,
+                     "--place-at", PLACE_AT, "--arm-bus", "ethercat://eth0",
+                     "--out", str(tmp_path / "o"))  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.startswith("error:") and "Traceback" not in result.stderr
