@@ -19,7 +19,11 @@ estimator should do. Phases, in order:
 Every move is a minimum-jerk (quintic) segment, so q_d_dot and q_d_ddot are continuous and
 at rest at both ends; a phase ends when its segment is over and the vehicle is within
 ``arrive_tolerance_m`` of its end point (the tracking error is part of the mission, not
-hidden by a timer). Geometry: with the arm straight down (eta1 = -pi/2, eta2 = 0) the
+hidden by a timer); ``descend`` and ``lower`` end only once the error has stayed within
+``grasp_tolerance_m`` for ``settle_s``, so the jaws close on the object, not beside it.
+A phase that never arrives ends after ``arrive_timeout_s`` more. The estimator runs from
+the grasp on (and after the release, to show the estimate return to the empty arm).
+Geometry: with the arm straight down (eta1 = -pi/2, eta2 = 0) the
 grasp point lies ``mount_z + l1 + grasp_point`` below the base CoM (DESIGN.md
 section 3), so the base flies that much above the object. The companion does not know the
 payload: the grasp point is where its own jaws close (``PickupPlan.grasp_point_m``).
@@ -66,6 +70,11 @@ class Phase(StrEnum):
     CLIMB = "climb"
     TO_HOME = "to_home"
     DONE = "done"
+
+
+_FROZEN_PHASES = frozenset({Phase.TO_OBJECT, Phase.DESCEND, Phase.GRASP, Phase.RELEASE, Phase.DONE})
+"""The estimator holds the empty-arm values until the grasp (nothing to learn: the arm is
+known empty), and holds still while the gripper acts and after the mission."""
 
 
 class GripperAction(StrEnum):
@@ -116,6 +125,10 @@ class PickupPlan:
     excite_radius_m: float = 0.15
     arrive_tolerance_m: float = 0.15
     arrive_timeout_s: float = 20.0
+    grasp_tolerance_m: float = 0.03
+    """Tracking error within which the jaws may close on (or open over) a point [m]."""
+    settle_s: float = 0.5
+    """Time the error must stay within ``grasp_tolerance_m`` before grasping or placing [s]."""
 
     def __post_init__(self) -> None:
         values = [*self.home_m, *self.payload_at_m, *self.place_at_m, self.yaw_rad]
@@ -183,6 +196,7 @@ class PickupMission:
     phase_log: list[tuple[float, Phase]] = field(default_factory=list)
     _segment: _Segment | None = None
     _excite_stop_s: float = math.nan
+    _settled_since: float = math.nan
 
     @property
     def hang_m(self) -> float:
@@ -271,7 +285,7 @@ class PickupMission:
             gripper = GripperAction.CLOSE
         if changed and self.phase == Phase.RELEASE:
             gripper = GripperAction.OPEN
-        if self.phase in (Phase.GRASP, Phase.RELEASE, Phase.DONE):
+        if self.phase in _FROZEN_PHASES:
             estimator = estimator if estimator != EstimatorAction.RUN else EstimatorAction.FREEZE
         return MissionCommand(self.phase, self._desired(t_s), gripper, estimator, changed)
 
@@ -293,9 +307,17 @@ class PickupMission:
         if not seg.check_arrival:
             return True
         error = float(np.linalg.norm(q[0:3] - seg.q_to[0:3]))
-        return error <= self.plan.arrive_tolerance_m or elapsed >= (
-            seg.duration_s + self.plan.arrive_timeout_s
-        )
+        if elapsed >= seg.duration_s + self.plan.arrive_timeout_s:
+            return True
+        if self.phase not in (Phase.DESCEND, Phase.LOWER):
+            return error <= self.plan.arrive_tolerance_m
+        # Grasping and placing need the jaws on the point, steadily.
+        if error > self.plan.grasp_tolerance_m:
+            self._settled_since = math.nan
+            return False
+        if math.isnan(self._settled_since):
+            self._settled_since = t_s
+        return t_s - self._settled_since >= self.plan.settle_s
 
     def _desired(self, t_s: float) -> DesiredState:
         seg = self._segment

@@ -112,3 +112,33 @@ def test_plan_rejects_nonsense():
         PickupPlan(home_m=(0.0, math.nan), payload_at_m=(1, 1, 0), place_at_m=(0, 0, 0))
     with pytest.raises(ValueError, match="excite_max_s"):
         PickupPlan((0, 0), (1, 1, 0), (0, 0, 0), excite_min_s=10.0, excite_max_s=11.0)
+
+
+def test_estimator_learns_only_from_the_grasp_on():
+    _, records = fly()
+    by_phase = {}
+    for _, cmd in records:
+        by_phase.setdefault(cmd.phase, set()).add(cmd.estimator)
+    assert by_phase[Phase.TO_OBJECT] == {EstimatorAction.FREEZE}
+    assert by_phase[Phase.DESCEND] == {EstimatorAction.FREEZE}
+    assert EstimatorAction.RUN in by_phase[Phase.EXCITE]
+    assert EstimatorAction.RUN in by_phase[Phase.CLIMB]
+
+
+def test_grasp_waits_until_the_jaws_settle_on_the_object():
+    mission = PickupMission(PLAN, SCENARIO)
+    q = np.array([0.0, 0.0, 1.5, 0.0, 0.0, 0.0, 0.0, -1.5])
+    mission.start(0.0, q)
+    t, wobble_until = 0.0, None
+    while mission.phase != Phase.GRASP and t < 200.0:
+        cmd = mission.update(t, q, False)
+        q = cmd.desired.q.copy()
+        if cmd.phase == Phase.DESCEND:
+            if wobble_until is None:
+                wobble_until = t + 12.0
+            if t < wobble_until:  # the vehicle swings 10 cm around the reference
+                q[0] += 0.1 * math.sin(2.0 * t)
+        t += DT
+    assert mission.phase == Phase.GRASP
+    grasp_t = dict((p, t) for t, p in mission.phase_log)[Phase.GRASP]
+    assert grasp_t >= wobble_until + PLAN.settle_s - 1e-6
