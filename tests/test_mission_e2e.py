@@ -98,9 +98,7 @@ def test_pickup_learns_the_payload_places_it_and_lands(adaptive):
 @pytest.mark.slow
 def test_nonadaptive_controller_flies_the_same_mission_for_comparison(adaptive, tmp_path):
     _, _, adaptive_summary, _ = adaptive
-    result, summary, _ = fly(
-        tmp_path, "nonadaptive", mission_args=("--controller", "nonadaptive")
-    )
+    result, summary, _ = fly(tmp_path, "nonadaptive", mission_args=("--controller", "nonadaptive"))
     assert result.returncode == 0, result.stdout + result.stderr
     assert summary["controller"] == "nonadaptive" and summary["completed"]
     # Reported beside each other (the README table comes from these two summaries).
