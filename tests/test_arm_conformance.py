@@ -33,7 +33,7 @@ from arm_driver.bus import (
 )
 from arm_driver.errors import BusTimeoutError, HardwareError, HardwareErrorStatus, LimitError
 from sitl.servo import Faults
-from tests.arm_conformance import ANGLE_TOLERANCE_RAD, HARNESSES, Harness
+from arm_conformance import ANGLE_TOLERANCE_RAD, HARNESSES, Harness
 
 
 def run(body: Callable[[], Awaitable[Any]], timeout_s: float = 20.0) -> Any:

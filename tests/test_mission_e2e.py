@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.sitl_process import free_udp_port, start_sitl
+from sitl_process import free_udp_port, start_sitl
 
 ROOT = Path(__file__).parent.parent
 CONFIG = ROOT / "configs" / "sitl_pickup.toml"

@@ -28,7 +28,7 @@ from mavsdk.asyncio.plugins.telemetry import FlightMode, LandedState, TelemetryA
 
 from companion.config import load_scenario
 from sitl.px4 import Px4Params
-from tests.sitl_process import start_sitl
+from sitl_process import start_sitl
 
 CONFIG = Path(__file__).parent.parent / "configs" / "sitl_pickup.toml"
 SPEED = 1.0
