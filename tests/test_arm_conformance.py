@@ -1,6 +1,6 @@
 """One conformance suite for every arm bus backend (python-can back2back style).
 
-Every test runs against each backend of :mod:`tests.arm_conformance`: the Dynamixel
+Every test runs against each backend of `tests/arm_conformance.py`: the Dynamixel
 emulator on a pty, the DroneCAN emulator on a virtual CAN bus, and real hardware when
 ``ARM_BUS_URL`` is set (``ARM_BUS_URL=... pytest -m hardware tests/test_arm_conformance.py``;
 the arm must be free to move about +-0.5 rad around its zero and to take 0.5 N m).
@@ -20,6 +20,7 @@ from collections.abc import Awaitable, Callable, Iterator
 from typing import Any
 
 import pytest
+from arm_conformance import ANGLE_TOLERANCE_RAD, HARNESSES, Harness
 
 from arm_driver.bus import (
     ArmBus,
@@ -33,7 +34,6 @@ from arm_driver.bus import (
 )
 from arm_driver.errors import BusTimeoutError, HardwareError, HardwareErrorStatus, LimitError
 from sitl.servo import Faults
-from arm_conformance import ANGLE_TOLERANCE_RAD, HARNESSES, Harness
 
 
 def run(body: Callable[[], Awaitable[Any]], timeout_s: float = 20.0) -> Any:
