@@ -31,7 +31,10 @@ def sim() -> Iterator[PtyServoBus]:
 
 
 @pytest.fixture
-def port(sim: PtyServoBus) -> Iterator[object]:
+def port(sim: PtyServoBus, monkeypatch: pytest.MonkeyPatch) -> Iterator[object]:
+    # The SDK waits 2 x LATENCY_TIMER (16 ms, the U2D2's USB latency) for a reply; the
+    # emulator is a Python thread on a shared 2-core machine and was seen to need more.
+    monkeypatch.setattr(sdk.port_handler, "LATENCY_TIMER", 100)
     handler = sdk.PortHandler(sim.device)
     assert handler.openPort()
     assert handler.setBaudRate(BAUD)
