@@ -55,6 +55,35 @@ class PlantState:
     omega_body_rad_s: FloatArray
     payload_attached: bool
 
+    @classmethod
+    def from_lists(
+        cls,
+        time_s: float,
+        q: list[float],
+        q_dot: list[float],
+        q_ddot: list[float],
+        quaternion_wxyz: tuple[float, ...],
+        rotation9: tuple[float, ...],
+        omega_body_rad_s: tuple[float, ...],
+        payload_attached: bool,
+    ) -> PlantState:
+        """A state from a plant's per-step float lists (one read-only array behind all
+        fields; ``rotation9`` is R row-major)."""
+        flat = np.array(
+            q + q_dot + q_ddot + list(quaternion_wxyz) + list(rotation9) + list(omega_body_rad_s)
+        )
+        flat.flags.writeable = False
+        return cls(
+            time_s=time_s,
+            q=flat[0:8],
+            q_dot=flat[8:16],
+            q_ddot=flat[16:24],
+            quaternion_wxyz=flat[24:28],
+            rotation_world_body=flat[28:37].reshape(3, 3),
+            omega_body_rad_s=flat[37:40],
+            payload_attached=payload_attached,
+        )
+
 
 @dataclass(frozen=True)
 class ActuatorState:

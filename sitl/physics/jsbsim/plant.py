@@ -252,24 +252,15 @@ class JsbsimPlant:
     def state(self) -> PlantState:
         """The current truth state (frozen; built once per step, on first access)."""
         if self._state_cache is None:
-            flat = np.array(
-                self._q
-                + self._qd
-                + self._qdd
-                + list(self._quat)
-                + list(self._r9)
-                + list(self._omega)
-            )
-            flat.flags.writeable = False
-            self._state_cache = PlantState(
-                time_s=self.time_s,
-                q=flat[0:8],
-                q_dot=flat[8:16],
-                q_ddot=flat[16:24],
-                quaternion_wxyz=flat[24:28],
-                rotation_world_body=flat[28:37].reshape(3, 3),
-                omega_body_rad_s=flat[37:40],
-                payload_attached=self._arm.payload_attached,
+            self._state_cache = PlantState.from_lists(
+                self.time_s,
+                self._q,
+                self._qd,
+                self._qdd,
+                self._quat,
+                self._r9,
+                self._omega,
+                self._arm.payload_attached,
             )
         return self._state_cache
 
