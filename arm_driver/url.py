@@ -14,11 +14,12 @@ error, not "the last one wins".
 from __future__ import annotations
 
 import urllib.parse
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
+from typing import Any
 
-__all__ = ["BusUrl", "parse_bus_url"]
+__all__ = ["BusUrl", "convert_options", "flag", "milliseconds", "parse_bus_url"]
 
 
 @dataclass(frozen=True)
@@ -73,3 +74,37 @@ def parse_bus_url(url: str) -> BusUrl:
             raise ValueError(f"bus URL {url!r}: option {name!r} given twice")
         options[name] = value
     return BusUrl(parts.scheme.lower(), device, options)
+
+
+OptionSpec = Mapping[str, tuple[str, Callable[[str], Any]]]
+"""URL option name -> (constructor keyword, parser of the option's text)."""
+
+
+def convert_options(backend: str, options: Mapping[str, str], spec: OptionSpec) -> dict[str, Any]:
+    """A backend's constructor keywords from its URL options; ``ValueError`` names an
+    unknown option (with the known ones) or a value its parser refuses."""
+    unknown = sorted(set(options) - set(spec))
+    if unknown:
+        raise ValueError(f"unknown {backend} option(s) {unknown}; known: {sorted(spec)}")
+    kwargs = {}
+    for name, text in options.items():
+        keyword, parse = spec[name]
+        try:
+            kwargs[keyword] = parse(text)
+        except ValueError:
+            raise ValueError(f"{backend} option {name}={text!r} is not valid") from None
+    return kwargs
+
+
+def flag(text: str) -> bool:
+    """A boolean URL option: 1/true/yes/on or 0/false/no/off."""
+    if text.lower() in ("1", "true", "yes", "on"):
+        return True
+    if text.lower() in ("0", "false", "no", "off"):
+        return False
+    raise ValueError(text)
+
+
+def milliseconds(text: str) -> float:
+    """A duration option given in milliseconds, as seconds."""
+    return float(text) / 1e3

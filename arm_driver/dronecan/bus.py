@@ -79,6 +79,7 @@ from arm_driver.errors import (
     NodeHealth,
     NodeHealthError,
 )
+from arm_driver.url import convert_options, flag, milliseconds
 
 __all__ = ["MAX_COMMANDS_PER_MESSAGE", "DroneCanBus"]
 
@@ -190,22 +191,12 @@ class DroneCanBus(ArmBus):
             "interface": ("interface", str),
             "node_id": ("node_id", int),
             "bitrate": ("bitrate", int),
-            "timeout_ms": ("timeout_s", _ms),
-            "max_status_age_ms": ("max_status_age_s", _ms),
-            "open_timeout_ms": ("open_timeout_s", _ms),
-            "arming": ("arming", _flag),
+            "timeout_ms": ("timeout_s", milliseconds),
+            "max_status_age_ms": ("max_status_age_s", milliseconds),
+            "open_timeout_ms": ("open_timeout_s", milliseconds),
+            "arming": ("arming", flag),
         }
-        unknown = sorted(set(options) - set(convert))
-        if unknown:
-            raise ValueError(f"unknown dronecan option(s) {unknown}; known: {sorted(convert)}")
-        kwargs = {}
-        for name, text in options.items():
-            keyword, parse = convert[name]
-            try:
-                kwargs[keyword] = parse(text)
-            except ValueError:
-                raise ValueError(f"dronecan option {name}={text!r} is not valid") from None
-        return kwargs
+        return convert_options("dronecan", options, convert)
 
     # -- the node -------------------------------------------------------------------------
 
@@ -443,15 +434,3 @@ class DroneCanBus(ArmBus):
         self._command({joint.servo_id: (FORCE, 0.0) for joint in self.joints})
         if self._arming:
             self._broadcast(_ARMING(status=_ARMING().STATUS_DISARMED))
-
-
-def _ms(text: str) -> float:
-    return float(text) / 1e3
-
-
-def _flag(text: str) -> bool:
-    if text.lower() in ("1", "true", "yes", "on"):
-        return True
-    if text.lower() in ("0", "false", "no", "off"):
-        return False
-    raise ValueError(text)

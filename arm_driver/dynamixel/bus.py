@@ -85,6 +85,7 @@ from arm_driver.errors import (
     InstructionError,
     StatusError,
 )
+from arm_driver.url import convert_options, flag, milliseconds
 
 __all__ = ["DynamixelBus"]
 
@@ -207,21 +208,11 @@ class DynamixelBus(ArmBus):
         """``baud``, ``timeout_margin_ms``, ``crc_retries``, ``low_latency`` -> keywords."""
         convert: dict[str, tuple[str, Callable[[str], Any]]] = {
             "baud": ("baudrate", int),
-            "timeout_margin_ms": ("timeout_margin_s", lambda text: float(text) / 1e3),
+            "timeout_margin_ms": ("timeout_margin_s", milliseconds),
             "crc_retries": ("crc_retries", int),
-            "low_latency": ("low_latency", _flag),
+            "low_latency": ("low_latency", flag),
         }
-        unknown = sorted(set(options) - set(convert))
-        if unknown:
-            raise ValueError(f"unknown dynamixel option(s) {unknown}; known: {sorted(convert)}")
-        kwargs = {}
-        for name, text in options.items():
-            keyword, parse = convert[name]
-            try:
-                kwargs[keyword] = parse(text)
-            except ValueError:
-                raise ValueError(f"dynamixel option {name}={text!r} is not valid") from None
-        return kwargs
+        return convert_options("dynamixel", options, convert)
 
     @classmethod
     async def scan(cls, device: str, ids: Sequence[int], **options: Any) -> list[DeviceInfo]:
@@ -465,11 +456,3 @@ class DynamixelBus(ArmBus):
             return
         await self._sync_write(ct.GOAL_CURRENT, dict.fromkeys(self._joint_ids, 0))
         await self._sync_write(ct.TORQUE_ENABLE, dict.fromkeys(self._joint_ids, 0))
-
-
-def _flag(text: str) -> bool:
-    if text.lower() in ("1", "true", "yes", "on"):
-        return True
-    if text.lower() in ("0", "false", "no", "off"):
-        return False
-    raise ValueError(text)
