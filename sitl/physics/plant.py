@@ -60,7 +60,7 @@ from sitl.physics.rotors import (
     SequentialDesaturationMixer,
     inverse_thrust_curve,
 )
-from sitl.physics.state import ActuatorState, PlantState, frozen_array
+from sitl.physics.state import ActuatorState, PlantState
 
 __all__ = ["PlantMode", "TruthPlant"]
 
@@ -264,14 +264,7 @@ class TruthPlant:
         if self.mode != "underactuated":
             raise PlantModeError("actuator signals exist only in underactuated mode")
         if self._actuators is None:
-            commands, thrusts, joint, rate_sp, torque = self._actuator_signals
-            self._actuators = ActuatorState(
-                motor_commands=frozen_array(commands),
-                rotor_thrusts_n=frozen_array(thrusts),
-                joint_torques_n_m=frozen_array(joint),
-                rate_setpoint_rad_s=frozen_array(rate_sp),
-                torque_normalized=frozen_array(torque),
-            )
+            self._actuators = ActuatorState.from_signals(self._actuator_signals)
         return self._actuators
 
     @property

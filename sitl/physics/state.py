@@ -109,3 +109,16 @@ class ActuatorState:
     joint_torques_n_m: FloatArray
     rate_setpoint_rad_s: FloatArray
     torque_normalized: FloatArray
+
+    @classmethod
+    def from_signals(cls, signals: tuple) -> ActuatorState:
+        """From a plant's per-step tuple (motor commands, rotor thrusts [N], joint torques
+        [N m], rate setpoint [rad/s], normalized torques), as read-only arrays."""
+        commands, thrusts, joint, rate_sp, torque = signals
+        return cls(
+            motor_commands=frozen_array(commands),
+            rotor_thrusts_n=frozen_array(thrusts),
+            joint_torques_n_m=frozen_array(joint),
+            rate_setpoint_rad_s=frozen_array(rate_sp),
+            torque_normalized=frozen_array(torque),
+        )

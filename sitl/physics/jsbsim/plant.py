@@ -83,7 +83,7 @@ from sitl.physics.rotors import (
     SequentialDesaturationMixer,
     inverse_thrust_curve,
 )
-from sitl.physics.state import ActuatorState, PlantState, frozen_array
+from sitl.physics.state import ActuatorState, PlantState
 
 __all__ = ["JsbsimError", "JsbsimPlant"]
 
@@ -268,14 +268,7 @@ class JsbsimPlant:
     def actuators(self) -> ActuatorState:
         """Actuator signals of the last step."""
         if self._actuators is None:
-            commands, thrusts, joint, rate_sp, torque = self._actuator_signals
-            self._actuators = ActuatorState(
-                motor_commands=frozen_array(commands),
-                rotor_thrusts_n=frozen_array(thrusts),
-                joint_torques_n_m=frozen_array(joint),
-                rate_setpoint_rad_s=frozen_array(rate_sp),
-                torque_normalized=frozen_array(torque),
-            )
+            self._actuators = ActuatorState.from_signals(self._actuator_signals)
         return self._actuators
 
     @property
