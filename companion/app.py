@@ -141,7 +141,8 @@ class PickupApp:
     link
         An open MAVLink link with the vehicle detected.
     bus
-        An open arm bus (joints eta1, eta2 and a gripper).
+        An open arm bus (joints eta1, eta2 and a gripper); its torque limits, final once
+        it is open, are read here once.
     plan
         Mission geometry.
     controller
@@ -185,6 +186,7 @@ class PickupApp:
         self.takeoff_timeout_s = takeoff_timeout_s
         self.land_timeout_s = land_timeout_s
         self._joint_names = [j.name for j in bus.joints]
+        self._torque_limits = np.array([bus.torque_limit_n_m(n) for n in self._joint_names])
         self._stow = np.array(plan.stow_joints_rad)
         self._streaming = False
         self._offboard = False
@@ -595,8 +597,7 @@ class PickupApp:
 
     async def _write_joints(self, tau: np.ndarray) -> np.ndarray:
         """Send the joint torques (clipped to the joints' limits); returns what was sent."""
-        limits = np.array([self.bus.torque_limit_n_m(n) for n in self._joint_names])
-        sent = np.clip(tau, -limits, limits)
+        sent = np.clip(tau, -self._torque_limits, self._torque_limits)
         if self.failsafe.has(Fault.SERVO_BUS):
             return np.full(len(sent), math.nan)
         try:
