@@ -18,13 +18,6 @@ from __future__ import annotations
 import asyncio
 import json
 import math
-import os
-import queue
-import signal
-import socket
-import subprocess
-import sys
-import threading
 from pathlib import Path
 from typing import Annotated
 
@@ -40,6 +33,7 @@ from companion.flight_control import FlightControl, FlightControllerName
 from companion.flightlog import FlightLogWriter, read_flight_log
 from companion.link import LinkError, MavlinkLink, SigningConfig
 from companion.mission import PickupPlan
+from sitl.launch import SitlNotReadyError, start_sitl
 
 __all__ = ["demo", "mission_app"]
 
@@ -254,65 +248,6 @@ def _run_mission(scenario, connect, bus_url, plan, controller, out, signing_key,
 # --------------------------------------------------------------------------- demo
 
 
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def start_sitl(
-    config: Path, out: Path, speed: float, seed: int
-) -> tuple[subprocess.Popen, dict, int]:
-    """Start ``sitl run`` on free ports; return the process, its ``ready`` record and the
-    onboard port the companion listens on."""
-    onboard, gcs, onboard_local, gcs_local = (_free_udp_port() for _ in range(4))
-    args = [
-        sys.executable, "-c", "from sitl.cli import main; main()", "run",
-        "--config", str(config), "--speed", f"{speed:g}", "--seed", str(seed),
-        "--onboard-port", str(onboard), "--gcs-port", str(gcs),
-        "--onboard-local-port", str(onboard_local), "--gcs-local-port", str(gcs_local),
-        "--truth-log", str(out / "truth.jsonl"),
-    ]  # fmt: skip
-    proc = subprocess.Popen(
-        args,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env=dict(os.environ, PYTHONUNBUFFERED="1"),
-    )
-    lines: queue.Queue[str | None] = queue.Queue()
-
-    def pump() -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            lines.put(line)
-        lines.put(None)
-
-    threading.Thread(target=pump, daemon=True).start()
-    seen: list[str] = []
-    while True:
-        try:
-            line = lines.get(timeout=60.0)
-        except queue.Empty:
-            line = None
-        if line is None:
-            proc.kill()
-            raise UsageError("the simulated vehicle did not start:\n" + "".join(seen))
-        if line.startswith("ready "):
-            return proc, json.loads(line[len("ready ") :]), onboard
-        seen.append(line)
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=10.0)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
 def demo(
     out: Annotated[Path, typer.Option(help="Directory for log, summary and figures.")] = Path(
         "out/demo"
@@ -336,15 +271,15 @@ def demo(
     out.mkdir(parents=True, exist_ok=True)
     plan = _plan(scenario, scenario.world.payload_position_m, _xyz(place_at, "--place-at"), 1.5)
     try:
-        proc, ready, onboard = start_sitl(config, out, speed, seed)
-    except UsageError as exc:
+        sitl = start_sitl(config, "--seed", str(seed), speed=speed, truth_log=out / "truth.jsonl")
+    except SitlNotReadyError as exc:
         _fail(str(exc), 1)
-    typer.echo(f"sitl: running ({ready['arm_bus']}, MAVLink udp 127.0.0.1:{onboard})")
+    connect = f"udpin://127.0.0.1:{sitl.onboard_port}"
+    typer.echo(f"sitl: running ({sitl.arm_bus}, MAVLink {connect})")
     try:
-        status = _run_mission(scenario, f"udpin://127.0.0.1:{onboard}", ready["arm_bus"], plan,
-                              controller, out, None, 250.0)  # fmt: skip
+        status = _run_mission(scenario, connect, sitl.arm_bus, plan, controller, out, None, 250.0)
     finally:
-        _stop(proc)
+        sitl.stop()
     _print_truth(scenario, out, plan)
     raise typer.Exit(status)
 

@@ -19,7 +19,8 @@ import time
 from pathlib import Path
 
 import pytest
-from sitl_process import free_udp_port, start_sitl
+
+from sitl.launch import free_udp_port, start_sitl
 
 ROOT = Path(__file__).parent.parent
 CONFIG = ROOT / "configs" / "sitl_pickup.toml"

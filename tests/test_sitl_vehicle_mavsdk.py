@@ -25,9 +25,9 @@ from mavsdk.asyncio import Autopilot, ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.offboard import Attitude, OffboardAsync
 from mavsdk.asyncio.plugins.telemetry import FlightMode, LandedState, TelemetryAsync
-from sitl_process import start_sitl
 
 from companion.config import load_scenario
+from sitl.launch import start_sitl
 from sitl.px4 import Px4Params
 
 CONFIG = Path(__file__).parent.parent / "configs" / "sitl_pickup.toml"

@@ -1,4 +1,9 @@
-"""Start ``sitl run`` as a child process on free loopback ports, for end-to-end tests."""
+"""Start ``sitl run`` as a child process on free loopback ports and wait until it is ready.
+
+Used by ``companion demo`` and the end-to-end tests: the vehicle runs in its own process,
+as a user runs it, and prints a ``ready {json}`` line with the servo bus URL; a thread
+keeps its output pipe drained.
+"""
 
 from __future__ import annotations
 
@@ -13,6 +18,12 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
+__all__ = ["SitlNotReadyError", "SitlProcess", "free_udp_port", "start_sitl"]
+
+
+class SitlNotReadyError(RuntimeError):
+    """The vehicle process exited or printed no ``ready`` line in time."""
 
 
 def free_udp_port() -> int:
@@ -69,7 +80,9 @@ def start_sitl(
     truth_log: Path | None = None,
     timeout_s: float = 60.0,
 ) -> SitlProcess:
-    """Start the vehicle and wait for its ``ready`` line."""
+    """Start ``sitl run --config config *extra`` at ``speed`` on four free loopback UDP
+    ports and wait for its ``ready`` line; raises :class:`SitlNotReadyError` with what
+    it printed otherwise."""
     ports = [free_udp_port() for _ in range(4)]
     args = [
         sys.executable,
@@ -122,4 +135,4 @@ def start_sitl(
                 proc, *ports, arm_bus=where["arm_bus"], truth_log=truth_log, output=lines
             )
     proc.kill()
-    raise RuntimeError("sitl run did not become ready:\n" + "".join(seen))
+    raise SitlNotReadyError("sitl run did not become ready:\n" + "".join(seen))
