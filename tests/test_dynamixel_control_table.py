@@ -44,6 +44,7 @@ EMANUAL_ROWS = [
     ("LED", 65, 1, "RW", ""),
     ("Status Return Level", 68, 1, "RW", ""),
     ("Hardware Error Status", 70, 1, "R", ""),
+    ("Bus Watchdog", 98, 1, "RW", "20 ms"),
     ("Goal Current", 102, 2, "RW", "2.69 mA"),
     ("Goal Velocity", 104, 4, "RW", "0.229 rev/min"),
     ("Profile Acceleration", 108, 4, "RW", "214.577 rev/min^2"),
@@ -58,6 +59,7 @@ EMANUAL_ROWS = [
     ("Present Temperature", 146, 1, "R", "degC"),
 ]
 SIGNED = {
+    "Bus Watchdog",  # reads -1 after it tripped
     "Homing Offset",
     "Goal Current",
     "Goal Velocity",
@@ -94,6 +96,7 @@ def test_entry_encode_decode() -> None:
     assert ct.PRESENT_POSITION.decode(b"\xff\xff\xff\xff") == -1
     assert ct.PRESENT_INPUT_VOLTAGE.decode(b"\x77\x00") == 119
     assert ct.TORQUE_ENABLE.encode(1) == b"\x01"
+    assert ct.BUS_WATCHDOG.decode(b"\xff") == ct.BUS_WATCHDOG_TRIPPED
     with pytest.raises(ValueError, match="does not fit"):
         ct.GOAL_CURRENT.encode(40_000)
     with pytest.raises(ValueError, match="does not fit"):

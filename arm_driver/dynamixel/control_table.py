@@ -19,6 +19,15 @@ Limit ~ Velocity Limit) and Goal Position in extended modes (-1,048,575 ~ 1,048,
 the Present values mirror them (Present Position is a 4-byte signed count). These are
 two's complement; everything else here is unsigned.
 
+Bus Watchdog(98) (RAM, 1 byte, initial 0, firmware v38 and later; e-Manual section
+"Bus Watchdog(98)"): 0 turns the watchdog off and clears its error, 1-127 turn it on
+with a timeout of value x 20 ms. While Torque Enable(64) is 1 the servo measures the
+interval between instruction packets ("all the Instruction Packet in the DYNAMIXEL
+Protocol"); when it is longer than the timeout the servo stops and the entry reads -1
+(Bus Watchdog Error): Goal PWM(100), Goal Current(102), Goal Velocity(104) and Goal
+Position(116) become read-only, a write to them is answered with a Data Range Error,
+until the host writes 0. The e-Manual does not say that Torque Enable changes.
+
 Writes to the EEPROM area (addresses 0-63) are refused (Access Error) while Torque
 Enable(64) is 1. Unit conversions to SI live in :mod:`arm_driver.dynamixel.units`.
 """
@@ -33,6 +42,9 @@ from arm_driver.dynamixel.instructions import decode_int, decode_uint, encode_in
 __all__ = [
     "BAUD_RATE",
     "BAUD_RATES",
+    "BUS_WATCHDOG",
+    "BUS_WATCHDOG_MAX",
+    "BUS_WATCHDOG_TRIPPED",
     "CONTROL_TABLE",
     "CURRENT_LIMIT",
     "DRIVE_MODE",
@@ -133,6 +145,10 @@ BAUD_RATES = {
     7: 4_500_000,
 }
 """Baud Rate(8) value -> line rate [bit/s] (factory value 1: 57,600)."""
+BUS_WATCHDOG_TRIPPED = -1
+"""Bus Watchdog(98) after the watchdog tripped (Bus Watchdog Error); 0 clears it."""
+BUS_WATCHDOG_MAX = 127
+"""Largest Bus Watchdog(98) timeout [20 ms]: 2.54 s."""
 
 
 @dataclass(frozen=True)
@@ -208,6 +224,7 @@ TORQUE_ENABLE = ControlTableEntry("Torque Enable", 64, 1, _RW, _M)
 LED = ControlTableEntry("LED", 65, 1, _RW, _M)
 STATUS_RETURN_LEVEL = ControlTableEntry("Status Return Level", 68, 1, _RW, _M)
 HARDWARE_ERROR_STATUS = ControlTableEntry("Hardware Error Status", 70, 1, _R, _M)
+BUS_WATCHDOG = ControlTableEntry("Bus Watchdog", 98, 1, _RW, _M, signed=True, unit="20 ms")
 GOAL_CURRENT = ControlTableEntry("Goal Current", 102, 2, _RW, _M, signed=True, unit=_MA)
 GOAL_VELOCITY = ControlTableEntry("Goal Velocity", 104, 4, _RW, _M, signed=True, unit=_RPM)
 PROFILE_ACCELERATION = ControlTableEntry(
@@ -244,6 +261,7 @@ CONTROL_TABLE: tuple[ControlTableEntry, ...] = (
     LED,
     STATUS_RETURN_LEVEL,
     HARDWARE_ERROR_STATUS,
+    BUS_WATCHDOG,
     GOAL_CURRENT,
     GOAL_VELOCITY,
     PROFILE_ACCELERATION,
