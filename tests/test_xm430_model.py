@@ -168,3 +168,78 @@ def test_parameters_are_validated() -> None:
     with pytest.raises(ValueError):
         XM430Servo(253)
     assert math.isclose(EXAMPLE_TORQUE_CONSTANT_N_M_PER_A, 1.78, rel_tol=2e-3)
+
+
+def armed_in_current_mode(watchdog: int, goal_a: float = 0.5) -> XM430Servo:
+    """A servo in current mode applying ``goal_a`` [A], Bus Watchdog(98) = ``watchdog``."""
+    servo = XM430Servo(1)
+    write(servo, ct.OPERATING_MODE, ct.OperatingMode.CURRENT)
+    write(servo, ct.GOAL_CURRENT, units.a_to_current_units(goal_a))
+    write(servo, ct.TORQUE_ENABLE, 1)
+    assert write(servo, ct.BUS_WATCHDOG, watchdog) == 0
+    return servo
+
+
+def test_bus_watchdog_trips_after_its_timeout_not_before_and_the_joint_goes_limp() -> None:
+    servo = armed_in_current_mode(5)  # 100 ms
+    settle(servo, 0.099)
+    assert not servo.watchdog_tripped
+    assert servo.torque_n_m() > 0.5
+    settle(servo, 0.002)
+    assert servo.watchdog_tripped
+    reply = servo.read(ct.BUS_WATCHDOG.address, 1)
+    assert ct.BUS_WATCHDOG.decode(reply.params) == ct.BUS_WATCHDOG_TRIPPED
+    settle(servo, 0.01)
+    assert servo.get(ct.PRESENT_CURRENT) == 0  # the current loop's lag has decayed
+    assert servo.torque_n_m() == pytest.approx(0.0, abs=1e-6)
+    assert servo.torque_enabled  # the e-Manual: the servo stops; Torque Enable stays
+
+
+def test_bus_watchdog_is_kept_alive_by_any_instruction_and_idle_with_torque_off() -> None:
+    servo = armed_in_current_mode(3)  # 60 ms
+    for _ in range(20):
+        settle(servo, 0.05)
+        servo.read(ct.PRESENT_CURRENT.address, 2)
+    servo.handle(InstructionPacket(1, Instruction.PING))
+    settle(servo, 0.05)
+    assert not servo.watchdog_tripped
+    write(servo, ct.TORQUE_ENABLE, 0)
+    settle(servo, 1.0)
+    assert not servo.watchdog_tripped  # it only watches while torque is on
+
+
+def test_tripped_bus_watchdog_refuses_goals_until_0_clears_it() -> None:
+    servo = armed_in_current_mode(1)
+    settle(servo, 0.03)
+    assert servo.watchdog_tripped
+    before = bytes(servo.table)
+    assert write(servo, ct.GOAL_CURRENT, 0) == StatusError.DATA_RANGE
+    assert write(servo, ct.GOAL_POSITION, 2048) == StatusError.DATA_RANGE
+    assert write(servo, ct.BUS_WATCHDOG, 5) == StatusError.DATA_RANGE  # only 0 clears
+    assert bytes(servo.table) == before
+    assert write(servo, ct.BUS_WATCHDOG, 0) == 0
+    assert not servo.watchdog_tripped
+    assert servo.commanded_current_a() > 0.4  # the old goal applies again once cleared
+    assert write(servo, ct.GOAL_CURRENT, 0) == 0
+
+
+def test_bus_watchdog_range_and_reboot() -> None:
+    servo = XM430Servo(1)
+    assert write(servo, ct.BUS_WATCHDOG, ct.BUS_WATCHDOG_MAX) == 0
+    assert servo.write(ct.BUS_WATCHDOG.address, b"\x80").error == StatusError.DATA_RANGE
+    assert servo.get(ct.BUS_WATCHDOG) == ct.BUS_WATCHDOG_MAX
+    servo.handle(InstructionPacket(1, Instruction.REBOOT))
+    assert servo.get(ct.BUS_WATCHDOG) == 0
+
+
+def test_tripped_position_mode_holds_the_angle_where_it_stopped() -> None:
+    servo = XM430Servo(1)
+    write(servo, ct.GOAL_POSITION, units.rad_to_ticks(0.5))
+    write(servo, ct.TORQUE_ENABLE, 1)
+    write(servo, ct.BUS_WATCHDOG, 1)
+    servo.set_state(0.2, 0.0)
+    settle(servo, 0.03)
+    assert servo.watchdog_tripped
+    assert servo.commanded_current_a() == pytest.approx(0.0)  # holds 0.2 rad, not 0.5
+    servo.set_state(0.1, 0.0)
+    assert servo.commanded_current_a() == pytest.approx(10.0 * 0.1)

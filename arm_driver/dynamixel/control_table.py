@@ -45,6 +45,7 @@ __all__ = [
     "BUS_WATCHDOG",
     "BUS_WATCHDOG_MAX",
     "BUS_WATCHDOG_TRIPPED",
+    "BUS_WATCHDOG_UNIT_S",
     "CONTROL_TABLE",
     "CURRENT_LIMIT",
     "DRIVE_MODE",
@@ -149,6 +150,8 @@ BUS_WATCHDOG_TRIPPED = -1
 """Bus Watchdog(98) after the watchdog tripped (Bus Watchdog Error); 0 clears it."""
 BUS_WATCHDOG_MAX = 127
 """Largest Bus Watchdog(98) timeout [20 ms]: 2.54 s."""
+BUS_WATCHDOG_UNIT_S = 0.020
+"""One count of Bus Watchdog(98) [s]."""
 
 
 @dataclass(frozen=True)

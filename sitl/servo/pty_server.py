@@ -16,8 +16,12 @@ Sync Read; a Sync Write is never answered; a Sync Read is answered by each liste
 in the listed order. Each reply waits the servo's Return Delay Time(9) first. Frames
 that fail their CRC are dropped without a reply, as a servo cannot trust their id.
 
-Time: before each instruction the servos' loops advance by the wall time elapsed
-(:meth:`~sitl.servo.xm430.XM430Servo.step`), so goal writes take effect in real time.
+Time: before each instruction, and every 5 ms on a silent bus, the servos' loops
+advance by the wall time elapsed (:meth:`~sitl.servo.xm430.XM430Servo.step`), so goal
+writes take effect and a Bus Watchdog(98) trips in real time. Every packet a servo
+carries out counts as communication for its watchdog: one to its id, a broadcast, or
+a Sync Read/Write that lists it; a Sync Write's refused goal (watchdog tripped) is
+dropped without a reply, as on the real bus.
 A SITL drives the servos through :class:`~sitl.servo.xm430.ServoJoint` instead, under
 :attr:`PtyServoBus.lock`.
 
@@ -53,6 +57,9 @@ __all__ = ["Faults", "PtyServoBus"]
 
 _MAX_STEP_S = 0.1
 """Largest wall-time gap the servo loops are advanced by at once [s]."""
+_IDLE_STEP_S = 0.005
+"""Longest wait for a packet before the servos are stepped anyway [s], so that a Bus
+Watchdog(98) trips on time on a silent bus (its unit is 20 ms)."""
 
 
 @dataclass(frozen=True)
@@ -115,6 +122,7 @@ class PtyServoBus:
         self._rng = np.random.default_rng(self._faults.seed)
         self._step_servos = step_servos
         self._thread: threading.Thread | None = None
+        self._last_step = 0.0
         self._fds: tuple[int, int, int, int] | None = None
         self._device: str | None = None
         self.corrupted_replies = 0
@@ -172,11 +180,16 @@ class PtyServoBus:
         assert self._fds is not None
         master, _, wake, _ = self._fds
         parser = InstructionParser()
-        last = time.monotonic()
+        self._last_step = time.monotonic()
+        idle_s = _IDLE_STEP_S if self._step_servos else None
         while True:
-            readable, _, _ = select.select([master, wake], [], [])
+            readable, _, _ = select.select([master, wake], [], [], idle_s)
             if wake in readable:
                 return
+            if not readable:
+                with self.lock:
+                    self._advance()
+                continue
             try:
                 chunk = os.read(master, 4096)
             except OSError:  # EIO: no process has the slave open; poll again shortly
@@ -192,16 +205,20 @@ class PtyServoBus:
                 if packet is None:
                     break
                 with self.lock:
-                    now = time.monotonic()
-                    if self._step_servos:
-                        for servo in self.servos.values():
-                            servo.step(min(now - last, _MAX_STEP_S))
-                    last = now
+                    self._advance()
                     replies = self._answer(packet)
                 for delay_s, frame in replies:
                     if delay_s > 0.0:
                         time.sleep(delay_s)
                     os.write(master, frame)
+
+    def _advance(self) -> None:
+        """Step the servos by the wall time since the last step (with ``step_servos``)."""
+        now = time.monotonic()
+        if self._step_servos:
+            for servo in self.servos.values():
+                servo.step(min(now - self._last_step, _MAX_STEP_S))
+        self._last_step = now
 
     def _answer(self, packet: InstructionPacket) -> list[tuple[float, bytes]]:
         """Carry out one instruction; return (delay before [s], frame) per reply."""

@@ -22,7 +22,23 @@ What is modelled (addresses, sizes and units from
 - output torque = ``torque_constant_n_m_per_a`` x present current (0 with torque off);
 - overload: a command at or above ``overload_current_fraction`` x Current Limit for
   ``overload_time_s`` sets the Overload bit of Hardware Error Status(70); when
-  Shutdown(63) selects a bit that is set, torque turns off and stays off until a Reboot.
+  Shutdown(63) selects a bit that is set, torque turns off and stays off until a Reboot;
+- Bus Watchdog(98), as the e-Manual describes it (see
+  :mod:`arm_driver.dynamixel.control_table`): with torque on and a timeout of 1-127 x
+  20 ms, a silence longer than the timeout (time counted by :meth:`XM430Servo.step`)
+  trips it. Every :meth:`~XM430Servo.read`, :meth:`~XM430Servo.write`,
+  :meth:`~XM430Servo.handle` and :meth:`~XM430Servo.reboot` is an instruction packet
+  addressed to the servo and restarts the count (the server calls them for packets to
+  its id, broadcasts, and Sync Read/Write packets that list it). Tripped, it reads -1,
+  writes to the goal values (addresses 100-119) get a Data Range Error and change
+  nothing, and writing 0 clears it; Torque Enable is left as it is.
+
+Watchdog behaviour the e-Manual leaves open, modelled on the conservative side: a
+Sync packet that does not list the servo does not count as communication; "the
+servo stops" is 0 A in Current Control Mode (the joint goes limp) and holding the
+shaft angle where it tripped in the position modes; writing 1-127 while tripped is
+refused (Data Range Error), only 0 clears; once cleared, the servo applies its old
+Goal Current or Goal Position again, so a host must write a new goal.
 
 Not modelled: velocity and PWM modes (refused: Data Range Error), profiles, indirect
 addresses, voltage and temperature dynamics, Drive Mode's reverse bit.
@@ -185,6 +201,8 @@ class XM430Servo:
         self._put(ct.ID, servo_id)
         self._current_a = 0.0
         self._overload_s = 0.0
+        self._silent_s = 0.0
+        self._hold_rad = float(angle_rad)
         self.set_state(angle_rad, 0.0)
         self._put(ct.GOAL_POSITION, self.get(ct.PRESENT_POSITION))
 
@@ -224,6 +242,11 @@ class XM430Servo:
         return HardwareErrorStatus(self.get(ct.HARDWARE_ERROR_STATUS))
 
     @property
+    def watchdog_tripped(self) -> bool:
+        """Bus Watchdog(98) reads -1: the servo stopped for want of instruction packets."""
+        return self.table[_BUS_WATCHDOG] == _TRIPPED
+
+    @property
     def return_delay_s(self) -> float:
         """Return Delay Time(9) [s] (2 us per count)."""
         return self.get(ct.RETURN_DELAY_TIME) * 2e-6
@@ -243,17 +266,25 @@ class XM430Servo:
 
     def read(self, address: int, length: int) -> ServoReply:
         """Read ``length`` bytes at ``address`` (Read, Sync Read)."""
+        self._silent_s = 0.0
         if length < 1 or address + length > TABLE_SIZE:
             return self._reply(StatusError.ACCESS)
         return self._reply(0, bytes(self.table[address : address + length]))
 
     def write(self, address: int, data: bytes) -> ServoReply:
         """Write ``data`` at ``address`` (Write, Sync Write); all or nothing."""
+        self._silent_s = 0.0
         end = address + len(data)
         if not data or not _writable(address, end):
             return self._reply(StatusError.ACCESS)
         if address < ct.TORQUE_ENABLE.address and self.torque_enabled:
             return self._reply(StatusError.ACCESS)
+        if self.watchdog_tripped and address < _GOAL_VALUES.stop and end > _GOAL_VALUES.start:
+            return self._reply(StatusError.DATA_RANGE)  # goal values are read-only
+        if address <= _BUS_WATCHDOG < end:
+            timeout = data[_BUS_WATCHDOG - address]
+            if timeout > (0 if self.watchdog_tripped else ct.BUS_WATCHDOG_MAX):
+                return self._reply(StatusError.DATA_RANGE)
         new = bytearray(self.table)
         new[address:end] = data
         error = self._check(new)
@@ -266,9 +297,11 @@ class XM430Servo:
 
     def reboot(self) -> ServoReply:
         """Reboot: clear Hardware Error Status and turn torque off (RAM reset in part)."""
+        self._silent_s = 0.0
         reply = self._reply(0)
         self._put(ct.HARDWARE_ERROR_STATUS, 0)
         self._put(ct.TORQUE_ENABLE, 0)
+        self._put(ct.BUS_WATCHDOG, 0)
         self._put(ct.GOAL_CURRENT, 0)
         self._put(ct.GOAL_POSITION, self.get(ct.PRESENT_POSITION))
         self._overload_s = 0.0
@@ -281,6 +314,7 @@ class XM430Servo:
         :meth:`read` and :meth:`write`. Other instructions get an Instruction Error.
         """
         params = packet.params
+        self._silent_s = 0.0
         if packet.instruction == 0x01:
             info = self.table[ct.MODEL_NUMBER.address : ct.MODEL_NUMBER.end]
             return self._reply(0, bytes(info) + bytes((self.get(ct.FIRMWARE_VERSION),)))
@@ -341,11 +375,16 @@ class XM430Servo:
             int.from_bytes(table[_GOAL_CURRENT], "little", signed=True)
         )
         mode = table[_OPERATING_MODE]
+        tripped = table[_BUS_WATCHDOG] == _TRIPPED
         if mode == _CURRENT_MODE:
-            command = goal_a
+            command = 0.0 if tripped else goal_a
         else:
-            goal_rad = units.ticks_to_rad(
-                int.from_bytes(table[_GOAL_POSITION], "little", signed=True)
+            goal_rad = (
+                self._hold_rad
+                if tripped
+                else units.ticks_to_rad(
+                    int.from_bytes(table[_GOAL_POSITION], "little", signed=True)
+                )
             )
             p = self.parameters
             command = p.position_kp_a_per_rad * (goal_rad - self._angle_rad)
@@ -355,9 +394,10 @@ class XM430Servo:
         return max(-limit_a, min(limit_a, command))
 
     def step(self, dt_s: float) -> None:
-        """Advance the current loop and the overload detector by ``dt_s`` [s]."""
+        """Advance the bus watchdog, the current loop and the overload detector by ``dt_s`` [s]."""
         if not dt_s >= 0.0:
             raise ValueError(f"time step {dt_s} s must be >= 0")
+        self._watch(dt_s)
         p = self.parameters
         command = self.commanded_current_a()
         self._current_a += (command - self._current_a) * -math.expm1(
@@ -372,6 +412,17 @@ class XM430Servo:
             self._current_a = 0.0
         self._put(ct.PRESENT_CURRENT, units.a_to_current_units(self._current_a))
 
+    def _watch(self, dt_s: float) -> None:
+        """Count the silence while the watchdog is armed; trip when it exceeds the timeout."""
+        timeout = self.table[_BUS_WATCHDOG]
+        if self.table[_TORQUE_ENABLE] != 1 or not 0 < timeout <= ct.BUS_WATCHDOG_MAX:
+            self._silent_s = 0.0
+            return
+        self._silent_s += dt_s
+        if self._silent_s > timeout * ct.BUS_WATCHDOG_UNIT_S:
+            self.table[_BUS_WATCHDOG] = _TRIPPED
+            self._hold_rad = self._angle_rad
+
 
 def _span(entry: ct.ControlTableEntry) -> slice:
     return slice(entry.address, entry.end)
@@ -384,6 +435,10 @@ _OPERATING_MODE = ct.OPERATING_MODE.address
 _CURRENT_LIMIT = _span(ct.CURRENT_LIMIT)
 _GOAL_CURRENT = _span(ct.GOAL_CURRENT)
 _GOAL_POSITION = _span(ct.GOAL_POSITION)
+_BUS_WATCHDOG = ct.BUS_WATCHDOG.address
+_TRIPPED = ct.BUS_WATCHDOG_TRIPPED & 0xFF
+_GOAL_VALUES = range(100, ct.GOAL_POSITION.end)
+"""Goal PWM(100) .. Goal Position(116): read-only while the bus watchdog is tripped."""
 _CURRENT_MODE = int(ct.OperatingMode.CURRENT)
 _CURRENT_BASED_POSITION_MODE = int(ct.OperatingMode.CURRENT_BASED_POSITION)
 
