@@ -36,6 +36,10 @@ safe state, which :meth:`ArmBus.close` also applies:
   tracking its last goal position with its own current limit, a bounded and stable
   behaviour, and a gripper that went limp would drop its payload in flight.
 
+The safe state needs a live host. For a host that crashes or hangs, a backend may arm
+a timeout in the servos themselves that stops current-mode joints when commands stop
+(the Dynamixel backend's ``watchdog_ms``, the servos' Bus Watchdog).
+
 Only a broken link counts as a failure: a servo that answers with an error
 (:class:`~arm_driver.errors.InstructionError`, :class:`~arm_driver.errors.HardwareError`)
 proves the link works and is reported to the caller, not acted on.

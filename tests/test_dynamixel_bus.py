@@ -384,3 +384,76 @@ def test_a_servo_in_hardware_error_refuses_to_open_with_its_bits(sim: PtyServoBu
         assert bus.state is BusState.CLOSED
 
     run(body)
+
+
+def test_watchdog_option_is_validated_and_rounded_up_to_20_ms() -> None:
+    assert DynamixelBus.options_from_url({"watchdog_ms": "100"}) == {"watchdog_s": 0.1}
+    for bad in ("10", "2560", "-20", "nan"):
+        with pytest.raises(ValueError, match="0 \\(off\\) or 20-2540 ms"):
+            open_bus(f"dynamixel:///dev/null?watchdog_ms={bad}", JOINTS)
+    with pytest.raises(ValueError, match="watchdog_ms"):
+        open_bus("dynamixel:///dev/null?watchdog_ms=soon", JOINTS)
+
+
+def watchdogs(sim: PtyServoBus) -> dict[int, int]:
+    with sim.lock:
+        return {i: servo.get(ct.BUS_WATCHDOG) for i, servo in sim.servos.items()}
+
+
+def test_watchdog_limps_current_mode_joints_of_a_silent_host_until_torque_is_enabled(
+    sim: PtyServoBus,
+) -> None:
+    async def body() -> None:
+        url = f"dynamixel://{sim.device}?timeout_margin_ms=50&watchdog_ms=190"
+        async with open_bus(url, JOINTS, gripper=GRIPPER) as bus:
+            await bus.set_operating_mode(OperatingMode.CURRENT)
+            await bus.enable_torque()
+            assert watchdogs(sim) == {1: 10, 2: 10, 3: 0}  # 190 ms -> 200 ms; not the gripper
+            for _ in range(40):  # 0.4 s of 100 Hz control cycles keep it alive
+                await bus.write_joint_torques({"shoulder": 0.89, "elbow": 0.0})
+                await bus.read_joint_states()
+                await asyncio.sleep(0.01)
+            assert (await bus.read_joint_states())["shoulder"].torque_n_m > 0.8
+            until(lambda: sim.servos[1].watchdog_tripped and sim.servos[2].watchdog_tripped)
+            assert watchdogs(sim)[1] == ct.BUS_WATCHDOG_TRIPPED
+            await asyncio.sleep(0.01)
+            assert abs((await bus.read_joint_states())["shoulder"].torque_n_m) < 0.01
+            await bus.write_joint_torques({"shoulder": 0.5})  # refused, unanswered
+            await bus.read_joint_states()
+            with sim.lock:
+                assert sim.servos[1].get(ct.GOAL_CURRENT) == units.a_to_current_units(0.5)
+                assert sim.servos[1].torque_enabled  # stopped, not torque off
+            await bus.enable_torque()  # clears the trip; the old goal does not come back
+            assert watchdogs(sim) == {1: 10, 2: 10, 3: 0}
+            with sim.lock:
+                assert sim.servos[1].get(ct.GOAL_CURRENT) == 0
+            await bus.write_joint_torques({"shoulder": 0.445})
+            await bus.read_joint_states()
+            with sim.lock:
+                assert sim.servos[1].get(ct.GOAL_CURRENT) == units.a_to_current_units(0.25)
+
+    run(body)
+    until(lambda: watchdogs(sim)[2] == 0)  # the safe state's unanswered writes
+    with sim.lock:
+        assert not sim.servos[1].torque_enabled and not sim.servos[1].watchdog_tripped
+
+
+def test_watchdog_stays_off_in_position_mode_and_needs_firmware_38(sim: PtyServoBus) -> None:
+    with sim.lock:  # left armed by an earlier session
+        sim.servos[1].write(ct.BUS_WATCHDOG.address, b"\x01")
+
+    async def body() -> None:
+        async with make_bus(sim, watchdog_s=0.02) as bus:
+            await bus.enable_torque()  # factory position mode
+            assert watchdogs(sim) == {1: 0, 2: 0, 3: 0}
+            await asyncio.sleep(0.1)
+            assert not any(servo.watchdog_tripped for servo in sim.servos.values())
+            await bus.disable_torque()
+        with sim.lock:
+            sim.servos[2].table[ct.FIRMWARE_VERSION.address] = 37
+        with pytest.raises(ArmDriverError, match="servo 2 has firmware v37, without Bus"):
+            await make_bus(sim, watchdog_s=0.02).open()
+        async with make_bus(sim):  # without the watchdog, old firmware is fine
+            pass
+
+    run(body)

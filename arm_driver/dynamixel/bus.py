@@ -1,7 +1,8 @@
 """The Dynamixel backend of :class:`~arm_driver.bus.ArmBus`: XM430-W350 servos, Protocol 2.0.
 
 URL: ``dynamixel:///dev/ttyUSB0?baud=1000000`` with options ``baud`` [bit/s],
-``timeout_margin_ms`` [ms], ``crc_retries`` and ``low_latency`` (``0``/``1``).
+``timeout_margin_ms`` [ms], ``crc_retries``, ``low_latency`` (``0``/``1``) and
+``watchdog_ms`` [ms] (0: off, the default; else 20-2540, rounded up to 20 ms).
 
 Transactions (one at a time; the base class holds the lock):
 
@@ -13,9 +14,10 @@ Transactions (one at a time; the base class holds the lock):
   10 bytes) from every joint servo;
 - torques and positions: one Sync Write of Goal Current(102) or Goal Position(116)
   (never answered, so it costs only its own bytes on the line);
-- torque on/off, operating mode, gripper: a Write per servo, each answered and checked
-  when Status Return Level(68) is 2. The mode is in EEPROM: a servo with torque on
-  refuses it (Access Error), reported as :class:`~arm_driver.errors.InstructionError`.
+- torque on/off, operating mode, gripper, Bus Watchdog: a Write per servo, each
+  answered and checked when Status Return Level(68) is 2. The mode is in EEPROM: a
+  servo with torque on refuses it (Access Error), reported as
+  :class:`~arm_driver.errors.InstructionError`.
   Entering current-based position mode writes each joint's torque limit as its Goal
   Current, which that mode uses as its current limit.
 
@@ -37,8 +39,30 @@ read Hardware Error Status(70) and raise :class:`~arm_driver.errors.HardwareErro
 the decoded bits.
 
 Safe state (see :mod:`arm_driver.bus`): joints in current or unknown mode get a Sync
-Write of Goal Current 0, then of Torque Enable 0; both are unanswered, so they work
-even when only the servos' replies are lost.
+Write of Goal Current 0, then of Torque Enable 0 (then of Bus Watchdog 0 with
+``watchdog_ms``); all are unanswered, so they work even when only the servos' replies
+are lost.
+
+Bus Watchdog(98) (``watchdog_s``, firmware v38 and later, checked at open): the safe
+state needs the host, so a host that crashes or hangs would leave current-mode joints
+at their last Goal Current. With the watchdog, a joint servo that hears no instruction
+packet for longer than the timeout stops by itself (e-Manual: it "will stop", Bus
+Watchdog reads -1, goal writes get a Data Range Error until 0 is written; Torque
+Enable is not said to change). The Sync Read and Sync Write of each control cycle
+list every joint, so they keep it alive. :meth:`enable_torque` arms it on the joints
+in current mode only, after this sequence per joint: Torque Enable 0, Bus Watchdog 0
+(clears a trip), Goal Current 0 (the manual does not say whether a cleared servo goes
+back to its old goal: this one has none), then Torque Enable 1, then the timeout.
+Joints in a position mode get Bus Watchdog 0 and the gripper is not touched: their
+goals come only when the caller moves them, a trip would refuse the next goal, and
+holding the last goal is already their safe state. After a trip, torque commands are
+refused without a word (a Sync Write is never answered) and the joints read zero
+torque; call :meth:`enable_torque` to resume. A process that crashed with the watchdog
+on leaves Bus Watchdog -1 behind: open the bus with ``watchdog_ms`` set (any value) so
+that :meth:`enable_torque` clears it, or power-cycle the servos. Off by default: older
+firmware has no address 98, and a caller that pauses longer than the timeout between
+torque commands (bench tools, a SITL faster than real time) would find them refused;
+a flight configuration turns it on in its bus URL.
 """
 
 from __future__ import annotations
@@ -46,6 +70,7 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import functools
+import math
 import time
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -93,6 +118,8 @@ _STATUS_OVERHEAD = 11
 """Bytes of a status packet besides its parameters: header 4, id, length 2, 0x55, error, CRC 2."""
 _UNKNOWN_RETURN_DELAY_S = 255 * 2e-6
 """Return delay assumed before a servo's Return Delay Time(9) is read: the largest [s]."""
+_WATCHDOG_FIRMWARE = 38
+"""First firmware version with Bus Watchdog(98) (e-Manual)."""
 _INFO_START = ct.RETURN_DELAY_TIME.address
 _INFO_LENGTH = ct.HARDWARE_ERROR_STATUS.end - _INFO_START
 _STATE_START = ct.PRESENT_CURRENT.address
@@ -170,6 +197,9 @@ class DynamixelBus(ArmBus):
         Model Number(0) every servo must report (1020: XM430-W350).
     low_latency
         Ask for the serial driver's low-latency mode.
+    watchdog_s
+        Bus Watchdog(98) timeout of the current-mode joints [s]: 0 (off) or 0.02-2.54,
+        rounded up to a multiple of 0.02.
     """
 
     def __init__(
@@ -184,6 +214,7 @@ class DynamixelBus(ArmBus):
         max_consecutive_failures: int = 3,
         model_number: int = ct.XM430_W350_MODEL_NUMBER,
         low_latency: bool = True,
+        watchdog_s: float = 0.0,
     ) -> None:
         super().__init__(joints, gripper=gripper, max_consecutive_failures=max_consecutive_failures)
         ids = [joint.servo_id for joint in self.joints] + ([gripper.servo_id] if gripper else [])
@@ -194,6 +225,7 @@ class DynamixelBus(ArmBus):
             raise ValueError(f"timeout_margin_s {timeout_margin_s} must be >= 0")
         if crc_retries < 0:
             raise ValueError(f"crc_retries {crc_retries} must be >= 0")
+        self._watchdog_units = _watchdog_units(watchdog_s)
         self._ids = ids
         self._joint_ids = [joint.servo_id for joint in self.joints]
         self._margin_s = timeout_margin_s
@@ -205,12 +237,14 @@ class DynamixelBus(ArmBus):
 
     @classmethod
     def options_from_url(cls, options: Mapping[str, str]) -> dict[str, Any]:
-        """``baud``, ``timeout_margin_ms``, ``crc_retries``, ``low_latency`` -> keywords."""
+        """``baud``, ``timeout_margin_ms``, ``crc_retries``, ``low_latency``,
+        ``watchdog_ms`` -> keywords."""
         convert: dict[str, tuple[str, Callable[[str], Any]]] = {
             "baud": ("baudrate", int),
             "timeout_margin_ms": ("timeout_margin_s", milliseconds),
             "crc_retries": ("crc_retries", int),
             "low_latency": ("low_latency", flag),
+            "watchdog_ms": ("watchdog_s", milliseconds),
         }
         return convert_options("dynamixel", options, convert)
 
@@ -342,10 +376,18 @@ class DynamixelBus(ArmBus):
         await self._transport.open()
         for servo_id in self._ids:
             (reply,) = await self._exchange(encode_ping(servo_id), [servo_id], 3)
-            model = parse_ping_reply(reply, servo_id, ignore_alert=True).model_number
-            if model != self._model_number:
+            ping = parse_ping_reply(reply, servo_id, ignore_alert=True)
+            if ping.model_number != self._model_number:
                 raise ArmDriverError(
-                    f"servo {servo_id} is model {model}, expected {self._model_number}",
+                    f"servo {servo_id} is model {ping.model_number}, expected {self._model_number}",
+                    servo_id=servo_id,
+                )
+            watched = self._watchdog_units and servo_id in self._joint_ids
+            if watched and ping.firmware_version < _WATCHDOG_FIRMWARE:
+                raise ArmDriverError(
+                    f"servo {servo_id} has firmware v{ping.firmware_version}, without "
+                    f"Bus Watchdog(98) (v{_WATCHDOG_FIRMWARE} and later): update it or "
+                    "open the bus without watchdog_ms",
                     servo_id=servo_id,
                 )
             info = await self._read_range(servo_id, _INFO_START, _INFO_LENGTH, ignore_alert=True)
@@ -373,8 +415,28 @@ class DynamixelBus(ArmBus):
 
     @_hardware_details
     async def _set_torque_hook(self, enabled: bool) -> None:
+        watch = enabled and self._watchdog_units > 0
+        if watch:
+            await self._clear_watchdogs()
         for servo_id in self._ids:
             await self._write(servo_id, ct.TORQUE_ENABLE, int(enabled))
+        if watch:
+            for servo_id in self._current_mode_joints():
+                await self._write(servo_id, ct.BUS_WATCHDOG, self._watchdog_units)
+
+    def _current_mode_joints(self) -> list[int]:
+        return [i for i in self._joint_ids if self._servos[i].mode == ct.OperatingMode.CURRENT]
+
+    async def _clear_watchdogs(self) -> None:
+        """Bus Watchdog 0 on every joint; a current-mode one gets torque off before and
+        Goal Current 0 after, so a trip is cleared without its old goal coming back."""
+        limp = self._current_mode_joints()
+        for servo_id in self._joint_ids:
+            if servo_id in limp:
+                await self._write(servo_id, ct.TORQUE_ENABLE, 0)
+            await self._write(servo_id, ct.BUS_WATCHDOG, 0)
+            if servo_id in limp:
+                await self._write(servo_id, ct.GOAL_CURRENT, 0)
 
     @_hardware_details
     async def _set_mode_hook(self, mode: OperatingMode) -> None:
@@ -456,3 +518,16 @@ class DynamixelBus(ArmBus):
             return
         await self._sync_write(ct.GOAL_CURRENT, dict.fromkeys(self._joint_ids, 0))
         await self._sync_write(ct.TORQUE_ENABLE, dict.fromkeys(self._joint_ids, 0))
+        if self._watchdog_units:  # after torque off, so that clearing a trip moves nothing
+            await self._sync_write(ct.BUS_WATCHDOG, dict.fromkeys(self._joint_ids, 0))
+
+
+def _watchdog_units(watchdog_s: float) -> int:
+    """Bus Watchdog(98) value for a timeout [s] (0: off), rounded up to 20 ms."""
+    unit_s = ct.BUS_WATCHDOG_UNIT_S
+    if not (watchdog_s == 0.0 or unit_s <= watchdog_s <= ct.BUS_WATCHDOG_MAX * unit_s):
+        raise ValueError(
+            f"bus watchdog {watchdog_s * 1e3:g} ms must be 0 (off) or 20-2540 ms "
+            "(Bus Watchdog(98) counts 1-127 x 20 ms)"
+        )
+    return math.ceil(round(watchdog_s / unit_s, 6))
