@@ -41,6 +41,7 @@ from companion.link import LinkLost, LinkRegained, MavlinkLink
 from companion.link.errors import CommandError
 from companion.link.px4_modes import px4_mode
 from companion.link.telemetry import BodyRates, LandedState, VehiclePose, VehicleStatus
+from companion.loop_period import LoopPeriodMonitor
 from companion.mission import EstimatorAction, GripperAction, Phase, PickupMission, PickupPlan
 from companion.state import StateAssembler
 
@@ -97,6 +98,12 @@ class MissionReport:
     """Pose taken from the link -> SET_ATTITUDE_TARGET sent (joint read included) [us]."""
     cpu_share: float | None = None
     """Process CPU time / wall time over the OFFBOARD part (1.0 = one core)."""
+    late_cycles: int = 0
+    """Cycles later than 2.5 control periods (vehicle time); the estimator skipped them."""
+    longest_period_ms: float | None = None
+    """Longest vehicle-time gap between two control cycles [ms]."""
+    estimator_skipped_steps: int = 0
+    """Estimator steps skipped in flight (late cycles, no applied force known)."""
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -115,6 +122,9 @@ class MissionReport:
             "cycle_latency_us": _percentiles(self.cycle_latency_us),
             "setpoint_latency_us": _percentiles(self.setpoint_latency_us),
             "cpu_share_of_one_core": self.cpu_share,
+            "late_cycles": self.late_cycles,
+            "longest_period_ms": self.longest_period_ms,
+            "estimator_skipped_steps": self.estimator_skipped_steps,
         }
 
 
@@ -177,6 +187,9 @@ class PickupApp:
         self.control = FlightControl(scenario, controller)
         q_stow = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0, *plan.stow_joints_rad])
         self.control.check_rate(control_rate_hz, q_stow)
+        self.loop_period = LoopPeriodMonitor(
+            1.0 / control_rate_hz, self.control.max_period_s(q_stow)
+        )
         self.mission = PickupMission(plan, scenario)
         self.failsafe = FailsafeMonitor()
         self.assembler = StateAssembler.from_sensors(scenario.sensors)
@@ -200,6 +213,7 @@ class PickupApp:
         self._servo_failing_since = math.nan
         self._faults: asyncio.Queue[FaultEvent] = asyncio.Queue()
         self._payload_errors: list[float] = []
+        self._late_noted_s = -math.inf
         self.control.estimator.freeze()  # until the mission flies in OFFBOARD
         self._estimate_frozen = True
         self._tick = asyncio.Condition()
@@ -275,12 +289,7 @@ class PickupApp:
         """Checks before arming: telemetry flows, on the ground, joints answer."""
         await self.link.set_message_interval(_ODOMETRY_ID, self.control_rate_hz)
         await self.link.set_message_interval(mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, 5.0)
-        try:
-            async with asyncio.timeout(5.0):
-                with self.link.subscribe(VehiclePose) as poses:
-                    await poses.get()
-        except TimeoutError:
-            raise MissionError("preflight: no ODOMETRY from the vehicle within 5 s") from None
+        await self._check_pose_rate()
         landed = self.link.latest(LandedState)
         if landed is not None and not landed.on_ground:
             raise MissionError(f"preflight: the vehicle is not on the ground ({landed.name})")
@@ -297,6 +306,44 @@ class PickupApp:
         missing = set(self._joint_names) - set(states)
         if missing:
             raise MissionError(f"preflight: joints {sorted(missing)} did not answer")
+
+    async def _check_pose_rate(self) -> None:
+        """The ODOMETRY stream that clocks the control loop comes fast enough: its mean
+        period over 1 s of vehicle time is one the velocity gains tolerate."""
+        limit = self.loop_period
+        probe = LoopPeriodMonitor(limit.period_s, limit.max_period_s, window_s=1.0)
+        last_s = -math.inf
+        with self.link.subscribe(VehiclePose) as poses:
+            try:
+                async with asyncio.timeout(5.0):
+                    pose = await poses.get()
+            except TimeoutError:
+                raise MissionError("preflight: no ODOMETRY from the vehicle within 5 s") from None
+            try:
+                async with asyncio.timeout(10.0):
+                    while math.isnan(probe.mean_period_s):
+                        t_s = pose.time_boot_ms / 1000.0
+                        if t_s > last_s:
+                            probe.update(t_s)
+                            last_s = t_s
+                        pose = await poses.get()
+            except TimeoutError:
+                raise MissionError(
+                    "preflight: ODOMETRY stopped or its time_boot_ms did not advance 1 s in 10 s"
+                ) from None
+        mean_ms, max_ms = probe.mean_period_s * 1e3, limit.max_period_s * 1e3
+        if probe.overrun:
+            raise MissionError(
+                f"preflight: ODOMETRY arrives every {mean_ms:.1f} ms (vehicle time); the "
+                f"velocity gains need a control period below {max_ms:.1f} ms: raise the "
+                "link's data rate (MAV_1_RATE, SER_TEL2_BAUD) or lower the gains k"
+            )
+        if mean_ms > 1.2 * limit.period_s * 1e3:
+            self._note(
+                "loop",
+                f"ODOMETRY every {mean_ms:.1f} ms, slower than the "
+                f"{self.control_rate_hz:g} Hz asked",
+            )
 
     async def _sequence(self) -> None:
         link, plan = self.link, self.plan
@@ -462,6 +509,10 @@ class PickupApp:
             return
         dt = t_s - self._last_t_s if math.isfinite(self._last_t_s) else None
         self._t_s, self._last_t_s = t_s, t_s
+        period = self.loop_period.update(t_s)
+        if period is not None and period.late and t_s - self._late_noted_s >= 1.0:
+            self._late_noted_s = t_s
+            self._note("loop", f"late cycle: {period.period_s * 1e3:.1f} ms since the last")
         a = self.assembler
         if dt is not None and a.ready:
             a.predict(dt)
@@ -487,9 +538,11 @@ class PickupApp:
         else:
             desired = self._hold_desired(state.q)
         servo_tau = np.array([joints[n].torque_n_m for n in self._joint_names])
+        # NaN (no force known) makes the estimator skip the step: before OFFBOARD, and on a
+        # late cycle (its forward-Euler step is not tuned for the gap).
         known = (
             self.control.applied_force(state.q, self._last_thrust_n, servo_tau)
-            if math.isfinite(self._last_thrust_n)
+            if math.isfinite(self._last_thrust_n) and period is not None and not period.late
             else np.full(8, math.nan)
         )
         out = self.control.step(dt, state, desired, known)
@@ -505,6 +558,13 @@ class PickupApp:
         self.report.cycle_latency_us.append((time.perf_counter() - received) * 1e6)
         self.report.control_cycles += 1
         if self._offboard:
+            if self.loop_period.overrun:
+                self._fault(
+                    Fault.LOOP_OVERRUN,
+                    f"mean control period {self.loop_period.mean_period_s * 1e3:.1f} ms over "
+                    f"{self.loop_period.window_s:g} s, longer than the "
+                    f"{self.loop_period.max_period_s * 1e3:.1f} ms the velocity gains tolerate",
+                )
             for event in self.failsafe.update(
                 t_s,
                 on_bound=self._on_bound(out),
@@ -638,6 +698,9 @@ class PickupApp:
         )
 
     def _finish_report(self) -> None:
+        self.report.late_cycles = self.loop_period.late_cycles
+        self.report.longest_period_ms = self.loop_period.longest_period_s * 1e3
+        self.report.estimator_skipped_steps = self.control.estimator.skipped_steps
         if self._payload_errors:
             errors = np.asarray(self._payload_errors)
             self.report.position_rms_with_payload_m = float(np.sqrt(np.mean(errors**2)))

@@ -13,6 +13,11 @@
 ``saturation``
     Tilt or thrust saturated for ``saturation_hold_s`` without a break. Abort: PX4 holds
     position (AUTO.LOITER), then lands.
+``loop_overrun``
+    The control loop's mean period over 0.5 s of vehicle time exceeded the longest period
+    its velocity gains tolerate (:mod:`companion.loop_period`): the onboard computer cannot
+    keep the rate. Abort: PX4 holds position, then lands. (Single late cycles only pause
+    the estimator.)
 ``offboard_lost``
     PX4 left OFFBOARD while the mission flew in it (pilot, PX4 failsafe). Abort: leave the
     vehicle to PX4 and the pilot; never re-enter OFFBOARD.
@@ -36,6 +41,7 @@ class Fault(StrEnum):
     SERVO_BUS = "servo_bus"
     ESTIMATE_BOUND = "estimate_bound"
     SATURATION = "saturation"
+    LOOP_OVERRUN = "loop_overrun"
     OFFBOARD_LOST = "offboard_lost"
 
 
@@ -53,6 +59,7 @@ REACTIONS: dict[Fault, tuple[Reaction, ...]] = {
     Fault.SERVO_BUS: (Reaction.FREEZE_ESTIMATE, Reaction.LAND),
     Fault.ESTIMATE_BOUND: (Reaction.FREEZE_ESTIMATE,),
     Fault.SATURATION: (Reaction.FREEZE_ESTIMATE, Reaction.HOLD_THEN_LAND),
+    Fault.LOOP_OVERRUN: (Reaction.FREEZE_ESTIMATE, Reaction.HOLD_THEN_LAND),
     Fault.OFFBOARD_LOST: (Reaction.FREEZE_ESTIMATE, Reaction.RELEASE_TO_PX4),
 }
 """The reactions of each fault, in the order they are carried out."""

@@ -24,7 +24,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from companion.config import Scenario
-from companion.control import DesiredState, PassivityController, check_control_rate
+from companion.control import (
+    DesiredState,
+    PassivityController,
+    check_control_rate,
+    damping_step_ratio,
+)
 from companion.estimation import TRANSLATION_AND_JOINT_ROWS, Estimate, estimator_from_scenario
 from companion.filters import FilteredState
 from companion.model import ManipulatorModel
@@ -96,6 +101,15 @@ class FlightControl:
         m = self.model.mass_matrix(q, tuple(self.estimator.theta))
         return check_control_rate(
             m, self.scenario.controller.k, 1.0 / rate_hz, TRANSLATION_AND_JOINT_ROWS
+        )
+
+    def max_period_s(self, q: FloatArray) -> float:
+        """Longest control period [s] the velocity gains tolerate with margin at ``q``: where
+        the damping step ratio reaches 1, half its stability bound (the limit of
+        :meth:`check_rate`)."""
+        m = self.model.mass_matrix(q, tuple(self.estimator.theta))
+        return 1.0 / damping_step_ratio(
+            m, self.scenario.controller.k, 1.0, TRANSLATION_AND_JOINT_ROWS
         )
 
     def step(

@@ -1,0 +1,99 @@
+"""Control-loop period watch in vehicle time (pure, no clock): late cycles and overrun.
+
+The control loop runs once per vehicle pose, so the vehicle-time gap between two cycles is
+the period the filters, the estimator and the controller actually ran at. Two things can go
+wrong on a loaded onboard computer:
+
+- a **late cycle** (a gap longer than ``late_factor`` nominal periods: a scheduling stall, a
+  burst of dropped poses). The estimator's forward-Euler step would integrate over the gap,
+  so the estimator skips that cycle (:attr:`CyclePeriod.late`); the controller flies on.
+- a **lasting overrun**: the mean period over the last ``window_s`` exceeds
+  ``max_period_s``, the longest period the velocity gains tolerate with margin
+  (:meth:`companion.flight_control.FlightControl.max_period_s`). The joints' damping loop
+  is then no longer stable with margin: the app raises ``loop_overrun``
+  (:mod:`companion.failsafe`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+__all__ = ["CyclePeriod", "LoopPeriodMonitor"]
+
+
+@dataclass(frozen=True)
+class CyclePeriod:
+    """One cycle's timing."""
+
+    period_s: float
+    """Vehicle time since the previous cycle [s]."""
+    late: bool
+    """Longer than ``late_factor`` nominal periods."""
+
+
+class LoopPeriodMonitor:
+    """Watches the vehicle-time period of the control loop.
+
+    Parameters
+    ----------
+    period_s
+        Nominal control period [s].
+    max_period_s
+        Longest mean period the controller tolerates [s] (>= ``period_s``).
+    late_factor
+        A cycle longer than this many nominal periods is late.
+    window_s
+        Window of the mean period compared with ``max_period_s`` [s].
+    """
+
+    def __init__(
+        self,
+        period_s: float,
+        max_period_s: float,
+        *,
+        late_factor: float = 2.5,
+        window_s: float = 0.5,
+    ) -> None:
+        if not period_s > 0.0:
+            raise ValueError(f"period_s must be positive, got {period_s}")
+        if not max_period_s >= period_s:
+            raise ValueError(f"max_period_s ({max_period_s}) must be >= period_s ({period_s})")
+        if not (late_factor > 1.0 and window_s > 0.0):
+            raise ValueError("late_factor must be > 1 and window_s > 0")
+        self.period_s = period_s
+        self.max_period_s = max_period_s
+        self.late_factor = late_factor
+        self.window_s = window_s
+        self.late_cycles = 0
+        self.longest_period_s = 0.0
+        self._times: deque[float] = deque()
+
+    def update(self, t_s: float) -> CyclePeriod | None:
+        """Record a cycle at vehicle time ``t_s`` [s] (increasing); None for the first."""
+        t_s = float(t_s)
+        times = self._times
+        previous = times[-1] if times else None
+        times.append(t_s)
+        while len(times) > 2 and t_s - times[1] >= self.window_s:
+            times.popleft()
+        if previous is None:
+            return None
+        period = t_s - previous
+        late = period > self.late_factor * self.period_s
+        self.late_cycles += late
+        self.longest_period_s = max(self.longest_period_s, period)
+        return CyclePeriod(period, late)
+
+    @property
+    def mean_period_s(self) -> float:
+        """Mean period over the last ``window_s`` (NaN until a full window) [s]."""
+        times = self._times
+        span = times[-1] - times[0] if len(times) > 1 else 0.0
+        return span / (len(times) - 1) if span >= self.window_s else math.nan
+
+    @property
+    def overrun(self) -> bool:
+        """The mean period over a full window exceeds ``max_period_s``."""
+        return self.mean_period_s > self.max_period_s

@@ -1,0 +1,90 @@
+"""Control-loop period watch: late cycles pause the estimator, a lasting overrun is flagged."""
+
+import math
+
+import numpy as np
+import pytest
+
+from companion.config import load_scenario
+from companion.control import ControlRateError
+from companion.flight_control import FlightControl
+from companion.loop_period import LoopPeriodMonitor
+
+
+def feed(monitor, times):
+    return [monitor.update(t) for t in times]
+
+
+def test_steady_cycles_are_on_time_and_no_overrun():
+    monitor = LoopPeriodMonitor(0.004, 0.035)
+    out = feed(monitor, np.arange(0.0, 1.0, 0.004))
+    assert out[0] is None
+    assert not any(c.late for c in out[1:])
+    assert monitor.mean_period_s == pytest.approx(0.004)
+    assert not monitor.overrun and monitor.late_cycles == 0
+
+
+def test_a_cycle_of_three_periods_is_late():
+    monitor = LoopPeriodMonitor(0.004, 0.035)
+    feed(monitor, 0.004 * np.arange(51))  # up to 0.2 s
+    late = monitor.update(0.2 + 0.012)
+    assert late.late and late.period_s == pytest.approx(0.012)
+    assert not any(c.late for c in feed(monitor, 0.212 + 0.004 * np.arange(1, 10)))
+    assert monitor.late_cycles == 1
+    assert monitor.longest_period_s == pytest.approx(0.012)
+
+
+def test_a_gap_of_two_periods_is_jitter_not_late():
+    monitor = LoopPeriodMonitor(0.004, 0.035)
+    feed(monitor, [0.0, 0.004])
+    assert not monitor.update(0.012).late
+
+
+def test_overrun_needs_a_full_window_above_the_limit():
+    monitor = LoopPeriodMonitor(0.004, 0.035, window_s=0.5)
+    feed(monitor, np.arange(0.0, 1.0, 0.004))
+    slow = feed(monitor, 1.0 + 0.04 * np.arange(1, 12))  # 0.44 s at 40 ms
+    assert all(c.late for c in slow)
+    assert not monitor.overrun  # the window still holds fast cycles
+    feed(monitor, 1.44 + 0.04 * np.arange(1, 8))
+    assert monitor.overrun
+    assert monitor.mean_period_s == pytest.approx(0.04)
+    feed(monitor, 1.72 + 0.004 * np.arange(1, 200))
+    assert not monitor.overrun
+
+
+def test_one_long_stall_is_an_overrun():
+    monitor = LoopPeriodMonitor(0.004, 0.035, window_s=0.5)
+    feed(monitor, np.arange(0.0, 1.0, 0.004))
+    monitor.update(1.6)
+    assert monitor.overrun
+
+
+def test_mean_period_is_nan_before_a_full_window():
+    monitor = LoopPeriodMonitor(0.004, 0.035, window_s=0.5)
+    feed(monitor, np.arange(0.0, 0.3, 0.004))
+    assert math.isnan(monitor.mean_period_s) and not monitor.overrun
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"period_s": 0.0, "max_period_s": 0.01},
+        {"period_s": 0.01, "max_period_s": 0.005},
+        {"period_s": 0.004, "max_period_s": 0.01, "late_factor": 1.0},
+        {"period_s": 0.004, "max_period_s": 0.01, "window_s": 0.0},
+    ],
+)
+def test_bad_parameters_are_refused(kwargs):
+    with pytest.raises(ValueError):
+        LoopPeriodMonitor(**kwargs)
+
+
+def test_max_period_is_where_the_rate_check_starts_refusing():
+    control = FlightControl(load_scenario("configs/sitl_pickup.toml"), "passivity")
+    q = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -0.5 * math.pi])
+    max_period_s = control.max_period_s(q)
+    assert 0.004 < max_period_s < 1.0
+    control.check_rate(1.0 / (0.99 * max_period_s), q)
+    with pytest.raises(ControlRateError):
+        control.check_rate(1.0 / (1.01 * max_period_s), q)
