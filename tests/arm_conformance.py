@@ -10,7 +10,8 @@ and inject faults:
   (:class:`sitl.servo.DroneCanActuatorNode`);
 - ``hardware``: the bus at ``$ARM_BUS_URL`` (joints from the ``arm_bus`` section of
   ``$ARM_BUS_CONFIG`` if set, else :data:`JOINTS`). Nothing on the device side can be
-  inspected or injected, so tests that need it skip.
+  inspected or injected, so tests that need it skip; the silent-host test runs when
+  the URL sets ``watchdog_ms``.
 
 In both emulators each shaft sits on an inertia (:class:`sitl.servo.JointRig`), so
 position goals converge and torques move the joints.
@@ -29,8 +30,10 @@ from arm_driver.bus import GripperConfig, JointConfig
 from arm_driver.dynamixel import control_table as ct
 from arm_driver.dynamixel import units
 from arm_driver.errors import HardwareError, HardwareErrorStatus
+from arm_driver.url import parse_bus_url
 from sitl.servo import (
     CanActuator,
+    CanActuatorParameters,
     CommandType,
     DroneCanActuatorNode,
     Faults,
@@ -58,6 +61,10 @@ class Harness:
     gripper: GripperConfig | None = GRIPPER
     timeout_bound_s = 0.0
     """Largest ``BusTimeoutError.timeout_s`` the configured options allow [s]."""
+    command_timeout_s: float | None = None
+    """How long a device keeps a torque command once the host goes quiet [s] (Dynamixel:
+    the Bus Watchdog of ``watchdog_ms``; DroneCAN: the actuator's command timeout);
+    None: for ever (the test of it skips)."""
 
     def close(self) -> None:
         """Stop what the harness started."""
@@ -107,6 +114,7 @@ class DynamixelHarness(Harness):
     name = "dynamixel"
     timeout_margin_s = 0.02
     timeout_bound_s = timeout_margin_s + 0.005  # plus line time and return delays
+    command_timeout_s = 0.2  # every test runs with the watchdog armed
 
     def __init__(self) -> None:
         self._stack = ExitStack()
@@ -117,6 +125,7 @@ class DynamixelHarness(Harness):
         self._stack.enter_context(self.rig)
         self.url = (
             f"dynamixel://{self.sim.device}?timeout_margin_ms={self.timeout_margin_s * 1e3:g}"
+            f"&watchdog_ms={self.command_timeout_s * 1e3:g}"
         )
 
     def close(self) -> None:
@@ -158,6 +167,7 @@ class DroneCanHarness(Harness):
     name = "dronecan"
     timeout_s = 0.02
     timeout_bound_s = timeout_s
+    command_timeout_s = CanActuatorParameters().command_timeout_s
 
     def __init__(self) -> None:
         self._stack = ExitStack()
@@ -215,6 +225,8 @@ class HardwareHarness(Harness):
         if not url:
             pytest.skip("set ARM_BUS_URL (e.g. dynamixel:///dev/ttyUSB0?baud=1000000) to run")
         self.url = url
+        watchdog_ms = parse_bus_url(url).options.get("watchdog_ms", "0")
+        self.command_timeout_s = float(watchdog_ms) / 1e3 or None
         config = os.environ.get("ARM_BUS_CONFIG")
         if config:
             from companion.config import arm_bus_configs, load_scenario

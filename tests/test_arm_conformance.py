@@ -333,6 +333,24 @@ def test_hardware_error_is_raised_with_decoded_bits(harness: Harness) -> None:
     run(body)
 
 
+def test_a_silent_host_leaves_current_mode_joints_without_torque(harness: Harness) -> None:
+    """The device's own timeout stops a torque command when the host itself dies."""
+    if harness.command_timeout_s is None:
+        pytest.skip(f"{harness.name}: the bus URL arms no command timeout")
+
+    async def body() -> None:
+        async with make_bus(harness) as bus:
+            await prepare(bus, OperatingMode.CURRENT)
+            await bus.write_joint_torques({"shoulder": 0.4, "elbow": 0.0})
+            await until(lambda: _torque_read_back(bus, {"shoulder": 0.4}), timeout_s=2.0)
+            await asyncio.sleep(3 * harness.command_timeout_s + 0.1)  # not a word
+            states = await bus.read_joint_states()
+            assert abs(states["shoulder"].torque_n_m) < 0.05
+            await bus.disable_torque()
+
+    run(body)
+
+
 def test_bus_failure_fails_the_bus_and_limps_current_mode_joints(harness: Harness) -> None:
     async def body() -> None:
         bus = make_bus(harness)
