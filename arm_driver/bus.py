@@ -221,6 +221,12 @@ class ArmBus(abc.ABC):
         """Largest torque magnitude a command to ``joint`` may ask for [N m]."""
         return self._torque_max[joint]
 
+    @property
+    def watchdog_s(self) -> float:
+        """Silence [s] after which the servos stop current-mode joints by themselves (0:
+        no such timeout); :meth:`enable_torque` re-arms them after a trip."""
+        return 0.0
+
     # -- lifecycle ----------------------------------------------------------------------
 
     async def open(self) -> None:

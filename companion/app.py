@@ -214,6 +214,8 @@ class PickupApp:
         self._faults: asyncio.Queue[FaultEvent] = asyncio.Queue()
         self._payload_errors: list[float] = []
         self._late_noted_s = -math.inf
+        self._bus_last_s = time.monotonic()
+        """Wall-clock time of the last joint transaction [s] (the servos' watchdog clock)."""
         self.control.estimator.freeze()  # until the mission flies in OFFBOARD
         self._estimate_frozen = True
         self._tick = asyncio.Condition()
@@ -301,6 +303,7 @@ class PickupApp:
             await self.bus.set_operating_mode(OperatingMode.CURRENT)
             await self.bus.enable_torque()
             await self.bus.open_gripper()
+            self._bus_last_s = time.monotonic()
         except ArmDriverError as exc:
             raise MissionError(f"preflight: arm bus: {exc}") from None
         missing = set(self._joint_names) - set(states)
@@ -522,6 +525,7 @@ class PickupApp:
             a.body_rates(rates.omega_flu_rad_s)
         if self.failsafe.has(Fault.SERVO_BUS):
             return  # the bus is in its safe state; PX4 lands the vehicle
+        await self._rearm_after_silence()
         joints = await self._read_joints()
         if joints is None:
             return
@@ -646,12 +650,35 @@ class PickupApp:
         self._servo_failures = 0
         self._servo_failing_since = math.nan
 
+    async def _rearm_after_silence(self) -> None:
+        """Enable torque again if the bus was silent long enough (a link loss, a stall)
+        for the servos' watchdog to have stopped the joints: they would refuse torque
+        commands without a word. 0.8 of the timeout: the servos' clock is not ours."""
+        watchdog_s = self.bus.watchdog_s
+        silent_s = time.monotonic() - self._bus_last_s
+        if watchdog_s <= 0.0 or silent_s < 0.8 * watchdog_s:
+            return
+        try:
+            await self.bus.enable_torque()
+        except ArmDriverError as exc:
+            self._servo_failed(exc)
+            return
+        finally:
+            self._bus_last_s = time.monotonic()
+        self._note(
+            "servo",
+            f"bus silent for {silent_s * 1e3:.0f} ms (servo watchdog "
+            f"{watchdog_s * 1e3:.0f} ms): torque enabled again",
+        )
+
     async def _read_joints(self):
         try:
             joints = await self.bus.read_joint_states()
         except ArmDriverError as exc:
             self._servo_failed(exc)
             return None
+        finally:
+            self._bus_last_s = time.monotonic()
         self._servo_ok()
         return joints
 
@@ -667,6 +694,8 @@ class PickupApp:
         except ArmDriverError as exc:
             self._servo_failed(exc)
             return np.full(len(sent), math.nan)
+        finally:
+            self._bus_last_s = time.monotonic()
         return sent
 
     def _log_row(

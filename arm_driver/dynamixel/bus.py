@@ -235,6 +235,11 @@ class DynamixelBus(ArmBus):
         self._parser = StatusParser()
         self._servos: dict[int, _Servo] = {}
 
+    @property
+    def watchdog_s(self) -> float:
+        """Bus Watchdog(98) timeout of the current-mode joints [s] (0: off)."""
+        return self._watchdog_units * ct.BUS_WATCHDOG_UNIT_S
+
     @classmethod
     def options_from_url(cls, options: Mapping[str, str]) -> dict[str, Any]:
         """``baud``, ``timeout_margin_ms``, ``crc_retries``, ``low_latency``,

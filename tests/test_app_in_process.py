@@ -1,0 +1,128 @@
+"""Parts of the flight app checked in-process (the end-to-end tests fly it against the SITL).
+
+- Preflight: the ODOMETRY stream that clocks the control loop must come fast enough
+  (a scripted pose stream; the link and bus stand-ins provide only what ``PickupApp``
+  reads before take-off).
+- Joints stopped by the servos' Bus Watchdog after a silent bus are enabled again (the
+  real Dynamixel driver against the XM430 emulator on a pty).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import time
+
+import numpy as np
+import pytest
+
+from arm_driver.bus import JointConfig, OperatingMode, open_bus
+from companion.app import MissionError, PickupApp
+from companion.config import load_scenario
+from companion.link.telemetry import VehiclePose
+from companion.mission import PickupPlan
+from sitl.servo import PtyServoBus, XM430Servo
+
+SCENARIO = load_scenario("configs/sitl_pickup.toml")
+PLAN = PickupPlan(home_m=(0.0, 0.0), payload_at_m=(1.0, 0.0, 0.0), place_at_m=(2.0, 0.0, 0.0))
+
+
+class ScriptedPoses:
+    """A pose subscription that yields one pose per ``period_ms`` of vehicle time."""
+
+    def __init__(self, period_ms: int, repeat_each: int = 1) -> None:
+        self.period_ms = period_ms
+        self.repeat_each = repeat_each
+        self.count = 0
+
+    async def get(self) -> VehiclePose:
+        await asyncio.sleep(0)
+        t_ms = (self.count // self.repeat_each) * self.period_ms
+        self.count += 1
+        return VehiclePose(t_ms, (0.0, 0.0, 0.0), None, (1.0, 0.0, 0.0, 0.0))
+
+
+class PoseLink:
+    def __init__(self, poses: ScriptedPoses) -> None:
+        self.poses = poses
+
+    @contextlib.contextmanager
+    def subscribe(self, *keys, maxsize: int = 64):
+        assert keys == (VehiclePose,)
+        yield self.poses
+
+
+JOINTS = (JointConfig("eta1", 1, 1.78, 1.5), JointConfig("eta2", 2, 1.78, 1.5))
+
+
+class TwoJoints:
+    joints = JOINTS
+
+    def torque_limit_n_m(self, name: str) -> float:
+        return 1.5
+
+
+def check(period_ms: int, repeat_each: int = 1) -> list[tuple[str, str]]:
+    notes: list[tuple[str, str]] = []
+    app = PickupApp(
+        SCENARIO,
+        PoseLink(ScriptedPoses(period_ms, repeat_each)),
+        TwoJoints(),
+        PLAN,
+        event=lambda kind, detail, t_s: notes.append((kind, detail)),
+    )
+    asyncio.run(app._check_pose_rate())
+    return notes
+
+
+def test_full_rate_passes_quietly():
+    assert check(4) == []
+
+
+def test_repeated_timestamps_are_one_pose():
+    assert check(4, repeat_each=3) == []
+
+
+def test_slower_than_asked_but_within_the_gains_is_noted():
+    notes = check(10)
+    assert notes and notes[0][0] == "loop" and "10.0 ms" in notes[0][1]
+
+
+def test_too_slow_for_the_gains_refuses_to_fly():
+    with pytest.raises(MissionError, match=r"every 50\.0 ms .* below 35\.\d ms"):
+        check(50)
+
+
+def test_joints_stopped_by_the_servo_watchdog_are_enabled_again():
+    notes: list[tuple[str, str]] = []
+
+    async def body(sim: PtyServoBus) -> None:
+        url = f"dynamixel://{sim.device}?timeout_margin_ms=50&watchdog_ms=100"
+        async with open_bus(url, JOINTS) as bus:
+            await bus.set_operating_mode(OperatingMode.CURRENT)
+            await bus.enable_torque()
+            app = PickupApp(
+                SCENARIO,
+                PoseLink(ScriptedPoses(4)),
+                bus,
+                PLAN,
+                event=lambda kind, detail, t_s: notes.append((kind, detail)),
+            )
+            await app._rearm_after_silence()
+            assert notes == []  # a bus in use is left alone
+            deadline = time.monotonic() + 2.0
+            while not sim.servos[1].watchdog_tripped:  # the host is silent
+                assert time.monotonic() < deadline, "the servo watchdog did not trip"
+                await asyncio.sleep(0.01)
+            await app._write_joints(np.array([0.89, 0.0]))
+            assert abs((await bus.read_joint_states())["eta1"].torque_n_m) < 0.01  # refused
+            await asyncio.sleep(0.1)
+            await app._rearm_after_silence()
+            assert [kind for kind, _ in notes] == ["servo"] and "watchdog 100 ms" in notes[0][1]
+            assert not sim.servos[1].watchdog_tripped
+            await app._write_joints(np.array([0.89, 0.0]))
+            await asyncio.sleep(0.02)
+            assert (await bus.read_joint_states())["eta1"].torque_n_m > 0.8
+
+    with PtyServoBus({i: XM430Servo(i) for i in (1, 2)}) as sim:
+        asyncio.run(asyncio.wait_for(body(sim), 10.0))
