@@ -62,7 +62,7 @@ class TwoJoints:
         return 1.5
 
 
-def check(period_ms: int, repeat_each: int = 1) -> list[tuple[str, str]]:
+def check(period_ms: int, repeat_each: int = 1) -> tuple[list[tuple[str, str]], PickupApp]:
     notes: list[tuple[str, str]] = []
     app = PickupApp(
         SCENARIO,
@@ -72,20 +72,23 @@ def check(period_ms: int, repeat_each: int = 1) -> list[tuple[str, str]]:
         event=lambda kind, detail, t_s: notes.append((kind, detail)),
     )
     asyncio.run(app._check_pose_rate())
-    return notes
+    return notes, app
 
 
 def test_full_rate_passes_quietly():
-    assert check(4) == []
+    notes, app = check(4)
+    assert notes == [] and app.loop_period.period_s == pytest.approx(0.004)
 
 
 def test_repeated_timestamps_are_one_pose():
-    assert check(4, repeat_each=3) == []
+    assert check(4, repeat_each=3)[0] == []
 
 
-def test_slower_than_asked_but_within_the_gains_is_noted():
-    notes = check(10)
+def test_slower_than_asked_but_within_the_gains_becomes_the_loop_period():
+    notes, app = check(10)
     assert notes and notes[0][0] == "loop" and "10.0 ms" in notes[0][1]
+    assert app.loop_period.period_s == pytest.approx(0.010)
+    assert not app.loop_period.update(0.0) and not app.loop_period.update(0.012).late
 
 
 def test_too_slow_for_the_gains_refuses_to_fly():
