@@ -151,8 +151,8 @@ class PickupApp:
     link
         An open MAVLink link with the vehicle detected.
     bus
-        An open arm bus (joints eta1, eta2 and a gripper); its torque limits, final once
-        it is open, are read here once.
+        An open arm bus (joints eta1, eta2 and a gripper); its torque limits and watchdog
+        timeout, final once it is open, are read here once.
     plan
         Mission geometry.
     controller
@@ -200,13 +200,13 @@ class PickupApp:
         self.land_timeout_s = land_timeout_s
         self._joint_names = [j.name for j in bus.joints]
         self._torque_limits = np.array([bus.torque_limit_n_m(n) for n in self._joint_names])
+        self._watchdog_s = bus.watchdog_s
         self._stow = np.array(plan.stow_joints_rad)
         self._streaming = False
         self._offboard = False
         self._mission_started = False
         self._hold: np.ndarray | None = None
         self._t_s = math.nan
-        self._last_t_s = math.nan
         self._last_output: ControlOutput | None = None
         self._last_thrust_n = math.nan
         self._servo_failures = 0
@@ -511,11 +511,11 @@ class PickupApp:
 
     async def _cycle(self, pose: VehiclePose, received: float) -> None:
         t_s = pose.time_boot_ms / 1000.0
-        if math.isfinite(self._last_t_s) and t_s <= self._last_t_s:
+        if t_s <= self._t_s:  # False while _t_s is NaN (first cycle)
             return
-        dt = t_s - self._last_t_s if math.isfinite(self._last_t_s) else None
-        self._t_s, self._last_t_s = t_s, t_s
+        self._t_s = t_s
         period = self.loop_period.update(t_s)
+        dt = period.period_s if period is not None else None
         if period is not None and period.late and t_s - self._late_noted_s >= 1.0:
             self._late_noted_s = t_s
             self._note("loop", f"late cycle: {period.period_s * 1e3:.1f} ms since the last")
@@ -657,7 +657,7 @@ class PickupApp:
         """Enable torque again if the bus was silent long enough (a link loss, a stall)
         for the servos' watchdog to have stopped the joints: they would refuse torque
         commands without a word. 0.8 of the timeout: the servos' clock is not ours."""
-        watchdog_s = self.bus.watchdog_s
+        watchdog_s = self._watchdog_s
         silent_s = time.monotonic() - self._bus_last_s
         if watchdog_s <= 0.0 or silent_s < 0.8 * watchdog_s:
             return

@@ -57,6 +57,7 @@ JOINTS = (JointConfig("eta1", 1, 1.78, 1.5), JointConfig("eta2", 2, 1.78, 1.5))
 
 class TwoJoints:
     joints = JOINTS
+    watchdog_s = 0.0
 
     def torque_limit_n_m(self, name: str) -> float:
         return 1.5
