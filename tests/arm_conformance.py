@@ -108,7 +108,35 @@ class Harness:
         return HardwareErrorStatus(error.vendor_status_code)  # type: ignore[attr-defined]
 
 
-class DynamixelHarness(Harness):
+class _SimulatedHarness(Harness):
+    """Emulated devices (``sim``, with its lock and fault injection) whose shafts sit on a
+    rig (``rig``); the subclass builds them in ``_stack`` and names a device by id."""
+
+    sim: Any
+    rig: JointRig
+    _stack: ExitStack
+
+    def close(self) -> None:
+        self._stack.close()
+
+    def _servo(self, servo_id: int) -> Any:
+        raise NotImplementedError
+
+    def set_shaft(self, servo_id: int, angle_rad: float, rate_rad_s: float = 0.0) -> None:
+        self.rig.set_state(servo_id, angle_rad, rate_rad_s)
+
+    def set_faults(self, faults: Faults) -> None:
+        self.sim.set_faults(faults)
+
+    def corrupted_replies(self) -> int:
+        return self.sim.corrupted_replies
+
+    def inject_overload(self, servo_id: int) -> None:
+        with self.sim.lock:
+            self._servo(servo_id).inject_hardware_error(HardwareErrorStatus.OVERLOAD)
+
+
+class DynamixelHarness(_SimulatedHarness):
     """XM430 emulators on a pty, shafts on a rig."""
 
     name = "dynamixel"
@@ -128,9 +156,6 @@ class DynamixelHarness(Harness):
             f"&watchdog_ms={self.command_timeout_s * 1e3:g}"
         )
 
-    def close(self) -> None:
-        self._stack.close()
-
     def _servo(self, servo_id: int) -> XM430Servo:
         return self.sim.servos[servo_id]
 
@@ -147,21 +172,8 @@ class DynamixelHarness(Harness):
         with self.sim.lock:
             return units.ticks_to_rad(self._servo(servo_id).get(ct.GOAL_POSITION))
 
-    def set_shaft(self, servo_id: int, angle_rad: float, rate_rad_s: float = 0.0) -> None:
-        self.rig.set_state(servo_id, angle_rad, rate_rad_s)
 
-    def set_faults(self, faults: Faults) -> None:
-        self.sim.set_faults(faults)
-
-    def corrupted_replies(self) -> int:
-        return self.sim.corrupted_replies
-
-    def inject_overload(self, servo_id: int) -> None:
-        with self.sim.lock:
-            self._servo(servo_id).inject_hardware_error(HardwareErrorStatus.OVERLOAD)
-
-
-class DroneCanHarness(Harness):
+class DroneCanHarness(_SimulatedHarness):
     """A DroneCAN actuator node on a python-can virtual bus, shafts on a rig."""
 
     name = "dronecan"
@@ -181,37 +193,21 @@ class DroneCanHarness(Harness):
         self._stack.enter_context(self.rig)
         self.url = f"{self.sim.url}&timeout_ms={self.timeout_s * 1e3:g}"
 
-    def close(self) -> None:
-        self._stack.close()
-
-    def _actuator(self, servo_id: int) -> CanActuator:
+    def _servo(self, servo_id: int) -> CanActuator:
         return self.sim.actuators[servo_id]
 
     def torque_on(self, servo_id: int) -> bool:
         with self.sim.lock:
-            return self._actuator(servo_id).output_enabled
+            return self._servo(servo_id).output_enabled
 
     def goal_torque_n_m(self, servo_id: int) -> float:
         with self.sim.lock:
-            actuator = self._actuator(servo_id)
+            actuator = self._servo(servo_id)
             return actuator.goal_torque_n_m if actuator.mode == CommandType.FORCE else 0.0
 
     def goal_angle_rad(self, servo_id: int) -> float:
         with self.sim.lock:
-            return self._actuator(servo_id).goal_position_rad
-
-    def set_shaft(self, servo_id: int, angle_rad: float, rate_rad_s: float = 0.0) -> None:
-        self.rig.set_state(servo_id, angle_rad, rate_rad_s)
-
-    def set_faults(self, faults: Faults) -> None:
-        self.sim.set_faults(faults)
-
-    def corrupted_replies(self) -> int:
-        return self.sim.corrupted_replies
-
-    def inject_overload(self, servo_id: int) -> None:
-        with self.sim.lock:
-            self._actuator(servo_id).inject_hardware_error(HardwareErrorStatus.OVERLOAD)
+            return self._servo(servo_id).goal_position_rad
 
 
 class HardwareHarness(Harness):
