@@ -1,10 +1,13 @@
 """Shared test fixtures."""
 
+import asyncio
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import pytest
+
+from arm_driver.bus import open_buses
 
 Runner = Callable[..., subprocess.CompletedProcess]
 
@@ -34,3 +37,15 @@ def run_cli() -> Runner:
 def run_sitl() -> Runner:
     """The ``sitl`` command line."""
     return _command_line("sitl.cli")
+
+
+@pytest.fixture
+def no_leaked_bus() -> Iterator[None]:
+    """Fail a test that leaves an arm bus open, and close it so the next test is clean (as
+    python-can's conftest does); modules opt in with ``usefixtures``."""
+    yield
+    leaked = open_buses()
+    for bus in leaked:
+        asyncio.run(bus.close())
+    if leaked:
+        pytest.fail(f"test left {len(leaked)} bus(es) open: {leaked}")

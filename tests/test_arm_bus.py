@@ -10,7 +10,7 @@ import asyncio
 import math
 import subprocess
 import sys
-from collections.abc import Awaitable, Callable, Iterator, Mapping
+from collections.abc import Awaitable, Callable, Mapping
 from typing import Any
 
 import pytest
@@ -48,15 +48,7 @@ def run(body: Callable[[], Awaitable[Any]], timeout_s: float = 5.0) -> Any:
     return asyncio.run(bounded())
 
 
-@pytest.fixture(autouse=True)
-def no_leaked_bus() -> Iterator[None]:
-    """Fail a test that leaves a bus open (as python-can's conftest does)."""
-    yield
-    leaked = open_buses()
-    for bus in leaked:
-        asyncio.run(bus.close())
-    if leaked:
-        pytest.fail(f"test left {len(leaked)} bus(es) open: {leaked}")
+pytestmark = pytest.mark.usefixtures("no_leaked_bus")
 
 
 class RecordingBus(ArmBus):

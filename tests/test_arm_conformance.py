@@ -59,15 +59,7 @@ async def until(condition: Callable[[], Any], timeout_s: float = 5.0) -> Any:
         await asyncio.sleep(0.005)
 
 
-@pytest.fixture(autouse=True)
-def no_leaked_bus() -> Iterator[None]:
-    """Fail a test that leaves a bus open (and close it, so the next test is clean)."""
-    yield
-    leaked = open_buses()
-    for bus in leaked:
-        asyncio.run(bus.close())
-    if leaked:
-        pytest.fail(f"test left {len(leaked)} bus(es) open: {leaked}")
+pytestmark = pytest.mark.usefixtures("no_leaked_bus")
 
 
 @pytest.fixture(

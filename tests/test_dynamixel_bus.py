@@ -22,7 +22,6 @@ from arm_driver.bus import (
     JointConfig,
     OperatingMode,
     open_bus,
-    open_buses,
 )
 from arm_driver.dynamixel import control_table as ct
 from arm_driver.dynamixel import units
@@ -67,14 +66,7 @@ def until(condition: Callable[[], bool], timeout_s: float = 2.0) -> None:
         time.sleep(0.001)
 
 
-@pytest.fixture(autouse=True)
-def no_leaked_bus() -> Iterator[None]:
-    yield
-    leaked = open_buses()
-    for bus in leaked:
-        asyncio.run(bus.close())
-    if leaked:
-        pytest.fail(f"test left {len(leaked)} bus(es) open: {leaked}")
+pytestmark = pytest.mark.usefixtures("no_leaked_bus")
 
 
 @pytest.fixture
