@@ -14,10 +14,10 @@
     Tilt or thrust saturated for ``saturation_hold_s`` without a break. Abort: PX4 holds
     position (AUTO.LOITER), then lands.
 ``loop_overrun``
-    The control loop's mean period over 0.5 s of vehicle time exceeded the longest period
-    its velocity gains tolerate (:mod:`companion.loop_period`): the onboard computer cannot
-    keep the rate. Abort: PX4 holds position, then lands. (Single late cycles only pause
-    the estimator.)
+    Three control periods within 1 s of vehicle time each longer than the longest period
+    the velocity gains tolerate (:mod:`companion.loop_period`): the onboard computer (or
+    the pose stream) cannot keep the rate. Abort: PX4 holds position, then lands. (Single
+    late cycles only pause the estimator.)
 ``offboard_lost``
     PX4 left OFFBOARD while the mission flew in it (pilot, PX4 failsafe). Abort: leave the
     vehicle to PX4 and the pilot; never re-enter OFFBOARD.

@@ -7,11 +7,13 @@ wrong on a loaded onboard computer:
 - a **late cycle** (a gap longer than ``late_factor`` nominal periods: a scheduling stall, a
   burst of dropped poses). The estimator's forward-Euler step would integrate over the gap,
   so the estimator skips that cycle (:attr:`CyclePeriod.late`); the controller flies on.
-- a **lasting overrun**: the mean period over the last ``window_s`` exceeds
-  ``max_period_s``, the longest period the velocity gains tolerate with margin
-  (:meth:`companion.flight_control.FlightControl.max_period_s`). The joints' damping loop
-  is then no longer stable with margin: the app raises ``loop_overrun``
-  (:mod:`companion.failsafe`).
+- a **lasting overrun**: ``overrun_cycles`` or more cycles within the last ``window_s``
+  each longer than ``max_period_s``, the longest period the velocity gains tolerate with
+  margin (:meth:`companion.flight_control.FlightControl.max_period_s`). The discrete
+  damping loop goes unstable through repeated long steps, so the joints' loop is then no
+  longer stable with margin: the app raises ``loop_overrun`` (:mod:`companion.failsafe`).
+  A single long gap is one held command, not that instability: the estimator skips it,
+  and a silence of 0.5 s is the link watchdog's ``link_lost``.
 """
 
 from __future__ import annotations
@@ -41,11 +43,13 @@ class LoopPeriodMonitor:
     period_s
         Nominal control period [s].
     max_period_s
-        Longest mean period the controller tolerates [s] (>= ``period_s``).
+        Longest period the controller tolerates [s] (>= ``period_s``).
     late_factor
         A cycle longer than this many nominal periods is late.
     window_s
-        Window of the mean period compared with ``max_period_s`` [s].
+        Window of :attr:`mean_period_s` and of the overrun count [s].
+    overrun_cycles
+        Cycles longer than ``max_period_s`` within ``window_s`` that make an overrun.
     """
 
     def __init__(
@@ -54,21 +58,25 @@ class LoopPeriodMonitor:
         max_period_s: float,
         *,
         late_factor: float = 2.5,
-        window_s: float = 0.5,
+        window_s: float = 1.0,
+        overrun_cycles: int = 3,
     ) -> None:
         if not period_s > 0.0:
             raise ValueError(f"period_s must be positive, got {period_s}")
         if not max_period_s >= period_s:
             raise ValueError(f"max_period_s ({max_period_s}) must be >= period_s ({period_s})")
-        if not (late_factor > 1.0 and window_s > 0.0):
-            raise ValueError("late_factor must be > 1 and window_s > 0")
+        if not (late_factor > 1.0 and window_s > 0.0 and overrun_cycles >= 1):
+            raise ValueError("late_factor must be > 1, window_s > 0 and overrun_cycles >= 1")
         self.period_s = period_s
         self.max_period_s = max_period_s
         self.late_factor = late_factor
         self.window_s = window_s
+        self.overrun_cycles = overrun_cycles
         self.late_cycles = 0
         self.longest_period_s = 0.0
         self._times: deque[float] = deque()
+        self._long: deque[float] = deque()
+        """Vehicle times [s] of the cycles within the window longer than max_period_s."""
 
     def update(self, t_s: float) -> CyclePeriod | None:
         """Record a cycle at vehicle time ``t_s`` [s] (increasing); None for the first."""
@@ -84,6 +92,11 @@ class LoopPeriodMonitor:
         late = period > self.late_factor * self.period_s
         self.late_cycles += late
         self.longest_period_s = max(self.longest_period_s, period)
+        long = self._long
+        if period > self.max_period_s:
+            long.append(t_s)
+        while long and t_s - long[0] > self.window_s:
+            long.popleft()
         return CyclePeriod(period, late)
 
     @property
@@ -94,6 +107,11 @@ class LoopPeriodMonitor:
         return span / (len(times) - 1) if span >= self.window_s else math.nan
 
     @property
+    def long_cycles(self) -> int:
+        """Cycles longer than ``max_period_s`` within ``window_s`` of the latest one."""
+        return len(self._long)
+
+    @property
     def overrun(self) -> bool:
-        """The mean period over a full window exceeds ``max_period_s``."""
-        return self.mean_period_s > self.max_period_s
+        """At least ``overrun_cycles`` cycles within the window were too long."""
+        return len(self._long) >= self.overrun_cycles

@@ -16,8 +16,8 @@ def feed(monitor, times):
 
 
 def test_steady_cycles_are_on_time_and_no_overrun():
-    monitor = LoopPeriodMonitor(0.004, 0.035)
-    out = feed(monitor, np.arange(0.0, 1.0, 0.004))
+    monitor = LoopPeriodMonitor(0.004, 0.035)  # 1 s window
+    out = feed(monitor, np.arange(0.0, 1.5, 0.004))
     assert out[0] is None
     assert not any(c.late for c in out[1:])
     assert monitor.mean_period_s == pytest.approx(0.004)
@@ -40,24 +40,36 @@ def test_a_gap_of_two_periods_is_jitter_not_late():
     assert not monitor.update(0.012).late
 
 
-def test_overrun_needs_a_full_window_above_the_limit():
-    monitor = LoopPeriodMonitor(0.004, 0.035, window_s=0.5)
+def test_repeated_long_cycles_are_an_overrun():
+    monitor = LoopPeriodMonitor(0.004, 0.035, window_s=1.0, overrun_cycles=3)
     feed(monitor, np.arange(0.0, 1.0, 0.004))
-    slow = feed(monitor, 1.0 + 0.04 * np.arange(1, 12))  # 0.44 s at 40 ms
+    slow = feed(monitor, 1.0 + 0.04 * np.arange(1, 3))  # two 40 ms cycles
     assert all(c.late for c in slow)
-    assert not monitor.overrun  # the window still holds fast cycles
-    feed(monitor, 1.44 + 0.04 * np.arange(1, 8))
-    assert monitor.overrun
-    assert monitor.mean_period_s == pytest.approx(0.04)
-    feed(monitor, 1.72 + 0.004 * np.arange(1, 200))
-    assert not monitor.overrun
+    assert not monitor.overrun and monitor.long_cycles == 2
+    monitor.update(1.12)
+    assert monitor.overrun and monitor.long_cycles == 3
+    feed(monitor, 1.12 + 0.004 * np.arange(1, 300))  # back to 250 Hz for 1.2 s
+    assert not monitor.overrun and monitor.long_cycles == 0
 
 
-def test_one_long_stall_is_an_overrun():
-    monitor = LoopPeriodMonitor(0.004, 0.035, window_s=0.5)
+def test_a_starved_loop_with_bursts_is_an_overrun():
+    monitor = LoopPeriodMonitor(0.004, 0.035)
     feed(monitor, np.arange(0.0, 1.0, 0.004))
-    monitor.update(1.6)
+    t = 1.0
+    for _ in range(3):  # a 200 ms stall, then four queued poses 4 ms apart
+        t += 0.2
+        feed(monitor, t + 0.004 * np.arange(4))
+        t += 0.012
     assert monitor.overrun
+
+
+def test_one_long_stall_is_not_an_overrun():
+    monitor = LoopPeriodMonitor(0.004, 0.035)
+    feed(monitor, np.arange(0.0, 1.0, 0.004))
+    stall = monitor.update(1.336)
+    assert stall.late and monitor.long_cycles == 1
+    feed(monitor, 1.336 + 0.004 * np.arange(1, 100))
+    assert not monitor.overrun
 
 
 def test_mean_period_is_nan_before_a_full_window():
@@ -73,6 +85,7 @@ def test_mean_period_is_nan_before_a_full_window():
         {"period_s": 0.01, "max_period_s": 0.005},
         {"period_s": 0.004, "max_period_s": 0.01, "late_factor": 1.0},
         {"period_s": 0.004, "max_period_s": 0.01, "window_s": 0.0},
+        {"period_s": 0.004, "max_period_s": 0.01, "overrun_cycles": 0},
     ],
 )
 def test_bad_parameters_are_refused(kwargs):
