@@ -127,6 +127,10 @@ class LinkCutter:
         self.cut_at: float | None = None
         self.dropped = 0
         self._stop = threading.Event()
+        self._log = None
+        self._partial = ""
+        self._above_since: float | None = None
+        self._last_t_s = 0.0
 
     def start(self, sitl) -> None:
         self.vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -139,19 +143,28 @@ class LinkCutter:
 
     def _cutting(self) -> bool:
         now = time.monotonic()
-        if self.cut_at is None:
-            try:
-                lines = self.truth_log.read_text().splitlines()
-            except OSError:
-                return False
-            airborne = [
-                json.loads(x)["t_s"]
-                for x in lines[-400:]
-                if x and json.loads(x)["q"][2] > self.altitude_m
-            ]
-            if airborne and airborne[-1] - airborne[0] >= self.delay_s:
-                self.cut_at = now
+        if self.cut_at is None and self._airborne_for_s() >= self.delay_s:
+            self.cut_at = now
         return self.cut_at is not None and now - self.cut_at < self.cut_s
+
+    def _airborne_for_s(self) -> float:
+        """Truth time the vehicle has been above the altitude [s], reading only the lines
+        written since the last call (the relay must not stall the link it relays)."""
+        if self._log is None:
+            try:
+                self._log = self.truth_log.open(encoding="utf-8")
+            except OSError:
+                return 0.0
+        self._partial += self._log.read()
+        *lines, self._partial = self._partial.split("\n")
+        for line in lines:
+            record = json.loads(line)
+            if record["q"][2] <= self.altitude_m:
+                self._above_since = None
+            elif self._above_since is None:
+                self._above_since = record["t_s"]
+            self._last_t_s = record["t_s"]
+        return 0.0 if self._above_since is None else self._last_t_s - self._above_since
 
     def _run(self) -> None:
         last_check = 0.0
@@ -174,6 +187,8 @@ class LinkCutter:
         self.thread.join(timeout=2.0)
         self.vehicle.close()
         self.app.close()
+        if self._log is not None:
+            self._log.close()
 
 
 @pytest.mark.slow
