@@ -49,3 +49,24 @@ def no_leaked_bus() -> Iterator[None]:
         asyncio.run(bus.close())
     if leaked:
         pytest.fail(f"test left {len(leaked)} bus(es) open: {leaked}")
+
+
+@pytest.fixture(scope="session")
+def px4_build():
+    """The PX4 SITL build named by ``PX4_SITL_DIR``; the test is skipped where there is
+    none (a user without a PX4 build; CI points it at ``../shared/px4-sitl``)."""
+    from sitl.px4_sitl import PX4_SITL_DIR_ENV, Px4Build
+
+    build = Px4Build.from_env()
+    if build is None:
+        pytest.skip(f"no PX4 SITL build: set {PX4_SITL_DIR_ENV} to run the tests against real PX4")
+    return build
+
+
+@pytest.hookimpl(wrapper=True, tryfirst=True)
+def pytest_runtest_makereport(item, call):
+    """Record each phase's report on the test item (``item.rep_call.failed``), so that
+    fixtures can keep a failed test's process logs."""
+    report = yield
+    setattr(item, f"rep_{report.when}", report)
+    return report

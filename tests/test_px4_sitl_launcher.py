@@ -1,0 +1,78 @@
+"""The PX4 SITL launcher (``sitl.px4_sitl``) and the SIH vehicle of a scenario."""
+
+from __future__ import annotations
+
+import socket
+from pathlib import Path
+
+import pytest
+from pymavlink import mavutil
+
+from companion.config import load_scenario
+from sitl.px4_sitl import Px4Build, Px4BuildError, Px4NotReadyError, Px4Ports, Px4Sitl
+from sitl.sih import SihMismatchError, sih_parameters
+
+ROOT = Path(__file__).parent.parent
+
+
+def test_sih_parameters_of_the_pickup_vehicle():
+    params = sih_parameters(load_scenario(ROOT / "configs" / "px4_sih_pickup.toml"))
+    assert params["SIH_MASS"] == pytest.approx(1.22)
+    assert params["SIH_T_MAX"] == pytest.approx(6.0)
+    assert params["SIH_Q_MAX"] == pytest.approx(0.016 * 6.0)
+    assert params["SIH_L_ROLL"] == params["SIH_L_PITCH"] == pytest.approx(0.215)
+    # the arm hanging below adds to roll and pitch inertia, not much to yaw
+    assert params["SIH_IXX"] > 0.013 and params["SIH_IYY"] > params["SIH_IXX"]
+    assert params["SIH_IZZ"] == pytest.approx(0.021, abs=3e-3)
+
+
+def test_sih_refuses_a_nonlinear_motor_curve():
+    with pytest.raises(SihMismatchError, match="thr_mdl_fac"):
+        sih_parameters(load_scenario(ROOT / "configs" / "sitl_pickup.toml"))
+
+
+def test_a_directory_that_is_no_build_is_refused(tmp_path):
+    with pytest.raises(Px4BuildError, match="bin/px4"):
+        Px4Build.at(tmp_path)
+    assert Px4Build.from_env({}) is None
+
+
+def test_ports_follow_the_instance():
+    ports = Px4Ports(3)
+    assert (ports.onboard_local, ports.onboard_remote, ports.gcs_local) == (14583, 14543, 18573)
+    assert ports.connect_url == "udpin://127.0.0.1:14543"
+
+
+def test_px4_starts_on_free_ports_answers_and_cleans_up(px4_build):
+    scenario = load_scenario(ROOT / "configs" / "px4_sih_pickup.toml")
+    # take instance 0's onboard port: the launcher must pick another instance
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as busy:
+        busy.bind(("127.0.0.1", 14540))
+        px4 = Px4Sitl(px4_build, params=sih_parameters(scenario))
+        px4.start()
+    try:
+        assert px4.ports.instance != 0
+        link = mavutil.mavlink_connection(f"udpin:127.0.0.1:{px4.ports.onboard_remote}")
+        try:
+            heartbeat = link.wait_heartbeat(timeout=10)
+            assert heartbeat is not None and heartbeat.autopilot == 12  # MAV_AUTOPILOT_PX4
+            system = heartbeat.get_srcSystem()  # PX4 instance N is system N + 1
+            link.mav.param_request_read_send(system, 1, b"SIH_MASS", -1)
+            value = link.recv_match(type="PARAM_VALUE", blocking=True, timeout=5)
+            assert value is not None and value.param_value == pytest.approx(1.22)
+        finally:
+            link.close()
+    finally:
+        workdir = px4.workdir
+        px4.stop()
+    assert not px4.alive()
+    assert not workdir.exists()
+
+
+def test_a_start_that_never_gets_ready_stops_px4_and_keeps_its_log(px4_build, tmp_path):
+    px4 = Px4Sitl(px4_build, keep_dir=tmp_path, ready_lines=("a line PX4 never prints",))
+    with pytest.raises(Px4NotReadyError, match="not ready within"):
+        px4.start(timeout_s=3.0)
+    assert not px4.alive()
+    assert "px4 starting" in px4.log_path.read_text().lower()
+    assert px4.log_path.parent.parent == tmp_path
