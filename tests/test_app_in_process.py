@@ -39,7 +39,7 @@ class ScriptedPoses:
         await asyncio.sleep(0)
         t_ms = (self.count // self.repeat_each) * self.period_ms
         self.count += 1
-        return VehiclePose(t_ms, (0.0, 0.0, 0.0), None, (1.0, 0.0, 0.0, 0.0))
+        return VehiclePose(t_ms * 1000, (0.0, 0.0, 0.0), None, (1.0, 0.0, 0.0, 0.0))
 
 
 class PoseLink:

@@ -7,6 +7,7 @@ by each test, so every byte the link sends is decoded by code that is not ours.
 import asyncio
 import math
 import socket
+import struct
 
 import numpy as np
 import pytest
@@ -21,6 +22,8 @@ from companion.link import (
     LinkLostError,
     LinkRegained,
     MavlinkLink,
+    ParamRefused,
+    ParamTimeout,
     SetpointError,
     SigningConfig,
     VehicleDetected,
@@ -291,6 +294,81 @@ def test_unanswered_command_times_out_after_every_attempt():
     assert isinstance(err, TimeoutError)
     assert [c.confirmation for c in seen] == [0, 1, 2]
     assert (seen[0].param1, seen[0].param2) == (31, -1)  # rate 0: stop the stream
+
+
+class ParamTable:
+    """The peer's parameters, answered as PX4 answers them (INT32 bytewise)."""
+
+    def __init__(self, peer, values, refuse=()):
+        self.peer, self.values, self.refuse = peer, dict(values), set(refuse)
+        self.sets = []
+
+    def _send(self, name):
+        value, kind = self.values[name]
+        wire = struct.unpack("<f", struct.pack("<i", int(value)))[0] if kind == 6 else value
+        self.peer.mav.param_value_send(name.encode(), wire, kind, len(self.values), 0)
+
+    async def serve(self, count):
+        for _ in range(count):
+            msg = await self.peer.expect("PARAM_REQUEST_READ", lambda _: True)
+            if msg.param_id in self.values:
+                self._send(msg.param_id)
+
+    async def serve_set(self):
+        await self.serve(1)
+        msg = await self.peer.expect("PARAM_SET")
+        self.sets.append(msg)
+        if msg.param_id not in self.refuse:
+            kind = self.values[msg.param_id][1]
+            wire = msg.param_value
+            new = struct.unpack("<i", struct.pack("<f", wire))[0] if kind == 6 else wire
+            self.values[msg.param_id] = (new, kind)
+        self._send(msg.param_id)
+
+
+def test_parameters_are_read_and_set_as_px4_encodes_them():
+    async def scenario():
+        peer = Peer()
+        link = await _connected(peer)
+        table = ParamTable(peer, {"THR_MDL_FAC": (0.3, 9), "COM_OBL_RC_ACT": (4, 6)})
+        serve = asyncio.create_task(table.serve(2))
+        fac = await link.param_read("THR_MDL_FAC")
+        action = await link.param_read("COM_OBL_RC_ACT")
+        await serve
+        serve = asyncio.create_task(table.serve_set())
+        kept = await link.param_set("COM_OBL_RC_ACT", 5)
+        await serve
+        await link.close()
+        peer.close()
+        return fac, action, kept, table
+
+    fac, action, kept, table = run(scenario())
+    assert fac == (pytest.approx(0.3), m.MAV_PARAM_TYPE_REAL32)
+    assert action == (4.0, m.MAV_PARAM_TYPE_INT32)  # bytewise, not the float 5.6e-45
+    assert kept == 5.0 and table.values["COM_OBL_RC_ACT"] == (5, 6)
+    assert table.sets[0].param_type == m.MAV_PARAM_TYPE_INT32
+
+
+def test_a_missing_or_refused_parameter_raises():
+    async def scenario():
+        peer = Peer()
+        link = await _connected(peer)
+        table = ParamTable(peer, {"MPC_THR_MIN": (0.12, 9)}, refuse={"MPC_THR_MIN"})
+        serve = asyncio.create_task(table.serve(2))
+        with pytest.raises(ParamTimeout) as missing:
+            await link.param_read("NO_SUCH_PARAM", timeout_s=0.05, attempts=2)
+        await serve
+        serve = asyncio.create_task(table.serve_set())
+        with pytest.raises(ParamRefused) as refused:
+            await link.param_set("MPC_THR_MIN", 0.2)
+        await serve
+        await link.close()
+        peer.close()
+        return missing.value, refused.value
+
+    missing, refused = run(scenario())
+    assert missing.name == "NO_SUCH_PARAM" and isinstance(missing, TimeoutError)
+    assert (refused.wanted, refused.kept) == (0.2, pytest.approx(0.12))
 
 
 @pytest.mark.parametrize("name", ["OFFBOARD", "LAND", "TAKEOFF", "POSCTL", "LOITER", "MISSION"])

@@ -12,9 +12,12 @@
     ├── LinkClosedError         the link is closed, or its reader failed (see __cause__)
     ├── VehicleNotFoundError    no PX4 heartbeat within the wait (also a TimeoutError)
     ├── LinkLostError           heartbeat or telemetry silent for longer than configured
-    └── CommandError            a COMMAND_LONG that did not succeed
-        ├── CommandDenied       the vehicle answered with a result other than ACCEPTED
-        └── CommandTimeout      no final COMMAND_ACK after every attempt (also a TimeoutError)
+    ├── CommandError            a COMMAND_LONG that did not succeed
+    │   ├── CommandDenied       the vehicle answered with a result other than ACCEPTED
+    │   └── CommandTimeout      no final COMMAND_ACK after every attempt (also a TimeoutError)
+    └── ParamError              a parameter that could not be read or set
+        ├── ParamTimeout        no PARAM_VALUE after every attempt (also a TimeoutError)
+        └── ParamRefused        the vehicle kept another value than the one set
 """
 
 from __future__ import annotations
@@ -27,6 +30,9 @@ __all__ = [
     "LinkError",
     "LinkLostError",
     "LinkUrlError",
+    "ParamError",
+    "ParamRefused",
+    "ParamTimeout",
     "SetpointError",
     "SigningKeyError",
     "TelemetryError",
@@ -113,3 +119,32 @@ class CommandTimeout(CommandError, TimeoutError):
             command,
         )
         self.attempts = attempts
+
+
+class ParamError(LinkError):
+    """A parameter of the vehicle that could not be read or set (``name``)."""
+
+    def __init__(self, message: str, name: str) -> None:
+        super().__init__(message)
+        self.name = name
+
+
+class ParamTimeout(ParamError, TimeoutError):
+    """No PARAM_VALUE of the parameter after every attempt (PX4 does not answer a
+    parameter it does not have)."""
+
+    def __init__(self, name: str, attempts: int, timeout_s: float) -> None:
+        super().__init__(
+            f"parameter {name}: no PARAM_VALUE after {attempts} attempts of {timeout_s:g} s "
+            "(the vehicle may not have it)",
+            name,
+        )
+
+
+class ParamRefused(ParamError):
+    """The vehicle answered a PARAM_SET with another value than the one set."""
+
+    def __init__(self, name: str, wanted: float, kept: float) -> None:
+        super().__init__(f"parameter {name}: set to {wanted:g}, the vehicle kept {kept:g}", name)
+        self.wanted = wanted
+        self.kept = kept

@@ -1,4 +1,4 @@
-"""COMMAND_LONG with retries and COMMAND_ACK, and the PX4 commands built on it.
+"""COMMAND_LONG with retries and COMMAND_ACK, the PX4 commands built on it, and parameters.
 
 This is the command half of :class:`companion.link.mavlink.MavlinkLink` (a base class
 of it, kept in its own module); it uses only the link's public surface: ``subscribe``,
@@ -10,25 +10,72 @@ ACCEPTED succeeds; IN_PROGRESS means a final ACK follows (no retransmission afte
 any other result raises :class:`CommandDenied`. No final ACK after the attempts raises
 :class:`CommandTimeout`. Commands with the same id are serialized, as the protocol
 requires; different ids may run at once.
+
+The parameter protocol: PARAM_REQUEST_READ by name is answered with PARAM_VALUE; PARAM_SET
+is answered with the PARAM_VALUE the vehicle kept. PX4 carries an INT32 parameter's four
+bytes in the float field unchanged ("bytewise", MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE),
+so values are decoded and encoded by ``param_type`` (:func:`decode_param_value`,
+:func:`encode_param_value`).
 """
 
 from __future__ import annotations
 
 import asyncio
+import math
+import struct
 from abc import ABC, abstractmethod
 from collections.abc import Hashable, Sequence
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from companion.link.errors import CommandDenied, CommandTimeout, VehicleNotFoundError
+from companion.link.errors import (
+    CommandDenied,
+    CommandTimeout,
+    ParamRefused,
+    ParamTimeout,
+    VehicleNotFoundError,
+)
 from companion.link.events import VehicleId
 from companion.link.fanout import Subscription
 
-__all__ = ["ARM_FORCE_MAGIC", "Px4Commands"]
+__all__ = ["ARM_FORCE_MAGIC", "Px4Commands", "decode_param_value", "encode_param_value"]
 
 ARM_FORCE_MAGIC = 21196.0
 """param2 of MAV_CMD_COMPONENT_ARM_DISARM that overrides PX4's pre-arm / landed checks."""
+
+
+_INT_TYPES = {
+    mavlink2.MAV_PARAM_TYPE_UINT8: "<B",
+    mavlink2.MAV_PARAM_TYPE_INT8: "<b",
+    mavlink2.MAV_PARAM_TYPE_UINT16: "<H",
+    mavlink2.MAV_PARAM_TYPE_INT16: "<h",
+    mavlink2.MAV_PARAM_TYPE_UINT32: "<I",
+    mavlink2.MAV_PARAM_TYPE_INT32: "<i",
+}
+"""Integer parameter types and the little-endian layout of their bytes in the float."""
+
+
+def decode_param_value(wire: float, param_type: int) -> float:
+    """The value a PARAM_VALUE / PARAM_SET float ``wire`` carries for ``param_type``
+    (bytewise for integer types, as PX4 encodes them)."""
+    layout = _INT_TYPES.get(param_type)
+    if layout is None:
+        return float(wire)
+    raw = struct.pack("<f", wire)
+    return float(struct.unpack(layout, raw[: struct.calcsize(layout)])[0])
+
+
+def encode_param_value(value: float, param_type: int) -> float:
+    """The float to put in PARAM_SET for ``value`` of ``param_type`` (bytewise for
+    integer types); ValueError for a non-integer value of an integer type."""
+    layout = _INT_TYPES.get(param_type)
+    if layout is None:
+        return float(value)
+    if not float(value).is_integer():
+        raise ValueError(f"{value!r} is not an integer")
+    raw = struct.pack(layout, int(value)).ljust(4, b"\0")
+    return struct.unpack("<f", raw)[0]
 
 
 def _enum_name(enum: str, value: int) -> str:
@@ -159,3 +206,66 @@ class Px4Commands(ABC):
         interval_us = -1.0 if rate_hz == 0.0 else 1e6 / rate_hz
         params = (float(msg_id), interval_us)
         return await self.command_long(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, params, **kwargs)
+
+    # --- parameters ------------------------------------------------------------------
+
+    async def param_read(
+        self, name: str, *, timeout_s: float = 0.5, attempts: int = 3
+    ) -> tuple[float, int]:
+        """Read parameter ``name`` of the vehicle: (value, MAV_PARAM_TYPE). Raises
+        :class:`ParamTimeout` when no PARAM_VALUE of it arrives."""
+        vehicle = self._vehicle_or_raise()
+        with self.subscribe("PARAM_VALUE", maxsize=64) as values:
+            for _ in range(attempts):
+                self.send_message(
+                    self.mav.param_request_read_encode(
+                        vehicle.system_id, vehicle.component_id, name.encode(), -1
+                    )
+                )
+                msg = await self._await_param(values, name, timeout_s)
+                if msg is not None:
+                    return decode_param_value(msg.param_value, msg.param_type), msg.param_type
+        raise ParamTimeout(name, attempts, timeout_s)
+
+    async def param_set(
+        self, name: str, value: float, *, timeout_s: float = 0.5, attempts: int = 3
+    ) -> float:
+        """Set parameter ``name`` to ``value`` and return what the vehicle kept; its type
+        is read first. Raises :class:`ParamTimeout`, or :class:`ParamRefused` when the
+        vehicle kept another value (beyond float rounding)."""
+        _, param_type = await self.param_read(name, timeout_s=timeout_s, attempts=attempts)
+        vehicle = self._vehicle_or_raise()
+        wire = encode_param_value(value, param_type)
+        with self.subscribe("PARAM_VALUE", maxsize=64) as values:
+            for _ in range(attempts):
+                self.send_message(
+                    self.mav.param_set_encode(
+                        vehicle.system_id, vehicle.component_id, name.encode(), wire, param_type
+                    )
+                )
+                msg = await self._await_param(values, name, timeout_s)
+                if msg is None:
+                    continue
+                kept = decode_param_value(msg.param_value, msg.param_type)
+                if not math.isclose(kept, value, rel_tol=1e-6, abs_tol=1e-6):
+                    raise ParamRefused(name, value, kept)
+                return kept
+        raise ParamTimeout(name, attempts, timeout_s)
+
+    def _vehicle_or_raise(self) -> VehicleId:
+        vehicle = self.vehicle
+        if vehicle is None:
+            raise VehicleNotFoundError("no vehicle detected yet")
+        return vehicle
+
+    async def _await_param(self, values: Subscription, name: str, timeout_s: float) -> Any:
+        """The next PARAM_VALUE of ``name`` from the vehicle, or None after ``timeout_s``."""
+        vehicle = self._vehicle_or_raise()
+        try:
+            async with asyncio.timeout(timeout_s):
+                while True:
+                    msg = await values.get()
+                    if msg.param_id == name and msg.get_srcSystem() == vehicle.system_id:
+                        return msg
+        except TimeoutError:
+            return None

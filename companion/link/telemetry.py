@@ -3,9 +3,10 @@
 PX4 sends NED/FRD; every sample here is converted through :mod:`companion.frames`:
 positions and velocities world ENU, attitudes body FLU -> world ENU (quaternions
 ``[w, x, y, z]``), rates and specific force body FLU. Each sample carries the vehicle's
-clock, ``time_boot_ms`` [ms since the autopilot booted], so that the application also
-runs against a simulator faster than real time. Messages with ``time_usec`` (ODOMETRY,
-HIGHRES_IMU) are PX4 boot times in microseconds and are truncated to milliseconds.
+clock, so that the application also runs against a simulator faster than real time:
+:class:`VehiclePose` in microseconds since the autopilot booted (ODOMETRY's ``time_usec``,
+the estimator's IMU sample time; LOCAL_POSITION_NED's ``time_boot_ms`` x 1000), the others
+in milliseconds (``time_usec`` truncated).
 
 The decoders are pure: a bad message (NaN, a zero quaternion, an unsupported frame)
 raises :class:`~companion.link.errors.TelemetryError` with a short ``reason``, which the
@@ -66,14 +67,32 @@ _LANDED_NAMES = {
 
 @dataclass(frozen=True)
 class VehiclePose:
-    """Vehicle pose in ENU / FLU."""
+    """Vehicle pose in ENU / FLU, and what the autopilot's estimator says of its quality."""
 
-    time_boot_ms: int
+    time_usec: int
+    """Vehicle time of the estimate [us since boot]."""
     position_enu_m: Vec3
     velocity_enu_m_s: Vec3 | None
     """None when the autopilot reports no valid velocity (NaN)."""
     q_enu_flu: Quat
     """Attitude, body FLU -> world ENU, ``[w, x, y, z]`` with w >= 0."""
+    position_var_m2: Vec3 | None = None
+    """Variances of the position, world ENU axes [m^2] (ODOMETRY pose_covariance); None
+    when not reported (NaN, or LOCAL_POSITION_NED)."""
+    velocity_var_m2_s2: Vec3 | None = None
+    """Variances of the velocity, world ENU axes [m^2/s^2]; None when not reported."""
+    reset_counter: int | None = None
+    """The estimator's reset counter (ODOMETRY): it changes when the estimate jumps."""
+
+    @property
+    def time_boot_ms(self) -> int:
+        """Vehicle time [ms since boot] (truncated)."""
+        return self.time_usec // 1000
+
+    @property
+    def time_s(self) -> float:
+        """Vehicle time [s since boot]."""
+        return self.time_usec * 1e-6
 
     def euler_zyx_rad(self) -> Vec3:
         """(phi, theta, psi) [rad] with R = Rz(psi) Ry(theta) Rx(phi) (DESIGN.md section 2)."""
@@ -154,6 +173,18 @@ def _vec3_flu(values: Any, reason: str) -> Vec3:
     return (float(x), float(y), float(z))
 
 
+def _variances(covariance: Any) -> Vec3 | None:
+    """The x, y, z diagonal of a MAVLink upper-triangle 6x6 covariance (entries 0, 6, 11),
+    NED axes reordered to ENU; None when not reported (NaN or negative)."""
+    try:
+        n, e, d = (float(covariance[i]) for i in (0, 6, 11))
+    except (TypeError, IndexError):
+        return None
+    if not all(math.isfinite(v) and v >= 0.0 for v in (n, e, d)):
+        return None
+    return (e, n, d)
+
+
 def _q_enu_flu(q_ned_frd: Any) -> Quat:
     q = _finite("bad_quaternion", q_ned_frd)
     norm = math.sqrt(sum(c * c for c in q))
@@ -229,7 +260,16 @@ class TelemetryDecoder:
                 )
         rates = _vec3_flu((msg.rollspeed, msg.pitchspeed, msg.yawspeed), "bad_rates")
         t = self._clock(msg.time_usec // 1000)
-        return (VehiclePose(t, position, velocity, q), BodyRates(t, rates))
+        pose = VehiclePose(
+            int(msg.time_usec),
+            position,
+            velocity,
+            q,
+            position_var_m2=_variances(msg.pose_covariance),
+            velocity_var_m2_s2=_variances(msg.velocity_covariance),
+            reset_counter=int(msg.reset_counter),
+        )
+        return (pose, BodyRates(t, rates))
 
     def _attitude_quaternion(self, msg: Any) -> tuple[object, ...]:
         q = _q_enu_flu((msg.q1, msg.q2, msg.q3, msg.q4))
@@ -244,4 +284,4 @@ class TelemetryDecoder:
         v = (float(msg.vx), float(msg.vy), float(msg.vz))
         velocity = _vec3_enu(v, "bad_velocity") if all(map(math.isfinite, v)) else None
         t = self._clock(msg.time_boot_ms)
-        return (VehiclePose(t, position, velocity, self._attitude),)
+        return (VehiclePose(t * 1000, position, velocity, self._attitude),)
