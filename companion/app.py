@@ -3,19 +3,35 @@
 Tasks (asyncio, one event loop):
 
 - the MAVLink link's own reader, heartbeat and watchdog tasks (:mod:`companion.link`);
-- the **control loop**: clocked by the vehicle's ODOMETRY stream, requested at the control
-  rate, so a cycle runs on every new pose, timestamped with the vehicle's ``time_boot_ms``
-  (a SITL faster than real time just makes the cycles come faster). Each cycle reads the
-  joints (one Sync Read), filters q, q_dot, q_ddot, asks the mission for q_d, runs
-  :class:`~companion.flight_control.FlightControl`, streams SET_ATTITUDE_TARGET when the
-  mission flies in OFFBOARD, writes the joint torques, and logs one row;
-- the **mission sequence**: preflight checks, arm, PX4 take-off, OFFBOARD handshake,
-  the pickup (:mod:`companion.mission`), PX4 landing and disarm.
+- the **control loop**: clocked by the vehicle's ODOMETRY stream, so a cycle runs on every
+  new pose at the rate PX4 publishes it (measured at preflight: PX4 sends ODOMETRY no
+  faster than its estimator, 125 Hz, whatever is asked), timestamped with the estimate's
+  ``time_usec`` (a SITL faster than real time just makes the cycles come faster). Each
+  cycle watches the navigation (:mod:`companion.navigation`), filters q, q_dot, q_ddot
+  (pose, the autopilot's velocity, body rates, joints: one Sync Read), asks the mission for
+  q_d, runs :class:`~companion.flight_control.FlightControl`, streams the setpoint of the
+  current OFFBOARD stage (below), writes the joint torques, and logs one row;
+- the **mission sequence**: preflight (streams, the vehicle's parameters against the
+  config, the pose rate against the gains, a global origin, the arm), arm, PX4 take-off,
+  the OFFBOARD handover, the pickup (:mod:`companion.mission`), PX4 landing and disarm.
+
+OFFBOARD stages (:class:`Stream`), explicit because PX4 flies the last SET_ATTITUDE_TARGET
+the moment it accepts OFFBOARD, and its HEARTBEAT shows the mode up to 1 s later:
+
+``OFF``      nothing is streamed; PX4 flies its own modes (take-off, hold, land).
+``HOLD``     the handover: the attitude the vehicle has and the hover thrust of the model,
+             fresh every cycle, so what PX4 flies at the switch is what it already does.
+             DO_SET_MODE OFFBOARD goes out after ``flight.handover_stream_s`` of it.
+``CONTROL``  from the COMMAND_ACK of OFFBOARD on (not the next heartbeat): the
+             controller's setpoints; the mission starts from the pose at that moment.
+``LEVEL``    the way out in the air: level at the current yaw with the model's hover
+             thrust, until PX4 acknowledges the landing or hold command.
+``GROUND``   the way out on the ground: level with the thrust floor (no tilt, no lift).
 
 Faults (:mod:`companion.failsafe`) are raised by the control loop and carried out by the
 sequence. The generalized force handed to the estimator is the one applied over the last
-cycle: the thrust commanded to PX4 along the measured attitude, and the servos' torque
-read-back.
+cycle: the thrust commanded to PX4 along the measured attitude while the stage is
+``CONTROL`` (PX4 flies it), and the servos' torque read-back.
 """
 
 from __future__ import annotations
@@ -23,8 +39,9 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -33,17 +50,20 @@ from pymavlink.dialects.v20 import common as mavlink2
 from arm_driver.bus import ArmBus, BusFailedError, OperatingMode
 from arm_driver.errors import ArmDriverError
 from companion.config import Scenario
-from companion.control import DesiredState
+from companion.control import ControlRateError, DesiredState
 from companion.failsafe import FailsafeMonitor, Fault, FaultEvent, Reaction
 from companion.flight_control import ControlOutput, FlightControl, FlightControllerName
 from companion.flightlog import CycleRecord
 from companion.link import LinkLost, LinkRegained, MavlinkLink
-from companion.link.errors import CommandError
+from companion.link.errors import CommandError, ParamError
 from companion.link.px4_modes import px4_mode
 from companion.link.telemetry import BodyRates, LandedState, VehiclePose, VehicleStatus
 from companion.loop_period import LoopPeriodMonitor
 from companion.mission import EstimatorAction, GripperAction, Phase, PickupMission, PickupPlan
+from companion.navigation import NavigationWatch
+from companion.setpoints import AttitudeThrustSetpoint, ThrustModel, fixed_setpoint
 from companion.state import StateAssembler
+from companion.vehicle_params import OPTIONAL, REQUIRED, VehicleParams, contradictions
 
 __all__ = [
     "BUS_FAILURES",
@@ -52,12 +72,10 @@ __all__ = [
     "MissionError",
     "MissionReport",
     "PickupApp",
+    "Stream",
 ]
 
 _ODOMETRY_ID = mavlink2.MAVLINK_MSG_ID_ODOMETRY
-_HANDOVER_STREAM_S = 1.0
-"""Vehicle time the setpoint stream runs before OFFBOARD is requested [s] (PX4 wants
-proof of life first)."""
 SERVO_FAILURE_S = 0.3
 """Vehicle time over which every joint transaction failed that raises the servo_bus fault
 [s] (at least three failures): a transient stall is ridden through with the servos holding
@@ -66,6 +84,9 @@ their last goal current; a servo that stopped answering is not. Open the bus wit
 BUS_FAILURES = 30
 """``max_consecutive_failures`` for the arm bus: more than the transactions in
 :data:`SERVO_FAILURE_S`, so the app's fault, not the bus's, decides."""
+_MODE_SHOWN_S = 1.5
+"""Vehicle time after the OFFBOARD acknowledgement by which PX4's 1 Hz HEARTBEAT must
+show the mode [s]; a heartbeat later than that showing another mode is a lost OFFBOARD."""
 
 
 class MissionError(RuntimeError):
@@ -74,6 +95,16 @@ class MissionError(RuntimeError):
 
 class MissionAborted(RuntimeError):
     """A failsafe ended the mission; the report says which."""
+
+
+class Stream(StrEnum):
+    """What the control loop streams to PX4 (see the module docstring)."""
+
+    OFF = "off"
+    HOLD = "hold"
+    CONTROL = "control"
+    LEVEL = "level"
+    GROUND = "ground"
 
 
 @dataclass
@@ -89,9 +120,21 @@ class MissionReport:
     theta_hat: list[float] | None = None
     confident: bool = False
     position_rms_with_payload_m: float | None = None
+    position_rms_m: float | None = None
+    """Position error against the vehicle's own estimate over the OFFBOARD flight [m]."""
+    max_tilt_deg: float | None = None
+    """Largest measured tilt in OFFBOARD outside the excitation [deg]."""
+    handover_tilt_deg: float | None = None
+    """Largest change of the tilt in the 2 s after OFFBOARD was accepted [deg]."""
     landed: bool = False
     disarmed: bool = False
     control_cycles: int = 0
+    control_rate_hz: float | None = None
+    """Rate the pose stream arrived at (the loop's rate), measured at preflight [Hz]."""
+    vehicle_params: str | None = None
+    """The PX4 parameters the model depends on, as read at preflight."""
+    navigation_resets: int = 0
+    """Jumps of PX4's estimate (its reset counter) seen in flight."""
     cycle_latency_us: list[float] = field(default_factory=list)
     """Pose taken from the link -> joint torques written, per cycle [us]."""
     setpoint_latency_us: list[float] = field(default_factory=list)
@@ -116,9 +159,15 @@ class MissionReport:
             "theta_hat": self.theta_hat,
             "estimate_confident": self.confident,
             "position_rms_with_payload_m": self.position_rms_with_payload_m,
+            "position_rms_m": self.position_rms_m,
+            "max_tilt_outside_excitation_deg": self.max_tilt_deg,
+            "handover_tilt_change_deg": self.handover_tilt_deg,
             "landed": self.landed,
             "disarmed": self.disarmed,
             "control_cycles": self.control_cycles,
+            "control_rate_hz": self.control_rate_hz,
+            "vehicle_params": self.vehicle_params,
+            "navigation_resets": self.navigation_resets,
             "cycle_latency_us": _percentiles(self.cycle_latency_us),
             "setpoint_latency_us": _percentiles(self.setpoint_latency_us),
             "cpu_share_of_one_core": self.cpu_share,
@@ -146,8 +195,8 @@ class PickupApp:
     Parameters
     ----------
     scenario
-        Vehicle, arm, gains and estimator settings (the companion's knowledge: the
-        ``[payload]`` section is never read).
+        Vehicle, arm, gains, estimator and flight settings (the companion's knowledge:
+        the ``[payload]`` section is never read).
     link
         An open MAVLink link with the vehicle detected.
     bus
@@ -158,7 +207,8 @@ class PickupApp:
     controller
         ``"passivity"`` or ``"nonadaptive"``.
     control_rate_hz
-        Rate of the control loop (the ODOMETRY stream requested from PX4) [Hz].
+        Rate of the ODOMETRY stream asked of PX4 [Hz]; the loop runs at the rate that
+        arrives (measured at preflight, the gains checked for it).
     log, event
         Where each cycle's row and each event (time [s], kind, text) go.
     """
@@ -185,14 +235,20 @@ class PickupApp:
         self.plan = plan
         self.control_rate_hz = control_rate_hz
         self.control = FlightControl(scenario, controller)
-        q_stow = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0, *plan.stow_joints_rad])
-        self.control.check_rate(control_rate_hz, q_stow)
+        self._q_stow = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0, *plan.stow_joints_rad])
+        self.control.check_rate(control_rate_hz, self._q_stow)
         self.loop_period = LoopPeriodMonitor(
-            1.0 / control_rate_hz, self.control.max_period_s(q_stow)
+            1.0 / control_rate_hz, self.control.max_period_s(self._q_stow)
         )
         self.mission = PickupMission(plan, scenario)
         self.failsafe = FailsafeMonitor()
         self.assembler = StateAssembler.from_sensors(scenario.sensors)
+        flight = scenario.flight
+        self.navigation = NavigationWatch(
+            flight.nav_max_position_std_m,
+            flight.nav_max_velocity_std_m_s,
+            flight.nav_invalid_hold_s,
+        )
         self.report = MissionReport(controller=controller)
         self._log = log or (lambda row: None)
         self._event = event or (lambda kind, detail, t_s: None)
@@ -202,17 +258,25 @@ class PickupApp:
         self._torque_limits = np.array([bus.torque_limit_n_m(n) for n in self._joint_names])
         self._watchdog_s = bus.watchdog_s
         self._stow = np.array(plan.stow_joints_rad)
-        self._streaming = False
-        self._offboard = False
-        self._mission_started = False
-        self._hold: np.ndarray | None = None
+        self.stream = Stream.OFF
+        """What the control loop streams to PX4 now."""
+        self._offboard_since_s = math.nan
+        """Vehicle time of the OFFBOARD acknowledgement [s]."""
+        self._ground_z = math.nan
+        """Height of the vehicle standing on the ground, taken at arming [m]."""
+        self._t_us = -1
         self._t_s = math.nan
         self._last_output: ControlOutput | None = None
+        self._last_desired: DesiredState | None = None
         self._last_thrust_n = math.nan
         self._servo_failures = 0
         self._servo_failing_since = math.nan
         self._faults: asyncio.Queue[FaultEvent] = asyncio.Queue()
-        self._payload_errors: list[float] = []
+        self._errors: list[tuple[float, bool]] = []
+        """(position error [m], payload carried) per OFFBOARD cycle."""
+        self._max_tilt = 0.0
+        self._handover_tilt0 = math.nan
+        self._handover_tilt = 0.0
         self._late_noted_s = -math.inf
         self._bus_last_s = time.monotonic()
         """Wall-clock time of the last joint transaction [s] (the servos' watchdog clock)."""
@@ -277,20 +341,26 @@ class PickupApp:
             except MissionError:
                 if self._armed():
                     self._note("mode", "mission failed in the air: landing")
-                    await self._land()
+                    await self._land(Stream.LEVEL)
                 raise
             self.report.completed = True
             return self.report
         finally:
+            self.stream = Stream.OFF
             control.cancel()
             watch.cancel()
             await asyncio.gather(control, watch, return_exceptions=True)
             self._finish_report()
 
+    # ------------------------------------------------------------- preflight
+
     async def _preflight(self) -> None:
-        """Checks before arming: telemetry flows, on the ground, joints answer."""
+        """Checks before arming: the vehicle's parameters fit the config, the pose stream
+        comes fast enough for the gains, the vehicle is on the ground, disarmed and has a
+        global origin, the joints answer."""
         await self.link.set_message_interval(_ODOMETRY_ID, self.control_rate_hz)
         await self.link.set_message_interval(mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, 5.0)
+        await self._check_vehicle_params()
         await self._check_pose_rate()
         landed = self.link.latest(LandedState)
         if landed is not None and not landed.on_ground:
@@ -298,6 +368,7 @@ class PickupApp:
         status = self.link.latest(VehicleStatus)
         if status is not None and status.armed:
             raise MissionError("preflight: the vehicle is already armed")
+        await self._ensure_global_origin()
         try:
             states = await self.bus.read_joint_states()
             await self.bus.set_operating_mode(OperatingMode.CURRENT)
@@ -310,14 +381,40 @@ class PickupApp:
         if missing:
             raise MissionError(f"preflight: joints {sorted(missing)} did not answer")
 
+    async def _check_vehicle_params(self) -> None:
+        """Read the PX4 parameters the model depends on (:mod:`companion.vehicle_params`);
+        refuse a vehicle that contradicts the config; take PX4's MPC_THR_MIN as the
+        thrust floor."""
+        values: dict[str, float | None] = {}
+        for name in REQUIRED + OPTIONAL:
+            try:
+                values[name] = (await self.link.param_read(name, timeout_s=0.3))[0]
+            except ParamError:
+                values[name] = None
+        try:
+            params = VehicleParams.from_values(values)
+        except KeyError as exc:
+            raise MissionError(
+                f"preflight: the vehicle does not answer parameter(s) {exc.args[0]} (not PX4?)"
+            ) from None
+        problems = contradictions(params, self.scenario)
+        for problem in problems[1:]:
+            self._note("preflight", problem)
+        if problems:
+            raise MissionError(f"preflight: {problems[0]}")
+        self.control.thrust = ThrustModel(
+            self.control.thrust.max_thrust_n, params.thrust_min_relative
+        )
+        self.report.vehicle_params = params.describe()
+        self._note("preflight", f"vehicle parameters: {self.report.vehicle_params}")
+
     async def _check_pose_rate(self) -> None:
-        """The ODOMETRY stream that clocks the control loop comes fast enough: its mean
-        period over 1 s of vehicle time is one the velocity gains tolerate. A stream
-        slower than asked (PX4 publishes it no faster than its estimator) becomes the
-        nominal period that late cycles are judged against."""
+        """Measure the ODOMETRY stream over 1 s of vehicle time: the loop runs at the rate
+        that arrives (PX4 publishes no faster than its estimator, whatever was asked), so
+        its mean period becomes the nominal period, and the gains are checked for it."""
         limit = self.loop_period
         probe = LoopPeriodMonitor(limit.period_s, limit.max_period_s, window_s=1.0)
-        last_s = -math.inf
+        last_us = -1
         with self.link.subscribe(VehiclePose) as poses:
             try:
                 async with asyncio.timeout(5.0):
@@ -327,38 +424,80 @@ class PickupApp:
             try:
                 async with asyncio.timeout(10.0):
                     while math.isnan(probe.mean_period_s):
-                        t_s = pose.time_boot_ms / 1000.0
-                        if t_s > last_s:
-                            probe.update(t_s)
-                            last_s = t_s
+                        if pose.time_usec > last_us:
+                            probe.update(pose.time_s)
+                            last_us = pose.time_usec
                         pose = await poses.get()
             except TimeoutError:
                 raise MissionError(
-                    "preflight: ODOMETRY stopped or its time_boot_ms did not advance 1 s in 10 s"
+                    "preflight: ODOMETRY stopped or its time did not advance 1 s in 10 s"
                 ) from None
-        mean_ms, max_ms = probe.mean_period_s * 1e3, limit.max_period_s * 1e3
-        if mean_ms > max_ms:
+        period_s = probe.mean_period_s
+        rate_hz = 1.0 / period_s
+        self.report.control_rate_hz = rate_hz
+        try:
+            self.control.check_rate(rate_hz, self._q_stow)
+        except ControlRateError as exc:
             raise MissionError(
-                f"preflight: ODOMETRY arrives every {mean_ms:.1f} ms (vehicle time); the "
-                f"velocity gains need a control period below {max_ms:.1f} ms: raise the "
-                "link's data rate (MAV_1_RATE, SER_TEL2_BAUD) or lower the gains k"
-            )
-        if mean_ms > 1.2 * limit.period_s * 1e3:
+                f"preflight: ODOMETRY arrives at {rate_hz:.0f} Hz (vehicle time): {exc}; "
+                "raise the link's data rate (MAV_1_RATE, SER_TEL2_BAUD) or lower the gains k"
+            ) from None
+        if period_s > 1.2 * limit.period_s:
             self._note(
                 "loop",
-                f"ODOMETRY every {mean_ms:.1f} ms, slower than the "
-                f"{self.control_rate_hz:g} Hz asked: the loop runs at the stream's rate",
+                f"ODOMETRY arrives at {rate_hz:.0f} Hz, not the {self.control_rate_hz:g} Hz "
+                "asked (PX4 sends it at its estimator's rate): the loop runs at that rate",
             )
-            self.loop_period = LoopPeriodMonitor(probe.mean_period_s, limit.max_period_s)
+        self.loop_period = LoopPeriodMonitor(period_s, max(limit.max_period_s, period_s))
+
+    async def _ensure_global_origin(self) -> None:
+        """Without GPS (motion capture indoors) PX4 has no global origin, and refuses Hold
+        and arming in it; set ``flight.global_origin_deg_m`` as the origin then."""
+        if await self._global_origin() is not None:
+            return
+        lat, lon, alt = self.scenario.flight.global_origin_deg_m
+        vehicle = self.link.vehicle
+        assert vehicle is not None
+        self.link.send_message(
+            self.link.mav.set_gps_global_origin_encode(
+                vehicle.system_id, round(lat * 1e7), round(lon * 1e7), round(alt * 1e3), 0
+            )
+        )
+        if await self._global_origin() is None:
+            self._note("preflight", "the vehicle has no global origin and did not report ours")
+            return
+        self._note("preflight", f"global origin set to {lat:.7f}, {lon:.7f}, {alt:.1f} m")
+
+    async def _global_origin(self) -> Any:
+        """The vehicle's GPS_GLOBAL_ORIGIN (asked for with REQUEST_MESSAGE), or None."""
+        with self.link.subscribe("GPS_GLOBAL_ORIGIN") as origins:
+            try:
+                await self.link.command_long(
+                    mavlink2.MAV_CMD_REQUEST_MESSAGE,
+                    [mavlink2.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN],
+                    timeout_s=0.3,
+                    attempts=2,
+                )
+            except CommandError:
+                return None
+            try:
+                async with asyncio.timeout(1.0):
+                    return await origins.get()
+            except TimeoutError:
+                return None
+
+    # -------------------------------------------------------------- sequence
 
     async def _sequence(self) -> None:
-        link, plan = self.link, self.plan
-        self._note("mode", "arming")
+        link, plan, flight = self.link, self.plan, self.scenario.flight
+        await self._wait_for(lambda: self.assembler.ready, 2.0, "no state estimate")
+        self._ground_z = self._altitude()
+        self._note("mode", f"arming (standing at z = {self._ground_z:.2f} m)")
         try:
             await link.arm()
-            await self._set_param("MIS_TAKEOFF_ALT", plan.cruise_altitude_m)
+            await link.param_set("MIS_TAKEOFF_ALT", plan.cruise_altitude_m)
             await link.command_long(mavlink2.MAV_CMD_NAV_TAKEOFF, [0, 0, 0] + [math.nan] * 4)
-        except CommandError as exc:
+        except (CommandError, ParamError) as exc:
             raise MissionError(f"take-off refused: {exc}") from None
         self._note("mode", "take-off")
         await self._wait_for(
@@ -366,41 +505,46 @@ class PickupApp:
             self.takeoff_timeout_s,
             "take-off did not reach the cruise altitude",
         )
-        pose = self.assembler.estimate.q.copy()
-        self._hold = pose
-        self.control.tilt.reset(float(pose[3]), float(pose[4]))
-        self._streaming = True
-        await self._wait_vehicle_time(_HANDOVER_STREAM_S)
-        try:
-            await link.set_mode_px4(*px4_mode("OFFBOARD"))
-        except CommandError as exc:
-            self._streaming = False
-            raise MissionError(f"PX4 refused OFFBOARD: {exc}") from None
-        await self._wait_for(
-            lambda: self._mode() == "OFFBOARD", 2.0, "PX4 accepted OFFBOARD but did not enter it"
-        )
-        self._offboard = True
-        self._note("mode", "OFFBOARD")
-        self.mission.start(self._t_s, self.assembler.estimate.q)
-        self._mission_started = True
+        settled = self._holding(lambda: self._speed() < flight.settle_speed_m_s, flight.settle_s)
+        await self._wait_for(settled, 10.0, "the vehicle did not settle after take-off")
+        await self._enter_offboard()
         cpu0, wall0 = time.process_time(), time.perf_counter()
         async with self._tick:
             await self._tick.wait_for(
-                lambda: self.mission.phase == Phase.DONE or self._mode() not in ("OFFBOARD", None)
+                lambda: self.mission.phase == Phase.DONE or self._left_offboard()
             )
         self.report.cpu_share = (time.process_time() - cpu0) / (time.perf_counter() - wall0)
         if self.mission.phase != Phase.DONE:
             self._fault(Fault.OFFBOARD_LOST, f"PX4 left OFFBOARD (now {self._mode()})")
             return
-        await self._land()
+        await self._land(Stream.LEVEL)
 
-    async def _land(self) -> None:
-        self._streaming = False
-        self._offboard = False
+    async def _enter_offboard(self) -> None:
+        """The handover: stream the hold setpoint, ask for OFFBOARD, close the loop on the
+        acknowledgement (PX4 flies the streamed setpoint from that moment)."""
+        self.stream = Stream.HOLD
+        await self._wait_vehicle_time(self.scenario.flight.handover_stream_s)
         try:
-            await self.link.command_long(mavlink2.MAV_CMD_NAV_LAND, [0, 0, 0] + [math.nan] * 4)
+            await self.link.set_mode_px4(*px4_mode("OFFBOARD"))
         except CommandError as exc:
-            raise MissionError(f"PX4 refused to land: {exc}") from None
+            self.stream = Stream.OFF
+            raise MissionError(f"PX4 refused OFFBOARD: {exc}") from None
+        q = self.assembler.estimate.q
+        self.control.tilt.reset(float(q[3]), float(q[4]))
+        self.mission.start(self._t_s, q)
+        self._offboard_since_s = self._t_s
+        self._handover_tilt0 = math.hypot(float(q[3]), float(q[4]))
+        self.stream = Stream.CONTROL
+        self._note("mode", "OFFBOARD accepted: the control loop flies the vehicle")
+
+    async def _land(self, stream: Stream) -> None:
+        """Hand the vehicle to PX4's AUTO.LAND, streaming ``stream`` until it acknowledges;
+        wait until it has landed and disarmed."""
+        await self._release(
+            stream,
+            lambda: self.link.command_long(mavlink2.MAV_CMD_NAV_LAND, [0, 0, 0] + [math.nan] * 4),
+            "land",
+        )
         self._note("mode", "landing")
         await self._wait_for(
             lambda: not self._armed(), self.land_timeout_s, "the vehicle did not land and disarm"
@@ -409,19 +553,35 @@ class PickupApp:
         self.report.disarmed = True
         self._note("mode", "disarmed")
 
+    async def _release(
+        self, stream: Stream, command: Callable[[], Awaitable[Any]], what: str
+    ) -> None:
+        """The way out of OFFBOARD: stream the safe setpoint ``stream`` while ``command``
+        waits for its acknowledgement, then stop streaming."""
+        self.stream = stream
+        try:
+            await command()
+        except CommandError as exc:
+            raise MissionError(f"PX4 refused to {what}: {exc}") from None
+        finally:
+            self.stream = Stream.OFF
+
     async def _react(self, event: FaultEvent) -> None:
         """Carry out an aborting fault's reactions (the mission is already stopped)."""
-        self._streaming = False
-        self._offboard = False
         if Reaction.RELEASE_TO_PX4 in event.reactions:
+            self.stream = Stream.OFF
             return
+        safe = Stream.GROUND if Reaction.LEVEL_ON_GROUND in event.reactions else Stream.LEVEL
         if Reaction.HOLD_THEN_LAND in event.reactions:
             try:
-                await self.link.set_mode_px4(*px4_mode("LOITER"))
+                await self._release(
+                    safe, lambda: self.link.set_mode_px4(*px4_mode("LOITER")), "hold"
+                )
                 await self._wait_vehicle_time(2.0)
-            except CommandError as exc:
-                self._note("fault", f"hold refused: {exc}")
+            except MissionError as exc:
+                self._note("fault", str(exc))
         if event.fault == Fault.LINK_LOST and self.link.lost is not None:
+            self.stream = Stream.OFF
             try:
                 async with asyncio.timeout(60.0):
                     with self.link.subscribe(LinkRegained) as regained:
@@ -429,34 +589,9 @@ class PickupApp:
             except TimeoutError:
                 raise MissionError("the MAVLink link did not return within 60 s") from None
             self._note("link", "regained")
-        await self._land()
+        await self._land(safe)
 
     # ---------------------------------------------------------------- helpers
-
-    async def _set_param(self, name: str, value: float) -> None:
-        link = self.link
-        vehicle = link.vehicle
-        assert vehicle is not None
-        with link.subscribe("PARAM_VALUE") as values:
-            for _ in range(3):
-                link.send_message(
-                    link.mav.param_set_encode(
-                        vehicle.system_id,
-                        vehicle.component_id,
-                        name.encode(),
-                        float(value),
-                        mavlink2.MAV_PARAM_TYPE_REAL32,
-                    )
-                )
-                try:
-                    async with asyncio.timeout(0.5):
-                        while True:
-                            msg = await values.get()
-                            if msg.param_id == name:
-                                return
-                except TimeoutError:
-                    continue
-        raise MissionError(f"parameter {name} could not be set")
 
     def _mode(self) -> str | None:
         status = self.link.latest(VehicleStatus)
@@ -466,8 +601,37 @@ class PickupApp:
         status = self.link.latest(VehicleStatus)
         return bool(status and status.armed)
 
+    def _left_offboard(self) -> bool:
+        """A heartbeat sent after PX4 had time to show OFFBOARD shows another mode."""
+        status = self.link.latest(VehicleStatus)
+        if status is None or status.time_boot_ms is None:
+            return False
+        after = status.time_boot_ms * 1e-3 - self._offboard_since_s
+        return after > 0.2 and status.mode.name != "OFFBOARD"
+
     def _altitude(self) -> float:
         return float(self.assembler.estimate.q[2]) if self.assembler.ready else -math.inf
+
+    def _speed(self) -> float:
+        if not self.assembler.ready:
+            return math.inf
+        return float(np.linalg.norm(self.assembler.estimate.q_dot[0:3]))
+
+    def _holding(self, condition: Callable[[], bool], hold_s: float) -> Callable[[], bool]:
+        """A condition that holds once ``condition()`` has held for ``hold_s`` of vehicle
+        time (checked every control cycle)."""
+        since = math.nan
+
+        def held() -> bool:
+            nonlocal since
+            if not condition():
+                since = math.nan
+                return False
+            if math.isnan(since):
+                since = self._t_s
+            return self._t_s - since >= hold_s
+
+        return held
 
     async def _wait_for(self, condition: Callable[[], bool], vehicle_s: float, what: str) -> None:
         """Wait until ``condition()`` holds, checked every control cycle, at most
@@ -510,43 +674,41 @@ class PickupApp:
                     self._tick.notify_all()
 
     async def _cycle(self, pose: VehiclePose, received: float) -> None:
-        t_s = pose.time_boot_ms / 1000.0
-        if t_s <= self._t_s:  # False while _t_s is NaN (first cycle)
+        if pose.time_usec <= self._t_us:
             return
-        self._t_s = t_s
+        self._t_us = pose.time_usec
+        t_s = self._t_s = pose.time_s
         period = self.loop_period.update(t_s)
         dt = period.period_s if period is not None else None
         if period is not None and period.late and t_s - self._late_noted_s >= 1.0:
             self._late_noted_s = t_s
             self._note("loop", f"late cycle: {period.period_s * 1e3:.1f} ms since the last")
+        self._sense(pose, dt)
+        joints = None
+        if not self.failsafe.has(Fault.SERVO_BUS):
+            await self._rearm_after_silence()
+            joints = await self._read_joints()
         a = self.assembler
-        if dt is not None and a.ready:
-            a.predict(dt)
-        a.pose(pose.position_enu_m, pose.euler_zyx_rad())
-        rates = self.link.latest(BodyRates)
-        if rates is not None:
-            a.body_rates(rates.omega_flu_rad_s)
-        if self.failsafe.has(Fault.SERVO_BUS):
-            return  # the bus is in its safe state; PX4 lands the vehicle
-        await self._rearm_after_silence()
-        joints = await self._read_joints()
-        if joints is None:
-            return
-        a.joints([joints[n].position_rad for n in self._joint_names])
-        a.joint_rates([joints[n].velocity_rad_s for n in self._joint_names])
+        if joints is not None:
+            a.joints([joints[n].position_rad for n in self._joint_names])
+            a.joint_rates([joints[n].velocity_rad_s for n in self._joint_names])
         if not a.ready or dt is None:
             return
         state = a.estimate
         command = None
-        if self._mission_started:
+        if self.stream == Stream.CONTROL:
             command = self.mission.update(t_s, state.q, self._confident())
             desired = command.desired
             await self._apply(command)
         else:
             desired = self._hold_desired(state.q)
-        servo_tau = np.array([joints[n].torque_n_m for n in self._joint_names])
-        # NaN (no force known) makes the estimator skip the step: before OFFBOARD, and on a
-        # late cycle (its forward-Euler step is not tuned for the gap).
+        servo_tau = (
+            np.array([joints[n].torque_n_m for n in self._joint_names])
+            if joints is not None
+            else np.full(len(self._joint_names), math.nan)
+        )
+        # NaN (no force known) makes the estimator skip the step: outside CONTROL (PX4 flies
+        # its own thrust), and on a late cycle (its forward-Euler step is not tuned for it).
         known = (
             self.control.applied_force(state.q, self._last_thrust_n, servo_tau)
             if math.isfinite(self._last_thrust_n) and period is not None and not period.late
@@ -554,42 +716,104 @@ class PickupApp:
         )
         out = self.control.step(dt, state, desired, known)
         self._last_output = out
-        sp = out.setpoint
-        if self._streaming:
+        self._last_desired = out.desired if self.stream == Stream.CONTROL else self._last_desired
+        sp = self._stream_setpoint(out, state.q)
+        if sp is not None:
             self.link.send_setpoint(sp, pose.time_boot_ms)
             self.report.setpoint_latency_us.append((time.perf_counter() - received) * 1e6)
-        # The thrust is known only while PX4 flies our setpoints (in OFFBOARD); before, PX4's
-        # own position loop decides it, and the estimator must not see ours as applied.
-        self._last_thrust_n = sp.thrust_n if self._streaming and self._offboard else math.nan
+        self._last_thrust_n = (
+            sp.thrust_n if sp is not None and self.stream == Stream.CONTROL else (math.nan)
+        )
         tau_cmd = await self._write_joints(out.tau[6:8])
         self.report.cycle_latency_us.append((time.perf_counter() - received) * 1e6)
         self.report.control_cycles += 1
-        if self._offboard:
-            if self.loop_period.overrun:
-                watch = self.loop_period
-                self._fault(
-                    Fault.LOOP_OVERRUN,
-                    f"{watch.long_cycles} control periods in {watch.window_s:g} s longer than "
-                    f"the {watch.max_period_s * 1e3:.1f} ms the velocity gains tolerate "
-                    f"(this one {period.period_s * 1e3:.0f} ms)",
-                )
-            for event in self.failsafe.update(
-                t_s,
-                on_bound=self._on_bound(out),
-                tilt_saturated=sp.tilt_saturated,
-                thrust_saturated=sp.thrust_saturated,
-            ):
-                self._on_fault(event)
-        if command is not None and _carrying(command.phase):
-            self._payload_errors.append(float(np.linalg.norm(state.q[0:3] - desired.q[0:3])))
-        phase = command.phase.value if command else "hold"
-        self._log_row(t_s, state, out, joints, phase, tau_cmd)
+        if self.stream == Stream.CONTROL:
+            self._watch_flight(t_s, state.q, out, period, command)
+        phase = command.phase.value if command else self.stream.value
+        self._log_row(t_s, state, out, sp, joints, phase, tau_cmd)
+
+    def _sense(self, pose: VehiclePose, dt: float | None) -> None:
+        """Feed one pose to the state filter, after the navigation watch: an estimator reset
+        restarts the position rows, a lasting invalid estimate is the navigation fault."""
+        a = self.assembler
+        if dt is not None and a.ready:
+            a.predict(dt)
+        check = self.navigation.update(pose.time_s, pose)
+        if check.reset and a.ready:
+            a.reset_position(pose.position_enu_m)
+            self._note(
+                "navigation",
+                f"PX4's estimate jumped (reset counter {pose.reset_counter}): "
+                "the position filter starts again from it",
+            )
+        a.pose(pose.position_enu_m, pose.euler_zyx_rad())
+        if pose.velocity_enu_m_s is not None and a.ready:
+            a.velocity(pose.velocity_enu_m_s)
+        rates = self.link.latest(BodyRates)
+        if rates is not None:
+            a.body_rates(rates.omega_flu_rad_s)
+        if check.fault is not None and self.stream == Stream.CONTROL:
+            self._fault(Fault.NAVIGATION, check.fault)
+
+    def _stream_setpoint(self, out: ControlOutput, q: np.ndarray) -> AttitudeThrustSetpoint | None:
+        """The setpoint of the current stage (:class:`Stream`); None: nothing to send."""
+        thrust = self.control.thrust
+        yaw = float(q[5])
+        if self.stream == Stream.CONTROL:
+            return out.setpoint
+        if self.stream == Stream.HOLD:
+            weight = self.control.weight_n()
+            return fixed_setpoint(float(q[3]), float(q[4]), yaw, weight, thrust)
+        if self.stream == Stream.LEVEL:
+            return fixed_setpoint(0.0, 0.0, yaw, self.control.weight_n(), thrust)
+        if self.stream == Stream.GROUND:
+            return fixed_setpoint(0.0, 0.0, yaw, 0.0, thrust)
+        return None
+
+    def _watch_flight(self, t_s: float, q: np.ndarray, out: ControlOutput, period, command) -> None:
+        """Faults and figures of one OFFBOARD cycle: loop overrun, ground contact, the
+        monitor's lasting conditions, tilt and tracking error."""
+        if self.loop_period.overrun:
+            watch = self.loop_period
+            self._fault(
+                Fault.LOOP_OVERRUN,
+                f"{watch.long_cycles} control periods in {watch.window_s:g} s longer than "
+                f"the {watch.max_period_s * 1e3:.1f} ms the velocity gains tolerate "
+                f"(this one {period.period_s * 1e3:.0f} ms)",
+            )
+        landed = self.link.latest(LandedState)
+        ground = self._ground_z + self.scenario.flight.ground_margin_m
+        if landed is not None and landed.on_ground:
+            self._fault(Fault.GROUND_CONTACT, "PX4's land detector reports the vehicle landed")
+        elif float(q[2]) < ground:
+            self._fault(
+                Fault.GROUND_CONTACT,
+                f"height {q[2]:.2f} m below the take-off height + margin ({ground:.2f} m)",
+            )
+        sp = out.setpoint
+        for event in self.failsafe.update(
+            t_s,
+            on_bound=self._on_bound(out),
+            tilt_saturated=sp.tilt_saturated,
+            thrust_saturated=sp.thrust_saturated,
+        ):
+            self._on_fault(event)
+        tilt = math.hypot(float(q[3]), float(q[4]))
+        if command is not None and command.phase != Phase.EXCITE:
+            self._max_tilt = max(self._max_tilt, tilt)
+        if t_s - self._offboard_since_s <= 2.0:
+            self._handover_tilt = max(self._handover_tilt, abs(tilt - self._handover_tilt0))
+        if command is not None:
+            error = float(np.linalg.norm(q[0:3] - command.desired.q[0:3]))
+            self._errors.append((error, _carrying(command.phase)))
 
     def _hold_desired(self, q: np.ndarray) -> DesiredState:
-        hold = self._hold if self._hold is not None else q
-        target = np.array(hold, dtype=float)
+        """Outside CONTROL: the controller tracks where the vehicle is (its output is not
+        flown) and the joints where the mission last put them (stowed before)."""
+        target = np.array(q, dtype=float)
         target[3:5] = 0.0
-        target[6:8] = self._stow
+        last = self._last_desired
+        target[6:8] = self._stow if last is None else last.q[6:8]
         zero = np.zeros(8)
         return DesiredState(target, zero, zero.copy())
 
@@ -703,9 +927,19 @@ class PickupApp:
         return sent
 
     def _log_row(
-        self, t_s: float, state, out: ControlOutput, joints, phase: str, tau_cmd: np.ndarray
+        self,
+        t_s: float,
+        state,
+        out: ControlOutput,
+        sp: AttitudeThrustSetpoint | None,
+        joints,
+        phase: str,
+        tau_cmd: np.ndarray,
     ) -> None:
         names = self._joint_names
+        nan = [math.nan] * len(names)
+        torques = nan if joints is None else [joints[n].torque_n_m for n in names]
+        positions = nan if joints is None else [joints[n].position_rad for n in names]
         self._log(
             CycleRecord(
                 t_vehicle_s=t_s,
@@ -719,10 +953,10 @@ class PickupApp:
                 theta_confident=out.estimate.confident,
                 theta_frozen=self._estimate_frozen,
                 tau=out.tau,
-                setpoint=out.setpoint if self._streaming else None,
+                setpoint=sp,
                 servo_torque_cmd_n_m=tau_cmd,
-                servo_torque_meas_n_m=[joints[n].torque_n_m for n in names],
-                servo_position_rad=[joints[n].position_rad for n in names],
+                servo_torque_meas_n_m=torques,
+                servo_position_rad=positions,
                 px4_mode=self._mode() or "",
                 armed=self._armed(),
                 phase=phase,
@@ -731,13 +965,20 @@ class PickupApp:
         )
 
     def _finish_report(self) -> None:
-        self.report.late_cycles = self.loop_period.late_cycles
-        self.report.longest_period_ms = self.loop_period.longest_period_s * 1e3
-        self.report.estimator_skipped_steps = self.control.estimator.skipped_steps
-        if self._payload_errors:
-            errors = np.asarray(self._payload_errors)
-            self.report.position_rms_with_payload_m = float(np.sqrt(np.mean(errors**2)))
-        self.report.phases = [(t, p.value) for t, p in self.mission.phase_log] or self.report.phases
+        report = self.report
+        report.late_cycles = self.loop_period.late_cycles
+        report.longest_period_ms = self.loop_period.longest_period_s * 1e3
+        report.estimator_skipped_steps = self.control.estimator.skipped_steps
+        report.navigation_resets = self.navigation.resets
+        if self._errors:
+            errors = np.asarray([e for e, _ in self._errors])
+            report.position_rms_m = float(np.sqrt(np.mean(errors**2)))
+            carried = np.asarray([e for e, carrying in self._errors if carrying])
+            if carried.size:
+                report.position_rms_with_payload_m = float(np.sqrt(np.mean(carried**2)))
+            report.max_tilt_deg = math.degrees(self._max_tilt)
+            report.handover_tilt_deg = math.degrees(self._handover_tilt)
+        report.phases = [(t, p.value) for t, p in self.mission.phase_log] or report.phases
 
 
 def _carrying(phase: Phase) -> bool:

@@ -344,6 +344,9 @@ class Sensors(_Section):
     """Noise of the joint torque read back from servo present current [N m]."""
     jerk_psd: PositiveVecQ
     """Process noise of the constant-acceleration state filter per row (m^2/s^5, rad^2/s^5)."""
+    velocity_std_m_s: Positive = 0.05
+    """Noise of the vehicle velocity the autopilot reports (ODOMETRY, EKF2), fused by the
+    flight app's state filter [m/s]; the offline simulation measures no velocity."""
 
 
 class AttitudeControl(_Section):
@@ -476,6 +479,34 @@ class WorldSection(_Section):
     the simulated parameter table when the SITL starts."""
 
 
+class Flight(_Section):
+    """How the flight app hands the vehicle to and from PX4 and watches its navigation
+    (``companion mission``); optional, every key has a default."""
+
+    handover_stream_s: Positive = 0.5
+    """Vehicle time the safe setpoint is streamed before OFFBOARD is asked for (PX4 wants
+    a live stream, > 2 Hz) [s]."""
+    settle_speed_m_s: Positive = 0.2
+    """After take-off the vehicle counts as settled once its speed stays below this for
+    ``settle_s`` (PX4 still climbing to the take-off altitude is not) [m/s]."""
+    settle_s: Positive = 1.0
+    """[s], see ``settle_speed_m_s``."""
+    nav_max_position_std_m: Positive = 1.0
+    """Largest standard deviation of PX4's position estimate (ODOMETRY covariance, any
+    axis) that counts as valid navigation [m]."""
+    nav_max_velocity_std_m_s: Positive = 0.5
+    """Largest standard deviation of PX4's velocity estimate that counts as valid [m/s]."""
+    nav_invalid_hold_s: Positive = 0.5
+    """Time the navigation may be invalid before the ``navigation`` fault [s]."""
+    ground_margin_m: Positive = 0.05
+    """Height above the take-off height below which the vehicle counts as on the ground
+    [m] (PX4's land detector says it too, later)."""
+    global_origin_deg_m: Vec3 = (47.397742, 8.545594, 488.0)
+    """(latitude [deg], longitude [deg], altitude AMSL [m]) the app sets as PX4's global
+    origin when the vehicle has none (no GPS: motion capture indoors); PX4 SITL's default
+    home (Zurich)."""
+
+
 class Scenario(_Section):
     """A complete scenario: vehicle, arm, payload, gains, trajectory and initial estimates."""
 
@@ -495,6 +526,8 @@ class Scenario(_Section):
     """The arm's servo bus; absent in scenarios that only simulate."""
     world: WorldSection | None = None
     """The SITL's world (ground, start pose, payload object); absent: defaults of ``sitl``."""
+    flight: Flight = Field(default_factory=Flight)
+    """The flight app's PX4 handover and navigation watch (defaults when absent)."""
 
     @property
     def nominal_theta(self) -> Theta:

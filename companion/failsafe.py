@@ -21,6 +21,16 @@
 ``offboard_lost``
     PX4 left OFFBOARD while the mission flew in it (pilot, PX4 failsafe). Abort: leave the
     vehicle to PX4 and the pilot; never re-enter OFFBOARD.
+``navigation``
+    PX4's estimate stays invalid for ``flight.nav_invalid_hold_s`` (its variances past
+    the limits, or no valid velocity; :mod:`companion.navigation`): the position loop
+    flies blind. Freeze the estimate and abort: PX4 lands (AUTO.LAND descends without a
+    position estimate).
+``ground_contact``
+    In OFFBOARD, PX4's land detector says landed or the estimated height fell to the
+    take-off height (a navigation drift near the ground): no tilt and no control on the
+    ground. Freeze the estimate and abort: level attitude at the thrust floor until PX4
+    acknowledges the landing, and PX4 disarms.
 
 An abort ends the mission; the app reports it in the summary and the log and exits 1.
 """
@@ -43,6 +53,8 @@ class Fault(StrEnum):
     SATURATION = "saturation"
     LOOP_OVERRUN = "loop_overrun"
     OFFBOARD_LOST = "offboard_lost"
+    NAVIGATION = "navigation"
+    GROUND_CONTACT = "ground_contact"
 
 
 class Reaction(StrEnum):
@@ -52,6 +64,8 @@ class Reaction(StrEnum):
     LAND = "land"
     HOLD_THEN_LAND = "hold_then_land"
     RELEASE_TO_PX4 = "release_to_px4"
+    LEVEL_ON_GROUND = "level_on_ground"
+    """The way out is level at the thrust floor, not hover thrust (the vehicle is down)."""
 
 
 REACTIONS: dict[Fault, tuple[Reaction, ...]] = {
@@ -61,6 +75,8 @@ REACTIONS: dict[Fault, tuple[Reaction, ...]] = {
     Fault.SATURATION: (Reaction.FREEZE_ESTIMATE, Reaction.HOLD_THEN_LAND),
     Fault.LOOP_OVERRUN: (Reaction.FREEZE_ESTIMATE, Reaction.HOLD_THEN_LAND),
     Fault.OFFBOARD_LOST: (Reaction.FREEZE_ESTIMATE, Reaction.RELEASE_TO_PX4),
+    Fault.NAVIGATION: (Reaction.FREEZE_ESTIMATE, Reaction.LAND),
+    Fault.GROUND_CONTACT: (Reaction.FREEZE_ESTIMATE, Reaction.LEVEL_ON_GROUND, Reaction.LAND),
 }
 """The reactions of each fault, in the order they are carried out."""
 

@@ -324,6 +324,18 @@ class StateFilter:
         self._initialised[:] = False
         self._ready = False
 
+    def reset_rows(self, q_meas: ArrayLike, *, rows: ArrayLike) -> None:
+        """Start ``rows`` again from a position measurement ``q_meas`` [m or rad]: zero
+        derivatives, the initial covariance (the source of those rows jumped, e.g. an
+        estimator reset). ValueError on a wrong shape or a non-finite value."""
+        idx = np.asarray(rows, dtype=np.intp).reshape(-1)
+        z = np.asarray(q_meas, dtype=np.float64)
+        if z.shape != idx.shape or not np.all(np.isfinite(z)):
+            raise ValueError(f"need {idx.size} finite values, got {q_meas!r}")
+        if np.any(idx < 0) or np.any(idx >= self._n):
+            raise ValueError(f"rows must lie in [0, {self._n}), got {rows!r}")
+        self._initialise(idx, z, self._X[_R_POS, idx])
+
     def predict(self, dt_s: float) -> None:
         """Propagate the estimate by ``dt_s`` (filterpy ``KalmanFilter.predict``).
 

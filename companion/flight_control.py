@@ -10,8 +10,9 @@ result to PX4 and the servos. The pieces are the paper's (section III):
   servos' present current (DESIGN.md section 4),
 - the augmented passivity-based controller (eq. tau2) with the estimate, or frozen at the
   empty-arm values (the non-adaptive baseline),
-- the small-angle tilt mapping (eq. phid) and PX4's thrust curve, with the tilt fed back
-  as the attitude reference through a third-order filter (:class:`TiltReference`).
+- the small-angle tilt mapping (eq. phid) and PX4's relative thrust (:class:`ThrustModel`),
+  with the tilt fed back as the attitude reference through a third-order filter
+  (:class:`TiltReference`).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from companion.control import (
 from companion.estimation import TRANSLATION_AND_JOINT_ROWS, Estimate, estimator_from_scenario
 from companion.filters import FilteredState
 from companion.model import ManipulatorModel
-from companion.setpoints import AttitudeThrustSetpoint, ThrustCurve, attitude_thrust_setpoint
+from companion.setpoints import AttitudeThrustSetpoint, ThrustModel, attitude_thrust_setpoint
 from companion.state import thrust_force_world
 from companion.trajectory import TiltReference
 
@@ -91,7 +92,8 @@ class FlightControl:
             self.controller = PassivityController(ctl.k, ctl.lambda_)
         self.tilt = TiltReference(ctl.tilt_reference_bandwidth_rad_s)
         rotors = scenario.vehicle.rotors
-        self.thrust_curve = ThrustCurve(6 * rotors.max_thrust_per_rotor_n, rotors.thr_mdl_fac)
+        self.thrust = ThrustModel(6 * rotors.max_thrust_per_rotor_n)
+        """Newtons <-> PX4 relative thrust; the flight app sets its floor from the vehicle."""
         self.tilt_max_rad = ctl.tilt_max_rad
 
     def check_rate(self, rate_hz: float, q: FloatArray) -> float:
@@ -135,7 +137,7 @@ class FlightControl:
         )
         tau = self.controller.torque(terms, q, q_dot, reference, estimate.theta)
         setpoint = attitude_thrust_setpoint(
-            tau[0:3], float(q[5]), float(reference.q[5]), self.tilt_max_rad, self.thrust_curve
+            tau[0:3], float(q[5]), float(reference.q[5]), self.tilt_max_rad, self.thrust
         )
         self.tilt.step(dt_s, (setpoint.roll_rad, setpoint.pitch_rad))
         return ControlOutput(
@@ -145,6 +147,14 @@ class FlightControl:
             theta_hat=np.asarray(theta_hat, dtype=np.float64),
             desired=reference,
         )
+
+    def weight_n(self, theta: FloatArray | None = None) -> float:
+        """Weight of vehicle + arm [N] with link 2's mass from ``theta`` (default: the
+        estimator's current theta): the hover thrust the model believes in."""
+        m2 = float((self.estimator.theta if theta is None else theta)[0])
+        s = self.scenario
+        mass = s.vehicle.mass_kg + s.arm.link1.mass_kg + m2
+        return mass * s.environment.gravity_m_s2
 
     def applied_force(
         self, q: FloatArray, thrust_n: float, joint_torques_n_m: FloatArray

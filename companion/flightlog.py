@@ -4,7 +4,7 @@ Format
 ------
 ``LOG.csv`` (e.g. ``flight.csv``): UTF-8 CSV, one header row, then one row per control
 cycle; it opens as is in pandas (``pd.read_csv``), spreadsheets and
-:func:`read_flight_log`. Column names carry their SI unit (``x_m``, ``thrust_norm``);
+:func:`read_flight_log`. Column names carry their SI unit (``x_m``, ``thrust_rel``);
 frames are ours (world ENU, body FLU, ZYX Euler angles, DESIGN.md section 2). Numbers are
 written exactly (Python's shortest round-trip repr); an empty cell is a value that was
 not available that cycle (read back as NaN); flags are 0 / 1.
@@ -22,8 +22,8 @@ columns                            content
 ``theta_confident``, ``_frozen``   its flags
 ``tau_<i>_<u>``                    controller output tau: x y z [N], phi theta psi eta1 eta2
                                    [N m] (generalized forces, DESIGN.md section 2)
-``sp_roll_rad`` ... ``thrust_norm`` attitude setpoint (ENU/FLU Euler), thrust [N], PX4
-                                   normalized thrust, saturation flags
+``sp_roll_rad`` ... ``thrust_rel`` attitude setpoint (ENU/FLU Euler), thrust [N], PX4
+                                   relative thrust, saturation flags
 ``servo_tau_cmd_eta<j>_n_m``       joint torque commanded / measured (present current)
 ``servo_tau_meas_eta<j>_n_m``      [N m]
 ``servo_pos_eta<j>_rad``           joint position read from the servos [rad]
@@ -85,7 +85,7 @@ _SETPOINT = (
     "sp_pitch_rad",
     "sp_yaw_rad",
     "sp_thrust_n",
-    "thrust_norm",
+    "thrust_rel",
     "sp_tilt_saturated",
     "sp_thrust_saturated",
 )
@@ -208,7 +208,7 @@ def format_row(record: CycleRecord, t_wall_s: float) -> list[str]:
         if sp is None
         else [
             *(_num(v) for v in (sp.roll_rad, sp.pitch_rad, sp.yaw_rad, sp.thrust_n)),
-            _num(sp.thrust_normalized),
+            _num(sp.thrust_relative),
             _flag(sp.tilt_saturated),
             _flag(sp.thrust_saturated),
         ]

@@ -107,7 +107,9 @@ class PickupPlan:
     home_m: tuple[float, float]
     payload_at_m: tuple[float, float, float]
     place_at_m: tuple[float, float, float]
-    yaw_rad: float = 0.0
+    yaw_rad: float | None = None
+    """Heading flown [rad, ENU]; None: the heading the vehicle has when the mission starts
+    (no turn at the OFFBOARD handover)."""
     stow_joints_rad: tuple[float, float] = (0.0, -0.5 * math.pi)
     grasp_point_m: float | None = None
     """Where along link 2 the closed jaws hold an object, from joint 2 [m]; default 2 cm
@@ -131,7 +133,8 @@ class PickupPlan:
     """Time the error must stay within ``grasp_tolerance_m`` before grasping or placing [s]."""
 
     def __post_init__(self) -> None:
-        values = [*self.home_m, *self.payload_at_m, *self.place_at_m, self.yaw_rad]
+        values = [*self.home_m, *self.payload_at_m, *self.place_at_m]
+        values += [] if self.yaw_rad is None else [self.yaw_rad]
         values += list(self.stow_joints_rad)
         if not all(math.isfinite(v) for v in values):
             raise ValueError("mission positions must be finite")
@@ -197,6 +200,7 @@ class PickupMission:
     _segment: _Segment | None = None
     _excite_stop_s: float = math.nan
     _settled_since: float = math.nan
+    _yaw_rad: float = 0.0
 
     @property
     def hang_m(self) -> float:
@@ -208,7 +212,7 @@ class PickupMission:
         return -arm.mount_point_m[2] + arm.link1.length_m + grasp
 
     def _pose(self, xyz: tuple[float, float, float] | FloatArray, eta) -> FloatArray:
-        return np.array([xyz[0], xyz[1], xyz[2], 0.0, 0.0, self.plan.yaw_rad, eta[0], eta[1]])
+        return np.array([xyz[0], xyz[1], xyz[2], 0.0, 0.0, self._yaw_rad, eta[0], eta[1]])
 
     def _targets(self, phase: Phase) -> FloatArray:
         p = self.plan
@@ -230,6 +234,8 @@ class PickupMission:
 
     def start(self, t_s: float, q_now: FloatArray) -> None:
         """Begin at vehicle time ``t_s`` [s] from the current configuration ``q_now``."""
+        yaw = self.plan.yaw_rad
+        self._yaw_rad = float(q_now[5]) if yaw is None else yaw
         self.phase = Phase.TO_OBJECT
         self.phase_log = [(t_s, self.phase)]
         self._begin(t_s, np.asarray(q_now, dtype=np.float64), Phase.TO_OBJECT)
@@ -238,7 +244,7 @@ class PickupMission:
         p = self.plan
         q_from = q_from.copy()
         q_from[3:5] = 0.0
-        q_from[5] = p.yaw_rad
+        q_from[5] = self._yaw_rad
         q_to = self._targets(phase)
         horizontal = float(np.linalg.norm(q_to[0:2] - q_from[0:2]))
         vertical = abs(float(q_to[2] - q_from[2]))

@@ -2,7 +2,7 @@
 
 Everything here is in the project frames (world ENU, body FLU, Euler ZYX); the conversion
 to PX4's NED/FRD quaternion happens only at the MAVLink boundary. Thrust is converted
-between newtons and PX4's normalized thrust by :class:`ThrustCurve`, the one place for it.
+between newtons and PX4's relative thrust by :class:`ThrustModel`, the one place for it.
 """
 
 from __future__ import annotations
@@ -13,7 +13,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["AttitudeThrustSetpoint", "ThrustCurve", "attitude_thrust_setpoint", "tilt_from_force"]
+__all__ = [
+    "AttitudeThrustSetpoint",
+    "ThrustModel",
+    "attitude_thrust_setpoint",
+    "fixed_setpoint",
+    "tilt_from_force",
+]
 
 
 def tilt_from_force(
@@ -55,43 +61,50 @@ def tilt_from_force(
 
 
 @dataclass(frozen=True)
-class ThrustCurve:
-    """PX4's thrust model: ``rel_thrust = f u^2 + (1 - f) u`` with f = THR_MDL_FAC.
+class ThrustModel:
+    """The force PX4 makes for the thrust of SET_ATTITUDE_TARGET, and back.
+
+    PX4 takes that thrust as *relative* collective thrust r in [0, 1] (a fraction of the
+    vehicle's maximum thrust) and linearizes it per motor with its parameter THR_MDL_FAC
+    (mixer, ``FunctionMotors``: motor command ``u`` with ``r = f u^2 + (1 - f) u``). On
+    motors whose thrust curve is that ``f`` -- the vehicle's THR_MDL_FAC equal to the
+    configured ``vehicle.rotors.thr_mdl_fac``, which the flight app checks before it flies
+    -- the force is linear: ``T = r * max_thrust_n``.
 
     Parameters
     ----------
     max_thrust_n : float
-        Total thrust of all rotors at normalized command u = 1 [N].
-    thr_mdl_fac : float
-        PX4 parameter THR_MDL_FAC in [0, 1].
+        Collective thrust of all rotors at r = 1 [N].
+    min_relative : float
+        Smallest relative thrust commanded in flight (the thrust floor, PX4's
+        MPC_THR_MIN): below it the mixer has no room left for the roll and pitch
+        torques (airmode off).
     """
 
     max_thrust_n: float
-    thr_mdl_fac: float
+    min_relative: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.max_thrust_n <= 0.0:
+        if not self.max_thrust_n > 0.0:
             raise ValueError("max_thrust_n must be positive")
-        if not 0.0 <= self.thr_mdl_fac <= 1.0:
-            raise ValueError("thr_mdl_fac must lie in [0, 1]")
+        if not 0.0 <= self.min_relative < 1.0:
+            raise ValueError("min_relative must lie in [0, 1)")
 
-    def thrust_n(self, normalized: float) -> float:
-        """Total thrust [N] for a normalized command u in [0, 1]."""
-        u = min(max(normalized, 0.0), 1.0)
-        f = self.thr_mdl_fac
-        return self.max_thrust_n * (f * u * u + (1.0 - f) * u)
+    @property
+    def min_thrust_n(self) -> float:
+        """The thrust floor [N]."""
+        return self.min_relative * self.max_thrust_n
 
-    def normalized(self, thrust_n: float) -> tuple[float, bool]:
-        """Normalized command u in [0, 1] for a total thrust [N], and whether it saturated."""
+    def thrust_n(self, relative: float) -> float:
+        """Collective thrust [N] of a relative thrust (clipped to [0, 1])."""
+        return self.max_thrust_n * min(max(relative, 0.0), 1.0)
+
+    def relative(self, thrust_n: float) -> tuple[float, bool]:
+        """Relative thrust for a collective thrust [N], clipped to [min_relative, 1], and
+        whether it was clipped."""
         rel = thrust_n / self.max_thrust_n
-        saturated = not 0.0 <= rel <= 1.0
-        rel = min(max(rel, 0.0), 1.0)
-        f = self.thr_mdl_fac
-        if f < 1e-9:
-            return rel, saturated
-        b = 1.0 - f
-        u = (-b + math.sqrt(b * b + 4.0 * f * rel)) / (2.0 * f)
-        return min(u, 1.0), saturated
+        clipped = min(max(rel, self.min_relative), 1.0)
+        return clipped, clipped != rel
 
 
 @dataclass(frozen=True)
@@ -103,8 +116,8 @@ class AttitudeThrustSetpoint:
     yaw_rad: float
     thrust_n: float
     """Collective thrust along body z [N]."""
-    thrust_normalized: float
-    """PX4 normalized thrust in [0, 1] from :class:`ThrustCurve`."""
+    thrust_relative: float
+    """PX4's relative thrust in [0, 1] (:class:`ThrustModel`)."""
     tilt_saturated: bool
     thrust_saturated: bool
 
@@ -114,22 +127,40 @@ def attitude_thrust_setpoint(
     yaw_rad: float,
     yaw_d_rad: float,
     tilt_max_rad: float,
-    curve: ThrustCurve,
+    model: ThrustModel,
 ) -> AttitudeThrustSetpoint:
     """Setpoint for a desired world force: tilt by eq. phid, thrust so that the vertical
     component of the tilted thrust equals ``force_w[2]`` (``T = f_z / (cos phi cos theta)``).
 
     ``yaw_rad`` is the measured yaw (used by eq. phid), ``yaw_d_rad`` the yaw to command.
+    The thrust never falls below the model's floor: a force that does not point up (or
+    less than the floor) is flown at the floor, tilted toward its horizontal part as if
+    its vertical part were the floor (so the vehicle keeps its roll and pitch authority
+    and the horizontal direction asked for), and reported saturated.
     """
-    phi, theta, tilt_sat = tilt_from_force(force_w, yaw_rad, tilt_max_rad)
-    thrust = max(float(force_w[2]), 0.0) / (math.cos(phi) * math.cos(theta))
-    u, thrust_sat = curve.normalized(thrust)
+    floor_n = model.min_thrust_n
+    fz = float(force_w[2])
+    lifted = force_w if fz >= floor_n and fz > 0.0 else np.array((force_w[0], force_w[1], floor_n))
+    phi, theta, tilt_sat = tilt_from_force(lifted, yaw_rad, tilt_max_rad)
+    thrust = max(fz, 0.0) / (math.cos(phi) * math.cos(theta))
+    rel, thrust_sat = model.relative(thrust)
     return AttitudeThrustSetpoint(
         roll_rad=phi,
         pitch_rad=theta,
         yaw_rad=yaw_d_rad,
-        thrust_n=curve.thrust_n(u),
-        thrust_normalized=u,
-        tilt_saturated=tilt_sat,
+        thrust_n=model.thrust_n(rel),
+        thrust_relative=rel,
+        tilt_saturated=tilt_sat or lifted is not force_w,
         thrust_saturated=thrust_sat,
     )
+
+
+def fixed_setpoint(
+    roll_rad: float, pitch_rad: float, yaw_rad: float, thrust_n: float, model: ThrustModel
+) -> AttitudeThrustSetpoint:
+    """An attitude (ZYX Euler, ENU/FLU) [rad] with a collective thrust [N] clipped to the
+    model's range: the safe setpoints of the OFFBOARD handover (the attitude the vehicle
+    has, hover thrust) and of the ground (level)."""
+    rel, sat = model.relative(thrust_n)
+    thrust = model.thrust_n(rel)
+    return AttitudeThrustSetpoint(roll_rad, pitch_rad, yaw_rad, thrust, rel, False, sat)

@@ -40,7 +40,7 @@ from companion.estimation import (
     estimator_from_scenario,
 )
 from companion.model import ManipulatorModel
-from companion.setpoints import ThrustCurve, attitude_thrust_setpoint
+from companion.setpoints import ThrustModel, attitude_thrust_setpoint
 from companion.state import StateAssembler, thrust_force_world
 from companion.trajectory import PaperSinusoid, TiltReference
 from sitl.physics import AttitudeSetpoint, PhysicsBackend, TruthPlant, make_plant
@@ -63,7 +63,7 @@ COLUMNS: tuple[str, ...] = (
     *("m2_hat", "m3_hat", "m4_hat", "lc_hat", "excitation", "confident"),
     *("m2_true", "m3_true", "m4_true", "lc_true", "payload_attached"),
     *(f"tau_{n}" for n in _Q),
-    *("sp_roll_rad", "sp_pitch_rad", "sp_yaw_rad", "sp_thrust_n", "sp_thrust_norm"),
+    *("sp_roll_rad", "sp_pitch_rad", "sp_yaw_rad", "sp_thrust_n", "sp_thrust_rel"),
     "step_time_us",
 )
 """Time-series columns: truth q, desired q_d, filtered q, the paper observer's qhat (NaN
@@ -229,7 +229,7 @@ def simulate(
     traj = PaperSinusoid(scenario.trajectory)
     tilt = TiltReference(ctl.tilt_reference_bandwidth_rad_s)
     rotors = scenario.vehicle.rotors
-    curve = ThrustCurve(6 * rotors.max_thrust_per_rotor_n, rotors.thr_mdl_fac)
+    curve = ThrustModel(6 * rotors.max_thrust_per_rotor_n)
     sensing = _Measurements(scenario, opts.noise, rng)
     nominal = scenario.nominal_theta.as_tuple()
 
@@ -317,7 +317,7 @@ def simulate(
             setpoint.pitch_rad,
             setpoint.yaw_rad,
             setpoint.thrust_n,
-            setpoint.thrust_normalized,
+            setpoint.thrust_relative,
             step_us,
         )
 
@@ -327,7 +327,7 @@ def simulate(
             known_tau = tau
         else:
             command = AttitudeSetpoint.from_euler(
-                setpoint.roll_rad, setpoint.pitch_rad, setpoint.yaw_rad, setpoint.thrust_normalized
+                setpoint.roll_rad, setpoint.pitch_rad, setpoint.yaw_rad, setpoint.thrust_relative
             )
             for _ in range(sub):
                 plant.step(command, tau[6:8])

@@ -25,6 +25,7 @@ __all__ = ["StateAssembler", "euler_rates_from_body_rates", "thrust_force_world"
 FloatArray = NDArray[np.float64]
 # Tuples: the filter caches its row selections by them without a conversion.
 _POSE_ROWS = (0, 1, 2, 3, 4, 5)
+_POSITION_ROWS = (0, 1, 2)
 _EULER_ROWS = (3, 4, 5)
 _JOINT_ROWS = (6, 7)
 
@@ -77,15 +78,15 @@ class StateAssembler:
         """For the measurement noise of a scenario's ``[sensors]`` section.
 
         Encoder quantisation (4096 ticks/rev) acts as uniform noise of step/sqrt(12), and
-        the servos' Present Velocity unit likewise; the vehicle's velocity is not measured
-        directly (std 1 m/s: the filter differentiates the positions).
+        the servos' Present Velocity unit likewise; the vehicle's velocity, when the
+        autopilot reports it (:meth:`velocity`), has ``velocity_std_m_s``.
         """
         s = sensors
         joint_std = max(s.joint_std_rad, 2.0 * math.pi / 4096 / math.sqrt(12.0))
         return cls(
             s.jerk_psd,
             position_std=[s.position_std_m] * 3 + [s.attitude_std_rad] * 3 + [joint_std] * 2,
-            velocity_std=[1.0] * 3
+            velocity_std=[s.velocity_std_m_s] * 3
             + [s.gyro_std_rad_s] * 3
             + [s.joint_velocity_unit_rad_s / math.sqrt(12.0)] * 2,
         )
@@ -115,6 +116,15 @@ class StateAssembler:
         """Motion-capture pose: ENU position [m] and ZYX Euler angles [rad]."""
         values = np.concatenate((position_m, euler_rad), dtype=float)
         self.filter.update_position(values, latency_s=age_s, rows=_POSE_ROWS)
+
+    def velocity(self, velocity_enu_m_s: ArrayLike, age_s: float = 0.0) -> None:
+        """The autopilot's velocity estimate, world ENU [m/s]."""
+        self.filter.update_velocity(velocity_enu_m_s, latency_s=age_s, rows=_POSITION_ROWS)
+
+    def reset_position(self, position_m: ArrayLike) -> None:
+        """Start the x, y, z rows again from a position [m] (the autopilot's estimate
+        jumped: an EKF reset), keeping nothing of the old motion."""
+        self.filter.reset_rows(position_m, rows=_POSITION_ROWS)
 
     def body_rates(self, omega_body_rad_s: ArrayLike, age_s: float = 0.0) -> None:
         """Gyro body rates (FLU) [rad/s], converted with the filter's attitude."""

@@ -28,18 +28,19 @@ PLAN = PickupPlan(home_m=(0.0, 0.0), payload_at_m=(1.0, 0.0, 0.0), place_at_m=(2
 
 
 class ScriptedPoses:
-    """A pose subscription that yields one pose per ``period_ms`` of vehicle time."""
+    """A pose subscription that yields one pose per ``period_us`` of vehicle time."""
 
-    def __init__(self, period_ms: int, repeat_each: int = 1) -> None:
-        self.period_ms = period_ms
+    def __init__(self, period_us: int, repeat_each: int = 1, start_us: int = 0) -> None:
+        self.period_us = period_us
         self.repeat_each = repeat_each
+        self.start_us = start_us
         self.count = 0
 
     async def get(self) -> VehiclePose:
         await asyncio.sleep(0)
-        t_ms = (self.count // self.repeat_each) * self.period_ms
+        t_us = self.start_us + (self.count // self.repeat_each) * self.period_us
         self.count += 1
-        return VehiclePose(t_ms * 1000, (0.0, 0.0, 0.0), None, (1.0, 0.0, 0.0, 0.0))
+        return VehiclePose(t_us, (0.0, 0.0, 0.0), None, (1.0, 0.0, 0.0, 0.0))
 
 
 class PoseLink:
@@ -63,11 +64,11 @@ class TwoJoints:
         return 1.5
 
 
-def check(period_ms: int, repeat_each: int = 1) -> tuple[list[tuple[str, str]], PickupApp]:
+def check(period_us: int, repeat_each: int = 1, start_us: int = 0):
     notes: list[tuple[str, str]] = []
     app = PickupApp(
         SCENARIO,
-        PoseLink(ScriptedPoses(period_ms, repeat_each)),
+        PoseLink(ScriptedPoses(period_us, repeat_each, start_us)),
         TwoJoints(),
         PLAN,
         event=lambda kind, detail, t_s: notes.append((kind, detail)),
@@ -77,24 +78,27 @@ def check(period_ms: int, repeat_each: int = 1) -> tuple[list[tuple[str, str]], 
 
 
 def test_full_rate_passes_quietly():
-    notes, app = check(4)
+    notes, app = check(4000)
     assert notes == [] and app.loop_period.period_s == pytest.approx(0.004)
+    assert app.report.control_rate_hz == pytest.approx(250.0)
 
 
 def test_repeated_timestamps_are_one_pose():
-    assert check(4, repeat_each=3)[0] == []
+    assert check(4000, repeat_each=3)[0] == []
 
 
-def test_slower_than_asked_but_within_the_gains_becomes_the_loop_period():
-    notes, app = check(10)
-    assert notes and notes[0][0] == "loop" and "10.0 ms" in notes[0][1]
-    assert app.loop_period.period_s == pytest.approx(0.010)
+def test_px4s_125_hz_becomes_the_loop_period_in_microseconds():
+    """PX4 sends ODOMETRY at its estimator's rate (125 Hz) whatever is asked, stamped with
+    the IMU sample time in microseconds: the loop's period is measured from those."""
+    notes, app = check(8000, start_us=123_457)
+    assert notes and notes[0][0] == "loop" and "arrives at 125 Hz" in notes[0][1]
+    assert app.loop_period.period_s == pytest.approx(0.008, abs=1e-9)
     assert not app.loop_period.update(0.0) and not app.loop_period.update(0.012).late
 
 
 def test_too_slow_for_the_gains_refuses_to_fly():
-    with pytest.raises(MissionError, match=r"every 50\.0 ms .* below 35\.\d ms"):
-        check(50)
+    with pytest.raises(MissionError, match=r"arrives at 20 Hz .* raise the control rate"):
+        check(50_000)
 
 
 def test_joints_stopped_by_the_servo_watchdog_are_enabled_again():
@@ -107,7 +111,7 @@ def test_joints_stopped_by_the_servo_watchdog_are_enabled_again():
             await bus.enable_torque()
             app = PickupApp(
                 SCENARIO,
-                PoseLink(ScriptedPoses(4)),
+                PoseLink(ScriptedPoses(4000)),
                 bus,
                 PLAN,
                 event=lambda kind, detail, t_s: notes.append((kind, detail)),

@@ -16,7 +16,12 @@ from companion.control import (
     damping_step_ratio,
 )
 from companion.model import ManipulatorModel
-from companion.setpoints import ThrustCurve, attitude_thrust_setpoint, tilt_from_force
+from companion.setpoints import (
+    ThrustModel,
+    attitude_thrust_setpoint,
+    fixed_setpoint,
+    tilt_from_force,
+)
 from companion.trajectory import PaperSinusoid, TiltReference
 
 CFG = load_scenario(Path(__file__).parent.parent / "configs" / "paper_sim.toml")
@@ -128,25 +133,39 @@ def test_tilt_limit_keeps_direction() -> None:
     assert tilt_from_force(np.array([1.0, 0.0, -5.0]), 0.0, 0.3) == (0.0, 0.0, True)
 
 
-@pytest.mark.parametrize("fac", [0.0, 0.3, 1.0])
-def test_thrust_curve_round_trip(fac: float) -> None:
-    curve = ThrustCurve(max_thrust_n=40.0, thr_mdl_fac=fac)
-    for u in np.linspace(0.0, 1.0, 11):
-        back, sat = curve.normalized(curve.thrust_n(u))
-        assert back == pytest.approx(u, abs=1e-12)
-        assert not sat
-    assert curve.normalized(50.0) == (1.0, True)
-    assert curve.normalized(-1.0) == (0.0, True)
-    assert curve.thrust_n(0.5) == pytest.approx(40.0 * (fac * 0.25 + (1 - fac) * 0.5))
+def test_relative_thrust_is_linear_in_newtons_with_a_floor() -> None:
+    """PX4 linearizes the relative thrust itself (THR_MDL_FAC in its mixer): one newton
+    more is 1 / max_thrust more relative thrust, whatever the motors' curve."""
+    model = ThrustModel(max_thrust_n=36.0, min_relative=0.12)
+    assert model.relative(12.0) == (pytest.approx(12.0 / 36.0), False)
+    assert model.thrust_n(0.5) == pytest.approx(18.0)
+    assert model.relative(40.0) == (1.0, True)
+    assert model.relative(1.0) == (0.12, True)  # the floor keeps roll/pitch authority
+    assert model.min_thrust_n == pytest.approx(0.12 * 36.0)
+    with pytest.raises(ValueError):
+        ThrustModel(max_thrust_n=36.0, min_relative=1.0)
 
 
 def test_attitude_thrust_setpoint_vertical_component_is_exact() -> None:
-    curve = ThrustCurve(max_thrust_n=40.0, thr_mdl_fac=0.3)
-    sp = attitude_thrust_setpoint(np.array([1.0, -0.5, 15.7]), 0.2, 0.1, 0.6, curve)
+    model = ThrustModel(max_thrust_n=40.0)
+    sp = attitude_thrust_setpoint(np.array([1.0, -0.5, 15.7]), 0.2, 0.1, 0.6, model)
     thrust_w = rot(sp.roll_rad, sp.pitch_rad, 0.2) @ np.array([0, 0, sp.thrust_n])
     assert thrust_w[2] == pytest.approx(15.7)
     assert sp.yaw_rad == 0.1
-    assert curve.thrust_n(sp.thrust_normalized) == pytest.approx(sp.thrust_n)
+    assert model.thrust_n(sp.thrust_relative) == pytest.approx(sp.thrust_n)
+    assert sp.thrust_relative == pytest.approx(sp.thrust_n / 40.0)
+
+
+def test_a_force_that_does_not_lift_is_flown_at_the_floor_and_keeps_its_direction() -> None:
+    """Without a floor a non-positive vertical force meant thrust 0 and a level attitude:
+    with PX4's airmode off that leaves no roll or pitch authority at all."""
+    model = ThrustModel(max_thrust_n=36.0, min_relative=0.12)
+    sp = attitude_thrust_setpoint(np.array([0.5, 0.0, -2.0]), 0.0, 0.0, 0.6, model)
+    assert sp.thrust_relative == pytest.approx(0.12) and sp.thrust_saturated
+    assert sp.pitch_rad == pytest.approx(math.atan(0.5 / (0.12 * 36.0)), rel=0.05)
+    assert sp.pitch_rad > 0.0 and sp.tilt_saturated
+    fixed = fixed_setpoint(0.0, 0.0, 1.0, 0.0, model)
+    assert fixed.thrust_relative == pytest.approx(0.12) and fixed.yaw_rad == 1.0
 
 
 def test_paper_trajectory_formula_and_derivatives() -> None:

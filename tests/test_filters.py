@@ -426,3 +426,19 @@ def test_constructor_rejects_bad_parameters() -> None:
     with pytest.raises(ValueError, match="position_std"):
         StateFilter(position_std=(1e-3, 1e-3))
     assert len(DEFAULT_JERK_PSD) == 8
+
+
+def test_reset_rows_restarts_only_those_rows_from_the_new_position():
+    f = StateFilter(jerk_psd=1.0, position_std=1e-3, velocity_std=1e-2)
+    for k in range(50):
+        f.predict(0.01)
+        f.update_position(np.full(8, 0.5 * k * 0.01))  # moving at 0.5 /s
+    before = f.estimate
+    f.reset_rows([10.0, 20.0, 30.0], rows=(0, 1, 2))
+    after = f.estimate
+    np.testing.assert_allclose(after.q[0:3], [10.0, 20.0, 30.0])
+    np.testing.assert_allclose(after.q_dot[0:3], 0.0)
+    np.testing.assert_allclose(after.q[3:], before.q[3:])
+    np.testing.assert_allclose(after.q_dot[3:], before.q_dot[3:])
+    with pytest.raises(ValueError):
+        f.reset_rows([1.0, math.nan, 2.0], rows=(0, 1, 2))

@@ -27,7 +27,7 @@ def test_hover_at_rest_asks_for_the_weight_level():
     mass = SCENARIO.vehicle.mass_kg + SCENARIO.arm.link1.mass_kg + fc.estimator.theta[0]
     assert out.setpoint.thrust_n == pytest.approx(mass * G, rel=1e-6)
     assert abs(out.setpoint.roll_rad) < 1e-9 and abs(out.setpoint.pitch_rad) < 1e-9
-    assert 0.0 < out.setpoint.thrust_normalized < 1.0
+    assert 0.0 < out.setpoint.thrust_relative < 1.0
 
 
 def test_estimator_uses_only_rows_known_in_flight():

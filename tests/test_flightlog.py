@@ -61,7 +61,7 @@ def test_round_trip_is_exact(tmp_path):
     assert out["theta_spread"][0] == math.inf
     np.testing.assert_array_equal(out["theta_confident"], [0, 0, 0, 1, 1])
     np.testing.assert_array_equal(out["sp_thrust_saturated"], [0, 0, 0, 0, 1])
-    assert out["thrust_norm"] == pytest.approx([0.47] * 5)
+    assert out["thrust_rel"] == pytest.approx([0.47] * 5)
     assert list(out["px4_mode"]) == ["POSCTL"] * 5
 
 
@@ -74,7 +74,7 @@ def test_header_is_one_row_with_units_and_pandas_style(tmp_path):
     assert rows[0] == list(COLUMNS)
     assert len(rows) == 2 and len(rows[1]) == len(COLUMNS)
     for name in ("q_x_m", "qdot_phi_rad_s", "qddot_eta2_rad_s2", "theta_hat_m2_kg",
-                 "tau_z_n", "tau_eta1_n_m", "thrust_norm", "servo_tau_meas_eta2_n_m"):  # fmt: skip
+                 "tau_z_n", "tau_eta1_n_m", "thrust_rel", "servo_tau_meas_eta2_n_m"):  # fmt: skip
         assert name in COLUMNS
 
 

@@ -144,7 +144,7 @@ def test_cli_sim_writes_summary_timeseries_and_figures(run_cli, tmp_path: Path) 
     assert summary["wall_time_s"] > 0.0
     lines = (out / "timeseries.csv").read_text().splitlines()
     header = lines[0].split(",")
-    for col in ("t_s", "q_x", "qd_x", "qhat_x", "m2_hat", "tau_x", "sp_thrust_norm"):
+    for col in ("t_s", "q_x", "qd_x", "qhat_x", "m2_hat", "tau_x", "sp_thrust_rel"):
         assert col in header
     assert len(lines) == 1 + 100  # 1 s at 100 Hz
     for figure in ("tracking.png", "estimation.png", "parameters.png"):

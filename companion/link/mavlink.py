@@ -297,17 +297,18 @@ class MavlinkLink(Px4Commands):
         return self._vehicle
 
     def send_attitude_target(
-        self, q_enu_flu: ArrayLike, thrust_normalized: float, time_boot_ms: int
+        self, q_enu_flu: ArrayLike, thrust_relative: float, time_boot_ms: int
     ) -> None:
         """SET_ATTITUDE_TARGET to the vehicle: attitude body FLU -> world ENU ``[w, x, y,
-        z]`` (sent as FRD -> NED), PX4-normalized thrust in [0, 1], type_mask 7 (body
+        z]`` (sent as FRD -> NED), PX4's relative thrust in [0, 1] (a fraction of the
+        maximum collective thrust; PX4 linearizes it with THR_MDL_FAC), type_mask 7 (body
         rates ignored), and ``time_boot_ms`` [ms] (sent modulo 2^32).
 
         Raises ``SetpointError`` for a bad value (nothing is sent), and
         ``VehicleNotFoundError`` before the vehicle is detected.
         """
         vehicle = self._require_vehicle()
-        q, thrust = attitude_target_ned_frd(q_enu_flu, thrust_normalized)
+        q, thrust = attitude_target_ned_frd(q_enu_flu, thrust_relative)
         msg = self.mav.set_attitude_target_encode(
             int(time_boot_ms) & 0xFFFFFFFF,
             vehicle.system_id,
@@ -323,9 +324,9 @@ class MavlinkLink(Px4Commands):
 
     def send_setpoint(self, setpoint: AttitudeThrustSetpoint, time_boot_ms: int) -> None:
         """:meth:`send_attitude_target` of a :class:`companion.setpoints.AttitudeThrustSetpoint`
-        (its ZYX Euler angles as a quaternion, and its normalized thrust)."""
+        (its ZYX Euler angles as a quaternion, and its relative thrust)."""
         q = quaternion_from_euler_zyx(setpoint.roll_rad, setpoint.pitch_rad, setpoint.yaw_rad)
-        self.send_attitude_target(q, setpoint.thrust_normalized, time_boot_ms)
+        self.send_attitude_target(q, setpoint.thrust_relative, time_boot_ms)
 
     # --- tasks -------------------------------------------------------------------------
 

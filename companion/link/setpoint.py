@@ -1,11 +1,11 @@
 """SET_ATTITUDE_TARGET content from our attitude setpoints (pure; the link sends it).
 
 Our setpoints are ENU/FLU (:class:`companion.setpoints.AttitudeThrustSetpoint`: ZYX Euler
-angles and PX4-normalized thrust). PX4 wants the quaternion body FRD -> world NED, the
-collective thrust normalized to [0, 1] (a multicopter takes it as ``thrust_body[2] =
--thrust``), and ``type_mask`` bits set for what to ignore: 7 = ignore the three body
-rates, i.e. attitude + thrust only (PX4 ``mavlink_receiver.cpp``,
-``handle_message_set_attitude_target``).
+angles and PX4's relative thrust). PX4 wants the quaternion body FRD -> world NED, the
+collective thrust relative to the maximum, in [0, 1] (a multicopter takes it as
+``thrust_body[2] = -thrust`` and linearizes it per motor with THR_MDL_FAC), and
+``type_mask`` bits set for what to ignore: 7 = ignore the three body rates, i.e.
+attitude + thrust only (PX4 ``mavlink_receiver.cpp``, ``handle_message_set_attitude_target``).
 """
 
 from __future__ import annotations
@@ -39,14 +39,14 @@ def quaternion_from_euler_zyx(phi: float, theta: float, psi: float) -> tuple[flo
 
 
 def attitude_target_ned_frd(
-    q_enu_flu: ArrayLike, thrust_normalized: float
+    q_enu_flu: ArrayLike, thrust_relative: float
 ) -> tuple[list[float], float]:
     """(``q`` body FRD -> world NED, ``thrust``) for SET_ATTITUDE_TARGET.
 
     Raises ``SetpointError`` for a non-finite or zero quaternion, or a thrust that is not
     a finite number in [0, 1] (clamping is the setpoint mapping's job, not the link's).
     """
-    thrust = float(thrust_normalized)
+    thrust = float(thrust_relative)
     if not (math.isfinite(thrust) and 0.0 <= thrust <= 1.0):
         raise SetpointError(f"normalized thrust {thrust!r} is not in [0, 1]")
     q: Any = q_enu_flu

@@ -1,0 +1,97 @@
+"""The PX4 parameters the companion's model depends on, and whether they fit the config.
+
+The flight app reads these from the vehicle before it arms (pure checks here, the reading
+in :mod:`companion.app`):
+
+============== ========================================================================
+THR_MDL_FAC    PX4 linearizes the relative thrust of SET_ATTITUDE_TARGET per motor with
+               it; the force is ``relative x max thrust`` only if it equals the motors'
+               curve, ``vehicle.rotors.thr_mdl_fac`` (:class:`companion.setpoints.ThrustModel`)
+MPC_THR_MIN    PX4's smallest thrust in flight: the companion's thrust floor (attitude
+               authority with airmode off)
+CA_ROTOR_COUNT the rotors PX4 allocates to; the config's maximum thrust is that of six
+COM_OF_LOSS_T  how long PX4 flies on without a setpoint (reported, not checked)
+MC_ROLL_P,     PX4's attitude gains: the bandwidth the companion's tilt commands are
+MC_PITCH_P     followed with (reported in the flight log)
+============== ========================================================================
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from companion.config import Scenario
+
+__all__ = ["OPTIONAL", "REQUIRED", "VehicleParams", "contradictions"]
+
+REQUIRED = ("THR_MDL_FAC", "MPC_THR_MIN")
+"""Parameters every PX4 the companion flies must answer."""
+OPTIONAL = ("CA_ROTOR_COUNT", "COM_OF_LOSS_T", "MC_ROLL_P", "MC_PITCH_P")
+"""Parameters checked or reported when the vehicle has them (older PX4 has no CA_*)."""
+N_ROTORS = 6
+THR_MDL_FAC_TOLERANCE = 0.02
+"""Largest difference between the vehicle's THR_MDL_FAC and the config's [-]."""
+
+
+@dataclass(frozen=True)
+class VehicleParams:
+    """Values read from the vehicle (None: it has no such parameter)."""
+
+    thr_mdl_fac: float
+    thrust_min_relative: float
+    rotor_count: int | None = None
+    offboard_loss_timeout_s: float | None = None
+    roll_p: float | None = None
+    pitch_p: float | None = None
+
+    @classmethod
+    def from_values(cls, values: dict[str, float | None]) -> VehicleParams:
+        """From ``{name: value}`` of :data:`REQUIRED` and :data:`OPTIONAL` (KeyError when a
+        required one is missing or None)."""
+        required = {name: values[name] for name in REQUIRED}
+        missing = [name for name, value in required.items() if value is None]
+        if missing:
+            raise KeyError(", ".join(missing))
+        count = values.get("CA_ROTOR_COUNT")
+        return cls(
+            thr_mdl_fac=float(required["THR_MDL_FAC"]),  # type: ignore[arg-type]
+            thrust_min_relative=float(required["MPC_THR_MIN"]),  # type: ignore[arg-type]
+            rotor_count=None if count is None else int(count),
+            offboard_loss_timeout_s=values.get("COM_OF_LOSS_T"),
+            roll_p=values.get("MC_ROLL_P"),
+            pitch_p=values.get("MC_PITCH_P"),
+        )
+
+    def describe(self) -> str:
+        """One line for the flight log."""
+        parts = [f"THR_MDL_FAC {self.thr_mdl_fac:g}", f"MPC_THR_MIN {self.thrust_min_relative:g}"]
+        for label, value in (
+            ("CA_ROTOR_COUNT", self.rotor_count),
+            ("COM_OF_LOSS_T", self.offboard_loss_timeout_s),
+            ("MC_ROLL_P", self.roll_p),
+            ("MC_PITCH_P", self.pitch_p),
+        ):
+            if value is not None:
+                parts.append(f"{label} {value:g}")
+        return ", ".join(parts)
+
+
+def contradictions(params: VehicleParams, scenario: Scenario) -> list[str]:
+    """Why the vehicle does not fit the scenario's model (empty: it does), one sentence each."""
+    out = []
+    fac = scenario.vehicle.rotors.thr_mdl_fac
+    if abs(params.thr_mdl_fac - fac) > THR_MDL_FAC_TOLERANCE:
+        out.append(
+            f"the vehicle's THR_MDL_FAC is {params.thr_mdl_fac:g} but the config's "
+            f"vehicle.rotors.thr_mdl_fac is {fac:g}: PX4 linearizes the thrust with its own "
+            "value, so the relative thrust would not make the force the model predicts; set "
+            f"THR_MDL_FAC to {fac:g} on the vehicle (or correct the config to its motors)"
+        )
+    if params.rotor_count is not None and params.rotor_count != N_ROTORS:
+        out.append(
+            f"the vehicle's CA_ROTOR_COUNT is {params.rotor_count}, the config describes a "
+            f"hexacopter ({N_ROTORS} x {scenario.vehicle.rotors.max_thrust_per_rotor_n:g} N)"
+        )
+    if not 0.0 <= params.thrust_min_relative < 1.0:
+        out.append(f"the vehicle's MPC_THR_MIN {params.thrust_min_relative:g} is not in [0, 1)")
+    return out
