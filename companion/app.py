@@ -371,6 +371,9 @@ class PickupApp:
         await self._ensure_global_origin()
         try:
             states = await self.bus.read_joint_states()
+            # The joints may still hold torque from an earlier run (an abort leaves the
+            # bus's safe state): limp for a moment on the ground, then current mode.
+            await self.bus.disable_torque()
             await self.bus.set_operating_mode(OperatingMode.CURRENT)
             await self.bus.enable_torque()
             await self.bus.open_gripper()
@@ -505,8 +508,10 @@ class PickupApp:
             self.takeoff_timeout_s,
             "take-off did not reach the cruise altitude",
         )
-        settled = self._holding(lambda: self._speed() < flight.settle_speed_m_s, flight.settle_s)
-        await self._wait_for(settled, 10.0, "the vehicle did not settle after take-off")
+        settled = self._holding(
+            lambda: abs(self._climb_rate()) < flight.settle_climb_rate_m_s, flight.settle_s
+        )
+        await self._wait_for(settled, 20.0, "the vehicle did not stop climbing after take-off")
         await self._enter_offboard()
         cpu0, wall0 = time.process_time(), time.perf_counter()
         async with self._tick:
@@ -529,9 +534,10 @@ class PickupApp:
         except CommandError as exc:
             self.stream = Stream.OFF
             raise MissionError(f"PX4 refused OFFBOARD: {exc}") from None
-        q = self.assembler.estimate.q
+        state = self.assembler.estimate
+        q = state.q
         self.control.tilt.reset(float(q[3]), float(q[4]))
-        self.mission.start(self._t_s, q)
+        self.mission.start(self._t_s, q, state.q_dot)
         self._offboard_since_s = self._t_s
         self._handover_tilt0 = math.hypot(float(q[3]), float(q[4]))
         self.stream = Stream.CONTROL
@@ -612,10 +618,8 @@ class PickupApp:
     def _altitude(self) -> float:
         return float(self.assembler.estimate.q[2]) if self.assembler.ready else -math.inf
 
-    def _speed(self) -> float:
-        if not self.assembler.ready:
-            return math.inf
-        return float(np.linalg.norm(self.assembler.estimate.q_dot[0:3]))
+    def _climb_rate(self) -> float:
+        return float(self.assembler.estimate.q_dot[2]) if self.assembler.ready else math.inf
 
     def _holding(self, condition: Callable[[], bool], hold_s: float) -> Callable[[], bool]:
         """A condition that holds once ``condition()`` has held for ``hold_s`` of vehicle

@@ -486,11 +486,12 @@ class Flight(_Section):
     handover_stream_s: Positive = 0.5
     """Vehicle time the safe setpoint is streamed before OFFBOARD is asked for (PX4 wants
     a live stream, > 2 Hz) [s]."""
-    settle_speed_m_s: Positive = 0.2
-    """After take-off the vehicle counts as settled once its speed stays below this for
-    ``settle_s`` (PX4 still climbing to the take-off altitude is not) [m/s]."""
+    settle_climb_rate_m_s: Positive = 0.2
+    """After take-off the vehicle counts as settled once its vertical speed stays below
+    this for ``settle_s`` (PX4 still climbing to the take-off altitude is not; PX4's own
+    position hold wanders 0.2-0.3 m/s horizontally on GPS) [m/s]."""
     settle_s: Positive = 1.0
-    """[s], see ``settle_speed_m_s``."""
+    """[s], see ``settle_climb_rate_m_s``."""
     nav_max_position_std_m: Positive = 1.0
     """Largest standard deviation of PX4's position estimate (ODOMETRY covariance, any
     axis) that counts as valid navigation [m]."""

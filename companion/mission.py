@@ -145,17 +145,37 @@ class PickupPlan:
             raise ValueError("need excite_max_s >= excite_min_s + excite_period_s")
 
 
-def min_jerk(t_s: float, duration_s: float, start: FloatArray, end: FloatArray):
-    """Quintic from ``start`` to ``end`` over ``duration_s``, at rest at both ends.
+def min_jerk(
+    t_s: float,
+    duration_s: float,
+    start: FloatArray,
+    end: FloatArray,
+    start_velocity: FloatArray | None = None,
+):
+    """Quintic from ``start`` to ``end`` over ``duration_s``, at rest at the end and with
+    zero acceleration at both ends; it leaves ``start`` at ``start_velocity`` (default at
+    rest: then it is the minimum-jerk move).
 
+    With D = end - start, v0 = start_velocity and T = duration:
+    ``q = start + v0 t + (10 D - 6 v0 T) t^3/T^3 + (-15 D + 8 v0 T) t^4/T^4 + (6 D - 3 v0 T) t^5/T^5``.
     Returns (position, velocity, acceleration) at ``t_s`` (clamped to [0, duration]).
     """
-    tau = min(max(t_s / duration_s, 0.0), 1.0)
+    big_t = duration_s
+    tau = min(max(t_s / big_t, 0.0), 1.0)
     s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau * tau)
-    ds = 30.0 * tau**2 * (1.0 - tau) ** 2 / duration_s
-    dds = 60.0 * tau * (1.0 - tau) * (1.0 - 2.0 * tau) / duration_s**2
+    ds = 30.0 * tau**2 * (1.0 - tau) ** 2 / big_t
+    dds = 60.0 * tau * (1.0 - tau) * (1.0 - 2.0 * tau) / big_t**2
     delta = end - start
-    return start + s * delta, ds * delta, dds * delta
+    q, q_dot, q_ddot = start + s * delta, ds * delta, dds * delta
+    if start_velocity is None:
+        return q, q_dot, q_ddot
+    # The v0 part: v0 T (tau - 6 tau^3 + 8 tau^4 - 3 tau^5), zero at both ends with zero
+    # slope at the end and zero curvature at both.
+    v0 = np.asarray(start_velocity, dtype=np.float64)
+    g = tau - 6.0 * tau**3 + 8.0 * tau**4 - 3.0 * tau**5
+    dg = (1.0 - 18.0 * tau**2 + 32.0 * tau**3 - 15.0 * tau**4) / big_t
+    ddg = (-36.0 * tau + 96.0 * tau**2 - 60.0 * tau**3) / big_t**2
+    return q + v0 * big_t * g, q_dot + v0 * big_t * dg, q_ddot + v0 * big_t * ddg
 
 
 @dataclass(frozen=True)
@@ -178,6 +198,8 @@ class _Segment:
     q_from: FloatArray
     q_to: FloatArray
     check_arrival: bool = True
+    v_from: FloatArray | None = None
+    """Velocity the segment starts with (the handover's), None: at rest."""
 
 
 @dataclass
@@ -232,13 +254,21 @@ class PickupMission:
             Phase.TO_HOME: self._pose((p.home_m[0], p.home_m[1], cruise), p.stow_joints_rad),
         }[phase]
 
-    def start(self, t_s: float, q_now: FloatArray) -> None:
-        """Begin at vehicle time ``t_s`` [s] from the current configuration ``q_now``."""
+    def start(self, t_s: float, q_now: FloatArray, q_dot_now: FloatArray | None = None) -> None:
+        """Begin at vehicle time ``t_s`` [s] from the current configuration ``q_now``, moving
+        at the vehicle's current velocity ``q_dot_now`` (x, y, z rows used; default at
+        rest), so the first move continues the motion PX4 handed over instead of braking
+        it at once."""
         yaw = self.plan.yaw_rad
         self._yaw_rad = float(q_now[5]) if yaw is None else yaw
         self.phase = Phase.TO_OBJECT
         self.phase_log = [(t_s, self.phase)]
         self._begin(t_s, np.asarray(q_now, dtype=np.float64), Phase.TO_OBJECT)
+        if q_dot_now is not None:
+            assert self._segment is not None
+            v = np.zeros(8)
+            v[0:3] = np.asarray(q_dot_now, dtype=np.float64)[0:3]
+            self._segment.v_from = v
 
     def _begin(self, t_s: float, q_from: FloatArray, phase: Phase) -> None:
         p = self.plan
@@ -334,7 +364,7 @@ class PickupMission:
         if self.phase == Phase.DONE:
             zero = np.zeros(8)
             return DesiredState(seg.q_to.copy(), zero, zero.copy())
-        q, q_dot, q_ddot = min_jerk(elapsed, seg.duration_s, seg.q_from, seg.q_to)
+        q, q_dot, q_ddot = min_jerk(elapsed, seg.duration_s, seg.q_from, seg.q_to, seg.v_from)
         return DesiredState(q, q_dot, q_ddot)
 
     def _excitation(self, elapsed_s: float, centre: FloatArray) -> DesiredState:

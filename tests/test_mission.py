@@ -142,3 +142,30 @@ def test_grasp_waits_until_the_jaws_settle_on_the_object():
     assert mission.phase == Phase.GRASP
     grasp_t = dict((p, t) for t, p in mission.phase_log)[Phase.GRASP]
     assert grasp_t > wobble_until  # not during the 10 cm swing, only after it stopped
+
+
+def test_min_jerk_can_leave_at_a_velocity_and_still_arrive_at_rest():
+    a, b, v0 = np.array([0.0, 1.0]), np.array([2.0, 1.0]), np.array([0.3, -0.2])
+    q0, qd0, qdd0 = min_jerk(0.0, 4.0, a, b, v0)
+    np.testing.assert_allclose(q0, a)
+    np.testing.assert_allclose(qd0, v0)
+    np.testing.assert_allclose(qdd0, 0.0, atol=1e-12)
+    q1, qd1, qdd1 = min_jerk(4.0, 4.0, a, b, v0)
+    np.testing.assert_allclose(q1, b)
+    np.testing.assert_allclose(qd1, 0.0, atol=1e-12)
+    np.testing.assert_allclose(qdd1, 0.0, atol=1e-12)
+    h = 1e-5  # the derivatives are those of the position
+    qm, _, _ = min_jerk(1.3 - h, 4.0, a, b, v0)
+    qp, _, _ = min_jerk(1.3 + h, 4.0, a, b, v0)
+    _, qd, _ = min_jerk(1.3, 4.0, a, b, v0)
+    np.testing.assert_allclose((qp - qm) / (2 * h), qd, rtol=1e-6)
+
+
+def test_the_mission_starts_at_the_handed_over_velocity():
+    mission = PickupMission(PLAN, SCENARIO)
+    q_now = np.array([0.0, 0.0, 1.5, 0.0, 0.0, 0.7, 0.0, -1.5])
+    mission.start(10.0, q_now, np.array([0.3, -0.1, 0.05, 9, 9, 9, 9, 9]))
+    first = mission.update(10.0, q_now, False).desired
+    np.testing.assert_allclose(first.q_dot[0:3], [0.3, -0.1, 0.05])
+    np.testing.assert_allclose(first.q_dot[3:], 0.0)
+    assert first.q[5] == pytest.approx(0.7)  # the heading the vehicle had
