@@ -156,8 +156,8 @@ def min_jerk(
     zero acceleration at both ends; it leaves ``start`` at ``start_velocity`` (default at
     rest: then it is the minimum-jerk move).
 
-    With D = end - start, v0 = start_velocity and T = duration:
-    ``q = start + v0 t + (10 D - 6 v0 T) t^3/T^3 + (-15 D + 8 v0 T) t^4/T^4 + (6 D - 3 v0 T) t^5/T^5``.
+    With D = end - start, v0 = start_velocity and T = duration: ``q = start + v0 t
+    + (10 D - 6 v0 T) t^3/T^3 + (-15 D + 8 v0 T) t^4/T^4 + (6 D - 3 v0 T) t^5/T^5``.
     Returns (position, velocity, acceleration) at ``t_s`` (clamped to [0, duration]).
     """
     big_t = duration_s
