@@ -2,7 +2,7 @@
 
 Flies the paper flight scenario (configs/paper_sim_flight.toml, payload grasped) for
 10 simulated seconds on each backend in underactuated mode: a level attitude setpoint at
-the thrust-curve hover command while the servos swing the arm (PD on a 0.5 Hz sinusoid),
+the relative hover thrust while the servos swing the arm (PD on a 0.5 Hz sinusoid),
 reading ``plant.state`` every step, as the offline simulator and the SITL vehicle do. The
 JSBSim backend is also run in wind with Dryden turbulence. Prints, per backend, the
 median and 99th percentile of one step (step + state) in microseconds and the real-time
@@ -23,7 +23,6 @@ import numpy as np
 from companion.config import Scenario, load_scenario
 from sitl.physics import AttitudeSetpoint, make_plant
 from sitl.physics.jsbsim import Wind
-from sitl.physics.rotors import inverse_thrust_curve
 
 DEFAULT = Path(__file__).resolve().parent.parent / "configs" / "paper_sim_flight.toml"
 
@@ -36,9 +35,7 @@ def run(scenario: Scenario, physics: str, seconds: float, wind: Wind | None = No
         * scenario.environment.gravity_m_s2
         / (6 * rotors.max_thrust_per_rotor_n)
     )
-    setpoint = AttitudeSetpoint.from_euler(
-        0.0, 0.0, 0.0, float(inverse_thrust_curve(rel, rotors.thr_mdl_fac))
-    )
+    setpoint = AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, rel)  # relative thrust (PX4)
     n = round(seconds * plant.rate_hz)
     samples = np.empty(n)
     state = plant.state

@@ -4,7 +4,7 @@ Runs the paper scenario for its 10 s at the configured plant rate:
 
 - ideal mode: a PD law on q plus gravity feed-forward, tau conjugate to q (as the paper's
   simulation feeds its controller output), with ``plant.state`` read every step;
-- underactuated mode: a level attitude setpoint at the hover thrust of the thrust curve
+- underactuated mode: a level attitude setpoint at the relative hover thrust
   and zero joint torques, also reading the state every step;
 
 and prints the median and 99th percentile of the step time (step + state) in
@@ -23,7 +23,6 @@ import numpy as np
 
 from companion.config import Scenario, load_scenario
 from sitl.physics import AttitudeSetpoint, TruthPlant
-from sitl.physics.rotors import inverse_thrust_curve
 
 DEFAULT = Path(__file__).resolve().parent.parent / "configs" / "paper_sim.toml"
 
@@ -65,9 +64,7 @@ def bench_underactuated(scenario: Scenario) -> None:
         * scenario.environment.gravity_m_s2
         / (6 * rotors.max_thrust_per_rotor_n * scenario.plant.thrust_mismatch)
     )
-    setpoint = AttitudeSetpoint.from_euler(
-        0.0, 0.0, 0.0, float(inverse_thrust_curve(rel, rotors.thr_mdl_fac))
-    )
+    setpoint = AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, rel)  # relative thrust (PX4)
     joints = np.zeros(2)
     n = round(scenario.simulation.duration_s * plant.rate_hz)
     samples = []

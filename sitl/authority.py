@@ -3,7 +3,9 @@
 An arm that swings a payload loads the vehicle's pitch axis with its reaction torque and
 the shift of the combined CoM; if that exceeds what the mixer can produce around hover,
 no outer-loop controller can track the trajectory (README, "Reproduce or refute"). This
-module measures that limit on the truth plant's own rotor model and PX4-like mixer.
+module measures that limit on the truth plant's own rotor model and PX4-like mixer, which
+allocates relative thrust and linearizes it per motor with the autopilot's THR_MDL_FAC
+(here the scenario's ``vehicle.rotors.thr_mdl_fac``, a configured airframe).
 """
 
 from __future__ import annotations
@@ -33,8 +35,10 @@ class Authority:
 
     mass_kg: float
     hover_thrust_n: float
+    hover_relative_thrust: float
+    """Relative collective thrust that hovers: the SET_ATTITUDE_TARGET thrust [-]."""
     hover_command: float
-    """Normalized motor command that hovers (PX4 thrust setpoint without linearization)."""
+    """Motor command u that hovers (after PX4's THR_MDL_FAC linearization) [-]."""
     unsaturated_torque_n_m: tuple[float, float, float]
     """Largest body torque magnitude per axis before the mixer reports saturation (a rotor
     at 0 or 1): what a PX4 rate loop with anti-windup can hold [N m]."""
@@ -44,9 +48,9 @@ class Authority:
 
 
 def hover_authority(scenario: Scenario, payload_attached: bool) -> Authority:
-    """Sweep the normalized torque of each axis at the hover command and measure the body
-    torque the six (truth) rotors produce after the mixer's desaturation, up to the point
-    where the mixer starts to give up collective thrust."""
+    """Sweep the normalized torque of each axis at the hover thrust and measure the body
+    torque the six (truth) rotors produce after the mixer's desaturation and PX4's
+    linearization, up to the point where the mixer starts to give up collective thrust."""
     rotors = scenario.vehicle.rotors
     mass = scenario.vehicle.mass_kg + scenario.arm.link1.mass_kg + scenario.arm.link2.mass_kg
     if payload_attached:
@@ -56,7 +60,9 @@ def hover_authority(scenario: Scenario, payload_attached: bool) -> Authority:
     geometry = RotorGeometry.hexa_x(rotors.arm_length_m, rotors.yaw_moment_per_thrust_m)
     mixer = SequentialDesaturationMixer(geometry, rotors.max_thrust_per_rotor_n)
     wrench = geometry.wrench_matrix()[:3]
-    u_hover = float(inverse_thrust_curve(hover / (6.0 * true_max), rotors.thr_mdl_fac))
+    relative_hover = hover / (6.0 * true_max)
+    f = rotors.thr_mdl_fac
+    u_hover = float(inverse_thrust_curve(relative_hover, f))
     unsaturated, maximum = [math.inf] * 3, [0.0] * 3
     for axis in range(3):
         for sign in (1.0, -1.0):
@@ -64,8 +70,9 @@ def hover_authority(scenario: Scenario, payload_attached: bool) -> Authority:
             for c in _SWEEP:
                 command = [0.0, 0.0, 0.0]
                 command[axis] = sign * float(c)
-                out = mixer.mix(command, u_hover)
-                thrusts = true_max * thrust_curve(out.commands, rotors.thr_mdl_fac)
+                out = mixer.mix(command, relative_hover)
+                u = inverse_thrust_curve(out.relative_thrusts, f)
+                thrusts = true_max * thrust_curve(u, f)
                 if thrusts.sum() < hover * (1.0 - 1e-9):
                     break  # the mixer now trades collective thrust for torque
                 torque = sign * float(wrench[axis] @ thrusts)
@@ -77,6 +84,7 @@ def hover_authority(scenario: Scenario, payload_attached: bool) -> Authority:
     return Authority(
         mass_kg=mass,
         hover_thrust_n=hover,
+        hover_relative_thrust=relative_hover,
         hover_command=u_hover,
         unsaturated_torque_n_m=tuple(unsaturated),
         max_torque_n_m=tuple(maximum),

@@ -17,7 +17,6 @@ from sitl.physics.articulation import ETA2_JOINT, build_articulation
 from sitl.physics.jsbsim import GearGeometry, JsbsimPlant, Wind, airframe_xml
 from sitl.physics.jsbsim.airframe import AIRCRAFT_NAME, PACKAGE_ROOT
 from sitl.physics.jsbsim.arm import ArmDynamics
-from sitl.physics.rotors import inverse_thrust_curve
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 FLIGHT = load_scenario(CONFIGS / "paper_sim_flight.toml")
@@ -26,9 +25,10 @@ SLUG_FT2_KG_M2 = 1.3558179483
 
 
 def hover_command(plant) -> float:
+    """Relative hover thrust: weight over maximum thrust (PX4 linearizes it)."""
     rotors = FLIGHT.vehicle.rotors
     weight = plant.total_mass_kg * FLIGHT.environment.gravity_m_s2
-    return float(inverse_thrust_curve(weight / (6 * rotors.max_thrust_per_rotor_n), 0.3))
+    return weight / (6 * rotors.max_thrust_per_rotor_n)
 
 
 # ------------------------------------------------------------------ airframe
@@ -157,7 +157,7 @@ def test_reset_round_trips_the_state_through_jsbsim() -> None:
 
 
 def test_hover_holds_still() -> None:
-    """At the thrust-curve hover command, level: JSBSim's gravity, masses and rotor forces
+    """At the relative hover thrust, level: JSBSim's gravity, masses and rotor forces
     balance (drift below 0.1 mm in 2 s)."""
     plant = JsbsimPlant.from_scenario(FLIGHT, payload_attached=True)
     setpoint = AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, hover_command(plant))

@@ -34,7 +34,7 @@ def test_shipped_configs_carry_the_plant_keys(name) -> None:
     assert cfg.plant.rate_hz >= 1000.0
     assert cfg.plant.integrator == "semi_implicit_euler"
     assert cfg.plant.servo_torque_limit_n_m == 4.1
-    assert cfg.plant.attitude_control.attitude_p == (6.5, 6.5, 2.8)
+    assert cfg.plant.attitude_control.attitude_p == (4.0, 4.0, 2.8)  # PX4 main
     assert cfg.plant.attitude_control.rate_p == (0.15, 0.15, 0.2)
     assert cfg.plant.attitude_control.rate_i == (0.2, 0.2, 0.1)
     assert cfg.plant.attitude_control.rate_d == (0.003, 0.003, 0.0)
@@ -53,7 +53,10 @@ def test_every_new_value_has_a_source_note() -> None:
                 continue
             if section in ("vehicle.rotors", "plant", "plant.attitude_control") and "=" in line:
                 comment = line.partition("#")[2].strip()
-                assert comment.split(":")[0] in ("assumed", "datasheet", "PX4 default"), line
+                source = comment.split(":")[0]
+                assert source in ("assumed", "datasheet", "PX4 default") or source.startswith(
+                    "PX4 main default"
+                ), line
 
 
 @pytest.mark.parametrize(

@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from companion.config import load_scenario
-from sitl.physics.attitude_control import AttitudeController, RateController
+from sitl.physics.attitude_control import (
+    AttitudeController,
+    AttitudeLoopParams,
+    AttitudeSetpoint,
+    Px4AttitudeLoop,
+    RateController,
+)
 from sitl.physics.frames import quaternion_from_euler, rotation_from_euler, rotation_from_quaternion
 from sitl.physics.rotors import (
     RotorBank,
@@ -76,9 +82,9 @@ def test_px4_normalization_of_the_mix_matrix(mixer) -> None:
 def test_unsaturated_mix_produces_the_requested_torque(mixer) -> None:
     c = np.array([0.05, -0.08, 0.1])
     out = mixer.mix(c, 0.5)
-    np.testing.assert_allclose(np.mean(out.commands), 0.5)
+    np.testing.assert_allclose(np.mean(out.relative_thrusts), 0.5)
     np.testing.assert_allclose(
-        body_torque(out.commands) - body_torque(np.full(6, 0.5)),
+        body_torque(out.relative_thrusts) - body_torque(np.full(6, 0.5)),
         mixer.torque_per_normalized_n_m * c,
         atol=1e-12,
     )
@@ -87,7 +93,7 @@ def test_unsaturated_mix_produces_the_requested_torque(mixer) -> None:
 
 def test_roll_wins_over_yaw(mixer) -> None:
     out = mixer.mix([0.3, 0.0, 1.0], 0.5)
-    u = np.array(out.commands)
+    u = np.array(out.relative_thrusts)
     assert np.all((u >= 0.0) & (u <= 1.0))
     roll = body_torque(u)[0] / mixer.torque_per_normalized_n_m[0]
     assert roll == pytest.approx(0.3, abs=1e-9)
@@ -96,7 +102,7 @@ def test_roll_wins_over_yaw(mixer) -> None:
 
 def test_thrust_is_cut_to_keep_roll_near_full_throttle(mixer) -> None:
     out = mixer.mix([0.3, 0.0, 0.0], 0.95)
-    u = np.array(out.commands)
+    u = np.array(out.relative_thrusts)
     assert u.max() == pytest.approx(1.0)
     assert u.mean() < 0.95
     assert body_torque(u)[0] / mixer.torque_per_normalized_n_m[0] == pytest.approx(0.3)
@@ -105,7 +111,7 @@ def test_thrust_is_cut_to_keep_roll_near_full_throttle(mixer) -> None:
 def test_thrust_is_never_raised_at_low_throttle(mixer) -> None:
     """Airmode disabled: near zero thrust the roll request is scaled down instead."""
     out = mixer.mix([0.3, 0.0, 0.0], 0.05)
-    u = np.array(out.commands)
+    u = np.array(out.relative_thrusts)
     assert u.min() == pytest.approx(0.0)
     assert u.mean() == pytest.approx(0.05)
     assert body_torque(u)[0] / mixer.torque_per_normalized_n_m[0] < 0.3
@@ -132,12 +138,12 @@ def test_attitude_p_on_small_errors(attitude) -> None:
     e = 0.01
     np.testing.assert_allclose(
         attitude.rate_setpoint(level, quaternion_from_euler(e, 0.0, 0.0)),
-        (6.5 * e, 0, 0),
+        (4.0 * e, 0, 0),  # MC_ROLL_P of PX4 main
         rtol=1e-4,
     )
     np.testing.assert_allclose(
         attitude.rate_setpoint(level, quaternion_from_euler(0.0, -e, 0.0)),
-        (0, -6.5 * e, 0),
+        (0, -4.0 * e, 0),
         rtol=1e-4,
         atol=1e-12,
     )
@@ -170,3 +176,43 @@ def test_rate_pid_integrates_and_respects_saturation_flags() -> None:
     for _ in range(10000):
         pid.update((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), none, none)
     assert pid.integral[0] == pytest.approx(0.3)  # MC_RR_INT_LIM
+
+
+def _loop(thr_mdl_fac: float) -> Px4AttitudeLoop:
+    cfg = load_scenario("configs/paper_sim.toml").plant.attitude_control
+    params = AttitudeLoopParams.from_config(cfg, thr_mdl_fac)
+    return Px4AttitudeLoop.from_params(params, SequentialDesaturationMixer(GEOMETRY, T_MAX), 1e-3)
+
+
+@pytest.mark.parametrize("f", [0.0, 0.3, 0.7])
+def test_relative_thrust_is_linearized_with_the_autopilots_thr_mdl_fac(f) -> None:
+    """PX4 FunctionMotors: relative rotor thrust -> u = inverse curve (THR_MDL_FAC); motors on
+    the same curve make thrust linear in the setpoint."""
+    loop = _loop(f)
+    level = quaternion_from_euler(0.0, 0.0, 0.0)
+    for thrust in (0.1, 0.33, 0.8):
+        out = loop.update(tuple(level), (0.0, 0.0, 0.0), AttitudeSetpoint(level, thrust))
+        np.testing.assert_allclose(out.relative_thrusts, thrust, atol=1e-12)
+        np.testing.assert_allclose(thrust_curve(out.motor_commands, f), thrust, atol=1e-12)
+
+
+def test_parameters_change_the_running_loop() -> None:
+    loop = _loop(0.3)
+    level = quaternion_from_euler(0.0, 0.0, 0.0)
+    tilted = AttitudeSetpoint(quaternion_from_euler(0.01, 0.0, 0.0), 0.5)
+    before = loop.update(tuple(level), (0.0, 0.0, 0.0), tilted)
+    cfg = load_scenario("configs/paper_sim.toml").plant.attitude_control
+    params = AttitudeLoopParams.from_config(cfg, 0.0)
+    doubled = AttitudeLoopParams(**{**params.__dict__, "attitude_p": (8.0, 4.0, 2.8)})
+    loop.configure(doubled)
+    after = loop.update(tuple(level), (0.0, 0.0, 0.0), tilted)
+    assert after.rate_setpoint_rad_s[0] == pytest.approx(2.0 * before.rate_setpoint_rad_s[0])
+    # THR_MDL_FAC = 0 now: the command is the relative thrust
+    np.testing.assert_allclose(after.motor_commands, after.relative_thrusts, atol=1e-12)
+    # MC_ROLLRATE_K scales the rate gains
+    k2 = AttitudeLoopParams(**{**params.__dict__, "rate_k": (2.0, 1.0, 1.0)})
+    fresh, scaled = _loop(0.0), _loop(0.0)
+    scaled.configure(k2)
+    t1 = fresh.update(tuple(level), (0.0, 0.0, 0.0), tilted).torque_normalized[0]
+    t2 = scaled.update(tuple(level), (0.0, 0.0, 0.0), tilted).torque_normalized[0]
+    assert t2 == pytest.approx(2.0 * t1)

@@ -8,6 +8,7 @@ import pytest
 
 from companion.config import Scenario, load_scenario
 from sitl.physics import AttitudeSetpoint, TruthPlant
+from sitl.physics.attitude_control import AttitudeLoopParams
 from sitl.physics.rotors import inverse_thrust_curve, thrust_curve
 
 CONFIGS = Path(__file__).parent.parent / "configs"
@@ -18,25 +19,27 @@ def with_plant(cfg: Scenario, **changes) -> Scenario:
     return cfg.model_copy(update={"plant": cfg.plant.model_copy(update=changes)})
 
 
-def believed_hover_command(cfg: Scenario, mass_kg: float, tilt_rad: float = 0.0) -> float:
-    """The command the companion would send: its thrust model (no mismatch) inverted."""
+def believed_hover_thrust(cfg: Scenario, mass_kg: float, tilt_rad: float = 0.0) -> float:
+    """The relative thrust the companion would send: weight over its believed maximum
+    thrust (no mismatch); PX4 linearizes it with THR_MDL_FAC."""
     rotors = cfg.vehicle.rotors
-    rel = (
+    return (
         mass_kg
         * cfg.environment.gravity_m_s2
         / math.cos(tilt_rad)
         / (6 * rotors.max_thrust_per_rotor_n)
     )
-    return float(inverse_thrust_curve(rel, rotors.thr_mdl_fac))
 
 
-def test_hover_at_the_thrust_curve_command_holds_still() -> None:
-    """GIVEN the paper vehicle with payload, arm down WHEN commanded level at the hover
-    thrust of the PX4 curve THEN it stays put and the rotors carry exactly its weight."""
+def test_hover_at_the_relative_hover_thrust_holds_still() -> None:
+    """GIVEN the paper vehicle with payload, arm down WHEN commanded level at weight over
+    maximum thrust THEN it stays put, the rotors carry exactly its weight and the motors
+    run at the THR_MDL_FAC inverse of that relative thrust."""
     plant = TruthPlant.from_scenario(PAPER, "underactuated", payload_attached=True)
-    u_hover = believed_hover_command(PAPER, plant.total_mass_kg)
+    hover = believed_hover_thrust(PAPER, plant.total_mass_kg)
+    u_hover = float(inverse_thrust_curve(hover, PAPER.vehicle.rotors.thr_mdl_fac))
     assert 0.4 < u_hover < 0.55  # the nominal vehicle hovers near half throttle
-    setpoint = AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, u_hover)
+    setpoint = AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, hover)
     for _ in range(2000):
         state = plant.step(setpoint, [0.0, 0.0])
     np.testing.assert_allclose(state.q, PAPER.simulation.initial_q, atol=1e-9)
@@ -46,13 +49,13 @@ def test_hover_at_the_thrust_curve_command_holds_still() -> None:
     np.testing.assert_allclose(plant.actuators.motor_commands, u_hover, atol=1e-9)
 
 
-def test_thrust_mismatch_makes_the_believed_hover_command_sink() -> None:
-    """Truth rotors 10 % weaker than believed: at the believed hover command the vehicle
+def test_thrust_mismatch_makes_the_believed_hover_thrust_sink() -> None:
+    """Truth rotors 10 % weaker than believed: at the believed hover thrust the vehicle
     accelerates down at 0.1 g once the rotor lag has settled."""
     cfg = with_plant(PAPER, thrust_mismatch=0.9, linear_drag_n_s_m=(0.0, 0.0, 0.0))
     plant = TruthPlant.from_scenario(cfg, "underactuated", payload_attached=True)
-    u_hover = believed_hover_command(cfg, plant.total_mass_kg)
-    setpoint = AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, u_hover)
+    hover = believed_hover_thrust(cfg, plant.total_mass_kg)
+    setpoint = AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, hover)
     for _ in range(500):
         state = plant.step(setpoint, [0.0, 0.0])
     g = cfg.environment.gravity_m_s2
@@ -62,19 +65,20 @@ def test_thrust_mismatch_makes_the_believed_hover_command_sink() -> None:
 
 @pytest.mark.parametrize(
     ("payload", "rise_s", "settle_s", "overshoot_deg"),
-    [(False, 0.3, 0.4, 1.5), (True, 0.4, 1.3, 3.0)],
+    [(False, 0.45, 0.5, 1.5), (True, 0.5, 1.9, 3.0)],
     ids=["empty", "payload"],
 )
 def test_roll_step_is_tracked(payload, rise_s, settle_s, overshoot_deg) -> None:
-    """A 10 deg roll step with PX4's default gains: measured (empty / payload) 90 % rise in
-    0.26 / 0.30 s, peak 10.9 / 12.8 deg, within 1 deg of the setpoint after 0.26 / 1.21 s.
+    """A 10 deg roll step with PX4 main's default gains (MC_ROLL_P 4): measured (empty /
+    payload) 90 % rise in 0.41 / 0.42 s, peak 9.8 / 11.2 deg, within 1 deg of the setpoint
+    after 0.41 / 1.71 s.
 
     The arm with payload hangs 0.4 m below the vehicle and multiplies its roll inertia,
     so the default gains respond more slowly there, as they would on the real vehicle.
     """
     plant = TruthPlant.from_scenario(PAPER, "underactuated", payload_attached=payload)
     target = math.radians(10.0)
-    thrust = believed_hover_command(PAPER, plant.total_mass_kg, target)
+    thrust = believed_hover_thrust(PAPER, plant.total_mass_kg, target)
     setpoint = AttitudeSetpoint.from_euler(target, 0.0, 0.0, thrust)
     dt = plant.dt_s
     phi = np.array([plant.step(setpoint, [0.0, 0.0]).q[3] for _ in range(round(2.0 / dt))])
@@ -91,7 +95,7 @@ def test_yaw_step_is_tracked() -> None:
     """30 deg yaw step: measured peak 31.9 deg, within 2 deg of the setpoint after 0.64 s."""
     plant = TruthPlant.from_scenario(PAPER, "underactuated", payload_attached=True)
     target = math.radians(30.0)
-    setpoint = AttitudeSetpoint.from_euler(0.0, 0.0, target, believed_hover_command(PAPER, 1.6))
+    setpoint = AttitudeSetpoint.from_euler(0.0, 0.0, target, believed_hover_thrust(PAPER, 1.6))
     psi = np.array([plant.step(setpoint, [0.0, 0.0]).q[5] for _ in range(2000)])
     assert np.degrees(psi.max() - target) < 3.0
     assert np.all(np.abs(np.degrees(psi[1000:] - target)) < 2.0)
@@ -132,16 +136,27 @@ def test_rotor_thrust_follows_the_command_with_first_order_lag() -> None:
     np.testing.assert_allclose(plant.actuators.motor_commands, 1.0, atol=1e-9)
 
 
-def test_normalized_thrust_maps_through_the_px4_curve() -> None:
-    """Collective u gives 6 T_max (f u^2 + (1 - f) u) once the rotors have settled."""
+def test_relative_thrust_is_linear_when_thr_mdl_fac_matches_the_motors() -> None:
+    """GIVEN the airframe's THR_MDL_FAC (the motors' curve) WHEN commanding relative thrust r
+    THEN the rotors make 6 T_max r; GIVEN THR_MDL_FAC = 0 set live (PX4 not configured for
+    these motors) THEN they make 6 T_max (f r^2 + (1 - f) r), the motors' own curve."""
     rotors = PAPER.vehicle.rotors
     plant = TruthPlant.from_scenario(PAPER, "underactuated", payload_attached=True)
-    for u in (0.3, 0.7):
-        setpoint = AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, u)
+    full = 6 * rotors.max_thrust_per_rotor_n
+
+    def settled_thrust(r: float) -> float:
+        setpoint = AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, r)
         for _ in range(600):  # 24 time constants
             plant.step(setpoint, [0.0, 0.0])
-        expected = 6 * rotors.max_thrust_per_rotor_n * thrust_curve(u, rotors.thr_mdl_fac)
-        assert plant.rotor_thrusts_n.sum() == pytest.approx(expected, rel=1e-6)
+        return float(plant.rotor_thrusts_n.sum())
+
+    for r in (0.3, 0.7):
+        assert settled_thrust(r) == pytest.approx(full * r, rel=1e-6)
+    params = AttitudeLoopParams.from_config(PAPER.plant.attitude_control, thr_mdl_fac=0.0)
+    plant.configure_autopilot(params)
+    for r in (0.3, 0.7):
+        expected = full * thrust_curve(r, rotors.thr_mdl_fac)
+        assert settled_thrust(r) == pytest.approx(expected, rel=1e-6)
 
 
 def test_setpoint_validation_and_euler_constructor() -> None:

@@ -10,9 +10,18 @@ The loop that PX4 closes on the vehicle when the companion streams SET_ATTITUDE_
    on the measured angular acceleration (finite difference of the rates through a first-order
    low-pass at IMU_DGYRO_CUTOFF; PX4 uses a second-order one), integrators clipped to
    MC_*_INT_LIM, with PX4's i-factor and its anti-windup from the mixer's saturation flags.
+   The gains are PX4's ``MC_*RATE_K`` times ``MC_*RATE_P``, ``_I``, ``_D`` (mc_rate_control).
    The vehicle is never "landed", so the integrators always run. No yaw-torque low-pass.
-3. :class:`~sitl.physics.rotors.SequentialDesaturationMixer` turns the normalized torques and
-   the collective thrust into motor commands.
+3. :class:`~sitl.physics.rotors.SequentialDesaturationMixer` allocates the normalized
+   torques and the relative collective thrust to six relative rotor thrusts, and PX4's
+   ``FunctionMotors`` turns each into a motor command through the inverse of the
+   THR_MDL_FAC curve (:func:`~sitl.physics.rotors.inverse_thrust_curve`) with the
+   autopilot's THR_MDL_FAC. The motors themselves (:class:`~sitl.physics.rotors.RotorBank`)
+   have their own curve: when the parameter matches it, thrust is linear in the setpoint.
+
+The autopilot's parameters (:class:`AttitudeLoopParams`: the PX4 gains and THR_MDL_FAC)
+start from the scenario's ``[plant.attitude_control]`` and ``vehicle.rotors.thr_mdl_fac``
+and change at run time through :meth:`Px4AttitudeLoop.configure` (PARAM_SET in the SITL).
 
 Both loops run at the plant rate. PX4 works in NED / FRD; the control laws are frame
 covariant, so running them on ENU / FLU quantities with the same per-axis gains gives the
@@ -36,6 +45,7 @@ from sitl.physics.rotors import MixerOutput, SequentialDesaturationMixer
 
 __all__ = [
     "AttitudeController",
+    "AttitudeLoopParams",
     "AttitudeSetpoint",
     "ControllerOutput",
     "Px4AttitudeLoop",
@@ -44,6 +54,7 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 Quat = tuple[float, float, float, float]
+Vec3 = tuple[float, float, float]
 
 _I_FACTOR_RATE_RAD_S = math.radians(400.0)
 """PX4: the I gain fades to zero as the rate error approaches 400 deg/s."""
@@ -59,8 +70,10 @@ class AttitudeSetpoint:
         Desired attitude, body (FLU) to world (ENU), ``[w, x, y, z]``; normalized on
         construction.
     thrust : float
-        Normalized collective thrust in [0, 1] (PX4's thrust setpoint; maps to newtons
-        through the rotors' thrust curve).
+        Relative collective thrust in [0, 1]: the fraction of the six motors' full thrust
+        (PX4's thrust setpoint, SET_ATTITUDE_TARGET.thrust). PX4 linearizes it per motor
+        with THR_MDL_FAC, so it maps to newtons linearly when that parameter matches the
+        motors' curve.
 
     Raises
     ------
@@ -144,6 +157,67 @@ def _between(src: tuple[float, float, float], dst: tuple[float, float, float]) -
     return (w / n, cr[0] / n, cr[1] / n, cr[2] / n)
 
 
+def _vec3(values: ArrayLike) -> Vec3:
+    a, b, c = (float(v) for v in values)  # type: ignore[union-attr]
+    return (a, b, c)
+
+
+@dataclass(frozen=True)
+class AttitudeLoopParams:
+    """The autopilot parameters of the attitude loop and the mixer (PX4 names).
+
+    Vectors are (roll, pitch, yaw) about the body axes.
+
+    Attributes
+    ----------
+    attitude_p : tuple of 3 float
+        MC_ROLL_P, MC_PITCH_P, MC_YAW_P [rad/s per rad].
+    yaw_weight : float
+        MC_YAW_WEIGHT [-].
+    rate_max_rad_s : tuple of 3 float
+        MC_ROLLRATE_MAX, MC_PITCHRATE_MAX, MC_YAWRATE_MAX [rad/s] (PX4 stores deg/s).
+    rate_p, rate_i, rate_d : tuple of 3 float
+        MC_*RATE_P [per rad/s], MC_*RATE_I [per rad], MC_*RATE_D [per rad/s^2], in
+        normalized torque.
+    rate_k : tuple of 3 float
+        MC_*RATE_K: scales the P, I and D gains [-].
+    rate_integrator_limit : tuple of 3 float
+        MC_RR_INT_LIM, MC_PR_INT_LIM, MC_YR_INT_LIM [normalized torque].
+    d_cutoff_hz : float
+        IMU_DGYRO_CUTOFF [Hz].
+    thr_mdl_fac : float
+        THR_MDL_FAC: the thrust curve the autopilot linearizes the motors with [-].
+    """
+
+    attitude_p: Vec3
+    yaw_weight: float
+    rate_max_rad_s: Vec3
+    rate_p: Vec3
+    rate_i: Vec3
+    rate_d: Vec3
+    rate_k: Vec3
+    rate_integrator_limit: Vec3
+    d_cutoff_hz: float
+    thr_mdl_fac: float
+
+    @classmethod
+    def from_config(cls, config: AttitudeControlConfig, thr_mdl_fac: float) -> AttitudeLoopParams:
+        """The parameters of a validated ``[plant.attitude_control]`` section (rate K = 1)
+        with THR_MDL_FAC ``thr_mdl_fac`` (a configured airframe: the motors' own curve)."""
+        return cls(
+            attitude_p=_vec3(config.attitude_p),
+            yaw_weight=float(config.yaw_weight),
+            rate_max_rad_s=_vec3(config.rate_max_rad_s),
+            rate_p=_vec3(config.rate_p),
+            rate_i=_vec3(config.rate_i),
+            rate_d=_vec3(config.rate_d),
+            rate_k=(1.0, 1.0, 1.0),
+            rate_integrator_limit=_vec3(config.rate_integrator_limit),
+            d_cutoff_hz=float(config.rate_d_cutoff_hz),
+            thr_mdl_fac=float(thr_mdl_fac),
+        )
+
+
 class AttitudeController:
     """PX4 attitude P controller: quaternion error to body-rate setpoint.
 
@@ -213,15 +287,27 @@ class RateController:
         d_cutoff_hz: float,
         dt_s: float,
     ) -> None:
-        self._p = [float(g) for g in rate_p]
-        self._i = [float(g) for g in rate_i]
-        self._d = [float(g) for g in rate_d]
-        self._limit = [float(g) for g in integrator_limit]
         self._dt = float(dt_s)
-        self._alpha = 1.0 - math.exp(-2.0 * math.pi * d_cutoff_hz * self._dt)
+        self.set_gains(rate_p, rate_i, rate_d, integrator_limit, d_cutoff_hz)
         self._integral = [0.0, 0.0, 0.0]
         self._previous_rate = [0.0, 0.0, 0.0]
         self._angular_accel = [0.0, 0.0, 0.0]
+
+    def set_gains(
+        self,
+        rate_p: ArrayLike,
+        rate_i: ArrayLike,
+        rate_d: ArrayLike,
+        integrator_limit: ArrayLike,
+        d_cutoff_hz: float,
+    ) -> None:
+        """New gains, limits and D cutoff (as the constructor's); the integrators and the
+        acceleration filter keep their state, as PX4's on a parameter change."""
+        self._p = [float(g) for g in rate_p]  # type: ignore[union-attr]
+        self._i = [float(g) for g in rate_i]  # type: ignore[union-attr]
+        self._d = [float(g) for g in rate_d]  # type: ignore[union-attr]
+        self._limit = [float(g) for g in integrator_limit]  # type: ignore[union-attr]
+        self._alpha = 1.0 - math.exp(-2.0 * math.pi * d_cutoff_hz * self._dt)
 
     @property
     def integral(self) -> FloatArray:
@@ -277,16 +363,19 @@ class ControllerOutput:
     Attributes
     ----------
     motor_commands : list of 6 float
-        Normalized motor commands in [0, 1].
+        Motor commands u in [0, 1] (after the THR_MDL_FAC linearization).
+    relative_thrusts : list of 6 float
+        The mixer's allocation: each rotor's relative thrust in [0, 1] [-].
     rate_setpoint_rad_s : tuple of 3 float
         Body-rate setpoint (FLU) [rad/s].
     torque_normalized : tuple of 3 float
         Rate-controller output (roll, pitch, yaw) before allocation [-].
     thrust_normalized : float
-        Collective thrust setpoint passed to the mixer [-].
+        Relative collective thrust setpoint passed to the mixer [-].
     """
 
     motor_commands: list[float]
+    relative_thrusts: list[float]
     rate_setpoint_rad_s: tuple[float, float, float]
     torque_normalized: tuple[float, float, float]
     thrust_normalized: float
@@ -294,32 +383,52 @@ class ControllerOutput:
 
 @dataclass
 class Px4AttitudeLoop:
-    """Attitude P -> rate PID -> mixer, one :meth:`update` per plant step."""
+    """Attitude P -> rate PID -> mixer -> THR_MDL_FAC linearization, one :meth:`update` per
+    plant step."""
 
     attitude: AttitudeController
     rate: RateController
     mixer: SequentialDesaturationMixer
+    thr_mdl_fac: float = 0.0
+    """The autopilot's THR_MDL_FAC: relative rotor thrust -> motor command."""
     _last_mix: MixerOutput | None = field(default=None, repr=False)
 
     @classmethod
-    def from_config(
-        cls, config: AttitudeControlConfig, mixer: SequentialDesaturationMixer, dt_s: float
+    def from_params(
+        cls, params: AttitudeLoopParams, mixer: SequentialDesaturationMixer, dt_s: float
     ) -> Px4AttitudeLoop:
-        """Loop with the gains of a validated ``[plant.attitude_control]`` section."""
+        """Loop with the gains and THR_MDL_FAC of ``params`` at step ``dt_s`` [s]."""
+        k = params.rate_k
         return cls(
             attitude=AttitudeController(
-                config.attitude_p, config.yaw_weight, config.rate_max_rad_s
+                params.attitude_p, params.yaw_weight, params.rate_max_rad_s
             ),
             rate=RateController(
-                config.rate_p,
-                config.rate_i,
-                config.rate_d,
-                config.rate_integrator_limit,
-                config.rate_d_cutoff_hz,
+                [g * s for g, s in zip(params.rate_p, k, strict=True)],
+                [g * s for g, s in zip(params.rate_i, k, strict=True)],
+                [g * s for g, s in zip(params.rate_d, k, strict=True)],
+                params.rate_integrator_limit,
+                params.d_cutoff_hz,
                 dt_s,
             ),
             mixer=mixer,
+            thr_mdl_fac=params.thr_mdl_fac,
         )
+
+    def configure(self, params: AttitudeLoopParams) -> None:
+        """Take new parameters at once (PARAM_SET); integrators and filters carry on."""
+        self.attitude = AttitudeController(
+            params.attitude_p, params.yaw_weight, params.rate_max_rad_s
+        )
+        k = params.rate_k
+        self.rate.set_gains(
+            [g * s for g, s in zip(params.rate_p, k, strict=True)],
+            [g * s for g, s in zip(params.rate_i, k, strict=True)],
+            [g * s for g, s in zip(params.rate_d, k, strict=True)],
+            params.rate_integrator_limit,
+            params.d_cutoff_hz,
+        )
+        self.thr_mdl_fac = params.thr_mdl_fac
 
     def reset(self, rate_rad_s: ArrayLike = (0.0, 0.0, 0.0)) -> None:
         """Clear integrators, filters and the saturation feedback."""
@@ -343,8 +452,20 @@ class Px4AttitudeLoop:
         mixed = self.mixer.mix(torque, setpoint.thrust)
         self._last_mix = mixed
         return ControllerOutput(
-            motor_commands=mixed.commands,
+            motor_commands=_linearize(mixed.relative_thrusts, self.thr_mdl_fac),
+            relative_thrusts=mixed.relative_thrusts,
             rate_setpoint_rad_s=rate_sp,
             torque_normalized=torque,
             thrust_normalized=setpoint.thrust,
         )
+
+
+def _linearize(relative: list[float], f: float) -> list[float]:
+    """PX4 ``FunctionMotors``: motor commands u giving relative thrusts ``relative`` (each in
+    [0, 1]) on the curve f u^2 + (1 - f) u (:func:`~sitl.physics.rotors.inverse_thrust_curve`
+    on Python floats, the per-step path)."""
+    if f < 1e-9:
+        return list(relative)
+    b = 1.0 - f
+    b2, inv = b * b, 0.5 / f
+    return [(math.sqrt(b2 + 4.0 * f * r) - b) * inv for r in relative]

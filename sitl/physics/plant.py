@@ -8,9 +8,11 @@ Two modes (DESIGN.md sections 2-4):
     (:meth:`TruthPlant.step_ideal`). No drag.
 ``underactuated``
     The vehicle as flown: a PX4-like attitude/rate loop tracks an
-    :class:`~sitl.physics.attitude_control.AttitudeSetpoint`, six lagged rotors with
-    PX4's thrust curve push the body, linear drag -D v acts on the vehicle CoM, and the
-    servos apply joint torques clipped to ``plant.servo_torque_limit_n_m``
+    :class:`~sitl.physics.attitude_control.AttitudeSetpoint` (relative thrust, linearized
+    per motor with the autopilot's THR_MDL_FAC, :meth:`TruthPlant.configure_autopilot`),
+    six lagged rotors with their own THR_MDL_FAC-shaped curve push the body, linear drag
+    -D v acts on the vehicle CoM, and the servos apply joint torques clipped to
+    ``plant.servo_torque_limit_n_m``
     (:meth:`TruthPlant.step`).
 
 Generalized forces. Pinocchio's free-flyer velocity is (v_B, omega_B), body axes, so with
@@ -37,7 +39,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from companion.config import Scenario, Theta
 from sitl.physics.articulation import ETA2_JOINT, build_articulation, theta_of
-from sitl.physics.attitude_control import AttitudeSetpoint, Px4AttitudeLoop
+from sitl.physics.attitude_control import (
+    AttitudeLoopParams,
+    AttitudeSetpoint,
+    Px4AttitudeLoop,
+)
 from sitl.physics.errors import PlantDivergedError, PlantError, PlantModeError
 from sitl.physics.frames import (
     euler_accelerations,
@@ -126,8 +132,10 @@ class TruthPlant:
             self.dt_s,
         )
         mixer = SequentialDesaturationMixer(self._geometry, rotors.max_thrust_per_rotor_n)
-        self._autopilot = Px4AttitudeLoop.from_config(
-            scenario.plant.attitude_control, mixer, self.dt_s
+        self._autopilot = Px4AttitudeLoop.from_params(
+            AttitudeLoopParams.from_config(scenario.plant.attitude_control, rotors.thr_mdl_fac),
+            mixer,
+            self.dt_s,
         )
         self._drag: tuple[float, float, float] = tuple(  # type: ignore[assignment]
             float(d) for d in scenario.plant.linear_drag_n_s_m
@@ -267,6 +275,19 @@ class TruthPlant:
             self._actuators = ActuatorState.from_signals(self._actuator_signals)
         return self._actuators
 
+    def configure_autopilot(self, params: AttitudeLoopParams) -> None:
+        """Give the PX4-like attitude loop new parameters (gains, THR_MDL_FAC) at once, as a
+        PARAM_SET does on PX4; its integrators carry on. The motors keep their own curve.
+
+        Raises
+        ------
+        PlantModeError
+            In ideal mode, which has no autopilot.
+        """
+        if self.mode != "underactuated":
+            raise PlantModeError("the autopilot exists only in underactuated mode")
+        self._autopilot.configure(params)
+
     @property
     def rotor_thrusts_n(self) -> FloatArray:
         """Thrust each rotor produces now [N], shape (6,) (zeros in ideal mode)."""
@@ -391,8 +412,8 @@ class TruthPlant:
         Parameters
         ----------
         setpoint : AttitudeSetpoint
-            Attitude (ENU/FLU quaternion) and normalized collective thrust for the
-            PX4-like loop.
+            Attitude (ENU/FLU quaternion) and relative collective thrust for the PX4-like
+            loop.
         joint_torques_n_m : array_like, shape (2,)
             Servo torque commands [N m], clipped to +-``plant.servo_torque_limit_n_m``.
 

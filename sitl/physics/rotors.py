@@ -14,14 +14,17 @@ command held over each step.
 
 Mixer: PX4's control allocation for multicopters (``ControlAllocationPseudoInverse`` with
 its normalization, ``ControlAllocationSequentialDesaturation`` with MC_AIRMODE = 0), redone
-in FLU. Its inputs are normalized torques (roll, pitch, yaw) and the normalized collective
-thrust in [0, 1]; its outputs are the six motor commands. As in PX4 with THR_MDL_FAC = 0,
-commands are not linearized through the thrust curve. The normalization pins what a
-normalized torque means physically: for small commands around a trim the mixer produces
-the body torque ``torque_per_normalized_n_m * c`` (N m, at the believed maximum thrust and
-a linear curve), i.e. the torque-to-command map is PX4's, derived from rotor geometry: for
-the Firefly layout (0.215 m arms, 6 N rotors, k_m = 0.016 m) a normalized roll or pitch
-torque of 1 is 3.16 N m and a normalized yaw torque of 1 is 0.576 N m.
+in FLU. It works in relative thrust, as PX4's allocation does: its inputs are normalized
+torques (roll, pitch, yaw) and the relative collective thrust in [0, 1]; its outputs are
+the six rotors' relative thrusts in [0, 1] (fractions of one rotor's full thrust). PX4's
+``FunctionMotors`` then turns each into a motor command with :func:`inverse_thrust_curve`
+and the autopilot's THR_MDL_FAC (see :mod:`sitl.physics.attitude_control`); the motors
+answer with their own curve, so thrust is linear in the setpoint when the two agree. The
+normalization pins what a normalized torque means physically: for small commands around a
+trim the mixer produces the body torque ``torque_per_normalized_n_m * c`` (N m, at the
+believed maximum thrust), i.e. the torque-to-thrust map is PX4's, derived from rotor
+geometry: for the Firefly layout (0.215 m arms, 6 N rotors, k_m = 0.016 m) a normalized
+roll or pitch torque of 1 is 3.16 N m and a normalized yaw torque of 1 is 0.576 N m.
 
 References: PX4-Autopilot ``src/modules/control_allocator/ControlAllocation/``
 (ControlAllocationPseudoInverse.cpp, ControlAllocationSequentialDesaturation.cpp) and
@@ -192,14 +195,14 @@ class MixerOutput:
 
     Attributes
     ----------
-    commands : list of 6 float
-        Normalized motor commands in [0, 1].
+    relative_thrusts : list of 6 float
+        Each rotor's relative thrust in [0, 1] (before PX4's THR_MDL_FAC linearization).
     saturation_positive, saturation_negative : tuple of 3 bool
         Per torque axis (roll, pitch, yaw): the allocated torque fell short of a positive
         (negative) request; the rate controller stops integrating further that way.
     """
 
-    commands: list[float]
+    relative_thrusts: list[float]
     saturation_positive: tuple[bool, bool, bool]
     saturation_negative: tuple[bool, bool, bool]
 
@@ -218,8 +221,8 @@ class SequentialDesaturationMixer:
     geometry : RotorGeometry
         Rotor layout.
     max_thrust_per_rotor_n : float
-        The thrust of one rotor at full command that the autopilot assumes (PX4's
-        CA_ROTORx_CT role) [N]; it only scales ``torque_per_normalized_n_m``.
+        The full thrust of one rotor that the autopilot assumes (PX4's CA_ROTORx_CT role)
+        [N]; it only scales ``torque_per_normalized_n_m``.
     """
 
     def __init__(self, geometry: RotorGeometry, max_thrust_per_rotor_n: float) -> None:
@@ -248,18 +251,19 @@ class SequentialDesaturationMixer:
 
     @property
     def mix_matrix(self) -> FloatArray:
-        """Normalized allocation (6, 4): commands = mix @ (roll, pitch, yaw, thrust) unsaturated."""
+        """Normalized allocation (6, 4): relative rotor thrusts = mix @ (roll, pitch, yaw,
+        thrust), unsaturated."""
         return self._mix.copy()
 
     @property
     def torque_per_normalized_n_m(self) -> FloatArray:
-        """Body torque (x, y, z) [N m] per unit normalized torque, unsaturated, linear curve."""
+        """Body torque (x, y, z) [N m] per unit normalized torque, unsaturated, at the
+        believed maximum thrust."""
         return 1.0 / self._scale[:3]
 
     def mix(self, torque_normalized: ArrayLike, thrust_normalized: float) -> MixerOutput:
-        """Allocate normalized torques (roll, pitch, yaw) and collective thrust to six commands.
-
-        Commands lie in [0, 1]; see the class docstring for the priorities.
+        """Allocate normalized torques (roll, pitch, yaw) and the relative collective thrust
+        to six relative rotor thrusts in [0, 1]; see the class docstring for the priorities.
         """
         c0, c1, c2 = (float(c) for c in torque_normalized)
         t = float(thrust_normalized)
@@ -283,7 +287,7 @@ class SequentialDesaturationMixer:
             sat_pos.append(x > _SATURATION_TOL)
             sat_neg.append(x < -_SATURATION_TOL)
         return MixerOutput(
-            commands=u,
+            relative_thrusts=u,
             saturation_positive=tuple(sat_pos),  # type: ignore[arg-type]
             saturation_negative=tuple(sat_neg),  # type: ignore[arg-type]
         )

@@ -4,7 +4,7 @@ JSBSim integrates the vehicle (6-DOF rigid body on a non-rotating spherical plan
 multistep integrators, ground contact, wind and Dryden turbulence acting through the
 drag); this module flies it the way the Pinocchio plant's underactuated mode does: the
 PX4-like attitude loop (:class:`~sitl.physics.attitude_control.Px4AttitudeLoop`), PX4's
-mixer, and six lagged rotors with the THR_MDL_FAC thrust curve
+mixer and THR_MDL_FAC linearization, and six lagged rotors with their own thrust curve
 (:class:`~sitl.physics.rotors.RotorBank`), whose thrusts act as JSBSim external forces at
 the rotor hubs. The arm is integrated outside JSBSim (:mod:`sitl.physics.jsbsim.arm`).
 
@@ -63,7 +63,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from companion.config import Scenario, Theta
-from sitl.physics.attitude_control import AttitudeSetpoint, Px4AttitudeLoop
+from sitl.physics.attitude_control import (
+    AttitudeLoopParams,
+    AttitudeSetpoint,
+    Px4AttitudeLoop,
+)
 from sitl.physics.errors import PlantDivergedError, PlantError, PlantModeError
 from sitl.physics.frames import (
     euler_from_rotation9,
@@ -155,8 +159,10 @@ class JsbsimPlant:
             self.dt_s,
         )
         mixer = SequentialDesaturationMixer(geometry, rotors.max_thrust_per_rotor_n)
-        self._autopilot = Px4AttitudeLoop.from_config(
-            scenario.plant.attitude_control, mixer, self.dt_s
+        self._autopilot = Px4AttitudeLoop.from_params(
+            AttitudeLoopParams.from_config(scenario.plant.attitude_control, rotors.thr_mdl_fac),
+            mixer,
+            self.dt_s,
         )
         self._servo_limit = scenario.plant.servo_torque_limit_n_m
         self._arm = ArmDynamics(scenario, self.dt_s)
@@ -270,6 +276,10 @@ class JsbsimPlant:
         if self._actuators is None:
             self._actuators = ActuatorState.from_signals(self._actuator_signals)
         return self._actuators
+
+    def configure_autopilot(self, params: AttitudeLoopParams) -> None:
+        """Give the PX4-like attitude loop new parameters at once (as ``TruthPlant``)."""
+        self._autopilot.configure(params)
 
     @property
     def rotor_thrusts_n(self) -> FloatArray:
