@@ -41,6 +41,7 @@ __all__ = [
     "Px4NotReadyError",
     "Px4Ports",
     "Px4Sitl",
+    "free_instance",
 ]
 
 PX4_SITL_DIR_ENV = "PX4_SITL_DIR"
@@ -136,6 +137,11 @@ class Px4Ports:
         return 19410 + self.instance
 
     @property
+    def sih_display_local(self) -> int:
+        """PX4 binds this for the SIH display link (SET_MESSAGE_INTERVAL goes here)."""
+        return 19450 + self.instance
+
+    @property
     def simulator_tcp(self) -> int:
         """An external simulator listens here for PX4's ``simulator_mavlink``."""
         return 4560 + self.instance
@@ -143,7 +149,7 @@ class Px4Ports:
     def bound_by_px4(self) -> list[int]:
         """UDP ports PX4 binds itself for this instance."""
         n = self.instance
-        return [14580 + n, 18570 + n, 14280 + n, 13030 + n, 19450 + n]
+        return [14580 + n, 18570 + n, 14280 + n, 13030 + n, self.sih_display_local]
 
     @property
     def connect_url(self) -> str:
@@ -295,25 +301,47 @@ class Px4Sitl:
             stderr=subprocess.STDOUT,
             start_new_session=True,
         )
-        try:
-            self._wait_ready(timeout_s)
-        except Px4NotReadyError:
-            self.stop(keep=True)
-            raise
+        self.wait_for_log(self.ready_lines, timeout_s)
 
-    def _wait_ready(self, timeout_s: float) -> None:
-        assert self.process is not None
+    def wait_for_log(self, lines: tuple[str, ...], timeout_s: float) -> None:
+        """Wait until PX4's log holds one of ``lines``; raises :class:`Px4NotReadyError`
+        (PX4 stopped, its directory kept) when it exits, its start-up script fails, or
+        ``timeout_s`` [s] pass first. E.g. ``("Ready for takeoff!",)`` after starting with
+        the start-up script's end as the ready line, when PX4 needs an input (motion
+        capture) before it can become ready."""
+        if self.process is None:
+            raise RuntimeError("PX4 has not been started")
         deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
+        while True:
             text = self.log_path.read_text(errors="replace")
-            if any(line in text for line in self.ready_lines):
+            if any(line in text for line in lines):
                 return
             failed = [line for line in _FAILED_LINES if line in text]
             if self.process.poll() is not None or failed:
                 reason = "exited" if self.process.poll() is not None else failed[0]
+                self.stop(keep=True)
                 raise Px4NotReadyError(f"PX4 {reason}:\n{self.log_tail()}")
+            if time.monotonic() >= deadline:
+                tail = self.log_tail()
+                self.stop(keep=True)
+                raise Px4NotReadyError(f"PX4 was not ready within {timeout_s:g} s:\n{tail}")
             time.sleep(0.2)
-        raise Px4NotReadyError(f"PX4 was not ready within {timeout_s:g} s:\n{self.log_tail()}")
+
+    def command(self, module: str, *args: str, timeout_s: float = 10.0) -> None:
+        """Run a command in the running PX4 as its shell would (``px4-<module> --instance
+        N args``, e.g. ``mavlink start ...``); its output goes to PX4's log. Raises
+        :class:`subprocess.CalledProcessError` when PX4 reports a failure."""
+        if self.process is None or self.ports is None or self.workdir is None:
+            raise RuntimeError("PX4 has not been started")
+        client = self.workdir / "bin" / f"px4-{module}"
+        subprocess.run(
+            [str(client), "--instance", str(self.ports.instance), *args],
+            cwd=self.workdir,
+            stdin=subprocess.DEVNULL,
+            capture_output=True,
+            timeout=timeout_s,
+            check=True,
+        )
 
     def log_tail(self, lines: int = 30) -> str:
         """The last lines PX4 printed."""
