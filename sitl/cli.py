@@ -181,3 +181,78 @@ def _fail(message: str) -> NoReturn:
 def main() -> None:
     """Console-script entry point."""
     app()
+
+
+@app.command()
+def sih(
+    config: Annotated[Path, typer.Option("--config", help="Scenario TOML file.")],
+    px4_dir: Annotated[
+        Path | None,
+        typer.Option(
+            envvar="PX4_SITL_DIR", show_envvar=False, help="PX4 SITL build (default $PX4_SITL_DIR)."
+        ),
+    ] = None,
+    navigation: Annotated[
+        str, typer.Option(help="gps (SIH's GPS) or mocap (motion capture, no GPS).")
+    ] = "gps",
+    speed_factor: Annotated[
+        float, typer.Option(help="PX4_SIM_SPEED_FACTOR: simulated seconds per wall-clock second.")
+    ] = 1.0,
+    keep_log: Annotated[
+        Path | None,
+        typer.Option(help="Keep PX4's working directory (logs, ULog) in this directory."),
+    ] = None,
+) -> None:
+    """Fly the real PX4 with its SIH vehicle, the arm's servos on a pty, until interrupted."""
+    from sitl.px4_sitl import Px4Build, Px4BuildError, Px4NotReadyError, free_instance
+    from sitl.sih import SihMismatchError
+    from sitl.sih_host import SihHost
+
+    cfg = load_or_exit(config)
+    if px4_dir is None:
+        _fail("no PX4 SITL build: pass --px4-dir DIR or set PX4_SITL_DIR")
+    try:
+        build = Px4Build.at(px4_dir)
+        host = SihHost(cfg, build, navigation=navigation, speed=speed_factor, keep_dir=keep_log)
+        ports = free_instance()
+    except (Px4BuildError, SihMismatchError, ValueError) as exc:
+        _fail(str(exc))
+    except Px4NotReadyError as exc:  # every instance's ports taken
+        _fail(f"{exc} (another PX4 or sitl is running?)")
+    stop = threading.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):  # until ready: stop the start-up too
+        signal.signal(signum, signal.default_int_handler)
+    try:
+        host.start(ports)
+    except KeyboardInterrupt:
+        typer.echo("sitl: interrupted before PX4 was ready", err=True)
+        raise typer.Exit(1) from None
+    except OSError as exc:
+        _fail(f"cannot open PX4's ports (instance {ports.instance}): {exc}")
+    except Px4NotReadyError as exc:
+        typer.echo(f"error: PX4 did not get ready: {exc}", err=True)
+        raise typer.Exit(1) from None
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: stop.set())
+    try:
+        where = host.describe()
+        typer.echo(
+            f"sitl: {cfg.name} on PX4 SIH (instance {ports.instance}, {navigation} navigation) "
+            f"at {speed_factor:g}x real time"
+        )
+        for key, value in where.items():
+            typer.echo(f"  {key:<8} {value}")
+        typer.echo("ready " + json.dumps(where), color=False)
+        failure = host.run(stop)
+    finally:
+        kept = host.stop(keep=keep_log is not None)
+    stand = host.stand
+    typer.echo(
+        f"sitl: stopped; arm stand ran {stand.time_s:.1f} s in {stand.steps} steps, "
+        f"{stand.overruns} overruns"
+    )
+    if kept is not None:
+        typer.echo(f"sitl: PX4's working directory kept in {kept}")
+    if failure is not None:
+        typer.echo(f"error: {failure}", err=True)
+        raise typer.Exit(1)

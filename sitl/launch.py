@@ -1,8 +1,10 @@
-"""Start ``sitl run`` as a child process on free loopback ports and wait until it is ready.
+"""Start ``sitl run`` or ``sitl sih`` as a child process and wait until it is ready.
 
 Used by ``companion demo`` and the end-to-end tests: the vehicle runs in its own process,
-as a user runs it, and prints a ``ready {json}`` line with the servo bus URL; a thread
-keeps its output pipe drained.
+as a user runs it, and prints a ``ready {json}`` line saying where to connect (the servo
+bus URL, and for ``sitl sih`` the companion's MAVLink URL and PX4's log); a thread keeps
+its output pipe drained. Both commands stop cleanly on SIGINT (``sitl sih`` stops the PX4
+it started), which is how a child that does not get ready is stopped too.
 """
 
 from __future__ import annotations
@@ -19,7 +21,16 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["SitlNotReadyError", "SitlProcess", "free_udp_port", "start_sitl"]
+__all__ = [
+    "SihProcess",
+    "SitlNotReadyError",
+    "SitlProcess",
+    "free_udp_port",
+    "start_sih",
+    "start_sitl",
+]
+
+_SITL_CLI = ("-c", "from sitl.cli import main; main()")
 
 
 class SitlNotReadyError(RuntimeError):
@@ -34,33 +45,21 @@ def free_udp_port() -> int:
 
 
 @dataclass
-class SitlProcess:
-    """A running ``sitl run`` and where to reach it."""
+class _ReadyChild:
+    """A ``sitl`` child process that printed its ``ready`` line."""
 
     process: subprocess.Popen
-    onboard_port: int
-    """Where the vehicle's onboard link sends (the API/companion side binds it)."""
-    gcs_port: int
-    """Where the vehicle's GCS link sends (the ground station binds it)."""
-    onboard_local_port: int
-    gcs_local_port: int
-    arm_bus: str
-    truth_log: Path | None
+    where: dict[str, str]
+    """The ``ready`` line's JSON: where to connect."""
     output: queue.Queue
     """Lines the process printed after ``ready`` (None at its end)."""
 
     def alive(self) -> bool:
         return self.process.poll() is None
 
-    def stop(self, timeout_s: float = 10.0) -> str:
-        """SIGINT, wait, return what it printed after ``ready`` (the run's statistics)."""
-        if self.alive():
-            self.process.send_signal(signal.SIGINT)
-        try:
-            self.process.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
-            self.process.wait()
+    def stop(self, timeout_s: float = 20.0) -> str:
+        """SIGINT, wait (then SIGKILL), return what it printed after ``ready``."""
+        _interrupt(self.process, timeout_s)
         out = []
         while True:
             try:
@@ -71,6 +70,32 @@ class SitlProcess:
                 break
             out.append(line)
         return "".join(out)
+
+
+@dataclass
+class SitlProcess(_ReadyChild):
+    """A running ``sitl run`` and where to reach it."""
+
+    onboard_port: int
+    """Where the vehicle's onboard link sends (the API/companion side binds it)."""
+    gcs_port: int
+    """Where the vehicle's GCS link sends (the ground station binds it)."""
+    onboard_local_port: int
+    gcs_local_port: int
+    arm_bus: str
+    truth_log: Path | None
+
+
+@dataclass
+class SihProcess(_ReadyChild):
+    """A running ``sitl sih`` (PX4 SIH and the arm's servos) and where to reach it."""
+
+    connect: str
+    """The companion's MAVLink URL (PX4's onboard link)."""
+    arm_bus: str
+    """The servo bus URL."""
+    px4_log: Path
+    """PX4's console log (removed at stop unless ``--keep-log``)."""
 
 
 def start_sitl(
@@ -84,30 +109,58 @@ def start_sitl(
     ports and wait for its ``ready`` line; raises :class:`SitlNotReadyError` with what
     it printed otherwise."""
     ports = [free_udp_port() for _ in range(4)]
-    args = [
-        sys.executable,
-        "-c",
-        "from sitl.cli import main; main()",
-        "run",
-        "--config",
-        str(config),
-        "--speed",
-        str(speed),
-        "--onboard-port",
-        str(ports[0]),
-        "--gcs-port",
-        str(ports[1]),
-        "--onboard-local-port",
-        str(ports[2]),
-        "--gcs-local-port",
-        str(ports[3]),
-        *extra,
-    ]
+    args = ["run", "--config", str(config), "--speed", str(speed)]
+    for option, port in zip(
+        ("--onboard-port", "--gcs-port", "--onboard-local-port", "--gcs-local-port"),
+        ports,
+        strict=True,
+    ):
+        args += [option, str(port)]
+    args += extra
     if truth_log is not None:
         args += ["--truth-log", str(truth_log)]
+    process, where, output = _start_ready(args, timeout_s)
+    return SitlProcess(
+        process, where, output, *ports, arm_bus=where["arm_bus"], truth_log=truth_log
+    )
+
+
+def start_sih(
+    config: str | Path,
+    *extra: str,
+    px4_dir: str | Path | None = None,
+    timeout_s: float = 120.0,
+) -> SihProcess:
+    """Start ``sitl sih --config config *extra`` (e.g. ``--navigation mocap``) with the
+    PX4 build ``px4_dir`` (default ``$PX4_SITL_DIR``) and wait for its ``ready`` line;
+    raises :class:`SitlNotReadyError` with what it printed otherwise."""
+    args = ["sih", "--config", str(config), *extra]
+    if px4_dir is not None:
+        args += ["--px4-dir", str(px4_dir)]
+    process, where, output = _start_ready(args, timeout_s)
+    return SihProcess(
+        process,
+        where,
+        output,
+        connect=where["connect"],
+        arm_bus=where["arm_bus"],
+        px4_log=Path(where["px4_log"]),
+    )
+
+
+def _start_ready(
+    args: list[str], timeout_s: float
+) -> tuple[subprocess.Popen, dict[str, str], queue.Queue]:
+    """Run ``sitl *args`` and wait for its ``ready {json}`` line; return the process, the
+    line's JSON and the queue of the lines it prints next. A child that exits or stays
+    silent is interrupted (SIGINT, then SIGKILL) and :class:`SitlNotReadyError` raised."""
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     proc = subprocess.Popen(
-        args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
+        [sys.executable, *_SITL_CLI, *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
     )
     lines: queue.Queue[str | None] = queue.Queue()
 
@@ -117,8 +170,7 @@ def start_sitl(
             lines.put(line)
         lines.put(None)
 
-    reader = threading.Thread(target=pump, daemon=True)
-    reader.start()
+    threading.Thread(target=pump, daemon=True).start()
     seen = []
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
@@ -130,9 +182,17 @@ def start_sitl(
             break
         seen.append(line)
         if line.startswith("ready "):
-            where = json.loads(line[len("ready ") :])
-            return SitlProcess(
-                proc, *ports, arm_bus=where["arm_bus"], truth_log=truth_log, output=lines
-            )
-    proc.kill()
-    raise SitlNotReadyError("sitl run did not become ready:\n" + "".join(seen))
+            return proc, json.loads(line[len("ready ") :]), lines
+    _interrupt(proc, 20.0)
+    raise SitlNotReadyError(f"sitl {args[0]} did not become ready:\n" + "".join(seen))
+
+
+def _interrupt(process: subprocess.Popen, timeout_s: float) -> None:
+    """SIGINT (the commands clean up: ``sitl sih`` stops its PX4), then SIGKILL."""
+    if process.poll() is None:
+        process.send_signal(signal.SIGINT)
+    try:
+        process.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
