@@ -183,3 +183,14 @@ def test_an_interrupt_during_start_up_stops_px4(px4_build, tmp_path):
     assert "ready " not in out
     (workdir,) = tmp_path.iterdir()
     assert processes_in(workdir) == []
+
+
+def test_px4_dying_ends_sitl_sih_with_an_error(px4_build):
+    sih = start_sih(CONFIG)
+    (px4,) = processes_in(sih.px4_log.parent / "bin" / "px4")
+    os.kill(px4, signal.SIGKILL)
+    sih.process.wait(timeout=10)
+    out = sih.stop()
+    assert sih.process.returncode == 1
+    assert "error: PX4 exited" in out
+    assert processes_in(sih.px4_log.parent) == []
