@@ -369,6 +369,7 @@ class PickupApp:
         if status is not None and status.armed:
             raise MissionError("preflight: the vehicle is already armed")
         await self._ensure_global_origin()
+        await self._wait_ready_to_arm()
         try:
             states = await self.bus.read_joint_states()
             # The joints may still hold torque from an earlier run (an abort leaves the
@@ -470,6 +471,22 @@ class PickupApp:
             self._note("preflight", "the vehicle has no global origin and did not report ours")
             return
         self._note("preflight", f"global origin set to {lat:.7f}, {lon:.7f}, {alt:.1f} m")
+
+    async def _wait_ready_to_arm(self, timeout_s: float = 20.0) -> None:
+        """PX4's HEARTBEAT says MAV_STATE_STANDBY once its arming checks pass (UNINIT while
+        they fail: the estimator still converging, a new global origin settling)."""
+        with self.link.subscribe(VehicleStatus) as statuses:
+            try:
+                async with asyncio.timeout(timeout_s):
+                    status = self.link.latest(VehicleStatus)
+                    while status is None or status.system_status != mavlink2.MAV_STATE_STANDBY:
+                        status = await statuses.get()
+            except TimeoutError:
+                state = "no heartbeat" if status is None else _mav_state(status.system_status)
+                raise MissionError(
+                    f"preflight: PX4 did not report ready to arm within {timeout_s:g} s "
+                    f"({state}: its arming checks fail; see its messages on a ground station)"
+                ) from None
 
     async def _global_origin(self) -> Any:
         """The vehicle's GPS_GLOBAL_ORIGIN (asked for with REQUEST_MESSAGE), or None."""
@@ -983,6 +1000,11 @@ class PickupApp:
             report.max_tilt_deg = math.degrees(self._max_tilt)
             report.handover_tilt_deg = math.degrees(self._handover_tilt)
         report.phases = [(t, p.value) for t, p in self.mission.phase_log] or report.phases
+
+
+def _mav_state(value: int) -> str:
+    entry = mavlink2.enums["MAV_STATE"].get(value)
+    return entry.name if entry is not None else f"MAV_STATE {value}"
 
 
 def _carrying(phase: Phase) -> bool:

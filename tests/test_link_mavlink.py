@@ -566,3 +566,30 @@ def test_constructor_opens_nothing_and_open_errors_are_typed():
         MavlinkLink("udpin://0.0.0.0:14540", system_id=0)
     with pytest.raises(ValueError):
         MavlinkLink("udpin://0.0.0.0:14540", telemetry_timeout_s=0)
+
+
+def test_a_second_ack_that_refuses_the_mode_wins():
+    """PX4 answers DO_SET_MODE twice; measured: a Hold it could not enter came as ACCEPTED
+    then TEMPORARILY_REJECTED."""
+
+    async def scenario(second):
+        peer = Peer()
+        link = await _connected(peer)
+
+        async def answer():
+            cmd = await peer.expect("COMMAND_LONG")
+            peer.mav.command_ack_send(cmd.command, m.MAV_RESULT_ACCEPTED, 0, 0, 1, 191)
+            peer.mav.command_ack_send(cmd.command, second, 0, 0, 1, 191)
+
+        task = asyncio.create_task(answer())
+        try:
+            return await link.set_mode_px4(*px4_mode("LOITER"))
+        finally:
+            await task
+            await link.close()
+            peer.close()
+
+    assert run(scenario(m.MAV_RESULT_ACCEPTED)).result == m.MAV_RESULT_ACCEPTED
+    with pytest.raises(CommandDenied) as info:
+        run(scenario(m.MAV_RESULT_TEMPORARILY_REJECTED))
+    assert info.value.result == m.MAV_RESULT_TEMPORARILY_REJECTED

@@ -113,10 +113,16 @@ class Px4Commands(ABC):
         timeout_s: float = 0.5,
         attempts: int = 3,
         target_component: int | None = None,
+        confirm_s: float = 0.0,
     ) -> Any:
         """Send MAV_CMD ``command`` with up to 7 ``params`` (the rest 0) to the vehicle
         and wait for its final COMMAND_ACK, resending after each ``timeout_s`` [s] up to
         ``attempts`` times in all. Returns the ACCEPTED ack (a pymavlink message).
+
+        ``confirm_s`` [s] > 0 keeps listening that long after an ACCEPTED ack: another ack
+        of the same command that does not accept it wins (PX4 answers DO_SET_MODE twice,
+        and the two can disagree: measured on PX4 main, a refused Hold came as ACCEPTED
+        then TEMPORARILY_REJECTED).
 
         Raises ``CommandDenied`` (``.result``), ``CommandTimeout``, or
         ``VehicleNotFoundError`` before the vehicle is detected.
@@ -151,6 +157,18 @@ class Px4Commands(ABC):
                             break
                         continue
                     if ack.result == mavlink2.MAV_RESULT_ACCEPTED:
+                        if confirm_s > 0.0:
+                            later = await self._await_ack(
+                                acks, command, vehicle, loop.time() + confirm_s
+                            )
+                            if later is not None and later.result not in (
+                                mavlink2.MAV_RESULT_ACCEPTED,
+                                mavlink2.MAV_RESULT_IN_PROGRESS,
+                            ):
+                                result = later.result
+                                raise CommandDenied(
+                                    command, result, name, _enum_name("MAV_RESULT", result)
+                                )
                         return ack
                     if ack.result == mavlink2.MAV_RESULT_IN_PROGRESS:
                         in_progress = True
@@ -182,9 +200,11 @@ class Px4Commands(ABC):
     async def set_mode_px4(self, main: int, sub: int = 0, **kwargs: Any) -> Any:
         """MAV_CMD_DO_SET_MODE to a PX4 main / sub mode (see
         :mod:`companion.link.px4_modes`; e.g. ``set_mode_px4(*px4_mode("OFFBOARD"))``).
-        PX4 refuses OFFBOARD unless setpoints are already streaming (> 2 Hz).
-        ``kwargs`` go to :meth:`command_long`."""
+        PX4 refuses OFFBOARD in the air unless setpoints are already streaming (> 2 Hz).
+        PX4 acknowledges DO_SET_MODE twice; the second ack is awaited for 0.1 s
+        (``confirm_s``), and a refusal in it raises. ``kwargs`` go to :meth:`command_long`."""
         params = (float(mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(main), float(sub))
+        kwargs.setdefault("confirm_s", 0.1)
         return await self.command_long(mavlink2.MAV_CMD_DO_SET_MODE, params, **kwargs)
 
     async def arm(self, force: bool = False, **kwargs: Any) -> Any:
