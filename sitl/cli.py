@@ -73,8 +73,15 @@ def run(
     ] = 1.0,
     seed: Annotated[int, typer.Option(help="Seed of the sensor noise.")] = 0,
     noise: Annotated[
-        bool, typer.Option("--noise/--no-noise", help="Noisy autopilot measurements.")
+        bool, typer.Option("--noise/--no-noise", help="The estimator's errors (or exact).")
     ] = True,
+    navigation: Annotated[
+        str,
+        typer.Option(
+            help="Estimator aiding: mocap (motion capture; set the global origin to hold) "
+            "or gps (GPS and baro)."
+        ),
+    ] = "mocap",
     duration: Annotated[
         float | None, typer.Option(help="Stop after this many simulated seconds.")
     ] = None,
@@ -115,6 +122,8 @@ def run(
     silent = _servo_fault(servo_silent) if servo_silent is not None else None
     if physics not in ("pinocchio", "jsbsim"):
         _fail(f"--physics must be pinocchio or jsbsim, got {physics!r}")
+    if navigation not in ("mocap", "gps"):
+        _fail(f"--navigation must be mocap or gps, got {navigation!r}")
     try:
         air = Wind.from_text(wind, turbulence, seed)
     except ValueError as exc:
@@ -126,6 +135,7 @@ def run(
             speed=speed,
             seed=seed,
             noise=noise,
+            navigation=navigation,
             ports=LinkPorts(
                 onboard_local=onboard_local_port,
                 onboard_remote=onboard_port,
@@ -147,11 +157,14 @@ def run(
     try:
         with vehicle:
             where = vehicle.describe()
-            typer.echo(f"sitl: {cfg.name} on {physics} physics at {speed:g}x real time")
+            typer.echo(
+                f"sitl: {cfg.name} on {physics} physics, {navigation} navigation, "
+                f"at {speed:g}x real time"
+            )
             for key, value in where.items():
                 typer.echo(f"  {key:<8} {value}")
             typer.echo("ready " + json.dumps(where), color=False)
-            stats = vehicle.run(stop, until_s=duration)
+            stats = vehicle.run(stop, until_s=duration, console=typer.echo)
     except OSError as exc:
         _fail(f"cannot open the vehicle's links: {exc}")
     except PlantError as exc:

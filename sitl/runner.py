@@ -3,12 +3,15 @@
 Every plant step (``1 / plant.rate_hz`` of simulation time) the runner
 
 1. hands each MAVLink message received on the two links to the simulated autopilot
-   (:class:`~sitl.px4.Px4Vehicle`) and sends its replies,
-2. measures the vehicle (:class:`~sitl.navigation.Navigation`) and asks the autopilot
-   for the attitude/thrust setpoint of this step (``None``: disarmed),
+   (:class:`~sitl.px4.Px4Vehicle`) and sends its replies; after a PARAM_SET the plant's
+   attitude loop takes the new gains and THR_MDL_FAC,
+2. takes the estimate (:class:`~sitl.navigation.Navigation`, EKF2-like, motion capture
+   or GPS aiding) and asks the autopilot for the attitude/thrust setpoint of this step
+   (``None``: disarmed),
 3. steps the world under the servo bus lock (the bus thread reads and writes the same
    servo models),
-4. sends the telemetry due at this time and, at its rate, writes a truth-log line.
+4. sends the telemetry due at this time, hands what PX4 would print to its console to the
+   caller and, at its rate, writes a truth-log line.
 
 Time is simulation time everywhere (message rates, offboard loss, auto-disarm,
 ``time_boot_ms``); the wall clock only paces the loop at ``speed`` times real time. When
@@ -23,6 +26,7 @@ import math
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
@@ -31,10 +35,18 @@ import numpy as np
 
 from arm_driver.joint import GripperConfig, JointConfig
 from companion.config import Scenario, arm_bus_configs
-from sitl.navigation import Navigation
+from companion.frames import ned_from_enu
+from sitl.navigation import ERROR_MODELS, Navigation
 from sitl.physics import make_plant
 from sitl.physics.jsbsim import GearGeometry, JsbsimPlant, Wind
-from sitl.px4 import MavlinkEndpoint, Px4Params, Px4Vehicle, load_signing_key
+from sitl.px4 import (
+    GeoReference,
+    MavlinkEndpoint,
+    Px4Params,
+    Px4Vehicle,
+    attitude_loop_params,
+    load_signing_key,
+)
 from sitl.servo import Faults, PtyServoBus, XM430Parameters, XM430Servo
 from sitl.world import World, WorldSettings
 
@@ -80,7 +92,10 @@ class RunOptions:
     seed
         Seed of the sensor noise.
     noise
-        Noisy, delayed autopilot measurements (scenario ``[sensors]``) or exact ones.
+        The estimator's errors (:mod:`sitl.navigation`) or an exact estimate.
+    navigation
+        The estimator's aiding: ``mocap`` (external vision, motion capture indoors; no
+        global position until SET_GPS_GLOBAL_ORIGIN) or ``gps`` (GPS and baro).
     ports
         MAVLink UDP ports.
     signing_key
@@ -94,6 +109,7 @@ class RunOptions:
     speed: float = 1.0
     seed: int = 0
     noise: bool = True
+    navigation: str = "mocap"
     ports: LinkPorts = field(default_factory=LinkPorts)
     signing_key: Path | None = None
     truth_log: Path | None = None
@@ -111,6 +127,10 @@ class RunOptions:
             raise ValueError(f"speed must be a positive factor, got {self.speed!r}")
         if not (math.isfinite(self.truth_rate_hz) and self.truth_rate_hz > 0.0):
             raise ValueError(f"truth_rate_hz must be positive, got {self.truth_rate_hz!r}")
+        if self.navigation not in ERROR_MODELS:
+            raise ValueError(
+                f"navigation must be one of {sorted(ERROR_MODELS)}, got {self.navigation!r}"
+            )
 
 
 @dataclass
@@ -142,6 +162,16 @@ def _plant(scenario: Scenario, options: RunOptions):
         gear = GearGeometry(height_m=world_settings(scenario).landing_gear_height_m)
         return JsbsimPlant.from_scenario(scenario, "underactuated", wind=options.wind, gear=gear)
     return make_plant(scenario, options.physics, "underactuated", wind=options.wind)
+
+
+def _local_origin(world_origin: GeoReference, navigation: Navigation, world: World) -> GeoReference:
+    """The geodetic position of the estimator's local origin: the world origin with motion
+    capture, the vehicle's start with GPS (where EKF2 starts its local frame)."""
+    if navigation.mode != "gps":
+        return world_origin
+    east, north, up = (float(v) for v in world.state.q[0:3])
+    lat, lon, alt = world_origin.global_from_ned(*ned_from_enu((east, north, up)))
+    return GeoReference(lat, lon, alt)
 
 
 def world_settings(scenario: Scenario) -> WorldSettings:
@@ -193,10 +223,24 @@ class SitlVehicle:
             (gripper, servos[gripper.servo_id]),
             world_settings(scenario),
         )
-        rng = np.random.default_rng(options.seed)
-        self.navigation = Navigation(scenario, rng, noise=options.noise)
         overrides = dict(scenario.world.autopilot_params) if scenario.world else {}
-        self.autopilot = Px4Vehicle(Px4Params.from_scenario(scenario, overrides))
+        params = Px4Params.from_scenario(scenario, overrides)
+        rng = np.random.default_rng(options.seed)
+        self.navigation = Navigation(
+            scenario,
+            rng,
+            mode=options.navigation,  # type: ignore[arg-type]
+            noise=options.noise,
+            imu_rate_hz=params["IMU_INTEG_RATE"],
+        )
+        self.autopilot = Px4Vehicle(
+            params,
+            system_id=int(params["MAV_SYS_ID"]),
+            geo=_local_origin(GeoReference(), self.navigation, self.world),
+            aiding=self.navigation.report.aiding,
+            unix_time_at_boot_us=round(time.time() * 1e6),
+        )
+        self._params_revision = -1
         ports = options.ports
         key = load_signing_key(options.signing_key) if options.signing_key else None
         self.links = {
@@ -251,8 +295,15 @@ class SitlVehicle:
 
     # ---------------------------------------------------------------------- loop
 
-    def run(self, stop: threading.Event, until_s: float | None = None) -> RunStats:
-        """Step until ``stop`` is set or simulation time reaches ``until_s`` [s].
+    def run(
+        self,
+        stop: threading.Event,
+        until_s: float | None = None,
+        console: Callable[[str], None] | None = None,
+    ) -> RunStats:
+        """Step until ``stop`` is set or simulation time reaches ``until_s`` [s]; each line
+        PX4 would print to its console goes to ``console`` (e.g. ``WARN  [commander]
+        Arming denied: ...``).
 
         Raises :class:`~sitl.physics.PlantError` if the plant diverges.
         """
@@ -284,12 +335,19 @@ class SitlVehicle:
                 for message in link.receive():
                     for reply_link, reply in autopilot.handle(message, name, now_s):
                         links[reply_link].send(reply)
+            if autopilot.params.revision != self._params_revision:
+                self._params_revision = autopilot.params.revision
+                world.plant.configure_autopilot(attitude_loop_params(autopilot.params))
             measurement = self.navigation.measure(world)
             setpoint = autopilot.control(now_s, measurement)
             with self.servo_bus.lock:
                 world.step(setpoint)
             for link_name, message in autopilot.telemetry(now_s, measurement):
                 links[link_name].send(message)
+            lines = autopilot.console()
+            if lines and console is not None:
+                for line in lines:
+                    console(_console_text(line.severity, line.text))
             if silent is not None and world.time_s >= silent[1]:
                 self.servo_bus.set_faults(Faults(silent_ids=frozenset({silent[0]})))
                 silent = None
@@ -327,3 +385,12 @@ class SitlVehicle:
             "battery_v": round(self.world.battery.voltage_v, 3),
         }
         self._truth_file.write(json.dumps(record) + "\n")
+
+
+_LEVELS = {4: "WARN ", 5: "WARN ", 6: "INFO "}
+"""PX4 console levels of MAV_SEVERITY_WARNING, _NOTICE and _INFO; more severe: ERROR."""
+
+
+def _console_text(severity: int, text: str) -> str:
+    """A console line as PX4 prints it, e.g. ``INFO  [commander] Armed by external command``."""
+    return f"{_LEVELS.get(severity, 'ERROR')} [commander] {text}"

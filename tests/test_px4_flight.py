@@ -1,4 +1,4 @@
-"""The simulated PX4 flying the truth plant: takeoff, hold, offboard, failsafe, land, disarm.
+"""The simulated PX4 flying the truth plant: takeoff, hold, offboard, failsafes, return, disarm.
 
 The truth plant has no ground, so the flight starts in the air at the scenario's initial
 position with a ground emulated 0.5 m below: once the vehicle descends to it, ``on_ground``
@@ -11,6 +11,7 @@ import os
 os.environ.setdefault("MAVLINK20", "1")
 
 import math
+import struct
 
 import numpy as np
 import pytest
@@ -20,7 +21,6 @@ from companion.config import load_scenario
 from companion.frames import quaternion_ned_frd_from_enu_flu
 from sitl.physics import AttitudeSetpoint, TruthPlant
 from sitl.physics.frames import quaternion_from_euler
-from sitl.physics.rotors import inverse_thrust_curve
 from sitl.px4 import Px4Mode, Px4Params, Px4Vehicle, VehicleMeasurement
 
 _client = M.MAVLink(None, 255, 190)
@@ -46,20 +46,28 @@ class Flight:
     def __init__(self, payload: bool) -> None:
         scenario = load_scenario("configs/paper_sim_flight.toml")
         self.plant = TruthPlant.from_scenario(scenario, "underactuated", payload_attached=payload)
-        self.vehicle = Px4Vehicle(Px4Params.from_scenario(scenario))
+        self.vehicle = Px4Vehicle(Px4Params.from_scenario(scenario), aiding="gps")
         self.dt = self.plant.dt_s
         self.t = 0.0
         self.ground_m = float(self.plant.state.q[2]) - 0.5
         self.on_ground = False
+        self._estimate: VehicleMeasurement | None = None
         self.landed_states: list[int] = []
         self.step()
 
     def measurement(self) -> VehicleMeasurement:
-        s = self.plant.state
-        return VehicleMeasurement(
-            self.t, s.q[:3], s.q_dot[:3], s.quaternion_wxyz, s.omega_body_rad_s,
-            [0.0, 0.0, 9.81], self.on_ground,
-        )  # fmt: skip
+        """The truth as an estimate on PX4's 8 ms estimator grid (held in between), with
+        the accelerometer's specific force."""
+        estimate_us = round(self.t * 1e6) // 8000 * 8000
+        if self._estimate is None or self._estimate.estimate_time_us != estimate_us:
+            s = self.plant.state
+            force_world = np.asarray(s.q_ddot[:3]) + np.array([0.0, 0.0, self.plant.gravity_m_s2])
+            self._estimate = VehicleMeasurement(
+                self.t, s.q[:3], s.q_dot[:3], s.quaternion_wxyz, s.omega_body_rad_s,
+                s.rotation_world_body.T @ force_world, self.on_ground,
+                estimate_time_us=estimate_us,
+            )  # fmt: skip
+        return self._estimate
 
     def send(self, msg):
         return self.vehicle.handle(msg, "onboard", self.t)
@@ -86,36 +94,42 @@ class Flight:
         return np.array(self.plant.state.q[:3])
 
 
+def param_set_int(name: str, value: int):
+    wire = struct.unpack("<f", struct.pack("<i", value))[0]
+    return received(M.MAVLink_param_set_message(1, 1, name.encode(), wire, M.MAV_PARAM_TYPE_INT32))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("payload", [False, True])
-def test_takeoff_hold_offboard_failsafe_land_and_disarm(payload):
+def test_takeoff_hold_offboard_failsafes_return_and_disarm(payload):
     f = Flight(payload)
     start = f.position
-    ack = ack_of(f.send(command(400, 1)))
-    assert ack.result == M.MAV_RESULT_ACCEPTED
+    rotors = f.plant.scenario.vehicle.rotors
+    weight = f.plant.total_mass_kg * f.plant.gravity_m_s2
+    hover = weight / (6 * rotors.max_thrust_per_rotor_n)  # relative thrust (PX4 linearizes)
+    assert ack_of(f.send(command(400, 1))).result == M.MAV_RESULT_ACCEPTED
     f.send(command(M.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 7))
+    f.run(0.01)
     assert f.vehicle.mode is Px4Mode.AUTO_TAKEOFF
     f.run(6.0)  # 2.5 m at 1.5 m/s, then hold
     assert f.vehicle.mode is Px4Mode.AUTO_LOITER
-    f.run(4.0)
+    f.run(6.0)
     target = start + np.array([0.0, 0.0, 2.5])  # home is the arming position
     assert np.linalg.norm(f.position - target) < 0.15
     assert np.linalg.norm(f.plant.state.q_dot[:3]) < 0.1
+    # PX4's hover thrust estimator has learned the vehicle's hover thrust from MPC_THR_HOVER 0.5
+    assert f.vehicle.params["MPC_THR_HOVER"] == 0.5
+    assert f.vehicle.hover_thrust == pytest.approx(hover, abs=0.02)
 
-    # Offboard: level, thrust above the true hover thrust -> climbs; the stream stops ->
-    # failsafe.
-    rotors = f.plant.scenario.vehicle.rotors
-    weight = f.plant.total_mass_kg * f.plant.gravity_m_s2
-    hover = float(
-        inverse_thrust_curve(weight / (6 * rotors.max_thrust_per_rotor_n), rotors.thr_mdl_fac)
-    )
+    # Offboard: level, relative thrust above hover -> climbs; the stream stops -> Hold
+    # (COM_OBL_RC_ACT 5); it comes back -> OFFBOARD again.
     q_ned = quaternion_ned_frd_from_enu_flu(quaternion_from_euler(0.0, 0.0, 0.0))
     climb = received(
         M.MAVLink_set_attitude_target_message(0, 1, 1, 0b111, q_ned, 0, 0, 0, hover + 0.05)
     )
+    f.send(param_set_int("COM_OBL_RC_ACT", 5))
     f.run(0.1, climb)
-    ack = ack_of(f.send(command(176, 1, 6, 0)))
-    assert ack.result == M.MAV_RESULT_ACCEPTED
+    assert ack_of(f.send(command(176, 1, 6, 0))).result == M.MAV_RESULT_ACCEPTED
     z0 = f.position[2]
     f.run(1.0, climb)
     assert f.vehicle.mode is Px4Mode.OFFBOARD
@@ -123,18 +137,24 @@ def test_takeoff_hold_offboard_failsafe_land_and_disarm(payload):
     f.run(0.999)  # no setpoints: failsafe COM_OF_LOSS_T = 1 s after the last one
     assert f.vehicle.mode is Px4Mode.OFFBOARD
     f.run(0.002)
-    assert f.vehicle.mode is Px4Mode.POSCTL and f.vehicle.failsafe  # COM_OBL_RC_ACT = 0
+    assert f.vehicle.mode is Px4Mode.AUTO_LOITER and f.vehicle.failsafe
     failsafe_at = f.position
-    f.run(8.0)  # Hold returns to where the failsafe struck (PX4 would brake and stop)
-    assert np.linalg.norm(f.position - failsafe_at) < 0.2
-    assert np.linalg.norm(f.plant.state.q_dot[:3]) < 0.1
+    f.run(6.0)  # Hold returns to where the failsafe struck (PX4 would brake and stop)
+    assert np.linalg.norm(f.position - failsafe_at) < 0.3
+    f.run(0.01, climb)
+    assert f.vehicle.mode is Px4Mode.OFFBOARD and not f.vehicle.failsafe
 
-    f.send(command(M.MAV_CMD_NAV_LAND, 0, 0, 0, math.nan))
-    assert f.vehicle.mode is Px4Mode.AUTO_LAND
+    # Stream stops with the default action (0 Position: no RC, so Return): back home, land,
+    # disarm after COM_DISARM_LAND.
+    f.send(param_set_int("COM_OBL_RC_ACT", 0))
+    f.run(1.1)
+    assert f.vehicle.mode is Px4Mode.AUTO_RTL and f.vehicle.failsafe
     height = f.position[2] - f.ground_m
-    f.run(height / f.vehicle.params["MPC_LAND_SPEED"] + 4.0)
+    f.run(height / f.vehicle.params["MPC_LAND_SPEED"] + 8.0)
     assert f.on_ground and f.vehicle.landed
-    assert not f.vehicle.armed  # COM_DISARM_LAND = 2 s after touchdown
+    assert not f.vehicle.armed
+    assert np.linalg.norm(f.position[:2] - start[:2]) < 0.5
+    assert f.vehicle.mode is Px4Mode.OFFBOARD  # the intention after the disarm, as PX4
     assert f.landed_states == [
         M.MAV_LANDED_STATE_IN_AIR,
         M.MAV_LANDED_STATE_TAKEOFF,

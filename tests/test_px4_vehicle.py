@@ -1,4 +1,8 @@
-"""The pure simulated PX4 (sitl.px4.vehicle): modes, commands, offboard, params, telemetry."""
+"""The pure simulated PX4 (sitl.px4.vehicle): modes, commands, offboard, params, telemetry.
+
+The expected behaviour is PX4 main's as measured on the real SITL build (see
+tests/px4_conformance.py for the scenarios that judge both against each other).
+"""
 
 import math
 import os
@@ -11,9 +15,12 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as M
 
+from companion.config import load_scenario
 from companion.frames import quaternion_ned_frd_from_enu_flu
 from sitl.physics.frames import quaternion_from_euler
 from sitl.px4 import PARAMETERS, Px4Mode, Px4Params, Px4Vehicle, VehicleMeasurement
+from sitl.px4.params import attitude_loop_params
+from sitl.px4.telemetry import StreamScheduler
 
 GCS = (255, 190)
 _client = M.MAVLink(None, *GCS)
@@ -48,19 +55,32 @@ def acks(replies):
     return [m for _, m in replies if m.get_type() == "COMMAND_ACK"]
 
 
+def ack(vehicle, cmd, *params, t=0.0, link="onboard"):
+    return acks(vehicle.handle(command(cmd, *params), link, t))[0].result
+
+
 def attitude_target(q_ned=(1.0, 0.0, 0.0, 0.0), thrust=0.6, mask=0b111):
     return received(M.MAVLink_set_attitude_target_message(0, 1, 1, mask, q_ned, 0, 0, 0, thrust))
 
 
-@pytest.fixture
-def vehicle():
-    v = Px4Vehicle(Px4Params())
+def new_vehicle(aiding="gps", **overrides):
+    v = Px4Vehicle(Px4Params(overrides), aiding=aiding)
     v.control(0.0, measurement())
     return v
 
 
+@pytest.fixture
+def vehicle():
+    """GPS aiding: a global position and a home from boot."""
+    return new_vehicle("gps")
+
+
 def set_mode(vehicle, mode, t):
-    return acks(vehicle.handle(command(176, 1, mode.main_mode, mode.sub_mode), "onboard", t))[0]
+    return ack(vehicle, 176, 1, mode.main_mode, mode.sub_mode, t=t)
+
+
+def heartbeats(out):
+    return [m for _, m in out if m.get_type() == "HEARTBEAT"]
 
 
 # ------------------------------------------------------------------ modes
@@ -80,16 +100,30 @@ def test_unknown_mode_numbers_decode_to_none():
     assert Px4Mode.from_main_sub(42, 0) is None
 
 
-def test_heartbeat_is_px4_hexarotor_and_shows_arming_and_mode(vehicle):
-    beats = [m for _, m in vehicle.telemetry(0.0, measurement()) if m.get_type() == "HEARTBEAT"]
-    assert len(beats) == 2  # one per link
-    hb = beats[0]
+def test_heartbeat_type_is_mav_type_and_state_follows_the_arming_checks():
+    gps, vision = new_vehicle("gps"), new_vehicle("vision")
+    hb = heartbeats(gps.telemetry(0.0, measurement()))[0]
     assert (hb.type, hb.autopilot) == (M.MAV_TYPE_HEXAROTOR, M.MAV_AUTOPILOT_PX4)
     assert mavutil.interpret_px4_mode(hb.base_mode, hb.custom_mode) == "LOITER"
-    assert not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED
-    assert acks(vehicle.handle(command(400, 1), "onboard", 0.1))[0].result == M.MAV_RESULT_ACCEPTED
-    beats = [m for _, m in vehicle.telemetry(0.1, measurement(0.1)) if m.get_type() == "HEARTBEAT"]
-    assert beats and beats[0].base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED  # at once, not in 1 s
+    assert hb.system_status == M.MAV_STATE_STANDBY
+    # without a global position Hold cannot run: PX4 reports UNINIT (not ready to arm)
+    assert heartbeats(vision.telemetry(0.0, measurement()))[0].system_status == M.MAV_STATE_UNINIT
+    quad = new_vehicle("gps", MAV_TYPE=2)
+    assert heartbeats(quad.telemetry(0.0, measurement()))[0].type == 2
+
+
+def test_heartbeat_is_strictly_one_hertz_a_mode_change_shows_in_the_next_one(vehicle):
+    times, modes = [], []
+    for k in range(3000):
+        t = k * 0.001
+        if k == 1200:
+            assert set_mode(vehicle, Px4Mode.AUTO_LAND, t) == M.MAV_RESULT_ACCEPTED
+        vehicle.control(t, measurement(t))
+        for hb in heartbeats(vehicle.telemetry(t, measurement(t)))[:1]:
+            times.append(t)
+            modes.append(Px4Mode.from_custom_mode(hb.custom_mode))
+    assert times == pytest.approx([0.0, 1.0, 2.0])
+    assert modes == [Px4Mode.AUTO_LOITER, Px4Mode.AUTO_LOITER, Px4Mode.AUTO_LAND]
 
 
 # --------------------------------------------------------------- commands
@@ -97,78 +131,131 @@ def test_heartbeat_is_px4_hexarotor_and_shows_arming_and_mode(vehicle):
 
 def test_command_ack_is_addressed_to_the_sender_on_its_link(vehicle):
     replies = vehicle.handle(command(400, 1), "gcs", 0.0)
-    (link, ack), *_ = [(lk, m) for lk, m in replies if m.get_type() == "COMMAND_ACK"]
+    (link, ack_msg), *_ = [(lk, m) for lk, m in replies if m.get_type() == "COMMAND_ACK"]
     assert link == "gcs"
-    assert (ack.command, ack.target_system, ack.target_component) == (400, *GCS)
+    assert (ack_msg.command, ack_msg.target_system, ack_msg.target_component) == (400, *GCS)
 
 
 def test_unhandled_command_is_unsupported_and_foreign_target_is_ignored(vehicle):
-    assert (
-        acks(vehicle.handle(command(M.MAV_CMD_DO_SET_SERVO, 1, 1500), "gcs", 0.0))[0].result
-        == M.MAV_RESULT_UNSUPPORTED
-    )
+    assert ack(vehicle, M.MAV_CMD_DO_SET_SERVO, 1, 1500) == M.MAV_RESULT_UNSUPPORTED
     other = received(M.MAVLink_command_long_message(7, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0))
     assert vehicle.handle(other, "gcs", 0.0) == []
     assert vehicle.counters["not_for_us"] == 1 and not vehicle.armed
 
 
-def test_request_message_answers_autopilot_version_and_home(vehicle):
+def test_request_message_answers_what_exists_and_denies_the_rest(vehicle):
     replies = vehicle.handle(command(512, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION), "onboard", 0.0)
     version = next(m for _, m in replies if m.get_type() == "AUTOPILOT_VERSION")
     assert version.capabilities & M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
     assert version.capabilities & M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
-    assert version.flight_sw_version >> 24 == 1
+    assert version.flight_sw_version >> 16 == (1 << 8) | 17  # v1.17
     replies = vehicle.handle(command(512, M.MAVLINK_MSG_ID_HOME_POSITION), "onboard", 0.0)
     assert [m.get_type() for _, m in replies] == ["HOME_POSITION", "COMMAND_ACK"]
     replies = vehicle.handle(command(520, 1), "onboard", 0.0)
     assert [m.get_type() for _, m in replies] == ["AUTOPILOT_VERSION", "COMMAND_ACK"]
-    assert acks(vehicle.handle(command(512, 9999), "onboard", 0.0))[0].result == M.MAV_RESULT_DENIED
+    assert ack(vehicle, 512, 9999) == M.MAV_RESULT_DENIED
+    # no global position yet (motion capture): no home, origin or global position
+    vision = new_vehicle("vision")
+    for msg_id in (242, 49, 33):
+        assert ack(vision, 512, msg_id) == M.MAV_RESULT_DENIED
 
 
-def test_disarm_in_air_is_denied_unless_forced(vehicle):
-    vehicle.handle(command(400, 1), "onboard", 0.0)
+def test_disarm_in_air_is_rejected_unless_forced(vehicle):
+    assert ack(vehicle, 400, 1) == M.MAV_RESULT_ACCEPTED
     vehicle.control(0.1, measurement(0.1, pos=(0, 0, 2), on_ground=False))
-    replies = vehicle.handle(command(400, 0), "onboard", 0.2)
-    assert acks(replies)[0].result == M.MAV_RESULT_DENIED
-    assert any(m.get_type() == "STATUSTEXT" for _, m in replies)
+    assert ack(vehicle, 400, 0, t=0.2) == M.MAV_RESULT_TEMPORARILY_REJECTED
     assert vehicle.armed
-    assert acks(vehicle.handle(command(400, 0, 21196), "onboard", 0.3))[0].result == 0
+    assert "Disarming denied: not landed" in [line.text for line in vehicle.console()]
+    assert ack(vehicle, 400, 0, 21196, t=0.3) == M.MAV_RESULT_ACCEPTED
     assert not vehicle.armed
 
 
 def test_set_mode_message_is_acked_as_do_set_mode(vehicle):
-    custom = Px4Mode.POSCTL.custom_mode
+    custom = Px4Mode.AUTO_LAND.custom_mode
     msg = received(M.MAVLink_set_mode_message(1, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, custom))
-    (ack,) = acks(vehicle.handle(msg, "gcs", 0.0))
-    assert (ack.command, ack.result) == (M.MAV_CMD_DO_SET_MODE, M.MAV_RESULT_ACCEPTED)
-    assert vehicle.mode is Px4Mode.POSCTL
+    (ack_msg,) = acks(vehicle.handle(msg, "gcs", 0.0))
+    assert (ack_msg.command, ack_msg.result) == (M.MAV_CMD_DO_SET_MODE, M.MAV_RESULT_ACCEPTED)
+    vehicle.control(0.001, measurement(0.001))
+    assert vehicle.mode is Px4Mode.AUTO_LAND
 
 
-def test_manual_modes_are_rejected_without_sticks(vehicle):
-    assert set_mode(vehicle, Px4Mode.STABILIZED, 0.0).result == M.MAV_RESULT_TEMPORARILY_REJECTED
-    assert set_mode(vehicle, Px4Mode.AUTO_MISSION, 0.0).result == M.MAV_RESULT_DENIED
+def test_any_mode_is_accepted_disarmed_but_arming_needs_one_that_can_run(vehicle):
+    for mode in (Px4Mode.STABILIZED, Px4Mode.POSCTL, Px4Mode.AUTO_MISSION, Px4Mode.OFFBOARD):
+        assert set_mode(vehicle, mode, 0.0) == M.MAV_RESULT_ACCEPTED
+        vehicle.control(0.001, measurement(0.001))
+        assert vehicle.mode is mode
+        assert ack(vehicle, 400, 1) == M.MAV_RESULT_TEMPORARILY_REJECTED
+        assert ack(vehicle, 400, 1, 21196) == M.MAV_RESULT_TEMPORARILY_REJECTED  # PX4 too
+    for mode in (Px4Mode.AUTO_LAND, Px4Mode.AUTO_RTL):  # they prevent arming
+        set_mode(vehicle, mode, 0.0)
+        assert ack(vehicle, 400, 1) == M.MAV_RESULT_TEMPORARILY_REJECTED
+    set_mode(vehicle, Px4Mode.AUTO_LOITER, 0.0)
+    assert ack(vehicle, 400, 1) == M.MAV_RESULT_ACCEPTED
+    # armed: a mode that cannot run is refused and the vehicle stays in Hold
+    assert set_mode(vehicle, Px4Mode.POSCTL, 0.1) == M.MAV_RESULT_TEMPORARILY_REJECTED
     assert vehicle.mode is Px4Mode.AUTO_LOITER
+
+
+def test_unknown_mode_numbers_are_accepted_and_change_nothing(vehicle):
+    for base, main, sub in ((1, 42, 0), (1, 4, 1), (0, 3, 0)):
+        assert ack(vehicle, 176, base, main, sub) == M.MAV_RESULT_ACCEPTED
+        assert vehicle.intended_mode is Px4Mode.AUTO_LOITER
+
+
+def test_vehicle_that_takes_off_on_its_own_disarms_after_com_disarm_prflt(vehicle):
+    assert ack(vehicle, 400, 1) == M.MAV_RESULT_ACCEPTED
+    t = 0.0
+    while vehicle.armed and t < 12.0:
+        t += 0.01
+        vehicle.control(t, measurement(t))
+    assert not vehicle.armed and t == pytest.approx(10.0, abs=0.02)
+
+
+# ------------------------------------------------------ global origin
+
+
+def test_motion_capture_arms_in_hold_only_after_a_global_origin():
+    vehicle = new_vehicle("vision")
+    assert vehicle.global_origin is None and vehicle.home is None
+    assert ack(vehicle, 400, 1) == M.MAV_RESULT_TEMPORARILY_REJECTED
+    origin = received(M.MAVLink_set_gps_global_origin_message(1, 473_977_420, 85_455_940, 488_000))
+    assert vehicle.handle(origin, "onboard", 1.0) == []
+    vehicle.control(1.001, measurement(1.001))
+    out = vehicle.telemetry(1.001, measurement(1.001))
+    sent = [m for link, m in out if m.get_type() == "GPS_GLOBAL_ORIGIN" and link == "onboard"]
+    assert [(m.latitude, m.longitude, m.altitude) for m in sent] == [(473977420, 85455940, 488000)]
+    assert vehicle.home is not None
+    assert heartbeats(vehicle.telemetry(2.5, measurement(2.5)))[0].system_status == 3
+    assert ack(vehicle, 400, 1, t=2.0) == M.MAV_RESULT_ACCEPTED
+
+
+def test_takeoff_arms_without_a_global_origin():
+    vehicle = new_vehicle("vision")
+    assert ack(vehicle, M.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 7) == M.MAV_RESULT_ACCEPTED
+    assert ack(vehicle, 400, 1) == M.MAV_RESULT_ACCEPTED
 
 
 # --------------------------------------------------------------- offboard
 
 
-def test_offboard_needs_a_live_setpoint_stream(vehicle):
-    assert set_mode(vehicle, Px4Mode.OFFBOARD, 0.0).result == M.MAV_RESULT_TEMPORARILY_REJECTED
+def test_offboard_needs_a_live_setpoint_stream_when_armed(vehicle):
+    ack(vehicle, 400, 1)
+    assert set_mode(vehicle, Px4Mode.OFFBOARD, 0.0) == M.MAV_RESULT_TEMPORARILY_REJECTED
     vehicle.handle(attitude_target(), "onboard", 0.5)
-    assert set_mode(vehicle, Px4Mode.OFFBOARD, 1.4).result == M.MAV_RESULT_ACCEPTED  # < 1 s old
+    assert set_mode(vehicle, Px4Mode.OFFBOARD, 1.4) == M.MAV_RESULT_ACCEPTED  # < 1 s old
     assert vehicle.mode is Px4Mode.OFFBOARD
 
 
 def test_stale_stream_is_rejected_after_com_of_loss_t(vehicle):
+    ack(vehicle, 400, 1)
     vehicle.handle(attitude_target(), "onboard", 0.0)
-    assert set_mode(vehicle, Px4Mode.OFFBOARD, 1.0).result == M.MAV_RESULT_TEMPORARILY_REJECTED
+    assert set_mode(vehicle, Px4Mode.OFFBOARD, 1.0) == M.MAV_RESULT_TEMPORARILY_REJECTED
 
 
 def test_setpoints_apply_only_in_offboard_and_convert_to_enu_flu(vehicle):
     q_enu = quaternion_from_euler(0.1, -0.05, 0.4)
     vehicle.handle(attitude_target(quaternion_ned_frd_from_enu_flu(q_enu), 0.55), "onboard", 0.0)
-    vehicle.handle(command(400, 1), "onboard", 0.0)
+    ack(vehicle, 400, 1)
     held = vehicle.control(0.001, measurement(0.001))
     assert held.thrust == 0.0  # Hold on the ground: idle, not the offboard thrust
     set_mode(vehicle, Px4Mode.OFFBOARD, 0.002)
@@ -198,14 +285,28 @@ def test_rate_setpoints_are_counted_as_unsupported(vehicle):
     assert not vehicle.offboard_alive(0.0)
 
 
-@pytest.mark.parametrize(("action", "mode"), [(5, Px4Mode.AUTO_LOITER), (4, Px4Mode.AUTO_LAND),
-                                              (0, Px4Mode.POSCTL)])  # fmt: skip
-def test_offboard_loss_fails_safe_after_com_of_loss_t_of_sim_time(action, mode):
-    vehicle = Px4Vehicle(Px4Params({"COM_OBL_RC_ACT": action, "COM_OF_LOSS_T": 0.5}))
-    air = dict(pos=(0.0, 0.0, 3.0), on_ground=False)
+def _offboard_in_air(vehicle):
     vehicle.handle(attitude_target(), "onboard", 0.0)
-    vehicle.handle(command(400, 1), "onboard", 0.0)
-    set_mode(vehicle, Px4Mode.OFFBOARD, 0.0)
+    assert set_mode(vehicle, Px4Mode.OFFBOARD, 0.0) == M.MAV_RESULT_ACCEPTED
+    assert ack(vehicle, 400, 1) == M.MAV_RESULT_ACCEPTED  # arming in OFFBOARD needs no origin
+    return dict(pos=(0.0, 0.0, 3.0), on_ground=False)
+
+
+@pytest.mark.parametrize(
+    ("aiding", "action", "mode"),
+    [
+        ("gps", 5, Px4Mode.AUTO_LOITER),
+        ("gps", 4, Px4Mode.AUTO_LAND),
+        ("gps", 3, Px4Mode.AUTO_RTL),
+        ("gps", 0, Px4Mode.AUTO_RTL),  # Position mode needs RC: PX4 falls back to Return
+        ("gps", 42, Px4Mode.AUTO_RTL),  # an unknown action is the default case
+        ("vision", 0, Px4Mode.AUTO_LAND),  # no global position: Return cannot run either
+        ("vision", 5, Px4Mode.AUTO_LAND),
+    ],
+)
+def test_offboard_loss_fails_safe_after_com_of_loss_t_of_sim_time(aiding, action, mode):
+    vehicle = new_vehicle(aiding, COM_OBL_RC_ACT=action, COM_OF_LOSS_T=0.5)
+    air = _offboard_in_air(vehicle)
     t = 0.0
     while t < 0.499:
         vehicle.control(t, measurement(t, **air))
@@ -213,51 +314,82 @@ def test_offboard_loss_fails_safe_after_com_of_loss_t_of_sim_time(action, mode):
     assert vehicle.mode is Px4Mode.OFFBOARD and not vehicle.failsafe
     vehicle.control(0.5, measurement(0.5, **air))
     assert vehicle.mode is mode and vehicle.failsafe
-    out = vehicle.telemetry(0.5, measurement(0.5, **air))
-    hb = next(m for _, m in out if m.get_type() == "HEARTBEAT")
+    assert vehicle.intended_mode is Px4Mode.OFFBOARD
+    hb = heartbeats(vehicle.telemetry(1.0, measurement(1.0, **air)))[0]
     assert Px4Mode.from_custom_mode(hb.custom_mode) is mode
     assert hb.system_status == M.MAV_STATE_CRITICAL
-    assert any(m.get_type() == "STATUSTEXT" for _, m in out)
+    # the stream comes back: OFFBOARD again (PX4's mode fallback clears with its cause)
+    vehicle.handle(attitude_target(), "onboard", 1.2)
+    vehicle.control(1.2, measurement(1.2, **air))
+    assert vehicle.mode is Px4Mode.OFFBOARD and not vehicle.failsafe
+
+
+def test_offboard_loss_action_disarm():
+    vehicle = new_vehicle("gps", COM_OBL_RC_ACT=7)
+    air = _offboard_in_air(vehicle)
+    vehicle.control(1.0, measurement(1.0, **air))
+    assert not vehicle.armed
 
 
 # -------------------------------------------------------------- telemetry
 
 
-def count_streams(vehicle, seconds, dt=0.001, start=0.0):
+def count_streams(vehicle, seconds, dt=0.001, start=0.0, estimate_every=8):
     counts = {}
     steps = round(seconds / dt)
+    m = None
     for k in range(steps):
         t = start + k * dt
-        for link, msg in vehicle.telemetry(t, measurement(t)):
+        if k % estimate_every == 0 or m is None:
+            m = measurement(t)
+        for link, msg in vehicle.telemetry(t, m):
             counts[(link, msg.get_type())] = counts.get((link, msg.get_type()), 0) + 1
     return counts
 
 
 def test_onboard_rates_over_simulated_time():
-    vehicle = Px4Vehicle(Px4Params())
+    vehicle = new_vehicle("gps")
     counts = count_streams(vehicle, 2.0)
     expected = {"ATTITUDE": 200, "ATTITUDE_QUATERNION": 100, "HIGHRES_IMU": 100,
-                "LOCAL_POSITION_NED": 60, "ODOMETRY": 60, "SYS_STATUS": 10,
-                "EXTENDED_SYS_STATE": 10, "ALTITUDE": 20, "HEARTBEAT": 2}  # fmt: skip
+                "LOCAL_POSITION_NED": 60, "ODOMETRY": 60, "GLOBAL_POSITION_INT": 100,
+                "SYS_STATUS": 10, "EXTENDED_SYS_STATE": 10, "ALTITUDE": 20, "VFR_HUD": 20,
+                "ATTITUDE_TARGET": 20, "TIMESYNC": 20, "HEARTBEAT": 2, "PING": 2,
+                "SYSTEM_TIME": 2, "ESTIMATOR_STATUS": 2, "CURRENT_MODE": 1,
+                "HOME_POSITION": 1, "BATTERY_STATUS": 1}  # fmt: skip
     for kind, n in expected.items():
         assert counts[("onboard", kind)] == n, kind
-    assert counts[("gcs", "ATTITUDE")] == 40
+    assert counts[("gcs", "ATTITUDE")] == 100
+
+
+def test_estimator_streams_go_out_on_the_estimator_grid_up_to_125_hz():
+    vehicle = new_vehicle("gps")
+    interval = command(511, M.MAVLINK_MSG_ID_ODOMETRY, 4000)  # 250 Hz asked
+    assert acks(vehicle.handle(interval, "onboard", 0.0))[0].result == M.MAV_RESULT_ACCEPTED
+    assert count_streams(vehicle, 2.0)[("onboard", "ODOMETRY")] == 250  # 125 Hz
+    vehicle.handle(command(511, M.MAVLINK_MSG_ID_ODOMETRY, 10_000), "onboard", 2.0)
+    assert count_streams(vehicle, 2.0, start=2.0)[("onboard", "ODOMETRY")] == 200  # 100 Hz
+    reply = vehicle.handle(command(510, M.MAVLINK_MSG_ID_ODOMETRY), "onboard", 4.0)
+    assert reply[0][1].interval_us == 10_000
 
 
 def test_set_message_interval_changes_one_link_only():
-    vehicle = Px4Vehicle(Px4Params())
+    vehicle = new_vehicle("gps")
     interval = command(511, M.MAVLINK_MSG_ID_ATTITUDE, 1e6 / 7.0)
     assert acks(vehicle.handle(interval, "onboard", 0.0))[0].result == M.MAV_RESULT_ACCEPTED
     off = command(511, M.MAVLINK_MSG_ID_HIGHRES_IMU, -1)
     assert acks(vehicle.handle(off, "onboard", 0.0))[0].result == M.MAV_RESULT_ACCEPTED
-    unknown = command(511, M.MAVLINK_MSG_ID_VFR_HUD, 1e5)
+    unknown = command(511, M.MAVLINK_MSG_ID_GPS_RAW_INT, 1e5)
     assert acks(vehicle.handle(unknown, "onboard", 0.0))[0].result == M.MAV_RESULT_FAILED
-    counts = count_streams(vehicle, 2.0)
+    heartbeat = command(511, M.MAVLINK_MSG_ID_HEARTBEAT, 1e5)  # PX4 refuses it too
+    assert acks(vehicle.handle(heartbeat, "onboard", 0.0))[0].result == M.MAV_RESULT_FAILED
+    counts = count_streams(vehicle, 2.0, estimate_every=1)
     assert counts[("onboard", "ATTITUDE")] == 14
     assert ("onboard", "HIGHRES_IMU") not in counts
-    assert counts[("gcs", "ATTITUDE")] == 40
+    assert counts[("gcs", "ATTITUDE")] == 100
     reply = vehicle.handle(command(510, M.MAVLINK_MSG_ID_ATTITUDE), "onboard", 2.0)
     assert reply[0][1].interval_us == round(1e6 / 7.0)
+    reply = vehicle.handle(command(510, M.MAVLINK_MSG_ID_HIGHRES_IMU), "onboard", 2.0)
+    assert reply[0][1].interval_us == -1
 
 
 def test_measurement_copies_and_freezes_its_vectors_and_names_a_bad_one():
@@ -267,6 +399,7 @@ def test_measurement_copies_and_freezes_its_vectors_and_names_a_bad_one():
     pos[0] = 9.0  # the caller's array is copied
     assert m.position_enu_m.tolist() == [1.0, 2.0, 3.0]
     assert m.quaternion_enu_flu_wxyz.tolist() == quat.tolist()
+    assert m.estimate_time_us == 500_000
     for arr in (m.position_enu_m, m.velocity_enu_m_s, m.quaternion_enu_flu_wxyz):
         assert not arr.flags.writeable
     # lists and other shapes take the per-field path: the same values
@@ -295,52 +428,65 @@ def test_ping_request_is_returned_to_its_sender_and_answers_are_not(vehicle):
     assert vehicle.counters["ignored_message"] == 0
 
 
-def test_stream_scheduler_due_times_through_disable_enable_and_trigger():
-    from sitl.px4.telemetry import StreamScheduler
-
-    hb, att = M.MAVLINK_MSG_ID_HEARTBEAT, M.MAVLINK_MSG_ID_ATTITUDE
-    s = StreamScheduler({hb: 1.0, att: 100.0})
-    assert sorted(s.due(0)) == sorted([hb, att])
-    assert s.due(5_000) == [] and s.due(10_000) == [att]
-    s.trigger(hb, 12_000)  # due at once, before the next attitude
-    assert s.due(12_000) == [hb] and s.due(13_000) == []
-    s.set_interval(att, -1, 13_000)
-    s.set_interval(hb, -1, 13_000)
-    assert not any(s.due(t) for t in range(13_000, 2_100_000, 1_000))
+def test_stream_scheduler_due_times_through_disable_enable_and_the_estimator_grid():
+    hb, att, odo = (
+        M.MAVLINK_MSG_ID_HEARTBEAT,
+        M.MAVLINK_MSG_ID_ATTITUDE_TARGET,
+        M.MAVLINK_MSG_ID_ODOMETRY,
+    )
+    s = StreamScheduler({hb: 1.0, att: 100.0, odo: 30.0}, [hb, att, odo])
+    assert sorted(s.due(0, True)) == sorted([hb, att, odo])
+    assert s.due(5_000, False) == [] and s.due(10_000, False) == [att]
+    assert s.due(34_000, False) == [att]  # odometry due at 33.3 ms, waits for an estimate
+    assert s.due(40_000, True) == [odo]
+    s.set_interval(att, -1, 41_000)
+    with pytest.raises(KeyError):
+        s.set_interval(hb, -1, 41_000)
+    s.set_interval(odo, -1, 41_000)
+    assert [t for t in range(41_000, 999_000, 1_000) if s.due(t, True)] == []
     s.set_interval(att, 0, 2_500_000)  # back to the default, due from now
-    assert s.due(2_499_000) == [] and s.due(2_500_000) == [att]
-    assert s.due(2_505_000) == [] and s.due(2_510_000) == [att]
-    s.trigger(hb, 2_511_000)  # a disabled stream stays disabled
-    assert s.due(2_511_000) == []
-    assert s.due(2_600_000) == [att]  # a late caller: sent once, rescheduled from now
-    assert s.due(2_605_000) == [] and s.due(2_610_000) == [att]
+    assert s.due(2_499_000, True) == [hb] and s.due(2_500_000, True) == [att]
+    assert s.due(2_505_000, True) == [] and s.due(2_510_000, True) == [att]
+    assert s.due(2_600_000, True) == [att]  # a late caller: sent once, rescheduled from now
+    assert s.due(2_605_000, True) == [] and s.due(2_610_000, True) == [att]
 
 
 def test_telemetry_is_ned_frd_of_a_known_enu_measurement():
-    vehicle = Px4Vehicle(Px4Params())
+    vehicle = new_vehicle("gps")
     m = VehicleMeasurement(
         1.25, [1.0, 2.0, 3.0], [0.1, 0.2, 0.3], quaternion_from_euler(0.0, 0.0, 0.0),
-        [0.01, 0.02, 0.03], [0.0, 0.0, 9.81], False, 15.2, 0.5,
+        [0.01, 0.02, 0.03], [0.0, 0.0, 9.81], False, 15.2, 0.5, estimate_time_us=1_248_000,
     )  # fmt: skip
     msgs = {msg.get_type(): msg for _, msg in vehicle.telemetry(1.25, m)}
     lp = msgs["LOCAL_POSITION_NED"]
     assert (lp.x, lp.y, lp.z, lp.vx, lp.vy, lp.vz) == pytest.approx((2, 1, -3, 0.2, 0.1, -0.3))
-    assert lp.time_boot_ms == 1250
+    assert lp.time_boot_ms == 1248  # the estimate's time
     att = msgs["ATTITUDE"]  # nose east: NED yaw +90 deg
     assert (att.roll, att.pitch, att.yaw) == pytest.approx((0.0, 0.0, math.pi / 2))
     assert (att.rollspeed, att.pitchspeed, att.yawspeed) == pytest.approx((0.01, -0.02, -0.03))
     imu = msgs["HIGHRES_IMU"]
     assert (imu.xacc, imu.yacc, imu.zacc) == pytest.approx((0.0, 0.0, -9.81))
-    odo = msgs["ODOMETRY"]  # velocity in body FRD: east-facing nose, so forward = east
-    assert (odo.vx, odo.vy, odo.vz) == pytest.approx((0.1, -0.2, -0.3), abs=1e-6)
+    odo = msgs["ODOMETRY"]  # PX4: LOCAL_NED velocity, IMU sample time, variances, AUTOPILOT
+    assert (odo.frame_id, odo.child_frame_id) == (M.MAV_FRAME_LOCAL_NED, M.MAV_FRAME_LOCAL_NED)
+    assert (odo.vx, odo.vy, odo.vz) == pytest.approx((0.2, 0.1, -0.3), abs=1e-6)
+    assert odo.time_usec == 1_248_000
+    assert (odo.estimator_type, odo.quality) == (M.MAV_ESTIMATOR_TYPE_AUTOPILOT, 0)
+    nonzero = [i for i, v in enumerate(odo.pose_covariance) if v != 0.0]
+    assert nonzero == [0, 6, 11, 15, 18, 20]
+    assert [i for i, v in enumerate(odo.velocity_covariance) if v != 0.0] == [0, 6, 11]
     gp = msgs["GLOBAL_POSITION_INT"]
     assert gp.lat > round(vehicle.geo.latitude_deg * 1e7)
     assert gp.relative_alt == 3000 and gp.hdg == 9000
     assert msgs["SYS_STATUS"].voltage_battery == 15200
     assert msgs["SYS_STATUS"].onboard_control_sensors_health & M.MAV_SYS_STATUS_PREARM_CHECK
+    assert "STATUSTEXT" not in msgs  # PX4 reports through events, not STATUSTEXT
 
 
 # ----------------------------------------------------------------- params
+
+
+def test_param_table_is_in_px4_index_order():
+    assert list(PARAMETERS) == sorted(PARAMETERS)
 
 
 def test_param_list_is_complete_and_indexed(vehicle):
@@ -359,39 +505,44 @@ def test_int32_params_are_encoded_bytewise(vehicle):
     assert struct.unpack("<i", struct.pack("<f", value.param_value))[0] == 1
     by_index = M.MAVLink_param_request_read_message(1, 1, b"", value.param_index)
     assert vehicle.handle(received(by_index), "gcs", 0.0)[0][1].param_id == "MAV_SYS_ID"
+    unknown = M.MAVLink_param_request_read_message(1, 1, b"NO_SUCH_PARAM", -1)
+    assert vehicle.handle(received(unknown), "gcs", 0.0) == []  # PX4 does not answer
 
 
-def test_param_set_accepts_refuses_and_reports_unknown(vehicle):
-    def param_set(name, wire):
-        msg = M.MAVLink_param_set_message(1, 1, name.encode(), wire, M.MAV_PARAM_TYPE_REAL32)
+def test_param_set_stores_like_px4_and_ignores_a_wrong_type(vehicle):
+    def param_set(name, wire, kind=M.MAV_PARAM_TYPE_REAL32):
+        msg = M.MAVLink_param_set_message(1, 1, name.encode(), wire, kind)
         return vehicle.handle(received(msg), "gcs", 0.0)
 
     out = param_set("MIS_TAKEOFF_ALT", 4.0)
     assert [(link, m.param_value) for link, m in out] == [("onboard", 4.0), ("gcs", 4.0)]
     assert vehicle.params["MIS_TAKEOFF_ALT"] == 4.0
-    bytewise_4 = struct.unpack("<f", struct.pack("<i", 4))[0]
-    param_set("COM_OBL_RC_ACT", bytewise_4)
+    bytewise = lambda n: struct.unpack("<f", struct.pack("<i", n))[0]  # noqa: E731
+    param_set("COM_OBL_RC_ACT", bytewise(4), M.MAV_PARAM_TYPE_INT32)
     assert vehicle.params["COM_OBL_RC_ACT"] == 4
-    out = param_set("COM_OBL_RC_ACT", struct.unpack("<f", struct.pack("<i", 3))[0])  # RTL
-    assert vehicle.params["COM_OBL_RC_ACT"] == 4
-    assert [m.get_type() for _, m in out] == ["PARAM_VALUE", "STATUSTEXT", "STATUSTEXT"]
+    param_set("COM_OBL_RC_ACT", bytewise(42), M.MAV_PARAM_TYPE_INT32)  # not checked, as PX4
+    assert vehicle.params["COM_OBL_RC_ACT"] == 42
+    assert param_set("COM_OBL_RC_ACT", 5.0) == []  # REAL32 for an INT32: ignored
+    assert vehicle.params["COM_OBL_RC_ACT"] == 42
+    param_set("MPC_THR_HOVER", 5.0)  # outside PX4's metadata range: stored anyway
+    assert vehicle.params["MPC_THR_HOVER"] == 5.0
     out = param_set("COM_OF_LOSS_T", math.nan)
     assert vehicle.params["COM_OF_LOSS_T"] == 1.0 and out[0][1].param_value == 1.0
-    out = param_set("NO_SUCH_PARAM", 1.0)
-    assert [m.text for _, m in out] == ["[pm] unknown param: NO_SUCH_PARAM"] * 2
+    assert param_set("NO_SUCH_PARAM", 1.0) == []
 
 
-def test_hover_thrust_from_scenario_hovers_the_nominal_airframe():
-    from companion.config import load_scenario
-    from sitl.physics.rotors import thrust_curve
-
-    scenario = load_scenario("configs/paper_sim_flight.toml")
+def test_scenario_sets_the_airframe_parameters_and_the_loop_follows_them():
+    scenario = load_scenario("configs/sitl_pickup.toml")
     params = Px4Params.from_scenario(scenario)
-    rotors = scenario.vehicle.rotors
-    thrust = (
-        6
-        * rotors.max_thrust_per_rotor_n
-        * thrust_curve(params["MPC_THR_HOVER"], rotors.thr_mdl_fac)
-    )
-    assert thrust == pytest.approx(1.2 * scenario.environment.gravity_m_s2, rel=1e-9)
-    assert params["THR_MDL_FAC"] == rotors.thr_mdl_fac
+    assert params["THR_MDL_FAC"] == scenario.vehicle.rotors.thr_mdl_fac
+    assert params["MPC_THR_HOVER"] == 0.5  # PX4's default: the estimator learns the real one
+    assert params["MC_ROLL_P"] == scenario.plant.attitude_control.attitude_p[0]
+    assert params["MC_ROLLRATE_MAX"] == pytest.approx(220.0)
+    revision = params.revision
+    params.set("MC_ROLL_P", 6.0)
+    params.set("MC_PITCHRATE_K", 2.0)
+    assert params.revision == revision + 2
+    loop = attitude_loop_params(params)
+    assert loop.attitude_p[0] == 6.0 and loop.rate_k == (1.0, 2.0, 1.0)
+    assert loop.rate_max_rad_s[0] == pytest.approx(math.radians(220.0))
+    assert loop.thr_mdl_fac == scenario.vehicle.rotors.thr_mdl_fac

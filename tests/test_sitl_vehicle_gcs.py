@@ -26,7 +26,7 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def vehicle():
-    sitl = start_sitl(CONFIG, "--seed", "3", speed=2.0)
+    sitl = start_sitl(CONFIG, "--seed", "3", "--navigation", "gps", speed=2.0)
     yield sitl
     sitl.stop()
 
@@ -84,16 +84,28 @@ def test_param_list_is_complete_and_settable(gcs):
     assert echo is not None and echo.param_value == pytest.approx(0.7)
 
 
-def _stream_attitude(conn, seconds, thrust=0.0):
+def _stream_attitude(conn, seconds, thrust=0.0, until=lambda m: False):
+    """Stream level setpoints for ``seconds`` of wall time, reading what comes in (the GCS
+    link's 50 Hz streams fill a socket that is not read); returns the first message meeting
+    ``until`` (then stops), or None."""
     end = time.monotonic() + seconds
     while time.monotonic() < end:
         conn.mav.set_attitude_target_send(
             0, 1, 1, 0b00000111, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, thrust
         )
-        time.sleep(0.02)
+        stop = time.monotonic() + 0.02
+        while time.monotonic() < stop:
+            msg = conn.recv_match(blocking=True, timeout=0.005)
+            if msg is not None and until(msg):
+                return msg
+    return None
 
 
 def test_offboard_needs_a_live_setpoint_stream_and_fails_safe_when_it_stops(gcs):
+    # Disarmed, PX4 accepts any mode; armed, OFFBOARD needs the setpoint stream.
+    gcs.mav.command_long_send(1, 1, mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+    ack = _ack(gcs, mavlink2.MAV_CMD_COMPONENT_ARM_DISARM)
+    assert ack is not None and ack.result == mavlink2.MAV_RESULT_ACCEPTED
     gcs.set_mode("OFFBOARD")
     ack = _ack(gcs, mavlink2.MAV_CMD_DO_SET_MODE)
     assert ack is not None
@@ -101,13 +113,18 @@ def test_offboard_needs_a_live_setpoint_stream_and_fails_safe_when_it_stops(gcs)
     assert (ack.target_system, ack.target_component) == (255, 190)
     _stream_attitude(gcs, 0.5)
     gcs.set_mode("OFFBOARD")
-    # Keep streaming while the command is answered.
-    _stream_attitude(gcs, 0.2)
-    ack = _ack(gcs, mavlink2.MAV_CMD_DO_SET_MODE)
+    # Keep streaming while the command is answered (at once) and until the next 1 Hz
+    # heartbeat shows the mode.
+    ack = _stream_attitude(
+        gcs,
+        2.0,
+        until=lambda m: m.get_type() == "COMMAND_ACK" and m.command == mavlink2.MAV_CMD_DO_SET_MODE,
+    )
     assert ack is not None and ack.result == mavlink2.MAV_RESULT_ACCEPTED
-    hb = _wait(gcs, "HEARTBEAT", condition=lambda m: m.get_srcSystem() == 1)
-    gcs.flightmode = mavutil.mode_string_v10(hb)
-    assert gcs.flightmode == "OFFBOARD"
+    hb = _stream_attitude(
+        gcs, 3.0, until=lambda m: m.get_type() == "HEARTBEAT" and m.get_srcSystem() == 1
+    )
+    assert hb is not None and mavutil.mode_string_v10(hb) == "OFFBOARD"
     # Stop streaming: after COM_OF_LOSS_T of vehicle time it leaves OFFBOARD by itself.
     left = _wait(
         gcs,
@@ -116,7 +133,11 @@ def test_offboard_needs_a_live_setpoint_stream_and_fails_safe_when_it_stops(gcs)
         condition=lambda m: m.get_srcSystem() == 1 and mavutil.mode_string_v10(m) != "OFFBOARD",
     )
     assert left is not None, "still in OFFBOARD after the setpoint stream stopped"
-    assert mavutil.mode_string_v10(left) in ("LOITER", "LAND", "POSCTL")
+    # COM_OBL_RC_ACT 0 (Position) needs RC: PX4 falls back to Return
+    assert mavutil.mode_string_v10(left) == "RTL"
+    gcs.mav.command_long_send(1, 1, mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 0, 0, 0, 0, 0, 0)
+    ack = _ack(gcs, mavlink2.MAV_CMD_COMPONENT_ARM_DISARM)
+    assert ack is not None and ack.result == mavlink2.MAV_RESULT_ACCEPTED  # on the ground
 
 
 def test_unhandled_command_is_unsupported(gcs):

@@ -28,7 +28,6 @@ from mavsdk.asyncio.plugins.telemetry import FlightMode, LandedState, TelemetryA
 
 from companion.config import load_scenario
 from sitl.launch import start_sitl
-from sitl.px4 import Px4Params
 
 CONFIG = Path(__file__).parent.parent / "configs" / "sitl_pickup.toml"
 SPEED = 1.0
@@ -121,8 +120,8 @@ async def _fly(port: int, hover_thrust: float) -> dict:
         seen["mode_hold"] = await _latest(
             telemetry.subscribe_flight_mode(), lambda m: m == FlightMode.HOLD, 20.0
         )
-        # Hold for 120 position updates (4 s of vehicle time at the onboard 30 Hz rate).
-        seen["hold_positions"] = await _collect(telemetry.subscribe_position(), 120, 30.0)
+        # Hold for 200 position updates (4 s of vehicle time at PX4's onboard 50 Hz).
+        seen["hold_positions"] = await _collect(telemetry.subscribe_position(), 200, 30.0)
 
         await action.land()
         seen["mode_land"] = await _latest(
@@ -141,9 +140,14 @@ async def _fly(port: int, hover_thrust: float) -> dict:
 
 
 def test_mavsdk_arms_climbs_in_offboard_holds_lands_and_disarms(tmp_path):
-    hover = Px4Params.from_scenario(load_scenario(CONFIG))["MPC_THR_HOVER"]
+    scenario = load_scenario(CONFIG)
+    mass = scenario.vehicle.mass_kg + scenario.arm.link1.mass_kg + scenario.arm.link2.mass_kg
+    rotors = scenario.vehicle.rotors
+    # PX4's thrust is relative thrust: weight over the six rotors' full thrust hovers
+    hover = mass * scenario.environment.gravity_m_s2 / (6 * rotors.max_thrust_per_rotor_n)
     truth = tmp_path / "truth.jsonl"
-    sitl = start_sitl(CONFIG, "--seed", "7", speed=SPEED, truth_log=truth)
+    # GPS aiding: MAVSDK arms in Hold, which needs a global position
+    sitl = start_sitl(CONFIG, "--seed", "7", "--navigation", "gps", speed=SPEED, truth_log=truth)
     try:
         seen = asyncio.run(asyncio.wait_for(_fly(sitl.onboard_port, hover), 120.0))
         assert sitl.alive(), "the vehicle process died during the flight"
@@ -165,14 +169,15 @@ def test_mavsdk_arms_climbs_in_offboard_holds_lands_and_disarms(tmp_path):
     assert seen["in_air"] == LandedState.IN_AIR
     assert seen["mode_hold"] == FlightMode.HOLD
     hold = [p.relative_altitude_m for p in seen["hold_positions"]]
-    assert len(hold) == 120
+    assert len(hold) == 200
     assert min(hold) > 1.0, "the vehicle fell in HOLD"
     # It brakes the climb, then stays: the last second within half a metre.
-    assert max(hold[-30:]) - min(hold[-30:]) < 0.5, "the vehicle did not hold its altitude"
+    assert max(hold[-50:]) - min(hold[-50:]) < 0.5, "the vehicle did not hold its altitude"
     assert seen["mode_land"] == FlightMode.LAND
     assert seen["on_ground"] == LandedState.ON_GROUND
     assert seen["disarmed"] is False
-    assert abs(seen["landed_position"].relative_altitude_m) < 0.3
+    # GPS and baro: the estimated height wanders (PX4 SIH: 0.3-1.2 m in flight)
+    assert abs(seen["landed_position"].relative_altitude_m) < 1.0
 
     # What really happened (the truth log, never sent over MAVLink).
     records = [json.loads(line) for line in truth.read_text().splitlines() if line]
@@ -184,7 +189,8 @@ def test_mavsdk_arms_climbs_in_offboard_holds_lands_and_disarms(tmp_path):
     assert max(heights) > start_height + 1.5
     after = records[records.index(offboard[-1]) + 1 :]
     assert [r["mode"] for r in after][:1] == ["AUTO_LOITER"]
-    held = [r for r in after if r["mode"] == "AUTO_LOITER"]
+    landing = next(i for i, r in enumerate(after) if r["mode"] == "AUTO_LAND")
+    held = [r for r in after[:landing] if r["mode"] == "AUTO_LOITER"]  # (Hold again disarmed)
     assert abs(held[-1]["q_dot"][2]) < 0.3 and held[-1]["q"][2] > start_height + 1.0
     assert any(r["mode"] == "AUTO_LAND" and not r["on_ground"] for r in after)
     last = records[-1]

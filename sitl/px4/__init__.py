@@ -4,7 +4,7 @@ Pure logic driven by simulation time, plus a thin UDP endpoint::
 
     from sitl.px4 import MavlinkEndpoint, Px4Params, Px4Vehicle, VehicleMeasurement
 
-    vehicle = Px4Vehicle(Px4Params.from_scenario(scenario))
+    vehicle = Px4Vehicle(Px4Params.from_scenario(scenario), aiding="vision")
     links = {"onboard": MavlinkEndpoint(14580, 14540), "gcs": MavlinkEndpoint(18570, 14550)}
     for endpoint in links.values():
         endpoint.open()
@@ -16,17 +16,19 @@ Pure logic driven by simulation time, plus a thin UDP endpoint::
     setpoint = vehicle.control(t, m)          # AttitudeSetpoint or None (disarmed)
     for link, msg in vehicle.telemetry(t, m):
         links[link].send(msg)
+    plant.configure_autopilot(attitude_loop_params(vehicle.params))  # after a PARAM_SET
 
 Modules: :mod:`~sitl.px4.vehicle` (message handling, the facade),
-:mod:`~sitl.px4.commander` (arming, modes, offboard, failsafe, landing),
-:mod:`~sitl.px4.position_control` (AUTO / POSCTL position loop),
+:mod:`~sitl.px4.commander` (arming, modes, offboard, failsafe, return, landing),
+:mod:`~sitl.px4.position_control` (AUTO position loop),
+:mod:`~sitl.px4.hover_thrust` (PX4's hover thrust estimator),
 :mod:`~sitl.px4.telemetry` (streams, rates, NED / FRD messages),
 :mod:`~sitl.px4.params` (parameter table and encoding), :mod:`~sitl.px4.modes`
 (custom_mode encoding), :mod:`~sitl.px4.geo` (flat-earth lat / lon),
 :mod:`~sitl.px4.measurement` (input), :mod:`~sitl.px4.endpoint` (UDP, signing).
 """
 
-from sitl.px4.commander import Home
+from sitl.px4.commander import ConsoleLine
 from sitl.px4.endpoint import (
     GCS_PORTS,
     ONBOARD_PORTS,
@@ -35,10 +37,17 @@ from sitl.px4.endpoint import (
     load_signing_key,
 )
 from sitl.px4.geo import GeoReference
-from sitl.px4.measurement import VehicleMeasurement
+from sitl.px4.measurement import EstimatorReport, VehicleMeasurement
 from sitl.px4.modes import Px4Mode
-from sitl.px4.params import PARAMETERS, ParamError, ParamSpec, Px4Params, UnknownParamError
-from sitl.px4.telemetry import GCS_RATES_HZ, ONBOARD_RATES_HZ
+from sitl.px4.params import (
+    PARAMETERS,
+    ParamError,
+    ParamSpec,
+    Px4Params,
+    UnknownParamError,
+    attitude_loop_params,
+)
+from sitl.px4.telemetry import GCS_RATES_HZ, ONBOARD_RATES_HZ, Home
 from sitl.px4.vehicle import FLIGHT_SW_VERSION, Px4Vehicle
 
 __all__ = [
@@ -48,6 +57,8 @@ __all__ = [
     "ONBOARD_PORTS",
     "ONBOARD_RATES_HZ",
     "PARAMETERS",
+    "ConsoleLine",
+    "EstimatorReport",
     "GeoReference",
     "Home",
     "MavlinkEndpoint",
@@ -59,5 +70,6 @@ __all__ = [
     "SigningKeyError",
     "UnknownParamError",
     "VehicleMeasurement",
+    "attitude_loop_params",
     "load_signing_key",
 ]

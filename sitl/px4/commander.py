@@ -1,25 +1,52 @@
 """The PX4-like state machine: arming, modes, offboard proof of life, failsafe, landing.
 
-Pure (simulation time in, decisions out), modelled on PX4's commander and navigator:
+Pure (simulation time in, decisions out), modelled on PX4 main's commander, failsafe
+framework and navigator (``src/modules/commander``: ``Commander.cpp``,
+``UserModeIntention.cpp``, ``ModeUtil/mode_requirements.cpp``, ``failsafe/failsafe.cpp``)
+and on what the real SITL build did:
 
-- Arming (MAV_CMD_COMPONENT_ARM_DISARM): refused (TEMPORARILY_REJECTED + STATUSTEXT)
-  when the battery is below BAT_CRIT_THR (7 %), or in OFFBOARD without a live setpoint
-  stream. Arming in the air is allowed. Disarming in the air is DENIED unless forced
-  (param2 = 21196), as PX4 does for multicopters. Home is (re)set at arming.
-- Modes: OFFBOARD, AUTO.TAKEOFF, AUTO.LOITER (Hold), AUTO.LAND and POSCTL (holds
-  position: there are no sticks). OFFBOARD is TEMPORARILY_REJECTED unless the offboard
-  stream is alive. MANUAL, STABILIZED, ACRO and ALTCTL need stick input, which this
-  vehicle has not (TEMPORARILY_REJECTED, as PX4 without RC); MISSION, RTL and READY are
-  not implemented (DENIED).
-- Offboard proof of life (PX4 ``offboardCheck.cpp``): the stream is alive while
-  ``now < t_last + COM_OF_LOSS_T`` where ``t_last`` is the simulation time of the last
-  accepted SET_ATTITUDE_TARGET that does not ignore attitude. Loss while in OFFBOARD
-  switches to the COM_OBL_RC_ACT mode (failsafe flag set until the next commanded mode).
-- Takeoff: climb at MPC_TKO_SPEED to the takeoff height, then AUTO.LOITER at it once
-  within NAV_MC_ALT_RAD ("Takeoff complete").
-- Land detection: the measurement's ``on_ground`` (the world's ground contact), or, in
-  AUTO.LAND, a descent that stalls (vertical speed below 0.1 m/s for 1 s).
-- Auto-disarm: COM_DISARM_LAND seconds after landing, if the vehicle took off since arming.
+- **User intention and the mode flown.** DO_SET_MODE changes the user's intended mode; the
+  mode flown is that one unless a failsafe replaces it. While disarmed every mode is
+  accepted (PX4: "always allow mode change while disarmed"), even one that cannot run;
+  armed, a mode is accepted only if it can run, else TEMPORARILY_REJECTED.
+- **Mode requirements.** OFFBOARD needs the offboard signal; Hold (AUTO.LOITER) a global
+  position (GPS, or motion capture after SET_GPS_GLOBAL_ORIGIN); Return (AUTO.RTL) a
+  global position and home; Takeoff and Land a local position (always here); MANUAL,
+  STABILIZED, ACRO, ALTCTL and POSCTL manual control (no RC here: never); MISSION a
+  mission (never). Land and Return prevent arming.
+- **Arming** (MAV_CMD_COMPONENT_ARM_DISARM): refused (TEMPORARILY_REJECTED) unless the
+  battery is above BAT_CRIT_THR and the mode flown can run and does not prevent arming.
+  PX4 runs these checks for every MAVLink arm command, forced (param2 21196) or not:
+  force skips them only for commands from inside PX4. Home is set at arming. Disarming in
+  the air is TEMPORARILY_REJECTED unless forced. After a disarm the intended mode returns
+  to the last one asked for that does not prevent arming.
+- **Offboard proof of life** (PX4 ``offboardCheck.cpp``): alive while ``now < t_last +
+  COM_OF_LOSS_T``, ``t_last`` the time of the last valid SET_ATTITUDE_TARGET that does
+  not ignore attitude.
+- **Failsafe** (armed): while OFFBOARD is intended and the signal is lost, the vehicle
+  flies the COM_OBL_RC_ACT action: 0 Position, 1 Altitude, 2 Stabilized (these need manual
+  control, so they fall back to Return, as PX4 does without RC), 3 Return, 4 Land, 5 Hold,
+  6 Terminate and 7 Disarm (both: disarm here). A Hold or Return that cannot run falls
+  back to Return, then Land. When the signal returns, the vehicle flies OFFBOARD again;
+  another mode asked for ends the failsafe.
+- **Takeoff**: climb at MPC_TKO_SPEED to the takeoff height, then Hold ("Takeoff
+  complete": the navigator makes Hold the intended mode).
+- **Return**: climb to the return altitude above home (RTL_RETURN_ALT, or within
+  RTL_MIN_DIST of home the height of the RTL_CONE_ANG cone over the distance, never below
+  the current height), fly home, land there.
+- **Land detection**: the measurement's ``on_ground`` (the world's ground contact), or,
+  descending in Land or Return, a descent that stalls (vertical speed below 0.1 m/s for
+  1 s).
+- **Auto-disarm**: COM_DISARM_LAND after landing, or COM_DISARM_PRFLT after arming without
+  a takeoff.
+- **Hover thrust**: the position controller flies with the hover thrust estimator's
+  estimate once valid (:mod:`sitl.px4.hover_thrust`).
+
+The setpoint is recomputed at each new estimate (the position loop runs at the
+estimator's rate, as mc_pos_control does) and held between.
+
+PX4 reports its decisions as events, not STATUSTEXT (measured: no STATUSTEXT on either
+link); this commander writes them to :attr:`Commander.console`, as PX4 does to its log.
 """
 
 from __future__ import annotations
@@ -27,44 +54,48 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.physics import AttitudeSetpoint
 from sitl.physics.frames import euler_from_rotation, rotation_from_quaternion
+from sitl.px4.geo import GeoReference
+from sitl.px4.hover_thrust import HoverThrustEstimator
 from sitl.px4.measurement import VehicleMeasurement
 from sitl.px4.modes import Px4Mode
-from sitl.px4.params import OFFBOARD_LOSS_ACTIONS, Px4Params
+from sitl.px4.params import Px4Params
 from sitl.px4.position_control import PositionController, PositionTarget
+from sitl.px4.telemetry import Home
 
-__all__ = ["BATTERY_CRITICAL", "FORCE_MAGIC", "Commander", "Home", "StatusText"]
+__all__ = ["BATTERY_CRITICAL", "FORCE_MAGIC", "Commander", "ConsoleLine"]
 
 FORCE_MAGIC = 21196.0
 """MAV_CMD_COMPONENT_ARM_DISARM param2 that forces (dis)arming."""
 BATTERY_CRITICAL = 0.07
 """PX4 BAT_CRIT_THR default: arming is refused below this remaining charge."""
 LAND_STALL_SPEED_M_S = 0.1
-"""AUTO.LAND: vertical speed below which the descent counts as stalled [m/s]."""
+"""Landing: vertical speed below which the descent counts as stalled [m/s]."""
 LAND_STALL_TIME_S = 1.0
-"""AUTO.LAND: a stalled descent for this long counts as landed [s]."""
+"""Landing: a stalled descent for this long counts as landed [s]."""
+IN_AIR_HEIGHT_M = 1.0
+"""Height above home from which the hover thrust estimator runs (PX4: dist_bottom > 1 m)."""
+RTL_ARRIVED_M = 0.5
+"""Return: horizontal distance to home at which the landing starts [m]."""
 
-_MANUAL_INPUT_MODES = (Px4Mode.MANUAL, Px4Mode.STABILIZED, Px4Mode.ACRO, Px4Mode.ALTCTL)
-_HOLD_MODES = (Px4Mode.AUTO_LOITER, Px4Mode.POSCTL)
-_LOSS_MODES = {0: Px4Mode.POSCTL, 4: Px4Mode.AUTO_LAND, 5: Px4Mode.AUTO_LOITER}
-assert set(_LOSS_MODES) == set(OFFBOARD_LOSS_ACTIONS)
+_MANUAL_CONTROL = (
+    Px4Mode.MANUAL, Px4Mode.STABILIZED, Px4Mode.ACRO, Px4Mode.ALTCTL, Px4Mode.POSCTL,
+)  # fmt: skip
+_PREVENT_ARMING = (Px4Mode.AUTO_LAND, Px4Mode.AUTO_RTL)
+_POSITION_MODES = (Px4Mode.AUTO_TAKEOFF, Px4Mode.AUTO_LOITER, Px4Mode.AUTO_LAND, Px4Mode.AUTO_RTL)
+_LOSS_ACTIONS = {3: Px4Mode.AUTO_RTL, 4: Px4Mode.AUTO_LAND, 5: Px4Mode.AUTO_LOITER}
+"""COM_OBL_RC_ACT values with their own mode; 0, 1, 2 and unknown values need manual
+control and fall back to Return; 6 and 7 disarm."""
+_DISARM_ACTIONS = (6, 7)
 
 
 @dataclass(frozen=True)
-class Home:
-    """Home: where the vehicle was last armed (world ENU [m])."""
-
-    east_m: float
-    north_m: float
-    up_m: float
-
-
-@dataclass(frozen=True)
-class StatusText:
-    """A STATUSTEXT to send on every link (MAV_SEVERITY_* and at most 50 characters)."""
+class ConsoleLine:
+    """A line PX4 would print to its console (MAV_SEVERITY_* and the text)."""
 
     severity: int
     text: str
@@ -75,7 +106,7 @@ def _yaw(m: VehicleMeasurement) -> float:
 
 
 class Commander:
-    """Arming, mode, offboard and landing logic; see the module docstring.
+    """Arming, modes, offboard, failsafe, return and landing; see the module docstring.
 
     Parameters
     ----------
@@ -83,6 +114,9 @@ class Commander:
         Shared with the vehicle (PARAM_SET takes effect at once).
     gravity_m_s2 : float
         Gravity of the position controller [m/s^2].
+    global_origin : GeoReference, optional
+        The estimator's global origin at boot (GPS); None: no global position until
+        :meth:`set_global_origin` (motion capture).
     initial_mode : Px4Mode
         Mode at boot (AUTO.LOITER: Hold).
     """
@@ -91,38 +125,66 @@ class Commander:
         self,
         params: Px4Params,
         gravity_m_s2: float = 9.80665,
+        global_origin: GeoReference | None = None,
         initial_mode: Px4Mode = Px4Mode.AUTO_LOITER,
     ) -> None:
         self._params = params
+        self._g = float(gravity_m_s2)
         self._position = PositionController(params, gravity_m_s2)
+        self._hover = HoverThrustEstimator(params)
+        self.user_mode = initial_mode
+        """The mode the user asked for (PX4's user intention)."""
         self.mode = initial_mode
+        """The mode flown."""
         self.armed = False
         self.landed = True
         self.failsafe = False
+        self.origin = global_origin
+        """The estimator's global origin (None: no global position)."""
         self.home: Home | None = None
-        self.outbox: list[StatusText] = []
-        self.state_changed = False
+        self.console: list[ConsoleLine] = []
+        """What PX4 would print; the runner drains it."""
+        self._after_disarm = initial_mode
+        self._armed_at_s = 0.0
         self._taken_off = False
+        self._in_air = False
         self._landed_since_s: float | None = None
         self._stall_since_s: float | None = None
         self._offboard_sp: AttitudeSetpoint | None = None
         self._offboard_last_s = -math.inf
         self._target: PositionTarget | None = None
+        self._target_mode: Px4Mode | None = None
         self._takeoff_up_m: float | None = None
-        self._home_pending = True
-        self._prearm_ok = True
-        self._last_time_s: float | None = None
+        self._rtl_phase = 0
+        self._rtl_up_m = 0.0
+        self._prearm_battery = True
+        self._last_m: VehicleMeasurement | None = None
+        self._last_estimate_us: int | None = None
+        self._setpoint: AttitudeSetpoint | None = None
 
     # ---------------------------------------------------------------- queries
 
     @property
     def prearm_ok(self) -> bool:
-        """Arming checks pass (battery above BAT_CRIT_THR) at the last update."""
-        return self._prearm_ok
+        """Arming would pass its checks in the mode flown (HEARTBEAT STANDBY)."""
+        return self._can_arm(self._last_now_s())
+
+    def _last_now_s(self) -> float:
+        return self._last_m.time_s if self._last_m is not None else 0.0
 
     def offboard_alive(self, now_s: float) -> bool:
         """The offboard stream is fresher than COM_OF_LOSS_T at ``now_s``."""
         return now_s < self._offboard_last_s + self._params["COM_OF_LOSS_T"]
+
+    def can_run(self, mode: Px4Mode, now_s: float) -> bool:
+        """Whether ``mode`` meets its requirements now (see the module docstring)."""
+        if mode == Px4Mode.OFFBOARD:
+            return self.offboard_alive(now_s)
+        if mode == Px4Mode.AUTO_LOITER:
+            return self.origin is not None
+        if mode == Px4Mode.AUTO_RTL:
+            return self.origin is not None and self.home is not None
+        return mode in (Px4Mode.AUTO_TAKEOFF, Px4Mode.AUTO_LAND)
 
     @property
     def landed_state(self) -> int:
@@ -131,27 +193,46 @@ class Commander:
             return mavlink.MAV_LANDED_STATE_ON_GROUND
         if self.armed and self.mode == Px4Mode.AUTO_TAKEOFF:
             return mavlink.MAV_LANDED_STATE_TAKEOFF
-        if self.armed and self.mode == Px4Mode.AUTO_LAND:
+        if self.armed and self._descending:
             return mavlink.MAV_LANDED_STATE_LANDING
         return mavlink.MAV_LANDED_STATE_IN_AIR
 
+    @property
+    def _descending(self) -> bool:
+        """Landing: AUTO.LAND, or the last phase of a return."""
+        return self.mode == Px4Mode.AUTO_LAND or (
+            self.mode == Px4Mode.AUTO_RTL and self._rtl_phase == 2
+        )
+
+    @property
+    def setpoint_flown(self) -> AttitudeSetpoint | None:
+        """The attitude setpoint of the last step (None while disarmed)."""
+        return self._setpoint
+
+    @property
+    def hover_thrust(self) -> float:
+        """The relative hover thrust the position controller flies with [-]."""
+        return self._position.hover_thrust
+
     # -------------------------------------------------------------- commands
 
-    def arm(self, now_s: float, force: bool) -> int:
-        """MAV_CMD_COMPONENT_ARM_DISARM param1 = 1; returns MAV_RESULT_*."""
+    def arm(self, now_s: float) -> int:
+        """MAV_CMD_COMPONENT_ARM_DISARM param1 = 1 (forced or not); returns MAV_RESULT_*."""
         if self.armed:
             return mavlink.MAV_RESULT_ACCEPTED
-        if not force:
-            if not self._prearm_ok:
-                return self._deny("Arming denied: battery critical")
-            if self.mode == Px4Mode.OFFBOARD and not self.offboard_alive(now_s):
-                return self._deny("Arming denied: no offboard signal")
+        if not self._can_arm(now_s):
+            self._print(
+                mavlink.MAV_SEVERITY_WARNING, "Arming denied: Resolve system health failures first"
+            )
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
         self.armed = True
+        self._armed_at_s = now_s
         self._taken_off = not self.landed
-        self._home_pending = True
+        self._landed_since_s = now_s if self.landed else None
         self._position.reset()
-        self._changed()
-        self.outbox.append(StatusText(mavlink.MAV_SEVERITY_INFO, "Armed by external command"))
+        if self.origin is not None and self._last_m is not None:
+            self._set_home(self._last_m)
+        self._print(mavlink.MAV_SEVERITY_INFO, "Armed by external command")
         return mavlink.MAV_RESULT_ACCEPTED
 
     def disarm(self, force: bool) -> int:
@@ -159,128 +240,248 @@ class Commander:
         if not self.armed:
             return mavlink.MAV_RESULT_ACCEPTED
         if not self.landed and not force:
-            self.outbox.append(
-                StatusText(mavlink.MAV_SEVERITY_CRITICAL, "Disarming denied: not landed")
-            )
-            return mavlink.MAV_RESULT_DENIED
-        self._disarm("Disarmed by external command")
+            self._print(mavlink.MAV_SEVERITY_CRITICAL, "Disarming denied: not landed")
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        self._disarm("external command")
         return mavlink.MAV_RESULT_ACCEPTED
 
     def request_mode(self, mode: Px4Mode, now_s: float) -> int:
         """DO_SET_MODE / SET_MODE to ``mode``; returns MAV_RESULT_*."""
-        if mode in _MANUAL_INPUT_MODES:
-            return self._deny(f"Switching to {mode.display_name} denied: no manual control")
-        if mode == Px4Mode.OFFBOARD and not self.offboard_alive(now_s):
-            return self._deny("Switching to Offboard denied: no offboard signal")
-        if mode == Px4Mode.AUTO_TAKEOFF:
-            return self.takeoff(None)
-        if mode not in (Px4Mode.OFFBOARD, Px4Mode.AUTO_LAND, *_HOLD_MODES):
-            self.outbox.append(
-                StatusText(mavlink.MAV_SEVERITY_CRITICAL, f"{mode.display_name} not available")
+        if self.armed and not self.can_run(mode, now_s):
+            self._print(
+                mavlink.MAV_SEVERITY_CRITICAL,
+                f"Switching to {mode.display_name} is currently not available",
             )
-            return mavlink.MAV_RESULT_DENIED
-        self._enter(mode)
+            return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        if mode == Px4Mode.AUTO_TAKEOFF and mode != self.user_mode:
+            self._takeoff_up_m = None
+        self._intend(mode)
         return mavlink.MAV_RESULT_ACCEPTED
 
-    def takeoff(self, up_m: float | None) -> int:
-        """NAV_TAKEOFF (or AUTO.TAKEOFF) to height ``up_m`` in the world [m], or to
-        MIS_TAKEOFF_ALT above home when None; returns MAV_RESULT_*."""
-        self._takeoff_up_m = up_m
-        self._enter(Px4Mode.AUTO_TAKEOFF)
-        return mavlink.MAV_RESULT_ACCEPTED
+    def takeoff(self, up_m: float | None, now_s: float) -> int:
+        """NAV_TAKEOFF to height ``up_m`` in the world [m], or to MIS_TAKEOFF_ALT above home
+        when None; returns MAV_RESULT_*."""
+        result = self.request_mode(Px4Mode.AUTO_TAKEOFF, now_s)
+        if result == mavlink.MAV_RESULT_ACCEPTED:
+            self._takeoff_up_m = up_m
+            self._target = None
+        return result
+
+    def land(self, now_s: float) -> int:
+        """NAV_LAND: land where the vehicle is; returns MAV_RESULT_*."""
+        result = self.request_mode(Px4Mode.AUTO_LAND, now_s)
+        if result == mavlink.MAV_RESULT_ACCEPTED:
+            self._print(mavlink.MAV_SEVERITY_INFO, "Landing at current position")
+        return result
 
     def offboard_setpoint(self, setpoint: AttitudeSetpoint, now_s: float) -> None:
-        """Record a valid SET_ATTITUDE_TARGET (proof of life; applied only in OFFBOARD)."""
+        """Record a valid SET_ATTITUDE_TARGET (proof of life; flown only in OFFBOARD)."""
         self._offboard_sp = setpoint
         self._offboard_last_s = now_s
+
+    def set_global_origin(self, origin: GeoReference) -> bool:
+        """SET_GPS_GLOBAL_ORIGIN: the estimator takes ``origin`` (refused in the air, as
+        EKF2 does); returns whether it did. Home follows at the next update."""
+        if self.armed and not self.landed:
+            return False
+        self.origin = origin
+        self.home = None
+        return True
 
     # ------------------------------------------------------------ time steps
 
     def update(self, now_s: float, m: VehicleMeasurement) -> None:
-        """Run the timers at ``now_s``: home, land detection, takeoff completion, offboard
-        loss failsafe and auto-disarm."""
-        self._prearm_ok = m.battery_remaining > BATTERY_CRITICAL
-        if self._home_pending and (self.armed or self.home is None):
-            pos = m.position_enu_m
-            self.home = Home(float(pos[0]), float(pos[1]), float(pos[2]))
-            self._home_pending = self.home is None
+        """Run the state machine at ``now_s``: checks, home, land detection, failsafe,
+        takeoff completion, return phases and auto-disarm."""
+        self._last_m = m
+        self._prearm_battery = m.battery_remaining > BATTERY_CRITICAL
+        if self.origin is not None and self.home is None:
+            self._set_home(m)
         self._detect_landing(now_s, m)
-        if self.mode == Px4Mode.OFFBOARD and not self.offboard_alive(now_s):
-            action = int(self._params["COM_OBL_RC_ACT"])
-            self._enter(_LOSS_MODES[action])
-            self.failsafe = True
-            self.outbox.append(
-                StatusText(
-                    mavlink.MAV_SEVERITY_CRITICAL,
-                    f"Failsafe: no offboard, {self.mode.display_name}",
-                )
-            )
-        disarm_after = self._params["COM_DISARM_LAND"]
-        if (
-            self.armed
-            and self._taken_off
-            and disarm_after > 0.0
-            and self._landed_since_s is not None
-            and now_s - self._landed_since_s >= disarm_after
-        ):
-            self._disarm("Disarmed by landing")
+        if self.armed:
+            self._run_failsafe(now_s)
+        else:
+            self.mode = self.user_mode
+            self.failsafe = False
+        if self.armed and self.mode == Px4Mode.AUTO_TAKEOFF and not self.landed:
+            self._complete_takeoff(m)
+        if self.armed and self.mode == Px4Mode.AUTO_RTL:
+            self._advance_return(m)
+        self._auto_disarm(now_s)
 
     def setpoint(self, now_s: float, m: VehicleMeasurement) -> AttitudeSetpoint | None:
-        """The attitude setpoint for this step (None while disarmed)."""
-        dt = 0.0 if self._last_time_s is None else max(now_s - self._last_time_s, 0.0)
-        self._last_time_s = now_s
+        """The attitude setpoint for this step (None while disarmed); the position loop
+        runs once per new estimate and its setpoint is held in between."""
         if not self.armed:
+            self._setpoint = None
             return None
         if self.mode == Px4Mode.OFFBOARD and self._offboard_sp is not None:
-            return self._offboard_sp
+            self._setpoint = self._offboard_sp
+            return self._setpoint
+        fresh = m.estimate_time_us != self._last_estimate_us
+        if not fresh and self._setpoint is not None and self._target_mode == self.mode:
+            return self._setpoint
+        dt = (
+            0.0
+            if self._last_estimate_us is None
+            else (m.estimate_time_us - self._last_estimate_us) * 1e-6
+        )
+        self._last_estimate_us = m.estimate_time_us
         target = self._current_target(m)
         if self.landed and self.mode != Px4Mode.AUTO_TAKEOFF:
             self._position.reset()
-            return AttitudeSetpoint.from_euler(0.0, 0.0, target.yaw_rad, 0.0)
-        if self.mode == Px4Mode.AUTO_TAKEOFF and target.up_m is not None:
-            if abs(m.position_enu_m[2] - target.up_m) < self._params["NAV_MC_ALT_RAD"]:
-                self._enter(Px4Mode.AUTO_LOITER, hold=target)
-                self.outbox.append(StatusText(mavlink.MAV_SEVERITY_INFO, "Takeoff complete"))
-        return self._position.update(target, m, dt)
+            self._setpoint = AttitudeSetpoint.from_euler(0.0, 0.0, target.yaw_rad, 0.0)
+            return self._setpoint
+        self._setpoint = self._position.update(target, m, min(dt, 0.1))
+        self._estimate_hover_thrust(now_s, dt, m)
+        return self._setpoint
 
     # -------------------------------------------------------------- internals
 
+    def _can_arm(self, now_s: float) -> bool:
+        return (
+            self._prearm_battery
+            and self.mode not in _PREVENT_ARMING
+            and self.can_run(self.mode, now_s)
+        )
+
+    def _intend(self, mode: Px4Mode) -> None:
+        """The user asks for ``mode`` (a command, or the navigator after a takeoff)."""
+        self.user_mode = mode
+        if mode not in _PREVENT_ARMING:
+            self._after_disarm = mode
+        self._fly(mode)
+        self.failsafe = False
+
+    def _fly(self, mode: Px4Mode) -> None:
+        if mode != self.mode:
+            self.mode = mode
+            self._target = self._target_mode = None
+            self._stall_since_s = None
+            if mode == Px4Mode.AUTO_RTL:
+                self._rtl_phase = 0
+
+    def _run_failsafe(self, now_s: float) -> None:
+        """The intended mode when it can run; else (offboard loss) the COM_OBL_RC_ACT action,
+        or (any other mode) Return, each falling back as PX4's failsafe does."""
+        intended = self.user_mode
+        if self.can_run(intended, now_s):
+            self._fly(intended)
+            self.failsafe = False
+            return
+        mode = Px4Mode.AUTO_RTL
+        if intended == Px4Mode.OFFBOARD:
+            action = int(self._params["COM_OBL_RC_ACT"])
+            if action in _DISARM_ACTIONS:
+                self._disarm("failsafe")
+                return
+            mode = _LOSS_ACTIONS.get(action, Px4Mode.AUTO_RTL)
+        if mode == Px4Mode.AUTO_LOITER and not self.can_run(mode, now_s):
+            mode = Px4Mode.AUTO_RTL
+        if mode == Px4Mode.AUTO_RTL and not self.can_run(mode, now_s):
+            mode = Px4Mode.AUTO_LAND
+        if not self.failsafe or mode != self.mode:
+            self._print(mavlink.MAV_SEVERITY_WARNING, f"Failsafe activated: {mode.display_name}")
+        self._fly(mode)
+        self.failsafe = True
+
+    def _set_home(self, m: VehicleMeasurement) -> None:
+        pos = m.position_enu_m
+        self.home = Home(float(pos[0]), float(pos[1]), float(pos[2]))
+
     def _current_target(self, m: VehicleMeasurement) -> PositionTarget:
         """The mode's position target, captured from ``m`` when the mode was entered."""
-        if self._target is not None:
+        if self._target is not None and self._target_mode == self.mode:
             return self._target
         pos = m.position_enu_m
         east, north, up, yaw = float(pos[0]), float(pos[1]), float(pos[2]), _yaw(m)
+        p = self._params
         if self.mode == Px4Mode.AUTO_TAKEOFF:
             if self._takeoff_up_m is None:
                 base = self.home.up_m if self.home is not None else up
-                goal = base + self._params["MIS_TAKEOFF_ALT"]
+                goal = base + p["MIS_TAKEOFF_ALT"]
             else:
                 goal = self._takeoff_up_m
-            self._target = PositionTarget(
-                east, north, max(goal, up), yaw, climb_limit_m_s=self._params["MPC_TKO_SPEED"]
+            target = PositionTarget(
+                east, north, max(goal, up), yaw, climb_limit_m_s=p["MPC_TKO_SPEED"]
             )
         elif self.mode == Px4Mode.AUTO_LAND:
-            self._target = PositionTarget(
-                east, north, None, yaw, climb_m_s=-self._params["MPC_LAND_SPEED"]
-            )
+            target = PositionTarget(east, north, None, yaw, climb_m_s=-p["MPC_LAND_SPEED"])
+        elif self.mode == Px4Mode.AUTO_RTL:
+            target = self._return_target(m, yaw)
         else:
-            self._target = PositionTarget(east, north, up, yaw)
-        return self._target
+            target = PositionTarget(east, north, up, yaw)
+        self._target, self._target_mode = target, self.mode
+        return target
 
-    def _enter(self, mode: Px4Mode, hold: PositionTarget | None = None) -> None:
-        self._target = None
-        if hold is not None:
-            self._target = PositionTarget(hold.east_m, hold.north_m, hold.up_m, hold.yaw_rad)
-        if mode != self.mode:
-            self.mode = mode
-            self._changed()
-        self.failsafe = False
-        self._stall_since_s = None
+    def _return_target(self, m: VehicleMeasurement, yaw: float) -> PositionTarget:
+        """The target of the return phase: 0 climb, 1 fly home, 2 land at home."""
+        p = self._params
+        home = self.home
+        assert home is not None  # Return runs only with a home
+        pos = m.position_enu_m
+        distance = math.hypot(float(pos[0]) - home.east_m, float(pos[1]) - home.north_m)
+        if self._rtl_phase == 0:
+            height = p["RTL_RETURN_ALT"]
+            if distance <= p["RTL_MIN_DIST"]:
+                cone = math.radians(p["RTL_CONE_ANG"])
+                if cone > 0.0:
+                    height = min(height, distance / math.tan(cone))
+            up = max(home.up_m + height, float(pos[2]))
+            self._rtl_up_m = up
+            return PositionTarget(float(pos[0]), float(pos[1]), up, yaw)
+        if self._rtl_phase == 1:
+            return PositionTarget(home.east_m, home.north_m, self._rtl_up_m, yaw)
+        return PositionTarget(home.east_m, home.north_m, None, yaw, climb_m_s=-p["MPC_LAND_SPEED"])
+
+    def _advance_return(self, m: VehicleMeasurement) -> None:
+        target = self._target
+        if target is None or self._target_mode != Px4Mode.AUTO_RTL or self.home is None:
+            return
+        pos = m.position_enu_m
+        if (
+            self._rtl_phase == 0
+            and abs(float(pos[2]) - self._rtl_up_m) < self._params["NAV_MC_ALT_RAD"]
+        ):
+            self._rtl_phase, self._target = 1, None
+        elif self._rtl_phase == 1:
+            gap = math.hypot(float(pos[0]) - self.home.east_m, float(pos[1]) - self.home.north_m)
+            if gap < RTL_ARRIVED_M:
+                self._rtl_phase, self._target = 2, None
+
+    def _complete_takeoff(self, m: VehicleMeasurement) -> None:
+        target = self._target
+        if target is None or target.up_m is None or self._target_mode != Px4Mode.AUTO_TAKEOFF:
+            return
+        if abs(float(m.position_enu_m[2]) - target.up_m) < self._params["NAV_MC_ALT_RAD"]:
+            self._intend(Px4Mode.AUTO_LOITER)
+            self._target = PositionTarget(
+                target.east_m, target.north_m, target.up_m, target.yaw_rad
+            )
+            self._target_mode = Px4Mode.AUTO_LOITER
+            self._print(mavlink.MAV_SEVERITY_INFO, "Takeoff complete")
+
+    def _estimate_hover_thrust(self, now_s: float, dt_s: float, m: VehicleMeasurement) -> None:
+        """Run the hover thrust estimator in the air and give its estimate, once valid,
+        to the position controller."""
+        home_up = self.home.up_m if self.home is not None else 0.0
+        if self.landed:
+            self._in_air = False
+        elif float(m.position_enu_m[2]) - home_up > IN_AIR_HEIGHT_M:
+            self._in_air = True
+        if not self._in_air or self.mode not in _POSITION_MODES:
+            self._hover.invalidate()
+            return
+        rot = rotation_from_quaternion(m.quaternion_enu_flu_wxyz)
+        accel_up = float(rot[2] @ np.asarray(m.specific_force_flu_m_s2)) - self._g
+        ve, vn, vu = m.velocity_enu_m_s.tolist()
+        estimate = self._hover.update(now_s, dt_s, accel_up, self._position.thrust_up, (ve, vn, vu))
+        if estimate.valid:
+            self._position.set_hover_thrust(estimate.hover_thrust)
 
     def _detect_landing(self, now_s: float, m: VehicleMeasurement) -> None:
         landed = m.on_ground
-        if self.mode == Px4Mode.AUTO_LAND and self.armed and not landed:
+        if self._descending and self.armed and not landed:
             if abs(m.velocity_enu_m_s[2]) < LAND_STALL_SPEED_M_S:
                 if self._stall_since_s is None:
                     self._stall_since_s = now_s
@@ -289,25 +490,37 @@ class Commander:
                 self._stall_since_s = None
         if landed and not self.landed:
             self._landed_since_s = now_s
+            self._print(mavlink.MAV_SEVERITY_INFO, "Landing detected")
         elif not landed:
             self._landed_since_s = None
-            if self.armed:
+            if self.armed and not self._taken_off:
                 self._taken_off = True
-        if landed != self.landed:
-            self.landed = landed
-            self._changed()
-        if self.landed and self._landed_since_s is None:
-            self._landed_since_s = now_s
+                self._print(mavlink.MAV_SEVERITY_INFO, "Takeoff detected")
+        self.landed = landed
+
+    def _auto_disarm(self, now_s: float) -> None:
+        if not self.armed or self._landed_since_s is None:
+            return
+        p = self._params
+        if self._taken_off:
+            delay, reason = p["COM_DISARM_LAND"], "landing"
+            since = self._landed_since_s
+        else:
+            delay, reason = p["COM_DISARM_PRFLT"], "auto preflight disarming"
+            since = self._armed_at_s
+        if delay > 0.0 and now_s - since >= delay:
+            self._disarm(reason)
 
     def _disarm(self, reason: str) -> None:
         self.armed = False
         self._taken_off = False
-        self._changed()
-        self.outbox.append(StatusText(mavlink.MAV_SEVERITY_INFO, reason))
+        self._in_air = False
+        self.failsafe = False
+        self._hover.reset()
+        self._position.set_hover_thrust(None)
+        self.user_mode = self._after_disarm
+        self._fly(self.user_mode)
+        self._print(mavlink.MAV_SEVERITY_INFO, f"Disarmed by {reason}")
 
-    def _deny(self, text: str) -> int:
-        self.outbox.append(StatusText(mavlink.MAV_SEVERITY_CRITICAL, text))
-        return mavlink.MAV_RESULT_TEMPORARILY_REJECTED
-
-    def _changed(self) -> None:
-        self.state_changed = True
+    def _print(self, severity: int, text: str) -> None:
+        self.console.append(ConsoleLine(severity, text))

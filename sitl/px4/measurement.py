@@ -1,10 +1,10 @@
-"""What the simulated autopilot measures of its vehicle each step (input from the world).
+"""What the simulated autopilot knows of its vehicle at one estimator output (from the world).
 
 Frames and units are ours (DESIGN.md section 2): world ENU, body FLU, SI. The conversion
 to PX4's NED / FRD happens only when telemetry is encoded, through :mod:`companion.frames`.
-The measurement carries what PX4's estimator would know (state estimate, IMU, battery,
-ground contact) and nothing of the world's truth that PX4 could not observe (payload
-attached, arm parameters).
+The measurement carries what PX4's estimator would know (state estimate and its reported
+quality, IMU, battery, ground contact) and nothing of the world's truth that PX4 could not
+observe (payload attached, arm parameters).
 """
 
 from __future__ import annotations
@@ -15,9 +15,41 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["VehicleMeasurement"]
+__all__ = ["EstimatorReport", "VehicleMeasurement"]
 
 FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class EstimatorReport:
+    """What EKF2 reports about its own estimate (ODOMETRY covariances, ESTIMATOR_STATUS).
+
+    Attributes
+    ----------
+    aiding : {"vision", "gps"}
+        What the estimator fuses for position: external vision (motion capture) or GPS
+        and baro.
+    position_variance_m2 : tuple of 2 float
+        Variance of each horizontal position axis and of the height [m^2].
+    velocity_variance_m2_s2 : tuple of 2 float
+        The same for the velocity [m^2/s^2].
+    attitude_variance_rad2 : tuple of 3 float
+        Variances of roll, pitch and yaw [rad^2].
+    reset_counter : int
+        Count of the estimate's discontinuities (ODOMETRY.reset_counter).
+    test_ratios : tuple of 5 float
+        ESTIMATOR_STATUS innovation test ratios: velocity, horizontal position, vertical
+        position, magnetometer, height above ground (NaN: not fused).
+    """
+
+    aiding: str = "vision"
+    position_variance_m2: tuple[float, float] = (5e-4, 2.8e-4)
+    velocity_variance_m2_s2: tuple[float, float] = (1.5e-3, 8.4e-4)
+    attitude_variance_rad2: tuple[float, float, float] = (4.1e-4, 4.1e-4, 2.9e-4)
+    reset_counter: int = 0
+    test_ratios: tuple[float, float, float, float, float] = (
+        math.nan, 0.009, 0.0015, 0.0008, 0.0018,
+    )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -45,6 +77,11 @@ class VehicleMeasurement:
         Battery voltage [V].
     battery_remaining : float
         Remaining charge as a fraction in [0, 1].
+    estimate_time_us : int, optional
+        The estimator's time of this estimate: the IMU sample time it was computed at
+        [us since boot] (ODOMETRY.time_usec); default ``time_s`` in whole microseconds.
+    estimator : EstimatorReport
+        The estimator's reported quality.
 
     Raises
     ------
@@ -61,6 +98,8 @@ class VehicleMeasurement:
     on_ground: bool
     battery_voltage_v: float = 16.0
     battery_remaining: float = 1.0
+    estimate_time_us: int | None = None
+    estimator: EstimatorReport = EstimatorReport()
 
     def __post_init__(self) -> None:
         if not self._set_arrays_fast():
@@ -71,6 +110,8 @@ class VehicleMeasurement:
                 raise ValueError(f"{name} must be finite, got {value!r}")
             object.__setattr__(self, name, value)
         object.__setattr__(self, "on_ground", bool(self.on_ground))
+        if self.estimate_time_us is None:
+            object.__setattr__(self, "estimate_time_us", round(self.time_s * 1e6))
 
     def _set_arrays_fast(self) -> bool:
         """One read-only copy of all five vectors, each field a view of its part, when

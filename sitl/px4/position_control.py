@@ -11,8 +11,11 @@ in ENU (the cascade is frame covariant, so PX4's per-axis gains carry over):
    MPC_*_VEL_P_ACC / MPC_*_VEL_I_ACC gains; the vertical integral learns the hover-thrust
    error (e.g. a grasped payload), both integrals are clipped to +-INTEGRAL_LIMIT_M_S2;
 3. acceleration to thrust (PX4 ``_accelerationControl``): the thrust axis is
-   ``normalize(a_x, a_y, g)`` (tilt limited to MPC_TILTMAX_AIR), the collective thrust is
-   ``MPC_THR_HOVER (1 + a_z / g) / cos(tilt)`` clipped to [MPC_THR_MIN, 1];
+   ``normalize(a_x, a_y, g)`` (tilt limited to MPC_TILTMAX_AIR), the relative collective
+   thrust is ``Th (1 + a_z / g) / cos(tilt)`` clipped to [MPC_THR_MIN, MPC_THR_MAX], with
+   the hover thrust Th the hover thrust estimator's when valid, else MPC_THR_HOVER
+   (constrained to [MPC_THR_MIN, MPC_THR_MAX]); a change of Th moves the vertical integral
+   so that the thrust does not jump (PX4 ``updateHoverThrust``);
 4. attitude: the thrust axis and the held yaw give roll and pitch (ZYX Euler angles).
 
 No jerk-limited trajectory smoothing, no velocity D term and no acceleration feed-forward:
@@ -76,10 +79,37 @@ class PositionController:
         self._params = params
         self._g = float(gravity_m_s2)
         self._integral = [0.0, 0.0, 0.0]
+        self._hover: float | None = None
+        self._acc_up_m_s2 = 0.0
+        self.thrust_up = 0.0
+        """Vertical component of the last relative thrust setpoint [-] (the hover thrust
+        estimator's input)."""
 
     def reset(self) -> None:
         """Zero the velocity integrals (when the controller takes over)."""
         self._integral = [0.0, 0.0, 0.0]
+
+    @property
+    def hover_thrust(self) -> float:
+        """The relative hover thrust the controller flies with [-]."""
+        if self._hover is None:
+            return self._parameter_hover()
+        return self._hover
+
+    def _parameter_hover(self) -> float:
+        p = self._params
+        return min(max(p["MPC_THR_HOVER"], p["MPC_THR_MIN"]), p["MPC_THR_MAX"])
+
+    def set_hover_thrust(self, hover: float | None) -> None:
+        """Fly with hover thrust ``hover`` (None: MPC_THR_HOVER), moving the vertical
+        integral so that the thrust of the last setpoint is kept (PX4
+        ``PositionControl::updateHoverThrust``)."""
+        previous = self.hover_thrust
+        self._hover = hover
+        new = self.hover_thrust
+        if new != previous:
+            g, a = self._g, self._acc_up_m_s2
+            self._integral[2] += (a + g) * previous / new - g - a
 
     @property
     def integral_m_s2(self) -> tuple[float, float, float]:
@@ -115,6 +145,7 @@ class PositionController:
                 INTEGRAL_LIMIT_M_S2,
             )
             acc.append(gains_p[i] * errors[i] + self._integral[i])
+        self._acc_up_m_s2 = acc[2]
         return self._attitude(acc, target.yaw_rad)
 
     def _attitude(self, acc: list[float], yaw_rad: float) -> AttitudeSetpoint:
@@ -132,8 +163,9 @@ class PositionController:
                 zy / h * math.sin(tilt_max),
                 math.cos(tilt_max),
             )
-        thrust = p["MPC_THR_HOVER"] * (1.0 + az / g) / zz
-        thrust = min(max(thrust, p["MPC_THR_MIN"]), 1.0)
+        thrust = self.hover_thrust * (1.0 + az / g) / zz
+        thrust = min(max(thrust, p["MPC_THR_MIN"]), p["MPC_THR_MAX"])
+        self.thrust_up = thrust * zz
         cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
         x_h = cy * zx + sy * zy
         y_h = -sy * zx + cy * zy

@@ -1,16 +1,29 @@
 """Telemetry of the simulated PX4: stream rates per link and the NED / FRD messages.
 
-Rates follow PX4's stream tables (``mavlink_main.cpp``): the onboard link uses the
-"onboard" rates of issue 5, the GCS link PX4's "normal" mode rates. Every rate is
-changeable per link with MAV_CMD_SET_MESSAGE_INTERVAL (-1 disables, 0 restores the
-default). Scheduling is in simulation time with integer microseconds: a stream with
-interval T is due at k T; a stream that fell behind (a coarse caller) is sent once and
-rescheduled from now, never in a burst.
+Default rates are those PX4 main reports (GET_MESSAGE_INTERVAL) on its SITL links: the
+onboard link (``mavlink ... -m onboard``) and the GCS link ("normal" mode with the SITL
+start-up script's 50 Hz overrides). Every stream is changeable per link with
+MAV_CMD_SET_MESSAGE_INTERVAL (-1 disables, 0 restores the default) except HEARTBEAT,
+which PX4 refuses (FAILED); a message this vehicle builds but does not stream by default
+can be switched on. Scheduling is in simulation time with integer microseconds: a stream
+with interval T is due at k T; a stream that fell behind (a coarse caller) is sent once and
+rescheduled from now, never in a burst. HEARTBEAT is a strict 1 Hz stream: a mode change
+shows in the next one, as on PX4.
+
+Streams of the estimate (:data:`ESTIMATOR_STREAMS`: ODOMETRY, LOCAL_POSITION_NED,
+GLOBAL_POSITION_INT, ATTITUDE, ATTITUDE_QUATERNION) go out only at an estimator output
+(every 8 ms): asked faster they arrive at the estimator's 125 Hz, asked slower they keep
+their average rate on the 8 ms grid (30 Hz: 32 and 40 ms apart), as measured on PX4.
+Their timestamps are the estimate's IMU sample time.
 
 Message contents: positions relative to the local origin (the world origin), in NED
 through :mod:`companion.frames` (the only place that converts frames); Euler angles of
 ATTITUDE are the ZYX angles of the NED / FRD quaternion; the IMU reading is the body FRD
-specific force. Global positions use :class:`~sitl.px4.geo.GeoReference`.
+specific force. Global positions use the estimator's global origin (none: no
+GLOBAL_POSITION_INT, as PX4 without GPS or SET_GPS_GLOBAL_ORIGIN). ODOMETRY is PX4's:
+frame and child frame MAV_FRAME_LOCAL_NED (velocity in NED), the estimator's variances on
+the covariance diagonals (zeros elsewhere), its reset counter, estimator type AUTOPILOT,
+quality 0.
 """
 
 from __future__ import annotations
@@ -21,69 +34,116 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import development
 
 from companion.frames import frd_from_flu, ned_from_enu, quaternion_ned_frd_from_enu_flu
 from companion.frames import rotation_from_quaternion as rotation_from_quaternion_wxyz
+from sitl.physics import AttitudeSetpoint
 from sitl.physics.frames import euler_from_rotation
-from sitl.px4.commander import Home
 from sitl.px4.geo import GeoReference
 from sitl.px4.measurement import VehicleMeasurement
 from sitl.px4.modes import Px4Mode, base_mode_flags
 
 __all__ = [
+    "ESTIMATOR_STREAMS",
     "GCS_RATES_HZ",
     "ONBOARD_RATES_HZ",
+    "Home",
     "StreamScheduler",
     "TelemetryEncoder",
     "VehicleStatus",
 ]
 
 M = mavlink
+_CURRENT_MODE = development.MAVLINK_MSG_ID_CURRENT_MODE
+"""CURRENT_MODE (436), in MAVLink's development dialect; PX4 streams it."""
 ONBOARD_RATES_HZ: dict[int, float] = {
     M.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
+    M.MAVLINK_MSG_ID_SYS_STATUS: 5.0,
+    M.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
+    M.MAVLINK_MSG_ID_PING: 1.0,
     M.MAVLINK_MSG_ID_ATTITUDE: 100.0,
     M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 50.0,
-    M.MAVLINK_MSG_ID_HIGHRES_IMU: 50.0,
     M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 30.0,
-    M.MAVLINK_MSG_ID_ODOMETRY: 30.0,
-    M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 30.0,
-    M.MAVLINK_MSG_ID_SYS_STATUS: 5.0,
-    M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 5.0,
+    M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 50.0,
+    M.MAVLINK_MSG_ID_VFR_HUD: 10.0,
+    M.MAVLINK_MSG_ID_ATTITUDE_TARGET: 10.0,
+    M.MAVLINK_MSG_ID_HIGHRES_IMU: 50.0,
+    M.MAVLINK_MSG_ID_TIMESYNC: 10.0,
     M.MAVLINK_MSG_ID_ALTITUDE: 10.0,
-    M.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0,
+    M.MAVLINK_MSG_ID_BATTERY_STATUS: 0.5,
+    M.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 1.0,
     M.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+    M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 5.0,
+    M.MAVLINK_MSG_ID_ODOMETRY: 30.0,
+    _CURRENT_MODE: 0.5,
 }
-"""Default rates [Hz] of the onboard (API) link."""
+"""Default rates [Hz] of the onboard (API) link, as PX4 main reports them."""
 
 GCS_RATES_HZ: dict[int, float] = {
     M.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
-    M.MAVLINK_MSG_ID_ATTITUDE: 20.0,
-    M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 10.0,
-    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 1.0,
-    M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 5.0,
     M.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
-    M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+    M.MAVLINK_MSG_ID_PING: 0.1,
+    M.MAVLINK_MSG_ID_ATTITUDE: 50.0,
+    M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 50.0,
+    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 50.0,
+    M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 50.0,
+    M.MAVLINK_MSG_ID_VFR_HUD: 4.0,
+    M.MAVLINK_MSG_ID_ATTITUDE_TARGET: 50.0,
     M.MAVLINK_MSG_ID_ALTITUDE: 1.0,
     M.MAVLINK_MSG_ID_BATTERY_STATUS: 0.5,
+    M.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 0.5,
     M.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+    M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+    _CURRENT_MODE: 0.5,
 }
-"""Default rates [Hz] of the GCS link (PX4 "normal" mode)."""
+"""Default rates [Hz] of the GCS link, as PX4 main's SITL reports them."""
 
-_SENSORS = (
+ESTIMATOR_STREAMS = frozenset(
+    {
+        M.MAVLINK_MSG_ID_ODOMETRY,
+        M.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+        M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+        M.MAVLINK_MSG_ID_ATTITUDE,
+        M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION,
+    }
+)
+"""Streams sent only at an estimator output (their data is the estimate)."""
+
+_FIXED_INTERVAL = frozenset({M.MAVLINK_MSG_ID_HEARTBEAT})
+"""Streams whose interval PX4 refuses to change (SET_MESSAGE_INTERVAL: FAILED)."""
+
+_PRESENT = (
     M.MAV_SYS_STATUS_SENSOR_3D_GYRO
     | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL
     | M.MAV_SYS_STATUS_SENSOR_3D_MAG
     | M.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
-    | M.MAV_SYS_STATUS_SENSOR_GPS
-    | M.MAV_SYS_STATUS_AHRS
-    | M.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
-    | M.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
     | M.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
-    | M.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
-    | M.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+    | M.MAV_SYS_STATUS_LOGGING
     | M.MAV_SYS_STATUS_SENSOR_BATTERY
 )
-"""SYS_STATUS sensors present, enabled and healthy (besides the pre-arm check bit)."""
+"""SYS_STATUS sensors present (PX4 SIH; GPS added with GPS aiding)."""
+_HEALTHY = (
+    _PRESENT
+    | M.MAV_SYS_STATUS_SENSOR_DIFFERENTIAL_PRESSURE
+    | M.MAV_SYS_STATUS_SENSOR_GPS
+    | M.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+    | M.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+    | M.MAV_SYS_STATUS_AHRS
+)
+"""SYS_STATUS health bits as PX4 SIH sets them (besides the pre-arm check bit)."""
+
+_ESTIMATOR_FLAGS = (
+    M.ESTIMATOR_ATTITUDE
+    | M.ESTIMATOR_VELOCITY_HORIZ
+    | M.ESTIMATOR_VELOCITY_VERT
+    | M.ESTIMATOR_POS_HORIZ_REL
+    | M.ESTIMATOR_POS_VERT_ABS
+    | M.ESTIMATOR_POS_VERT_AGL
+    | M.ESTIMATOR_CONST_POS_MODE
+    | M.ESTIMATOR_PRED_POS_HORIZ_REL
+)
+"""ESTIMATOR_STATUS flags PX4's EKF2 sets with any position aiding (measured: 495)."""
 
 _IMU_FIELDS = 0b0001_1100_0011_1111
 """HIGHRES_IMU.fields_updated: acc, gyro, abs pressure, pressure alt, temperature (no mag)."""
@@ -92,15 +152,49 @@ _SEA_LEVEL_PA = 101_325.0
 
 
 @dataclass(frozen=True)
+class Home:
+    """Home: where the vehicle was last armed (world ENU [m])."""
+
+    east_m: float
+    north_m: float
+    up_m: float
+
+
+@dataclass(frozen=True)
 class VehicleStatus:
-    """The autopilot state the telemetry reports (from :class:`~sitl.px4.commander.Commander`)."""
+    """The autopilot state the telemetry reports (from the commander and the estimator).
+
+    Attributes
+    ----------
+    mode : Px4Mode
+        The mode flown (HEARTBEAT, CURRENT_MODE.custom_mode).
+    intended_mode : Px4Mode
+        The mode the user asked for (CURRENT_MODE.intended_custom_mode; differs from
+        ``mode`` during a failsafe).
+    armed, failsafe, prearm_ok : bool
+        Arming state, failsafe active, arming checks pass.
+    landed_state : int
+        MAV_LANDED_STATE_*.
+    home : Home or None
+        Home position (None: no home, e.g. no global position yet).
+    origin : GeoReference or None
+        The estimator's global origin (None: no global position).
+    mav_type : int
+        MAV_TYPE parameter (HEARTBEAT.type).
+    setpoint : AttitudeSetpoint or None
+        The attitude setpoint flown (ATTITUDE_TARGET; None while disarmed).
+    """
 
     mode: Px4Mode
+    intended_mode: Px4Mode
     armed: bool
     landed_state: int
     failsafe: bool
     prearm_ok: bool
     home: Home | None
+    origin: GeoReference | None
+    mav_type: int
+    setpoint: AttitudeSetpoint | None
 
 
 class StreamScheduler:
@@ -109,26 +203,35 @@ class StreamScheduler:
     Parameters
     ----------
     default_rates_hz : mapping of message id to rate [Hz]
-        The streams of the link and their default rates.
+        The link's default streams and rates.
+    streamable : iterable of message ids
+        Every message this link can stream (the defaults and those switched on by
+        SET_MESSAGE_INTERVAL).
     """
 
-    def __init__(self, default_rates_hz: Mapping[int, float]) -> None:
-        self._default_us = {
-            msg_id: round(1e6 / rate) for msg_id, rate in default_rates_hz.items() if rate > 0
+    def __init__(self, default_rates_hz: Mapping[int, float], streamable) -> None:
+        self._known = frozenset(streamable) | frozenset(default_rates_hz)
+        self._default_us: dict[int, int | None] = dict.fromkeys(self._known)
+        for msg_id, rate in default_rates_hz.items():
+            self._default_us[msg_id] = round(1e6 / rate) if rate > 0 else None
+        self._interval_us: dict[int, int | None] = {
+            m: i for m, i in self._default_us.items() if i is not None
         }
-        self._interval_us: dict[int, int | None] = dict(self._default_us)
-        self._next_us: dict[int, int] = dict.fromkeys(self._default_us, 0)
+        self._next_us: dict[int, int] = dict.fromkeys(self._interval_us, 0)
         self._earliest_us = 0
-        """No stream is due before this time [us] (``due`` returns at once before it)."""
+        """No stream is due before this time [us] (``due`` returns at once before it),
+        except estimator streams waiting for an estimate (:attr:`_waiting`)."""
+        self._waiting = False
+        """An estimator stream is due and waits for the next fresh estimate."""
 
     @property
     def streams(self) -> list[int]:
         """Message ids this link can stream."""
-        return list(self._default_us)
+        return sorted(self._known)
 
     def interval_us(self, msg_id: int) -> int | None:
-        """Current interval [us] of a stream, None when disabled (KeyError if unknown)."""
-        return self._interval_us[msg_id]
+        """Current interval [us] of a stream, None when disabled or not a stream."""
+        return self._interval_us.get(msg_id)
 
     def set_interval(self, msg_id: int, interval_us: float, now_us: int) -> None:
         """MAV_CMD_SET_MESSAGE_INTERVAL: -1 disables, 0 restores the default, > 0 sets [us].
@@ -136,49 +239,52 @@ class StreamScheduler:
         Raises
         ------
         KeyError
-            The message is not a stream of this vehicle.
+            The message is not a stream of this vehicle, or its interval is fixed
+            (HEARTBEAT).
         ValueError
             A non-finite interval or one below -1.
         """
-        if msg_id not in self._default_us:
+        if msg_id not in self._known or msg_id in _FIXED_INTERVAL:
             raise KeyError(msg_id)
         if not math.isfinite(interval_us) or interval_us < -1.0:
             raise ValueError(f"interval {interval_us!r} us")
-        if interval_us < 0.0:
-            self._interval_us[msg_id] = None
+        if interval_us == 0.0:
+            interval = self._default_us[msg_id]
+        else:
+            interval = None if interval_us < 0.0 else max(round(interval_us), 1)
+        if interval is None:
+            self._interval_us.pop(msg_id, None)
+            self._next_us.pop(msg_id, None)
             return
-        self._interval_us[msg_id] = (
-            self._default_us[msg_id] if interval_us == 0.0 else max(round(interval_us), 1)
-        )
+        self._interval_us[msg_id] = interval
         self._next_us[msg_id] = now_us
         self._earliest_us = min(self._earliest_us, now_us)
 
-    def trigger(self, msg_id: int, now_us: int) -> None:
-        """Make an enabled stream due now (a HEARTBEAT right after a mode change)."""
-        if self._interval_us.get(msg_id) is not None:
-            self._next_us[msg_id] = now_us
-            self._earliest_us = min(self._earliest_us, now_us)
-
-    def due(self, now_us: int) -> list[int]:
-        """Message ids due at ``now_us``; each is rescheduled one interval later."""
-        if now_us < self._earliest_us:
+    def due(self, now_us: int, estimate_fresh: bool) -> list[int]:
+        """Message ids due at ``now_us``; each is rescheduled one interval later. Streams
+        of :data:`ESTIMATOR_STREAMS` wait for a step with ``estimate_fresh``."""
+        if now_us < self._earliest_us and not (estimate_fresh and self._waiting):
             return []
         out = []
         next_us = self._next_us
         earliest = None
+        waiting = False
         for msg_id, interval in self._interval_us.items():
-            if interval is None:
-                continue
             nxt = next_us[msg_id]
             if now_us >= nxt:
-                out.append(msg_id)
-                nxt += interval
-                if nxt <= now_us:
-                    nxt = now_us + interval
-                next_us[msg_id] = nxt
+                if estimate_fresh or msg_id not in ESTIMATOR_STREAMS:
+                    out.append(msg_id)
+                    nxt += interval
+                    if nxt <= now_us:
+                        nxt = now_us + interval
+                    next_us[msg_id] = nxt
+                else:
+                    waiting = True
+                    continue  # due, waits for an estimate: not a reason to look sooner
             if earliest is None or nxt < earliest:
                 earliest = nxt
-        # Disabled streams are not waited for; with none enabled, check again every time.
+        self._waiting = waiting
+        # With none enabled (or all waiting), check again every time.
         self._earliest_us = now_us if earliest is None else earliest
         return out
 
@@ -189,33 +295,46 @@ class TelemetryEncoder:
     Parameters
     ----------
     geo : GeoReference
-        Geodetic position of the world origin.
+        Geodetic position of the world origin (AMSL altitudes of the baro).
     flight_sw_version : int
         AUTOPILOT_VERSION.flight_sw_version (PX4 layout: major, minor, patch, type bytes).
+    unix_time_at_boot_us : int
+        Wall-clock time of boot [us since 1970] (SYSTEM_TIME).
     """
 
-    def __init__(self, geo: GeoReference, flight_sw_version: int) -> None:
+    def __init__(
+        self, geo: GeoReference, flight_sw_version: int, unix_time_at_boot_us: int = 0
+    ) -> None:
         self.geo = geo
         self.flight_sw_version = flight_sw_version
+        self.unix_time_at_boot_us = int(unix_time_at_boot_us)
+        self._ping_seq = 0
 
     def build(
         self, msg_id: int, now_s: float, m: VehicleMeasurement, status: VehicleStatus
-    ) -> mavlink.MAVLink_message:
-        """The message ``msg_id`` (one of the stream ids) at ``now_s``."""
+    ) -> mavlink.MAVLink_message | None:
+        """The message ``msg_id`` at ``now_s``; None when it has no data now (a global
+        position without a global origin, a home that is not set)."""
         return self._builders[msg_id](self, now_s, m, status)
 
     def can_build(self, msg_id: int) -> bool:
-        """Whether ``msg_id`` is a message this encoder makes (REQUEST_MESSAGE)."""
+        """Whether ``msg_id`` is a message this encoder makes."""
         return msg_id in self._builders
 
+    @classmethod
+    def streamable(cls) -> frozenset[int]:
+        """Every message id the encoder can stream."""
+        return frozenset(cls._builders)
+
     def heartbeat(self, status: VehicleStatus) -> mavlink.MAVLink_heartbeat_message:
-        """HEARTBEAT: hexarotor, PX4, PX4's base/custom mode, standby/active/critical."""
-        if status.failsafe:
-            state = M.MAV_STATE_CRITICAL
+        """HEARTBEAT: MAV_TYPE, PX4, PX4's base/custom mode and system status (armed:
+        ACTIVE, CRITICAL in a failsafe; disarmed: STANDBY when it may arm, else UNINIT)."""
+        if status.armed:
+            state = M.MAV_STATE_CRITICAL if status.failsafe else M.MAV_STATE_ACTIVE
         else:
-            state = M.MAV_STATE_ACTIVE if status.armed else M.MAV_STATE_STANDBY
+            state = M.MAV_STATE_STANDBY if status.prearm_ok else M.MAV_STATE_UNINIT
         return M.MAVLink_heartbeat_message(
-            M.MAV_TYPE_HEXAROTOR,
+            status.mav_type,
             M.MAV_AUTOPILOT_PX4,
             base_mode_flags(status.mode, status.armed),
             status.mode.custom_mode,
@@ -246,27 +365,70 @@ class TelemetryEncoder:
             [0] * 18,
         )
 
+    def gps_global_origin(self, origin: GeoReference, now_s: float) -> mavlink.MAVLink_message:
+        """GPS_GLOBAL_ORIGIN of the estimator's origin (degE7, mm AMSL)."""
+        return M.MAVLink_gps_global_origin_message(
+            round(origin.latitude_deg * 1e7),
+            round(origin.longitude_deg * 1e7),
+            round(origin.altitude_amsl_m * 1e3),
+            round(now_s * 1e6),
+        )
+
     # ------------------------------------------------------------- builders
 
     @staticmethod
     def _time_ms(now_s: float) -> int:
         return int(now_s * 1e3) & 0xFFFFFFFF
 
+    @staticmethod
+    def _estimate_ms(m: VehicleMeasurement) -> int:
+        return (m.estimate_time_us // 1000) & 0xFFFFFFFF  # type: ignore[operator]
+
     def _heartbeat(self, now_s, m, status):
         return self.heartbeat(status)
+
+    def _sys_status(self, now_s, m, status):
+        gps = M.MAV_SYS_STATUS_SENSOR_GPS if m.estimator.aiding == "gps" else 0
+        present = _PRESENT | gps
+        health = _HEALTHY | (M.MAV_SYS_STATUS_PREARM_CHECK if status.prearm_ok else 0)
+        return M.MAVLink_sys_status_message(
+            present, present | M.MAV_SYS_STATUS_SENSOR_RC_RECEIVER, health, 0,
+            round(m.battery_voltage_v * 1e3), -1, round(m.battery_remaining * 100),
+            0, 0, 0, 0, 0, 0, 0, 0, 1,
+        )  # fmt: skip
+
+    def _system_time(self, now_s, m, status):
+        return M.MAVLink_system_time_message(
+            self.unix_time_at_boot_us + round(now_s * 1e6), self._time_ms(now_s)
+        )
+
+    def _ping(self, now_s, m, status):
+        self._ping_seq = (self._ping_seq + 1) & 0xFFFFFFFF
+        return M.MAVLink_ping_message(round(now_s * 1e6), self._ping_seq, 0, 0)
+
+    def _timesync(self, now_s, m, status):
+        return M.MAVLink_timesync_message(0, round(now_s * 1e9))
 
     def _attitude(self, now_s, m, status):
         q = quaternion_ned_frd_from_enu_flu(m.quaternion_enu_flu_wxyz)
         roll, pitch, yaw = euler_from_rotation(rotation_from_quaternion_wxyz(q))
         p, q_rate, r = frd_from_flu(m.omega_flu_rad_s)
-        return M.MAVLink_attitude_message(self._time_ms(now_s), roll, pitch, yaw, p, q_rate, r)
+        return M.MAVLink_attitude_message(self._estimate_ms(m), roll, pitch, yaw, p, q_rate, r)
 
     def _attitude_quaternion(self, now_s, m, status):
         w, x, y, z = quaternion_ned_frd_from_enu_flu(m.quaternion_enu_flu_wxyz)
         p, q_rate, r = frd_from_flu(m.omega_flu_rad_s)
         return M.MAVLink_attitude_quaternion_message(
-            self._time_ms(now_s), w, x, y, z, p, q_rate, r, [0.0] * 4
+            self._estimate_ms(m), w, x, y, z, p, q_rate, r, [0.0] * 4
         )
+
+    def _attitude_target(self, now_s, m, status):
+        sp = status.setpoint
+        if sp is None:
+            q, thrust = [1.0, 0.0, 0.0, 0.0], 0.0
+        else:
+            q, thrust = list(quaternion_ned_frd_from_enu_flu(sp.quaternion_wxyz)), sp.thrust
+        return M.MAVLink_attitude_target_message(self._time_ms(now_s), 0, q, 0.0, 0.0, 0.0, thrust)
 
     def _highres_imu(self, now_s, m, status):
         ax, ay, az = frd_from_flu(m.specific_force_flu_m_s2)
@@ -281,43 +443,54 @@ class TelemetryEncoder:
     def _local_position_ned(self, now_s, m, status):
         x, y, z = ned_from_enu(m.position_enu_m)
         vx, vy, vz = ned_from_enu(m.velocity_enu_m_s)
-        return M.MAVLink_local_position_ned_message(self._time_ms(now_s), x, y, z, vx, vy, vz)
+        return M.MAVLink_local_position_ned_message(self._estimate_ms(m), x, y, z, vx, vy, vz)
 
     def _odometry(self, now_s, m, status):
         x, y, z = ned_from_enu(m.position_enu_m)
         q = quaternion_ned_frd_from_enu_flu(m.quaternion_enu_flu_wxyz)
-        v_body = rotation_from_quaternion_wxyz(q).T @ ned_from_enu(m.velocity_enu_m_s)
+        vx, vy, vz = ned_from_enu(m.velocity_enu_m_s)
         p, q_rate, r = frd_from_flu(m.omega_flu_rad_s)
-        nan21 = [math.nan] * 21
+        report = m.estimator
+        pose = [0.0] * 21
+        pose[0] = pose[6] = report.position_variance_m2[0]
+        pose[11] = report.position_variance_m2[1]
+        pose[15], pose[18], pose[20] = report.attitude_variance_rad2
+        velocity = [0.0] * 21
+        velocity[0] = velocity[6] = report.velocity_variance_m2_s2[0]
+        velocity[11] = report.velocity_variance_m2_s2[1]
         return M.MAVLink_odometry_message(
-            int(now_s * 1e6), M.MAV_FRAME_LOCAL_NED, M.MAV_FRAME_BODY_FRD, x, y, z, list(q),
-            v_body[0], v_body[1], v_body[2], p, q_rate, r, nan21, nan21, 0,
-            M.MAV_ESTIMATOR_TYPE_NAIVE, 100,
+            m.estimate_time_us, M.MAV_FRAME_LOCAL_NED, M.MAV_FRAME_LOCAL_NED, x, y, z, list(q),
+            vx, vy, vz, p, q_rate, r, pose, velocity, report.reset_counter,
+            M.MAV_ESTIMATOR_TYPE_AUTOPILOT, 0,
         )  # fmt: skip
 
     def _global_position_int(self, now_s, m, status):
+        origin = status.origin
+        if origin is None:
+            return None
         n, e, d = ned_from_enu(m.position_enu_m)
-        lat, lon, alt = self.geo.global_from_ned(n, e, d)
-        home_up = status.home.up_m if status.home is not None else 0.0
+        lat, lon, alt = origin.global_from_ned(n, e, d)
+        home_amsl = 0.0
+        if status.home is not None:
+            home_amsl = origin.altitude_amsl_m + status.home.up_m
         vn, ve, vd = ned_from_enu(m.velocity_enu_m_s)
-        _, _, yaw = euler_from_rotation(
-            rotation_from_quaternion_wxyz(
-                quaternion_ned_frd_from_enu_flu(m.quaternion_enu_flu_wxyz)
-            )
-        )
         return M.MAVLink_global_position_int_message(
-            self._time_ms(now_s), round(lat * 1e7), round(lon * 1e7), round(alt * 1e3),
-            round((-d - home_up) * 1e3), round(vn * 100), round(ve * 100), round(vd * 100),
-            round(math.degrees(yaw) * 100) % 36000,
+            self._estimate_ms(m), round(lat * 1e7), round(lon * 1e7), round(alt * 1e3),
+            round((alt - home_amsl) * 1e3), round(vn * 100), round(ve * 100), round(vd * 100),
+            round(math.degrees(_heading(m)) * 100) % 36000,
         )  # fmt: skip
 
-    def _sys_status(self, now_s, m, status):
-        health = _SENSORS | (M.MAV_SYS_STATUS_PREARM_CHECK if status.prearm_ok else 0)
-        present = _SENSORS | M.MAV_SYS_STATUS_PREARM_CHECK
-        return M.MAVLink_sys_status_message(
-            present, present, health, 0, round(m.battery_voltage_v * 1e3), -1,
-            round(m.battery_remaining * 100), 0, 0, 0, 0, 0, 0, 0, 0, 0,
-        )  # fmt: skip
+    def _vfr_hud(self, now_s, m, status):
+        ve, vn, vu = m.velocity_enu_m_s.tolist()
+        thrust = status.setpoint.thrust if status.armed and status.setpoint is not None else 0.0
+        return M.MAVLink_vfr_hud_message(
+            math.nan,
+            math.hypot(ve, vn),
+            round(math.degrees(_heading(m))) % 360,
+            round(100.0 * thrust),
+            self.geo.altitude_amsl_m + float(m.position_enu_m[2]),
+            vu,
+        )
 
     def _extended_sys_state(self, now_s, m, status):
         return M.MAVLink_extended_sys_state_message(M.MAV_VTOL_STATE_UNDEFINED, status.landed_state)
@@ -327,7 +500,7 @@ class TelemetryEncoder:
         home_up = status.home.up_m if status.home is not None else 0.0
         amsl = self.geo.altitude_amsl_m + up
         return M.MAVLink_altitude_message(
-            int(now_s * 1e6), amsl, amsl, up, up - home_up, math.nan, math.nan
+            m.estimate_time_us, amsl, amsl, up, up - home_up, math.nan, math.nan
         )
 
     def _battery_status(self, now_s, m, status):
@@ -338,32 +511,63 @@ class TelemetryEncoder:
             M.MAV_BATTERY_CHARGE_STATE_OK, [0] * 4, 0, 0,
         )  # fmt: skip
 
+    def _estimator_status(self, now_s, m, status):
+        report = m.estimator
+        flags = _ESTIMATOR_FLAGS
+        if status.origin is not None:
+            flags |= M.ESTIMATOR_POS_HORIZ_ABS
+        if report.aiding == "gps":
+            flags |= M.ESTIMATOR_PRED_POS_HORIZ_ABS
+        var_h, var_v = report.position_variance_m2
+        vel, pos_h, pos_v, mag, hagl = report.test_ratios
+        return M.MAVLink_estimator_status_message(
+            m.estimate_time_us, flags, vel, pos_h, pos_v, mag, hagl, math.nan,
+            math.sqrt(2.0 * var_h), math.sqrt(var_v),
+        )  # fmt: skip
+
     def _home_position(self, now_s, m, status):
-        home = status.home
-        if home is None:
-            pos = m.position_enu_m
-            home = Home(float(pos[0]), float(pos[1]), float(pos[2]))
+        home, origin = status.home, status.origin
+        if home is None or origin is None:
+            return None
         n, e, d = ned_from_enu((home.east_m, home.north_m, home.up_m))
-        lat, lon, alt = self.geo.global_from_ned(n, e, d)
+        lat, lon, alt = origin.global_from_ned(n, e, d)
         return M.MAVLink_home_position_message(
             round(lat * 1e7), round(lon * 1e7), round(alt * 1e3), float(n), float(e), float(d),
             [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, int(now_s * 1e6),
         )  # fmt: skip
 
+    def _current_mode(self, now_s, m, status):
+        return development.MAVLink_current_mode_message(
+            0, status.mode.custom_mode, status.intended_mode.custom_mode
+        )
+
     _builders: ClassVar[dict] = {
         M.MAVLINK_MSG_ID_HEARTBEAT: _heartbeat,
+        M.MAVLINK_MSG_ID_SYS_STATUS: _sys_status,
+        M.MAVLINK_MSG_ID_SYSTEM_TIME: _system_time,
+        M.MAVLINK_MSG_ID_PING: _ping,
+        M.MAVLINK_MSG_ID_TIMESYNC: _timesync,
         M.MAVLINK_MSG_ID_ATTITUDE: _attitude,
         M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: _attitude_quaternion,
+        M.MAVLINK_MSG_ID_ATTITUDE_TARGET: _attitude_target,
         M.MAVLINK_MSG_ID_HIGHRES_IMU: _highres_imu,
         M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: _local_position_ned,
         M.MAVLINK_MSG_ID_ODOMETRY: _odometry,
         M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: _global_position_int,
-        M.MAVLINK_MSG_ID_SYS_STATUS: _sys_status,
+        M.MAVLINK_MSG_ID_VFR_HUD: _vfr_hud,
         M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: _extended_sys_state,
         M.MAVLINK_MSG_ID_ALTITUDE: _altitude,
         M.MAVLINK_MSG_ID_BATTERY_STATUS: _battery_status,
+        M.MAVLINK_MSG_ID_ESTIMATOR_STATUS: _estimator_status,
         M.MAVLINK_MSG_ID_HOME_POSITION: _home_position,
+        _CURRENT_MODE: _current_mode,
     }
+
+
+def _heading(m: VehicleMeasurement) -> float:
+    """NED yaw of the measured attitude [rad] (heading from north, clockwise)."""
+    q = quaternion_ned_frd_from_enu_flu(m.quaternion_enu_flu_wxyz)
+    return euler_from_rotation(rotation_from_quaternion_wxyz(q))[2]
 
 
 assert set(ONBOARD_RATES_HZ) <= set(TelemetryEncoder._builders)

@@ -3,22 +3,33 @@
 Pure: no sockets, no clock, no asyncio. The runner drives it with simulation time:
 ``handle()`` every decoded incoming message, ``control()`` once per plant step, and
 ``telemetry()`` once per plant step; each returns what goes out, as ``(link, message)``.
+What PX4 would print to its console (arming refused, failsafe, ...) is drained with
+:meth:`Px4Vehicle.console`: PX4 main reports these as events, not STATUSTEXT (measured on
+the real build: no STATUSTEXT on either link).
 
-Message handling follows PX4's ``mavlink_receiver.cpp`` where it matters to clients:
+Message handling follows PX4's ``mavlink_receiver.cpp`` and commander as measured:
 
 - COMMAND_LONG / COMMAND_INT addressed to this system (and to component 1 or 0) are
-  answered with COMMAND_ACK on the link they came from, ``target_system`` /
+  answered with COMMAND_ACK on the link they came from at once, ``target_system`` /
   ``target_component`` set to the sender; commands for other systems or components are
-  dropped and counted (PX4 would ACK them FAILED). Unhandled commands: UNSUPPORTED.
-- SET_MODE (#11) is executed as DO_SET_MODE and ACKed as command 176, as PX4 does.
+  dropped and counted. Unhandled commands: UNSUPPORTED.
+- DO_SET_MODE (and the SET_MODE message, ACKed as command 176): see
+  :mod:`sitl.px4.commander` for what is accepted; a base mode without the custom-mode
+  flag, or mode numbers PX4 does not know, are ACCEPTED and change nothing (measured).
+- SET_MESSAGE_INTERVAL: ACCEPTED for every message this vehicle can stream, FAILED for
+  others and for HEARTBEAT; GET_MESSAGE_INTERVAL answers MESSAGE_INTERVAL (-1: not
+  streamed); REQUEST_MESSAGE sends the message once, DENIED when there is no such message
+  or no data for it (no global origin, no home).
 - SET_ATTITUDE_TARGET that does not ignore attitude is proof of life; setpoints with a
   non-finite or zero quaternion or a thrust outside [0, 1] are dropped and counted. A
   setpoint that ignores thrust has thrust 0, as in PX4. Body-rate setpoints (attitude
   ignored) are not supported by the simulated attitude loop: dropped and counted.
-- PARAM_REQUEST_LIST / _READ / PARAM_SET per :mod:`sitl.px4.params`; a PARAM_SET of an
-  unknown name gets PX4's STATUSTEXT ``[pm] unknown param: NAME``; a refused value gets a
-  STATUSTEXT and a PARAM_VALUE with the unchanged value; an accepted one is echoed on
-  every link.
+- SET_GPS_GLOBAL_ORIGIN (motion capture): the estimator takes the origin, answers with
+  GPS_GLOBAL_ORIGIN on every link, and from then on has a global position and a home.
+  With GPS aiding the origin is GPS's and the message is ignored.
+- PARAM_REQUEST_LIST / _READ / PARAM_SET per :mod:`sitl.px4.params`: an unknown name or
+  index gets no answer; a PARAM_SET whose type is not the parameter's is ignored; a value
+  stored is echoed as PARAM_VALUE on every link.
 - TIMESYNC requests are answered with the simulation time in nanoseconds.
 - A PING request (target 0/0; MAVSDK sends them to measure latency) is returned to its
   sender with the same time and sequence, the target set to the sender, as PX4 does.
@@ -35,7 +46,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from companion.frames import quaternion_enu_flu_from_ned_frd
 from sitl.physics import AttitudeSetpoint
-from sitl.px4.commander import FORCE_MAGIC, Commander, Home, StatusText
+from sitl.px4.commander import FORCE_MAGIC, Commander, ConsoleLine
 from sitl.px4.geo import GeoReference
 from sitl.px4.measurement import VehicleMeasurement
 from sitl.px4.modes import Px4Mode
@@ -43,6 +54,7 @@ from sitl.px4.params import PARAMETERS, ParamError, Px4Params, UnknownParamError
 from sitl.px4.telemetry import (
     GCS_RATES_HZ,
     ONBOARD_RATES_HZ,
+    Home,
     StreamScheduler,
     TelemetryEncoder,
     VehicleStatus,
@@ -53,8 +65,9 @@ __all__ = ["FLIGHT_SW_VERSION", "Outgoing", "Px4Vehicle"]
 M = mavlink
 Outgoing = list[tuple[str, mavlink.MAVLink_message]]
 
-FLIGHT_SW_VERSION = (1 << 24) | (14 << 16) | (3 << 8) | 0xFF
-"""AUTOPILOT_VERSION.flight_sw_version: PX4 v1.14.3, release (PX4's byte layout)."""
+FLIGHT_SW_VERSION = (1 << 24) | (17 << 16) | (0 << 8) | M.FIRMWARE_VERSION_TYPE_ALPHA
+"""AUTOPILOT_VERSION.flight_sw_version: PX4 v1.17.0 alpha, as the real build (v1.17.0-alpha1)
+reports it (PX4's byte layout: major, minor, patch, type)."""
 
 _BROADCAST_TARGET_COMMANDS = (M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,)
 _RELATIVE_FRAMES = (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
@@ -72,14 +85,20 @@ class Px4Vehicle:
     params : Px4Params
         Parameter values (shared with the commander; PARAM_SET changes them).
     system_id, component_id : int
-        MAVLink ids of the autopilot (PX4: 1, 1).
+        MAVLink ids of the autopilot (PX4: MAV_SYS_ID, 1).
     link_rates_hz : mapping of link name to {message id: rate [Hz]}, optional
         The links and their default stream rates; default ``{"onboard":
         ONBOARD_RATES_HZ, "gcs": GCS_RATES_HZ}``.
     geo : GeoReference, optional
-        Geodetic position of the world origin (PX4 SITL's default home).
+        Geodetic position of the world origin (PX4 SITL's default home): the global
+        origin with GPS aiding, the AMSL reference of the baro in any case.
     gravity_m_s2 : float
         Gravity used by the position controller [m/s^2].
+    aiding : {"vision", "gps"}
+        The estimator's position aiding: with GPS it has a global position from boot,
+        with vision (motion capture) only after SET_GPS_GLOBAL_ORIGIN.
+    unix_time_at_boot_us : int
+        Wall-clock time at boot [us since 1970] (SYSTEM_TIME).
     """
 
     def __init__(
@@ -91,16 +110,25 @@ class Px4Vehicle:
         link_rates_hz: Mapping[str, Mapping[int, float]] | None = None,
         geo: GeoReference | None = None,
         gravity_m_s2: float = 9.80665,
+        aiding: str = "vision",
+        unix_time_at_boot_us: int = 0,
     ) -> None:
+        if aiding not in ("vision", "gps"):
+            raise ValueError(f"aiding must be 'vision' or 'gps', got {aiding!r}")
         self.params = params
         self.system_id = int(system_id)
         self.component_id = int(component_id)
+        self.aiding = aiding
         rates = link_rates_hz or {"onboard": ONBOARD_RATES_HZ, "gcs": GCS_RATES_HZ}
-        self._schedulers = {link: StreamScheduler(r) for link, r in rates.items()}
+        streamable = TelemetryEncoder.streamable()
+        self._schedulers = {link: StreamScheduler(r, streamable) for link, r in rates.items()}
         self.geo = geo or GeoReference()
-        self._encoder = TelemetryEncoder(self.geo, FLIGHT_SW_VERSION)
-        self._commander = Commander(params, gravity_m_s2)
+        self._encoder = TelemetryEncoder(self.geo, FLIGHT_SW_VERSION, unix_time_at_boot_us)
+        origin = self.geo if aiding == "gps" else None
+        self._commander = Commander(params, gravity_m_s2, global_origin=origin)
+        self._origin_pending = origin is not None
         self._last: VehicleMeasurement | None = None
+        self._last_estimate_us: int | None = None
         self.counters: Counter[str] = Counter()
         """Dropped or ignored input by reason (e.g. ``invalid_setpoint``, ``not_for_us``)."""
 
@@ -113,8 +141,13 @@ class Px4Vehicle:
 
     @property
     def mode(self) -> Px4Mode:
-        """Current flight mode."""
+        """The mode flown."""
         return self._commander.mode
+
+    @property
+    def intended_mode(self) -> Px4Mode:
+        """The mode the user asked for (differs from :attr:`mode` in a failsafe)."""
+        return self._commander.user_mode
 
     @property
     def armed(self) -> bool:
@@ -133,50 +166,66 @@ class Px4Vehicle:
 
     @property
     def failsafe(self) -> bool:
-        """An offboard-loss failsafe is active."""
+        """A failsafe flies another mode than the one asked for."""
         return self._commander.failsafe
 
     @property
     def home(self) -> Home | None:
-        """Home position (world ENU), set at the first step and at each arming."""
+        """Home position (world ENU), None without a global position."""
         return self._commander.home
+
+    @property
+    def global_origin(self) -> GeoReference | None:
+        """The estimator's global origin (None: no global position)."""
+        return self._commander.origin
+
+    @property
+    def hover_thrust(self) -> float:
+        """The relative hover thrust the position controller flies with [-]."""
+        return self._commander.hover_thrust
 
     def offboard_alive(self, now_s: float) -> bool:
         """The offboard setpoint stream is fresher than COM_OF_LOSS_T at ``now_s`` [s]."""
         return self._commander.offboard_alive(now_s)
 
+    def console(self) -> list[ConsoleLine]:
+        """The console lines since the last call (PX4 prints these to its log)."""
+        lines = list(self._commander.console)
+        self._commander.console.clear()
+        return lines
+
     # ----------------------------------------------------------- time steps
 
     def control(self, now_s: float, m: VehicleMeasurement) -> AttitudeSetpoint | None:
         """Run the state machine at ``now_s`` [s] and return the attitude setpoint for this
-        plant step (body FLU -> world ENU, normalized thrust), or None while disarmed."""
+        plant step (body FLU -> world ENU, relative thrust), or None while disarmed."""
         self._last = m
         self._commander.update(now_s, m)
         return self._commander.setpoint(now_s, m)
 
     def telemetry(self, now_s: float, m: VehicleMeasurement) -> Outgoing:
-        """Every stream message due at ``now_s`` [s] on each link, then pending STATUSTEXTs.
-
-        After a mode, arming or landed change the HEARTBEAT is due at once on every link.
-        """
+        """Every stream message due at ``now_s`` [s] on each link (streams of the estimate
+        only when ``m`` is a new estimate), and GPS_GLOBAL_ORIGIN when the origin is new."""
         self._last = m
         now_us = round(now_s * 1e6)
-        if self._commander.state_changed:
-            self._commander.state_changed = False
-            for scheduler in self._schedulers.values():
-                scheduler.trigger(M.MAVLINK_MSG_ID_HEARTBEAT, now_us)
+        fresh = m.estimate_time_us != self._last_estimate_us
+        self._last_estimate_us = m.estimate_time_us
         status: VehicleStatus | None = None
-        built: dict[int, mavlink.MAVLink_message] = {}
+        built: dict[int, mavlink.MAVLink_message | None] = {}
         out: Outgoing = []
         for link, scheduler in self._schedulers.items():
-            for msg_id in scheduler.due(now_us):
+            for msg_id in scheduler.due(now_us, fresh):
                 if msg_id not in built:
                     if status is None:
                         status = self._status()
                     built[msg_id] = self._encoder.build(msg_id, now_s, m, status)
-                out.append((link, built[msg_id]))
-        if self._commander.outbox:
-            out += self._drain_statustext()
+                message = built[msg_id]
+                if message is not None:
+                    out.append((link, message))
+        if self._origin_pending and self._commander.origin is not None:
+            self._origin_pending = False
+            origin = self._encoder.gps_global_origin(self._commander.origin, now_s)
+            out += [(link, origin) for link in self.links]
         return out
 
     def handle(self, msg: mavlink.MAVLink_message, link: str, now_s: float) -> Outgoing:
@@ -196,7 +245,7 @@ class Px4Vehicle:
             if kind != "HEARTBEAT":
                 self.counters["ignored_message"] += 1
             return []
-        return handler(self, msg, link, now_s) + self._drain_statustext()
+        return handler(self, msg, link, now_s)
 
     # ------------------------------------------------------------ handlers
 
@@ -253,18 +302,19 @@ class Px4Vehicle:
         """Execute one command; messages it emits go to ``extra``; returns MAV_RESULT_*."""
         c = self._commander
         if command == M.MAV_CMD_COMPONENT_ARM_DISARM:
-            force = p[1] == FORCE_MAGIC
             if p[0] == 1.0:
-                return c.arm(now_s, force)
+                return c.arm(now_s)
             if p[0] == 0.0:
-                return c.disarm(force)
-            return M.MAV_RESULT_DENIED
+                return c.disarm(p[1] == FORCE_MAGIC)
+            return M.MAV_RESULT_UNSUPPORTED
         if command == M.MAV_CMD_DO_SET_MODE:
             return self._set_mode(p[0], p[1], p[2], now_s)
         if command == M.MAV_CMD_NAV_TAKEOFF:
-            return c.takeoff(self._takeoff_height(p[6], frame))
+            return c.takeoff(self._takeoff_height(p[6], frame), now_s)
         if command == M.MAV_CMD_NAV_LAND:
-            return c.request_mode(Px4Mode.AUTO_LAND, now_s)
+            return c.land(now_s)
+        if command == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            return c.request_mode(Px4Mode.AUTO_RTL, now_s)
         if command == M.MAV_CMD_SET_MESSAGE_INTERVAL:
             msg_id = _finite_int(p[0])
             try:
@@ -274,8 +324,7 @@ class Px4Vehicle:
             return M.MAV_RESULT_ACCEPTED
         if command == M.MAV_CMD_GET_MESSAGE_INTERVAL:
             msg_id = _finite_int(p[0])
-            scheduler = self._schedulers[link]
-            interval = scheduler.interval_us(msg_id) if msg_id in scheduler.streams else 0
+            interval = self._schedulers[link].interval_us(msg_id) if msg_id is not None else None
             reply = M.MAVLink_message_interval_message(
                 msg_id or 0, -1 if interval is None else interval
             )
@@ -300,6 +349,9 @@ class Px4Vehicle:
     ) -> mavlink.MAVLink_message | None:
         if msg_id == M.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return self._encoder.autopilot_version(self.system_id)
+        if msg_id == M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN:
+            origin = self._commander.origin
+            return None if origin is None else self._encoder.gps_global_origin(origin, now_s)
         if msg_id is None or self._last is None or not self._encoder.can_build(msg_id):
             return None
         return self._encoder.build(msg_id, now_s, self._last, self._status())
@@ -312,15 +364,18 @@ class Px4Vehicle:
         if frame in _RELATIVE_FRAMES:
             home = self._commander.home
             return z + (home.up_m if home is not None else 0.0)
-        return z - self.geo.altitude_amsl_m
+        origin = self._commander.origin or self.geo
+        return z - origin.altitude_amsl_m
 
     def _set_mode(self, base_mode: float, main: float, sub: float, now_s: float) -> int:
         base, main_i, sub_i = _finite_int(base_mode), _finite_int(main), _finite_int(sub or 0.0)
         if base is None or not base & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED or main_i is None:
-            return M.MAV_RESULT_DENIED
+            return M.MAV_RESULT_ACCEPTED  # PX4: no mode asked for, nothing changes
         mode = Px4Mode.from_main_sub(main_i, sub_i or 0)
-        if mode is None:
-            return M.MAV_RESULT_DENIED
+        if mode is None or mode == Px4Mode.AUTO_READY:
+            return M.MAV_RESULT_ACCEPTED
+        if mode == Px4Mode.AUTO_TAKEOFF:
+            return self._commander.takeoff(None, now_s)
         return self._commander.request_mode(mode, now_s)
 
     def _set_mode_message(self, msg, link: str, now_s: float) -> Outgoing:
@@ -337,6 +392,22 @@ class Px4Vehicle:
             M.MAV_CMD_DO_SET_MODE, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
         )
         return [(link, ack)]
+
+    def _set_gps_global_origin(self, msg, link: str, now_s: float) -> Outgoing:
+        if msg.target_system != self.system_id:
+            self.counters["not_for_us"] += 1
+            return []
+        if self.aiding == "gps":
+            self.counters["origin_ignored"] += 1
+            return []
+        try:
+            origin = GeoReference(msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3)
+        except ValueError:
+            self.counters["invalid_origin"] += 1
+            return []
+        if self._commander.set_global_origin(origin):
+            self._origin_pending = True
+        return []
 
     def _param_value(self, name: str) -> mavlink.MAVLink_param_value_message:
         p = self.params
@@ -360,9 +431,7 @@ class Px4Vehicle:
         if msg.param_index >= 0:
             if msg.param_index < len(names):
                 return [(link, self._param_value(names[msg.param_index]))]
-            self._statustext(M.MAV_SEVERITY_INFO, f"[pm] unknown param ID: {msg.param_index}")
-            return []
-        if msg.param_id in PARAMETERS:
+        elif msg.param_id in PARAMETERS:
             return [(link, self._param_value(msg.param_id))]
         self.counters["unknown_param"] += 1
         return []
@@ -371,15 +440,17 @@ class Px4Vehicle:
         if not self._for_us(msg.target_system, msg.target_component, broadcast_ok=False):
             return []
         name = msg.param_id
+        spec = PARAMETERS.get(name)
+        if spec is None:
+            self.counters["unknown_param"] += 1
+            return []
+        if msg.param_type != spec.mav_type:
+            self.counters["param_type_mismatch"] += 1
+            return []
         try:
             self.params.set(name, Px4Params.decode_wire(name, msg.param_value))
-        except UnknownParamError:
-            self.counters["unknown_param"] += 1
-            self._statustext(M.MAV_SEVERITY_INFO, f"[pm] unknown param: {name}")
-            return []
-        except ParamError as exc:
+        except (UnknownParamError, ParamError):
             self.counters["refused_param"] += 1
-            self._statustext(M.MAV_SEVERITY_WARNING, f"[pm] refused {exc}")
             return [(link, self._param_value(name))]
         return [(each, self._param_value(name)) for each in self.links]
 
@@ -401,6 +472,7 @@ class Px4Vehicle:
         "COMMAND_LONG": _command,
         "COMMAND_INT": _command,
         "SET_MODE": _set_mode_message,
+        "SET_GPS_GLOBAL_ORIGIN": _set_gps_global_origin,
         "PARAM_REQUEST_LIST": _param_request_list,
         "PARAM_REQUEST_READ": _param_request_read,
         "PARAM_SET": _param_set,
@@ -412,15 +484,15 @@ class Px4Vehicle:
 
     def _status(self) -> VehicleStatus:
         c = self._commander
-        return VehicleStatus(c.mode, c.armed, c.landed_state, c.failsafe, c.prearm_ok, c.home)
-
-    def _statustext(self, severity: int, text: str) -> None:
-        self._commander.outbox.append(StatusText(severity, text))
-
-    def _drain_statustext(self) -> Outgoing:
-        out: Outgoing = []
-        for item in self._commander.outbox:
-            message = M.MAVLink_statustext_message(item.severity, item.text.encode()[:50])
-            out.extend((link, message) for link in self.links)
-        self._commander.outbox.clear()
-        return out
+        return VehicleStatus(
+            mode=c.mode,
+            intended_mode=c.user_mode,
+            armed=c.armed,
+            landed_state=c.landed_state,
+            failsafe=c.failsafe,
+            prearm_ok=c.prearm_ok,
+            home=c.home,
+            origin=c.origin,
+            mav_type=int(self.params["MAV_TYPE"]),
+            setpoint=c.setpoint_flown,
+        )
