@@ -32,7 +32,8 @@ def received(msg):
 
 
 def ack_of(replies):
-    return next(m for _, m in replies if m.get_type() == "COMMAND_ACK")
+    """The command's result: its last COMMAND_ACK (DO_SET_MODE gets two, as on PX4)."""
+    return [m for _, m in replies if m.get_type() == "COMMAND_ACK"][-1]
 
 
 def command(cmd, *params):

@@ -56,7 +56,8 @@ def acks(replies):
 
 
 def ack(vehicle, cmd, *params, t=0.0, link="onboard"):
-    return acks(vehicle.handle(command(cmd, *params), link, t))[0].result
+    """The command's result: its last COMMAND_ACK (DO_SET_MODE gets two, as on PX4)."""
+    return acks(vehicle.handle(command(cmd, *params), link, t))[-1].result
 
 
 def attitude_target(q_ned=(1.0, 0.0, 0.0, 0.0), thrust=0.6, mask=0b111):
@@ -194,6 +195,18 @@ def test_any_mode_is_accepted_disarmed_but_arming_needs_one_that_can_run(vehicle
     # armed: a mode that cannot run is refused and the vehicle stays in Hold
     assert set_mode(vehicle, Px4Mode.POSCTL, 0.1) == M.MAV_RESULT_TEMPORARILY_REJECTED
     assert vehicle.mode is Px4Mode.AUTO_LOITER
+
+
+def test_do_set_mode_is_acknowledged_twice_accepted_then_the_result(vehicle):
+    ack(vehicle, 400, 1)
+    offboard = command(176, 1, Px4Mode.OFFBOARD.main_mode, 0)  # armed, no setpoint stream
+    results = [m.result for m in acks(vehicle.handle(offboard, "onboard", 0.0))]
+    assert results == [M.MAV_RESULT_ACCEPTED, M.MAV_RESULT_TEMPORARILY_REJECTED]
+    land = command(176, 1, *Px4Mode.AUTO_LAND.value)
+    results = [m.result for m in acks(vehicle.handle(land, "onboard", 0.0))]
+    assert results == [M.MAV_RESULT_ACCEPTED, M.MAV_RESULT_ACCEPTED]
+    message = M.MAVLink_set_mode_message(1, 1, Px4Mode.AUTO_LOITER.custom_mode)
+    assert len(acks(vehicle.handle(received(message), "onboard", 0.0))) == 1  # once
 
 
 def test_unknown_mode_numbers_are_accepted_and_change_nothing(vehicle):

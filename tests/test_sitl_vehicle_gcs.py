@@ -52,7 +52,12 @@ def _wait(conn, kind, timeout_s=10.0, condition=lambda m: True):
 
 
 def _ack(conn, command, timeout_s=5.0):
-    return _wait(conn, "COMMAND_ACK", timeout_s, lambda m: m.command == command)
+    """The command's result. PX4 acknowledges DO_SET_MODE twice, at once: ACCEPTED, then the
+    result; a refusal is in the second."""
+    ack = _wait(conn, "COMMAND_ACK", timeout_s, lambda m: m.command == command)
+    if ack is not None and command == mavlink2.MAV_CMD_DO_SET_MODE:
+        ack = _wait(conn, "COMMAND_ACK", 2.0, lambda m: m.command == command)
+    return ack
 
 
 def test_heartbeat_identifies_a_px4_hexarotor(gcs):
@@ -115,12 +120,15 @@ def test_offboard_needs_a_live_setpoint_stream_and_fails_safe_when_it_stops(gcs)
     gcs.set_mode("OFFBOARD")
     # Keep streaming while the command is answered (at once) and until the next 1 Hz
     # heartbeat shows the mode.
-    ack = _stream_attitude(
-        gcs,
-        2.0,
-        until=lambda m: m.get_type() == "COMMAND_ACK" and m.command == mavlink2.MAV_CMD_DO_SET_MODE,
-    )
-    assert ack is not None and ack.result == mavlink2.MAV_RESULT_ACCEPTED
+    for _ in range(2):  # ACCEPTED twice
+        ack = _stream_attitude(
+            gcs,
+            2.0,
+            until=lambda m: (
+                m.get_type() == "COMMAND_ACK" and m.command == mavlink2.MAV_CMD_DO_SET_MODE
+            ),
+        )
+        assert ack is not None and ack.result == mavlink2.MAV_RESULT_ACCEPTED
     hb = _stream_attitude(
         gcs, 3.0, until=lambda m: m.get_type() == "HEARTBEAT" and m.get_srcSystem() == 1
     )

@@ -16,6 +16,8 @@ Message handling follows PX4's ``mavlink_receiver.cpp`` and commander as measure
 - DO_SET_MODE (and the SET_MODE message, ACKed as command 176): see
   :mod:`sitl.px4.commander` for what is accepted; a base mode without the custom-mode
   flag, or mode numbers PX4 does not know, are ACCEPTED and change nothing (measured).
+  PX4 acknowledges a DO_SET_MODE command twice, at once: ACCEPTED, then the result (a
+  refused mode: ACCEPTED then TEMPORARILY_REJECTED); the SET_MODE message once.
 - SET_MESSAGE_INTERVAL: ACCEPTED for every message this vehicle can stream, FAILED for
   others and for HEARTBEAT; GET_MESSAGE_INTERVAL answers MESSAGE_INTERVAL (-1: not
   streamed); REQUEST_MESSAGE sends the message once, DENIED when there is no such message
@@ -289,11 +291,16 @@ class Px4Vehicle:
         else:
             p += [msg.param5, msg.param6, msg.param7]
         extra: Outgoing = []
+        if command == M.MAV_CMD_DO_SET_MODE:  # PX4 acknowledges it twice: first ACCEPTED
+            extra.append((link, self._ack(msg, command, M.MAV_RESULT_ACCEPTED)))
         result = self._run_command(command, p, frame, link, now_s, extra)
-        ack = M.MAVLink_command_ack_message(
+        return [*extra, (link, self._ack(msg, command, result))]
+
+    @staticmethod
+    def _ack(msg, command: int, result: int) -> mavlink.MAVLink_command_ack_message:
+        return M.MAVLink_command_ack_message(
             command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
         )
-        return [*extra, (link, ack)]
 
     def _run_command(
         self, command: int, p: list[float], frame: int | None, link: str, now_s: float,
@@ -388,10 +395,7 @@ class Px4Vehicle:
             float((msg.custom_mode >> 24) & 0xFF),
             now_s,
         )
-        ack = M.MAVLink_command_ack_message(
-            M.MAV_CMD_DO_SET_MODE, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
-        )
-        return [(link, ack)]
+        return [(link, self._ack(msg, M.MAV_CMD_DO_SET_MODE, result))]
 
     def _set_gps_global_origin(self, msg, link: str, now_s: float) -> Outgoing:
         if msg.target_system != self.system_id:
