@@ -13,7 +13,8 @@ Stands in for PX4's EKF2, as measured on the real PX4 SITL build (v1.17.0-alpha1
   (:class:`~sitl.sensors.GyroSensor`, scenario ``[sensors]``); the accelerometer reads the
   truth specific force;
 - **two aiding modes** (:data:`ERROR_MODELS`): ``"mocap"``, EKF2 fusing external vision
-  (motion capture indoors, the paper's lab): centimetre errors, positions in the motion
+  alone (motion capture indoors, the paper's lab; :func:`sitl.mocap.mocap_parameters`):
+  millimetre errors, positions in the motion
   capture's frame, which is the world's; ``"gps"``, EKF2 fusing GPS and baro (SIH
   outdoors): positions from where the estimator started (the vehicle at boot, at rest on
   the ground: local origin), 0.2-0.3 m off at rest after boot, the height wandering by
@@ -80,22 +81,22 @@ class EstimateErrorModel:
 
 ERROR_MODELS: dict[str, EstimateErrorModel] = {
     "mocap": EstimateErrorModel(
-        horizontal_std_m=0.01,
-        vertical_std_m=0.01,
-        horizontal_tau_s=2.0,
-        vertical_tau_s=2.0,
+        horizontal_std_m=0.004,
+        vertical_std_m=0.003,
+        horizontal_tau_s=1.0,
+        vertical_tau_s=1.0,
         smoothing_s=0.2,
         tilt_std_rad=0.003,
         yaw_std_rad=0.003,
         attitude_tau_s=2.0,
-        # measured: EKF2 fusing ODOMETRY vision at 50 Hz, SIH hex at rest
+        # measured: EKF2 on vision alone (sitl.mocap's parameters, 100 Hz poses), SIH at rest
         report=EstimatorReport(
             aiding="vision",
-            position_variance_m2=(5.0e-4, 2.8e-4),
-            velocity_variance_m2_s2=(1.5e-3, 8.4e-4),
-            attitude_variance_rad2=(4.1e-4, 4.1e-4, 2.9e-4),
+            position_variance_m2=(1.2e-5, 1.1e-5),
+            velocity_variance_m2_s2=(3.6e-4, 2.9e-4),
+            attitude_variance_rad2=(4.1e-4, 4.1e-4, 2.1e-4),
             reset_counter=9,
-            test_ratios=(math.nan, 0.0089, 0.0015, 0.00084, 0.0018),
+            test_ratios=(math.nan, 0.0165, 0.0152, 0.0026, math.nan),
         ),
     ),
     "gps": EstimateErrorModel(

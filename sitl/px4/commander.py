@@ -37,8 +37,11 @@ and on what the real SITL build did:
 - **Land detection**: the measurement's ``on_ground`` (the world's ground contact), or,
   descending in Land or Return, a descent that stalls (vertical speed below 0.1 m/s for
   1 s).
-- **Auto-disarm**: COM_DISARM_LAND after landing, or COM_DISARM_PRFLT after arming without
-  a takeoff.
+- **Auto-disarm**: COM_DISARM_LAND after landing, or COM_SPOOLUP_TIME + COM_DISARM_PRFLT
+  after arming without a takeoff (measured: 10 s asked, disarmed 10-11 s after arming).
+- **A new global origin** (SET_GPS_GLOBAL_ORIGIN) resets the estimator's position (its
+  reset counter grows by 3) and the arming checks fail for :data:`ORIGIN_SETTLE_S`
+  ("horizontal position unstable", measured about 4 s on PX4).
 - **Hover thrust**: the position controller flies with the hover thrust estimator's
   estimate once valid (:mod:`sitl.px4.hover_thrust`).
 
@@ -81,6 +84,10 @@ IN_AIR_HEIGHT_M = 1.0
 """Height above home from which the hover thrust estimator runs (PX4: dist_bottom > 1 m)."""
 RTL_ARRIVED_M = 0.5
 """Return: horizontal distance to home at which the landing starts [m]."""
+ORIGIN_SETTLE_S = 4.0
+"""After a new global origin the arming checks fail this long [s] (PX4: 4.1 s measured)."""
+ORIGIN_RESETS = 3
+"""Estimator resets (ODOMETRY.reset_counter) a new global origin makes (measured)."""
 
 _MANUAL_CONTROL = (
     Px4Mode.MANUAL, Px4Mode.STABILIZED, Px4Mode.ACRO, Px4Mode.ALTCTL, Px4Mode.POSCTL,
@@ -158,6 +165,10 @@ class Commander:
         self._rtl_phase = 0
         self._rtl_up_m = 0.0
         self._prearm_battery = True
+        self._origin_settled_s = -math.inf
+        self.estimator_resets = 0
+        """Resets of the estimate made here (a new global origin), on top of the
+        estimator's own count."""
         self._last_m: VehicleMeasurement | None = None
         self._last_estimate_us: int | None = None
         self._setpoint: AttitudeSetpoint | None = None
@@ -279,13 +290,16 @@ class Commander:
         self._offboard_sp = setpoint
         self._offboard_last_s = now_s
 
-    def set_global_origin(self, origin: GeoReference) -> bool:
-        """SET_GPS_GLOBAL_ORIGIN: the estimator takes ``origin`` (refused in the air, as
-        EKF2 does); returns whether it did. Home follows at the next update."""
+    def set_global_origin(self, origin: GeoReference, now_s: float) -> bool:
+        """SET_GPS_GLOBAL_ORIGIN at ``now_s``: the estimator takes ``origin`` (refused in the
+        air, as EKF2 does) and resets; returns whether it did. Home follows at the next
+        update; arming waits :data:`ORIGIN_SETTLE_S`."""
         if self.armed and not self.landed:
             return False
         self.origin = origin
         self.home = None
+        self.estimator_resets += ORIGIN_RESETS
+        self._origin_settled_s = now_s + ORIGIN_SETTLE_S
         return True
 
     # ------------------------------------------------------------ time steps
@@ -341,6 +355,7 @@ class Commander:
     def _can_arm(self, now_s: float) -> bool:
         return (
             self._prearm_battery
+            and now_s >= self._origin_settled_s
             and self.mode not in _PREVENT_ARMING
             and self.can_run(self.mode, now_s)
         )
@@ -507,7 +522,7 @@ class Commander:
             since = self._landed_since_s
         else:
             delay, reason = p["COM_DISARM_PRFLT"], "auto preflight disarming"
-            since = self._armed_at_s
+            since = self._armed_at_s + p["COM_SPOOLUP_TIME"]
         if delay > 0.0 and now_s - since >= delay:
             self._disarm(reason)
 

@@ -43,12 +43,12 @@ class EstimatorReport:
     """
 
     aiding: str = "vision"
-    position_variance_m2: tuple[float, float] = (5e-4, 2.8e-4)
-    velocity_variance_m2_s2: tuple[float, float] = (1.5e-3, 8.4e-4)
-    attitude_variance_rad2: tuple[float, float, float] = (4.1e-4, 4.1e-4, 2.9e-4)
+    position_variance_m2: tuple[float, float] = (1.2e-5, 1.1e-5)
+    velocity_variance_m2_s2: tuple[float, float] = (3.6e-4, 2.9e-4)
+    attitude_variance_rad2: tuple[float, float, float] = (4.1e-4, 4.1e-4, 2.1e-4)
     reset_counter: int = 0
     test_ratios: tuple[float, float, float, float, float] = (
-        math.nan, 0.009, 0.0015, 0.0008, 0.0018,
+        math.nan, 0.0165, 0.0152, 0.0026, math.nan,
     )  # fmt: skip
 
 

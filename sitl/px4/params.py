@@ -90,6 +90,8 @@ _SPECS = (
               "4 Land, 5 Hold, 6 Terminate, 7 Disarm"),
     ParamSpec("COM_OF_LOSS_T", "REAL32", 1.0, 0.0, 60.0, "s",
               "Offboard proof of life times out this long after the last setpoint"),
+    ParamSpec("COM_SPOOLUP_TIME", "REAL32", 1.0, 0.0, 30.0, "s",
+              "Delay between arming and further navigation (starts the preflight disarm)"),
     ParamSpec("HTE_ACC_GATE", "REAL32", 3.0, 1.0, 10.0, "SD",
               "Hover thrust estimator: innovation gate of the acceleration fusion"),
     ParamSpec("HTE_HT_ERR_INIT", "REAL32", 0.1, 0.0, 1.0, "norm",

@@ -139,11 +139,12 @@ _ESTIMATOR_FLAGS = (
     | M.ESTIMATOR_VELOCITY_VERT
     | M.ESTIMATOR_POS_HORIZ_REL
     | M.ESTIMATOR_POS_VERT_ABS
-    | M.ESTIMATOR_POS_VERT_AGL
     | M.ESTIMATOR_CONST_POS_MODE
     | M.ESTIMATOR_PRED_POS_HORIZ_REL
 )
-"""ESTIMATOR_STATUS flags PX4's EKF2 sets with any position aiding (measured: 495)."""
+"""ESTIMATOR_STATUS flags PX4's EKF2 sets with any position aiding (measured on vision
+alone: 431); a global origin adds POS_HORIZ_ABS (447), GPS and baro add POS_VERT_AGL and
+PRED_POS_HORIZ_ABS (1023)."""
 
 _IMU_FIELDS = 0b0001_1100_0011_1111
 """HIGHRES_IMU.fields_updated: acc, gyro, abs pressure, pressure alt, temperature (no mag)."""
@@ -183,6 +184,9 @@ class VehicleStatus:
         MAV_TYPE parameter (HEARTBEAT.type).
     setpoint : AttitudeSetpoint or None
         The attitude setpoint flown (ATTITUDE_TARGET; None while disarmed).
+    estimator_resets : int
+        Resets of the estimate made by the autopilot (a new global origin), added to the
+        estimator's own reset counter.
     """
 
     mode: Px4Mode
@@ -195,6 +199,7 @@ class VehicleStatus:
     origin: GeoReference | None
     mav_type: int
     setpoint: AttitudeSetpoint | None
+    estimator_resets: int = 0
 
 
 class StreamScheduler:
@@ -460,7 +465,8 @@ class TelemetryEncoder:
         velocity[11] = report.velocity_variance_m2_s2[1]
         return M.MAVLink_odometry_message(
             m.estimate_time_us, M.MAV_FRAME_LOCAL_NED, M.MAV_FRAME_LOCAL_NED, x, y, z, list(q),
-            vx, vy, vz, p, q_rate, r, pose, velocity, report.reset_counter,
+            vx, vy, vz, p, q_rate, r, pose, velocity,
+            report.reset_counter + status.estimator_resets,
             M.MAV_ESTIMATOR_TYPE_AUTOPILOT, 0,
         )  # fmt: skip
 
@@ -517,7 +523,7 @@ class TelemetryEncoder:
         if status.origin is not None:
             flags |= M.ESTIMATOR_POS_HORIZ_ABS
         if report.aiding == "gps":
-            flags |= M.ESTIMATOR_PRED_POS_HORIZ_ABS
+            flags |= M.ESTIMATOR_PRED_POS_HORIZ_ABS | M.ESTIMATOR_POS_VERT_AGL
         var_h, var_v = report.position_variance_m2
         vel, pos_h, pos_v, mag, hagl = report.test_ratios
         return M.MAVLink_estimator_status_message(

@@ -15,7 +15,7 @@ Message handling follows PX4's ``mavlink_receiver.cpp`` and commander as measure
   dropped and counted. Unhandled commands: UNSUPPORTED.
 - DO_SET_MODE (and the SET_MODE message, ACKed as command 176): see
   :mod:`sitl.px4.commander` for what is accepted; a base mode without the custom-mode
-  flag, or mode numbers PX4 does not know, are ACCEPTED and change nothing (measured).
+  flag, mode numbers PX4 does not know and AUTO.READY are TEMPORARILY_REJECTED (measured).
   PX4 acknowledges a DO_SET_MODE command twice, at once: ACCEPTED, then the result (a
   refused mode: ACCEPTED then TEMPORARILY_REJECTED); the SET_MODE message once.
 - SET_MESSAGE_INTERVAL: ACCEPTED for every message this vehicle can stream, FAILED for
@@ -377,10 +377,10 @@ class Px4Vehicle:
     def _set_mode(self, base_mode: float, main: float, sub: float, now_s: float) -> int:
         base, main_i, sub_i = _finite_int(base_mode), _finite_int(main), _finite_int(sub or 0.0)
         if base is None or not base & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED or main_i is None:
-            return M.MAV_RESULT_ACCEPTED  # PX4: no mode asked for, nothing changes
+            return M.MAV_RESULT_TEMPORARILY_REJECTED  # PX4 main (measured)
         mode = Px4Mode.from_main_sub(main_i, sub_i or 0)
         if mode is None or mode == Px4Mode.AUTO_READY:
-            return M.MAV_RESULT_ACCEPTED
+            return M.MAV_RESULT_TEMPORARILY_REJECTED
         if mode == Px4Mode.AUTO_TAKEOFF:
             return self._commander.takeoff(None, now_s)
         return self._commander.request_mode(mode, now_s)
@@ -409,7 +409,7 @@ class Px4Vehicle:
         except ValueError:
             self.counters["invalid_origin"] += 1
             return []
-        if self._commander.set_global_origin(origin):
+        if self._commander.set_global_origin(origin, now_s):
             self._origin_pending = True
         return []
 
@@ -499,4 +499,5 @@ class Px4Vehicle:
             origin=c.origin,
             mav_type=int(self.params["MAV_TYPE"]),
             setpoint=c.setpoint_flown,
+            estimator_resets=c.estimator_resets,
         )
