@@ -369,6 +369,14 @@ class PickupApp:
         if status is not None and status.armed:
             raise MissionError("preflight: the vehicle is already armed")
         await self._ensure_global_origin()
+        if self._mode() != "LOITER":
+            # PX4 restores the mode selected before a landing (OFFBOARD after a mission),
+            # where arming fails without a setpoint stream: arm in Hold.
+            try:
+                await self.link.set_mode_px4(*px4_mode("LOITER"))
+            except CommandError as exc:
+                raise MissionError(f"preflight: PX4 refused Hold (AUTO.LOITER): {exc}") from None
+            self._note("preflight", f"mode {self._mode()} -> Hold (AUTO.LOITER) to arm in")
         await self._wait_ready_to_arm()
         try:
             states = await self.bus.read_joint_states()
@@ -512,16 +520,26 @@ class PickupApp:
         link, plan, flight = self.link, self.plan, self.scenario.flight
         await self._wait_for(lambda: self.assembler.ready, 2.0, "no state estimate")
         self._ground_z = self._altitude()
+        if plan.cruise_altitude_m - self._ground_z < 0.5:
+            raise MissionError(
+                f"the cruise altitude {plan.cruise_altitude_m:g} m is less than 0.5 m above "
+                f"where the vehicle stands (z = {self._ground_z:.2f} m in PX4's local frame)"
+            )
         self._note("mode", f"arming (standing at z = {self._ground_z:.2f} m)")
         try:
             await link.arm()
-            await link.param_set("MIS_TAKEOFF_ALT", plan.cruise_altitude_m)
+            # MIS_TAKEOFF_ALT is above home (where PX4 armed): the cruise altitude is in the
+            # local frame, whose origin need not be on the ground.
+            await link.param_set("MIS_TAKEOFF_ALT", plan.cruise_altitude_m - self._ground_z)
             await link.command_long(mavlink2.MAV_CMD_NAV_TAKEOFF, [0, 0, 0] + [math.nan] * 4)
         except (CommandError, ParamError) as exc:
             raise MissionError(f"take-off refused: {exc}") from None
         self._note("mode", "take-off")
         await self._wait_for(
-            lambda: self._altitude() >= 0.9 * plan.cruise_altitude_m and self._mode() == "LOITER",
+            lambda: (
+                self._altitude() - self._ground_z >= 0.9 * (plan.cruise_altitude_m - self._ground_z)
+                and self._mode() == "LOITER"
+            ),
             self.takeoff_timeout_s,
             "take-off did not reach the cruise altitude",
         )
@@ -555,6 +573,7 @@ class PickupApp:
         q = state.q
         self.control.tilt.reset(float(q[3]), float(q[4]))
         self.mission.start(self._t_s, q, state.q_dot)
+        self.control.trim_active = True
         self._offboard_since_s = self._t_s
         self._handover_tilt0 = math.hypot(float(q[3]), float(q[4]))
         self.stream = Stream.CONTROL
@@ -582,6 +601,7 @@ class PickupApp:
         """The way out of OFFBOARD: stream the safe setpoint ``stream`` while ``command``
         waits for its acknowledgement, then stop streaming."""
         self.stream = stream
+        self.control.trim_active = False
         try:
             await command()
         except CommandError as exc:

@@ -287,6 +287,11 @@ class Controller(_Section):
     """Limit of the commanded tilt of the small-angle mapping (eq. phid) [rad]."""
     tilt_reference_bandwidth_rad_s: Positive
     """Natural frequency of the filter that smooths roll/pitch commands [rad/s]."""
+    horizontal_trim_gain_n_per_m: NonNegative = 0.0
+    """Gain of the flight app's integral trim on x, y (``companion.control.HorizontalTrim``)
+    [N/m]; 0: none (the paper's law)."""
+    horizontal_trim_limit_n: NonNegative = 1.0
+    """Largest trim force per horizontal axis [N]."""
     sliding_mode: SlidingMode
 
 

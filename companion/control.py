@@ -23,6 +23,7 @@ from companion.model import ModelTerms
 __all__ = [
     "ControlRateError",
     "DesiredState",
+    "HorizontalTrim",
     "PassivityController",
     "SlidingModeController",
     "check_control_rate",
@@ -132,6 +133,42 @@ class PassivityController:
         feedforward = terms.regressor(desired.q_dot, desired.q_ddot) @ xi
         e = wrap_angle_error(q - desired.q)
         return feedforward - self.k * (q_dot - desired.q_dot) - self.k_lam * e
+
+
+class HorizontalTrim:
+    """Slow integral action on the horizontal rows x, y of eq. tau2's force.
+
+    A real vehicle holds its *estimated* attitude: a bias of that estimate (an IMU
+    misalignment, EKF2's accelerometer-bias state wandering; 2 deg is 0.4 N at 1.2 kg) is
+    a horizontal force the model does not have, and the passivity law, without integral
+    action, answers it with a position error of bias / (k Lambda) (10 cm on PX4 SIH with
+    the paper's gains). The trim integrates the sliding variable
+    ``s = (q_dot - q_d_dot) + Lambda (q - q_d)`` on x, y: ``d_dot = -gain s``, ``|d_i| <=
+    limit``; tau[0:2] += d. It is the ``Deltahat`` of the sliding-mode law (eq. asc1)
+    restricted to x, y, with a gain small against k Lambda so the loop keeps its phase
+    margin (integral time k / gain).
+
+    Parameters
+    ----------
+    gain_n_per_m : float
+        Integral gain [N per (m/s) s, i.e. N/m]; 0 disables the trim.
+    limit_n : float
+        Largest trim force per axis [N].
+    """
+
+    def __init__(self, gain_n_per_m: float, limit_n: float) -> None:
+        if not (gain_n_per_m >= 0.0 and limit_n >= 0.0):
+            raise ValueError("gain and limit must be >= 0")
+        self.gain = gain_n_per_m
+        self.limit = limit_n
+        self.force_n = np.zeros(2)
+        """The trim force, world x, y [N]."""
+
+    def update(self, dt_s: float, sliding_xy: FloatArray) -> FloatArray:
+        """Integrate over ``dt_s`` [s] with the sliding variable of x, y [m/s]; the force."""
+        f = self.force_n - dt_s * self.gain * np.asarray(sliding_xy, dtype=float)
+        self.force_n = np.clip(f, -self.limit, self.limit)
+        return self.force_n
 
 
 class SlidingModeController:

@@ -9,7 +9,8 @@ result to PX4 and the servos. The pieces are the paper's (section III):
   x, y, z from the commanded thrust along the measured attitude and the joints from the
   servos' present current (DESIGN.md section 4),
 - the augmented passivity-based controller (eq. tau2) with the estimate, or frozen at the
-  empty-arm values (the non-adaptive baseline),
+  empty-arm values (the non-adaptive baseline), plus a slow horizontal integral trim
+  (:class:`~companion.control.HorizontalTrim`, off in the paper's configs),
 - the small-angle tilt mapping (eq. phid) and PX4's relative thrust (:class:`ThrustModel`),
   with the tilt fed back as the attitude reference through a third-order filter
   (:class:`TiltReference`).
@@ -27,6 +28,7 @@ from numpy.typing import NDArray
 from companion.config import Scenario
 from companion.control import (
     DesiredState,
+    HorizontalTrim,
     PassivityController,
     check_control_rate,
     damping_step_ratio,
@@ -95,6 +97,9 @@ class FlightControl:
         self.thrust = ThrustModel(6 * rotors.max_thrust_per_rotor_n)
         """Newtons <-> PX4 relative thrust; the flight app sets its floor from the vehicle."""
         self.tilt_max_rad = ctl.tilt_max_rad
+        self.trim = HorizontalTrim(ctl.horizontal_trim_gain_n_per_m, ctl.horizontal_trim_limit_n)
+        self.trim_active = False
+        """The trim integrates only while the vehicle flies these setpoints (the app)."""
 
     def check_rate(self, rate_hz: float, q: FloatArray) -> float:
         """Raise :class:`~companion.control.ControlRateError` if ``rate_hz`` is too low for
@@ -136,6 +141,11 @@ class FlightControl:
             else estimate.theta
         )
         tau = self.controller.torque(terms, q, q_dot, reference, estimate.theta)
+        if self.trim_active:
+            lam = self.controller.k_lam[0:2] / self.controller.k[0:2]
+            sliding = (q_dot[0:2] - reference.q_dot[0:2]) + lam * (q[0:2] - reference.q[0:2])
+            self.trim.update(dt_s, sliding)
+        tau[0:2] += self.trim.force_n
         setpoint = attitude_thrust_setpoint(
             tau[0:3], float(q[5]), float(reference.q[5]), self.tilt_max_rad, self.thrust
         )
