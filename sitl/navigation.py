@@ -55,6 +55,9 @@ class EstimateErrorModel:
     horizontal_std_m, vertical_std_m : float
         Standard deviation of the Gauss-Markov position offset per horizontal axis and
         of the height [m].
+    boot_std_m : float
+        Standard deviation of the offset at boot, per axis [m] (the offset then wanders
+        towards its stationary size).
     horizontal_tau_s, vertical_tau_s : float
         Its correlation times [s].
     smoothing_s : float
@@ -70,6 +73,7 @@ class EstimateErrorModel:
 
     horizontal_std_m: float
     vertical_std_m: float
+    boot_std_m: float
     horizontal_tau_s: float
     vertical_tau_s: float
     smoothing_s: float
@@ -83,6 +87,7 @@ ERROR_MODELS: dict[str, EstimateErrorModel] = {
     "mocap": EstimateErrorModel(
         horizontal_std_m=0.004,
         vertical_std_m=0.003,
+        boot_std_m=0.003,
         horizontal_tau_s=1.0,
         vertical_tau_s=1.0,
         smoothing_s=0.2,
@@ -101,7 +106,8 @@ ERROR_MODELS: dict[str, EstimateErrorModel] = {
     ),
     "gps": EstimateErrorModel(
         horizontal_std_m=0.2,
-        vertical_std_m=0.3,
+        vertical_std_m=0.6,
+        boot_std_m=0.2,
         horizontal_tau_s=60.0,
         vertical_tau_s=30.0,
         smoothing_s=2.0,
@@ -121,7 +127,7 @@ ERROR_MODELS: dict[str, EstimateErrorModel] = {
 }
 """The estimator's error model per aiding mode (see the module docstring)."""
 
-_EXACT = EstimateErrorModel(0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 1.0, EstimatorReport())
+_EXACT = EstimateErrorModel(0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 1.0, EstimatorReport())
 
 
 class _SmoothOffset:
@@ -130,7 +136,8 @@ class _SmoothOffset:
     ``rough`` is the exactly discretized Gauss-Markov process (stationary standard
     deviation ``std``, correlation time ``tau``), ``smooth`` follows it through the lag
     ``smoothing_s``; the error is ``smooth`` and its rate ``(rough - smooth) /
-    smoothing_s``. Both start at a draw of the stationary offset (a boot offset).
+    smoothing_s``. Both start at a draw of standard deviation ``boot_std`` (the offset
+    after boot), which then wanders towards the stationary ``std``.
     """
 
     def __init__(
@@ -139,13 +146,14 @@ class _SmoothOffset:
         std: np.ndarray,
         tau_s: np.ndarray,
         smoothing_s: float,
+        boot_std: np.ndarray,
     ) -> None:
         self._rng = rng
         self._std = std
         self._tau = tau_s
         self._smoothing_s = smoothing_s
         self._factors: tuple[float, np.ndarray, np.ndarray, float] | None = None
-        self.rough = rng.standard_normal(std.size) * std
+        self.rough = rng.standard_normal(std.size) * boot_std
         self.smooth = self.rough.copy()
 
     def step(self, dt_s: float) -> None:
@@ -208,11 +216,11 @@ class Navigation:
             np.array([h, h, v]),
             np.array([model.horizontal_tau_s, model.horizontal_tau_s, model.vertical_tau_s]),
             model.smoothing_s,
+            np.full(3, model.boot_std_m),
         )
         tilt, yaw = model.tilt_std_rad, model.yaw_std_rad
-        self._attitude = _SmoothOffset(
-            rng, np.array([tilt, tilt, yaw]), np.full(3, model.attitude_tau_s), 1e-3
-        )
+        angles = np.array([tilt, tilt, yaw])
+        self._attitude = _SmoothOffset(rng, angles, np.full(3, model.attitude_tau_s), 1e-3, angles)
         s = scenario.sensors
         self._gyro = GyroSensor(rng, rate_std_rad_s=s.gyro_std_rad_s, rate_hz=s.gyro_rate_hz)
         self._last: VehicleMeasurement | None = None

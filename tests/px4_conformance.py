@@ -637,6 +637,11 @@ def flight(peer: Peer) -> dict:
     link.wait("CURRENT_MODE", lambda m: mode_name(m.custom_mode) != LOITER, 5.0)
     held = link.wait("CURRENT_MODE", lambda m: mode_name(m.custom_mode) == LOITER, 40.0)
     out["takeoff to Hold s"] = None if held is None else (held[0] - takeoff_ms) / 1e3
+    out["takeoff thrust (s, thrust)"] = [
+        (round((t - takeoff_ms) / 1e3, 1), round(m.thrust, 3))
+        for t, m in link.since(mark, "ATTITUDE_TARGET")[::5]
+        if t <= (held[0] if held else t)
+    ]
     link.wait_vehicle_s(6.0)  # the hover thrust estimator converges in a few seconds
     home = link.since(0, "HOME_POSITION")[-1][1]
     local = link.since(mark, "LOCAL_POSITION_NED")[-1][1]
@@ -694,8 +699,14 @@ def flight(peer: Peer) -> dict:
     out["disarm after landing s"] = (
         None if disarmed is None or on_ground is None else (disarmed[0] - on_ground) / 1e3
     )
-    final = link.since(mark, "LOCAL_POSITION_NED")[-1][1]
+    track = link.since(mark, "LOCAL_POSITION_NED")
+    final = track[-1][1]
     out["landed from home m"] = math.hypot(final.x - home.x, final.y - home.y)
+    out["Return track (s, from home m, above home m)"] = [
+        (round((t - last_ms) / 1e3, 1), round(math.hypot(m.x - home.x, m.y - home.y), 2),
+         round(home.z - m.z, 2))
+        for t, m in track[:: max(1, len(track) // 12)]
+    ]  # fmt: skip
     return out
 
 

@@ -568,3 +568,17 @@ def test_scenario_sets_the_airframe_parameters_and_the_loop_follows_them():
     assert loop.attitude_p[0] == 6.0 and loop.rate_k == (1.0, 2.0, 1.0)
     assert loop.rate_max_rad_s[0] == pytest.approx(math.radians(220.0))
     assert loop.thr_mdl_fac == scenario.vehicle.rotors.thr_mdl_fac
+
+
+def test_takeoff_spools_up_then_ramps_the_thrust_from_zero(vehicle):
+    """PX4's takeoff: idle for COM_SPOOLUP_TIME, then the climb velocity setpoint ramps from
+    -g / MPC_Z_VEL_P_ACC (zero thrust) over MPC_TKO_RAMP_T, so the thrust rises from zero."""
+    assert ack(vehicle, 400, 1) == M.MAV_RESULT_ACCEPTED
+    assert ack(vehicle, M.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 7) == M.MAV_RESULT_ACCEPTED
+    thrusts = {}
+    for k in range(1, 301):
+        t = k * 0.008
+        thrusts[round(t, 3)] = vehicle.control(t, measurement(t)).thrust
+    assert thrusts[0.8] == 0.0  # spooling up
+    assert thrusts[1.024] < 0.02  # the ramp starts at no thrust
+    assert 0.0 < thrusts[1.6] < thrusts[2.0] < thrusts[2.4]  # and rises

@@ -48,8 +48,8 @@ def test_estimates_come_every_8_ms_stamped_with_the_imu_sample_time():
     assert nav.output_period_s == pytest.approx(0.008)
 
 
-@pytest.mark.parametrize(("mode", "horizontal_m", "vertical_m"), [("mocap", 0.05, 0.05),
-                                                                  ("gps", 1.0, 1.5)])  # fmt: skip
+@pytest.mark.parametrize(("mode", "horizontal_m", "vertical_m"), [("mocap", 0.02, 0.02),
+                                                                  ("gps", 1.0, 1.0)])  # fmt: skip
 def test_errors_are_the_size_of_the_mode(mode, horizontal_m, vertical_m):
     errors = []
     for seed in range(20):
@@ -61,8 +61,8 @@ def test_errors_are_the_size_of_the_mode(mode, horizontal_m, vertical_m):
     model = ERROR_MODELS[mode]
     assert np.max(np.abs(errors[:, :2])) < horizontal_m
     assert np.max(np.abs(errors[:, 2])) < vertical_m
-    # boot offsets of the size measured on PX4 (mocap: cm, GPS: 0.2-0.3 m)
-    assert np.std(errors[:, 0]) == pytest.approx(model.horizontal_std_m, rel=0.6)
+    # boot offsets of the size measured on PX4 (mocap: mm, GPS: 0.2-0.3 m)
+    assert np.std(errors[:, 0]) == pytest.approx(model.boot_std_m, rel=0.6)
     assert m.estimator == model.report
 
 

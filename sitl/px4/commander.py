@@ -29,8 +29,10 @@ and on what the real SITL build did:
   6 Terminate and 7 Disarm (both: disarm here). A Hold or Return that cannot run falls
   back to Return, then Land. When the signal returns, the vehicle flies OFFBOARD again;
   another mode asked for ends the failsafe.
-- **Takeoff**: climb at MPC_TKO_SPEED to the takeoff height, then Hold ("Takeoff
-  complete": the navigator makes Hold the intended mode).
+- **Takeoff** (PX4 ``TakeoffHandling``): idle for COM_SPOOLUP_TIME after arming, then the
+  climb velocity setpoint ramps over MPC_TKO_RAMP_T from -g / MPC_Z_VEL_P_ACC (no thrust)
+  to MPC_TKO_SPEED, the vehicle lifting off on the way; climb to the takeoff height, then
+  Hold ("Takeoff complete": the navigator makes Hold the intended mode).
 - **Return**: climb to the return altitude above home (RTL_RETURN_ALT, or within
   RTL_MIN_DIST of home the height of the RTL_CONE_ANG cone over the distance, never below
   the current height), fly home, land there.
@@ -164,6 +166,8 @@ class Commander:
         self._takeoff_up_m: float | None = None
         self._rtl_phase = 0
         self._rtl_up_m = 0.0
+        self._takeoff_ramp = 1.0
+        """Progress of the takeoff ramp in [0, 1] (1: no ramp, flying)."""
         self._prearm_battery = True
         self._origin_settled_s = -math.inf
         self.estimator_resets = 0
@@ -239,6 +243,7 @@ class Commander:
         self.armed = True
         self._armed_at_s = now_s
         self._taken_off = not self.landed
+        self._takeoff_ramp = 0.0 if self.landed else 1.0
         self._landed_since_s = now_s if self.landed else None
         self._position.reset()
         if self.origin is not None and self._last_m is not None:
@@ -342,13 +347,30 @@ class Commander:
         )
         self._last_estimate_us = m.estimate_time_us
         target = self._current_target(m)
-        if self.landed and self.mode != Px4Mode.AUTO_TAKEOFF:
+        spooling = now_s < self._armed_at_s + self._params["COM_SPOOLUP_TIME"]
+        if self.landed and (self.mode != Px4Mode.AUTO_TAKEOFF or spooling):
             self._position.reset()
             self._setpoint = AttitudeSetpoint.from_euler(0.0, 0.0, target.yaw_rad, 0.0)
             return self._setpoint
-        self._setpoint = self._position.update(target, m, min(dt, 0.1))
+        if self.landed:
+            self._position.reset()  # PX4 keeps the integrators at zero on the ground
+        cap = self._takeoff_climb_cap(dt)
+        self._setpoint = self._position.update(
+            target, m, min(dt, 0.1), climb_cap_m_s=cap, flying=self._takeoff_ramp >= 1.0
+        )
         self._estimate_hover_thrust(now_s, dt, m)
         return self._setpoint
+
+    def _takeoff_climb_cap(self, dt_s: float) -> float:
+        """PX4's takeoff ramp: the climb velocity cap, from -g / MPC_Z_VEL_P_ACC (zero
+        thrust) to MPC_TKO_SPEED over MPC_TKO_RAMP_T [m/s]; no cap once done."""
+        if self._takeoff_ramp >= 1.0:
+            return math.inf
+        p = self._params
+        ramp_s = p["MPC_TKO_RAMP_T"]
+        self._takeoff_ramp = 1.0 if ramp_s <= dt_s else min(self._takeoff_ramp + dt_s / ramp_s, 1.0)
+        start = -self._g / p["MPC_Z_VEL_P_ACC"]
+        return start + self._takeoff_ramp * (p["MPC_TKO_SPEED"] - start)
 
     # -------------------------------------------------------------- internals
 

@@ -155,6 +155,8 @@ _SPECS = (
               "Smallest collective thrust the position controller commands in flight"),
     ParamSpec("MPC_TILTMAX_AIR", "REAL32", 45.0, 20.0, 89.0, "deg",
               "Largest tilt the position controller commands"),
+    ParamSpec("MPC_TKO_RAMP_T", "REAL32", 3.0, 0.0, 5.0, "s",
+              "Takeoff ramp: time the climb velocity setpoint takes to reach MPC_TKO_SPEED"),
     ParamSpec("MPC_TKO_SPEED", "REAL32", 1.5, 1.0, 5.0, "m/s", "Climb speed of AUTO.TAKEOFF"),
     ParamSpec("MPC_XY_P", "REAL32", 0.95, 0.0, 2.0, "1/s",
               "Horizontal position gain (position error to velocity setpoint)"),

@@ -117,9 +117,17 @@ class PositionController:
         return (self._integral[0], self._integral[1], self._integral[2])
 
     def update(
-        self, target: PositionTarget, m: VehicleMeasurement, dt_s: float
+        self,
+        target: PositionTarget,
+        m: VehicleMeasurement,
+        dt_s: float,
+        climb_cap_m_s: float = math.inf,
+        flying: bool = True,
     ) -> AttitudeSetpoint:
-        """One controller step of ``dt_s`` seconds toward ``target`` from measurement ``m``."""
+        """One controller step of ``dt_s`` seconds toward ``target`` from measurement ``m``;
+        the climb velocity setpoint is capped at ``climb_cap_m_s`` [m/s] after every other
+        limit (PX4's takeoff ramp, which starts below zero). Not ``flying`` (taking off),
+        the thrust may go down to zero, as PX4's (MPC_THR_MIN applies in flight)."""
         p = self._params
         pos = m.position_enu_m.tolist()
         vel = m.velocity_enu_m_s.tolist()
@@ -133,7 +141,7 @@ class PositionController:
         if target.up_m is not None:
             vz += p["MPC_Z_P"] * (target.up_m - pos[2])
         up_limit = min(p["MPC_Z_VEL_MAX_UP"], target.climb_limit_m_s)
-        vz = min(max(vz, -p["MPC_Z_VEL_MAX_DN"]), up_limit)
+        vz = min(max(vz, -p["MPC_Z_VEL_MAX_DN"]), up_limit, climb_cap_m_s)
 
         errors = (vx - vel[0], vy - vel[1], vz - vel[2])
         gains_p = (p["MPC_XY_VEL_P_ACC"], p["MPC_XY_VEL_P_ACC"], p["MPC_Z_VEL_P_ACC"])
@@ -146,9 +154,9 @@ class PositionController:
             )
             acc.append(gains_p[i] * errors[i] + self._integral[i])
         self._acc_up_m_s2 = acc[2]
-        return self._attitude(acc, target.yaw_rad)
+        return self._attitude(acc, target.yaw_rad, p["MPC_THR_MIN"] if flying else 0.0)
 
-    def _attitude(self, acc: list[float], yaw_rad: float) -> AttitudeSetpoint:
+    def _attitude(self, acc: list[float], yaw_rad: float, thrust_min: float) -> AttitudeSetpoint:
         """Thrust axis, tilt limit and collective thrust of an ENU acceleration setpoint."""
         p = self._params
         ax, ay, az = acc
@@ -164,7 +172,7 @@ class PositionController:
                 math.cos(tilt_max),
             )
         thrust = self.hover_thrust * (1.0 + az / g) / zz
-        thrust = min(max(thrust, p["MPC_THR_MIN"]), p["MPC_THR_MAX"])
+        thrust = min(max(thrust, thrust_min), p["MPC_THR_MAX"])
         self.thrust_up = thrust * zz
         cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
         x_h = cy * zx + sy * zy
