@@ -609,6 +609,25 @@ def parameters(peer: Peer) -> dict:
     }
 
 
+def _curve(u: float, f: float) -> float:
+    """PX4's thrust curve: relative thrust of motor command u with THR_MDL_FAC f."""
+    return f * u * u + (1.0 - f) * u
+
+
+def _inverse_curve(relative: float, f: float) -> float:
+    """The motor command PX4 sends for a relative thrust with THR_MDL_FAC f."""
+    if f == 0.0:
+        return relative
+    return (math.sqrt((1.0 - f) ** 2 + 4.0 * f * relative) - (1.0 - f)) / (2.0 * f)
+
+
+def _vertical_acceleration(link: Link, mark: int) -> float:
+    """Slope of the estimated climb rate (LOCAL_POSITION_NED) since ``mark`` [m/s^2, up]."""
+    samples = [(m.time_boot_ms / 1e3, -m.vz) for _, m in link.since(mark, "LOCAL_POSITION_NED")]
+    t, vz = np.array(samples).T
+    return float(np.polyfit(t - t[0], vz, 1)[0])
+
+
 def _mode_changes(link: Link, mark: int, since_ms: int) -> list[tuple[float, str, str]]:
     """(vehicle s after ``since_ms``, mode flown, mode intended) at each change of
     CURRENT_MODE after ``mark``."""
@@ -622,9 +641,9 @@ def _mode_changes(link: Link, mark: int, since_ms: int) -> list[tuple[float, str
 
 def flight(peer: Peer) -> dict:
     """One flight (GPS): arm, take off to MIS_TAKEOFF_ALT, hold (the hover thrust
-    estimate), the OFFBOARD handshake, relative thrust in OFFBOARD, offboard loss with
-    COM_OBL_RC_ACT 5 (Hold) and back, offboard loss with the default (Return), the
-    landing and the auto-disarm."""
+    estimate), the OFFBOARD handshake, relative thrust in OFFBOARD and THR_MDL_FAC set live,
+    offboard loss with COM_OBL_RC_ACT 5 (Hold) and back, offboard loss with the default
+    (Return), the landing and the auto-disarm."""
     link = peer.link
     assert link is not None
     out: dict = {}
@@ -669,9 +688,21 @@ def flight(peer: Peer) -> dict:
     link.wait_vehicle_s(0.5)
     mark = link.mark()
     link.wait_vehicle_s(3.0)
-    samples = [(m.time_boot_ms / 1e3, -m.vz) for _, m in link.since(mark, "LOCAL_POSITION_NED")]
-    t, vz = np.array(samples).T
-    out["OFFBOARD vertical acceleration m/s2"] = float(np.polyfit(t - t[0], vz, 1)[0])
+    out["OFFBOARD vertical acceleration m/s2"] = _vertical_acceleration(link, mark)
+
+    # THR_MDL_FAC set live to a curve the motors do not have: PX4 linearizes with it, so
+    # the same relative thrust makes another force. Predicted: g (T / T_hover - 1).
+    wrong = 0.3 if peer.thr_mdl_fac == 0.0 else 0.0
+    u = _inverse_curve(peer.hover_thrust, wrong)
+    made = _curve(u, peer.thr_mdl_fac)
+    out["wrong THR_MDL_FAC predicted m/s2"] = 9.81 * (made / peer.hover_thrust - 1.0)
+    link.param_set("THR_MDL_FAC", wrong, M.MAV_PARAM_TYPE_REAL32, wait_s=0.0)
+    link.wait_vehicle_s(0.3)
+    mark = link.mark()
+    link.wait_vehicle_s(0.8)
+    out["wrong THR_MDL_FAC measured m/s2"] = _vertical_acceleration(link, mark)
+    link.param_set("THR_MDL_FAC", peer.thr_mdl_fac, M.MAV_PARAM_TYPE_REAL32, wait_s=0.0)
+    link.wait_vehicle_s(1.0)
 
     # Offboard loss, COM_OBL_RC_ACT 5 (Hold), then the stream comes back.
     link.param_set("COM_OBL_RC_ACT", 5, M.MAV_PARAM_TYPE_INT32, wait_s=0.2)

@@ -213,6 +213,10 @@ def test_flight_takeoff_offboard_thrust_failsafes_return_and_disarm(peer):
     assert got["OFFBOARD heartbeat mode"] == OFFBOARD
     # relative thrust m g / T_max, level, holds altitude
     assert abs(got["OFFBOARD vertical acceleration m/s2"]) < 0.3
+    # ...because PX4 linearizes it with THR_MDL_FAC: a wrong value, set live, shows at once
+    predicted = got["wrong THR_MDL_FAC predicted m/s2"]
+    assert abs(predicted) > 1.5
+    assert got["wrong THR_MDL_FAC measured m/s2"] == pytest.approx(predicted, rel=0.35)
     # offboard loss: COM_OBL_RC_ACT 5 -> Hold after COM_OF_LOSS_T, the intention stays
     changes = got["loss with Hold action"]
     assert changes[0][1] == OFFBOARD and changes[1][1:] == (LOITER, OFFBOARD)
