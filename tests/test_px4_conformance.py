@@ -198,8 +198,9 @@ def test_flight_takeoff_offboard_thrust_failsafes_return_and_disarm(peer):
         M.MAV_LANDED_STATE_TAKEOFF,
         M.MAV_LANDED_STATE_IN_AIR,
     ]
-    # MIS_TAKEOFF_ALT 2.5 m, as the GPS and baro estimate has it (PX4: 1.5-2.7 m measured)
-    assert 1.2 <= got["height above home m"] <= 3.8
+    # MIS_TAKEOFF_ALT 2.5 m, as the GPS and baro estimate has it some seconds later: PX4's
+    # wanders (1.5, 2.7 and 3.8 m in three runs), so this only says the climb was metres
+    assert 1.0 <= got["height above home m"] <= 4.5
     # the hover thrust estimator has replaced MPC_THR_HOVER 0.5 with the vehicle's hover thrust
     assert got["Hold thrust setpoint"] == pytest.approx(peer.hover_thrust, abs=0.04)
     # OFFBOARD handshake: refused without setpoints (ACCEPTED, then the refusal)...
