@@ -14,6 +14,7 @@ import pytest
 from companion.config import load_scenario
 from sitl.physics import AttitudeSetpoint, BackendError, PlantModeError, make_plant
 from sitl.physics.articulation import ETA2_JOINT, build_articulation
+from sitl.physics.attitude_control import AttitudeLoopParams
 from sitl.physics.jsbsim import GearGeometry, JsbsimPlant, Wind, airframe_xml
 from sitl.physics.jsbsim.airframe import AIRCRAFT_NAME, PACKAGE_ROOT
 from sitl.physics.jsbsim.arm import ArmDynamics
@@ -165,6 +166,22 @@ def test_hover_holds_still() -> None:
         state = plant.step(setpoint, [0.0, 0.0])
     np.testing.assert_allclose(state.q, FLIGHT.simulation.initial_q, atol=1e-4)
     np.testing.assert_allclose(state.q_dot, 0.0, atol=1e-4)
+
+
+def test_autopilot_takes_thr_mdl_fac_live() -> None:
+    """PX4 with THR_MDL_FAC 0 on motors of curve 0.3 (set live): the relative hover thrust
+    makes only f r^2 + (1 - f) r of full thrust per rotor, as on the Pinocchio plant."""
+    plant = JsbsimPlant.from_scenario(FLIGHT, payload_attached=True)
+    plant.configure_autopilot(
+        AttitudeLoopParams.from_config(FLIGHT.plant.attitude_control, thr_mdl_fac=0.0)
+    )
+    r = hover_command(plant)
+    setpoint = AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, r)
+    for _ in range(600):
+        plant.step(setpoint, [0.0, 0.0])
+    f = FLIGHT.vehicle.rotors.thr_mdl_fac
+    full = 6 * FLIGHT.vehicle.rotors.max_thrust_per_rotor_n
+    assert plant.rotor_thrusts_n.sum() == pytest.approx(full * (f * r * r + (1 - f) * r), rel=1e-3)
 
 
 def test_vehicle_lands_on_its_gear() -> None:
