@@ -279,6 +279,16 @@ class ArmBus(abc.ABC):
 
     # -- commands -----------------------------------------------------------------------
 
+    async def enter_safe_state(self) -> None:
+        """Mark the bus FAILED and apply the safe state now (best effort): for a caller
+        whose own criterion says the link cannot be trusted before
+        ``max_consecutive_failures`` (a flight app's time limit). Commands then raise
+        :class:`BusFailedError` until the bus is closed and opened again."""
+        self._check_open()
+        async with self._lock:
+            self._state = BusState.FAILED
+            await self._safe_state_logged()
+
     async def enable_torque(self) -> None:
         """Turn torque on for every joint servo and the gripper."""
         await self._transact(self._set_torque_hook, True)

@@ -84,9 +84,8 @@ their last goal current; a servo that stopped answering is not. Open the bus wit
 BUS_FAILURES = 30
 """``max_consecutive_failures`` for the arm bus: more than the transactions in
 :data:`SERVO_FAILURE_S`, so the app's fault, not the bus's, decides."""
-_MODE_SHOWN_S = 1.5
-"""Vehicle time after the OFFBOARD acknowledgement by which PX4's 1 Hz HEARTBEAT must
-show the mode [s]; a heartbeat later than that showing another mode is a lost OFFBOARD."""
+_MAX_JOINT_AGE_S = 0.05
+"""Age [s] a joint state is fused with at most (a cycle that waited on the link)."""
 
 
 class MissionError(RuntimeError):
@@ -143,6 +142,9 @@ class MissionReport:
     """Process CPU time / wall time over the OFFBOARD part (1.0 = one core)."""
     late_cycles: int = 0
     """Cycles later than 2.5 control periods (vehicle time); the estimator skipped them."""
+    poses_dropped: int = 0
+    """Poses the control loop was too slow to take (its queue of 4 overflowed): late cycles
+    the companion caused itself, as opposed to gaps in the vehicle's stream."""
     longest_period_ms: float | None = None
     """Longest vehicle-time gap between two control cycles [ms]."""
     estimator_skipped_steps: int = 0
@@ -172,6 +174,7 @@ class MissionReport:
             "setpoint_latency_us": _percentiles(self.setpoint_latency_us),
             "cpu_share_of_one_core": self.cpu_share,
             "late_cycles": self.late_cycles,
+            "poses_dropped": self.poses_dropped,
             "longest_period_ms": self.longest_period_ms,
             "estimator_skipped_steps": self.estimator_skipped_steps,
         }
@@ -269,6 +272,16 @@ class PickupApp:
         self._last_output: ControlOutput | None = None
         self._last_desired: DesiredState | None = None
         self._last_thrust_n = math.nan
+        self._joints: dict | None = None
+        """Joint states read after the last cycle (fused by the next one), or None."""
+        self._torque_command: np.ndarray | None = None
+        """Joint torques of the last cycle, not written yet [N m]."""
+        self._gripper_action: GripperAction | None = None
+        self._arm_safe = False
+        self._arm_due = asyncio.Event()
+        """Set after each control cycle: the arm task writes and reads."""
+        self._joints_read_s = math.nan
+        """Wall-clock time of that read [s]."""
         self._servo_failures = 0
         self._servo_failing_since = math.nan
         self._faults: asyncio.Queue[FaultEvent] = asyncio.Queue()
@@ -317,17 +330,18 @@ class PickupApp:
         """Fly the mission; returns the report, raises MissionError or MissionAborted."""
         await self._preflight()
         control = asyncio.create_task(self._control_loop(), name="control-loop")
+        arm = asyncio.create_task(self._arm_loop(), name="arm")
         watch = asyncio.create_task(self._watch_link(), name="link-watch")
         try:
             sequence = asyncio.create_task(self._sequence(), name="mission-sequence")
             fault_wait = asyncio.create_task(self._faults.get(), name="failsafe")
             done, _ = await asyncio.wait(
-                {sequence, fault_wait, control}, return_when=asyncio.FIRST_COMPLETED
+                {sequence, fault_wait, control, arm}, return_when=asyncio.FIRST_COMPLETED
             )
-            if control in done:
+            if control in done or arm in done:
                 sequence.cancel()
                 fault_wait.cancel()
-                control.result()
+                (control if control in done else arm).result()
                 raise MissionError("the control loop stopped")
             if fault_wait in done or self.failsafe.aborted:
                 sequence.cancel()
@@ -347,9 +361,9 @@ class PickupApp:
             return self.report
         finally:
             self.stream = Stream.OFF
-            control.cancel()
-            watch.cancel()
-            await asyncio.gather(control, watch, return_exceptions=True)
+            for task in (control, arm, watch):
+                task.cancel()
+            await asyncio.gather(control, arm, watch, return_exceptions=True)
             self._finish_report()
 
     # ------------------------------------------------------------- preflight
@@ -708,9 +722,11 @@ class PickupApp:
             while True:
                 pose = await poses.get()
                 received = time.perf_counter()
+                self.report.poses_dropped = poses.dropped
                 if self.link.lost is not None:
                     continue
                 await self._cycle(pose, received)
+                self._arm_due.set()  # write this cycle's torques, read for the next
                 async with self._tick:  # vehicle time advanced, whatever the cycle did
                     self._tick.notify_all()
 
@@ -725,14 +741,13 @@ class PickupApp:
             self._late_noted_s = t_s
             self._note("loop", f"late cycle: {period.period_s * 1e3:.1f} ms since the last")
         self._sense(pose, dt)
-        joints = None
-        if not self.failsafe.has(Fault.SERVO_BUS):
-            await self._rearm_after_silence()
-            joints = await self._read_joints()
+        joints = self._joints
         a = self.assembler
         if joints is not None:
-            a.joints([joints[n].position_rad for n in self._joint_names])
-            a.joint_rates([joints[n].velocity_rad_s for n in self._joint_names])
+            age_s = min(max(time.monotonic() - self._joints_read_s, 0.0), _MAX_JOINT_AGE_S)
+            a.joints([joints[n].position_rad for n in self._joint_names], age_s)
+            a.joint_rates([joints[n].velocity_rad_s for n in self._joint_names], age_s)
+            self._joints = None  # each read is fused once
         if not a.ready or dt is None:
             return
         state = a.estimate
@@ -740,7 +755,7 @@ class PickupApp:
         if self.stream == Stream.CONTROL:
             command = self.mission.update(t_s, state.q, self._confident())
             desired = command.desired
-            await self._apply(command)
+            self._apply_estimator(command)
         else:
             desired = self._hold_desired(state.q)
         servo_tau = (
@@ -765,7 +780,9 @@ class PickupApp:
         self._last_thrust_n = (
             sp.thrust_n if sp is not None and self.stream == Stream.CONTROL else (math.nan)
         )
-        tau_cmd = await self._write_joints(out.tau[6:8])
+        tau_cmd = self._command_joints(out.tau[6:8])
+        if command is not None and command.gripper != GripperAction.HOLD:
+            self._gripper_action = command.gripper
         self.report.cycle_latency_us.append((time.perf_counter() - received) * 1e6)
         self.report.control_cycles += 1
         if self.stream == Stream.CONTROL:
@@ -866,7 +883,50 @@ class PickupApp:
         m2 = float(out.estimate.theta[0])
         return m2 <= low * (1 + 1e-6) or m2 >= high * (1 - 1e-6)
 
-    async def _apply(self, command) -> None:
+    def _command_joints(self, tau: np.ndarray) -> np.ndarray:
+        """Hand the joint torques (clipped to the joints' limits) to the arm task; returns
+        what will be sent (NaN once the bus has failed)."""
+        sent = np.clip(tau, -self._torque_limits, self._torque_limits)
+        if self.failsafe.has(Fault.SERVO_BUS):
+            return np.full(len(sent), math.nan)
+        self._torque_command = sent
+        return sent
+
+    async def _arm_loop(self) -> None:
+        """The arm's own task: after each control cycle it writes that cycle's joint torques
+        (and a gripper action), then reads the joints for the next cycle. The vehicle's
+        setpoint never waits for the servo bus (a Sync Read over the pty beside the SITL
+        took 1-25 ms, a timed-out one with its retries longer), and the cycle fuses the
+        latest joint state with its age."""
+        while True:
+            await self._arm_due.wait()
+            self._arm_due.clear()
+            if self.failsafe.has(Fault.SERVO_BUS):
+                await self._safe_arm()
+                continue
+            await self._rearm_after_silence()
+            torques, self._torque_command = self._torque_command, None
+            if torques is not None:
+                await self._write_joints(torques)
+            action, self._gripper_action = self._gripper_action, None
+            if action is not None:
+                await self._move_gripper(action)
+            joints = await self._read_joints()
+            if joints is not None:
+                self._joints, self._joints_read_s = joints, time.monotonic()
+
+    async def _safe_arm(self) -> None:
+        """Once, after the servo_bus fault: the bus's safe state (current-mode joints limp,
+        the gripper holding). A torque command held after the controller lost the bus
+        drives the joints on and on: measured in the SITL, a silenced servo kept its last
+        goal current and the arm spun up until the vehicle could not land."""
+        if self._arm_safe:
+            return
+        self._arm_safe = True
+        await self.bus.enter_safe_state()
+        self._note("servo", "bus marked failed: joints limp, gripper holding")
+
+    def _apply_estimator(self, command) -> None:
         est = self.control.estimator
         if command.phase_changed:
             self._note("phase", command.phase.value)
@@ -885,11 +945,13 @@ class PickupApp:
         elif not frozen and self._estimate_frozen and not self.failsafe.aborted:
             est.resume()
         self._estimate_frozen = frozen
+
+    async def _move_gripper(self, action: GripperAction) -> None:
         try:
-            if command.gripper == GripperAction.CLOSE:
+            if action == GripperAction.CLOSE:
                 await self.bus.close_gripper()
                 self._note("gripper", "close")
-            elif command.gripper == GripperAction.OPEN:
+            elif action == GripperAction.OPEN:
                 await self.bus.open_gripper()
                 self._note("gripper", "open")
         except ArmDriverError as exc:

@@ -292,6 +292,19 @@ def test_position_limits_and_mode_checks() -> None:
     run(body)
 
 
+def test_a_caller_can_fail_the_bus_into_its_safe_state() -> None:
+    """The flight app decides a servo is lost after 0.3 s, before max_consecutive_failures."""
+
+    async def body() -> None:
+        async with RecordingBus("d", JOINTS) as bus:
+            await bus.enter_safe_state()
+            assert bus.state is BusState.FAILED and ("safe", None) in bus.sent
+            with pytest.raises(BusFailedError):
+                await bus.read_joint_states()
+
+    run(body)
+
+
 def test_link_failures_in_a_row_fail_the_bus_and_apply_the_safe_state() -> None:
     async def body() -> None:
         async with RecordingBus("d", JOINTS) as bus:
