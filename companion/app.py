@@ -48,7 +48,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from arm_driver.bus import ArmBus, BusFailedError, OperatingMode
-from arm_driver.errors import ArmDriverError
+from arm_driver.errors import ArmDriverError, BusTimeoutError, CommunicationError
 from companion.config import Scenario
 from companion.control import ControlRateError, DesiredState
 from companion.failsafe import FailsafeMonitor, Fault, FaultEvent, Reaction
@@ -84,6 +84,8 @@ their last goal current; a servo that stopped answering is not. Open the bus wit
 BUS_FAILURES = 30
 """``max_consecutive_failures`` for the arm bus: more than the transactions in
 :data:`SERVO_FAILURE_S`, so the app's fault, not the bus's, decides."""
+_PREFLIGHT_BUS_ATTEMPTS = 3
+"""Tries of the preflight's servo set-up; a reply that came late once is not a broken bus."""
 _MAX_JOINT_AGE_S = 0.05
 """Age [s] a joint state is fused with at most (a cycle that waited on the link)."""
 
@@ -392,17 +394,23 @@ class PickupApp:
                 raise MissionError(f"preflight: PX4 refused Hold (AUTO.LOITER): {exc}") from None
             self._note("preflight", f"mode {self._mode()} -> Hold (AUTO.LOITER) to arm in")
         await self._wait_ready_to_arm()
-        try:
-            states = await self.bus.read_joint_states()
-            # The joints may still hold torque from an earlier run (an abort leaves the
-            # bus's safe state): limp for a moment on the ground, then current mode.
-            await self.bus.disable_torque()
-            await self.bus.set_operating_mode(OperatingMode.CURRENT)
-            await self.bus.enable_torque()
-            await self.bus.open_gripper()
-            self._bus_last_s = time.monotonic()
-        except ArmDriverError as exc:
-            raise MissionError(f"preflight: arm bus: {exc}") from None
+        for attempt in range(1, _PREFLIGHT_BUS_ATTEMPTS + 1):
+            try:
+                states = await self.bus.read_joint_states()
+                # The joints may still hold torque from an earlier run (an abort leaves the
+                # bus's safe state): limp for a moment on the ground, then current mode.
+                await self.bus.disable_torque()
+                await self.bus.set_operating_mode(OperatingMode.CURRENT)
+                await self.bus.enable_torque()
+                await self.bus.open_gripper()
+                self._bus_last_s = time.monotonic()
+                break
+            except (BusTimeoutError, CommunicationError) as exc:
+                if attempt == _PREFLIGHT_BUS_ATTEMPTS:
+                    raise MissionError(f"preflight: arm bus: {exc}") from None
+                self._note("preflight", f"arm bus: {exc}; trying again")
+            except ArmDriverError as exc:
+                raise MissionError(f"preflight: arm bus: {exc}") from None
         missing = set(self._joint_names) - set(states)
         if missing:
             raise MissionError(f"preflight: joints {sorted(missing)} did not answer")
@@ -484,12 +492,19 @@ class PickupApp:
         lat, lon, alt = self.scenario.flight.global_origin_deg_m
         vehicle = self.link.vehicle
         assert vehicle is not None
-        self.link.send_message(
-            self.link.mav.set_gps_global_origin_encode(
-                vehicle.system_id, round(lat * 1e7), round(lon * 1e7), round(alt * 1e3), 0
+        with self.link.subscribe("GPS_GLOBAL_ORIGIN") as origins:
+            self.link.send_message(
+                self.link.mav.set_gps_global_origin_encode(
+                    vehicle.system_id, round(lat * 1e7), round(lon * 1e7), round(alt * 1e3), 0
+                )
             )
-        )
-        if await self._global_origin() is None:
+            try:  # PX4 echoes the origin it took (measured: within about 1 s)
+                async with asyncio.timeout(3.0):
+                    await origins.get()
+                echoed = True
+            except TimeoutError:
+                echoed = False
+        if not echoed and await self._global_origin() is None:
             self._note("preflight", "the vehicle has no global origin and did not report ours")
             return
         self._note("preflight", f"global origin set to {lat:.7f}, {lon:.7f}, {alt:.1f} m")
