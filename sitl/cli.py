@@ -51,6 +51,10 @@ def authority(
     rows = [
         ("mass [kg]", lambda a: f"{a.mass_kg:.3f}"),
         ("hover thrust [N]", lambda a: f"{a.hover_thrust_n:.2f}"),
+        (
+            "hover relative thrust (SET_ATTITUDE_TARGET) [0-1]",
+            lambda a: f"{a.hover_relative_thrust:.3f}",
+        ),
         ("hover motor command [0-1]", lambda a: f"{a.hover_command:.3f}"),
     ]
     for i, axis in enumerate(("roll", "pitch", "yaw")):
