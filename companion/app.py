@@ -39,6 +39,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
+from collections import deque
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -62,7 +63,7 @@ from companion.loop_period import LoopPeriodMonitor
 from companion.mission import EstimatorAction, GripperAction, Phase, PickupMission, PickupPlan
 from companion.navigation import NavigationWatch
 from companion.setpoints import AttitudeThrustSetpoint, ThrustModel, fixed_setpoint
-from companion.state import StateAssembler
+from companion.state import StateAssembler, thrust_force_world
 from companion.vehicle_params import OPTIONAL, REQUIRED, VehicleParams, contradictions
 
 __all__ = [
@@ -86,6 +87,8 @@ BUS_FAILURES = 30
 :data:`SERVO_FAILURE_S`, so the app's fault, not the bus's, decides."""
 _PREFLIGHT_BUS_ATTEMPTS = 3
 """Tries of the preflight's servo set-up; a reply that came late once is not a broken bus."""
+_HOVER_WINDOW_S = 3.0
+"""Vehicle time of PX4's hold before the handover the horizontal bias is taken over [s]."""
 _MAX_JOINT_AGE_S = 0.05
 """Age [s] a joint state is fused with at most (a cycle that waited on the link)."""
 
@@ -280,6 +283,9 @@ class PickupApp:
         """Joint torques of the last cycle, not written yet [N m]."""
         self._gripper_action: GripperAction | None = None
         self._arm_safe = False
+        self._hover: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
+        """(vehicle time [s], horizontal thrust force, velocity), world x, y [N, m/s], while
+        PX4 holds the vehicle in Hold before the handover (the last _HOVER_WINDOW_S)."""
         self._arm_due = asyncio.Event()
         """Set after each control cycle: the arm task writes and reads."""
         self._joints_read_s = math.nan
@@ -602,6 +608,8 @@ class PickupApp:
         q = state.q
         self.control.tilt.reset(float(q[3]), float(q[4]))
         self.mission.start(self._t_s, q, state.q_dot)
+        if self.control.trim.gain > 0.0:
+            self.control.trim.start(self._hover_bias_n())
         self.control.trim_active = True
         self._offboard_since_s = self._t_s
         self._handover_tilt0 = math.hypot(float(q[3]), float(q[4]))
@@ -789,6 +797,8 @@ class PickupApp:
         self._last_output = out
         self._last_desired = out.desired if self.stream == Stream.CONTROL else self._last_desired
         sp = self._stream_setpoint(out, state.q)
+        if self.stream in (Stream.OFF, Stream.HOLD) and self._mode() == "LOITER" and self._armed():
+            self._record_hover(t_s, state)
         if sp is not None:
             self.link.send_setpoint(sp, pose.time_boot_ms)
             self.report.setpoint_latency_us.append((time.perf_counter() - received) * 1e6)
@@ -827,6 +837,28 @@ class PickupApp:
             a.body_rates(rates.omega_flu_rad_s)
         if check.fault is not None and self.stream == Stream.CONTROL:
             self._fault(Fault.NAVIGATION, check.fault)
+
+    def _record_hover(self, t_s: float, state) -> None:
+        q = state.q
+        force = thrust_force_world(float(q[3]), float(q[4]), float(q[5]), self.control.weight_n())
+        self._hover.append((t_s, force[0:2], np.array(state.q_dot[0:2])))
+        while t_s - self._hover[0][0] > _HOVER_WINDOW_S:
+            self._hover.popleft()
+
+    def _hover_bias_n(self) -> np.ndarray:
+        """The horizontal force PX4's hold needed beside the vehicle's acceleration, world
+        x, y [N]: its velocity integrator's answer to the same bias of the attitude estimate
+        the trim learns (mean thrust force minus mass x mean acceleration over the window).
+        Starting the trim from it keeps the handover from letting go of that force: without
+        it the vehicle drifted 15-20 cm off at the switch on PX4 SIH (tilt change 6 deg)."""
+        if len(self._hover) < 2:
+            return np.zeros(2)
+        (t0, _, v0), (t1, _, v1) = self._hover[0], self._hover[-1]
+        force = np.mean([f for _, f, _ in self._hover], axis=0)
+        if t1 - t0 <= 0.0:
+            return force
+        mass = self.control.weight_n() / self.scenario.environment.gravity_m_s2
+        return force - mass * (v1 - v0) / (t1 - t0)
 
     def _stream_setpoint(self, out: ControlOutput, q: np.ndarray) -> AttitudeThrustSetpoint | None:
         """The setpoint of the current stage (:class:`Stream`); None: nothing to send."""

@@ -164,6 +164,10 @@ class HorizontalTrim:
         self.force_n = np.zeros(2)
         """The trim force, world x, y [N]."""
 
+    def start(self, force_n: FloatArray) -> None:
+        """Start from a force, world x, y [N] (clipped to the limit)."""
+        self.force_n = np.clip(np.asarray(force_n, dtype=float), -self.limit, self.limit)
+
     def update(self, dt_s: float, sliding_xy: FloatArray) -> FloatArray:
         """Integrate over ``dt_s`` [s] with the sliding variable of x, y [m/s]; the force."""
         f = self.force_n - dt_s * self.gain * np.asarray(sliding_xy, dtype=float)
