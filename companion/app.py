@@ -8,9 +8,12 @@ Tasks (asyncio, one event loop):
   faster than its estimator, 125 Hz, whatever is asked), timestamped with the estimate's
   ``time_usec`` (a SITL faster than real time just makes the cycles come faster). Each
   cycle watches the navigation (:mod:`companion.navigation`), filters q, q_dot, q_ddot
-  (pose, the autopilot's velocity, body rates, joints: one Sync Read), asks the mission for
-  q_d, runs :class:`~companion.flight_control.FlightControl`, streams the setpoint of the
-  current OFFBOARD stage (below), writes the joint torques, and logs one row;
+  (pose, the autopilot's velocity, body rates, and the joint state the arm task read
+  after the previous cycle, fused with its age), asks the mission for q_d, runs
+  :class:`~companion.flight_control.FlightControl`, streams the setpoint of the current
+  OFFBOARD stage (below), hands the joint torques to the arm task, and logs one row;
+- the **arm task**: after each cycle it writes that cycle's joint torques (and a gripper
+  action), then reads the joints (one Sync Read): the setpoint never waits for the bus;
 - the **mission sequence**: preflight (streams, the vehicle's parameters against the
   config, the pose rate against the gains, a global origin, the arm), arm, PX4 take-off,
   the OFFBOARD handover, the pickup (:mod:`companion.mission`), PX4 landing and disarm.
