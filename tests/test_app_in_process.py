@@ -52,6 +52,9 @@ class PoseLink:
         assert keys == (VehiclePose,)
         yield self.poses
 
+    def latest(self, key):
+        return None
+
 
 JOINTS = (JointConfig("eta1", 1, 1.78, 1.5), JointConfig("eta2", 2, 1.78, 1.5))
 
@@ -134,3 +137,32 @@ def test_joints_stopped_by_the_servo_watchdog_are_enabled_again():
 
     with PtyServoBus({i: XM430Servo(i) for i in (1, 2)}) as sim:
         asyncio.run(asyncio.wait_for(body(sim), 10.0))
+
+
+def test_touching_the_ground_in_offboard_is_a_fault_flown_level_at_the_thrust_floor():
+    """EKF2's height drifted up to 1 m near the ground on PX4 SIH with GPS, and the app kept
+    commanding a 32 deg tilt standing on the ground: now the height at the take-off height
+    is ground_contact, whose way out is level at the thrust floor until PX4 lands."""
+    from companion.app import Stream
+    from companion.control import DesiredState
+    from companion.failsafe import Fault, Reaction
+    from companion.filters import FilteredState
+    from companion.setpoints import ThrustModel
+
+    link = PoseLink(ScriptedPoses(8000))
+    app = PickupApp(SCENARIO, link, TwoJoints(), PLAN)
+    app.control.thrust = ThrustModel(app.control.thrust.max_thrust_n, 0.12)
+    app._ground_z = 0.25
+    app.stream = Stream.CONTROL
+    q = np.array([0.5, 0.0, 0.27, 0.0, 0.0, 0.3, 0.0, -1.5])  # 2 cm above the take-off height
+    zero = np.zeros(8)
+    desired = DesiredState(q + np.array([0.4, 0, 0.5, 0, 0, 0, 0, 0]), zero, zero)
+    out = app.control.step(0.008, FilteredState(q, zero, zero), desired, np.full(8, np.nan))
+    app._watch_flight(1.0, q, out, None, None)
+    (event,) = app.failsafe.raised
+    assert event.fault == Fault.GROUND_CONTACT and "take-off height" in event.detail
+    assert Reaction.LEVEL_ON_GROUND in event.reactions and event.aborts
+    app.stream = Stream.GROUND
+    sp = app._stream_setpoint(out, q)
+    assert (sp.roll_rad, sp.pitch_rad, sp.yaw_rad) == (0.0, 0.0, 0.3)
+    assert sp.thrust_relative == pytest.approx(0.12)
