@@ -434,6 +434,43 @@ class TruthPlant:
         """
         if self.mode != "underactuated":
             raise PlantModeError("step() needs mode='underactuated'; use step_ideal() instead")
+        joint = self._joint_torques(joint_torques_n_m)
+        out = self._autopilot.update(self._quat, self._omega, setpoint)
+        self._step_rotors(out.motor_commands, joint, out.rate_setpoint_rad_s, out.torque_normalized)
+        return self.state
+
+    def step_motors(self, motor_commands: ArrayLike, joint_torques_n_m: ArrayLike) -> PlantState:
+        """Advance one step under six motor commands and joint torques (underactuated), for
+        an autopilot outside the plant (the real PX4 through ``simulator_mavlink``).
+
+        Parameters
+        ----------
+        motor_commands : array_like, shape (6,)
+            Normalized command of each rotor (order of :mod:`sitl.physics.rotors`), clipped
+            to [0, 1]; the motors answer with their own thrust curve and lag.
+        joint_torques_n_m : array_like, shape (2,)
+            As for :meth:`step`.
+
+        The plant's own attitude loop does not run: the actuator signals' rate setpoint and
+        normalized torques are NaN (the outside autopilot's).
+
+        Raises
+        ------
+        PlantModeError
+            In ideal mode.
+        ValueError
+            On commands that are not 6 finite values or joint torques not 2.
+        EulerSingularityError, PlantDivergedError
+            As for :meth:`step`.
+        """
+        if self.mode != "underactuated":
+            raise PlantModeError("step_motors() needs mode='underactuated'")
+        joint = self._joint_torques(joint_torques_n_m)
+        self._step_rotors(_motor_commands(motor_commands), joint, _UNKNOWN3, _UNKNOWN3)
+        return self.state
+
+    def _joint_torques(self, joint_torques_n_m: ArrayLike) -> list[float]:
+        """Two finite joint torques [N m] clipped to the servo limit (ValueError otherwise)."""
         joint_arr = np.asarray(joint_torques_n_m, dtype=np.float64)
         if joint_arr.shape != (2,):
             raise ValueError(
@@ -445,8 +482,17 @@ class TruthPlant:
                 f"joint_torques_n_m must be 2 finite values, got {joint_torques_n_m!r}"
             )
         lim = self._servo_limit
-        joint = [min(max(j1, -lim), lim), min(max(j2, -lim), lim)]
-        out = self._autopilot.update(self._quat, self._omega, setpoint)
+        return [min(max(j1, -lim), lim), min(max(j2, -lim), lim)]
+
+    def _step_rotors(
+        self,
+        motor_commands: list[float],
+        joint: list[float],
+        rate_setpoint_rad_s: tuple,
+        torque_normalized: tuple,
+    ) -> None:
+        """One integration step pushed by the rotors' lagged thrusts, whose lag then moves
+        toward ``motor_commands``; records the actuator signals."""
         thrusts = self._rotors.thrust_list_n
         t0, t1, t2, t3, t4, t5 = thrusts
         wx, wy, wz = self._rotor_wrench
@@ -457,16 +503,15 @@ class TruthPlant:
             wz[0] * t0 + wz[1] * t1 + wz[2] * t2 + wz[3] * t3 + wz[4] * t4 + wz[5] * t5,
         )
         self._advance(BodyWrench(sum(thrusts), torque, self._drag, (joint[0], joint[1])))
-        self._rotors.advance(out.motor_commands)
+        self._rotors.advance(motor_commands)
         self._actuator_signals = (
-            out.motor_commands,
+            motor_commands,
             thrusts,
             joint,
-            out.rate_setpoint_rad_s,
-            out.torque_normalized,
+            rate_setpoint_rad_s,
+            torque_normalized,
         )
         self._actuators = None
-        return self.state
 
     # -------------------------------------------------------------- internals
     # The per-step path works on Python floats (lists, tuples): on 3-vectors that is several
@@ -521,6 +566,18 @@ class TruthPlant:
         phi, theta, _ = self._euler
         euler_ddot = euler_accelerations(phi, theta, self._qd_ours[3:6], k[3:6], self._w_inv9)
         return [k[0], k[1], k[2], *euler_ddot, k[6], k[7]]
+
+
+_UNKNOWN3 = (math.nan, math.nan, math.nan)
+"""Signals of an autopilot outside the plant (rate setpoint, normalized torques)."""
+
+
+def _motor_commands(values: ArrayLike) -> list[float]:
+    """Six finite motor commands clipped to [0, 1] (ValueError otherwise)."""
+    arr = np.asarray(values, dtype=np.float64)
+    if arr.shape != (N_ROTORS,) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"motor_commands must be {N_ROTORS} finite values, got {values!r}")
+    return np.clip(arr, 0.0, 1.0).tolist()
 
 
 def _vector(values: ArrayLike, name: str) -> list[float]:

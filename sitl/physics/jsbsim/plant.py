@@ -355,16 +355,53 @@ class JsbsimPlant:
         PlantDivergedError
             If the state became non-finite.
         """
+        joint = self._joint_torques(joint_torques_n_m)
+        out = self._autopilot.update(self._quat, self._omega, setpoint)
+        self._step_rotors(out.motor_commands, joint, out.rate_setpoint_rad_s, out.torque_normalized)
+        return self.state
+
+    def step_motors(self, motor_commands: ArrayLike, joint_torques_n_m: ArrayLike) -> PlantState:
+        """Advance one step under six motor commands and joint torques, for an autopilot
+        outside the plant (same contract as ``TruthPlant.step_motors``).
+
+        Raises
+        ------
+        ValueError
+            On commands that are not 6 finite values or joint torques not 2.
+        PlantDivergedError
+            If the state became non-finite.
+        """
+        arr = np.asarray(motor_commands, dtype=np.float64)
+        if arr.shape != (N_ROTORS,) or not np.all(np.isfinite(arr)):
+            raise ValueError(
+                f"motor_commands must be {N_ROTORS} finite values, got {motor_commands!r}"
+            )
+        joint = self._joint_torques(joint_torques_n_m)
+        unknown = (math.nan, math.nan, math.nan)
+        self._step_rotors(np.clip(arr, 0.0, 1.0).tolist(), joint, unknown, unknown)
+        return self.state
+
+    def _joint_torques(self, joint_torques_n_m: ArrayLike) -> tuple[float, float]:
+        """Two finite joint torques [N m] clipped to the servo limit (ValueError otherwise)."""
         joint_arr = np.asarray(joint_torques_n_m, dtype=np.float64)
         if joint_arr.shape != (2,) or not math.isfinite(float(joint_arr.sum())):
             raise ValueError(
                 f"joint_torques_n_m must be 2 finite values, got {joint_torques_n_m!r}"
             )
         lim = self._servo_limit
-        joint = (min(max(joint_arr[0], -lim), lim), min(max(joint_arr[1], -lim), lim))
-        out = self._autopilot.update(self._quat, self._omega, setpoint)
+        return (min(max(joint_arr[0], -lim), lim), min(max(joint_arr[1], -lim), lim))
+
+    def _step_rotors(
+        self,
+        motor_commands: list[float],
+        joint: tuple[float, float],
+        rate_setpoint_rad_s: tuple,
+        torque_normalized: tuple,
+    ) -> None:
+        """One JSBSim step with the rotors' thrusts after their lag moved toward
+        ``motor_commands``, the arm stepped alongside; records the actuator signals."""
         thrusts = self._rotors.thrust_list_n  # acting over this step (written last step)
-        self._rotors.advance(out.motor_commands)
+        self._rotors.advance(motor_commands)
         self._set_rotor_forces(self._rotors.thrust_list_n)
         qd_before = self._qd
         moment = self._arm.step(joint, self._specific_force, self._omega, self._omega_dot)
@@ -379,14 +416,13 @@ class JsbsimPlant:
             self._arm.eta_ddot
         )
         self._actuator_signals = (
-            out.motor_commands,
+            motor_commands,
             thrusts,
             joint,
-            out.rate_setpoint_rad_s,
-            out.torque_normalized,
+            rate_setpoint_rad_s,
+            torque_normalized,
         )
         self._actuators = None
-        return self.state
 
     # -------------------------------------------------------------- internals
 
