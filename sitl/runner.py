@@ -50,7 +50,15 @@ from sitl.px4 import (
 from sitl.servo import Faults, PtyServoBus, XM430Parameters, XM430Servo
 from sitl.world import World, WorldSettings
 
-__all__ = ["LinkPorts", "RunOptions", "RunStats", "SitlVehicle", "world_settings"]
+__all__ = [
+    "LinkPorts",
+    "RunOptions",
+    "RunStats",
+    "SitlVehicle",
+    "build_world",
+    "truth_record",
+    "world_settings",
+]
 
 _SWITCH_INTERVAL_S = 2e-4
 """Interpreter switch interval while running [s] (the servo bus thread's reply latency)."""
@@ -174,6 +182,37 @@ def _local_origin(world_origin: GeoReference, navigation: Navigation, world: Wor
     return GeoReference(lat, lon, alt)
 
 
+def build_world(
+    scenario: Scenario, options: RunOptions
+) -> tuple[World, PtyServoBus, list[JointConfig], GripperConfig]:
+    """The world of a scenario (truth plant of ``options.physics``, ``[world]`` settings)
+    with its arm's XM430 servos on a pseudo-terminal bus (not started): the servos of the
+    ``[arm_bus]`` section, or ids 1, 2 and gripper 3. Returns (world, servo bus, joint
+    configs, gripper config); ValueError for an arm bus without two joints."""
+    if scenario.arm_bus is not None:
+        joints, gripper = arm_bus_configs(scenario.arm_bus)
+        if len(joints) != 2:
+            raise ValueError(f"the simulated arm has 2 joints, arm_bus lists {len(joints)}")
+    else:
+        joints, gripper = list(DEFAULT_JOINTS), DEFAULT_GRIPPER
+    gripper = gripper if gripper is not None else DEFAULT_GRIPPER
+    servos = {
+        j.servo_id: XM430Servo(
+            j.servo_id, XM430Parameters(torque_constant_n_m_per_a=j.torque_constant_n_m_per_a)
+        )
+        for j in joints
+    }
+    servos[gripper.servo_id] = XM430Servo(gripper.servo_id)
+    servo_bus = PtyServoBus(servos, step_servos=False)
+    world = World(
+        _plant(scenario, options),
+        [(j, servos[j.servo_id]) for j in joints],
+        (gripper, servos[gripper.servo_id]),
+        world_settings(scenario),
+    )
+    return world, servo_bus, list(joints), gripper
+
+
 def world_settings(scenario: Scenario) -> WorldSettings:
     """World settings of a scenario (``[world]``), or defaults: standing at the origin."""
     world = scenario.world
@@ -199,30 +238,7 @@ class SitlVehicle:
     def __init__(self, scenario: Scenario, options: RunOptions) -> None:
         self.scenario = scenario
         self.options = options
-        if scenario.arm_bus is not None:
-            joints, gripper = arm_bus_configs(scenario.arm_bus)
-            if len(joints) != 2:
-                raise ValueError(f"the simulated arm has 2 joints, arm_bus lists {len(joints)}")
-        else:
-            joints, gripper = list(DEFAULT_JOINTS), DEFAULT_GRIPPER
-        gripper = gripper if gripper is not None else DEFAULT_GRIPPER
-        self.joints = list(joints)
-        self.gripper = gripper
-        servos = {
-            j.servo_id: XM430Servo(
-                j.servo_id, XM430Parameters(torque_constant_n_m_per_a=j.torque_constant_n_m_per_a)
-            )
-            for j in self.joints
-        }
-        servos[gripper.servo_id] = XM430Servo(gripper.servo_id)
-        self.servo_bus = PtyServoBus(servos, step_servos=False)
-        plant = _plant(scenario, options)
-        self.world = World(
-            plant,
-            [(j, servos[j.servo_id]) for j in self.joints],
-            (gripper, servos[gripper.servo_id]),
-            world_settings(scenario),
-        )
+        self.world, self.servo_bus, self.joints, self.gripper = build_world(scenario, options)
         overrides = dict(scenario.world.autopilot_params) if scenario.world else {}
         params = Px4Params.from_scenario(scenario, overrides)
         rng = np.random.default_rng(options.seed)
@@ -367,24 +383,31 @@ class SitlVehicle:
 
     def _write_truth(self) -> None:
         assert self._truth_file is not None
-        truth = self.world.truth()
-        state = truth.plant
-        obj = truth.object_position_m
-        record = {
-            "t_s": round(truth.time_s, 6),
-            "q": state.q.tolist(),
-            "q_dot": state.q_dot.tolist(),
-            "armed": bool(self.autopilot.armed),
-            "mode": self.autopilot.mode.name,
-            "on_ground": bool(truth.on_ground),
-            "payload_attached": bool(truth.payload_attached),
-            "object_position_m": None if obj is None else obj.tolist(),
-            "gripper_angle_rad": truth.gripper_angle_rad,
-            "joint_torques_n_m": truth.joint_torques_n_m.tolist(),
-            "true_theta": list(truth.true_theta),
-            "battery_v": round(self.world.battery.voltage_v, 3),
-        }
+        record = truth_record(self.world, self.autopilot.armed, self.autopilot.mode.name)
         self._truth_file.write(json.dumps(record) + "\n")
+
+
+def truth_record(world: World, armed: bool, mode: str | None) -> dict:
+    """One truth-log line (JSON object) of the world now: q, q_dot, the autopilot's arming
+    state and mode name (``None`` while unknown), ground contact, payload, object
+    position, gripper angle, joint torques, true theta, battery voltage."""
+    truth = world.truth()
+    state = truth.plant
+    obj = truth.object_position_m
+    return {
+        "t_s": round(truth.time_s, 6),
+        "q": state.q.tolist(),
+        "q_dot": state.q_dot.tolist(),
+        "armed": bool(armed),
+        "mode": mode,
+        "on_ground": bool(truth.on_ground),
+        "payload_attached": bool(truth.payload_attached),
+        "object_position_m": None if obj is None else obj.tolist(),
+        "gripper_angle_rad": truth.gripper_angle_rad,
+        "joint_torques_n_m": truth.joint_torques_n_m.tolist(),
+        "true_theta": list(truth.true_theta),
+        "battery_v": round(world.battery.voltage_v, 3),
+    }
 
 
 _LEVELS = {4: "WARN ", 5: "WARN ", 6: "INFO "}

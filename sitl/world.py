@@ -32,7 +32,7 @@ Simplifications, all stated here:
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -272,6 +272,18 @@ class World:
 
         Raises the plant's errors (:class:`~sitl.physics.PlantError`) if it diverges.
         """
+        flown = setpoint if setpoint is not None else self._motors_off
+        return self._step(lambda torques: self.plant.step(flown, torques))
+
+    def step_motors(self, motor_commands: Sequence[float]) -> PlantState:
+        """Advance one plant step with six motor commands in [0, 1] held (rotor order of
+        :mod:`sitl.physics.rotors`): an autopilot outside the simulation flies the
+        vehicle, the plant's own attitude loop does not run. Raises the plant's errors."""
+        return self._step(lambda torques: self.plant.step_motors(motor_commands, torques))
+
+    def _step(self, plant_step: Callable[[FloatArray], PlantState]) -> PlantState:
+        """Couple the servos to the joints, advance the plant with ``plant_step(joint
+        torques)``, then the servos, battery, ground contact and payload."""
         state = self._state
         dt = self.dt_s
         torques = self._torques
@@ -283,7 +295,7 @@ class World:
         if self._gripper_servo is not None and self.jaw is not None:
             self._gripper_servo.set_state(self.jaw.angle_rad, self.jaw.rate_rad_s)
             self.jaw.advance(self._gripper_servo.torque_n_m(), dt)
-        state = self.plant.step(setpoint if setpoint is not None else self._motors_off, torques)
+        state = plant_step(torques)
         for _, servo in self._joints:
             servo.step(dt)
         if self._gripper_servo is not None:
