@@ -19,9 +19,13 @@ from rich.table import Table
 
 from companion.cli import EXIT_USAGE, load_or_exit
 from sitl.authority import hover_authority
+from sitl.hil import HilOptions, Px4Exited, Px4InTheLoop
+from sitl.hil.link import SimulatorLinkError
+from sitl.hil.sensors import GPS_GRADES
 from sitl.physics import PlantError
 from sitl.physics.jsbsim import Wind
 from sitl.px4 import ParamError, SigningKeyError
+from sitl.px4_sitl import Px4Build, Px4BuildError, Px4NotReadyError
 from sitl.runner import LinkPorts, RunOptions, SitlVehicle
 
 app = typer.Typer(
@@ -116,9 +120,46 @@ def run(
         str | None,
         typer.Option(help="Fault injection 'ID@T': servo ID stops answering at T [s, sim time]."),
     ] = None,
+    autopilot: Annotated[
+        str,
+        typer.Option(
+            help="imitation (our PX4-like autopilot) or px4 (the real PX4 SITL build flies "
+            "our physics through simulator_mavlink, in lockstep)."
+        ),
+    ] = "imitation",
+    px4_dir: Annotated[
+        Path | None,
+        typer.Option(
+            envvar="PX4_SITL_DIR",
+            show_envvar=False,
+            help="PX4 SITL build for --autopilot px4 (default $PX4_SITL_DIR).",
+        ),
+    ] = None,
+    keep_log: Annotated[
+        Path | None,
+        typer.Option(help="--autopilot px4: keep PX4's working directory (log, ULog) here."),
+    ] = None,
+    gps: Annotated[
+        str,
+        typer.Option(help="--autopilot px4 --navigation gps: the receiver, standard or rtk."),
+    ] = "standard",
 ) -> None:
     """Run the simulated vehicle until interrupted (Ctrl-C) or --duration."""
     cfg = load_or_exit(config)
+    if autopilot not in ("imitation", "px4"):
+        _fail(f"--autopilot must be imitation or px4, got {autopilot!r}")
+    if autopilot == "px4" and px4_dir is None:
+        _fail("--autopilot px4 needs a PX4 SITL build: pass --px4-dir DIR or set PX4_SITL_DIR")
+    if autopilot == "px4" and signing_key is not None:
+        _fail("--signing-key is the imitation's: configure PX4's own signing (MAV_SIGN_CFG)")
+    if gps not in GPS_GRADES:
+        _fail(f"--gps must be one of {', '.join(GPS_GRADES)}, got {gps!r}")
+    build = None
+    if autopilot == "px4":
+        try:
+            build = Px4Build.at(px4_dir)
+        except Px4BuildError as exc:
+            _fail(str(exc))
     if duration is not None and not duration > 0.0:
         _fail(f"--duration must be positive, got {duration:g}")
     if signing_key is not None and not signing_key.is_file():
@@ -152,34 +193,55 @@ def run(
             physics=physics,
             wind=air,
         )
-        vehicle = SitlVehicle(cfg, options)
+        if build is not None:
+            vehicle = Px4InTheLoop(cfg, options, HilOptions(build, keep_dir=keep_log, gps=gps))
+        else:
+            vehicle = SitlVehicle(cfg, options)
     except (ValueError, ParamError, SigningKeyError) as exc:
         _fail(f"{config}: {exc}")
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: stop.set())
+    flown_by = "the PX4 imitation" if autopilot == "imitation" else "PX4"
+
+    def announce(where: dict[str, str]) -> None:
+        typer.echo(
+            f"sitl: {cfg.name} on {physics} physics flown by {flown_by}, {navigation} "
+            f"navigation, at {speed:g}x real time"
+        )
+        for key, value in where.items():
+            typer.echo(f"  {key:<8} {value}")
+        typer.echo("ready " + json.dumps(where), color=False)
+
     try:
         with vehicle:
-            where = vehicle.describe()
-            typer.echo(
-                f"sitl: {cfg.name} on {physics} physics, {navigation} navigation, "
-                f"at {speed:g}x real time"
-            )
-            for key, value in where.items():
-                typer.echo(f"  {key:<8} {value}")
-            typer.echo("ready " + json.dumps(where), color=False)
-            stats = vehicle.run(stop, until_s=duration, console=typer.echo)
+            if autopilot == "px4":
+                stats = vehicle.run(stop, until_s=duration, console=typer.echo, on_ready=announce)
+            else:
+                announce(vehicle.describe())
+                stats = vehicle.run(stop, until_s=duration, console=typer.echo)
     except OSError as exc:
         _fail(f"cannot open the vehicle's links: {exc}")
     except PlantError as exc:
         typer.echo(f"error: the simulated vehicle's physics failed: {exc}", err=True)
         raise typer.Exit(1) from None
+    except (Px4NotReadyError, Px4Exited, SimulatorLinkError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        _kept(vehicle)
+        raise typer.Exit(1) from None
+    _kept(vehicle)
     median, p99 = stats.jitter_us()
     typer.echo(
         f"sitl: stopped at t = {stats.sim_time_s:.3f} s; real-time factor "
         f"{stats.real_time_factor:.2f}; step jitter median {median:.0f} us, p99 {p99:.0f} us; "
         f"{stats.overruns} overruns"
     )
+
+
+def _kept(vehicle: SitlVehicle | Px4InTheLoop) -> None:
+    if isinstance(vehicle, Px4InTheLoop) and vehicle.kept_dir is not None:
+        kept = vehicle.kept_dir
+        typer.echo(f"sitl: PX4's working directory kept in {kept}")
 
 
 def _servo_fault(text: str) -> tuple[int, float]:

@@ -1,0 +1,557 @@
+"""``sitl run --autopilot px4``: the real PX4 flies our physics through ``simulator_mavlink``.
+
+One :class:`Px4InTheLoop` holds PX4 (:class:`~sitl.px4_sitl.Px4Sitl`, airframe
+:data:`~sitl.hil.airframe.AUTOSTART` with :func:`~sitl.hil.airframe.px4_parameters`), the
+simulator link PX4 connects to (:class:`~sitl.hil.link.SimulatorLink`, TCP 4560 + its
+instance), the world of ``sitl run`` (truth plant, arm servos on a pty, gripper, object,
+ground, :func:`sitl.runner.build_world`) and PX4's sensors (:mod:`sitl.hil.sensors`).
+
+Lockstep, one clock. Every IMU period (``1 / [sensors] gyro_rate_hz``, 4 ms at 250 Hz;
+a whole number of plant steps) the loop
+
+1. steps the world that many plant steps with PX4's last motor commands held (PX4's
+   output i drives rotor i, :mod:`sitl.hil.airframe`), averaging the specific force and
+   body rate for the IMU;
+2. sends HIL_SENSOR stamped with the world's time (PX4's clock is set from it: PX4 time
+   = world time = the truth log's ``t_s``), the magnetometer and barometer in every fifth
+   one (50 Hz), then what is due of the motion-capture pose (ODOMETRY, the scenario's
+   rate, latency and noise), the GPS fix (HIL_GPS) and the ground truth
+   (HIL_STATE_QUATERNION, at the interval PX4 asks for);
+3. waits for PX4's HIL_ACTUATOR_CONTROLS for that time: PX4's EKF2, commander,
+   position, attitude and rate loops, control allocation and motor linearization ran on
+   it. Until PX4 first answers (its start-up), the loop does not wait.
+
+Until PX4 is ready (its start-up script done, its links on the requested ports, "Ready for
+takeoff!") the loop runs as fast as PX4 and the physics go; then it is paced at ``speed``
+times real time (as ``sitl run``), and PX4's console lines go to ``console``.
+
+Links: PX4's onboard and GCS links are moved onto the ports of ``RunOptions.ports`` (the
+companion connects where ``sitl run`` says, as with the imitation); a third PX4 link
+(mode ``minimal``) sends its heartbeats to this process, whose flight mode the truth log
+records (PX4's 1 Hz heartbeat: up to a second late); ``armed`` comes with every
+HIL_ACTUATOR_CONTROLS.
+
+Not simulated: MAVLink signing (PX4's own), RC, the battery (PX4's battery simulator
+reports one), a range finder, airspeed.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
+
+from companion.config import Scenario
+from sitl.hil.airframe import AUTOSTART, navigation_parameters, px4_parameters
+from sitl.hil.link import SimulatorLink
+from sitl.hil.messages import (
+    hil_gps,
+    hil_sensor,
+    hil_state_quaternion,
+    motor_commands,
+    vision_odometry,
+)
+from sitl.hil.sensors import (
+    ACCEL_STD_M_S2,
+    BARO_STD_PA,
+    GPS_GRADES,
+    MAG_STD_GAUSS,
+    Barometer,
+    GpsReceiver,
+    Imu,
+    Magnetometer,
+)
+from sitl.launch import free_udp_port
+from sitl.physics.rotors import N_ROTORS
+from sitl.px4 import GeoReference, MavlinkEndpoint, Px4Mode
+from sitl.px4_sitl import Px4Build, Px4NotReadyError, Px4Ports, Px4Sitl, free_instance
+from sitl.runner import RunOptions, RunStats, build_world, truth_record
+from sitl.sensors import PoseSensor
+from sitl.servo import Faults
+
+__all__ = ["HilOptions", "HilStats", "Px4Exited", "Px4InTheLoop"]
+
+_SIMULATOR_WAITING = "Waiting for simulator to accept connection"
+_STARTUP_DONE = "Startup script returned successfully"
+_READY = "Ready for takeoff!"
+_SLOW_SENSORS_HZ = 50.0
+"""Rate of the magnetometer and barometer samples in HIL_SENSOR [Hz]."""
+_ANSWER_TIMEOUT_S = 30.0
+"""Longest wall time PX4 may take to answer one HIL_SENSOR once in lockstep [s]."""
+_HOUSEKEEPING_S = 0.1
+"""Wall time between looks at PX4's log and heartbeats [s]."""
+_SWITCH_INTERVAL_S = 2e-4
+"""Interpreter switch interval while running [s] (the servo bus thread's reply latency)."""
+_MAX_LAG_S = 0.25
+"""Wall-clock lag behind schedule [s] after which the schedule is re-based (overrun)."""
+_ONBOARD_RATE_B_S = 4_000_000
+_MODE_LINK_RATE_B_S = 20_000
+
+
+class Px4Exited(RuntimeError):
+    """PX4 stopped (or stopped answering) while flying; the message ends with its log."""
+
+
+@dataclass(frozen=True)
+class HilOptions:
+    """How to run PX4 (``sitl run --autopilot px4``).
+
+    Attributes
+    ----------
+    build
+        The PX4 SITL build (``PX4_SITL_DIR`` or ``--px4-dir``).
+    keep_dir
+        Keep PX4's working directory (``px4.log``, parameters, ULog) in this directory;
+        ``None``: a temporary directory, removed at the end.
+    gps
+        The GPS receiver with ``navigation="gps"`` (:data:`~sitl.hil.sensors.GPS_GRADES`).
+    ready_timeout_s
+        Longest wall time from starting PX4 until it is ready [s].
+    """
+
+    build: Px4Build
+    keep_dir: Path | None = None
+    gps: str = "standard"
+    ready_timeout_s: float = 120.0
+
+    def __post_init__(self) -> None:
+        if self.gps not in GPS_GRADES:
+            raise ValueError(f"gps must be one of {sorted(GPS_GRADES)}, got {self.gps!r}")
+
+
+@dataclass
+class HilStats(RunStats):
+    """:class:`~sitl.runner.RunStats` of a run with PX4, and where the wall time went."""
+
+    frames: int = 0
+    """IMU periods simulated."""
+    px4_wait_s: float = 0.0
+    """Wall time spent waiting for PX4's answers [s] (PX4 computing, or descheduled)."""
+    physics_s: float = 0.0
+    """Wall time in the world's steps (plant, servos, gripper, truth log) [s]."""
+    sensors_s: float = 0.0
+    """Wall time making and sending the sensor messages [s]."""
+    paced_s: float = 0.0
+    """Wall time slept to hold the requested speed [s]."""
+    boot_sim_s: float = 0.0
+    """Simulated time until PX4 was ready [s]."""
+    boot_wall_s: float = 0.0
+    """Wall time until PX4 was ready [s]."""
+
+
+class Px4InTheLoop:
+    """PX4 SITL flying the scenario's vehicle with our physics (module docstring).
+
+    Nothing starts in the constructor. ``__enter__`` starts the servo bus, opens the truth
+    log and the simulator link, starts PX4 (until it waits for the simulator) and accepts
+    its connection; :meth:`run` boots PX4 in lockstep and flies; ``__exit__`` / :meth:`close`
+    (idempotent) stops PX4 (its directory kept with ``keep_dir`` or when the run failed)
+    and closes the rest.
+
+    Raises ValueError for options this mode cannot honour (MAVLink signing: configure
+    PX4's own) and for an IMU rate that is not a whole number of plant steps.
+    """
+
+    def __init__(self, scenario: Scenario, options: RunOptions, hil: HilOptions) -> None:
+        if options.signing_key is not None:
+            raise ValueError(
+                "MAVLink signing is the imitation's: configure PX4's own (MAV_SIGN_CFG)"
+            )
+        plant_rate_hz = scenario.plant.rate_hz
+        imu_rate_hz = scenario.sensors.gyro_rate_hz
+        steps = plant_rate_hz / imu_rate_hz
+        if imu_rate_hz < 250.0 or abs(steps - round(steps)) > 1e-9:
+            raise ValueError(
+                f"[sensors] gyro_rate_hz = {imu_rate_hz:g} is PX4's IMU rate here: it must be "
+                f">= 250 Hz and divide plant.rate_hz = {plant_rate_hz:g}"
+            )
+        self.scenario = scenario
+        self.options = options
+        self.hil = hil
+        self.world, self.servo_bus, self.joints, self.gripper = build_world(scenario, options)
+        self.steps_per_frame = round(steps)
+        self.frame_s = 1.0 / imu_rate_hz
+        self.origin = GeoReference()
+        rng = np.random.default_rng(options.seed)
+        noise = options.noise
+        s = scenario.sensors
+        self._imu = Imu(
+            rng,
+            gyro_std_rad_s=s.gyro_std_rad_s if noise else 0.0,
+            accel_std_m_s2=ACCEL_STD_M_S2 if noise else 0.0,
+        )
+        self._mag = Magnetometer(rng, std_gauss=MAG_STD_GAUSS if noise else 0.0)
+        self._baro = Barometer(rng, self.origin, std_pa=BARO_STD_PA if noise else 0.0)
+        self._slow_every = max(1, round(imu_rate_hz / _SLOW_SENSORS_HZ))
+        half_frame_s = 0.5 * self.frame_s  # a sample's mean extra age on the frame grid
+        self._pose: PoseSensor | None = None
+        self._gps: GpsReceiver | None = None
+        if options.navigation == "mocap":
+            self._pose = PoseSensor(
+                rng,
+                position_std_m=s.position_std_m if noise else 0.0,
+                attitude_std_rad=s.attitude_std_rad if noise else 0.0,
+                rate_hz=s.pose_rate_hz,
+                latency_s=s.pose_latency_s,
+            )
+            navigation = navigation_parameters(
+                "mocap", vision_delay_s=s.pose_latency_s + half_frame_s
+            )
+        else:
+            grade = GPS_GRADES[hil.gps]
+            self._gps = GpsReceiver(rng, grade, self.origin, noise=noise)
+            navigation = navigation_parameters(
+                "gps",
+                gps_delay_s=grade.latency_s + half_frame_s,
+                gps_position_std_m=grade.horizontal_std_m if grade.name == "rtk" else None,
+            )
+        self.params = px4_parameters(scenario, navigation, imu_rate_hz=imu_rate_hz)
+        self.ports: Px4Ports | None = None
+        self.px4: Px4Sitl | None = None
+        self._link: SimulatorLink | None = None
+        self._mode_link: MavlinkEndpoint | None = None
+        self._truth_file: IO[str] | None = None
+        self._unix_time_at_boot_us = 0
+        self._commands = [0.0] * N_ROTORS
+        self.armed = False
+        self.mode: str | None = None
+        """PX4's flight mode from its last heartbeat (a :class:`~sitl.px4.Px4Mode` name)."""
+        self._lockstep = False
+        self._truth_interval_us = 0
+        self._next_truth_us = 0
+        self._failed = False
+        self._open = False
+        self.kept_dir: Path | None = None
+        """PX4's working directory after :meth:`close`, when kept."""
+        self.stats: HilStats | None = None
+        """What the running (or last) :meth:`run` achieved so far."""
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def __enter__(self) -> Px4InTheLoop:
+        try:
+            self.servo_bus.start()
+            if self.options.truth_log is not None:
+                self._truth_file = open(self.options.truth_log, "w", encoding="utf-8")
+            self.ports = ports = free_instance()
+            self._link = SimulatorLink(ports.simulator_tcp)
+            self._link.open()
+            self._mode_link = MavlinkEndpoint(0, 0, system_id=255, component_id=190)
+            self._mode_link.open()
+            speed = self.options.speed
+            self.px4 = Px4Sitl(
+                self.hil.build,
+                autostart=AUTOSTART,
+                simulator=None,
+                model=None,
+                params=self.params,
+                env={"PX4_SIM_SPEED_FACTOR": f"{speed:g}"} if speed != 1.0 else None,
+                ports=ports,
+                keep_dir=self.hil.keep_dir,
+                ready_lines=(_SIMULATOR_WAITING,),
+            )
+            self.px4.start(self.hil.ready_timeout_s)
+            self._link.accept(self.hil.ready_timeout_s)
+            self._unix_time_at_boot_us = round(time.time() * 1e6)
+        except BaseException:
+            self._failed = True
+            self.close()
+            raise
+        self._open = True
+        return self
+
+    def __exit__(self, exc_type: object, *exc_info: object) -> None:
+        if exc_type is not None:
+            self._failed = True
+        self.close()
+
+    def close(self) -> Path | None:
+        """Stop PX4 and close everything; returns PX4's working directory if kept (asked
+        for with ``keep_dir``, or the run failed). Safe twice."""
+        if self.px4 is not None:
+            kept = self.px4.stop(keep=self.hil.keep_dir is not None or self._failed)
+            self.kept_dir = kept or self.kept_dir
+        for closable in (self._link, self._mode_link):
+            if closable is not None:
+                closable.close()
+        self.servo_bus.stop()
+        if self._truth_file is not None:
+            self._truth_file.close()
+            self._truth_file = None
+        self._open = False
+        return self.kept_dir
+
+    def describe(self) -> dict[str, str]:
+        """Where to connect: MAVLink links, the companion's URL, the servo bus, PX4's log and
+        the simulator link (the ``ready`` line of ``sitl run``)."""
+        if self.px4 is None or self.ports is None:
+            raise RuntimeError("PX4 is not started")
+        p = self.options.ports
+        return {
+            "onboard": f"udp {p.host}:{p.onboard_local} -> {p.host}:{p.onboard_remote}",
+            "gcs": f"udp {p.host}:{p.gcs_local} -> {p.host}:{p.gcs_remote}",
+            "connect": f"udpin://0.0.0.0:{p.onboard_remote}",
+            # The emulator answers from a Python thread: allow for scheduling delays.
+            "arm_bus": f"dynamixel://{self.servo_bus.device}?baud=1000000&timeout_margin_ms=20",
+            "px4_log": str(self.px4.log_path),
+            "simulator": f"tcp 127.0.0.1:{self.ports.simulator_tcp} "
+            f"(PX4 instance {self.ports.instance}, airframe {AUTOSTART})",
+        }
+
+    # ---------------------------------------------------------------------- loop
+
+    def run(
+        self,
+        stop: threading.Event,
+        until_s: float | None = None,
+        console: Callable[[str], None] | None = None,
+        on_ready: Callable[[dict[str, str]], None] | None = None,
+    ) -> HilStats:
+        """Boot PX4 in lockstep, call ``on_ready(describe())`` once it is ready, and fly
+        until ``stop`` is set or simulation time reaches ``until_s`` [s]; PX4's console
+        lines after ready go to ``console``.
+
+        Raises :class:`~sitl.px4_sitl.Px4NotReadyError` when PX4 does not get ready in
+        ``ready_timeout_s``, :class:`Px4Exited` when PX4 exits or stops answering, and the
+        plant's :class:`~sitl.physics.PlantError` if it diverges.
+        """
+        if not self._open:
+            raise RuntimeError("open the vehicle (with ...) before running it")
+        try:
+            return self._run(stop, until_s, console, on_ready)
+        except BaseException:
+            self._failed = True
+            raise
+
+    def _run(self, stop, until_s, console, on_ready) -> HilStats:
+        assert self.px4 is not None and self._link is not None
+        sys.setswitchinterval(_SWITCH_INTERVAL_S)
+        world, link = self.world, self._link
+        self.stats = stats = HilStats()
+        boot = _Boot(self.px4, self.options, self._mode_link_port())
+        wall_step = world.dt_s / self.options.speed
+        truth_every = max(1, round(1.0 / (self.options.truth_rate_hz * world.dt_s)))
+        silent = self.options.servo_silent
+        log_offset = 0
+        sim0 = world.time_s
+        wall0 = time.perf_counter()
+        slot = next_look = wall0
+        ready = False
+        step = 0
+        perf = time.perf_counter
+        while not stop.is_set() and (until_s is None or world.time_s < until_s - 0.5 * world.dt_s):
+            force = np.zeros(3)
+            omega = np.zeros(3)
+            commands = self._commands
+            for _ in range(self.steps_per_frame):
+                if ready:  # each plant step in its wall-clock slot, as the imitation's
+                    wait = slot - perf()
+                    if wait > 0.0:
+                        time.sleep(wait)
+                        stats.paced_s += wait
+                    elif -wait > _MAX_LAG_S:
+                        stats.overruns += 1
+                        slot = perf()
+                    stats.lateness_us.append(max(0.0, -wait) * 1e6)
+                    slot += wall_step
+                t0 = perf()
+                with self.servo_bus.lock:
+                    state = world.step_motors(commands)
+                force += world.specific_force_flu_m_s2()
+                omega += state.omega_body_rad_s
+                if silent is not None and world.time_s >= silent[1]:
+                    self.servo_bus.set_faults(Faults(silent_ids=frozenset({silent[0]})))
+                    silent = None
+                if self._truth_file is not None and step % truth_every == 0:
+                    self._truth_file.write(
+                        json.dumps(truth_record(world, self.armed, self.mode)) + "\n"
+                    )
+                step += 1
+                stats.physics_s += perf() - t0
+            t1 = perf()
+            time_us = round(world.time_s * 1e6)
+            n = self.steps_per_frame
+            link.send(*self._sensor_messages(stats.frames, time_us, force / n, omega / n))
+            t2 = perf()
+            self._await_px4(time_us, stop)
+            t3 = perf()
+            stats.frames += 1
+            stats.sensors_s += t2 - t1
+            stats.px4_wait_s += t3 - t2
+            if t3 >= next_look:
+                next_look = t3 + _HOUSEKEEPING_S
+                self._read_heartbeats()
+                if not self.px4.alive():
+                    raise Px4Exited(f"PX4 exited:\n{self.px4.log_tail(15)}")
+                if not ready:
+                    if boot.advance():
+                        ready = True
+                        stats.boot_sim_s = world.time_s - sim0
+                        stats.boot_wall_s = t3 - wall0
+                        log_offset = self.px4.log_path.stat().st_size
+                        if on_ready is not None:
+                            on_ready(self.describe())
+                        slot = perf()
+                    elif t3 - wall0 > self.hil.ready_timeout_s:
+                        raise Px4NotReadyError(
+                            f"PX4 was not ready within {self.hil.ready_timeout_s:g} s "
+                            f"({boot.waiting_for}):\n{self.px4.log_tail(15)}"
+                        )
+                elif console is not None:
+                    log_offset = _forward_log(self.px4.log_path, log_offset, console)
+        stats.steps = step
+        stats.sim_time_s = world.time_s - sim0
+        stats.wall_time_s = time.perf_counter() - wall0
+        if self._truth_file is not None:
+            self._truth_file.flush()
+        return stats
+
+    def _mode_link_port(self) -> int:
+        assert self._mode_link is not None
+        return self._mode_link.local_address[1]
+
+    def _sensor_messages(
+        self, frame: int, time_us: int, force_flu: np.ndarray, omega_flu: np.ndarray
+    ) -> list[mavlink.MAVLink_message]:
+        """HIL_SENSOR of this frame first (it sets PX4's clock), then what is due."""
+        state = self.world.state
+        t_s = state.time_s
+        imu = self._imu.measure(force_flu, omega_flu)
+        if frame % self._slow_every == 0:
+            mag = self._mag.measure(state.rotation_world_body)
+            baro = self._baro.measure(float(state.q[2]))
+            messages: list[mavlink.MAVLink_message] = [hil_sensor(time_us, imu, mag, baro)]
+        else:
+            messages = [hil_sensor(time_us, imu)]
+        if self._pose is not None:
+            pose = self._pose.sample(t_s, state.q)
+            if pose is not None:
+                s = self.scenario.sensors
+                messages.append(
+                    vision_odometry(time_us, pose, s.position_std_m, s.attitude_std_rad)
+                )
+        if self._gps is not None:
+            fix = self._gps.sample(t_s, state.q[0:3], state.q_dot[0:3])
+            if fix is not None:
+                messages.append(hil_gps(self._unix_time_at_boot_us + time_us, fix))
+        if self._truth_interval_us > 0 and time_us >= self._next_truth_us:
+            self._next_truth_us = time_us + self._truth_interval_us
+            messages.append(
+                hil_state_quaternion(time_us, state, np.asarray(state.q_ddot[0:3]), self.origin)
+            )
+        return messages
+
+    def _await_px4(self, time_us: int, stop: threading.Event) -> None:
+        """Take PX4's messages; in lockstep, wait for the motor commands of ``time_us``."""
+        assert self._link is not None and self.px4 is not None
+        answered = not self._lockstep
+        deadline = time.monotonic() + _ANSWER_TIMEOUT_S
+        while True:
+            for message in self._link.receive(0.0 if answered else 0.05):
+                kind = message.get_type()
+                if kind == "HIL_ACTUATOR_CONTROLS":
+                    self._commands, self.armed = motor_commands(message)
+                    self._lockstep = True
+                    answered = answered or message.time_usec >= time_us
+                elif (
+                    kind == "COMMAND_LONG"
+                    and message.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL
+                ):
+                    if int(message.param1) == mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION:
+                        self._truth_interval_us = max(0, round(message.param2))
+            if answered or stop.is_set():
+                return
+            if time.monotonic() > deadline or not self.px4.alive():
+                what = "stopped answering" if self.px4.alive() else "exited"
+                raise Px4Exited(f"PX4 {what} on the simulator link:\n{self.px4.log_tail(15)}")
+
+    def _read_heartbeats(self) -> None:
+        assert self._mode_link is not None
+        for message in self._mode_link.receive():
+            if message.get_type() == "HEARTBEAT" and message.autopilot == mavlink.MAV_AUTOPILOT_PX4:
+                mode = Px4Mode.from_custom_mode(message.custom_mode)
+                self.mode = None if mode is None else mode.name
+
+
+class _Boot:
+    """PX4's way to ready, advanced from the loop: start-up script done, then its links
+    moved onto the requested ports and the heartbeat link started (PX4 commands, in a
+    thread: they need PX4's lockstep clock to move), then "Ready for takeoff!"."""
+
+    def __init__(self, px4: Px4Sitl, options: RunOptions, mode_port: int) -> None:
+        self._px4 = px4
+        self._options = options
+        self._mode_port = mode_port
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+        self.waiting_for = "its start-up script"
+
+    def advance(self) -> bool:
+        """True once PX4 is ready; raises Px4NotReadyError when a link does not start."""
+        if self._error is not None:
+            raise Px4NotReadyError(f"PX4 did not start its links: {self._error}")
+        text = self._px4.log_path.read_text(errors="replace")
+        if self._thread is None:
+            if _STARTUP_DONE in text:
+                self.waiting_for = "its links"
+                self._thread = threading.Thread(target=self._links, name="px4-links", daemon=True)
+                self._thread.start()
+            return False
+        if self._thread.is_alive():
+            return False
+        self.waiting_for = '"Ready for takeoff!"'
+        return _READY in text
+
+    def _links(self) -> None:
+        try:
+            for args in _link_commands(self._px4.ports, self._options, self._mode_port):
+                self._px4.command("mavlink", *args, timeout_s=30.0)
+        except (subprocess.CalledProcessError, subprocess.TimeoutExpired) as exc:
+            self._error = exc
+
+
+def _link_commands(ports: Px4Ports | None, options: RunOptions, mode_port: int) -> list[list[str]]:
+    """PX4 ``mavlink`` commands that move the onboard and GCS links of PX4 instance
+    ``ports`` onto ``options.ports`` (when they differ) and start the heartbeat link to
+    ``mode_port``, with the flags of PX4's own ``px4-rc.mavlink``."""
+    assert ports is not None
+    want = options.ports
+    commands: list[list[str]] = []
+    if (want.onboard_local, want.onboard_remote) != (ports.onboard_local, ports.onboard_remote):
+        commands.append(["stop", "-u", str(ports.onboard_local)])
+        commands.append(
+            ["start", "-x", "-u", str(want.onboard_local), "-r", str(_ONBOARD_RATE_B_S), "-f",
+             "-m", "onboard", "-o", str(want.onboard_remote)]
+        )  # fmt: skip
+    if (want.gcs_local, want.gcs_remote) != (ports.gcs_local, 14550):
+        commands.append(["stop", "-u", str(ports.gcs_local)])
+        commands.append(
+            ["start", "-x", "-u", str(want.gcs_local), "-r", str(_ONBOARD_RATE_B_S), "-f",
+             "-o", str(want.gcs_remote)]
+        )  # fmt: skip
+    commands.append(
+        ["start", "-u", str(free_udp_port()), "-o", str(mode_port), "-m", "minimal",
+         "-r", str(_MODE_LINK_RATE_B_S)]
+    )  # fmt: skip
+    return commands
+
+
+def _forward_log(path: Path, offset: int, console: Callable[[str], None]) -> int:
+    """Hand the complete lines PX4 wrote after ``offset`` to ``console``; the new offset."""
+    with open(path, "rb") as log:
+        log.seek(offset)
+        data = log.read()
+    end = data.rfind(b"\n") + 1
+    for line in data[:end].decode(errors="replace").splitlines():
+        if line.strip():
+            console(line)
+    return offset + end
