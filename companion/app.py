@@ -53,7 +53,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from arm_driver.bus import ArmBus, BusFailedError, OperatingMode
 from arm_driver.errors import ArmDriverError, BusTimeoutError, CommunicationError
-from companion.config import Scenario
+from companion.config import CompanionConfig
 from companion.control import ControlRateError, DesiredState
 from companion.failsafe import FailsafeMonitor, Fault, FaultEvent, Reaction
 from companion.flight_control import ControlOutput, FlightControl, FlightControllerName
@@ -226,7 +226,7 @@ class PickupApp:
 
     def __init__(
         self,
-        scenario: Scenario,
+        scenario: CompanionConfig,
         link: MavlinkLink,
         bus: ArmBus,
         plan: PickupPlan,

@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 from companion.model import ModelTerms
 
 if TYPE_CHECKING:
-    from companion.config import Scenario
+    from companion.config import CompanionConfig
 
 __all__ = [
     "TRANSLATION_AND_JOINT_ROWS",
@@ -39,7 +39,7 @@ __all__ = [
     "PaperEstimator",
     "RlsEstimator",
     "ThetaBounds",
-    "estimator_from_scenario",
+    "estimator_from_config",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -432,12 +432,12 @@ class RlsEstimator(_Base):
         self.p = p
 
 
-def estimator_from_scenario(scenario: Scenario, kind: str, rows: tuple[int, ...]):
-    """The scenario's estimator of ``kind`` (``"paper"`` or ``"rls"``) on ``rows``, with its
+def estimator_from_config(config: CompanionConfig, kind: str, rows: tuple[int, ...]):
+    """The configuration's estimator of ``kind`` (``"paper"`` or ``"rls"``) on ``rows``, with its
     bounds, confidence monitor and gains from the ``[estimator]`` section."""
-    est = scenario.estimator
-    bounds = ThetaBounds(est.m2_bounds_kg[0], est.m2_bounds_kg[1], scenario.arm.link2.length_m)
-    m2_max, l2 = est.m2_bounds_kg[1], scenario.arm.link2.length_m
+    est = config.estimator
+    bounds = ThetaBounds(est.m2_bounds_kg[0], est.m2_bounds_kg[1], config.arm.link2.length_m)
+    m2_max, l2 = est.m2_bounds_kg[1], config.arm.link2.length_m
     monitor = ExcitationMonitor(
         window_s=est.confidence.window_s,
         theta_scale=(m2_max, m2_max * l2, m2_max * l2 * l2),

@@ -25,7 +25,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.config import Scenario
+from companion.config import CompanionConfig
 from companion.control import (
     DesiredState,
     HorizontalTrim,
@@ -33,7 +33,7 @@ from companion.control import (
     check_control_rate,
     damping_step_ratio,
 )
-from companion.estimation import TRANSLATION_AND_JOINT_ROWS, Estimate, estimator_from_scenario
+from companion.estimation import TRANSLATION_AND_JOINT_ROWS, Estimate, estimator_from_config
 from companion.filters import FilteredState
 from companion.model import ManipulatorModel
 from companion.setpoints import AttitudeThrustSetpoint, ThrustModel, attitude_thrust_setpoint
@@ -74,16 +74,18 @@ class FlightControl:
         the empty-arm theta; the estimator still runs, for the log).
     """
 
-    def __init__(self, scenario: Scenario, controller: FlightControllerName = "passivity") -> None:
+    def __init__(
+        self, scenario: CompanionConfig, controller: FlightControllerName = "passivity"
+    ) -> None:
         if controller not in ("passivity", "nonadaptive"):
             raise ValueError(f"controller must be 'passivity' or 'nonadaptive', got {controller!r}")
         self.scenario = scenario
-        self.model = ManipulatorModel.from_scenario(scenario)
+        self.model = ManipulatorModel.from_config(scenario)
         rows = tuple(r for r in scenario.estimator.rows if r in TRANSLATION_AND_JOINT_ROWS)
         if not rows:
             raise ValueError("estimator.rows has no row with a force known in flight (0-2, 6-7)")
         self.rows = rows
-        self.estimator = estimator_from_scenario(scenario, scenario.estimator.kind, rows)
+        self.estimator = estimator_from_config(scenario, scenario.estimator.kind, rows)
         ctl = scenario.controller
         self.nominal_theta = np.array(scenario.nominal_theta.as_tuple())
         if controller == "nonadaptive":

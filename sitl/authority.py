@@ -15,13 +15,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.config import Scenario
 from sitl.physics.rotors import (
     RotorGeometry,
     SequentialDesaturationMixer,
     inverse_thrust_curve,
     thrust_curve,
 )
+from sitl.scenario import Scenario
 
 __all__ = ["Authority", "hover_authority"]
 

@@ -10,19 +10,22 @@ import json
 import signal
 import threading
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import Annotated
 
 import typer
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from companion.cli import EXIT_USAGE, load_or_exit
+from companion.usage import fail as _fail
+from companion.usage import load_or_exit as _load_or_exit
 from sitl.authority import hover_authority
+from sitl.cli_sim import sim_app
 from sitl.physics import PlantError
 from sitl.physics.jsbsim import Wind
 from sitl.px4 import ParamError, SigningKeyError
 from sitl.runner import LinkPorts, RunOptions, SitlVehicle
+from sitl.scenario import Scenario, load_scenario
 
 app = typer.Typer(
     name="sitl",
@@ -190,9 +193,13 @@ def _servo_fault(text: str) -> tuple[int, float]:
         _fail(f"--servo-silent needs ID@SECONDS, e.g. 2@30, got {text!r}")
 
 
-def _fail(message: str) -> NoReturn:
-    typer.echo(f"error: {message}", err=True)
-    raise typer.Exit(EXIT_USAGE)
+def load_or_exit(path: Path) -> Scenario:
+    """The whole scenario in ``path`` (truth included); each problem one ``error:`` line,
+    exit status 2."""
+    return _load_or_exit(path, load_scenario)
+
+
+app.add_typer(sim_app)
 
 
 def main() -> None:

@@ -34,7 +34,7 @@ from typing import IO
 import numpy as np
 
 from arm_driver.joint import GripperConfig, JointConfig
-from companion.config import Scenario, arm_bus_configs
+from companion.config import arm_bus_configs
 from companion.frames import ned_from_enu
 from sitl.navigation import ERROR_MODELS, Navigation
 from sitl.physics import make_plant
@@ -47,6 +47,7 @@ from sitl.px4 import (
     attitude_loop_params,
     load_signing_key,
 )
+from sitl.scenario import Scenario
 from sitl.servo import Faults, PtyServoBus, XM430Parameters, XM430Servo
 from sitl.world import World, WorldSettings
 

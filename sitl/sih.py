@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from companion.config import Scenario
+from sitl.scenario import Scenario
 
 __all__ = ["SihMismatchError", "sih_parameters"]
 

@@ -18,12 +18,12 @@ import pytest
 
 from arm_driver.bus import JointConfig, OperatingMode, open_bus
 from companion.app import MissionError, PickupApp
-from companion.config import load_scenario
+from companion.config import load_config
 from companion.link.telemetry import VehiclePose
 from companion.mission import PickupPlan
 from sitl.servo import PtyServoBus, XM430Servo
 
-SCENARIO = load_scenario("configs/sitl_pickup.toml")
+SCENARIO = load_config("configs/sitl_pickup.toml")
 PLAN = PickupPlan(home_m=(0.0, 0.0), payload_at_m=(1.0, 0.0, 0.0), place_at_m=(2.0, 0.0, 0.0))
 
 

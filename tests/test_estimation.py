@@ -13,7 +13,6 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from companion.config import load_scenario
 from companion.estimation import (
     TRANSLATION_AND_JOINT_ROWS,
     ExcitationMonitor,
@@ -22,9 +21,10 @@ from companion.estimation import (
     ThetaBounds,
 )
 from companion.model import ManipulatorModel
+from sitl.scenario import load_scenario
 
 CFG = load_scenario(Path(__file__).parent.parent / "configs" / "paper_sim.toml")
-MODEL = ManipulatorModel.from_scenario(CFG)
+MODEL = ManipulatorModel.from_config(CFG)
 TRUE = np.array(CFG.true_theta.as_tuple())
 BOUNDS = ThetaBounds(0.05, 2.0, CFG.arm.link2.length_m)
 DT = 2e-3

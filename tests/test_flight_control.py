@@ -5,12 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from companion.config import load_scenario
+from companion.config import load_config
 from companion.control import DesiredState
 from companion.filters import FilteredState
 from companion.flight_control import FlightControl
 
-SCENARIO = load_scenario("configs/sitl_pickup.toml")
+SCENARIO = load_config("configs/sitl_pickup.toml")
 G = SCENARIO.environment.gravity_m_s2
 
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from companion.config import Scenario, load_scenario
+from companion.config import CompanionConfig, load_config
 from companion.model import _mcg
 from companion.model.layout import N_Q, N_XI, PARAM_NAMES, ROW
 
@@ -50,8 +50,9 @@ class ModelParameters:
     gravity_m_s2: float
 
     @classmethod
-    def from_scenario(cls, scenario: Scenario) -> ModelParameters:
-        """Known parameters of a validated scenario (link 2 stays unknown)."""
+    def from_config(cls, config: CompanionConfig) -> ModelParameters:
+        """Known parameters of a validated configuration (link 2 stays unknown)."""
+        scenario = config
         link1 = scenario.arm.link1
         return cls(
             vehicle_mass_kg=scenario.vehicle.mass_kg,
@@ -158,14 +159,15 @@ class ManipulatorModel:
         self._p = params.vector()
 
     @classmethod
-    def from_scenario(cls, scenario: Scenario) -> ManipulatorModel:
-        """Model of a validated scenario's vehicle and arm."""
-        return cls(ModelParameters.from_scenario(scenario))
+    def from_config(cls, config: CompanionConfig) -> ManipulatorModel:
+        """Model of a validated configuration's vehicle and arm."""
+        return cls(ModelParameters.from_config(config))
 
     @classmethod
     def from_file(cls, path: str | Path) -> ManipulatorModel:
-        """Load and validate a scenario TOML file (raises ``ConfigError``) and build the model."""
-        return cls.from_scenario(load_scenario(path))
+        """Load and validate a configuration TOML file (raises ``ConfigError``) and build
+        the model."""
+        return cls.from_config(load_config(path))
 
     def terms(self, q: ArrayLike, q_dot: ArrayLike) -> ModelTerms:
         """All pieces of M(q), C(q, q_dot), G(q) at one state.

@@ -39,9 +39,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from companion.config import AttitudeControl as AttitudeControlConfig
 from sitl.physics.frames import quaternion_from_euler
 from sitl.physics.rotors import MixerOutput, SequentialDesaturationMixer
+from sitl.scenario import AttitudeControl as AttitudeControlConfig
 
 __all__ = [
     "AttitudeController",

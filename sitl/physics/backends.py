@@ -17,9 +17,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Literal
 
-from companion.config import Scenario
 from sitl.physics.errors import PlantModeError
 from sitl.physics.plant import PlantMode, TruthPlant
+from sitl.scenario import Scenario
 
 if TYPE_CHECKING:
     from sitl.physics.jsbsim import JsbsimPlant, Wind

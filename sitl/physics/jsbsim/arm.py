@@ -59,7 +59,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.config import Scenario, Theta
+from companion.config import Theta
+from sitl.scenario import Scenario
 
 __all__ = ["ArmDynamics", "LinkBody"]
 

@@ -22,7 +22,6 @@ from pathlib import Path
 import jsbsim
 import numpy as np
 
-from companion.config import Scenario
 from sitl.physics.errors import PlantError
 from sitl.physics.frames import Rot9, rotation_from_euler
 from sitl.physics.jsbsim.airframe import (
@@ -39,6 +38,7 @@ from sitl.physics.jsbsim.airframe import (
 )
 from sitl.physics.jsbsim.wind import Wind
 from sitl.physics.rotors import N_ROTORS
+from sitl.scenario import Scenario
 
 __all__ = ["FdmReading", "HexarotorFdm", "JsbsimError"]
 

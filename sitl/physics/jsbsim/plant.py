@@ -62,7 +62,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from companion.config import Scenario, Theta
+from companion.config import Theta
 from sitl.physics.attitude_control import (
     AttitudeLoopParams,
     AttitudeSetpoint,
@@ -88,6 +88,7 @@ from sitl.physics.rotors import (
     inverse_thrust_curve,
 )
 from sitl.physics.state import ActuatorState, PlantState
+from sitl.scenario import Scenario
 
 __all__ = ["JsbsimError", "JsbsimPlant"]
 

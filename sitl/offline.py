@@ -32,20 +32,21 @@ from typing import Literal
 
 import numpy as np
 
-from companion.config import Scenario
 from companion.control import PassivityController, SlidingModeController, check_control_rate
 from companion.estimation import (
     TRANSLATION_AND_JOINT_ROWS,
     PaperEstimator,
-    estimator_from_scenario,
+    estimator_from_config,
 )
 from companion.model import ManipulatorModel
 from companion.setpoints import ThrustModel, attitude_thrust_setpoint
 from companion.state import StateAssembler, thrust_force_world
-from companion.trajectory import PaperSinusoid, TiltReference
+from companion.trajectory import TiltReference
 from sitl.physics import AttitudeSetpoint, PhysicsBackend, TruthPlant, make_plant
 from sitl.physics.jsbsim.wind import Wind
+from sitl.scenario import Scenario
 from sitl.sensors import GyroSensor, JointEncoders, PoseSensor
+from sitl.trajectory import PaperSinusoid
 
 __all__ = ["COLUMNS", "SimOptions", "SimResult", "simulate"]
 
@@ -203,8 +204,8 @@ def simulate(
         payload_attached=scenario.simulation.payload_attached_at_start,
         wind=opts.wind,
     )
-    model = ManipulatorModel.from_scenario(scenario)
-    estimator = estimator_from_scenario(scenario, kind, rows)
+    model = ManipulatorModel.from_config(scenario)
+    estimator = estimator_from_config(scenario, kind, rows)
     ctl = scenario.controller
     if opts.controller == "asmc":
         smc, passivity = _sliding_mode(scenario), None
