@@ -53,4 +53,4 @@ def test_nonadaptive_ignores_the_estimate():
     out = fc.step(0.004, hover(q), desired, np.full(8, np.nan))
     np.testing.assert_allclose(out.theta_hat, SCENARIO.nominal_theta.as_tuple())
     with pytest.raises(ValueError, match="controller"):
-        FlightControl(SCENARIO, "asmc")
+        FlightControl(SCENARIO, "pid")
