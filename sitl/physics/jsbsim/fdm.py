@@ -150,7 +150,10 @@ class HexarotorFdm:
         ]
 
     def _node(self, path: str) -> jsbsim.FGPropertyNode:
-        return self._properties.get_node(path, True)
+        node = self._properties.get_node(path, True)
+        if node is None:  # not with create=True; JSBSim's stub allows it
+            raise JsbsimError(f"JSBSim cannot create the property {path}")
+        return node
 
     def __getitem__(self, path: str) -> float:
         """Any JSBSim property, in JSBSim's units (diagnostics and tests)."""
