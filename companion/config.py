@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
+from pydantic_core import ErrorDetails
 
 if TYPE_CHECKING:
     from arm_driver.joint import GripperConfig, JointConfig
@@ -448,7 +449,7 @@ def _dotted(loc: tuple[int | str, ...]) -> str:
     return key
 
 
-def _describe(err: dict, root: type[BaseModel]) -> tuple[str, str]:
+def _describe(err: ErrorDetails, root: type[BaseModel]) -> tuple[str, str]:
     """(dotted key, reason) of one pydantic error of a ``root`` document, suggesting the key
     meant for a typo."""
     key = _dotted(err["loc"])

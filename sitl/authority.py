@@ -86,6 +86,6 @@ def hover_authority(scenario: Scenario, payload_attached: bool) -> Authority:
         hover_thrust_n=hover,
         hover_relative_thrust=relative_hover,
         hover_command=u_hover,
-        unsaturated_torque_n_m=tuple(unsaturated),
-        max_torque_n_m=tuple(maximum),
+        unsaturated_torque_n_m=(unsaturated[0], unsaturated[1], unsaturated[2]),
+        max_torque_n_m=(maximum[0], maximum[1], maximum[2]),
     )
