@@ -120,7 +120,7 @@ async def fly_pickup(
                     except (MissionError, MissionAborted, ArmDriverError, LinkError) as exc:
                         failure = exc
                         report = app.report
-                        writer.event("failure", str(exc), app._t_s)
+                        writer.event("failure", str(exc), app.t_s)
             finally:
                 await bus.close()
     except OSError as exc:

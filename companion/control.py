@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from companion.estimation import Skip
 from companion.filters import FilteredState
 from companion.model import ModelTerms
 
@@ -105,7 +106,8 @@ class ControlLaw(Protocol):
     of ``dt_s`` [s]: the generalized force tau (shape (8,), conjugate to q) and the theta
     the law used (shape (3,)), from the model terms at the filtered state, the desired
     state (roll and pitch rows from the tilt reference), the estimator's theta_hat and the
-    force applied over the last step (NaN where unknown)."""
+    force applied over the last step (NaN on rows without a known force), or why it is not
+    known (:class:`~companion.estimation.Skip`)."""
 
     @property
     def velocity_gain(self) -> FloatArray:
@@ -120,7 +122,7 @@ class ControlLaw(Protocol):
         state: FilteredState,
         desired: DesiredState,
         theta_hat: FloatArray,
-        known_tau: FloatArray,
+        applied_tau: FloatArray | Skip,
     ) -> tuple[FloatArray, FloatArray]: ...
 
 
@@ -142,8 +144,12 @@ class PassivityController:
     def __init__(self, k: ArrayLike, lam: ArrayLike, fixed_theta: ArrayLike | None = None):
         self.k = np.asarray(k, dtype=float)
         self.k_lam = self.k * np.asarray(lam, dtype=float)
-        self.fixed_theta = None if fixed_theta is None else np.asarray(fixed_theta, dtype=float)
-        self._fixed_xi = None if fixed_theta is None else np.concatenate((self.fixed_theta, _ONE))
+        self.fixed_theta: FloatArray | None = (
+            None if fixed_theta is None else np.asarray(fixed_theta, dtype=float)
+        )
+        self._fixed_xi: FloatArray | None = (
+            None if self.fixed_theta is None else np.concatenate((self.fixed_theta, _ONE))
+        )
 
     @classmethod
     def nonadaptive(cls, k: ArrayLike, lam: ArrayLike, nominal_theta: ArrayLike):
@@ -154,7 +160,7 @@ class PassivityController:
     def velocity_gain(self) -> FloatArray:
         return self.k
 
-    def control(self, dt_s, terms, state, desired, theta_hat, known_tau):
+    def control(self, dt_s, terms, state, desired, theta_hat, applied_tau):
         """:class:`ControlLaw`: eq. tau2 with ``theta_hat`` (or the fixed theta)."""
         used = self.fixed_theta if self.fixed_theta is not None else np.asarray(theta_hat)
         return self.torque(terms, state.q, state.q_dot, desired, used), used
@@ -285,12 +291,11 @@ class SlidingModeController:
     def velocity_gain(self) -> FloatArray:
         return self.k1
 
-    def control(self, dt_s, terms, state, desired, theta_hat, known_tau):
+    def control(self, dt_s, terms, state, desired, theta_hat, applied_tau):
         """:class:`ControlLaw`: eq. asc1 with its own mass read-out (``theta_hat``, the
         estimator's, is not used); the read-out takes the applied vertical force."""
-        tau = self.torque(
-            dt_s, terms, state.q, state.q_dot, state.q_ddot, desired, float(known_tau[2])
-        )
+        force_z_n = None if isinstance(applied_tau, Skip) else float(applied_tau[2])
+        tau = self.torque(dt_s, terms, state.q, state.q_dot, state.q_ddot, desired, force_z_n)
         return tau, self.theta
 
     def _xi(self) -> FloatArray:
@@ -306,13 +311,14 @@ class SlidingModeController:
         q_dot: FloatArray,
         q_ddot: FloatArray,
         desired: DesiredState,
-        applied_force_z_n: float,
+        applied_force_z_n: float | None,
     ) -> FloatArray:
         """tau, shape (8,); advances Deltahat and the mass read-out by dt [s].
 
         ``applied_force_z_n`` is the vertical world force actually applied during the last
         control period [N] (in flight: the thrust model's force along the measured body z),
-        the force that produced ``q_ddot``; NaN (not known yet) skips the read-out. Using
+        the force that produced ``q_ddot``; None (not known) or not finite skips the
+        read-out. Using
         this step's commanded tau_3 instead lets the read-out run away once thrust
         saturates: the command then exceeds the force that produced the acceleration.
         """
@@ -324,7 +330,7 @@ class SlidingModeController:
         sat = np.minimum(np.maximum(s / self.phi, -1.0), 1.0)
         tau = terms.regressor(qr_dot, qr_ddot) @ xi + self.delta - self.k1 * s - self.k2 * sat
         self.delta = self.delta - dt * self.gamma_delta * s
-        if math.isfinite(applied_force_z_n):
+        if applied_force_z_n is not None and math.isfinite(applied_force_z_n):
             self._read_mass(dt, terms, q_dot, q_ddot, applied_force_z_n, xi)
         return tau
 

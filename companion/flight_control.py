@@ -39,7 +39,12 @@ from companion.control import (
     check_control_rate,
     damping_step_ratio,
 )
-from companion.estimation import TRANSLATION_AND_JOINT_ROWS, Estimate, estimator_from_config
+from companion.estimation import (
+    TRANSLATION_AND_JOINT_ROWS,
+    Estimate,
+    Skip,
+    estimator_from_config,
+)
 from companion.filters import FilteredState
 from companion.model import ManipulatorModel
 from companion.setpoints import AttitudeThrustSetpoint, ThrustModel, attitude_thrust_setpoint
@@ -152,19 +157,19 @@ class FlightControl:
         dt_s: float,
         state: FilteredState,
         desired: DesiredState,
-        known_tau: FloatArray,
+        applied_tau: FloatArray | Skip,
     ) -> ControlOutput:
         """One control cycle of ``dt_s`` [s].
 
-        ``known_tau`` is the generalized force applied over the last cycle on the rows the
-        estimator uses (NaN elsewhere): see :meth:`applied_force`.
+        ``applied_tau`` is the generalized force applied over the last cycle (see
+        :meth:`applied_force`), or why it is not known: the estimator skips the step.
         """
         q, q_dot, q_ddot = state.q, state.q_dot, state.q_ddot
         terms = self.model.terms(q, q_dot)
-        estimate = self.estimator.update(dt_s, terms, q, q_dot, q_ddot, known_tau)
+        estimate = self.estimator.update(dt_s, terms, q, q_dot, q_ddot, applied_tau)
         reference = self.tilt.apply(desired)
         tau, theta_hat = self.controller.control(
-            dt_s, terms, state, reference, estimate.theta, known_tau
+            dt_s, terms, state, reference, estimate.theta, applied_tau
         )
         if self.trim_active:
             lam = self.scenario.controller.lambda_

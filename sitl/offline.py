@@ -33,10 +33,10 @@ from typing import Literal
 import numpy as np
 
 from companion.control import SlidingModeController
-from companion.estimation import TRANSLATION_AND_JOINT_ROWS, PaperEstimator
+from companion.estimation import TRANSLATION_AND_JOINT_ROWS, PaperEstimator, Skip
 from companion.flight_control import FlightControl
 from companion.setpoints import attitude_thrust_setpoint
-from companion.state import StateAssembler, thrust_force_world
+from companion.state import StateAssembler
 from sitl.physics import AttitudeSetpoint, PhysicsBackend, TruthPlant, make_plant
 from sitl.physics.jsbsim.wind import Wind
 from sitl.scenario import Scenario
@@ -211,7 +211,7 @@ def simulate(
     setpoint = attitude_thrust_setpoint(
         tau[0:3], q0[5], q0[5], control.tilt_max_rad, control.thrust
     )
-    known_tau = np.full(8, np.nan)
+    applied: np.ndarray | Skip = Skip.NO_FORCE
     events = sorted(
         (t, name)
         for t, name in ((opts.pickup_at_s, "pickup"), (opts.release_at_s, "release"))
@@ -238,7 +238,7 @@ def simulate(
         if ready:
             f = sensing.assembler.estimate
             q = f.q
-            out = control.step(dt_c, f, traj(t), known_tau)
+            out = control.step(dt_c, f, traj(t), applied)
             tau, setpoint, est, desired = out.tau, out.setpoint, out.estimate, out.desired
             # The estimate logged: the law's own for the sliding-mode baseline (eq. asc2),
             # the estimator's otherwise (it runs beside the non-adaptive law too).
@@ -281,17 +281,18 @@ def simulate(
         if opts.plant == "ideal":
             for _ in range(sub):
                 plant.step_ideal(tau)
-            known_tau = tau
+            applied = tau
         else:
             command = AttitudeSetpoint.from_euler(
                 setpoint.roll_rad, setpoint.pitch_rad, setpoint.yaw_rad, setpoint.thrust_relative
             )
             for _ in range(sub):
                 plant.step(command, tau[6:8])
-            known_tau = np.full(8, np.nan)
-            if ready:  # the thrust along the filtered attitude of this step
-                known_tau[0:3] = thrust_force_world(q[3], q[4], q[5], setpoint.thrust_n)
-            known_tau[6:8] = sensing.joint_torques(plant.actuators.joint_torques_n_m)
+            read_back = sensing.joint_torques(plant.actuators.joint_torques_n_m)
+            # The thrust along the filtered attitude of this step, the servos' read-back.
+            applied = (
+                control.applied_force(q, setpoint.thrust_n, read_back) if ready else Skip.NO_FORCE
+            )
         if progress is not None and t >= next_progress:
             progress(t)
             next_progress += 1.0

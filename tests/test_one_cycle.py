@@ -15,6 +15,7 @@ import pytest
 from test_app_in_process import PoseLink, ScriptedPoses, TwoJoints
 
 from companion.app import PickupApp
+from companion.estimation import Skip
 from companion.flight_control import FlightControl
 from companion.mission import PickupPlan
 from sitl.offline import SimOptions, simulate
@@ -28,9 +29,10 @@ def test_the_app_replays_the_offline_cycle_bit_for_bit(controller, monkeypatch):
     recorded = []
     step = FlightControl.step
 
-    def recording(self, dt_s, state, desired, known_tau):
-        out = step(self, dt_s, state, desired, known_tau)
-        recorded.append(((dt_s, state, desired, np.array(known_tau)), out))
+    def recording(self, dt_s, state, desired, applied):
+        out = step(self, dt_s, state, desired, applied)
+        kept = applied if isinstance(applied, Skip) else np.array(applied)
+        recorded.append(((dt_s, state, desired, kept), out))
         return out
 
     monkeypatch.setattr(FlightControl, "step", recording)
@@ -47,8 +49,8 @@ def test_the_app_replays_the_offline_cycle_bit_for_bit(controller, monkeypatch):
     )
     assert type(app.control) is FlightControl and app.control.rows == (0, 1, 2, 6, 7)
     app.control.estimator.resume()  # the app holds it frozen until PX4 flies its setpoints
-    for (dt_s, state, desired, known), offline in recorded:
-        replayed = app.control.step(dt_s, state, desired, known)
+    for (dt_s, state, desired, applied), offline in recorded:
+        replayed = app.control.step(dt_s, state, desired, applied)
         assert replayed.setpoint == offline.setpoint
         np.testing.assert_array_equal(replayed.tau, offline.tau)
         np.testing.assert_array_equal(replayed.estimate.theta, offline.estimate.theta)
