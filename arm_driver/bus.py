@@ -52,9 +52,9 @@ import asyncio
 import enum
 import importlib
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ParamSpec, Protocol, TypeVar, cast
 
 from arm_driver.errors import ArmDriverError, BusTimeoutError, CommunicationError, LimitError
 from arm_driver.joint import GripperConfig, JointConfig, JointState
@@ -81,6 +81,9 @@ __all__ = [
 ]
 
 _LOG = logging.getLogger(__name__)
+
+_P = ParamSpec("_P")
+_T = TypeVar("_T")
 
 
 class OperatingMode(enum.Enum):
@@ -410,12 +413,17 @@ class ArmBus(abc.ABC):
         """Lower a joint's torque limit (for backends: e.g. to the servo's current limit)."""
         self._torque_max[joint] = min(self._torque_max[joint], limit_n_m)
 
-    async def _transact(self, hook: Any, *args: Any) -> Any:
+    async def _transact(
+        self, hook: Callable[_P, Awaitable[_T]], *args: _P.args, **kwargs: _P.kwargs
+    ) -> _T:
+        """``await hook(*args, **kwargs)`` under the bus lock, with the failure policy: a
+        link failure (timeout, garbage) counts toward FAILED, any other outcome resets
+        the count."""
         self._check_open()
         async with self._lock:
             self._check_open()
             try:
-                result = await hook(*args)
+                result = await hook(*args, **kwargs)
             except (BusTimeoutError, CommunicationError) as error:
                 self._failures += 1
                 if self._failures >= self._max_failures:
@@ -508,7 +516,29 @@ def available_backends() -> tuple[str, ...]:
     return tuple(sorted(_BACKENDS))
 
 
-def backend_class(name: str) -> type[ArmBus]:
+class BackendClass(Protocol):
+    """What the registry gives: a backend's class, made from a device and the joints.
+
+    Every backend's constructor takes ``(device, joints, *, gripper=None, **options)``,
+    its own keywords being the ``options`` (python-can's ``Bus(channel, **kwargs)``
+    contract); the base class's constructor, which has no device, is not that contract.
+    """
+
+    def __call__(
+        self,
+        device: str,
+        joints: Sequence[JointConfig],
+        *,
+        gripper: GripperConfig | None = None,
+        **options: Any,
+    ) -> ArmBus: ...
+
+    async def scan(self, device: str, ids: Sequence[int], **options: Any) -> list[DeviceInfo]: ...
+
+    def options_from_url(self, options: Mapping[str, str]) -> dict[str, Any]: ...
+
+
+def backend_class(name: str) -> BackendClass:
     """Import and return the backend registered as ``name``.
 
     Raises
@@ -523,11 +553,15 @@ def backend_class(name: str) -> type[ArmBus]:
         )
     module, _, cls = _BACKENDS[name].partition(":")
     try:
-        return getattr(importlib.import_module(module), cls)
+        found: type[ArmBus] = getattr(importlib.import_module(module), cls)
     except ImportError as error:
         raise BackendUnavailableError(
             f"backend {name!r} cannot be imported ({error}); is its dependency installed?"
         ) from error
+    # A backend's own keywords make its constructor's signature differ from every other's,
+    # so no class is an instance of the protocol for the type checker: the registry's
+    # contract (see BackendClass) is what this cast states.
+    return cast(BackendClass, found)
 
 
 def open_bus(

@@ -1,6 +1,6 @@
 """Cost of one control step and of the whole offline simulation.
 
-Runs ``companion.simulation.simulate`` on the paper scenario (10 s, ideal plant, exact
+Runs ``sitl.offline.simulate`` on the paper scenario (10 s, ideal plant, exact
 measurements) for passivity + paper estimator, passivity + RLS and the adaptive
 sliding-mode controller, and prints for each
 
@@ -25,8 +25,8 @@ import argparse
 import time
 from pathlib import Path
 
-from companion.config import load_scenario
-from companion.simulation import SimOptions, simulate
+from sitl.offline import SimOptions, simulate
+from sitl.scenario import load_scenario
 
 DEFAULT = Path(__file__).resolve().parent.parent / "configs" / "paper_sim.toml"
 RUNS = {

@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.config import Scenario, load_scenario
 from sitl.physics import AttitudeSetpoint, make_plant
 from sitl.physics.jsbsim import Wind
+from sitl.scenario import Scenario, load_scenario
 
 DEFAULT = Path(__file__).resolve().parent.parent / "configs" / "paper_sim_flight.toml"
 

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from companion.config import load_scenario
 from companion.model import ManipulatorModel
+from sitl.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
@@ -50,7 +50,7 @@ def main() -> None:
     args = parser.parse_args()
 
     cfg = load_scenario(args.config)
-    model = ManipulatorModel.from_scenario(cfg)
+    model = ManipulatorModel.from_config(cfg)
     theta = np.array(cfg.true_theta.as_tuple())
     rng = np.random.default_rng(0)
     states = [

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.config import Scenario, load_scenario
 from sitl.physics import AttitudeSetpoint, TruthPlant
+from sitl.scenario import Scenario, load_scenario
 
 DEFAULT = Path(__file__).resolve().parent.parent / "configs" / "paper_sim.toml"
 

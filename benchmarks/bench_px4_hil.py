@@ -35,11 +35,11 @@ from pathlib import Path
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.config import load_scenario
 from sitl.hil import HilOptions, Px4InTheLoop
 from sitl.launch import free_udp_port
 from sitl.px4_sitl import Px4Build
 from sitl.runner import LinkPorts, RunOptions
+from sitl.scenario import load_scenario
 
 CONFIG = Path(__file__).resolve().parent.parent / "configs" / "sitl_pickup.toml"
 ORIGIN = (47.397742, 8.545594, 488.0)
@@ -126,6 +126,8 @@ def main() -> None:
             stop.set()
             thread.join()
     vehicle_stats = result.get("stats")
+    if vehicle_stats is None:
+        raise SystemExit("the simulator loop ended without its statistics")
     stats = {k: end[k] - start[k] for k in start}
     sim = stats["sim"]
     print(f"load average {os.getloadavg()[0]:.2f}; PX4 {build.root}")

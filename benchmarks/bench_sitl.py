@@ -114,8 +114,8 @@ def _free_port() -> int:
 
 
 def _vehicle(speed: float):
-    from companion.config import load_scenario
     from sitl.runner import LinkPorts, RunOptions, SitlVehicle
+    from sitl.scenario import load_scenario
 
     ports = LinkPorts(
         onboard_local=_free_port(),

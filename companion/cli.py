@@ -1,13 +1,13 @@
-"""The ``companion`` command line.
+"""The ``companion`` command line: what runs on the onboard computer.
 
-User mistakes (a bad config, a missing file) print one line naming the file, the key and
-the reason and exit with status 2; they never print a traceback.
+``check`` (a configuration), ``mission pickup``, ``arm`` (servo bus bring-up) and ``plot``
+(figures of a flight log). The simulator's commands (``sim``, ``compare``, ``demo``) are
+``sitl``'s. User mistakes print one line naming the file, the key and the reason and exit
+with status 2 (:mod:`companion.usage`); they never print a traceback.
 """
 
 from __future__ import annotations
 
-import sys
-from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
@@ -17,13 +17,9 @@ from rich.markup import escape
 from rich.table import Table
 
 from companion.cli_arm import app as arm_app
-from companion.cli_mission import demo as demo_command
 from companion.cli_mission import mission_app
 from companion.cli_plot import plot as plot_command
-from companion.config import ConfigError, Scenario, load_scenario
-
-EXIT_USAGE = 2
-"""Exit status for a user mistake (same as a command-line usage error)."""
+from companion.usage import config_or_exit
 
 app = typer.Typer(
     name="companion",
@@ -39,281 +35,31 @@ def _root() -> None:
     """Aerial-manipulator companion: payload estimation and control for a PX4 hexacopter."""
 
 
-def load_or_exit(path: Path) -> Scenario:
-    """Load a scenario, turning a ConfigError into a one-line message and exit status 2."""
-    try:
-        return load_scenario(path)
-    except ConfigError as exc:
-        for line in str(exc).splitlines():
-            typer.echo(f"error: {line}", err=True)
-        raise typer.Exit(EXIT_USAGE) from None
-
-
 @app.command()
 def check(
-    config: Annotated[Path, typer.Argument(help="Scenario TOML file to validate.")],
+    config: Annotated[Path, typer.Argument(help="Configuration TOML file to validate.")],
 ) -> None:
-    """Validate a scenario file and print the values the model will use."""
-    cfg = load_or_exit(config)
+    """Validate the companion's part of a configuration file and print what it believes
+    (the simulator's sections are checked by ``sitl check``)."""
+    cfg = config_or_exit(config)
     table = Table(title=escape(f"{cfg.name}: {cfg.description}"), show_header=True)
     table.add_column("quantity")
     table.add_column("value", justify="right")
-    total = cfg.vehicle.mass_kg + cfg.arm.link1.mass_kg + cfg.true_theta.m2_kg
-    table.add_row(escape("total mass with payload [kg]"), f"{total:.4g}")
-    for label, theta in (("empty link 2", cfg.nominal_theta), ("with payload", cfg.true_theta)):
-        table.add_row(
-            escape(f"{label}: m2 [kg], m3 [kg m], m4 [kg m^2], lc [m]"),
-            f"{theta.m2_kg:.4g}, {theta.m3_kg_m:.4g}, {theta.m4_kg_m2:.4g}, {theta.lc_m:.4g}",
-        )
+    empty = cfg.vehicle.mass_kg + cfg.arm.link1.mass_kg + cfg.nominal_theta.m2_kg
+    table.add_row(escape("mass with the empty arm [kg]"), f"{empty:.4g}")
+    theta = cfg.nominal_theta
+    table.add_row(
+        escape("empty link 2: m2 [kg], m3 [kg m], m4 [kg m^2], lc [m]"),
+        f"{theta.m2_kg:.4g}, {theta.m3_kg_m:.4g}, {theta.m4_kg_m2:.4g}, {theta.lc_m:.4g}",
+    )
     out = Console()
     out.print(table)
     out.print(f"{config}: OK", markup=False, highlight=False)
 
 
-class ControllerChoice(StrEnum):
-    passivity = "passivity"
-    nonadaptive = "nonadaptive"
-    asmc = "asmc"
-
-
-class EstimatorChoice(StrEnum):
-    paper = "paper"
-    rls = "rls"
-
-
-class PlantChoice(StrEnum):
-    ideal = "ideal"
-    underactuated = "underactuated"
-
-
-class PhysicsChoice(StrEnum):
-    pinocchio = "pinocchio"
-    jsbsim = "jsbsim"
-
-
-ScenarioOpt = Annotated[
-    Path, typer.Option("--scenario", help="Scenario TOML file (see configs/).", show_default=False)
-]
-OutOpt = Annotated[
-    Path, typer.Option("--out", help="Output directory (created if missing).", show_default=False)
-]
-PlantOpt = Annotated[PlantChoice, typer.Option(help="Truth plant: tau on all 8 rows, or PX4-like.")]
-DurationOpt = Annotated[
-    float | None,
-    typer.Option(help="Simulated seconds [default: the scenario's simulation.duration_s]."),
-]
-SeedOpt = Annotated[int, typer.Option(help="Seed of the sensor-noise generator.")]
-PhysicsOpt = Annotated[
-    PhysicsChoice,
-    typer.Option(help="Truth physics: our Pinocchio plant, or JSBSim (underactuated only)."),
-]
-WindOpt = Annotated[
-    str | None,
-    typer.Option(help="Steady wind 'E,N,U' [m/s], world ENU, e.g. '3,0,0' (jsbsim only)."),
-]
-TurbulenceOpt = Annotated[
-    float,
-    typer.Option(
-        help="Dryden turbulence intensity: MIL-F-8785C wind speed at 20 ft [m/s] "
-        "(jsbsim only; 0 = none; light 7.7, moderate 15)."
-    ),
-]
-NoiseOpt = Annotated[
-    bool, typer.Option("--noise/--no-noise", help="Noisy sensors ([sensors]) or exact ones.")
-]
-
-
-def _run(cfg: Scenario, options, label: str):
-    """Simulate with a progress bar on a terminal; plant failures exit 1 with a message."""
-    from rich.progress import Progress
-
-    from companion.control import ControlRateError
-    from companion.simulation import simulate
-    from sitl.physics import PlantError
-
-    duration = options.duration_s or cfg.simulation.duration_s
-    with Progress(
-        transient=True, disable=not sys.stderr.isatty(), console=Console(stderr=True)
-    ) as bar:
-        task = bar.add_task(label, total=duration)
-        try:
-            return simulate(cfg, options, progress=lambda t: bar.update(task, completed=t))
-        except ControlRateError as exc:
-            typer.echo(f"error: {label}: {exc}", err=True)
-            raise typer.Exit(EXIT_USAGE) from None
-        except (PlantError, FloatingPointError) as exc:
-            typer.echo(f"error: {label}: the simulation failed: {exc}", err=True)
-            raise typer.Exit(1) from None
-
-
-def _check_physics(
-    physics: PhysicsChoice, plant: PlantChoice, wind: str | None, turbulence: float, seed: int
-):
-    """The ``Wind`` of the options (None when calm); usage errors exit 2."""
-    from sitl.physics.jsbsim.wind import Wind
-
-    if physics is PhysicsChoice.jsbsim and plant is PlantChoice.ideal:
-        typer.echo(
-            "error: --physics jsbsim needs --plant underactuated (ideal mode, tau on all 8 "
-            "rows, exists only on the Pinocchio plant)",
-            err=True,
-        )
-        raise typer.Exit(EXIT_USAGE)
-    if wind is None and turbulence == 0.0:
-        return None
-    if physics is not PhysicsChoice.jsbsim:
-        typer.echo("error: --wind and --turbulence need --physics jsbsim", err=True)
-        raise typer.Exit(EXIT_USAGE)
-    try:
-        return Wind.from_text(wind, turbulence, seed)
-    except ValueError as exc:
-        typer.echo(f"error: --wind {wind!r} / --turbulence {turbulence:g}: {exc}", err=True)
-        raise typer.Exit(EXIT_USAGE) from None
-
-
-def _wind_label(air) -> str:
-    if air is None:
-        return ""
-    east, north, up = air.velocity_enu_m_s
-    label = f", wind ({east:g}, {north:g}, {up:g}) m/s ENU"
-    if air.turbulence != "none":
-        label += f" + Dryden turbulence (W20 = {air.windspeed_20ft_m_s:g} m/s)"
-    return label
-
-
-def _check_times(cfg: Scenario, duration: float | None, *times: float | None) -> None:
-    end = duration if duration is not None else cfg.simulation.duration_s
-    if end <= 0.0:
-        typer.echo(f"error: --duration must be positive, got {end:g}", err=True)
-        raise typer.Exit(EXIT_USAGE)
-    for t in times:
-        if t is not None and not 0.0 <= t <= end:
-            typer.echo(f"error: event time {t:g} s lies outside the run [0, {end:g}] s", err=True)
-            raise typer.Exit(EXIT_USAGE)
-
-
-@app.command()
-def sim(
-    scenario: ScenarioOpt,
-    out: OutOpt,
-    controller: Annotated[
-        ControllerChoice, typer.Option(help="Control law.")
-    ] = ControllerChoice.passivity,
-    estimator: Annotated[
-        EstimatorChoice | None,
-        typer.Option(help="Payload estimator [default: the scenario's estimator.kind]."),
-    ] = None,
-    plant: PlantOpt = PlantChoice.ideal,
-    physics: PhysicsOpt = PhysicsChoice.pinocchio,
-    wind: WindOpt = None,
-    turbulence: TurbulenceOpt = 0.0,
-    duration: DurationOpt = None,
-    seed: SeedOpt = 0,
-    noise: NoiseOpt = False,
-    pickup_at: Annotated[
-        float | None, typer.Option(help="Grasp the payload at this time [s].")
-    ] = None,
-    release_at: Annotated[
-        float | None, typer.Option(help="Release the payload at this time [s].")
-    ] = None,
-) -> None:
-    """Simulate the aerial manipulator offline; writes summary.json, timeseries.csv, figures."""
-    from companion.plots import plot_run
-    from companion.results import write_summary, write_timeseries
-    from companion.simulation import SimOptions
-
-    cfg = load_or_exit(scenario)
-    _check_times(cfg, duration, pickup_at, release_at)
-    air = _check_physics(physics, plant, wind, turbulence, seed)
-    options = SimOptions(
-        controller=controller.value,
-        estimator=estimator.value if estimator else None,
-        plant=plant.value,
-        physics=physics.value,
-        wind=air,
-        duration_s=duration,
-        seed=seed,
-        noise=noise,
-        pickup_at_s=pickup_at,
-        release_at_s=release_at,
-    )
-    result = _run(cfg, options, f"{cfg.name}: {controller.value}")
-    out.mkdir(parents=True, exist_ok=True)
-    write_summary(result.summary, out / "summary.json")
-    write_timeseries(result, out / "timeseries.csv")
-    plot_run(result, out)
-    s = result.summary
-    Console().print(
-        f"{cfg.name} ({s['controller']}, {s['estimator']}, {s['plant']} plant, "
-        f"{s['physics']}{', wind' if air else ''}"
-        f"{', noisy' if noise else ''}): m2 = {s['estimates']['m2']:.4f} kg "
-        f"({s['errors_pct']['m2']:+.1f} %), lc = {s['estimates']['lc']:.4f} m "
-        f"({s['errors_pct']['lc']:+.1f} %), RMS position error "
-        f"{s['rms_position_error_m'] * 100:.1f} cm; wrote {out}",
-        markup=False,
-        highlight=False,
-    )
-
-
-COMPARED = (
-    ("passivity + paper estimator", ControllerChoice.passivity, EstimatorChoice.paper),
-    ("passivity + rls", ControllerChoice.passivity, EstimatorChoice.rls),
-    ("non-adaptive", ControllerChoice.nonadaptive, EstimatorChoice.paper),
-    ("adaptive sliding mode", ControllerChoice.asmc, EstimatorChoice.paper),
-)
-"""Runs of ``companion compare``: the paper's controller with both estimators, and its two
-baselines (paper section IV)."""
-
-
-@app.command()
-def compare(
-    scenario: ScenarioOpt,
-    out: OutOpt,
-    plant: PlantOpt = PlantChoice.ideal,
-    physics: PhysicsOpt = PhysicsChoice.pinocchio,
-    wind: WindOpt = None,
-    turbulence: TurbulenceOpt = 0.0,
-    duration: DurationOpt = None,
-    seed: SeedOpt = 0,
-    noise: NoiseOpt = False,
-) -> None:
-    """Run every controller and estimator on one scenario; writes compare.md and overlays."""
-    from companion.plots import plot_comparison
-    from companion.results import comparison_markdown, write_summary
-    from companion.simulation import SimOptions
-
-    cfg = load_or_exit(scenario)
-    _check_times(cfg, duration)
-    air = _check_physics(physics, plant, wind, turbulence, seed)
-    runs = []
-    for name, ctl, est in COMPARED:
-        options = SimOptions(
-            controller=ctl.value,
-            estimator=est.value,
-            plant=plant.value,
-            physics=physics.value,
-            wind=air,
-            duration_s=duration,
-            seed=seed,
-            noise=noise,
-        )
-        runs.append((name, _run(cfg, options, f"{cfg.name}: {name}")))
-    out.mkdir(parents=True, exist_ok=True)
-    title = (
-        f"# {cfg.name}: {plant.value} plant, {physics.value} physics"
-        f"{_wind_label(air)}, {'noisy' if noise else 'exact'} sensors, seed {seed}\n\n"
-    )
-    table = comparison_markdown([(name, r.summary) for name, r in runs])
-    (out / "compare.md").write_text(title + table)
-    write_summary({name: r.summary for name, r in runs}, out / "summaries.json")
-    plot_comparison(runs, out)
-    Console().print(table, markup=False, highlight=False)
-
-
 app.add_typer(arm_app, name="arm")
 app.command(name="plot")(plot_command)
 app.add_typer(mission_app, name="mission")
-app.command(name="demo")(demo_command)
 
 
 def main() -> None:

@@ -23,7 +23,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
@@ -33,11 +33,11 @@ from rich.table import Table
 
 from arm_driver.bus import ArmBus, GripperConfig, JointConfig, OperatingMode, open_bus, scan_bus
 from arm_driver.errors import ArmDriverError
-from companion.config import ConfigError, arm_bus_configs, load_scenario
+from companion.config import ConfigError, arm_bus_configs, load_config
+from companion.usage import EXIT_USAGE
 
 __all__ = ["DEFAULT_JOINTS", "app"]
 
-EXIT_USAGE = 2
 T = TypeVar("T")
 
 DEFAULT_JOINTS = (
@@ -75,7 +75,7 @@ def _fail(message: str) -> typer.Exit:
     return typer.Exit(EXIT_USAGE)
 
 
-def _run(work: Callable[[], Awaitable[T]]) -> T:
+def _run(work: Callable[[], Coroutine[Any, Any, T]]) -> T:
     """Run async work; driver errors and bad input become one line and exit status 2."""
     try:
         return asyncio.run(work())
@@ -87,7 +87,7 @@ def _joints(config: Path | None) -> tuple[tuple[JointConfig, ...], GripperConfig
     if config is None:
         return DEFAULT_JOINTS, None
     try:
-        section = load_scenario(config).arm_bus
+        section = load_config(config).arm_bus
     except ConfigError as error:
         raise _fail(str(error).splitlines()[0]) from None
     if section is None:

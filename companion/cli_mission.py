@@ -1,13 +1,9 @@
-"""``companion mission pickup`` and ``companion demo``: payload-pickup missions.
+"""``companion mission pickup``: the payload-pickup mission.
 
-``mission pickup`` flies one mission against a vehicle (PX4 or ``sitl run``) and an arm
-bus given by URL, and writes into ``--out``: ``flight.csv`` / ``flight.events.csv`` (the
-flight log), ``summary.json`` and the figures of ``companion plot``.
-
-``demo`` starts the simulated vehicle (``sitl run``) on free loopback ports with the
-built-in scenario (``configs/sitl_pickup.toml``: a 0.25 kg object the companion does not
-know), flies the same mission against it, stops it, and reports the estimate beside the
-truth it never saw.
+Flies one mission against a vehicle (PX4, ``sitl run``, ``sitl sih``) and an arm bus given
+by URL, and writes into ``--out``: ``flight.csv`` / ``flight.events.csv`` (the flight log),
+``summary.json`` and, when matplotlib is installed, the figures of ``companion plot``.
+(``sitl demo`` runs the same mission against the simulator: :func:`run_mission`.)
 
 Exit status: 0 mission completed; 1 the mission failed or a failsafe aborted it (the log
 and summary are still written); 2 a user mistake (config, URL, unreachable vehicle or bus).
@@ -26,20 +22,16 @@ import typer
 from arm_driver.bus import open_bus
 from arm_driver.errors import ArmDriverError
 from companion.app import BUS_FAILURES, MissionAborted, MissionError, MissionReport, PickupApp
-from companion.cli_plot import plot_flight_log
-from companion.config import Scenario, arm_bus_configs
+from companion.cli_plot import figures_available, plot_flight_log
+from companion.config import CompanionConfig, arm_bus_configs
 from companion.control import ControlRateError
 from companion.flight_control import FlightControl, FlightControllerName
 from companion.flightlog import FlightLogWriter, read_flight_log
 from companion.link import LinkError, MavlinkLink, SigningConfig
 from companion.mission import PickupPlan
-from sitl.launch import SitlNotReadyError, start_sitl
+from companion.usage import config_or_exit, fail
 
-__all__ = ["demo", "mission_app"]
-
-EXIT_USAGE = 2
-DEFAULT_SCENARIO = Path(__file__).resolve().parent.parent / "configs" / "sitl_pickup.toml"
-"""The demo's built-in scenario (in the source tree; ``pip install -e .`` keeps it there)."""
+__all__ = ["ControllerOpt", "fly_pickup", "mission_app", "parse_xyz", "plan_for", "run_mission"]
 
 mission_app = typer.Typer(
     name="mission",
@@ -54,23 +46,19 @@ class UsageError(Exception):
     """A user mistake: one line, exit status 2."""
 
 
-def _fail(message: str, status: int = EXIT_USAGE) -> None:
-    typer.echo(f"error: {message}", err=True)
-    raise typer.Exit(status)
-
-
-def _xyz(text: str, option: str) -> tuple[float, float, float]:
+def parse_xyz(text: str, option: str) -> tuple[float, float, float]:
+    """X,Y,Z [m, ENU] of an option; one ``error:`` line and exit 2 otherwise."""
     try:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
         values = ()
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        _fail(f"{option} needs three numbers X,Y,Z in metres (ENU), got {text!r}")
+        fail(f"{option} needs three numbers X,Y,Z in metres (ENU), got {text!r}")
     return values  # type: ignore[return-value]
 
 
 async def fly_pickup(
-    scenario: Scenario,
+    scenario: CompanionConfig,
     connect: str,
     arm_bus_url: str,
     plan: PickupPlan,
@@ -132,7 +120,7 @@ async def fly_pickup(
                     except (MissionError, MissionAborted, ArmDriverError, LinkError) as exc:
                         failure = exc
                         report = app.report
-                        writer.event("failure", str(exc), app._t_s)
+                        writer.event("failure", str(exc), app.t_s)
             finally:
                 await bus.close()
     except OSError as exc:
@@ -141,11 +129,20 @@ async def fly_pickup(
     summary["failure"] = None if failure is None else f"{type(failure).__name__}: {failure}"
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     if log_path.stat().st_size > 0:
-        try:
-            plot_flight_log(read_flight_log(log_path), out_dir)
-        except Exception as exc:  # a figure must never hide the mission's result
-            typer.echo(f"warning: figures not drawn: {exc}", err=True)
+        _draw_figures(log_path, out_dir)
     return report, failure
+
+
+def _draw_figures(log_path: Path, out_dir: Path) -> None:
+    """The figures of ``companion plot``, if matplotlib is installed (the flight install
+    need not have it); a figure must never hide the mission's result."""
+    if not figures_available():
+        typer.echo("note: figures not drawn (matplotlib not installed: pip install '.[plot]')")
+        return
+    try:
+        plot_flight_log(read_flight_log(log_path), out_dir)
+    except Exception as exc:
+        typer.echo(f"warning: figures not drawn: {exc}", err=True)
 
 
 def _print_report(report: MissionReport, failure: BaseException | None) -> None:
@@ -195,23 +192,22 @@ def pickup(
     cruise_altitude: Annotated[float, typer.Option(help="Transit altitude [m].")] = 1.5,
 ) -> None:
     """Fly a payload pickup: take off, grasp, learn the payload, carry, place, land."""
-    from companion.cli import load_or_exit
-
-    scenario = load_or_exit(config)
-    plan = _plan(scenario, _xyz(payload_at, "--payload-at"), _xyz(place_at, "--place-at"),
-                 cruise_altitude)  # fmt: skip
+    scenario = config_or_exit(config)
+    payload = parse_xyz(payload_at, "--payload-at")
+    plan = plan_for(scenario, payload, parse_xyz(place_at, "--place-at"), cruise_altitude)
     bus_url = arm_bus or (scenario.arm_bus.url if scenario.arm_bus else None)
     if bus_url is None:
-        _fail(f"{config}: no --arm-bus and no [arm_bus] url in the config")
-    status = _run_mission(scenario, connect, bus_url, plan, controller, out, signing_key,
+        fail(f"{config}: no --arm-bus and no [arm_bus] url in the config")
+    status = run_mission(scenario, connect, bus_url, plan, controller, out, signing_key,
                           control_rate)  # fmt: skip
     raise typer.Exit(status)
 
 
-def _plan(scenario: Scenario, payload_at, place_at, cruise_altitude: float) -> PickupPlan:
+def plan_for(scenario: CompanionConfig, payload_at, place_at, cruise_altitude: float) -> PickupPlan:
+    """The mission's plan from the options (one ``error:`` line and exit 2 for a bad one)."""
     if not cruise_altitude > 0.5:
-        _fail(f"--cruise-altitude must be above 0.5 m, got {cruise_altitude:g}")
-    stow = scenario.world.start_joints_rad if scenario.world else (0.0, -0.5 * math.pi)
+        fail(f"--cruise-altitude must be above 0.5 m, got {cruise_altitude:g}")
+    stow = scenario.flight.stow_joints_rad
     return PickupPlan(
         home_m=(0.0, 0.0),
         payload_at_m=payload_at,
@@ -221,9 +217,10 @@ def _plan(scenario: Scenario, payload_at, place_at, cruise_altitude: float) -> P
     )
 
 
-def _run_mission(scenario, connect, bus_url, plan, controller, out, signing_key, rate) -> int:
+def run_mission(scenario, connect, bus_url, plan, controller, out, signing_key, rate) -> int:
+    """Fly, print the report; the exit status (0 completed, 1 failed)."""
     if controller not in ("passivity", "nonadaptive"):
-        _fail(f"--controller must be passivity or nonadaptive, got {controller!r}")
+        fail(f"--controller must be passivity or nonadaptive, got {controller!r}")
     out.mkdir(parents=True, exist_ok=True)
     try:
         report, failure = asyncio.run(
@@ -239,68 +236,7 @@ def _run_mission(scenario, connect, bus_url, plan, controller, out, signing_key,
             )
         )
     except UsageError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     _print_report(report, failure)
     typer.echo(f"log, summary and figures: {out}/")
     return 0 if failure is None else 1
-
-
-# --------------------------------------------------------------------------- demo
-
-
-def demo(
-    out: Annotated[Path, typer.Option(help="Directory for log, summary and figures.")] = Path(
-        "out/demo"
-    ),
-    config: Annotated[
-        Path, typer.Option(help="Scenario with [world] and [arm_bus].")
-    ] = DEFAULT_SCENARIO,
-    controller: ControllerOpt = "passivity",
-    speed: Annotated[float, typer.Option(help="SITL speed (simulated s per wall s).")] = 1.0,
-    seed: Annotated[int, typer.Option(help="Seed of the SITL's sensor noise.")] = 0,
-    place_at: Annotated[
-        str, typer.Option(help="Where to put the object, X,Y,Z [m, ENU].")
-    ] = "-1.0,0.5,0.05",
-) -> None:
-    """Start the SITL, fly the pickup mission against it, write log, summary and figures."""
-    from companion.cli import load_or_exit
-
-    scenario = load_or_exit(config)
-    if scenario.world is None or scenario.world.payload_position_m is None:
-        _fail(f"{config}: the demo needs a [world] section with payload_position_m")
-    out.mkdir(parents=True, exist_ok=True)
-    plan = _plan(scenario, scenario.world.payload_position_m, _xyz(place_at, "--place-at"), 1.5)
-    try:
-        sitl = start_sitl(config, "--seed", str(seed), speed=speed, truth_log=out / "truth.jsonl")
-    except SitlNotReadyError as exc:
-        _fail(str(exc), 1)
-    connect = f"udpin://127.0.0.1:{sitl.onboard_port}"
-    typer.echo(f"sitl: running ({sitl.arm_bus}, MAVLink {connect})")
-    try:
-        status = _run_mission(scenario, connect, sitl.arm_bus, plan, controller, out, None, 250.0)
-    finally:
-        sitl.stop()
-    _print_truth(scenario, out, plan)
-    raise typer.Exit(status)
-
-
-def _print_truth(scenario: Scenario, out: Path, plan: PickupPlan) -> None:
-    """The demo knows the truth the companion never saw: compare."""
-    summary = json.loads((out / "summary.json").read_text())
-    mass, com = summary.get("payload_mass_kg"), summary.get("payload_com_along_link2_m")
-    true_mass, true_com = scenario.payload.mass_kg, scenario.payload.position_m
-    if mass is not None:
-        com_error = f", {100 * (com - true_com) / true_com:+.1f} % centre of mass" if com else ""
-        typer.echo(
-            f"truth: payload {true_mass:.3f} kg at {true_com:.3f} m; estimate error "
-            f"{100 * (mass - true_mass) / true_mass:+.1f} % mass{com_error}"
-        )
-    truth_log = out / "truth.jsonl"
-    if truth_log.exists():
-        lines = truth_log.read_text().splitlines()
-        if lines:
-            last = json.loads(lines[-1])
-            obj = last.get("object_position_m")
-            if obj is not None:
-                err = math.dist(obj[:2], plan.place_at_m[:2])
-                typer.echo(f"truth: object ended {err:.3f} m from the place point (horizontal)")

@@ -15,6 +15,7 @@ A missing or malformed log prints one ``error:`` line and exits with status 2.
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 from typing import Annotated
 
@@ -22,12 +23,14 @@ import numpy as np
 import typer
 
 from companion.flightlog import FlightLog, FlightLogError, read_flight_log
+from companion.usage import fail
 
-__all__ = ["plot", "plot_flight_log"]
+__all__ = ["figures_available", "plot", "plot_flight_log"]
 
-_EXIT_USAGE = 2
-"""Exit status of a user mistake (``companion.cli.EXIT_USAGE``; not imported from there,
-which imports this module)."""
+
+def figures_available() -> bool:
+    """Whether matplotlib is installed (the ``plot`` extra; not in the flight install)."""
+    return importlib.util.find_spec("matplotlib") is not None
 
 
 def _mode_lines(ax, flight: FlightLog, t0: float) -> None:
@@ -141,14 +144,15 @@ def plot(
     ],
 ) -> None:
     """Draw tracking, estimation and arm figures (PNG) from a flight log."""
+    if not figures_available():
+        fail("companion plot needs matplotlib, which the flight install leaves out: "
+             "pip install '.[plot]'")  # fmt: skip
     try:
         flight = read_flight_log(log)
     except FlightLogError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(_EXIT_USAGE) from None
+        fail(str(exc))
     if len(flight) == 0:
-        typer.echo(f"error: {log}: the flight log has no rows", err=True)
-        raise typer.Exit(_EXIT_USAGE)
+        fail(f"{log}: the flight log has no rows")
     out.mkdir(parents=True, exist_ok=True)
     paths = plot_flight_log(flight, out)
     typer.echo(f"{log}: {len(flight)} rows; wrote {', '.join(str(p) for p in paths)}")

@@ -1,6 +1,11 @@
-"""Scenario configuration: TOML files validated into frozen, typed objects (SI units).
+"""The companion's configuration: TOML files validated into frozen, typed objects (SI units).
 
-This is the one place where configuration is parsed. Every key carries its unit in its
+A scenario file holds two owners' sections. The companion's (:class:`CompanionConfig`:
+vehicle, arm with link 2 empty, gains, estimator, state filter, ``[flight]``,
+``[arm_bus]``) are what it believes and how it flies; the simulator's
+(:data:`SIMULATOR_SECTIONS`: the payload, the truth plant, the world, the offline runs) are
+read by ``sitl.scenario`` and skipped here, so the companion's types cannot hold the truth.
+This module is the one place where configuration is parsed. Every key carries its unit in its
 name (``mass_kg``, ``length_m``) or, for gain vectors whose rows have mixed units, in the
 docstring of its field. Vectors of 8 follow the state order of DESIGN.md section 2:
 ``q = [x, y, z, phi, theta, psi, eta1, eta2]``.
@@ -18,37 +23,38 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
+from pydantic_core import ErrorDetails
 
 if TYPE_CHECKING:
     from arm_driver.joint import GripperConfig, JointConfig
 
 __all__ = [
+    "SIMULATOR_SECTIONS",
     "Arm",
     "ArmBusGripper",
     "ArmBusJoint",
     "ArmBusSection",
-    "AttitudeControl",
+    "CompanionConfig",
     "Confidence",
     "ConfigError",
     "Controller",
     "Environment",
     "Estimator",
+    "Flight",
     "Link",
-    "Payload",
-    "Plant",
     "Rls",
     "Rotors",
-    "Scenario",
     "Sensors",
-    "Simulation",
     "SlidingMode",
     "Theta",
-    "Trajectory",
     "Vehicle",
-    "WorldSection",
     "arm_bus_configs",
-    "load_scenario",
-    "parse_scenario",
+    "check_companion",
+    "check_theta",
+    "load_config",
+    "parse_config",
+    "read_toml",
+    "validate",
 ]
 
 N_Q = 8
@@ -90,9 +96,6 @@ VecQ = Annotated[tuple[Real, ...], Field(min_length=N_Q, max_length=N_Q)]
 PositiveVecQ = Annotated[tuple[Positive, ...], Field(min_length=N_Q, max_length=N_Q)]
 NonNegativeVec3 = Annotated[tuple[NonNegative, ...], Field(min_length=3, max_length=3)]
 Fraction = Annotated[float, Field(strict=True, ge=0.0, le=1.0, allow_inf_nan=False)]
-
-MIN_PLANT_RATE_HZ = 1000.0
-"""Lowest accepted integration rate of the SITL truth plant [Hz]."""
 
 
 class _Section(BaseModel):
@@ -178,17 +181,6 @@ class Arm(_Section):
     link1: Link
     link2: Link
     """Link 2 empty (with gripper, without payload): the nominal, known values."""
-
-
-class Payload(_Section):
-    """A grasped object, rigidly attached to link 2 on its axis."""
-
-    mass_kg: NonNegative
-    """Payload mass [kg]."""
-    position_m: NonNegative
-    """Distance of the payload CoM from joint 2 along link 2 [m]."""
-    inertia_about_com_kg_m2: NonNegative
-    """Moment of inertia about its CoM, perpendicular to link 2 [kg m^2]."""
 
 
 class Theta(_Section):
@@ -295,36 +287,6 @@ class Controller(_Section):
     sliding_mode: SlidingMode
 
 
-class Trajectory(_Section):
-    """Desired trajectory q_d(t) (paper section IV); roll and pitch come from eq. phid."""
-
-    kind: Literal["paper_sinusoid"]
-    """``paper_sinusoid``: x = ax cos(w t), y = ay cos(w t), eta_i = c_i + a_i sin(w t)."""
-    period_s: Positive
-    """Period 2 pi / w of every sinusoid [s]."""
-    amplitude_x_m: Real
-    amplitude_y_m: Real
-    altitude_m: Real
-    """Constant desired z (ENU, up) [m]."""
-    yaw_rad: Real
-    eta1_center_rad: Real
-    eta1_amplitude_rad: Real
-    eta2_center_rad: Real
-    eta2_amplitude_rad: Real
-
-
-class Simulation(_Section):
-    """Offline simulation settings."""
-
-    duration_s: Positive
-    initial_q: VecQ
-    """Initial generalized coordinates q(0) (m, rad); q_dot(0) = 0."""
-    control_rate_hz: Positive
-    """Rate of the companion's control step (a divisor of plant.rate_hz) [Hz]."""
-    payload_attached_at_start: bool
-    """Start with the payload grasped (the paper's scenario)."""
-
-
 class Sensors(_Section):
     """Measurements the companion gets in noisy runs, and its state filter.
 
@@ -352,54 +314,6 @@ class Sensors(_Section):
     velocity_std_m_s: Positive = 0.05
     """Noise of the vehicle velocity the autopilot reports (ODOMETRY, EKF2), fused by the
     flight app's state filter [m/s]; the offline simulation measures no velocity."""
-
-
-class AttitudeControl(_Section):
-    """Gains of the PX4-like attitude and rate loops inside the SITL plant.
-
-    Vectors are (roll, pitch, yaw) about the body x, y, z axes. The rate loop outputs
-    torques normalized as in PX4's control allocation (see ``sitl.physics.rotors``).
-    """
-
-    attitude_p: PositiveVec3
-    """P gains on the quaternion attitude error (MC_ROLL_P, MC_PITCH_P, MC_YAW_P)
-    [rad/s per rad]."""
-    yaw_weight: Fraction
-    """De-prioritisation of yaw against roll and pitch (MC_YAW_WEIGHT) [-]."""
-    rate_max_rad_s: PositiveVec3
-    """Body-rate setpoint limits (MC_ROLLRATE_MAX, MC_PITCHRATE_MAX, MC_YAWRATE_MAX) [rad/s]."""
-    rate_p: NonNegativeVec3
-    """Rate P gains (MC_*RATE_P) [normalized torque per rad/s]."""
-    rate_i: NonNegativeVec3
-    """Rate I gains (MC_*RATE_I) [normalized torque per rad]."""
-    rate_d: NonNegativeVec3
-    """Rate D gains on the measured angular acceleration (MC_*RATE_D)
-    [normalized torque per rad/s^2]."""
-    rate_integrator_limit: NonNegativeVec3
-    """Limits of the rate integrators (MC_RR_INT_LIM, MC_PR_INT_LIM, MC_YR_INT_LIM)
-    [normalized torque]."""
-    rate_d_cutoff_hz: Positive
-    """Low-pass cutoff of the angular-acceleration estimate for the D term
-    (IMU_DGYRO_CUTOFF) [Hz]."""
-
-
-class Plant(_Section):
-    """The SITL truth plant: integration rate, truth-only effects and the PX4-like loops."""
-
-    rate_hz: Annotated[float, Field(strict=True, ge=MIN_PLANT_RATE_HZ, allow_inf_nan=False)]
-    """Fixed integration rate of the truth dynamics, at least 1000 [Hz]."""
-    integrator: Literal["semi_implicit_euler", "rk4"]
-    """Fixed-step scheme: ``semi_implicit_euler`` (one dynamics evaluation per step, first
-    order) or ``rk4`` (four, fourth order); see ``sitl.physics.integration``."""
-    thrust_mismatch: Positive
-    """True maximum rotor thrust over the believed ``vehicle.rotors.max_thrust_per_rotor_n``
-    (1 = the companion's thrust model is exact) [-]."""
-    linear_drag_n_s_m: NonNegativeVec3
-    """Diagonal D of the linear drag force -D v on the vehicle, v the world-frame (ENU)
-    velocity of the vehicle CoM [N s/m]; underactuated plant only."""
-    servo_torque_limit_n_m: Positive
-    """Magnitude limit of each joint torque the simulated servos can apply [N m]."""
-    attitude_control: AttitudeControl
 
 
 def _sign(value: int) -> int:
@@ -459,31 +373,6 @@ class ArmBusSection(_Section):
     gripper: ArmBusGripper | None = None
 
 
-class WorldSection(_Section):
-    """The SITL's world around the vehicle (``sitl run``); optional, not used by the companion.
-
-    Positions are world ENU [m] (z up, ground at z = 0).
-    """
-
-    landing_gear_height_m: Positive
-    """Height of the base's centre of mass above the ground when it stands [m]."""
-    start_position_m: Annotated[tuple[Real, ...], Field(min_length=2, max_length=2)]
-    """(x, y) where the vehicle stands at the start [m]."""
-    start_yaw_rad: Real
-    """Heading at the start, ENU (0 = east, counter-clockwise positive) [rad]."""
-    start_joints_rad: Annotated[tuple[Real, ...], Field(min_length=2, max_length=2)]
-    """(eta1, eta2) at the start [rad]."""
-    payload_position_m: Vec3 | None = None
-    """Where the payload object's centre of mass rests (the ``[payload]`` section's mass and
-    inertia); absent: no object in the world."""
-    grasp_tolerance_m: Positive
-    """Largest distance between the object and link 2's payload point at which closing the
-    gripper grasps it [m]."""
-    autopilot_params: dict[str, Real] = Field(default_factory=dict)
-    """PX4 parameter overrides of the simulated autopilot (name -> value), checked against
-    the simulated parameter table when the SITL starts."""
-
-
 class Flight(_Section):
     """How the flight app hands the vehicle to and from PX4 and watches its navigation
     (``companion mission``); optional, every key has a default."""
@@ -507,31 +396,38 @@ class Flight(_Section):
     ground_margin_m: Positive = 0.05
     """Height above the take-off height below which the vehicle counts as on the ground
     [m] (PX4's land detector says it too, later)."""
+    stow_joints_rad: Annotated[tuple[Real, ...], Field(min_length=2, max_length=2)] = (
+        0.0,
+        -1.5707963267948966,
+    )
+    """(eta1, eta2) the arm is held at outside the mission (take-off, home, landing)
+    [rad]: link 1 forward, link 2 down."""
     global_origin_deg_m: Vec3 = (47.397742, 8.545594, 488.0)
     """(latitude [deg], longitude [deg], altitude AMSL [m]) the app sets as PX4's global
     origin when the vehicle has none (no GPS: motion capture indoors); PX4 SITL's default
     home (Zurich)."""
 
 
-class Scenario(_Section):
-    """A complete scenario: vehicle, arm, payload, gains, trajectory and initial estimates."""
+SIMULATOR_SECTIONS = ("payload", "plant", "world", "simulation", "trajectory")
+"""Top-level sections of a scenario file the simulator owns (``sitl.scenario``): the truth
+(the payload, the plant, the world) and the offline runs. The companion skips them: its
+types cannot hold what only the simulator may know."""
+
+
+class CompanionConfig(_Section):
+    """What the companion believes and how it flies: vehicle, arm (link 2 empty), gains,
+    estimator, state filter, flight settings and the arm's servo bus."""
 
     name: str
     description: str
     environment: Environment
     vehicle: Vehicle
     arm: Arm
-    payload: Payload
     estimator: Estimator
     controller: Controller
-    trajectory: Trajectory
-    simulation: Simulation
     sensors: Sensors
-    plant: Plant
     arm_bus: ArmBusSection | None = None
     """The arm's servo bus; absent in scenarios that only simulate."""
-    world: WorldSection | None = None
-    """The SITL's world (ground, start pose, payload object); absent: defaults of ``sitl``."""
     flight: Flight = Field(default_factory=Flight)
     """The flight app's PX4 handover and navigation watch (defaults when absent)."""
 
@@ -545,18 +441,6 @@ class Scenario(_Section):
             m4_kg_m2=link.second_moment_kg_m2,
         )
 
-    @property
-    def true_theta(self) -> Theta:
-        """theta of link 2 with the payload attached (the simulation's truth)."""
-        link, load = self.arm.link2, self.payload
-        return Theta(
-            m2_kg=link.mass_kg + load.mass_kg,
-            m3_kg_m=link.first_moment_kg_m + load.mass_kg * load.position_m,
-            m4_kg_m2=link.second_moment_kg_m2
-            + load.mass_kg * load.position_m**2
-            + load.inertia_about_com_kg_m2,
-        )
-
 
 def _dotted(loc: tuple[int | str, ...]) -> str:
     key = ""
@@ -565,11 +449,12 @@ def _dotted(loc: tuple[int | str, ...]) -> str:
     return key
 
 
-def _describe(err: dict) -> tuple[str, str]:
-    """(dotted key, reason) of one pydantic error, suggesting the key meant for a typo."""
+def _describe(err: ErrorDetails, root: type[BaseModel]) -> tuple[str, str]:
+    """(dotted key, reason) of one pydantic error of a ``root`` document, suggesting the key
+    meant for a typo."""
     key = _dotted(err["loc"])
     if err["type"] == "extra_forbidden":
-        section = _section_model(err["loc"][:-1])
+        section = _section_model(err["loc"][:-1], root)
         names = [f.alias or n for n, f in section.model_fields.items()] if section else []
         close = difflib.get_close_matches(str(err["loc"][-1]), names, n=1)
         hint = f"; did you mean '{close[0]}'?" if close else ""
@@ -579,10 +464,10 @@ def _describe(err: dict) -> tuple[str, str]:
     return key, f"{err['msg']} (got {err['input']!r})"
 
 
-def _section_model(loc: tuple[int | str, ...]) -> type[BaseModel] | None:
-    """The pydantic class validating the table at ``loc`` (through optional sections and
-    arrays of tables; None if there is none)."""
-    model: type[BaseModel] = Scenario
+def _section_model(loc: tuple[int | str, ...], root: type[BaseModel]) -> type[BaseModel] | None:
+    """The pydantic class validating the table at ``loc`` of a ``root`` document (through
+    optional sections and arrays of tables; None if there is none)."""
+    model: type[BaseModel] = root
     for part in loc:
         if isinstance(part, int):
             continue
@@ -669,7 +554,15 @@ def arm_bus_configs(
     return joints, gripper
 
 
-def _check_physics(cfg: Scenario, path: str) -> None:
+def check_companion(cfg: CompanionConfig, path: str) -> None:
+    """Values no vehicle can have that the types cannot catch: a link CoM beyond its link,
+    an initial theta no rigid link 2 has, estimator rows and bounds out of order.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``path``, the key and the reason.
+    """
     for name in ("link1", "link2"):
         link: Link = getattr(cfg.arm, name)
         if link.com_m > link.length_m:
@@ -679,12 +572,6 @@ def _check_physics(cfg: Scenario, path: str) -> None:
                 f"{link.com_m:g} m lies beyond the link length {link.length_m:g} m",
             )
     l2 = cfg.arm.link2.length_m
-    if cfg.payload.position_m > l2:
-        raise ConfigError(
-            path,
-            "payload.position_m",
-            f"{cfg.payload.position_m:g} m lies beyond link 2 (length {l2:g} m)",
-        )
     check_theta(cfg.estimator.initial_theta, l2, path, "estimator.initial_theta")
     est = cfg.estimator
     if list(est.rows) != sorted(set(est.rows)):
@@ -698,65 +585,63 @@ def _check_physics(cfg: Scenario, path: str) -> None:
             "estimator.initial_theta.m2_kg",
             f"{est.initial_theta.m2_kg:g} kg lies outside m2_bounds_kg {est.m2_bounds_kg}",
         )
-    ratio = cfg.plant.rate_hz / cfg.simulation.control_rate_hz
-    if ratio < 1.0 - 1e-9 or abs(ratio - round(ratio)) > 1e-9:
-        raise ConfigError(
-            path,
-            "simulation.control_rate_hz",
-            f"{cfg.simulation.control_rate_hz:g} Hz must divide plant.rate_hz "
-            f"({cfg.plant.rate_hz:g} Hz) into a whole number of plant steps",
+    if cfg.arm_bus is not None:
+        _check_arm_bus(cfg.arm_bus, path)
+
+
+Model = typing.TypeVar("Model", bound=BaseModel)
+
+
+def validate(model: type[Model], data: dict, path: str) -> Model:
+    """``model.model_validate(data)``, its errors as one :class:`ConfigError` (unknown keys
+    first, with the closest valid name)."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        problems = sorted(
+            (_describe(err, model) for err in exc.errors()),
+            key=lambda kr: not kr[1].startswith("unknown key"),
         )
-    if cfg.world is not None and cfg.world.payload_position_m is not None:
-        if cfg.world.payload_position_m[2] < 0.0:
-            raise ConfigError(
-                path,
-                "world.payload_position_m",
-                f"the object lies below the ground (z = {cfg.world.payload_position_m[2]:g} m)",
-            )
+        raise ConfigError(path, *problems[0], *problems[1:]) from None
 
 
-def parse_scenario(data: dict, path: str = "<string>") -> Scenario:
-    """Validate a parsed TOML document into a :class:`Scenario`.
+def read_toml(path: str | Path) -> dict:
+    """A TOML file's document; :class:`ConfigError` if it cannot be read or parsed."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(str(p), "", f"cannot read file ({exc.strerror or exc})") from None
+    except UnicodeDecodeError as exc:
+        reason = f"not a UTF-8 text file ({exc.reason} at byte {exc.start})"
+        raise ConfigError(str(p), "", reason) from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(str(p), "", f"invalid TOML: {exc}") from None
+
+
+def parse_config(data: dict, path: str = "<string>") -> CompanionConfig:
+    """Validate the companion's sections of a parsed TOML document (the simulator's,
+    :data:`SIMULATOR_SECTIONS`, are skipped) into a :class:`CompanionConfig`.
 
     Raises
     ------
     ConfigError
         On unknown or missing keys, wrong types, or physically impossible values.
     """
-    try:
-        cfg = Scenario.model_validate(data)
-    except ValidationError as exc:
-        problems = sorted(
-            (_describe(err) for err in exc.errors()),
-            key=lambda kr: not kr[1].startswith("unknown key"),
-        )
-        raise ConfigError(path, *problems[0], *problems[1:]) from None
-    _check_physics(cfg, path)
-    if cfg.arm_bus is not None:
-        _check_arm_bus(cfg.arm_bus, path)
+    beliefs = {k: v for k, v in data.items() if k not in SIMULATOR_SECTIONS}
+    cfg = validate(CompanionConfig, beliefs, path)
+    check_companion(cfg, path)
     return cfg
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario TOML file.
-
-    Parameters
-    ----------
-    path : str or Path
-        Explicit path of the file; nothing is looked up implicitly.
+def load_config(path: str | Path) -> CompanionConfig:
+    """Read and validate the companion's part of a TOML file (explicit path only).
 
     Raises
     ------
     ConfigError
         If the file cannot be read, is not TOML, or does not validate.
     """
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(str(p), "", f"cannot read file ({exc.strerror or exc})") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(str(p), "", f"invalid TOML: {exc}") from None
-    return parse_scenario(data, str(p))
+    return parse_config(read_toml(path), str(path))

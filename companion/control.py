@@ -14,13 +14,20 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from companion.estimation import Skip
+from companion.filters import FilteredState
 from companion.model import ModelTerms
 
+if TYPE_CHECKING:
+    from companion.config import CompanionConfig
+
 __all__ = [
+    "ControlLaw",
     "ControlRateError",
     "DesiredState",
     "HorizontalTrim",
@@ -94,6 +101,31 @@ def wrap_angle_error(e: FloatArray) -> FloatArray:
     return out
 
 
+class ControlLaw(Protocol):
+    """A control law as :class:`~companion.flight_control.FlightControl` runs it, one step
+    of ``dt_s`` [s]: the generalized force tau (shape (8,), conjugate to q) and the theta
+    the law used (shape (3,)), from the model terms at the filtered state, the desired
+    state (roll and pitch rows from the tilt reference), the estimator's theta_hat and the
+    force applied over the last step (NaN on rows without a known force), or why it is not
+    known (:class:`~companion.estimation.Skip`)."""
+
+    @property
+    def velocity_gain(self) -> FloatArray:
+        """Diagonal of the law's velocity feedback gain (k, K1), shape (8,): what the
+        control rate must be fast enough for (:func:`check_control_rate`)."""
+        ...
+
+    def control(
+        self,
+        dt_s: float,
+        terms: ModelTerms,
+        state: FilteredState,
+        desired: DesiredState,
+        theta_hat: FloatArray,
+        applied_tau: FloatArray | Skip,
+    ) -> tuple[FloatArray, FloatArray]: ...
+
+
 class PassivityController:
     """Augmented passivity-based control, eq. tau2:
 
@@ -112,13 +144,26 @@ class PassivityController:
     def __init__(self, k: ArrayLike, lam: ArrayLike, fixed_theta: ArrayLike | None = None):
         self.k = np.asarray(k, dtype=float)
         self.k_lam = self.k * np.asarray(lam, dtype=float)
-        self.fixed_theta = None if fixed_theta is None else np.asarray(fixed_theta, dtype=float)
-        self._fixed_xi = None if fixed_theta is None else np.concatenate((self.fixed_theta, _ONE))
+        self.fixed_theta: FloatArray | None = (
+            None if fixed_theta is None else np.asarray(fixed_theta, dtype=float)
+        )
+        self._fixed_xi: FloatArray | None = (
+            None if self.fixed_theta is None else np.concatenate((self.fixed_theta, _ONE))
+        )
 
     @classmethod
     def nonadaptive(cls, k: ArrayLike, lam: ArrayLike, nominal_theta: ArrayLike):
         """The paper's conventional controller: eq. tau2 with the empty-arm theta."""
         return cls(k, lam, fixed_theta=nominal_theta)
+
+    @property
+    def velocity_gain(self) -> FloatArray:
+        return self.k
+
+    def control(self, dt_s, terms, state, desired, theta_hat, applied_tau):
+        """:class:`ControlLaw`: eq. tau2 with ``theta_hat`` (or the fixed theta)."""
+        used = self.fixed_theta if self.fixed_theta is not None else np.asarray(theta_hat)
+        return self.torque(terms, state.q, state.q_dot, desired, used), used
 
     def torque(
         self,
@@ -218,10 +263,40 @@ class SlidingModeController:
         self.m2 = m2_0
         self.delta = np.zeros(8)
 
+    @classmethod
+    def from_config(cls, config: CompanionConfig) -> SlidingModeController:
+        """The law with the gains of ``[controller.sliding_mode]`` and the estimator's
+        initial m2 and bounds."""
+        sm = config.controller.sliding_mode
+        return cls(
+            k1=sm.k1,
+            k2=sm.k2,
+            lam=sm.lambda_,
+            boundary_layer=sm.boundary_layer,
+            gamma_delta=sm.gamma_delta,
+            known_mass_kg=config.vehicle.mass_kg + config.arm.link1.mass_kg,
+            gravity_m_s2=config.environment.gravity_m_s2,
+            nominal_lc_m=config.nominal_theta.lc_m,
+            m2_0=config.estimator.initial_theta.m2_kg,
+            m2_bounds_kg=(config.estimator.m2_bounds_kg[0], config.estimator.m2_bounds_kg[1]),
+            mass_filter_s=sm.mass_filter_s,
+        )
+
     @property
     def theta(self) -> FloatArray:
         """(m2, m3, m4) the law uses: m2hat at the empty-arm lc (point mass)."""
         return self._xi()[:3]
+
+    @property
+    def velocity_gain(self) -> FloatArray:
+        return self.k1
+
+    def control(self, dt_s, terms, state, desired, theta_hat, applied_tau):
+        """:class:`ControlLaw`: eq. asc1 with its own mass read-out (``theta_hat``, the
+        estimator's, is not used); the read-out takes the applied vertical force."""
+        force_z_n = None if isinstance(applied_tau, Skip) else float(applied_tau[2])
+        tau = self.torque(dt_s, terms, state.q, state.q_dot, state.q_ddot, desired, force_z_n)
+        return tau, self.theta
 
     def _xi(self) -> FloatArray:
         """xi = [theta, 1] (eq. reg)."""
@@ -236,13 +311,14 @@ class SlidingModeController:
         q_dot: FloatArray,
         q_ddot: FloatArray,
         desired: DesiredState,
-        applied_force_z_n: float,
+        applied_force_z_n: float | None,
     ) -> FloatArray:
         """tau, shape (8,); advances Deltahat and the mass read-out by dt [s].
 
         ``applied_force_z_n`` is the vertical world force actually applied during the last
         control period [N] (in flight: the thrust model's force along the measured body z),
-        the force that produced ``q_ddot``; NaN (not known yet) skips the read-out. Using
+        the force that produced ``q_ddot``; None (not known) or not finite skips the
+        read-out. Using
         this step's commanded tau_3 instead lets the read-out run away once thrust
         saturates: the command then exceeds the force that produced the acceleration.
         """
@@ -254,7 +330,7 @@ class SlidingModeController:
         sat = np.minimum(np.maximum(s / self.phi, -1.0), 1.0)
         tau = terms.regressor(qr_dot, qr_ddot) @ xi + self.delta - self.k1 * s - self.k2 * sat
         self.delta = self.delta - dt * self.gamma_delta * s
-        if math.isfinite(applied_force_z_n):
+        if applied_force_z_n is not None and math.isfinite(applied_force_z_n):
             self._read_mass(dt, terms, q_dot, q_ddot, applied_force_z_n, xi)
         return tau
 

@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -30,7 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 from companion.model import ModelTerms
 
 if TYPE_CHECKING:
-    from companion.config import Scenario
+    from companion.config import CompanionConfig
 
 __all__ = [
     "TRANSLATION_AND_JOINT_ROWS",
@@ -38,8 +39,9 @@ __all__ = [
     "ExcitationMonitor",
     "PaperEstimator",
     "RlsEstimator",
+    "Skip",
     "ThetaBounds",
-    "estimator_from_scenario",
+    "estimator_from_config",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -47,6 +49,23 @@ FloatArray = NDArray[np.float64]
 ALL_ROWS = (0, 1, 2, 3, 4, 5, 6, 7)
 TRANSLATION_AND_JOINT_ROWS = (0, 1, 2, 6, 7)
 """Rows of q with a known generalized force in flight (x, y, z, eta1, eta2)."""
+
+
+class Skip(StrEnum):
+    """Why an estimator step is skipped (theta held), passed instead of the applied force
+    or found in it; :attr:`_Base.skipped` counts each."""
+
+    NO_FORCE = "no_force"
+    """The force applied over the last period is not known: PX4 flew its own thrust
+    (take-off, hold, landing), or nothing had been commanded yet."""
+    NO_SERVO_READ = "no_servo_read"
+    """No servo torque read-back arrived since the last cycle (the arm task was still on
+    the bus, or its read failed)."""
+    LATE_CYCLE = "late_cycle"
+    """The period was far longer than the control period the forward-Euler step is tuned
+    for (a gap in the pose stream)."""
+    NOT_FINITE = "not_finite"
+    """The force or the regressor on the used rows is not finite (a corrupt read-back)."""
 
 
 @dataclass(frozen=True)
@@ -105,7 +124,8 @@ class Estimate:
     """Smallest eigenvalue of the windowed, scaled information matrix (dimensionless);
     near zero when the recent motion cannot distinguish the parameters."""
     spread: float
-    """Windowed standard deviation of m2 relative to its mean (dimensionless)."""
+    """Settling of the estimate over the monitor's window (dimensionless): the larger of
+    (max - min) / mean of m2 and of lc = m3 / m2; infinite until the window is full."""
     confident: bool
     """Excitation above its threshold, spread below its threshold, and not frozen."""
     frozen: bool
@@ -227,8 +247,14 @@ class _Base(ABC):
         self.bounds = bounds
         self.monitor = monitor
         self.frozen = False
-        self.skipped_steps = 0
+        self.skipped: Counter[Skip] = Counter()
+        """Skipped steps by reason."""
         self.theta = bounds.project(np.asarray(theta0, dtype=float))
+
+    @property
+    def skipped_steps(self) -> int:
+        """Steps skipped while not frozen, all reasons."""
+        return self.skipped.total()
 
     def freeze(self) -> None:
         """Hold theta (for example on the ground, where tau is not the model's)."""
@@ -267,7 +293,7 @@ class _Base(ABC):
         q: FloatArray,
         q_dot: FloatArray,
         q_ddot: FloatArray,
-        tau: FloatArray,
+        tau: FloatArray | Skip,
     ) -> Estimate:
         """Advance one control period.
 
@@ -279,19 +305,20 @@ class _Base(ABC):
             ``model.terms(q, q_dot)`` at this step (shared with the controller).
         q, q_dot, q_ddot : ndarray, shape (8,)
             Measured/filtered state and derivatives (m, rad and their rates).
-        tau : ndarray, shape (8,)
-            Generalized force actually applied; only ``rows`` are read. A step whose used
-            rows are not all finite (no force known yet, a corrupt read-back) is skipped:
-            theta is held and the step is counted in :attr:`skipped_steps`.
+        tau : ndarray, shape (8,), or Skip
+            Generalized force applied over the last period (only ``rows`` are read), or
+            why it is not known. A skipped step holds theta and is counted in
+            :attr:`skipped` by reason; so is a force or regressor that is not finite.
         """
         select = self._select
         y = terms.regressor(q_dot, q_ddot)[select]
-        tau_rows = tau[select]
         if not self.frozen:
-            if _all_finite(tau_rows) and _all_finite(y):
-                self._step(dt, y, q[select], q_dot[select], tau_rows)
+            if isinstance(tau, Skip):
+                self.skipped[tau] += 1
+            elif _all_finite(tau[select]) and _all_finite(y):
+                self._step(dt, y, q[select], q_dot[select], tau[select])
             else:
-                self.skipped_steps += 1
+                self.skipped[Skip.NOT_FINITE] += 1
         return self._publish(dt, y[:, :3])
 
     @abstractmethod
@@ -432,12 +459,12 @@ class RlsEstimator(_Base):
         self.p = p
 
 
-def estimator_from_scenario(scenario: Scenario, kind: str, rows: tuple[int, ...]):
-    """The scenario's estimator of ``kind`` (``"paper"`` or ``"rls"``) on ``rows``, with its
+def estimator_from_config(config: CompanionConfig, kind: str, rows: tuple[int, ...]):
+    """The configuration's estimator of ``kind`` (``"paper"`` or ``"rls"``) on ``rows``, with its
     bounds, confidence monitor and gains from the ``[estimator]`` section."""
-    est = scenario.estimator
-    bounds = ThetaBounds(est.m2_bounds_kg[0], est.m2_bounds_kg[1], scenario.arm.link2.length_m)
-    m2_max, l2 = est.m2_bounds_kg[1], scenario.arm.link2.length_m
+    est = config.estimator
+    bounds = ThetaBounds(est.m2_bounds_kg[0], est.m2_bounds_kg[1], config.arm.link2.length_m)
+    m2_max, l2 = est.m2_bounds_kg[1], config.arm.link2.length_m
     monitor = ExcitationMonitor(
         window_s=est.confidence.window_s,
         theta_scale=(m2_max, m2_max * l2, m2_max * l2 * l2),

@@ -1,16 +1,20 @@
-"""One control cycle of the flying companion: estimator, controller and setpoint mapping.
+"""One control cycle of the companion: estimator, control law and setpoint mapping.
 
-Pure (no I/O, no clock): the flight application (:mod:`companion.app`) calls
-:meth:`FlightControl.step` once per control period with the filtered state, the desired
-state of the mission and the generalized force applied over the last period, and sends the
-result to PX4 and the servos. The pieces are the paper's (section III):
+Pure (no I/O, no clock). The same step runs everywhere: the flight application
+(:mod:`companion.app`, against PX4 or the SITL) and the offline simulator
+(``sitl.offline``) call :meth:`FlightControl.step` once per control period with the
+filtered state, the desired state and the generalized force applied over the last period,
+and send the result to PX4 (or the plant) and the servos. The pieces are the paper's
+(section III):
 
-- the on-line estimator (eq. est1-est3, or RLS) on the rows whose force is known in flight:
+- the on-line estimator (eq. est1-est3, or RLS) on the rows whose force is known: in flight
   x, y, z from the commanded thrust along the measured attitude and the joints from the
-  servos' present current (DESIGN.md section 4),
-- the augmented passivity-based controller (eq. tau2) with the estimate, or frozen at the
-  empty-arm values (the non-adaptive baseline), plus a slow horizontal integral trim
-  (:class:`~companion.control.HorizontalTrim`, off in the paper's configs),
+  servos' present current (DESIGN.md section 4); all rows on the offline ideal plant,
+- a control law (:class:`~companion.control.ControlLaw`): the augmented passivity-based
+  controller (eq. tau2) with the estimate, or frozen at the empty-arm values (the
+  non-adaptive baseline), or the adaptive sliding-mode baseline (eq. asc1); plus a slow
+  horizontal integral trim (:class:`~companion.control.HorizontalTrim`, off in the
+  paper's configs),
 - the small-angle tilt mapping (eq. phid) and PX4's relative thrust (:class:`ThrustModel`),
   with the tilt fed back as the attitude reference through a third-order filter
   (:class:`TiltReference`).
@@ -25,15 +29,22 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.config import Scenario
+from companion.config import CompanionConfig
 from companion.control import (
+    ControlLaw,
     DesiredState,
     HorizontalTrim,
     PassivityController,
+    SlidingModeController,
     check_control_rate,
     damping_step_ratio,
 )
-from companion.estimation import TRANSLATION_AND_JOINT_ROWS, Estimate, estimator_from_scenario
+from companion.estimation import (
+    TRANSLATION_AND_JOINT_ROWS,
+    Estimate,
+    Skip,
+    estimator_from_config,
+)
 from companion.filters import FilteredState
 from companion.model import ManipulatorModel
 from companion.setpoints import AttitudeThrustSetpoint, ThrustModel, attitude_thrust_setpoint
@@ -43,7 +54,7 @@ from companion.trajectory import TiltReference
 __all__ = ["ControlOutput", "FlightControl", "FlightControllerName"]
 
 FloatArray = NDArray[np.float64]
-FlightControllerName = Literal["passivity", "nonadaptive"]
+FlightControllerName = Literal["passivity", "nonadaptive", "asmc"]
 
 
 @dataclass(frozen=True)
@@ -63,37 +74,61 @@ class ControlOutput:
 
 
 class FlightControl:
-    """Estimator + controller + tilt/thrust mapping for flight; see the module docstring.
+    """Estimator + control law + tilt/thrust mapping; see the module docstring.
 
     Parameters
     ----------
-    scenario
-        Gains, estimator settings, vehicle thrust model.
+    config
+        Gains, estimator settings, vehicle thrust model (the companion's configuration).
     controller
-        ``"passivity"`` (eq. tau2 with the estimate) or ``"nonadaptive"`` (eq. tau2 with
-        the empty-arm theta; the estimator still runs, for the log).
+        ``"passivity"`` (eq. tau2 with the estimate), ``"nonadaptive"`` (eq. tau2 with the
+        empty-arm theta; the estimator still runs, for the log) or ``"asmc"`` (eq. asc1).
+    rows
+        Rows of q the estimator uses [default: the configuration's ``estimator.rows``
+        whose force is known in flight: x, y, z and the joints].
+    actuated_rows
+        Rows whose force reaches the vehicle (the control-rate check): in flight x, y, z
+        and the joints (PX4 closes the attitude loop); all on the ideal plant.
+    estimator_kind
+        ``"paper"`` or ``"rls"`` [default: ``estimator.kind``].
     """
 
-    def __init__(self, scenario: Scenario, controller: FlightControllerName = "passivity") -> None:
-        if controller not in ("passivity", "nonadaptive"):
-            raise ValueError(f"controller must be 'passivity' or 'nonadaptive', got {controller!r}")
-        self.scenario = scenario
-        self.model = ManipulatorModel.from_scenario(scenario)
-        rows = tuple(r for r in scenario.estimator.rows if r in TRANSLATION_AND_JOINT_ROWS)
+    def __init__(
+        self,
+        config: CompanionConfig,
+        controller: FlightControllerName = "passivity",
+        *,
+        rows: tuple[int, ...] | None = None,
+        actuated_rows: tuple[int, ...] = TRANSLATION_AND_JOINT_ROWS,
+        estimator_kind: str | None = None,
+    ) -> None:
+        if controller not in ("passivity", "nonadaptive", "asmc"):
+            raise ValueError(
+                f"controller must be 'passivity', 'nonadaptive' or 'asmc', got {controller!r}"
+            )
+        self.scenario = config
+        self.model = ManipulatorModel.from_config(config)
+        if rows is None:
+            rows = tuple(r for r in config.estimator.rows if r in TRANSLATION_AND_JOINT_ROWS)
         if not rows:
             raise ValueError("estimator.rows has no row with a force known in flight (0-2, 6-7)")
         self.rows = rows
-        self.estimator = estimator_from_scenario(scenario, scenario.estimator.kind, rows)
-        ctl = scenario.controller
-        self.nominal_theta = np.array(scenario.nominal_theta.as_tuple())
+        self.actuated_rows = actuated_rows
+        kind = estimator_kind or config.estimator.kind
+        self.estimator = estimator_from_config(config, kind, rows)
+        ctl = config.controller
+        self.nominal_theta = np.array(config.nominal_theta.as_tuple())
+        self.controller: ControlLaw
         if controller == "nonadaptive":
             self.controller = PassivityController.nonadaptive(
                 ctl.k, ctl.lambda_, self.nominal_theta
             )
+        elif controller == "asmc":
+            self.controller = SlidingModeController.from_config(config)
         else:
             self.controller = PassivityController(ctl.k, ctl.lambda_)
         self.tilt = TiltReference(ctl.tilt_reference_bandwidth_rad_s)
-        rotors = scenario.vehicle.rotors
+        rotors = config.vehicle.rotors
         self.thrust = ThrustModel(6 * rotors.max_thrust_per_rotor_n)
         """Newtons <-> PX4 relative thrust; the flight app sets its floor from the vehicle."""
         self.tilt_max_rad = ctl.tilt_max_rad
@@ -103,11 +138,11 @@ class FlightControl:
 
     def check_rate(self, rate_hz: float, q: FloatArray) -> float:
         """Raise :class:`~companion.control.ControlRateError` if ``rate_hz`` is too low for
-        the velocity gains on the rows flown (x, y, z, joints) at configuration ``q``;
-        returns the damping step ratio (see :func:`~companion.control.check_control_rate`)."""
+        the law's velocity gains on the actuated rows at configuration ``q``; returns the
+        damping step ratio (see :func:`~companion.control.check_control_rate`)."""
         m = self.model.mass_matrix(q, tuple(self.estimator.theta))
         return check_control_rate(
-            m, self.scenario.controller.k, 1.0 / rate_hz, TRANSLATION_AND_JOINT_ROWS
+            m, self.controller.velocity_gain, 1.0 / rate_hz, self.actuated_rows
         )
 
     def max_period_s(self, q: FloatArray) -> float:
@@ -115,35 +150,32 @@ class FlightControl:
         the damping step ratio reaches 1, half its stability bound (the limit of
         :meth:`check_rate`)."""
         m = self.model.mass_matrix(q, tuple(self.estimator.theta))
-        return 1.0 / damping_step_ratio(
-            m, self.scenario.controller.k, 1.0, TRANSLATION_AND_JOINT_ROWS
-        )
+        return 1.0 / damping_step_ratio(m, self.controller.velocity_gain, 1.0, self.actuated_rows)
 
     def step(
         self,
         dt_s: float,
         state: FilteredState,
         desired: DesiredState,
-        known_tau: FloatArray,
+        applied_tau: FloatArray | Skip,
     ) -> ControlOutput:
         """One control cycle of ``dt_s`` [s].
 
-        ``known_tau`` is the generalized force applied over the last cycle on the rows the
-        estimator uses (NaN elsewhere): see :meth:`applied_force`.
+        ``applied_tau`` is the generalized force applied over the last cycle (see
+        :meth:`applied_force`), or why it is not known: the estimator skips the step.
         """
         q, q_dot, q_ddot = state.q, state.q_dot, state.q_ddot
         terms = self.model.terms(q, q_dot)
-        estimate = self.estimator.update(dt_s, terms, q, q_dot, q_ddot, known_tau)
+        estimate = self.estimator.update(dt_s, terms, q, q_dot, q_ddot, applied_tau)
         reference = self.tilt.apply(desired)
-        theta_hat = (
-            self.controller.fixed_theta
-            if self.controller.fixed_theta is not None
-            else estimate.theta
+        tau, theta_hat = self.controller.control(
+            dt_s, terms, state, reference, estimate.theta, applied_tau
         )
-        tau = self.controller.torque(terms, q, q_dot, reference, estimate.theta)
         if self.trim_active:
-            lam = self.controller.k_lam[0:2] / self.controller.k[0:2]
-            sliding = (q_dot[0:2] - reference.q_dot[0:2]) + lam * (q[0:2] - reference.q[0:2])
+            lam = self.scenario.controller.lambda_
+            sliding = (q_dot[0:2] - reference.q_dot[0:2]) + np.asarray(lam[0:2]) * (
+                q[0:2] - reference.q[0:2]
+            )
             self.trim.update(dt_s, sliding)
         tau[0:2] += self.trim.force_n
         setpoint = attitude_thrust_setpoint(

@@ -38,7 +38,7 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.config import Scenario
+from companion.config import CompanionConfig
 from companion.control import DesiredState
 
 __all__ = [
@@ -215,7 +215,7 @@ class PickupMission:
     """
 
     plan: PickupPlan
-    scenario: Scenario
+    scenario: CompanionConfig
     phase: Phase = Phase.TO_OBJECT
     confident_when_done: bool = False
     phase_log: list[tuple[float, Phase]] = field(default_factory=list)

@@ -10,6 +10,7 @@ measurements, never from truth.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -30,7 +31,9 @@ _EULER_ROWS = (3, 4, 5)
 _JOINT_ROWS = (6, 7)
 
 
-def euler_rates_from_body_rates(phi: float, theta: float, omega_body: ArrayLike) -> FloatArray:
+def euler_rates_from_body_rates(
+    phi: float, theta: float, omega_body: Iterable[float]
+) -> FloatArray:
     """(phi_dot, theta_dot, psi_dot) = W(phi, theta)^-1 omega_B for R = Rz Ry Rx [rad/s].
 
     Singular at theta = +-pi/2 (raises ZeroDivisionError there, as the Euler angles do).
@@ -126,7 +129,7 @@ class StateAssembler:
         jumped: an EKF reset), keeping nothing of the old motion."""
         self.filter.reset_rows(position_m, rows=_POSITION_ROWS)
 
-    def body_rates(self, omega_body_rad_s: ArrayLike, age_s: float = 0.0) -> None:
+    def body_rates(self, omega_body_rad_s: Iterable[float], age_s: float = 0.0) -> None:
         """Gyro body rates (FLU) [rad/s], converted with the filter's attitude."""
         if not self.filter.ready:
             return

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from companion.config import Scenario
+from companion.config import CompanionConfig
 
 __all__ = ["OPTIONAL", "REQUIRED", "VehicleParams", "contradictions"]
 
@@ -76,7 +76,7 @@ class VehicleParams:
         return ", ".join(parts)
 
 
-def contradictions(params: VehicleParams, scenario: Scenario) -> list[str]:
+def contradictions(params: VehicleParams, scenario: CompanionConfig) -> list[str]:
     """Why the vehicle does not fit the scenario's model (empty: it does), one sentence each."""
     out = []
     fac = scenario.vehicle.rotors.thr_mdl_fac

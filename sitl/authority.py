@@ -15,13 +15,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.config import Scenario
 from sitl.physics.rotors import (
     RotorGeometry,
     SequentialDesaturationMixer,
     inverse_thrust_curve,
     thrust_curve,
 )
+from sitl.scenario import Scenario
 
 __all__ = ["Authority", "hover_authority"]
 
@@ -86,6 +86,6 @@ def hover_authority(scenario: Scenario, payload_attached: bool) -> Authority:
         hover_thrust_n=hover,
         hover_relative_thrust=relative_hover,
         hover_command=u_hover,
-        unsaturated_torque_n_m=tuple(unsaturated),
-        max_torque_n_m=tuple(maximum),
+        unsaturated_torque_n_m=(unsaturated[0], unsaturated[1], unsaturated[2]),
+        max_torque_n_m=(maximum[0], maximum[1], maximum[2]),
     )

@@ -9,16 +9,19 @@ from __future__ import annotations
 import json
 import signal
 import threading
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import Annotated
 
 import typer
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from companion.cli import EXIT_USAGE, load_or_exit
-from sitl.authority import hover_authority
+from companion.usage import fail as _fail
+from companion.usage import load_or_exit as _load_or_exit
+from sitl.authority import Authority, hover_authority
+from sitl.cli_sim import sim_app
 from sitl.hil import HilOptions, Px4Exited, Px4InTheLoop
 from sitl.hil.link import SimulatorLinkError
 from sitl.hil.sensors import GPS_GRADES
@@ -26,7 +29,8 @@ from sitl.physics import PlantError
 from sitl.physics.jsbsim import Wind
 from sitl.px4 import ParamError, SigningKeyError
 from sitl.px4_sitl import Px4Build, Px4BuildError, Px4NotReadyError
-from sitl.runner import LinkPorts, RunOptions, SitlVehicle
+from sitl.runner import LinkPorts, RunOptions, RunStats, SitlVehicle
+from sitl.scenario import Scenario, load_scenario
 
 app = typer.Typer(
     name="sitl",
@@ -52,7 +56,7 @@ def authority(
     for column in ("", "empty arm", "with payload"):
         table.add_column(column, justify="right")
     empty, loaded = hover_authority(cfg, False), hover_authority(cfg, True)
-    rows = [
+    rows: list[tuple[str, Callable[[Authority], str]]] = [
         ("mass [kg]", lambda a: f"{a.mass_kg:.3f}"),
         ("hover thrust [N]", lambda a: f"{a.hover_thrust_n:.2f}"),
         (
@@ -62,15 +66,17 @@ def authority(
         ("hover motor command [0-1]", lambda a: f"{a.hover_command:.3f}"),
     ]
     for i, axis in enumerate(("roll", "pitch", "yaw")):
-        rows.append(
-            (
-                f"{axis} torque, unsaturated / max [N m]",
-                lambda a, i=i: f"{a.unsaturated_torque_n_m[i]:.2f} / {a.max_torque_n_m[i]:.2f}",
-            )
-        )
+        rows.append((f"{axis} torque, unsaturated / max [N m]", _torque_cell(i)))
     for label, fmt in rows:
         table.add_row(escape(label), fmt(empty), fmt(loaded))
     Console().print(table)
+
+
+def _torque_cell(axis: int) -> Callable[[Authority], str]:
+    def cell(a: Authority) -> str:
+        return f"{a.unsaturated_torque_n_m[axis]:.2f} / {a.max_torque_n_m[axis]:.2f}"
+
+    return cell
 
 
 @app.command()
@@ -155,7 +161,7 @@ def run(
     if gps not in GPS_GRADES:
         _fail(f"--gps must be one of {', '.join(GPS_GRADES)}, got {gps!r}")
     build = None
-    if autopilot == "px4":
+    if px4_dir is not None and autopilot == "px4":
         try:
             build = Px4Build.at(px4_dir)
         except Px4BuildError as exc:
@@ -175,6 +181,7 @@ def run(
         _fail(str(exc))
     if air is not None and physics != "jsbsim":
         _fail("--wind and --turbulence need --physics jsbsim")
+    vehicle: SitlVehicle | Px4InTheLoop
     try:
         options = RunOptions(
             speed=speed,
@@ -213,9 +220,10 @@ def run(
             typer.echo(f"  {key:<8} {value}")
         typer.echo("ready " + json.dumps(where), color=False)
 
+    stats: RunStats
     try:
         with vehicle:
-            if autopilot == "px4":
+            if isinstance(vehicle, Px4InTheLoop):
                 stats = vehicle.run(stop, until_s=duration, console=typer.echo, on_ready=announce)
             else:
                 announce(vehicle.describe())
@@ -252,9 +260,13 @@ def _servo_fault(text: str) -> tuple[int, float]:
         _fail(f"--servo-silent needs ID@SECONDS, e.g. 2@30, got {text!r}")
 
 
-def _fail(message: str) -> NoReturn:
-    typer.echo(f"error: {message}", err=True)
-    raise typer.Exit(EXIT_USAGE)
+def load_or_exit(path: Path) -> Scenario:
+    """The whole scenario in ``path`` (truth included); each problem one ``error:`` line,
+    exit status 2."""
+    return _load_or_exit(path, load_scenario)
+
+
+app.add_typer(sim_app)
 
 
 def main() -> None:

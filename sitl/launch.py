@@ -120,8 +120,17 @@ def start_sitl(
     if truth_log is not None:
         args += ["--truth-log", str(truth_log)]
     process, where, output = _start_ready(args, timeout_s)
+    onboard, gcs, onboard_local, gcs_local = ports
     return SitlProcess(
-        process, where, output, *ports, arm_bus=where["arm_bus"], truth_log=truth_log
+        process,
+        where,
+        output,
+        onboard_port=onboard,
+        gcs_port=gcs,
+        onboard_local_port=onboard_local,
+        gcs_local_port=gcs_local,
+        arm_bus=where["arm_bus"],
+        truth_log=truth_log,
     )
 
 

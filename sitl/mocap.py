@@ -118,7 +118,8 @@ class MocapPose:
 
 def _canonical(q: np.ndarray) -> tuple[float, float, float, float]:
     q = q / np.linalg.norm(q)
-    return tuple((-q if q[0] < 0.0 else q).tolist())  # type: ignore[return-value]
+    w, x, y, z = (-q if q[0] < 0.0 else q).tolist()
+    return (w, x, y, z)
 
 
 def truth_pose(truth: mavlink.MAVLink_hil_state_quaternion_message, origin: GeoReference):
@@ -149,7 +150,8 @@ def noisy_pose(
             w * dz + x * dy - y * dx + z * dw,
         ]
     )
-    return MocapPose(tuple(position.tolist()), _canonical(q))  # type: ignore[arg-type]
+    north, east, down = position.tolist()
+    return MocapPose((north, east, down), _canonical(q))
 
 
 def odometry_message(

@@ -35,9 +35,9 @@ from typing import Literal
 
 import numpy as np
 
-from companion.config import Scenario
 from sitl.physics.frames import quaternion_from_euler
 from sitl.px4.measurement import EstimatorReport, VehicleMeasurement
+from sitl.scenario import Scenario
 from sitl.sensors import GyroSensor
 from sitl.world import World
 

@@ -33,6 +33,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import IO
 
 __all__ = [
     "PX4_SITL_DIR_ENV",
@@ -241,7 +242,7 @@ class Px4Sitl:
         self.ready_lines = ready_lines
         self.workdir: Path | None = None
         self.process: subprocess.Popen[bytes] | None = None
-        self._log_file = None
+        self._log_file: IO[bytes] | None = None
 
     # ---------------------------------------------------------------- lifecycle
 

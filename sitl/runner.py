@@ -34,10 +34,10 @@ from typing import IO
 import numpy as np
 
 from arm_driver.joint import GripperConfig, JointConfig
-from companion.config import Scenario, arm_bus_configs
+from companion.config import arm_bus_configs
 from companion.frames import ned_from_enu
 from sitl.navigation import ERROR_MODELS, Navigation
-from sitl.physics import make_plant
+from sitl.physics import Plant, make_plant
 from sitl.physics.jsbsim import GearGeometry, JsbsimPlant, Wind
 from sitl.px4 import (
     GeoReference,
@@ -47,6 +47,7 @@ from sitl.px4 import (
     attitude_loop_params,
     load_signing_key,
 )
+from sitl.scenario import Scenario
 from sitl.servo import Faults, PtyServoBus, XM430Parameters, XM430Servo
 from sitl.world import World, WorldSettings
 
@@ -164,12 +165,14 @@ class RunStats:
         return float(np.median(arr)), float(np.percentile(arr, 99))
 
 
-def _plant(scenario: Scenario, options: RunOptions):
+def _plant(scenario: Scenario, options: RunOptions) -> Plant:
     """The truth plant of the chosen backend; JSBSim's gear at the world's gear height."""
     if options.physics == "jsbsim":
         gear = GearGeometry(height_m=world_settings(scenario).landing_gear_height_m)
         return JsbsimPlant.from_scenario(scenario, "underactuated", wind=options.wind, gear=gear)
-    return make_plant(scenario, options.physics, "underactuated", wind=options.wind)
+    if options.physics != "pinocchio":
+        raise ValueError(f"physics must be pinocchio or jsbsim, got {options.physics!r}")
+    return make_plant(scenario, "pinocchio", "underactuated", wind=options.wind)
 
 
 def _local_origin(world_origin: GeoReference, navigation: Navigation, world: World) -> GeoReference:
@@ -194,7 +197,7 @@ def build_world(
         if len(joints) != 2:
             raise ValueError(f"the simulated arm has 2 joints, arm_bus lists {len(joints)}")
     else:
-        joints, gripper = list(DEFAULT_JOINTS), DEFAULT_GRIPPER
+        joints, gripper = DEFAULT_JOINTS, DEFAULT_GRIPPER
     gripper = gripper if gripper is not None else DEFAULT_GRIPPER
     servos = {
         j.servo_id: XM430Servo(
@@ -218,13 +221,16 @@ def world_settings(scenario: Scenario) -> WorldSettings:
     world = scenario.world
     if world is None:
         return WorldSettings()
+    payload = world.payload_position_m
+    east, north = world.start_position_m
+    shoulder, elbow = world.start_joints_rad
     return WorldSettings(
         landing_gear_height_m=world.landing_gear_height_m,
-        payload_position_m=world.payload_position_m,
+        payload_position_m=None if payload is None else (payload[0], payload[1], payload[2]),
         grasp_tolerance_m=world.grasp_tolerance_m,
-        start_position_m=(*world.start_position_m, 0.0),
+        start_position_m=(east, north, 0.0),
         start_yaw_rad=world.start_yaw_rad,
-        start_joints_rad=world.start_joints_rad,
+        start_joints_rad=(shoulder, elbow),
     )
 
 

@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from companion.config import Scenario
+from sitl.scenario import Scenario
 
 __all__ = ["SihMismatchError", "sih_parameters"]
 
@@ -48,8 +48,9 @@ def sih_parameters(scenario: Scenario, joints_rad: tuple[float, float] | None = 
         )
     if joints_rad is None:
         world = scenario.world
-        joints_rad = tuple(world.start_joints_rad) if world else (0.0, -0.5 * math.pi)
-    eta1, eta2 = joints_rad
+        eta1, eta2 = world.start_joints_rad if world else (0.0, -0.5 * math.pi)
+    else:
+        eta1, eta2 = joints_rad
     arm = scenario.arm
     u1 = np.array([math.cos(eta1), 0.0, math.sin(eta1)])
     u2 = np.array([math.cos(eta1 + eta2), 0.0, math.sin(eta1 + eta2)])

@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.config import Scenario
 from sitl.launch import free_udp_port
 from sitl.mocap import DEFAULT_ORIGIN, MocapFeeder, mocap_parameters, sih_origin
 from sitl.px4_sitl import Px4Build, Px4NotReadyError, Px4Ports, Px4Sitl, free_instance
+from sitl.scenario import Scenario
 from sitl.servo.arm_stand import ArmStand
 from sitl.sih import sih_parameters
 

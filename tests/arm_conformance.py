@@ -225,7 +225,8 @@ class HardwareHarness(Harness):
         self.command_timeout_s = float(watchdog_ms) / 1e3 or None
         config = os.environ.get("ARM_BUS_CONFIG")
         if config:
-            from companion.config import arm_bus_configs, load_scenario
+            from companion.config import arm_bus_configs
+            from sitl.scenario import load_scenario
 
             section = load_scenario(config).arm_bus
             if section is None:

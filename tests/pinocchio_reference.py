@@ -11,7 +11,7 @@ Shared by the model and truth-plant tests and by benchmarks/bench_model.py.
 import numpy as np
 import pinocchio as pin
 
-from companion.config import Scenario
+from sitl.scenario import Scenario
 
 PERM = np.array([0, 1, 2, 5, 4, 3, 6, 7])
 """Our q index -> Pinocchio's index (and back: the permutation is its own inverse)."""

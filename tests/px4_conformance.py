@@ -41,10 +41,10 @@ import numpy as np
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as M
 
-from companion.config import load_scenario
 from sitl.launch import SitlProcess, free_udp_port, start_sitl
 from sitl.mocap import DEFAULT_ORIGIN, MocapFeeder, mocap_parameters, sih_origin
 from sitl.px4_sitl import Px4Build, Px4Sitl, free_instance
+from sitl.scenario import load_scenario
 from sitl.sih import sih_parameters
 
 CONFIGS = Path(__file__).parent.parent / "configs"

@@ -18,12 +18,13 @@ import pytest
 
 from arm_driver.bus import JointConfig, OperatingMode, open_bus
 from companion.app import MissionError, PickupApp
-from companion.config import load_scenario
+from companion.config import load_config
 from companion.link.telemetry import VehiclePose
 from companion.mission import PickupPlan
+from companion.offboard import Stream
 from sitl.servo import PtyServoBus, XM430Servo
 
-SCENARIO = load_scenario("configs/sitl_pickup.toml")
+SCENARIO = load_config("configs/sitl_pickup.toml")
 PLAN = PickupPlan(home_m=(0.0, 0.0), payload_at_m=(1.0, 0.0, 0.0), place_at_m=(2.0, 0.0, 0.0))
 
 
@@ -119,19 +120,19 @@ def test_joints_stopped_by_the_servo_watchdog_are_enabled_again():
                 PLAN,
                 event=lambda kind, detail, t_s: notes.append((kind, detail)),
             )
-            await app._rearm_after_silence()
+            await app.arm.rearm_after_silence()
             assert notes == []  # a bus in use is left alone
             deadline = time.monotonic() + 2.0
             while not sim.servos[1].watchdog_tripped:  # the host is silent
                 assert time.monotonic() < deadline, "the servo watchdog did not trip"
                 await asyncio.sleep(0.01)
-            await app._write_joints(np.array([0.89, 0.0]))
+            await app.arm.write_torques(np.array([0.89, 0.0]))
             assert abs((await bus.read_joint_states())["eta1"].torque_n_m) < 0.01  # refused
             await asyncio.sleep(0.1)
-            await app._rearm_after_silence()
+            await app.arm.rearm_after_silence()
             assert [kind for kind, _ in notes] == ["servo"] and "watchdog 100 ms" in notes[0][1]
             assert not sim.servos[1].watchdog_tripped
-            await app._write_joints(np.array([0.89, 0.0]))
+            await app.arm.write_torques(np.array([0.89, 0.0]))
             await asyncio.sleep(0.02)
             assert (await bus.read_joint_states())["eta1"].torque_n_m > 0.8
 
@@ -143,7 +144,6 @@ def test_touching_the_ground_in_offboard_is_a_fault_flown_level_at_the_thrust_fl
     """EKF2's height drifted up to 1 m near the ground on PX4 SIH with GPS, and the app kept
     commanding a 32 deg tilt standing on the ground: now the height at the take-off height
     is ground_contact, whose way out is level at the thrust floor until PX4 lands."""
-    from companion.app import Stream
     from companion.control import DesiredState
     from companion.failsafe import Fault, Reaction
     from companion.filters import FilteredState
@@ -153,7 +153,8 @@ def test_touching_the_ground_in_offboard_is_a_fault_flown_level_at_the_thrust_fl
     app = PickupApp(SCENARIO, link, TwoJoints(), PLAN)
     app.control.thrust = ThrustModel(app.control.thrust.max_thrust_n, 0.12)
     app._ground_z = 0.25
-    app.stream = Stream.CONTROL
+    app.offboard.to(Stream.HOLD)
+    app.offboard.accept(0.5)
     q = np.array([0.5, 0.0, 0.27, 0.0, 0.0, 0.3, 0.0, -1.5])  # 2 cm above the take-off height
     zero = np.zeros(8)
     desired = DesiredState(q + np.array([0.4, 0, 0.5, 0, 0, 0, 0, 0]), zero, zero)
@@ -162,7 +163,7 @@ def test_touching_the_ground_in_offboard_is_a_fault_flown_level_at_the_thrust_fl
     (event,) = app.failsafe.raised
     assert event.fault == Fault.GROUND_CONTACT and "take-off height" in event.detail
     assert Reaction.LEVEL_ON_GROUND in event.reactions and event.aborts
-    app.stream = Stream.GROUND
-    sp = app._stream_setpoint(out, q)
+    app.offboard.to(Stream.GROUND)
+    sp = app.offboard.setpoint(out.setpoint, q, app.control.weight_n(), app.control.thrust)
     assert (sp.roll_rad, sp.pitch_rad, sp.yaw_rad) == (0.0, 0.0, 0.3)
     assert sp.thrust_relative == pytest.approx(0.12)

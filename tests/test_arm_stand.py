@@ -13,8 +13,9 @@ import pytest
 from arm_driver.bus import OperatingMode, open_bus
 from arm_driver.dynamixel import control_table as ct
 from arm_driver.dynamixel import units
-from companion.config import arm_bus_configs, load_scenario
+from companion.config import arm_bus_configs
 from companion.model import ManipulatorModel
+from sitl.scenario import load_scenario
 from sitl.servo.arm_stand import ArmStand, held_base_arm
 
 CONFIG = Path(__file__).parent.parent / "configs" / "px4_sih_pickup.toml"
@@ -39,7 +40,7 @@ def _run(stand: ArmStand, seconds: float) -> None:
 def test_joint_accelerations_are_the_fixed_base_rows_of_the_model(scenario):
     # GIVEN ArmDynamics on the held base and companion.model (derived independently)
     arm = held_base_arm(scenario, 1e-3)
-    model = ManipulatorModel.from_scenario(scenario)
+    model = ManipulatorModel.from_config(scenario)
     link2 = arm.link2_empty.theta
     theta = [link2.m2_kg, link2.m3_kg_m, link2.m4_kg_m2]
     rng = np.random.default_rng(3)

@@ -6,7 +6,14 @@ from pathlib import Path
 import pydantic
 import pytest
 
-from companion.config import ConfigError, load_scenario, parse_scenario
+from companion.config import (
+    SIMULATOR_SECTIONS,
+    CompanionConfig,
+    ConfigError,
+    load_config,
+    parse_config,
+)
+from sitl.scenario import load_scenario, parse_scenario
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 PAPER = CONFIGS / "paper_sim.toml"
@@ -151,10 +158,34 @@ def test_file_errors(tmp_path: Path) -> None:
     assert info.value.path == str(broken)
 
 
-def test_cli_check_accepts_good_file(run_cli) -> None:
-    result = run_cli("check", str(PAPER))
-    assert result.returncode == 0, result.stderr
-    assert "0.5, 0.08, 0.0128, 0.16" in result.stdout
+def test_cli_check_accepts_good_file(run_cli, run_sitl) -> None:
+    companion = run_cli("check", str(PAPER))
+    assert companion.returncode == 0, companion.stderr
+    assert "0.1, 0.016, 0.00256, 0.16" in companion.stdout  # the empty link 2 only
+    assert "with payload" not in companion.stdout
+    whole = run_sitl("check", str(PAPER))
+    assert whole.returncode == 0, whole.stderr
+    assert "0.5, 0.08, 0.0128, 0.16" in whole.stdout  # with the payload: the truth
+
+
+def test_the_companions_types_cannot_hold_the_truth() -> None:
+    """The same file, two owners: the companion's loader skips the simulator's sections
+    (payload, plant, world, simulation, trajectory), and its type has no field for them."""
+    beliefs = load_config(PAPER)
+    assert not any(hasattr(beliefs, name) for name in SIMULATOR_SECTIONS)
+    assert not any(name in CompanionConfig.model_fields for name in SIMULATOR_SECTIONS)
+    scenario = load_scenario(PAPER)
+    assert scenario.beliefs == beliefs and type(scenario.beliefs) is CompanionConfig
+    assert scenario.true_theta.m2_kg == pytest.approx(0.5)
+
+
+def test_an_unknown_top_level_section_is_refused_by_both_owners() -> None:
+    data = tomllib.loads(PAPER.read_text())
+    data["paylod"] = data.pop("payload")
+    with pytest.raises(ConfigError, match="paylod: unknown key"):
+        parse_config(data)
+    with pytest.raises(ConfigError, match="paylod: unknown key"):
+        parse_scenario(data)
 
 
 def test_cli_bad_config_exits_2_without_traceback(run_cli, tmp_path: Path) -> None:

@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 
 from arm_driver.joint import GripperConfig, JointConfig
-from companion.config import ConfigError, arm_bus_configs, load_scenario, parse_scenario
+from companion.config import ConfigError, arm_bus_configs
+from sitl.scenario import load_scenario, parse_scenario
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 EXPERIMENT = CONFIGS / "experiment_arm.toml"

@@ -5,7 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from companion.config import ConfigError, load_scenario, parse_scenario
+from companion.config import ConfigError
+from sitl.scenario import load_scenario, parse_scenario
 
 PICKUP = Path(__file__).parent.parent / "configs" / "sitl_pickup.toml"
 

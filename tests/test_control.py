@@ -6,7 +6,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.config import load_scenario
 from companion.control import (
     ControlRateError,
     DesiredState,
@@ -22,10 +21,12 @@ from companion.setpoints import (
     fixed_setpoint,
     tilt_from_force,
 )
-from companion.trajectory import PaperSinusoid, TiltReference
+from companion.trajectory import TiltReference
+from sitl.scenario import load_scenario
+from sitl.trajectory import PaperSinusoid
 
 CFG = load_scenario(Path(__file__).parent.parent / "configs" / "paper_sim.toml")
-MODEL = ManipulatorModel.from_scenario(CFG)
+MODEL = ManipulatorModel.from_config(CFG)
 TRUE = np.array(CFG.true_theta.as_tuple())
 NOMINAL = np.array(CFG.nominal_theta.as_tuple())
 
@@ -208,7 +209,7 @@ def test_tilt_reference_settles_and_stays_stable_on_late_cycles() -> None:
 def test_control_rate_check_predicts_the_discrete_damping_limit() -> None:
     """experiment_arm's attitude damping diverged on the ideal plant at 250 Hz, not at 1 kHz."""
     cfg = load_scenario(Path(__file__).parent.parent / "configs" / "experiment_arm.toml")
-    model = ManipulatorModel.from_scenario(cfg)
+    model = ManipulatorModel.from_config(cfg)
     m = model.mass_matrix(cfg.simulation.initial_q, cfg.estimator.initial_theta.as_tuple())
     k, every = cfg.controller.k, tuple(range(8))
     assert check_control_rate(m, k, 1e-3, every) == pytest.approx(0.6, abs=0.05)

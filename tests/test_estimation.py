@@ -13,18 +13,19 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from companion.config import load_scenario
 from companion.estimation import (
     TRANSLATION_AND_JOINT_ROWS,
     ExcitationMonitor,
     PaperEstimator,
     RlsEstimator,
+    Skip,
     ThetaBounds,
 )
 from companion.model import ManipulatorModel
+from sitl.scenario import load_scenario
 
 CFG = load_scenario(Path(__file__).parent.parent / "configs" / "paper_sim.toml")
-MODEL = ManipulatorModel.from_scenario(CFG)
+MODEL = ManipulatorModel.from_config(CFG)
 TRUE = np.array(CFG.true_theta.as_tuple())
 BOUNDS = ThetaBounds(0.05, 2.0, CFG.arm.link2.length_m)
 DT = 2e-3
@@ -189,11 +190,28 @@ def test_non_finite_force_on_a_used_row_skips_the_step(rows) -> None:
             tau[rows[-1]] = bad
             est = estimator.update(DT, MODEL.terms(q, q_dot), q, q_dot, q_ddot, tau)
             np.testing.assert_array_equal(est.theta, held)
-        assert estimator.skipped_steps == 3
+        assert estimator.skipped == {Skip.NOT_FINITE: 3}
         tau = exact_tau(q, q_dot, q_ddot)
         tau[[r for r in range(8) if r not in rows]] = np.nan
         estimator.update(DT, MODEL.terms(q, q_dot), q, q_dot, q_ddot, tau)
         assert estimator.skipped_steps == 3
+
+
+def test_a_step_without_a_known_force_is_skipped_with_its_reason() -> None:
+    """The app passes why the force is unknown instead of a force: theta is held, the
+    reason counted; a frozen estimator counts nothing (it does not step anyway)."""
+    estimator = paper(TRANSLATION_AND_JOINT_ROWS)
+    run(estimator, 0.5)
+    q, q_dot, q_ddot = motion(0.5)
+    held = estimator.theta.copy()
+    terms = MODEL.terms(q, q_dot)
+    for reason in (Skip.NO_FORCE, Skip.LATE_CYCLE, Skip.LATE_CYCLE):
+        est = estimator.update(DT, terms, q, q_dot, q_ddot, reason)
+        np.testing.assert_array_equal(est.theta, held)
+    assert estimator.skipped == {Skip.NO_FORCE: 1, Skip.LATE_CYCLE: 2}
+    estimator.freeze()
+    estimator.update(DT, terms, q, q_dot, q_ddot, Skip.NO_FORCE)
+    assert estimator.skipped_steps == 3
 
 
 def test_monitor_spread_is_the_range_over_a_full_window() -> None:

@@ -5,12 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from companion.config import load_scenario
+from companion.config import load_config
 from companion.control import DesiredState
 from companion.filters import FilteredState
 from companion.flight_control import FlightControl
 
-SCENARIO = load_scenario("configs/sitl_pickup.toml")
+SCENARIO = load_config("configs/sitl_pickup.toml")
 G = SCENARIO.environment.gravity_m_s2
 
 
@@ -53,4 +53,4 @@ def test_nonadaptive_ignores_the_estimate():
     out = fc.step(0.004, hover(q), desired, np.full(8, np.nan))
     np.testing.assert_allclose(out.theta_hat, SCENARIO.nominal_theta.as_tuple())
     with pytest.raises(ValueError, match="controller"):
-        FlightControl(SCENARIO, "asmc")
+        FlightControl(SCENARIO, "pid")

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.config import load_scenario
+from companion.config import load_config
 from companion.control import ControlRateError
 from companion.flight_control import FlightControl
 from companion.loop_period import LoopPeriodMonitor
@@ -94,7 +94,7 @@ def test_bad_parameters_are_refused(kwargs):
 
 
 def test_max_period_is_where_the_rate_check_starts_refusing():
-    control = FlightControl(load_scenario("configs/sitl_pickup.toml"), "passivity")
+    control = FlightControl(load_config("configs/sitl_pickup.toml"), "passivity")
     q = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -0.5 * math.pi])
     max_period_s = control.max_period_s(q)
     assert 0.004 < max_period_s < 1.0

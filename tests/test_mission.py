@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.config import load_scenario
+from companion.config import load_config
 from companion.mission import (
     EstimatorAction,
     GripperAction,
@@ -15,7 +15,7 @@ from companion.mission import (
     min_jerk,
 )
 
-SCENARIO = load_scenario("configs/sitl_pickup.toml")
+SCENARIO = load_config("configs/sitl_pickup.toml")
 PLAN = PickupPlan(home_m=(0.0, 0.0), payload_at_m=(1.5, 1.0, 0.05), place_at_m=(-1.0, 0.5, 0.05))
 DT = 0.004
 

@@ -258,11 +258,11 @@ def test_servo_that_stops_answering_makes_the_app_land(tmp_path):
 
 def test_wrong_config_is_one_line_and_status_2(run_cli, tmp_path):
     bad = tmp_path / "bad.toml"
-    bad.write_text(CONFIG.read_text().replace("landing_gear_height_m", "landing_gear_hight_m"))
+    bad.write_text(CONFIG.read_text().replace("tilt_max_rad", "tilt_max_radd"))
     result = run_cli("mission", "pickup", "--config", str(bad), "--payload-at", PAYLOAD_AT,
                      "--place-at", PLACE_AT, "--out", str(tmp_path / "o"))  # fmt: skip
     assert result.returncode == 2
-    assert "landing_gear_hight_m" in result.stderr and "Traceback" not in result.stderr
+    assert "tilt_max_radd" in result.stderr and "Traceback" not in result.stderr
 
 
 def test_unreachable_vehicle_is_one_line_and_status_2(run_cli, tmp_path):

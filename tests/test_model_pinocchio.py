@@ -11,8 +11,8 @@ import pinocchio as pin
 import pytest
 from pinocchio_reference import PERM, reference_model
 
-from companion.config import Scenario, load_scenario
 from companion.model import ManipulatorModel
+from sitl.scenario import Scenario, load_scenario
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 N_STATES = 200
@@ -46,7 +46,7 @@ def random_states(rng: np.random.Generator, n: int) -> list[tuple[np.ndarray, ..
 @pytest.mark.parametrize("config", ["paper_sim.toml", "experiment_arm.toml"])
 def test_matches_pinocchio(config: str) -> None:
     cfg = load_scenario(CONFIGS / config)
-    ours = ManipulatorModel.from_scenario(cfg)
+    ours = ManipulatorModel.from_config(cfg)
     rng = np.random.default_rng(2024)
     checked = 0
     for theta in thetas(cfg):

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.config import load_scenario
 from companion.model import ManipulatorModel
+from sitl.scenario import load_scenario
 
 ROOT = Path(__file__).parent.parent
 CONFIGS = ROOT / "configs"
@@ -17,7 +17,7 @@ CONFIGS = ROOT / "configs"
 @pytest.fixture(params=["paper_sim.toml", "experiment_arm.toml"])
 def setup(request):
     cfg = load_scenario(CONFIGS / request.param)
-    return cfg, ManipulatorModel.from_scenario(cfg)
+    return cfg, ManipulatorModel.from_config(cfg)
 
 
 def states(seed: int, n: int = 50):

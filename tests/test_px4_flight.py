@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as M
 
-from companion.config import load_scenario
 from companion.frames import quaternion_ned_frd_from_enu_flu
 from sitl.physics import AttitudeSetpoint, TruthPlant
 from sitl.physics.frames import quaternion_from_euler
 from sitl.px4 import Px4Mode, Px4Params, Px4Vehicle, VehicleMeasurement
+from sitl.scenario import load_scenario
 
 _client = M.MAVLink(None, 255, 190)
 _MOTORS_OFF = AttitudeSetpoint(quaternion_from_euler(0.0, 0.0, 0.0), 0.0)

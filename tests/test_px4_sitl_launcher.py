@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 from pymavlink import mavutil
 
-from companion.config import load_scenario
 from sitl.px4_sitl import Px4Build, Px4BuildError, Px4NotReadyError, Px4Ports, Px4Sitl
+from sitl.scenario import load_scenario
 from sitl.sih import SihMismatchError, sih_parameters
 
 ROOT = Path(__file__).parent.parent

@@ -15,12 +15,12 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as M
 
-from companion.config import load_scenario
 from companion.frames import quaternion_ned_frd_from_enu_flu
 from sitl.physics.frames import quaternion_from_euler
 from sitl.px4 import PARAMETERS, Px4Mode, Px4Params, Px4Vehicle, VehicleMeasurement
 from sitl.px4.params import attitude_loop_params
 from sitl.px4.telemetry import StreamScheduler
+from sitl.scenario import load_scenario
 
 GCS = (255, 190)
 _client = M.MAVLink(None, *GCS)

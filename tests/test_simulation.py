@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.config import load_scenario, parse_scenario
-from companion.simulation import SimOptions, simulate
+from sitl.offline import SimOptions, simulate
+from sitl.scenario import load_scenario, parse_scenario
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 PAPER = CONFIGS / "paper_sim.toml"
@@ -120,9 +120,9 @@ def test_estimates_stay_finite_and_bounded_for_120_s_under_noise(estimator: str)
     assert r.summary["max_position_error_m"] < 1.0
 
 
-def test_cli_sim_writes_summary_timeseries_and_figures(run_cli, tmp_path: Path) -> None:
+def test_cli_sim_writes_summary_timeseries_and_figures(run_sitl, tmp_path: Path) -> None:
     out = tmp_path / "run"
-    result = run_cli(
+    result = run_sitl(
         "sim",
         "--scenario",
         str(PAPER),
@@ -160,27 +160,29 @@ def test_cli_sim_writes_summary_timeseries_and_figures(run_cli, tmp_path: Path) 
     ],
 )
 def test_cli_sim_rejects_bad_options(
-    run_cli, tmp_path: Path, args: list[str], message: str
+    run_sitl, tmp_path: Path, args: list[str], message: str
 ) -> None:
-    result = run_cli("sim", "--scenario", str(PAPER), "--out", str(tmp_path), *args)
+    result = run_sitl("sim", "--scenario", str(PAPER), "--out", str(tmp_path), *args)
     assert result.returncode == 2
     assert message in result.stderr
     assert "Traceback" not in result.stderr
 
 
-def test_cli_sim_rejects_a_control_rate_too_low_for_the_gains(run_cli, tmp_path: Path) -> None:
+def test_cli_sim_rejects_a_control_rate_too_low_for_the_gains(run_sitl, tmp_path: Path) -> None:
     config = tmp_path / "slow_loop.toml"
     text = (CONFIGS / "experiment_arm.toml").read_text()
     config.write_text(text.replace("control_rate_hz = 1000.0", "control_rate_hz = 250.0", 1))
-    result = run_cli("sim", "--scenario", str(config), "--out", str(tmp_path / "out"))
+    result = run_sitl("sim", "--scenario", str(config), "--out", str(tmp_path / "out"))
     assert result.returncode == 2
     assert "too long for the velocity gains" in result.stderr
     assert "Traceback" not in result.stderr
 
 
 @pytest.mark.slow
-def test_cli_compare_writes_table(run_cli, tmp_path: Path) -> None:
-    result = run_cli("compare", "--scenario", str(PAPER), "--duration", "2", "--out", str(tmp_path))
+def test_cli_compare_writes_table(run_sitl, tmp_path: Path) -> None:
+    result = run_sitl(
+        "compare", "--scenario", str(PAPER), "--duration", "2", "--out", str(tmp_path)
+    )
     assert result.returncode == 0, result.stderr
     table = (tmp_path / "compare.md").read_text()
     for name in ("passivity + paper estimator", "passivity + rls", "non-adaptive", "sliding"):

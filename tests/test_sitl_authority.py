@@ -4,9 +4,9 @@ from pathlib import Path
 
 import pytest
 
-from companion.config import load_scenario
 from sitl.authority import hover_authority
 from sitl.physics.rotors import thrust_curve
+from sitl.scenario import load_scenario
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 

@@ -11,13 +11,13 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from companion.config import load_scenario
 from sitl.physics import AttitudeSetpoint, BackendError, PlantModeError, make_plant
 from sitl.physics.articulation import ETA2_JOINT, build_articulation
 from sitl.physics.attitude_control import AttitudeLoopParams
 from sitl.physics.jsbsim import GearGeometry, JsbsimPlant, Wind, airframe_xml
 from sitl.physics.jsbsim.airframe import AIRCRAFT_NAME, PACKAGE_ROOT
 from sitl.physics.jsbsim.arm import ArmDynamics
+from sitl.scenario import load_scenario
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 FLIGHT = load_scenario(CONFIGS / "paper_sim_flight.toml")
@@ -283,18 +283,18 @@ def test_wind_options_are_validated() -> None:
 # --------------------------------------------------------------- command line
 
 
-def test_cli_refuses_jsbsim_ideal_and_wind_on_pinocchio(run_cli, tmp_path: Path) -> None:
+def test_cli_refuses_jsbsim_ideal_and_wind_on_pinocchio(run_sitl, tmp_path: Path) -> None:
     scenario = str(CONFIGS / "paper_sim_flight.toml")
-    ideal = run_cli("sim", "--scenario", scenario, "--out", str(tmp_path), "--physics", "jsbsim")
+    ideal = run_sitl("sim", "--scenario", scenario, "--out", str(tmp_path), "--physics", "jsbsim")
     assert ideal.returncode == 2
     assert "--physics jsbsim needs --plant underactuated" in ideal.stderr
-    windy = run_cli(
+    windy = run_sitl(
         "compare", "--scenario", scenario, "--out", str(tmp_path), "--plant", "underactuated",
         "--wind", "3,0,0",
     )  # fmt: skip
     assert windy.returncode == 2
     assert "need --physics jsbsim" in windy.stderr
-    bad = run_cli(
+    bad = run_sitl(
         "sim", "--scenario", scenario, "--out", str(tmp_path), "--plant", "underactuated",
         "--physics", "jsbsim", "--wind", "3,0",
     )  # fmt: skip
@@ -303,11 +303,11 @@ def test_cli_refuses_jsbsim_ideal_and_wind_on_pinocchio(run_cli, tmp_path: Path)
 
 
 @pytest.mark.slow
-def test_cli_sim_on_jsbsim_with_wind(run_cli, tmp_path: Path) -> None:
+def test_cli_sim_on_jsbsim_with_wind(run_sitl, tmp_path: Path) -> None:
     """companion sim --physics jsbsim --wind --turbulence: the run is recorded as such."""
     import json
 
-    result = run_cli(
+    result = run_sitl(
         "sim", "--scenario", str(CONFIGS / "paper_sim_flight.toml"), "--out", str(tmp_path),
         "--plant", "underactuated", "--physics", "jsbsim", "--wind", "2,1,0",
         "--turbulence", "5", "--duration", "1",

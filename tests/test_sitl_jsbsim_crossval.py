@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.config import Scenario, load_scenario
 from sitl.physics import AttitudeSetpoint, make_plant
+from sitl.scenario import Scenario, load_scenario
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 FLIGHT = load_scenario(CONFIGS / "paper_sim_flight.toml")

@@ -18,7 +18,6 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.config import load_scenario
 from sitl.mocap import (
     DEFAULT_ORIGIN,
     MocapFeeder,
@@ -31,6 +30,7 @@ from sitl.mocap import (
 )
 from sitl.px4.endpoint import MavlinkEndpoint
 from sitl.px4_sitl import free_instance
+from sitl.scenario import load_scenario
 from sitl.sih_host import SihHost
 
 CONFIG = Path(__file__).parent.parent / "configs" / "px4_sih_pickup.toml"

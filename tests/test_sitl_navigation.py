@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from arm_driver.joint import GripperConfig, JointConfig
-from companion.config import load_scenario
 from sitl.navigation import ERROR_MODELS, Navigation
 from sitl.physics import AttitudeSetpoint, TruthPlant
+from sitl.scenario import load_scenario
 from sitl.servo import XM430Servo
 from sitl.world import World, WorldSettings
 

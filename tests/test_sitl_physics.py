@@ -13,7 +13,6 @@ import pinocchio_reference
 import pytest
 from pinocchio_reference import PERM
 
-from companion.config import Scenario, load_scenario
 from sitl.physics import (
     EulerSingularityError,
     PlantDivergedError,
@@ -21,6 +20,7 @@ from sitl.physics import (
     PlantModeError,
     TruthPlant,
 )
+from sitl.scenario import Scenario, load_scenario
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 PAPER = load_scenario(CONFIGS / "paper_sim.toml")

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from companion.config import ConfigError, load_scenario, parse_scenario
+from companion.config import ConfigError
+from sitl.scenario import load_scenario, parse_scenario
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 

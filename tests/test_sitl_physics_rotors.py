@@ -5,7 +5,6 @@ import math
 import numpy as np
 import pytest
 
-from companion.config import load_scenario
 from sitl.physics.attitude_control import (
     AttitudeController,
     AttitudeLoopParams,
@@ -21,6 +20,7 @@ from sitl.physics.rotors import (
     inverse_thrust_curve,
     thrust_curve,
 )
+from sitl.scenario import load_scenario
 
 GEOMETRY = RotorGeometry.hexa_x(0.215, 0.016)
 T_MAX = 6.0

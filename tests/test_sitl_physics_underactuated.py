@@ -6,10 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.config import Scenario, load_scenario
 from sitl.physics import AttitudeSetpoint, TruthPlant
 from sitl.physics.attitude_control import AttitudeLoopParams
 from sitl.physics.rotors import inverse_thrust_curve, thrust_curve
+from sitl.scenario import Scenario, load_scenario
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 PAPER = load_scenario(CONFIGS / "paper_sim.toml")

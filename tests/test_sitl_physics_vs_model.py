@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.config import load_scenario
 from companion.model import ManipulatorModel
 from sitl.physics import TruthPlant
+from sitl.scenario import load_scenario
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 
@@ -22,7 +22,7 @@ CONFIGS = Path(__file__).parent.parent / "configs"
 def test_plant_acceleration_solves_the_model_equation(name, payload) -> None:
     """M(q) q_ddot + C(q, q_dot) q_dot + G(q) = tau with the plant's q_ddot and true theta."""
     cfg = load_scenario(CONFIGS / name)
-    model = ManipulatorModel.from_scenario(cfg)
+    model = ManipulatorModel.from_config(cfg)
     plant = TruthPlant.from_scenario(cfg, payload_attached=payload)
     theta = plant.true_theta.as_tuple()
     rng = np.random.default_rng(21)
@@ -45,7 +45,7 @@ def test_plant_acceleration_solves_the_model_equation(name, payload) -> None:
 
 def test_potential_energy_agrees() -> None:
     cfg = load_scenario(CONFIGS / "paper_sim.toml")
-    model = ManipulatorModel.from_scenario(cfg)
+    model = ManipulatorModel.from_config(cfg)
     plant = TruthPlant.from_scenario(cfg, payload_attached=True)
     q = np.array([0.3, -0.2, 1.1, 0.2, -0.3, 0.7, -0.6, 1.1])
     plant.reset(q, np.linspace(-1.0, 1.0, 8))

@@ -21,9 +21,10 @@ import pytest
 from pymavlink import mavutil
 
 from arm_driver.bus import OperatingMode, open_bus
-from companion.config import arm_bus_configs, load_scenario
+from companion.config import arm_bus_configs
 from sitl.launch import start_sih
 from sitl.px4_sitl import Px4Ports
+from sitl.scenario import load_scenario
 from sitl.sih import sih_parameters
 
 ROOT = Path(__file__).parent.parent

@@ -8,8 +8,8 @@ import pytest
 from arm_driver.dynamixel import control_table as ct
 from arm_driver.dynamixel import units
 from arm_driver.joint import GripperConfig, JointConfig
-from companion.config import load_scenario
 from sitl.physics import AttitudeSetpoint, TruthPlant
+from sitl.scenario import load_scenario
 from sitl.servo import XM430Servo
 from sitl.world import World, WorldSettings
 

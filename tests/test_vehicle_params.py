@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import pytest
 
-from companion.config import load_scenario
+from companion.config import load_config
 from companion.vehicle_params import VehicleParams, contradictions
 
-PICKUP = load_scenario("configs/sitl_pickup.toml")  # motors' curve 0.3
-SIH = load_scenario("configs/px4_sih_pickup.toml")  # linear motors (PX4 SIH)
+PICKUP = load_config("configs/sitl_pickup.toml")  # motors' curve 0.3
+SIH = load_config("configs/px4_sih_pickup.toml")  # linear motors (PX4 SIH)
 
 
 def params(fac=0.3, floor=0.12, rotors=6):

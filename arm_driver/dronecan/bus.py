@@ -296,9 +296,13 @@ class DroneCanBus(ArmBus):
             except RuntimeError:  # the loop closed before the driver: nothing to wake
                 pass
 
-        extra = {} if self._bitrate is None else {"bitrate": self._bitrate}
         try:
-            bus = can.Bus(interface=self._interface, channel=self._device, **extra)
+            if self._bitrate is None:  # the interface's own default (or none, on virtual)
+                bus = can.Bus(interface=self._interface, channel=self._device)
+            else:
+                bus = can.Bus(
+                    interface=self._interface, channel=self._device, bitrate=self._bitrate
+                )
         except (can.CanError, OSError, ValueError, ImportError) as error:
             raise CommunicationError(
                 f"cannot open CAN channel {self._device!r} with interface "

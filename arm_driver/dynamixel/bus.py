@@ -72,9 +72,9 @@ import dataclasses
 import functools
 import math
 import time
-from collections.abc import Awaitable, Callable, Mapping, Sequence
+from collections.abc import Callable, Coroutine, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import Any, Concatenate, ParamSpec, TypeVar
 
 from arm_driver.bus import (
     ArmBus,
@@ -136,6 +136,7 @@ _POSITION_MODES = {
 }
 
 T = TypeVar("T")
+P = ParamSpec("P")
 _MODEL_NAMES = {ct.XM430_W350_MODEL_NUMBER: "XM430-W350"}
 
 
@@ -155,18 +156,18 @@ def _field(data: bytes, entry: ct.ControlTableEntry) -> int:
 
 
 def _hardware_details(
-    method: Callable[..., Awaitable[T]],
-) -> Callable[..., Awaitable[T]]:
+    method: Callable[Concatenate[DynamixelBus, P], Coroutine[Any, Any, T]],
+) -> Callable[Concatenate[DynamixelBus, P], Coroutine[Any, Any, T]]:
     """On an Alert, read Hardware Error Status(70) and raise HardwareError with its bits."""
 
     @functools.wraps(method)
-    async def wrapper(self: DynamixelBus, *args: Any) -> T:
+    async def wrapper(self: DynamixelBus, /, *args: P.args, **kwargs: P.kwargs) -> T:
         try:
-            return await method(self, *args)
+            return await method(self, *args, **kwargs)
         except HardwareError as error:
-            if error.status is not None:
-                raise
             servo_id = error.servo_id
+            if error.status is not None or servo_id is None:
+                raise
             data = await self._read(servo_id, ct.HARDWARE_ERROR_STATUS, ignore_alert=True)
             bits = HardwareErrorStatus(ct.HARDWARE_ERROR_STATUS.decode(data))
             raise HardwareError(servo_id, bits, error_number=error.error_number) from error
@@ -339,10 +340,10 @@ class DynamixelBus(ArmBus):
         if len(replies) < len(repliers):
             answered = {reply.servo_id for reply in replies}
             missing = [i for i in repliers if i not in answered]
-            error = BusTimeoutError(missing[0], timeout_s, received_bytes=parser.buffered)
+            timeout = BusTimeoutError(missing[0], timeout_s, received_bytes=parser.buffered)
             if len(missing) > 1:
-                error.add_note(f"servos {missing} did not answer")
-            raise error
+                timeout.add_note(f"servos {missing} did not answer")
+            raise timeout
         for reply in replies:
             if reply.servo_id not in repliers:
                 raise CommunicationError(f"reply from servo {reply.servo_id}, which was not asked")
@@ -410,7 +411,7 @@ class DynamixelBus(ArmBus):
             limit_a = units.current_units_to_a(self._servos[joint.servo_id].current_limit_units)
             self._limit_torque(joint.name, limit_a * joint.torque_constant_n_m_per_a)
         modes = {self._servos[i].mode for i in self._joint_ids}
-        by_raw = {raw: mode for mode, raw in _MODES.items()}
+        by_raw: dict[int, OperatingMode] = {raw: mode for mode, raw in _MODES.items()}
         mode = by_raw.get(modes.pop()) if len(modes) == 1 else None
         torques = {servo.torque_enabled for servo in self._servos.values()}
         return mode, (torques.pop() if len(torques) == 1 else None)

@@ -13,32 +13,38 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Hashable
-from typing import Any
+from typing import Generic, Self, TypeVar, cast
 
 from companion.link.errors import LinkClosedError
 
-__all__ = ["FanOut", "Subscription"]
+__all__ = ["FanOut", "Key", "Subscription"]
+
+Key = Hashable | type[object]
+"""A key: a MAVLink message name or a sample / event class. (A class is hashable; the type
+checker does not see ``type[X]`` as :class:`~collections.abc.Hashable`.)"""
 
 _CLOSED = object()
+_Item_co = TypeVar("_Item_co", covariant=True)
 
 
-class Subscription:
+class Subscription(Generic[_Item_co]):
     """A queue of the items of some keys, from the moment it was made.
 
     Use ``await sub.get()`` or ``async for item in sub``; close it (or use it as a
     context manager) when done. After the link closes, ``get`` raises
     :class:`LinkClosedError` (with the reader's error as ``__cause__`` if it failed) and
-    ``async for`` ends.
+    ``async for`` ends. The type parameter is the type of the items, as the link's
+    ``subscribe`` knows it from the keys.
     """
 
-    def __init__(self, fanout: FanOut, keys: frozenset[Hashable], maxsize: int) -> None:
+    def __init__(self, fanout: FanOut, keys: frozenset[Key], maxsize: int) -> None:
         self._fanout = fanout
         self.keys = keys
-        self._queue: asyncio.Queue[Any] = asyncio.Queue(maxsize)
+        self._queue: asyncio.Queue[object] = asyncio.Queue(maxsize)
         self.dropped = 0
         """Items dropped because this queue was full."""
 
-    def _put(self, item: Any) -> None:
+    def _put(self, item: object) -> None:
         if self._queue.full():
             self._queue.get_nowait()
             self.dropped += 1
@@ -50,13 +56,15 @@ class Subscription:
             self.dropped += 1
         self._queue.put_nowait(_CLOSED)
 
-    async def get(self) -> Any:
+    async def get(self) -> _Item_co:
         """The next item (waits for one)."""
         item = await self._queue.get()
         if item is _CLOSED:
             self._queue.put_nowait(_CLOSED)
             raise LinkClosedError("the link is closed") from self._fanout.error
-        return item
+        # The reader published it under one of ``keys``, whose item type the link's
+        # subscribe stated when it made this subscription.
+        return cast(_Item_co, item)
 
     def pending(self) -> int:
         """Items waiting in the queue."""
@@ -66,16 +74,16 @@ class Subscription:
         """Stop receiving (idempotent)."""
         self._fanout._remove(self)
 
-    def __enter__(self) -> Subscription:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def __aiter__(self) -> Subscription:
+    def __aiter__(self) -> Self:
         return self
 
-    async def __anext__(self) -> Any:
+    async def __anext__(self) -> _Item_co:
         try:
             return await self.get()
         except LinkClosedError:
@@ -88,18 +96,18 @@ class FanOut:
     """Latest value per key and the subscriptions (used by the link's reader task)."""
 
     def __init__(self) -> None:
-        self.latest: dict[Hashable, Any] = {}
-        self._subs: dict[Hashable, list[Subscription]] = {}
+        self.latest: dict[Key, object] = {}
+        self._subs: dict[Key, list[Subscription[object]]] = {}
         self.closed = False
         self.error: BaseException | None = None
         """Why the reader stopped, if it failed; None for a normal close."""
 
-    def subscribe(self, keys: tuple[Hashable, ...], maxsize: int) -> Subscription:
+    def subscribe(self, keys: tuple[Key, ...], maxsize: int) -> Subscription[object]:
         if not keys:
             raise ValueError("subscribe to at least one key")
         if maxsize < 1:
             raise ValueError("maxsize must be at least 1")
-        sub = Subscription(self, frozenset(keys), maxsize)
+        sub: Subscription[object] = Subscription(self, frozenset(keys), maxsize)
         if self.closed:
             sub._close()
             return sub
@@ -107,13 +115,13 @@ class FanOut:
             self._subs.setdefault(key, []).append(sub)
         return sub
 
-    def _remove(self, sub: Subscription) -> None:
+    def _remove(self, sub: Subscription[object]) -> None:
         for key in sub.keys:
             subs = self._subs.get(key, [])
             if sub in subs:
                 subs.remove(sub)
 
-    def publish(self, key: Hashable, item: Any) -> None:
+    def publish(self, key: Key, item: object) -> None:
         """Store ``item`` as the latest of ``key`` and queue it for its subscribers."""
         self.latest[key] = item
         for sub in self._subs.get(key, ()):

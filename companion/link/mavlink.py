@@ -23,16 +23,16 @@ from __future__ import annotations
 
 import asyncio
 from collections import Counter
-from collections.abc import Hashable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal, TypeVar, overload
 
 from numpy.typing import ArrayLike
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.link.errors import LinkClosedError, LinkLostError, VehicleNotFoundError
 from companion.link.events import LinkLost, LinkRegained, VehicleDetected, VehicleId
-from companion.link.fanout import FanOut, Subscription
+from companion.link.fanout import FanOut, Key, Subscription
+from companion.link.messages import CommandAck, MavlinkMessage, ParamValue
 from companion.link.px4_commands import Px4Commands
 from companion.link.setpoint import (
     ATTITUDE_ONLY_TYPE_MASK,
@@ -51,6 +51,8 @@ __all__ = ["LinkStats", "MavlinkLink"]
 
 _MAX_READS_PER_WAKE = 64
 """Datagrams / chunks read before the reader yields to other tasks once."""
+
+_T = TypeVar("_T")
 
 
 @dataclass(frozen=True)
@@ -123,13 +125,13 @@ class MavlinkLink(Px4Commands):
         for name, value in (("system_id", system_id), ("component_id", component_id)):
             if not 1 <= value <= 255:
                 raise ValueError(f"{name} {value} is outside 1..255")
-        for name, value in (
+        for name, period in (
             ("heartbeat_timeout_s", heartbeat_timeout_s),
             ("telemetry_timeout_s", telemetry_timeout_s),
             ("heartbeat_period_s", heartbeat_period_s),
         ):
-            if not value > 0.0:
-                raise ValueError(f"{name} must be positive, got {value}")
+            if not period > 0.0:
+                raise ValueError(f"{name} must be positive, got {period}")
         self.system_id = system_id
         self.component_id = component_id
         self.signing = signing
@@ -215,15 +217,38 @@ class MavlinkLink(Px4Commands):
 
     # --- subscriptions and state -------------------------------------------------
 
-    def subscribe(self, *keys: Hashable, maxsize: int = 64) -> Subscription:
+    @overload
+    def subscribe(self, key: type[_T], /, *, maxsize: int = 64) -> Subscription[_T]: ...
+    @overload
+    def subscribe(
+        self, key: Literal["COMMAND_ACK"], /, *, maxsize: int = 64
+    ) -> Subscription[CommandAck]: ...
+    @overload
+    def subscribe(
+        self, key: Literal["PARAM_VALUE"], /, *, maxsize: int = 64
+    ) -> Subscription[ParamValue]: ...
+    @overload
+    def subscribe(self, key: str, /, *, maxsize: int = 64) -> Subscription[MavlinkMessage]: ...
+    @overload
+    def subscribe(self, *keys: Key, maxsize: int = 64) -> Subscription[object]: ...
+    def subscribe(self, *keys: Key, maxsize: int = 64) -> Subscription[object]:
         """A new queue of the items of ``keys``: MAVLink message names (``"HEARTBEAT"``,
         pymavlink message objects) and/or sample and event classes (``VehiclePose``,
         ``LinkLost``, ...). Each subscription gets every item; a full queue drops its
-        oldest item (``Subscription.dropped``)."""
+        oldest item (``Subscription.dropped``).
+
+        Typed by its key: a class gives its instances, a message name a
+        :class:`~companion.link.messages.MavlinkMessage` (COMMAND_ACK and PARAM_VALUE
+        their own protocols), several keys ``object``."""
         return self._fanout.subscribe(keys, maxsize)
 
-    def latest(self, key: Hashable) -> Any:
-        """The latest item of a key (see :meth:`subscribe`), or None if none yet."""
+    @overload
+    def latest(self, key: type[_T]) -> _T | None: ...
+    @overload
+    def latest(self, key: str) -> MavlinkMessage | None: ...
+    def latest(self, key: Key) -> object | None:
+        """The latest item of a key (see :meth:`subscribe`, typed alike), or None if none
+        yet."""
         return self._fanout.latest.get(key)
 
     @property
@@ -282,7 +307,7 @@ class MavlinkLink(Px4Commands):
             raise LinkClosedError("the link is not open")
         return self._mav
 
-    def send_message(self, msg: Any) -> None:
+    def send_message(self, msg: MavlinkMessage) -> None:
         """Send a pymavlink message object now (signed if signing is on)."""
         if self._closed or self._mav is None:
             raise LinkClosedError("the link is closed") from self._fanout.error

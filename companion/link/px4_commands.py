@@ -24,8 +24,8 @@ import asyncio
 import math
 import struct
 from abc import ABC, abstractmethod
-from collections.abc import Hashable, Sequence
-from typing import Any
+from collections.abc import Sequence
+from typing import Literal, TypedDict, Unpack, overload
 
 from pymavlink.dialects.v20 import common as mavlink2
 
@@ -37,9 +37,16 @@ from companion.link.errors import (
     VehicleNotFoundError,
 )
 from companion.link.events import VehicleId
-from companion.link.fanout import Subscription
+from companion.link.fanout import Key, Subscription
+from companion.link.messages import CommandAck, MavlinkMessage, ParamValue
 
-__all__ = ["ARM_FORCE_MAGIC", "Px4Commands", "decode_param_value", "encode_param_value"]
+__all__ = [
+    "ARM_FORCE_MAGIC",
+    "CommandOptions",
+    "Px4Commands",
+    "decode_param_value",
+    "encode_param_value",
+]
 
 ARM_FORCE_MAGIC = 21196.0
 """param2 of MAV_CMD_COMPONENT_ARM_DISARM that overrides PX4's pre-arm / landed checks."""
@@ -78,6 +85,15 @@ def encode_param_value(value: float, param_type: int) -> float:
     return struct.unpack("<f", raw)[0]
 
 
+class CommandOptions(TypedDict, total=False):
+    """Keywords of :meth:`Px4Commands.command_long` that the commands built on it pass on."""
+
+    timeout_s: float
+    attempts: int
+    target_component: int | None
+    confirm_s: float
+
+
 def _enum_name(enum: str, value: int) -> str:
     entry = mavlink2.enums.get(enum, {}).get(value)
     return entry.name if entry is not None else f"{enum}({value})"
@@ -91,11 +107,19 @@ class Px4Commands(ABC):
     component_id: int
     _command_locks: dict[int, asyncio.Lock]
 
+    @overload
+    def subscribe(
+        self, key: Literal["COMMAND_ACK"], /, *, maxsize: int = 64
+    ) -> Subscription[CommandAck]: ...
+    @overload
+    def subscribe(
+        self, key: Literal["PARAM_VALUE"], /, *, maxsize: int = 64
+    ) -> Subscription[ParamValue]: ...
     @abstractmethod
-    def subscribe(self, *keys: Hashable, maxsize: int = 64) -> Subscription: ...
+    def subscribe(self, *keys: Key, maxsize: int = 64) -> Subscription[object]: ...
 
     @abstractmethod
-    def send_message(self, msg: Any) -> None: ...
+    def send_message(self, msg: MavlinkMessage) -> None: ...
 
     @property
     @abstractmethod
@@ -114,7 +138,7 @@ class Px4Commands(ABC):
         attempts: int = 3,
         target_component: int | None = None,
         confirm_s: float = 0.0,
-    ) -> Any:
+    ) -> CommandAck:
         """Send MAV_CMD ``command`` with up to 7 ``params`` (the rest 0) to the vehicle
         and wait for its final COMMAND_ACK, resending after each ``timeout_s`` [s] up to
         ``attempts`` times in all. Returns the ACCEPTED ack (a pymavlink message).
@@ -179,8 +203,8 @@ class Px4Commands(ABC):
         raise CommandTimeout(command, name, attempt, timeout_s)
 
     async def _await_ack(
-        self, acks: Subscription, command: int, vehicle: VehicleId, deadline: float
-    ) -> Any:
+        self, acks: Subscription[CommandAck], command: int, vehicle: VehicleId, deadline: float
+    ) -> CommandAck | None:
         """The next COMMAND_ACK of ``command`` from the vehicle to us, or None at the
         deadline (loop time [s])."""
         try:
@@ -197,7 +221,9 @@ class Px4Commands(ABC):
         except TimeoutError:
             return None
 
-    async def set_mode_px4(self, main: int, sub: int = 0, **kwargs: Any) -> Any:
+    async def set_mode_px4(
+        self, main: int, sub: int = 0, **kwargs: Unpack[CommandOptions]
+    ) -> CommandAck:
         """MAV_CMD_DO_SET_MODE to a PX4 main / sub mode (see
         :mod:`companion.link.px4_modes`; e.g. ``set_mode_px4(*px4_mode("OFFBOARD"))``).
         PX4 refuses OFFBOARD in the air unless setpoints are already streaming (> 2 Hz).
@@ -207,18 +233,20 @@ class Px4Commands(ABC):
         kwargs.setdefault("confirm_s", 0.1)
         return await self.command_long(mavlink2.MAV_CMD_DO_SET_MODE, params, **kwargs)
 
-    async def arm(self, force: bool = False, **kwargs: Any) -> Any:
+    async def arm(self, force: bool = False, **kwargs: Unpack[CommandOptions]) -> CommandAck:
         """MAV_CMD_COMPONENT_ARM_DISARM(1); ``force`` skips PX4's pre-arm checks."""
         params = (1.0, ARM_FORCE_MAGIC if force else 0.0)
         return await self.command_long(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, params, **kwargs)
 
-    async def disarm(self, force: bool = False, **kwargs: Any) -> Any:
+    async def disarm(self, force: bool = False, **kwargs: Unpack[CommandOptions]) -> CommandAck:
         """MAV_CMD_COMPONENT_ARM_DISARM(0); PX4 refuses in the air unless ``force``
         (which stops the motors: a flight termination)."""
         params = (0.0, ARM_FORCE_MAGIC if force else 0.0)
         return await self.command_long(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, params, **kwargs)
 
-    async def set_message_interval(self, msg_id: int, rate_hz: float, **kwargs: Any) -> Any:
+    async def set_message_interval(
+        self, msg_id: int, rate_hz: float, **kwargs: Unpack[CommandOptions]
+    ) -> CommandAck:
         """MAV_CMD_SET_MESSAGE_INTERVAL: stream message ``msg_id`` at ``rate_hz`` [Hz];
         0 stops it (interval -1)."""
         if not rate_hz >= 0.0:
@@ -278,7 +306,9 @@ class Px4Commands(ABC):
             raise VehicleNotFoundError("no vehicle detected yet")
         return vehicle
 
-    async def _await_param(self, values: Subscription, name: str, timeout_s: float) -> Any:
+    async def _await_param(
+        self, values: Subscription[ParamValue], name: str, timeout_s: float
+    ) -> ParamValue | None:
         """The next PARAM_VALUE of ``name`` from the vehicle, or None after ``timeout_s``."""
         vehicle = self._vehicle_or_raise()
         try:

@@ -14,13 +14,14 @@ evaluated by the generated C extension ``_mcg``.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from companion.config import Scenario, load_scenario
+from companion.config import CompanionConfig, load_config
 from companion.model import _mcg
 from companion.model.layout import N_Q, N_XI, PARAM_NAMES, ROW
 
@@ -50,18 +51,19 @@ class ModelParameters:
     gravity_m_s2: float
 
     @classmethod
-    def from_scenario(cls, scenario: Scenario) -> ModelParameters:
-        """Known parameters of a validated scenario (link 2 stays unknown)."""
+    def from_config(cls, config: CompanionConfig) -> ModelParameters:
+        """Known parameters of a validated configuration (link 2 stays unknown)."""
+        scenario = config
         link1 = scenario.arm.link1
         return cls(
             vehicle_mass_kg=scenario.vehicle.mass_kg,
-            vehicle_inertia_kg_m2=tuple(scenario.vehicle.inertia_kg_m2),
+            vehicle_inertia_kg_m2=_vec3(scenario.vehicle.inertia_kg_m2),
             link1_mass_kg=link1.mass_kg,
             link1_first_moment_kg_m=link1.first_moment_kg_m,
             link1_second_moment_kg_m2=link1.second_moment_kg_m2,
             link1_length_m=link1.length_m,
             armature_kg_m2=(link1.armature_kg_m2, scenario.arm.link2.armature_kg_m2),
-            mount_point_m=tuple(scenario.arm.mount_point_m),
+            mount_point_m=_vec3(scenario.arm.mount_point_m),
             gravity_m_s2=scenario.environment.gravity_m_s2,
         )
 
@@ -111,7 +113,7 @@ class ModelTerms:
 
     def evaluate(self, theta: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
         """(M, C, G) for theta = (m2, m3, m4), shapes (8, 8), (8, 8), (8,)."""
-        m2, m3, m4 = (float(v) for v in theta)
+        m2, m3, m4 = np.asarray(theta, dtype=np.float64).tolist()
         out = np.empty(N_Q * ROW)
         _mcg.combine(self.pieces, np.array((m2, m3, m4, 1.0)), out)
         rows = out.reshape(N_Q, ROW)
@@ -158,14 +160,15 @@ class ManipulatorModel:
         self._p = params.vector()
 
     @classmethod
-    def from_scenario(cls, scenario: Scenario) -> ManipulatorModel:
-        """Model of a validated scenario's vehicle and arm."""
-        return cls(ModelParameters.from_scenario(scenario))
+    def from_config(cls, config: CompanionConfig) -> ManipulatorModel:
+        """Model of a validated configuration's vehicle and arm."""
+        return cls(ModelParameters.from_config(config))
 
     @classmethod
     def from_file(cls, path: str | Path) -> ManipulatorModel:
-        """Load and validate a scenario TOML file (raises ``ConfigError``) and build the model."""
-        return cls.from_scenario(load_scenario(path))
+        """Load and validate a configuration TOML file (raises ``ConfigError``) and build
+        the model."""
+        return cls.from_config(load_config(path))
 
     def terms(self, q: ArrayLike, q_dot: ArrayLike) -> ModelTerms:
         """All pieces of M(q), C(q, q_dot), G(q) at one state.
@@ -210,6 +213,12 @@ class ManipulatorModel:
         """Kinetic energy 1/2 q_dot^T M(q) q_dot [J]."""
         v = _vector(q_dot, "q_dot")
         return 0.5 * float(v @ self.mass_matrix(q, theta) @ v)
+
+
+def _vec3(values: Sequence[float]) -> tuple[float, float, float]:
+    """A validated 3-vector of the configuration as a 3-tuple."""
+    x, y, z = values
+    return (x, y, z)
 
 
 def _vector(values: ArrayLike, name: str) -> FloatArray:

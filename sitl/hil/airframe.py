@@ -29,10 +29,10 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from companion.config import Scenario
 from companion.frames import frd_from_flu
 from sitl.physics.rotors import N_ROTORS, RotorGeometry
 from sitl.px4 import Px4Params
+from sitl.scenario import Scenario
 
 __all__ = [
     "AUTOSTART",

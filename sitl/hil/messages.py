@@ -120,8 +120,8 @@ def vision_odometry(
     (:func:`sitl.mocap.odometry_message`); ``time_us`` is the mocap system's clock."""
     q_ned_frd = quaternion_ned_frd_from_enu_flu(quaternion_from_euler(*pose.euler_rad.tolist()))
     ned = MocapPose(
-        tuple(ned_from_enu(pose.position_m).tolist()),  # type: ignore[arg-type]
-        tuple(q_ned_frd.tolist()),  # type: ignore[arg-type]
+        tuple(ned_from_enu(pose.position_m).tolist()),
+        tuple(q_ned_frd.tolist()),
     )
     return odometry_message(ned, time_us, position_std_m, attitude_std_rad)
 

@@ -122,7 +122,7 @@ class Imu:
         period, body FLU)."""
         truth = np.concatenate((np.asarray(specific_force_flu_m_s2), np.asarray(omega_flu_rad_s)))
         noisy = (truth + self._std * self._rng.standard_normal(6)).tolist()
-        return ImuReading(tuple(noisy[0:3]), tuple(noisy[3:6]))  # type: ignore[arg-type]
+        return ImuReading(tuple(noisy[0:3]), tuple(noisy[3:6]))
 
 
 class Magnetometer:
@@ -136,7 +136,7 @@ class Magnetometer:
     def measure(self, rotation_world_body: ArrayLike) -> tuple[float, float, float]:
         """Field [gauss] along body FLU for the attitude R (body FLU -> world ENU)."""
         field = np.asarray(rotation_world_body).T @ self._field_enu
-        return tuple((field + self._std * self._rng.standard_normal(3)).tolist())  # type: ignore[return-value]
+        return tuple((field + self._std * self._rng.standard_normal(3)).tolist())
 
 
 @dataclass(frozen=True)
@@ -318,7 +318,7 @@ class GpsReceiver:
             latitude_deg=lat,
             longitude_deg=lon,
             altitude_amsl_m=alt,
-            velocity_enu_m_s=tuple(velocity.tolist()),  # type: ignore[arg-type]
+            velocity_enu_m_s=tuple(velocity.tolist()),
             eph_m=math.hypot(grade.horizontal_std_m, grade.white_std_m),
             epv_m=math.hypot(grade.vertical_std_m, grade.white_std_m),
             fix_type=grade.fix_type,

@@ -50,7 +50,6 @@ from typing import IO
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.config import Scenario
 from sitl.hil.airframe import AUTOSTART, navigation_parameters, px4_parameters
 from sitl.hil.link import SimulatorLink
 from sitl.hil.messages import (
@@ -75,6 +74,7 @@ from sitl.physics.rotors import N_ROTORS
 from sitl.px4 import GeoReference, MavlinkEndpoint, Px4Mode
 from sitl.px4_sitl import Px4Build, Px4NotReadyError, Px4Ports, Px4Sitl, free_instance
 from sitl.runner import RunOptions, RunStats, build_world, truth_record
+from sitl.scenario import Scenario
 from sitl.sensors import PoseSensor
 from sitl.servo import Faults
 

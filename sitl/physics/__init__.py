@@ -10,6 +10,9 @@ must show up against this plant, not be copied into it. Entry point::
     plant = TruthPlant.from_scenario(scenario, mode="underactuated")
     state = plant.step(AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, 0.45), [0.0, 0.0])
 
+Both backends are a :class:`Plant` (underactuated); the Pinocchio one is also an
+:class:`IdealPlant` (:mod:`~sitl.physics.protocols`).
+
 Modules: :mod:`~sitl.physics.plant` (integration, modes, payload),
 :mod:`~sitl.physics.articulation` (the Pinocchio model), :mod:`~sitl.physics.rotors`
 (thrust curve, motor lag, mixer), :mod:`~sitl.physics.attitude_control` (PX4-like loops),
@@ -25,6 +28,7 @@ from sitl.physics.errors import (
     PlantModeError,
 )
 from sitl.physics.plant import PlantMode, TruthPlant
+from sitl.physics.protocols import IdealPlant, Plant, PlantCore
 from sitl.physics.state import ActuatorState, PlantState
 
 __all__ = [
@@ -33,7 +37,10 @@ __all__ = [
     "AttitudeSetpoint",
     "BackendError",
     "EulerSingularityError",
+    "IdealPlant",
     "PhysicsBackend",
+    "Plant",
+    "PlantCore",
     "PlantDivergedError",
     "PlantError",
     "PlantMode",

@@ -26,7 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from companion.config import Link, Scenario, Theta
+from companion.config import Link, Theta
+from sitl.scenario import Scenario
 
 __all__ = ["Articulation", "build_articulation", "line_inertia", "theta_of"]
 

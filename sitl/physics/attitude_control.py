@@ -34,14 +34,15 @@ References: PX4-Autopilot ``src/modules/mc_att_control/AttitudeControl/AttitudeC
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
-from companion.config import AttitudeControl as AttitudeControlConfig
 from sitl.physics.frames import quaternion_from_euler
 from sitl.physics.rotors import MixerOutput, SequentialDesaturationMixer
+from sitl.scenario import AttitudeControl as AttitudeControlConfig
 
 __all__ = [
     "AttitudeController",
@@ -106,11 +107,10 @@ class AttitudeSetpoint:
         return cls(quaternion_from_euler(phi, theta, psi), thrust)
 
 
-def _as_quat(q: ArrayLike) -> Quat:
+def _as_quat(q: Iterable[float]) -> Quat:
     """Four Python floats of a quaternion given as an array, tuple or list."""
-    if isinstance(q, np.ndarray):
-        return tuple(q.tolist())  # type: ignore[return-value]
-    return tuple(map(float, q))  # type: ignore[arg-type, return-value]
+    w, x, y, z = q.tolist() if isinstance(q, np.ndarray) else map(float, q)
+    return (w, x, y, z)
 
 
 def _mul(a: Quat, b: Quat) -> Quat:
@@ -157,8 +157,8 @@ def _between(src: tuple[float, float, float], dst: tuple[float, float, float]) -
     return (w / n, cr[0] / n, cr[1] / n, cr[2] / n)
 
 
-def _vec3(values: ArrayLike) -> Vec3:
-    a, b, c = (float(v) for v in values)  # type: ignore[union-attr]
+def _vec3(values: Iterable[float]) -> Vec3:
+    a, b, c = (float(v) for v in values)
     return (a, b, c)
 
 
@@ -231,7 +231,9 @@ class AttitudeController:
         Rate setpoint limits [rad/s].
     """
 
-    def __init__(self, attitude_p: ArrayLike, yaw_weight: float, rate_max_rad_s: ArrayLike) -> None:
+    def __init__(
+        self, attitude_p: Iterable[float], yaw_weight: float, rate_max_rad_s: Iterable[float]
+    ) -> None:
         gains = [float(g) for g in attitude_p]
         self.yaw_weight = min(max(float(yaw_weight), 0.0), 1.0)
         if self.yaw_weight > 1e-4:
@@ -240,7 +242,7 @@ class AttitudeController:
         self._rate_max = tuple(float(r) for r in rate_max_rad_s)
 
     def rate_setpoint(
-        self, q_wxyz: ArrayLike, q_setpoint_wxyz: ArrayLike
+        self, q_wxyz: Iterable[float], q_setpoint_wxyz: Iterable[float]
     ) -> tuple[float, float, float]:
         """Body-rate setpoint (FLU) [rad/s] for attitude q and its setpoint (both wxyz)."""
         q: Quat = _as_quat(q_wxyz)
@@ -280,10 +282,10 @@ class RateController:
 
     def __init__(
         self,
-        rate_p: ArrayLike,
-        rate_i: ArrayLike,
-        rate_d: ArrayLike,
-        integrator_limit: ArrayLike,
+        rate_p: Iterable[float],
+        rate_i: Iterable[float],
+        rate_d: Iterable[float],
+        integrator_limit: Iterable[float],
         d_cutoff_hz: float,
         dt_s: float,
     ) -> None:
@@ -295,18 +297,18 @@ class RateController:
 
     def set_gains(
         self,
-        rate_p: ArrayLike,
-        rate_i: ArrayLike,
-        rate_d: ArrayLike,
-        integrator_limit: ArrayLike,
+        rate_p: Iterable[float],
+        rate_i: Iterable[float],
+        rate_d: Iterable[float],
+        integrator_limit: Iterable[float],
         d_cutoff_hz: float,
     ) -> None:
         """New gains, limits and D cutoff (as the constructor's); the integrators and the
         acceleration filter keep their state, as PX4's on a parameter change."""
-        self._p = [float(g) for g in rate_p]  # type: ignore[union-attr]
-        self._i = [float(g) for g in rate_i]  # type: ignore[union-attr]
-        self._d = [float(g) for g in rate_d]  # type: ignore[union-attr]
-        self._limit = [float(g) for g in integrator_limit]  # type: ignore[union-attr]
+        self._p = [float(g) for g in rate_p]
+        self._i = [float(g) for g in rate_i]
+        self._d = [float(g) for g in rate_d]
+        self._limit = [float(g) for g in integrator_limit]
         self._alpha = 1.0 - math.exp(-2.0 * math.pi * d_cutoff_hz * self._dt)
 
     @property
@@ -319,10 +321,10 @@ class RateController:
         """Filtered angular acceleration used by the D term [rad/s^2], shape (3,)."""
         return np.array(self._angular_accel)
 
-    def reset(self, rate_rad_s: ArrayLike = (0.0, 0.0, 0.0)) -> None:
+    def reset(self, rate_rad_s: Iterable[float] = (0.0, 0.0, 0.0)) -> None:
         """Zero the integrators and the acceleration filter; start from body rate ``rate_rad_s``."""
         self._integral = [0.0, 0.0, 0.0]
-        self._previous_rate = [float(r) for r in rate_rad_s]  # type: ignore[union-attr]
+        self._previous_rate = [float(r) for r in rate_rad_s]
         self._angular_accel = [0.0, 0.0, 0.0]
 
     def update(
@@ -430,7 +432,7 @@ class Px4AttitudeLoop:
         )
         self.thr_mdl_fac = params.thr_mdl_fac
 
-    def reset(self, rate_rad_s: ArrayLike = (0.0, 0.0, 0.0)) -> None:
+    def reset(self, rate_rad_s: Iterable[float] = (0.0, 0.0, 0.0)) -> None:
         """Clear integrators, filters and the saturation feedback."""
         self.rate.reset(rate_rad_s)
         self._last_mix = None

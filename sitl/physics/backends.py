@@ -1,9 +1,9 @@
 """Choose the physics backend of the truth plant: Pinocchio (ours) or JSBSim (issue 7).
 
-Both plants have the same public interface in underactuated mode (``reset``, ``step``,
-``state``, ``time_s``, ``actuators``, payload handling, ``true_theta``,
-``total_mass_kg``, ``rate_hz``, ``dt_s``), so the offline simulator and the SITL vehicle
-take either::
+Both plants are a :class:`~sitl.physics.protocols.Plant` in underactuated mode
+(``reset``, ``step``, ``state``, ``time_s``, ``actuators``, payload handling,
+``true_theta``, ``total_mass_kg``, ``rate_hz``, ``dt_s``), so the offline simulator and
+the SITL vehicle take either::
 
     plant = make_plant(scenario, "jsbsim", "underactuated", payload_attached=True,
                        wind=Wind((3.0, 0.0, 0.0), "milspec", 7.7))
@@ -15,14 +15,15 @@ raises :class:`BackendError`. The JSBSim backend is imported only when asked for
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Literal, overload
 
-from companion.config import Scenario
 from sitl.physics.errors import PlantModeError
 from sitl.physics.plant import PlantMode, TruthPlant
+from sitl.physics.protocols import IdealPlant, Plant
+from sitl.scenario import Scenario
 
 if TYPE_CHECKING:
-    from sitl.physics.jsbsim import JsbsimPlant, Wind
+    from sitl.physics.jsbsim import Wind
 
 __all__ = ["PHYSICS_BACKENDS", "BackendError", "PhysicsBackend", "make_plant"]
 
@@ -34,6 +35,25 @@ class BackendError(PlantModeError, ValueError):
     """The backend cannot build this plant (unknown backend, mode or option it lacks)."""
 
 
+@overload
+def make_plant(
+    scenario: Scenario,
+    physics: PhysicsBackend,
+    mode: Literal["ideal"],
+    *,
+    payload_attached: bool = False,
+    wind: Wind | None = None,
+) -> IdealPlant: ...
+@overload
+def make_plant(
+    scenario: Scenario,
+    physics: PhysicsBackend = "pinocchio",
+    mode: Literal["underactuated"] = "underactuated",
+    *,
+    payload_attached: bool = False,
+    wind: Wind | None = None,
+) -> Plant: ...
+@overload
 def make_plant(
     scenario: Scenario,
     physics: PhysicsBackend = "pinocchio",
@@ -41,8 +61,17 @@ def make_plant(
     *,
     payload_attached: bool = False,
     wind: Wind | None = None,
-) -> TruthPlant | JsbsimPlant:
-    """The truth plant of ``scenario`` on the chosen backend, at rest at ``initial_q``.
+) -> Plant | IdealPlant: ...
+def make_plant(
+    scenario: Scenario,
+    physics: PhysicsBackend = "pinocchio",
+    mode: PlantMode = "underactuated",
+    *,
+    payload_attached: bool = False,
+    wind: Wind | None = None,
+) -> Plant | IdealPlant:
+    """The truth plant of ``scenario`` on the chosen backend, at rest at ``initial_q``:
+    an :class:`IdealPlant` in ideal mode (Pinocchio only), a :class:`Plant` otherwise.
 
     Parameters
     ----------

@@ -20,6 +20,7 @@ Everything here is written with scalar ``math`` calls: these run every plant ste
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -70,7 +71,7 @@ def rotation9_from_quaternion(w: float, x: float, y: float, z: float) -> Rot9:
     )
 
 
-def rotation_from_quaternion(q_wxyz: ArrayLike) -> FloatArray:
+def rotation_from_quaternion(q_wxyz: Iterable[float]) -> FloatArray:
     """Rotation matrix (body to world) of a unit quaternion ``[w, x, y, z]``, shape (3, 3)."""
     w, x, y, z = (float(c) for c in q_wxyz)
     return np.array(rotation9_from_quaternion(w, x, y, z)).reshape(3, 3)
@@ -106,7 +107,7 @@ def quaternion_from_euler(phi: float, theta: float, psi: float) -> FloatArray:
     return q if q[0] >= 0.0 else -q
 
 
-def quaternion_multiply(a: ArrayLike, b: ArrayLike) -> FloatArray:
+def quaternion_multiply(a: Iterable[float], b: Iterable[float]) -> FloatArray:
     """Hamilton product a * b of quaternions ``[w, x, y, z]`` (apply b, then a)."""
     aw, ax, ay, az = (float(c) for c in a)
     bw, bx, by, bz = (float(c) for c in b)

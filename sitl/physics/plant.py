@@ -37,7 +37,7 @@ import numpy as np
 import pinocchio as pin
 from numpy.typing import ArrayLike, NDArray
 
-from companion.config import Scenario, Theta
+from companion.config import Theta
 from sitl.physics.articulation import ETA2_JOINT, build_articulation, theta_of
 from sitl.physics.attitude_control import (
     AttitudeLoopParams,
@@ -67,6 +67,7 @@ from sitl.physics.rotors import (
     inverse_thrust_curve,
 )
 from sitl.physics.state import ActuatorState, PlantState
+from sitl.scenario import Scenario
 
 __all__ = ["PlantMode", "TruthPlant"]
 

@@ -34,6 +34,7 @@ References: PX4-Autopilot ``src/modules/control_allocator/ControlAllocation/``
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -229,8 +230,8 @@ class SequentialDesaturationMixer:
         wrench = geometry.wrench_matrix() * max_thrust_per_rotor_n
         mix = np.linalg.pinv(wrench)  # (6, 4): columns roll, pitch, yaw, thrust
         scale = np.empty(4)
-        n_roll = max(np.count_nonzero(np.abs(mix[:, 0]) > _SMALL), 1)
-        n_pitch = max(np.count_nonzero(np.abs(mix[:, 1]) > _SMALL), 1)
+        n_roll = max(int(np.count_nonzero(np.abs(mix[:, 0]) > _SMALL)), 1)
+        n_pitch = max(int(np.count_nonzero(np.abs(mix[:, 1]) > _SMALL)), 1)
         roll_scale = math.sqrt(float(mix[:, 0] @ mix[:, 0]) / (n_roll / 2.0))
         pitch_scale = math.sqrt(float(mix[:, 1] @ mix[:, 1]) / (n_pitch / 2.0))
         scale[0] = scale[1] = max(roll_scale, pitch_scale)
@@ -261,7 +262,7 @@ class SequentialDesaturationMixer:
         believed maximum thrust."""
         return 1.0 / self._scale[:3]
 
-    def mix(self, torque_normalized: ArrayLike, thrust_normalized: float) -> MixerOutput:
+    def mix(self, torque_normalized: Iterable[float], thrust_normalized: float) -> MixerOutput:
         """Allocate normalized torques (roll, pitch, yaw) and the relative collective thrust
         to six relative rotor thrusts in [0, 1]; see the class docstring for the priorities.
         """
@@ -288,8 +289,8 @@ class SequentialDesaturationMixer:
             sat_neg.append(x < -_SATURATION_TOL)
         return MixerOutput(
             relative_thrusts=u,
-            saturation_positive=tuple(sat_pos),  # type: ignore[arg-type]
-            saturation_negative=tuple(sat_neg),  # type: ignore[arg-type]
+            saturation_positive=tuple(sat_pos),
+            saturation_negative=tuple(sat_neg),
         )
 
 

@@ -340,11 +340,8 @@ class Commander:
         fresh = m.estimate_time_us != self._last_estimate_us
         if not fresh and self._setpoint is not None and self._target_mode == self.mode:
             return self._setpoint
-        dt = (
-            0.0
-            if self._last_estimate_us is None
-            else (m.estimate_time_us - self._last_estimate_us) * 1e-6
-        )
+        now_us, last_us = m.estimate_time_us, self._last_estimate_us
+        dt = 0.0 if now_us is None or last_us is None else (now_us - last_us) * 1e-6
         self._last_estimate_us = m.estimate_time_us
         target = self._current_target(m)
         spooling = now_s < self._armed_at_s + self._params["COM_SPOOLUP_TIME"]

@@ -121,7 +121,7 @@ class MavlinkEndpoint:
         self._link_id = int(link_id)
         self._sock: socket.socket | None = None
         self._mav: mavlink.MAVLink | None = None
-        self._poller = None
+        self._poller: select.poll | None = None
         self.counters: Counter[str] = Counter()
         """Datagrams / frames by outcome: ``received``, ``sent`` and the drop reasons."""
 
@@ -198,6 +198,7 @@ class MavlinkEndpoint:
         """Every valid message of the datagrams waiting (at most ``max_datagrams``)."""
         sock, mav = self._require_open()
         out: list[mavlink.MAVLink_message] = []
+        assert self._poller is not None  # made with the socket in open()
         if not self._poller.poll(0):  # nothing waiting, no error pending: the usual step
             return out
         for _ in range(max_datagrams):

@@ -32,8 +32,8 @@ from typing import Literal
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.config import Scenario
 from sitl.physics.attitude_control import AttitudeLoopParams
+from sitl.scenario import Scenario
 
 __all__ = [
     "PARAMETERS",

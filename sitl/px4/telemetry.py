@@ -219,7 +219,7 @@ class StreamScheduler:
         self._default_us: dict[int, int | None] = dict.fromkeys(self._known)
         for msg_id, rate in default_rates_hz.items():
             self._default_us[msg_id] = round(1e6 / rate) if rate > 0 else None
-        self._interval_us: dict[int, int | None] = {
+        self._interval_us: dict[int, int] = {
             m: i for m, i in self._default_us.items() if i is not None
         }
         self._next_us: dict[int, int] = dict.fromkeys(self._interval_us, 0)

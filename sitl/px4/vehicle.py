@@ -324,6 +324,8 @@ class Px4Vehicle:
             return c.request_mode(Px4Mode.AUTO_RTL, now_s)
         if command == M.MAV_CMD_SET_MESSAGE_INTERVAL:
             msg_id = _finite_int(p[0])
+            if msg_id is None:
+                return M.MAV_RESULT_FAILED
             try:
                 self._schedulers[link].set_interval(msg_id, p[1], round(now_s * 1e6))
             except (KeyError, ValueError):

@@ -40,8 +40,9 @@ import threading
 import time
 
 from arm_driver.joint import GripperConfig, JointConfig
-from companion.config import Scenario, arm_bus_configs
+from companion.config import arm_bus_configs
 from sitl.physics.jsbsim.arm import ArmDynamics
+from sitl.scenario import Scenario
 from sitl.servo.pty_server import PtyServoBus
 from sitl.servo.xm430 import XM430Parameters, XM430Servo
 from sitl.world import GripperJaw

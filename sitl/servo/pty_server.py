@@ -246,7 +246,8 @@ class PtyServoBus:
             reply = servo.handle(packet)
             if servo.servo_id != old_id:
                 self.servos[servo.servo_id] = self.servos.pop(old_id)
-            level = {Instruction.PING: 0, Instruction.READ: 1}.get(instruction, 2)
+            levels: dict[int, int] = {Instruction.PING: 0, Instruction.READ: 1}
+            level = levels.get(instruction, 2)
             if packet.servo_id == BROADCAST_ID and instruction != Instruction.PING:
                 continue
             out.append(self._frame(servo, reply, level=level))

@@ -39,8 +39,8 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
-from companion.config import Scenario
 from sitl.physics.rotors import N_ROTORS, RotorGeometry
+from sitl.scenario import Scenario
 
 __all__ = [
     "AIRCRAFT_NAME",

@@ -59,11 +59,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.config import Scenario, Theta
+from companion.config import Theta
+from sitl.scenario import Scenario
 
 __all__ = ["ArmDynamics", "LinkBody"]
 
 Vec3 = tuple[float, float, float]
+_PointKinematics = tuple[float, Vec3, Vec3, Vec3, Vec3, Vec3]
+"""(m, s, s_dot, s_ddot0, J column 1, J column 2) of one point mass (see _kinematics)."""
 
 
 @dataclass(frozen=True)
@@ -130,7 +133,7 @@ class ArmDynamics:
         self.eta_ddot = [0.0, 0.0]
         self.payload_attached = False
         self._kin_key: tuple | None = None
-        self._kin: list = []
+        self._kin: list[_PointKinematics] = []
         self._set_masses()
 
     # ------------------------------------------------------------------ bodies
@@ -161,7 +164,7 @@ class ArmDynamics:
 
     # -------------------------------------------------------------- kinematics
 
-    def _kinematics(self) -> list[tuple[float, Vec3, Vec3, Vec3, Vec3, Vec3]]:
+    def _kinematics(self) -> list[_PointKinematics]:
         """Per point mass: (m, s, s_dot, s_ddot0, J column 1, J column 2), body FLU.
 
         Cached for the current (eta, eta_dot, masses): the plant asks several times a step.
@@ -176,7 +179,7 @@ class ArmDynamics:
         p2 = d1 + d2
         rx, ry, rz = self.mount_m
         l1 = self.l1_m
-        out = []
+        out: list[_PointKinematics] = []
         for m, a, link in self._masses:
             if link == 1:
                 s = (rx + a * c1, ry, rz + a * s1)
@@ -199,8 +202,10 @@ class ArmDynamics:
         self._com = _centre(self.base_mass_kg, out)
         total = self.base_mass_kg + sum(k[0] for k in out)
         # c_ddot0 and the columns of J_G = sum m J / M
+        masses = [k[0] for k in out]
         self._com_terms = tuple(
-            [sum(k[0] * k[col][i] for k in out) / total for i in range(3)] for col in (3, 4, 5)
+            [sum(m * v[i] for m, v in zip(masses, column, strict=True)) / total for i in range(3)]
+            for column in ([k[3] for k in out], [k[4] for k in out], [k[5] for k in out])
         )
         self._total = total
         return out

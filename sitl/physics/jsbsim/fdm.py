@@ -22,7 +22,6 @@ from pathlib import Path
 import jsbsim
 import numpy as np
 
-from companion.config import Scenario
 from sitl.physics.errors import PlantError
 from sitl.physics.frames import Rot9, rotation_from_euler
 from sitl.physics.jsbsim.airframe import (
@@ -39,6 +38,7 @@ from sitl.physics.jsbsim.airframe import (
 )
 from sitl.physics.jsbsim.wind import Wind
 from sitl.physics.rotors import N_ROTORS
+from sitl.scenario import Scenario
 
 __all__ = ["FdmReading", "HexarotorFdm", "JsbsimError"]
 
@@ -150,7 +150,10 @@ class HexarotorFdm:
         ]
 
     def _node(self, path: str) -> jsbsim.FGPropertyNode:
-        return self._properties.get_node(path, True)
+        node = self._properties.get_node(path, True)
+        if node is None:  # not with create=True; JSBSim's stub allows it
+            raise JsbsimError(f"JSBSim cannot create the property {path}")
+        return node
 
     def __getitem__(self, path: str) -> float:
         """Any JSBSim property, in JSBSim's units (diagnostics and tests)."""

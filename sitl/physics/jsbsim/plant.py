@@ -62,7 +62,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from companion.config import Scenario, Theta
+from companion.config import Theta
 from sitl.physics.attitude_control import (
     AttitudeLoopParams,
     AttitudeSetpoint,
@@ -88,6 +88,7 @@ from sitl.physics.rotors import (
     inverse_thrust_curve,
 )
 from sitl.physics.state import ActuatorState, PlantState
+from sitl.scenario import Scenario
 
 __all__ = ["JsbsimError", "JsbsimPlant"]
 
@@ -96,8 +97,9 @@ N_Q = 8
 
 
 class JsbsimPlant:
-    """Underactuated truth plant on JSBSim; the public interface of ``TruthPlant``'s
-    underactuated mode (see the module docstring for what differs).
+    """Underactuated truth plant on JSBSim: a :class:`~sitl.physics.Plant`, as
+    ``TruthPlant``'s underactuated mode (see the module docstring for what differs); not
+    an :class:`~sitl.physics.IdealPlant` (no generalized-force input).
 
     Pure in the sense of the project (no I/O after construction, no clock); turbulence is
     random with JSBSim's generator, seeded by ``wind.seed``. Not thread-safe.
@@ -338,10 +340,6 @@ class JsbsimPlant:
         return self._arm.total_mass_kg
 
     # ------------------------------------------------------------------- step
-
-    def step_ideal(self, tau: ArrayLike) -> PlantState:
-        """Not available: raises :class:`PlantModeError` (ideal mode is Pinocchio-only)."""
-        raise PlantModeError("the JSBSim backend has no ideal mode; use step()")
 
     def step(self, setpoint: AttitudeSetpoint, joint_torques_n_m: ArrayLike) -> PlantState:
         """Advance one step under an attitude/thrust setpoint and joint torques.

@@ -87,7 +87,7 @@ class Wind:
         if len(velocity) != 3:
             raise ValueError(f"--wind needs three values E,N,U in m/s, got {wind!r}")
         return cls(
-            velocity_enu_m_s=velocity,  # type: ignore[arg-type]
+            velocity_enu_m_s=velocity,
             turbulence="milspec" if turbulence_m_s > 0.0 else "none",
             windspeed_20ft_m_s=turbulence_m_s,
             seed=seed,

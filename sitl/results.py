@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.simulation import COLUMNS, SimResult
+from sitl.offline import COLUMNS, SimResult
 
 __all__ = ["comparison_markdown", "write_summary", "write_timeseries"]
 
@@ -32,7 +32,7 @@ def write_summary(summary: dict, path: Path) -> Path:
 
 def write_timeseries(result: SimResult, path: Path, rate_hz: float = 100.0) -> Path:
     """timeseries.csv at most ``rate_hz`` rows per simulated second (all columns of
-    ``companion.simulation.COLUMNS``; empty cells for values that do not exist)."""
+    ``sitl.offline.COLUMNS``; empty cells for values that do not exist)."""
     t = result.column("t_s")
     dt = float(t[1] - t[0]) if t.size > 1 else 1.0
     stride = max(1, round(1.0 / (rate_hz * dt)))

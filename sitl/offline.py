@@ -32,20 +32,16 @@ from typing import Literal
 
 import numpy as np
 
-from companion.config import Scenario
-from companion.control import PassivityController, SlidingModeController, check_control_rate
-from companion.estimation import (
-    TRANSLATION_AND_JOINT_ROWS,
-    PaperEstimator,
-    estimator_from_scenario,
-)
-from companion.model import ManipulatorModel
-from companion.setpoints import ThrustModel, attitude_thrust_setpoint
-from companion.state import StateAssembler, thrust_force_world
-from companion.trajectory import PaperSinusoid, TiltReference
+from companion.control import SlidingModeController
+from companion.estimation import TRANSLATION_AND_JOINT_ROWS, PaperEstimator, Skip
+from companion.flight_control import FlightControl
+from companion.setpoints import attitude_thrust_setpoint
+from companion.state import StateAssembler
 from sitl.physics import AttitudeSetpoint, PhysicsBackend, TruthPlant, make_plant
 from sitl.physics.jsbsim.wind import Wind
+from sitl.scenario import Scenario
 from sitl.sensors import GyroSensor, JointEncoders, PoseSensor
+from sitl.trajectory import PaperSinusoid
 
 __all__ = ["COLUMNS", "SimOptions", "SimResult", "simulate"]
 
@@ -97,23 +93,6 @@ class SimResult:
 
     def column(self, name: str) -> np.ndarray:
         return self.data[:, _COL[name]]
-
-
-def _sliding_mode(scenario: Scenario) -> SlidingModeController:
-    sm = scenario.controller.sliding_mode
-    return SlidingModeController(
-        k1=sm.k1,
-        k2=sm.k2,
-        lam=sm.lambda_,
-        boundary_layer=sm.boundary_layer,
-        gamma_delta=sm.gamma_delta,
-        known_mass_kg=scenario.vehicle.mass_kg + scenario.arm.link1.mass_kg,
-        gravity_m_s2=scenario.environment.gravity_m_s2,
-        nominal_lc_m=scenario.nominal_theta.lc_m,
-        m2_0=scenario.estimator.initial_theta.m2_kg,
-        m2_bounds_kg=tuple(scenario.estimator.m2_bounds_kg),
-        mass_filter_s=sm.mass_filter_s,
-    )
 
 
 class _Measurements:
@@ -203,33 +182,18 @@ def simulate(
         payload_attached=scenario.simulation.payload_attached_at_start,
         wind=opts.wind,
     )
-    model = ManipulatorModel.from_scenario(scenario)
-    estimator = estimator_from_scenario(scenario, kind, rows)
-    ctl = scenario.controller
-    if opts.controller == "asmc":
-        smc, passivity = _sliding_mode(scenario), None
-    elif opts.controller == "nonadaptive":
-        passivity = PassivityController.nonadaptive(
-            ctl.k, ctl.lambda_, scenario.nominal_theta.as_tuple()
-        )
-        smc = None
-    else:
-        passivity, smc = PassivityController(ctl.k, ctl.lambda_), None
     # The rows the companion actuates: all on the ideal plant; on the underactuated one PX4
     # closes the attitude loop itself.
     actuated = tuple(range(8)) if opts.plant == "ideal" else TRANSLATION_AND_JOINT_ROWS
-    check_control_rate(
-        model.mass_matrix(
-            scenario.simulation.initial_q, scenario.estimator.initial_theta.as_tuple()
-        ),
-        scenario.controller.sliding_mode.k1 if opts.controller == "asmc" else ctl.k,
-        1.0 / scenario.simulation.control_rate_hz,
-        actuated,
+    # The companion's one control step (the flight app runs the same), given only the
+    # companion's part of the scenario.
+    control = FlightControl(
+        scenario.beliefs, opts.controller, rows=rows, actuated_rows=actuated, estimator_kind=kind
     )
+    q0 = np.asarray(scenario.simulation.initial_q)
+    control.check_rate(scenario.simulation.control_rate_hz, q0)
+    estimator = control.estimator
     traj = PaperSinusoid(scenario.trajectory)
-    tilt = TiltReference(ctl.tilt_reference_bandwidth_rad_s)
-    rotors = scenario.vehicle.rotors
-    curve = ThrustModel(6 * rotors.max_thrust_per_rotor_n)
     sensing = _Measurements(scenario, opts.noise, rng)
     nominal = scenario.nominal_theta.as_tuple()
 
@@ -243,10 +207,11 @@ def simulate(
 
     # Until the filter has a first measurement of every row, hold gravity compensation at
     # the scenario's start pose with the initial estimate (a few ms with latency).
-    q0 = np.asarray(scenario.simulation.initial_q)
-    tau = model.gravity(q0, scenario.estimator.initial_theta.as_tuple())
-    setpoint = attitude_thrust_setpoint(tau[0:3], q0[5], q0[5], ctl.tilt_max_rad, curve)
-    known_tau = np.full(8, np.nan)
+    tau = control.model.gravity(q0, scenario.estimator.initial_theta.as_tuple())
+    setpoint = attitude_thrust_setpoint(
+        tau[0:3], q0[5], q0[5], control.tilt_max_rad, control.thrust
+    )
+    applied: np.ndarray | Skip = Skip.NO_FORCE
     events = sorted(
         (t, name)
         for t, name in ((opts.pickup_at_s, "pickup"), (opts.release_at_s, "release"))
@@ -272,21 +237,13 @@ def simulate(
         ready = sensing.assembler.ready
         if ready:
             f = sensing.assembler.estimate
-            q, q_dot, q_ddot = f.q, f.q_dot, f.q_ddot
-            terms = model.terms(q, q_dot)
-            est = estimator.update(dt_c, terms, q, q_dot, q_ddot, known_tau)
-            desired = tilt.apply(traj(t))
-            if smc is not None:
-                tau = smc.torque(dt_c, terms, q, q_dot, q_ddot, desired, float(known_tau[2]))
-                theta_hat = smc.theta
-            else:
-                tau = passivity.torque(terms, q, q_dot, desired, est.theta)
-                theta_hat = est.theta
-            setpoint = attitude_thrust_setpoint(
-                tau[0:3], q[5], desired.q[5], ctl.tilt_max_rad, curve
-            )
-            # The tilt of eq. phid at the measured yaw, whether or not the plant flies it.
-            tilt.step(dt_c, (setpoint.roll_rad, setpoint.pitch_rad))
+            q = f.q
+            out = control.step(dt_c, f, traj(t), applied)
+            tau, setpoint, est, desired = out.tau, out.setpoint, out.estimate, out.desired
+            # The estimate logged: the law's own for the sliding-mode baseline (eq. asc2),
+            # the estimator's otherwise (it runs beside the non-adaptive law too).
+            own = isinstance(control.controller, SlidingModeController)
+            theta_hat = out.theta_hat if own else est.theta
             step_us = (time.perf_counter_ns() - tick) / 1e3
             qhat = [math.nan] * 8  # the paper observer's qhat on its rows
             if observer is not None and observer.qhat is not None:
@@ -324,17 +281,18 @@ def simulate(
         if opts.plant == "ideal":
             for _ in range(sub):
                 plant.step_ideal(tau)
-            known_tau = tau
+            applied = tau
         else:
             command = AttitudeSetpoint.from_euler(
                 setpoint.roll_rad, setpoint.pitch_rad, setpoint.yaw_rad, setpoint.thrust_relative
             )
             for _ in range(sub):
                 plant.step(command, tau[6:8])
-            known_tau = np.full(8, np.nan)
-            if ready:  # the thrust along the filtered attitude of this step
-                known_tau[0:3] = thrust_force_world(q[3], q[4], q[5], setpoint.thrust_n)
-            known_tau[6:8] = sensing.joint_torques(plant.actuators.joint_torques_n_m)
+            read_back = sensing.joint_torques(plant.actuators.joint_torques_n_m)
+            # The thrust along the filtered attitude of this step, the servos' read-back.
+            applied = (
+                control.applied_force(q, setpoint.thrust_n, read_back) if ready else Skip.NO_FORCE
+            )
         if progress is not None and t >= next_progress:
             progress(t)
             next_progress += 1.0

@@ -1,0 +1,2 @@
+"""Scenario files (TOML). Also importable as ``sitl.configs``, so an installed ``sitl``
+finds its built-in scenarios (``sitl demo``) as package data."""

@@ -1,0 +1,358 @@
+"""The ``sitl`` commands that run the companion's math or app against the simulator.
+
+``sitl sim`` and ``sitl compare`` (the offline closed loop, :mod:`sitl.offline`, and the
+paper's comparison), ``sitl check`` (a whole scenario file, truth included) and
+``sitl demo`` (``sitl run`` plus the pickup mission, compared with the truth).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from enum import StrEnum
+from importlib.resources import files
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from companion.cli_mission import ControllerOpt, parse_xyz, plan_for, run_mission
+from companion.mission import PickupPlan
+from companion.usage import EXIT_USAGE, fail, load_or_exit
+from sitl.launch import SitlNotReadyError, start_sitl
+from sitl.scenario import Scenario, load_scenario
+
+__all__ = ["DEFAULT_SCENARIO", "sim_app"]
+
+DEFAULT_SCENARIO = Path(str(files("sitl.configs") / "sitl_pickup.toml"))
+"""The demo's built-in scenario (package data: configs/ is also ``sitl.configs``)."""
+
+sim_app = typer.Typer(add_completion=False)
+"""The commands of this module; ``sitl.cli`` adds them to ``sitl``."""
+
+
+@sim_app.command()
+def check(
+    config: Annotated[Path, typer.Argument(help="Scenario TOML file to validate.")],
+) -> None:
+    """Validate a whole scenario file (the companion's sections and the simulator's) and
+    print the values the model and the truth use."""
+    cfg = load_or_exit(config, load_scenario)
+    table = Table(title=escape(f"{cfg.name}: {cfg.description}"), show_header=True)
+    table.add_column("quantity")
+    table.add_column("value", justify="right")
+    total = cfg.vehicle.mass_kg + cfg.arm.link1.mass_kg + cfg.true_theta.m2_kg
+    table.add_row(escape("total mass with payload [kg]"), f"{total:.4g}")
+    for label, theta in (("empty link 2", cfg.nominal_theta), ("with payload", cfg.true_theta)):
+        table.add_row(
+            escape(f"{label}: m2 [kg], m3 [kg m], m4 [kg m^2], lc [m]"),
+            f"{theta.m2_kg:.4g}, {theta.m3_kg_m:.4g}, {theta.m4_kg_m2:.4g}, {theta.lc_m:.4g}",
+        )
+    out = Console()
+    out.print(table)
+    out.print(f"{config}: OK", markup=False, highlight=False)
+
+
+class ControllerChoice(StrEnum):
+    passivity = "passivity"
+    nonadaptive = "nonadaptive"
+    asmc = "asmc"
+
+
+class EstimatorChoice(StrEnum):
+    paper = "paper"
+    rls = "rls"
+
+
+class PlantChoice(StrEnum):
+    ideal = "ideal"
+    underactuated = "underactuated"
+
+
+class PhysicsChoice(StrEnum):
+    pinocchio = "pinocchio"
+    jsbsim = "jsbsim"
+
+
+ScenarioOpt = Annotated[
+    Path, typer.Option("--scenario", help="Scenario TOML file (see configs/).", show_default=False)
+]
+OutOpt = Annotated[
+    Path, typer.Option("--out", help="Output directory (created if missing).", show_default=False)
+]
+PlantOpt = Annotated[PlantChoice, typer.Option(help="Truth plant: tau on all 8 rows, or PX4-like.")]
+DurationOpt = Annotated[
+    float | None,
+    typer.Option(help="Simulated seconds [default: the scenario's simulation.duration_s]."),
+]
+SeedOpt = Annotated[int, typer.Option(help="Seed of the sensor-noise generator.")]
+PhysicsOpt = Annotated[
+    PhysicsChoice,
+    typer.Option(help="Truth physics: our Pinocchio plant, or JSBSim (underactuated only)."),
+]
+WindOpt = Annotated[
+    str | None,
+    typer.Option(help="Steady wind 'E,N,U' [m/s], world ENU, e.g. '3,0,0' (jsbsim only)."),
+]
+TurbulenceOpt = Annotated[
+    float,
+    typer.Option(
+        help="Dryden turbulence intensity: MIL-F-8785C wind speed at 20 ft [m/s] "
+        "(jsbsim only; 0 = none; light 7.7, moderate 15)."
+    ),
+]
+NoiseOpt = Annotated[
+    bool, typer.Option("--noise/--no-noise", help="Noisy sensors ([sensors]) or exact ones.")
+]
+
+
+def _run(cfg: Scenario, options, label: str):
+    """Simulate with a progress bar on a terminal; plant failures exit 1 with a message."""
+    from rich.progress import Progress
+
+    from companion.control import ControlRateError
+    from sitl.offline import simulate
+    from sitl.physics import PlantError
+
+    duration = options.duration_s or cfg.simulation.duration_s
+    with Progress(
+        transient=True, disable=not sys.stderr.isatty(), console=Console(stderr=True)
+    ) as bar:
+        task = bar.add_task(label, total=duration)
+        try:
+            return simulate(cfg, options, progress=lambda t: bar.update(task, completed=t))
+        except ControlRateError as exc:
+            typer.echo(f"error: {label}: {exc}", err=True)
+            raise typer.Exit(EXIT_USAGE) from None
+        except (PlantError, FloatingPointError) as exc:
+            typer.echo(f"error: {label}: the simulation failed: {exc}", err=True)
+            raise typer.Exit(1) from None
+
+
+def _check_physics(
+    physics: PhysicsChoice, plant: PlantChoice, wind: str | None, turbulence: float, seed: int
+):
+    """The ``Wind`` of the options (None when calm); usage errors exit 2."""
+    from sitl.physics.jsbsim.wind import Wind
+
+    if physics is PhysicsChoice.jsbsim and plant is PlantChoice.ideal:
+        typer.echo(
+            "error: --physics jsbsim needs --plant underactuated (ideal mode, tau on all 8 "
+            "rows, exists only on the Pinocchio plant)",
+            err=True,
+        )
+        raise typer.Exit(EXIT_USAGE)
+    if wind is None and turbulence == 0.0:
+        return None
+    if physics is not PhysicsChoice.jsbsim:
+        typer.echo("error: --wind and --turbulence need --physics jsbsim", err=True)
+        raise typer.Exit(EXIT_USAGE)
+    try:
+        return Wind.from_text(wind, turbulence, seed)
+    except ValueError as exc:
+        typer.echo(f"error: --wind {wind!r} / --turbulence {turbulence:g}: {exc}", err=True)
+        raise typer.Exit(EXIT_USAGE) from None
+
+
+def _wind_label(air) -> str:
+    if air is None:
+        return ""
+    east, north, up = air.velocity_enu_m_s
+    label = f", wind ({east:g}, {north:g}, {up:g}) m/s ENU"
+    if air.turbulence != "none":
+        label += f" + Dryden turbulence (W20 = {air.windspeed_20ft_m_s:g} m/s)"
+    return label
+
+
+def _check_times(cfg: Scenario, duration: float | None, *times: float | None) -> None:
+    end = duration if duration is not None else cfg.simulation.duration_s
+    if end <= 0.0:
+        typer.echo(f"error: --duration must be positive, got {end:g}", err=True)
+        raise typer.Exit(EXIT_USAGE)
+    for t in times:
+        if t is not None and not 0.0 <= t <= end:
+            typer.echo(f"error: event time {t:g} s lies outside the run [0, {end:g}] s", err=True)
+            raise typer.Exit(EXIT_USAGE)
+
+
+@sim_app.command()
+def sim(
+    scenario: ScenarioOpt,
+    out: OutOpt,
+    controller: Annotated[
+        ControllerChoice, typer.Option(help="Control law.")
+    ] = ControllerChoice.passivity,
+    estimator: Annotated[
+        EstimatorChoice | None,
+        typer.Option(help="Payload estimator [default: the scenario's estimator.kind]."),
+    ] = None,
+    plant: PlantOpt = PlantChoice.ideal,
+    physics: PhysicsOpt = PhysicsChoice.pinocchio,
+    wind: WindOpt = None,
+    turbulence: TurbulenceOpt = 0.0,
+    duration: DurationOpt = None,
+    seed: SeedOpt = 0,
+    noise: NoiseOpt = False,
+    pickup_at: Annotated[
+        float | None, typer.Option(help="Grasp the payload at this time [s].")
+    ] = None,
+    release_at: Annotated[
+        float | None, typer.Option(help="Release the payload at this time [s].")
+    ] = None,
+) -> None:
+    """Simulate the aerial manipulator offline; writes summary.json, timeseries.csv, figures."""
+    from sitl.offline import SimOptions
+    from sitl.plots import plot_run
+    from sitl.results import write_summary, write_timeseries
+
+    cfg = load_or_exit(scenario, load_scenario)
+    _check_times(cfg, duration, pickup_at, release_at)
+    air = _check_physics(physics, plant, wind, turbulence, seed)
+    options = SimOptions(
+        controller=controller.value,
+        estimator=estimator.value if estimator else None,
+        plant=plant.value,
+        physics=physics.value,
+        wind=air,
+        duration_s=duration,
+        seed=seed,
+        noise=noise,
+        pickup_at_s=pickup_at,
+        release_at_s=release_at,
+    )
+    result = _run(cfg, options, f"{cfg.name}: {controller.value}")
+    out.mkdir(parents=True, exist_ok=True)
+    write_summary(result.summary, out / "summary.json")
+    write_timeseries(result, out / "timeseries.csv")
+    plot_run(result, out)
+    s = result.summary
+    Console().print(
+        f"{cfg.name} ({s['controller']}, {s['estimator']}, {s['plant']} plant, "
+        f"{s['physics']}{', wind' if air else ''}"
+        f"{', noisy' if noise else ''}): m2 = {s['estimates']['m2']:.4f} kg "
+        f"({s['errors_pct']['m2']:+.1f} %), lc = {s['estimates']['lc']:.4f} m "
+        f"({s['errors_pct']['lc']:+.1f} %), RMS position error "
+        f"{s['rms_position_error_m'] * 100:.1f} cm; wrote {out}",
+        markup=False,
+        highlight=False,
+    )
+
+
+COMPARED = (
+    ("passivity + paper estimator", ControllerChoice.passivity, EstimatorChoice.paper),
+    ("passivity + rls", ControllerChoice.passivity, EstimatorChoice.rls),
+    ("non-adaptive", ControllerChoice.nonadaptive, EstimatorChoice.paper),
+    ("adaptive sliding mode", ControllerChoice.asmc, EstimatorChoice.paper),
+)
+"""Runs of ``companion compare``: the paper's controller with both estimators, and its two
+baselines (paper section IV)."""
+
+
+@sim_app.command()
+def compare(
+    scenario: ScenarioOpt,
+    out: OutOpt,
+    plant: PlantOpt = PlantChoice.ideal,
+    physics: PhysicsOpt = PhysicsChoice.pinocchio,
+    wind: WindOpt = None,
+    turbulence: TurbulenceOpt = 0.0,
+    duration: DurationOpt = None,
+    seed: SeedOpt = 0,
+    noise: NoiseOpt = False,
+) -> None:
+    """Run every controller and estimator on one scenario; writes compare.md and overlays."""
+    from sitl.offline import SimOptions
+    from sitl.plots import plot_comparison
+    from sitl.results import comparison_markdown, write_summary
+
+    cfg = load_or_exit(scenario, load_scenario)
+    _check_times(cfg, duration)
+    air = _check_physics(physics, plant, wind, turbulence, seed)
+    runs = []
+    for name, ctl, est in COMPARED:
+        options = SimOptions(
+            controller=ctl.value,
+            estimator=est.value,
+            plant=plant.value,
+            physics=physics.value,
+            wind=air,
+            duration_s=duration,
+            seed=seed,
+            noise=noise,
+        )
+        runs.append((name, _run(cfg, options, f"{cfg.name}: {name}")))
+    out.mkdir(parents=True, exist_ok=True)
+    title = (
+        f"# {cfg.name}: {plant.value} plant, {physics.value} physics"
+        f"{_wind_label(air)}, {'noisy' if noise else 'exact'} sensors, seed {seed}\n\n"
+    )
+    table = comparison_markdown([(name, r.summary) for name, r in runs])
+    (out / "compare.md").write_text(title + table)
+    write_summary({name: r.summary for name, r in runs}, out / "summaries.json")
+    plot_comparison(runs, out)
+    Console().print(table, markup=False, highlight=False)
+
+
+@sim_app.command()
+def demo(
+    out: Annotated[Path, typer.Option(help="Directory for log, summary and figures.")] = Path(
+        "out/demo"
+    ),
+    config: Annotated[
+        Path, typer.Option(help="Scenario with [world] and [arm_bus].")
+    ] = DEFAULT_SCENARIO,
+    controller: ControllerOpt = "passivity",
+    speed: Annotated[float, typer.Option(help="SITL speed (simulated s per wall s).")] = 1.0,
+    seed: Annotated[int, typer.Option(help="Seed of the SITL's sensor noise.")] = 0,
+    place_at: Annotated[
+        str, typer.Option(help="Where to put the object, X,Y,Z [m, ENU].")
+    ] = "-1.0,0.5,0.05",
+) -> None:
+    """Start the simulated vehicle (``sitl run``), fly the pickup mission against it
+    (``companion mission pickup``'s code, given only the companion's part of the scenario),
+    write log, summary and figures, and compare the estimate with the truth."""
+    scenario = load_or_exit(config, load_scenario)
+    if scenario.world is None or scenario.world.payload_position_m is None:
+        fail(f"{config}: the demo needs a [world] section with payload_position_m")
+    out.mkdir(parents=True, exist_ok=True)
+    beliefs = scenario.beliefs
+    payload_at = scenario.world.payload_position_m
+    plan = plan_for(beliefs, payload_at, parse_xyz(place_at, "--place-at"), 1.5)
+    try:
+        sitl = start_sitl(config, "--seed", str(seed), speed=speed, truth_log=out / "truth.jsonl")
+    except SitlNotReadyError as exc:
+        fail(str(exc), 1)
+    connect = f"udpin://127.0.0.1:{sitl.onboard_port}"
+    typer.echo(f"sitl: running ({sitl.arm_bus}, MAVLink {connect})")
+    try:
+        status = run_mission(beliefs, connect, sitl.arm_bus, plan, controller, out, None, 250.0)
+    finally:
+        sitl.stop()
+    _print_truth(scenario, out, plan)
+    raise typer.Exit(status)
+
+
+def _print_truth(scenario: Scenario, out: Path, plan: PickupPlan) -> None:
+    """The demo knows the truth the companion never saw: compare."""
+    summary = json.loads((out / "summary.json").read_text())
+    mass, com = summary.get("payload_mass_kg"), summary.get("payload_com_along_link2_m")
+    true_mass, true_com = scenario.payload.mass_kg, scenario.payload.position_m
+    if mass is not None:
+        com_error = f", {100 * (com - true_com) / true_com:+.1f} % centre of mass" if com else ""
+        typer.echo(
+            f"truth: payload {true_mass:.3f} kg at {true_com:.3f} m; estimate error "
+            f"{100 * (mass - true_mass) / true_mass:+.1f} % mass{com_error}"
+        )
+    truth_log = out / "truth.jsonl"
+    if truth_log.exists():
+        lines = truth_log.read_text().splitlines()
+        if lines:
+            last = json.loads(lines[-1])
+            obj = last.get("object_position_m")
+            if obj is not None:
+                err = math.dist(obj[:2], plan.place_at_m[:2])
+                typer.echo(f"truth: object ended {err:.3f} m from the place point (horizontal)")

@@ -1,0 +1,247 @@
+"""The simulator's scenario: the companion's configuration plus the truth (SI units).
+
+``sitl`` owns the sections of a scenario file the companion must not see
+(:data:`companion.config.SIMULATOR_SECTIONS`): ``[payload]`` (what the gripper will hold),
+``[plant]`` (the truth plant and its PX4-like loops), ``[world]`` (ground, start pose,
+the object), ``[simulation]`` and ``[trajectory]`` (offline runs). :class:`Scenario` is a
+:class:`~companion.config.CompanionConfig` with those sections; :attr:`Scenario.beliefs`
+is the companion's part alone, what the simulated companion is given.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import Field
+
+from companion.config import (
+    CompanionConfig,
+    ConfigError,
+    Fraction,
+    NonNegative,
+    NonNegativeVec3,
+    Positive,
+    PositiveVec3,
+    Real,
+    Theta,
+    Vec3,
+    VecQ,
+    _Section,
+    check_companion,
+    read_toml,
+    validate,
+)
+
+__all__ = [
+    "MIN_PLANT_RATE_HZ",
+    "AttitudeControl",
+    "Payload",
+    "Plant",
+    "Scenario",
+    "Simulation",
+    "Trajectory",
+    "WorldSection",
+    "load_scenario",
+    "parse_scenario",
+]
+
+MIN_PLANT_RATE_HZ = 1000.0
+"""Lowest accepted integration rate of the SITL truth plant [Hz]."""
+
+
+class Payload(_Section):
+    """A grasped object, rigidly attached to link 2 on its axis."""
+
+    mass_kg: NonNegative
+    """Payload mass [kg]."""
+    position_m: NonNegative
+    """Distance of the payload CoM from joint 2 along link 2 [m]."""
+    inertia_about_com_kg_m2: NonNegative
+    """Moment of inertia about its CoM, perpendicular to link 2 [kg m^2]."""
+
+
+class Trajectory(_Section):
+    """Desired trajectory q_d(t) (paper section IV); roll and pitch come from eq. phid."""
+
+    kind: Literal["paper_sinusoid"]
+    """``paper_sinusoid``: x = ax cos(w t), y = ay cos(w t), eta_i = c_i + a_i sin(w t)."""
+    period_s: Positive
+    """Period 2 pi / w of every sinusoid [s]."""
+    amplitude_x_m: Real
+    amplitude_y_m: Real
+    altitude_m: Real
+    """Constant desired z (ENU, up) [m]."""
+    yaw_rad: Real
+    eta1_center_rad: Real
+    eta1_amplitude_rad: Real
+    eta2_center_rad: Real
+    eta2_amplitude_rad: Real
+
+
+class Simulation(_Section):
+    """Offline simulation settings."""
+
+    duration_s: Positive
+    initial_q: VecQ
+    """Initial generalized coordinates q(0) (m, rad); q_dot(0) = 0."""
+    control_rate_hz: Positive
+    """Rate of the companion's control step (a divisor of plant.rate_hz) [Hz]."""
+    payload_attached_at_start: bool
+    """Start with the payload grasped (the paper's scenario)."""
+
+
+class AttitudeControl(_Section):
+    """Gains of the PX4-like attitude and rate loops inside the SITL plant.
+
+    Vectors are (roll, pitch, yaw) about the body x, y, z axes. The rate loop outputs
+    torques normalized as in PX4's control allocation (see ``sitl.physics.rotors``).
+    """
+
+    attitude_p: PositiveVec3
+    """P gains on the quaternion attitude error (MC_ROLL_P, MC_PITCH_P, MC_YAW_P)
+    [rad/s per rad]."""
+    yaw_weight: Fraction
+    """De-prioritisation of yaw against roll and pitch (MC_YAW_WEIGHT) [-]."""
+    rate_max_rad_s: PositiveVec3
+    """Body-rate setpoint limits (MC_ROLLRATE_MAX, MC_PITCHRATE_MAX, MC_YAWRATE_MAX) [rad/s]."""
+    rate_p: NonNegativeVec3
+    """Rate P gains (MC_*RATE_P) [normalized torque per rad/s]."""
+    rate_i: NonNegativeVec3
+    """Rate I gains (MC_*RATE_I) [normalized torque per rad]."""
+    rate_d: NonNegativeVec3
+    """Rate D gains on the measured angular acceleration (MC_*RATE_D)
+    [normalized torque per rad/s^2]."""
+    rate_integrator_limit: NonNegativeVec3
+    """Limits of the rate integrators (MC_RR_INT_LIM, MC_PR_INT_LIM, MC_YR_INT_LIM)
+    [normalized torque]."""
+    rate_d_cutoff_hz: Positive
+    """Low-pass cutoff of the angular-acceleration estimate for the D term
+    (IMU_DGYRO_CUTOFF) [Hz]."""
+
+
+class Plant(_Section):
+    """The SITL truth plant: integration rate, truth-only effects and the PX4-like loops."""
+
+    rate_hz: Annotated[float, Field(strict=True, ge=MIN_PLANT_RATE_HZ, allow_inf_nan=False)]
+    """Fixed integration rate of the truth dynamics, at least 1000 [Hz]."""
+    integrator: Literal["semi_implicit_euler", "rk4"]
+    """Fixed-step scheme: ``semi_implicit_euler`` (one dynamics evaluation per step, first
+    order) or ``rk4`` (four, fourth order); see ``sitl.physics.integration``."""
+    thrust_mismatch: Positive
+    """True maximum rotor thrust over the believed ``vehicle.rotors.max_thrust_per_rotor_n``
+    (1 = the companion's thrust model is exact) [-]."""
+    linear_drag_n_s_m: NonNegativeVec3
+    """Diagonal D of the linear drag force -D v on the vehicle, v the world-frame (ENU)
+    velocity of the vehicle CoM [N s/m]; underactuated plant only."""
+    servo_torque_limit_n_m: Positive
+    """Magnitude limit of each joint torque the simulated servos can apply [N m]."""
+    attitude_control: AttitudeControl
+
+
+class WorldSection(_Section):
+    """The SITL's world around the vehicle (``sitl run``); optional, not used by the companion.
+
+    Positions are world ENU [m] (z up, ground at z = 0).
+    """
+
+    landing_gear_height_m: Positive
+    """Height of the base's centre of mass above the ground when it stands [m]."""
+    start_position_m: Annotated[tuple[Real, ...], Field(min_length=2, max_length=2)]
+    """(x, y) where the vehicle stands at the start [m]."""
+    start_yaw_rad: Real
+    """Heading at the start, ENU (0 = east, counter-clockwise positive) [rad]."""
+    start_joints_rad: Annotated[tuple[Real, ...], Field(min_length=2, max_length=2)]
+    """(eta1, eta2) at the start [rad]."""
+    payload_position_m: Vec3 | None = None
+    """Where the payload object's centre of mass rests (the ``[payload]`` section's mass and
+    inertia); absent: no object in the world."""
+    grasp_tolerance_m: Positive
+    """Largest distance between the object and link 2's payload point at which closing the
+    gripper grasps it [m]."""
+    autopilot_params: dict[str, Real] = Field(default_factory=dict)
+    """PX4 parameter overrides of the simulated autopilot (name -> value), checked against
+    the simulated parameter table when the SITL starts."""
+
+
+class Scenario(CompanionConfig):
+    """A complete scenario: the companion's configuration, the payload, the truth plant,
+    the world and the offline run settings."""
+
+    payload: Payload
+    trajectory: Trajectory
+    simulation: Simulation
+    plant: Plant
+    world: WorldSection | None = None
+    """The SITL's world (ground, start pose, payload object); absent: defaults of ``sitl``."""
+
+    @property
+    def beliefs(self) -> CompanionConfig:
+        """The companion's part alone: what a simulated companion is given."""
+        return CompanionConfig.model_validate(
+            {name: getattr(self, name) for name in CompanionConfig.model_fields}
+        )
+
+    @property
+    def true_theta(self) -> Theta:
+        """theta of link 2 with the payload attached (the simulation's truth)."""
+        link, load = self.arm.link2, self.payload
+        return Theta(
+            m2_kg=link.mass_kg + load.mass_kg,
+            m3_kg_m=link.first_moment_kg_m + load.mass_kg * load.position_m,
+            m4_kg_m2=link.second_moment_kg_m2
+            + load.mass_kg * load.position_m**2
+            + load.inertia_about_com_kg_m2,
+        )
+
+
+def check_simulator(cfg: Scenario, path: str) -> None:
+    """The simulator's values no world can have: a payload beyond link 2, an object below
+    the ground, a control rate that does not divide the plant rate."""
+    l2 = cfg.arm.link2.length_m
+    if cfg.payload.position_m > l2:
+        raise ConfigError(
+            path,
+            "payload.position_m",
+            f"{cfg.payload.position_m:g} m lies beyond link 2 (length {l2:g} m)",
+        )
+    ratio = cfg.plant.rate_hz / cfg.simulation.control_rate_hz
+    if ratio < 1.0 - 1e-9 or abs(ratio - round(ratio)) > 1e-9:
+        raise ConfigError(
+            path,
+            "simulation.control_rate_hz",
+            f"{cfg.simulation.control_rate_hz:g} Hz must divide plant.rate_hz "
+            f"({cfg.plant.rate_hz:g} Hz) into a whole number of plant steps",
+        )
+    if cfg.world is not None and cfg.world.payload_position_m is not None:
+        if cfg.world.payload_position_m[2] < 0.0:
+            raise ConfigError(
+                path,
+                "world.payload_position_m",
+                f"the object lies below the ground (z = {cfg.world.payload_position_m[2]:g} m)",
+            )
+
+
+def parse_scenario(data: dict, path: str = "<string>") -> Scenario:
+    """Validate a parsed TOML document into a :class:`Scenario` (both owners' sections).
+
+    Raises
+    ------
+    ConfigError
+        On unknown or missing keys, wrong types, or physically impossible values.
+    """
+    cfg = validate(Scenario, data, path)
+    check_companion(cfg, path)
+    check_simulator(cfg, path)
+    return cfg
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a whole scenario TOML file (explicit path only).
+
+    Raises
+    ------
+    ConfigError
+        If the file cannot be read, is not TOML, or does not validate.
+    """
+    return parse_scenario(read_toml(path), str(path))
