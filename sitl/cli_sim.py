@@ -311,10 +311,41 @@ def demo(
     place_at: Annotated[
         str, typer.Option(help="Where to put the object, X,Y,Z [m, ENU].")
     ] = "-1.0,0.5,0.05",
+    autopilot: Annotated[
+        str,
+        typer.Option(
+            help="imitation (our PX4-like autopilot) or px4 (the real PX4 SITL build flies "
+            "our physics: sitl run --autopilot px4)."
+        ),
+    ] = "imitation",
+    px4_dir: Annotated[
+        Path | None,
+        typer.Option(
+            envvar="PX4_SITL_DIR",
+            show_envvar=False,
+            help="PX4 SITL build for --autopilot px4 (default $PX4_SITL_DIR).",
+        ),
+    ] = None,
+    navigation: Annotated[
+        str, typer.Option(help="mocap (motion capture) or gps (with --autopilot px4: RTK).")
+    ] = "mocap",
 ) -> None:
     """Start the simulated vehicle (``sitl run``), fly the pickup mission against it
     (``companion mission pickup``'s code, given only the companion's part of the scenario),
-    write log, summary and figures, and compare the estimate with the truth."""
+    write log, summary and figures, and compare the estimate with the truth. With
+    ``--autopilot px4`` the real PX4 flies our physics; its log and ULog stay in
+    ``OUT/px4``."""
+    if autopilot not in ("imitation", "px4"):
+        fail(f"--autopilot must be imitation or px4, got {autopilot!r}")
+    if navigation not in ("mocap", "gps"):
+        fail(f"--navigation must be mocap or gps, got {navigation!r}")
+    extra = ["--navigation", navigation]
+    if autopilot == "px4":
+        if px4_dir is None:
+            fail("--autopilot px4 needs a PX4 SITL build: pass --px4-dir DIR or set PX4_SITL_DIR")
+        extra += ["--autopilot", "px4", "--px4-dir", str(px4_dir), "--keep-log", str(out / "px4")]
+        if navigation == "gps":
+            extra += ["--gps", "rtk"]
     scenario = load_or_exit(config, load_scenario)
     if scenario.world is None or scenario.world.payload_position_m is None:
         fail(f"{config}: the demo needs a [world] section with payload_position_m")
@@ -323,7 +354,15 @@ def demo(
     payload_at = scenario.world.payload_position_m
     plan = plan_for(beliefs, payload_at, parse_xyz(place_at, "--place-at"), 1.5)
     try:
-        sitl = start_sitl(config, "--seed", str(seed), speed=speed, truth_log=out / "truth.jsonl")
+        sitl = start_sitl(
+            config,
+            "--seed",
+            str(seed),
+            *extra,
+            speed=speed,
+            truth_log=out / "truth.jsonl",
+            timeout_s=180.0 if autopilot == "px4" else 60.0,
+        )
     except SitlNotReadyError as exc:
         fail(str(exc), 1)
     connect = f"udpin://127.0.0.1:{sitl.onboard_port}"
