@@ -94,7 +94,7 @@ def main() -> None:
         gcs_remote=free_udp_port(),
     )
     options = RunOptions(speed=1000.0, ports=ports)
-    vehicle = Px4InTheLoop(load_scenario(CONFIG), options, HilOptions(build))
+    vehicle = Px4InTheLoop(load_scenario(CONFIG), options, HilOptions(build, nice=0))
     stop = threading.Event()
     ready = threading.Event()
     result: dict = {}

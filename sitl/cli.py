@@ -149,6 +149,14 @@ def run(
         str,
         typer.Option(help="--autopilot px4 --navigation gps: the receiver, standard or rtk."),
     ] = "standard",
+    nice: Annotated[
+        int,
+        typer.Option(
+            help="--autopilot px4: lower the simulator's CPU priority (not PX4's) by this "
+            "much (0-19), so that a companion on the same machine keeps its real-time "
+            "period; the lockstep pair only slows down."
+        ),
+    ] = 5,
 ) -> None:
     """Run the simulated vehicle until interrupted (Ctrl-C) or --duration."""
     cfg = load_or_exit(config)
@@ -201,7 +209,9 @@ def run(
             wind=air,
         )
         if build is not None:
-            vehicle = Px4InTheLoop(cfg, options, HilOptions(build, keep_dir=keep_log, gps=gps))
+            vehicle = Px4InTheLoop(
+                cfg, options, HilOptions(build, keep_dir=keep_log, gps=gps, nice=nice)
+            )
         else:
             vehicle = SitlVehicle(cfg, options)
     except (ValueError, ParamError, SigningKeyError) as exc:

@@ -38,6 +38,7 @@ reports one), a range finder, airspeed.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import threading
@@ -116,16 +117,28 @@ class HilOptions:
         The GPS receiver with ``navigation="gps"`` (:data:`~sitl.hil.sensors.GPS_GRADES`).
     ready_timeout_s
         Longest wall time from starting PX4 until it is ready [s].
+    nice
+        Lower this process's CPU priority by this much (``os.nice``) once PX4 has started
+        (PX4 keeps the normal priority: with PX4 niced as well, one GPS flight on a loaded
+        machine had EKF2 reset its yaw after take-off; the cause is not established). The
+        physics drive the lockstep
+        clock: when the CPU is short, slowing them costs only wall time. The companion (on
+        the same machine in SITL; on its own computer on the vehicle) cannot slow down: a
+        companion starved of CPU drops PX4's poses and sees long control periods in vehicle
+        time (``loop_overrun``). 0: leave the priority alone.
     """
 
     build: Px4Build
     keep_dir: Path | None = None
     gps: str = "standard"
     ready_timeout_s: float = 120.0
+    nice: int = 5
 
     def __post_init__(self) -> None:
         if self.gps not in GPS_GRADES:
             raise ValueError(f"gps must be one of {sorted(GPS_GRADES)}, got {self.gps!r}")
+        if not 0 <= self.nice <= 19:
+            raise ValueError(f"nice must be 0-19, got {self.nice!r}")
 
 
 @dataclass
@@ -260,6 +273,8 @@ class Px4InTheLoop:
                 ready_lines=(_SIMULATOR_WAITING,),
             )
             self.px4.start(self.hil.ready_timeout_s)
+            if self.hil.nice:
+                os.nice(self.hil.nice)  # after PX4 started: PX4 keeps the normal priority
             self._link.accept(self.hil.ready_timeout_s)
             self._unix_time_at_boot_us = round(time.time() * 1e6)
         except BaseException:
