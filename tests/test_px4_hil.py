@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_mission_e2e import LinkCutter
 
 from companion.flightlog import read_flight_log
 from sitl.launch import start_sitl
@@ -92,9 +93,16 @@ class Flight:
 
 
 def fly_pickup(
-    px4_root: Path, tmp: Path, name: str, *sitl_args: str, config=CONFIG, controller="passivity"
+    px4_root: Path,
+    tmp: Path,
+    name: str,
+    *sitl_args: str,
+    config=CONFIG,
+    controller="passivity",
+    relay=None,
 ):
-    """The pickup as a user flies it: ``sitl run --autopilot px4`` and the mission command."""
+    """The pickup as a user flies it: ``sitl run --autopilot px4`` and the mission command
+    (through ``relay``, a :class:`LinkCutter`, when given)."""
     truth_log = tmp / "truth.jsonl"
     px4_dir = tmp / "px4"
     sitl = start_sitl(
@@ -103,12 +111,16 @@ def fly_pickup(
         truth_log=truth_log, timeout_s=180.0,
     )  # fmt: skip
     out = tmp / controller
+    port = sitl.onboard_port
     try:
+        if relay is not None:
+            relay.start(sitl)
+            port = relay.app_port
         result = subprocess.run(
             [
                 sys.executable, "-c", "from companion.cli import main; main()",
                 "mission", "pickup", "--config", str(config),
-                "--connect", f"udpin://127.0.0.1:{sitl.onboard_port}", "--arm-bus", sitl.arm_bus,
+                "--connect", f"udpin://127.0.0.1:{port}", "--arm-bus", sitl.arm_bus,
                 "--payload-at", PAYLOAD_AT, "--place-at", f"{PLACE_AT[0]},{PLACE_AT[1]},0.05",
                 "--out", str(out), "--controller", controller,
             ],
@@ -116,6 +128,8 @@ def fly_pickup(
             env=dict(os.environ, PYTHONUNBUFFERED="1"),
         )  # fmt: skip
     finally:
+        if relay is not None:
+            relay.stop()
         sitl_output = sitl.stop()
     summary_path = out / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.exists() else None
@@ -123,11 +137,27 @@ def fly_pickup(
     return Flight(name, result, summary, truth, out, px4_dir, sitl_output)
 
 
+@pytest.fixture(scope="module")
+def flights(px4_build, tmp_path_factory):
+    """Fly (navigation, controller) once per module; later tests share the flight."""
+    flown: dict[tuple[str, str], Flight] = {}
+
+    def get(navigation: str, controller: str = "passivity") -> Flight:
+        if (navigation, controller) not in flown:
+            tmp = tmp_path_factory.mktemp(f"px4-hil-{navigation}-{controller}")
+            config = scenario_for(navigation, tmp)
+            flown[navigation, controller] = fly_pickup(
+                px4_build.root, tmp, navigation, *NAVIGATION[navigation],
+                config=config, controller=controller,
+            )  # fmt: skip
+        return flown[navigation, controller]
+
+    return get
+
+
 @pytest.fixture(scope="module", params=sorted(NAVIGATION))
-def pickup(request, px4_build, tmp_path_factory) -> Flight:
-    tmp = tmp_path_factory.mktemp(f"px4-hil-{request.param}")
-    config = scenario_for(request.param, tmp)
-    return fly_pickup(px4_build.root, tmp, request.param, *NAVIGATION[request.param], config=config)
+def pickup(request, flights) -> Flight:
+    return flights(request.param)
 
 
 @pytest.mark.slow
@@ -193,3 +223,72 @@ def test_attitude_stays_calm_and_the_handover_is_bumpless_under_px4(pickup):
     assert np.max(np.abs(tilt_deg[window] - tilt_deg[first])) < 5.0
     error = np.stack([c[f"q_{a}_m"][calm] - c[f"qd_{a}_m"][calm] for a in "xyz"])
     assert math.sqrt(float(np.mean(np.sum(error**2, axis=0)))) < 0.10
+
+
+BEYOND_BUDGET = pytest.mark.skipif(
+    os.environ.get("PX4_HIL_ALL") != "1",
+    reason="a PX4 flight beyond the suite's time budget: set PX4_HIL_ALL=1 to fly it",
+)
+CARRY_PHASES = ("lift", "to_place", "lower")
+"""From lift to place, the excitation left out (the issue's comparison)."""
+
+
+def carry_rms_m(flight: Flight) -> float:
+    """Position RMS against the plan over the carry phases, from the flight log."""
+    c = read_flight_log(flight.out / "flight.csv").columns
+    carry = np.isin(c["phase"], CARRY_PHASES)
+    error = np.stack([c[f"q_{a}_m"][carry] - c[f"qd_{a}_m"][carry] for a in "xyz"])
+    return math.sqrt(float(np.mean(np.sum(error**2, axis=0))))
+
+
+@pytest.mark.slow
+@BEYOND_BUDGET
+def test_adaptive_carry_rms_is_at_most_half_the_nonadaptive_under_px4(flights):
+    """The paper's claim on a real autopilot: the same mission (motion capture), the
+    adaptive controller's position RMS over the carry at most half the non-adaptive one's.
+    Without the payload in its model the non-adaptive controller carries it low."""
+    adaptive, nonadaptive = flights("mocap"), flights("mocap", "nonadaptive")
+    for flight in (adaptive, nonadaptive):
+        assert flight.summary is not None, flight.context()
+        assert flight.summary["completed"] and flight.summary["faults"] == [], flight.context()
+    a, n = carry_rms_m(adaptive), carry_rms_m(nonadaptive)
+    print(f"carry position RMS: adaptive {100 * a:.2f} cm, non-adaptive {100 * n:.2f} cm")
+    assert a <= 0.5 * n
+
+
+@pytest.mark.slow
+@BEYOND_BUDGET
+def test_a_silenced_servo_under_px4_makes_the_app_land(px4_build, tmp_path):
+    """Servo 2 stops answering at 12 s (the emulated bus, as with the imitation): the app
+    raises servo_bus and PX4 lands and disarms."""
+    flight = fly_pickup(px4_build.root, tmp_path, "servo", "--servo-silent", "2@12")
+    assert flight.result.returncode == 1, flight.context()
+    assert "Traceback" not in flight.result.stderr, flight.context()
+    assert flight.summary is not None, flight.context()
+    assert [f["fault"] for f in flight.summary["faults"]][:1] == ["servo_bus"], flight.context()
+    assert flight.summary["landed"] and flight.summary["disarmed"], flight.context()
+    last = flight.truth[-1]
+    assert last["on_ground"] and not last["armed"], flight.context()
+
+
+@pytest.mark.slow
+@BEYOND_BUDGET
+def test_a_2_s_link_cut_under_px4_ends_in_a_landing(px4_build, tmp_path):
+    """The companion's link to PX4 goes silent for 2 s once the vehicle has flown 3 s above
+    1.2 m: the app raises link_lost, PX4 failsafes on the lost OFFBOARD stream, and the
+    vehicle ends on the ground, disarmed."""
+    relay = LinkCutter(tmp_path / "truth.jsonl")
+    flight = fly_pickup(px4_build.root, tmp_path, "linkcut", relay=relay)
+    assert relay.cut_at is not None and relay.dropped > 0, flight.context()
+    assert flight.result.returncode == 1, flight.context()
+    assert "Traceback" not in flight.result.stderr, flight.context()
+    assert flight.summary is not None, flight.context()
+    assert [f["fault"] for f in flight.summary["faults"]][:1] == ["link_lost"], flight.context()
+    # After OFFBOARD, PX4 flew a mode of its own in the air (its failsafe, or the app's
+    # landing once the link was back).
+    modes = [r["mode"] for r in flight.truth]
+    first = modes.index("OFFBOARD")
+    after = {r["mode"] for r in flight.truth[first:] if not r["on_ground"]}
+    assert after & {"AUTO_LOITER", "AUTO_LAND", "AUTO_RTL", "POSCTL"}, (after, flight.context())
+    last = flight.truth[-1]
+    assert last["on_ground"] and not last["armed"], flight.context()
