@@ -275,8 +275,8 @@ def test_a_silenced_servo_under_px4_makes_the_app_land(px4_build, tmp_path):
 @BEYOND_BUDGET
 def test_a_2_s_link_cut_under_px4_ends_in_a_landing(px4_build, tmp_path):
     """The companion's link to PX4 goes silent for 2 s once the vehicle has flown 3 s above
-    1.2 m: the app raises link_lost, PX4 failsafes on the lost OFFBOARD stream, and the
-    vehicle ends on the ground, disarmed."""
+    1.2 m: the app raises link_lost, PX4 lands, and the vehicle ends on the ground,
+    disarmed."""
     relay = LinkCutter(tmp_path / "truth.jsonl")
     flight = fly_pickup(px4_build.root, tmp_path, "linkcut", relay=relay)
     assert relay.cut_at is not None and relay.dropped > 0, flight.context()
@@ -284,11 +284,9 @@ def test_a_2_s_link_cut_under_px4_ends_in_a_landing(px4_build, tmp_path):
     assert "Traceback" not in flight.result.stderr, flight.context()
     assert flight.summary is not None, flight.context()
     assert [f["fault"] for f in flight.summary["faults"]][:1] == ["link_lost"], flight.context()
-    # After OFFBOARD, PX4 flew a mode of its own in the air (its failsafe, or the app's
-    # landing once the link was back).
-    modes = [r["mode"] for r in flight.truth]
-    first = modes.index("OFFBOARD")
-    after = {r["mode"] for r in flight.truth[first:] if not r["on_ground"]}
-    assert after & {"AUTO_LOITER", "AUTO_LAND", "AUTO_RTL", "POSCTL"}, (after, flight.context())
+    # PX4 flew the landing (its failsafe, or the app's land command once the link was back:
+    # the cut may come in PX4's hold after take-off, before OFFBOARD).
+    airborne_modes = {r["mode"] for r in flight.truth if not r["on_ground"]}
+    assert "AUTO_LAND" in airborne_modes, (airborne_modes, flight.context())
     last = flight.truth[-1]
     assert last["on_ground"] and not last["armed"], flight.context()
