@@ -25,6 +25,8 @@ from typing import TYPE_CHECKING, Annotated, Literal
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 from pydantic_core import ErrorDetails
 
+from companion.coordinates import N_Q
+
 if TYPE_CHECKING:
     from arm_driver.joint import GripperConfig, JointConfig
 
@@ -57,8 +59,6 @@ __all__ = [
     "validate",
 ]
 
-N_Q = 8
-"""Number of generalized coordinates (DESIGN.md section 2)."""
 
 _REL_TOL = 1e-9
 """Relative tolerance for the consistency check m4 >= m3^2 / m2 (equality is a point mass)."""
