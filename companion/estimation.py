@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections import Counter, deque
+from collections.abc import Iterable
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import TYPE_CHECKING
@@ -102,9 +103,9 @@ class ThetaBounds:
         m4 = min(max(m4, m3 * m3 / m2), m2 * l2 * l2)
         return m2, m3, m4
 
-    def contains(self, theta: ArrayLike, rel_tol: float = 1e-9) -> bool:
+    def contains(self, theta: Iterable[float], rel_tol: float = 1e-9) -> bool:
         """True if theta lies in the set (with a relative tolerance for rounding)."""
-        m2, m3, m4 = theta
+        m2, m3, m4 = (float(v) for v in theta)
         l2 = self.link2_length_m
         tol = 1.0 + rel_tol
         return bool(
@@ -183,7 +184,9 @@ class ExcitationMonitor:
     ) -> None:
         self.window_s = window_s
         self.sample_period_s = sample_period_s
-        self.weight = np.outer(1.0 / np.asarray(row_scale, dtype=float), theta_scale)
+        self.weight = np.outer(
+            1.0 / np.asarray(row_scale, dtype=float), np.asarray(theta_scale, dtype=float)
+        )
         self.excitation_min = excitation_min
         self.spread_max = spread_max
         self._window_samples = max(2, round(window_s / sample_period_s))
