@@ -24,7 +24,7 @@ from collections import Counter, deque
 from collections.abc import Iterable
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -37,6 +37,7 @@ if TYPE_CHECKING:
 __all__ = [
     "TRANSLATION_AND_JOINT_ROWS",
     "Estimate",
+    "Estimator",
     "ExcitationMonitor",
     "PaperEstimator",
     "RlsEstimator",
@@ -229,6 +230,48 @@ def _all_finite(values: FloatArray) -> bool:
     """True if values hold no NaN or infinity, read from their sum (finite values large
     enough for the sum to overflow are not forces or regressors either)."""
     return math.isfinite(values.sum())
+
+
+class Estimator(Protocol):
+    """What the flight cycle needs of an on-line payload estimator (paper section III-A, or
+    RLS): theta = (m2 [kg], m3 [kg m], m4 [kg m^2]) advanced once per control period on
+    the rows of q whose generalized force is known."""
+
+    theta: FloatArray
+    """Current estimate, inside the bounds."""
+    frozen: bool
+    """True while theta is held."""
+    skipped: Counter[Skip]
+    """Steps skipped while not frozen, by reason."""
+
+    @property
+    def skipped_steps(self) -> int:
+        """Steps skipped while not frozen, all reasons."""
+        ...
+
+    def freeze(self) -> None:
+        """Hold theta."""
+        ...
+
+    def resume(self) -> None:
+        """Continue estimating from the held theta."""
+        ...
+
+    def reset(self, theta: ArrayLike) -> None:
+        """Restart from theta."""
+        ...
+
+    def update(
+        self,
+        dt: float,
+        terms: ModelTerms,
+        q: FloatArray,
+        q_dot: FloatArray,
+        q_ddot: FloatArray,
+        tau: FloatArray | Skip,
+    ) -> Estimate:
+        """Advance one control period of ``dt`` [s] (see :meth:`_Base.update`)."""
+        ...
 
 
 class _Base(ABC):
@@ -462,7 +505,7 @@ class RlsEstimator(_Base):
         self.p = p
 
 
-def estimator_from_config(config: CompanionConfig, kind: str, rows: tuple[int, ...]):
+def estimator_from_config(config: CompanionConfig, kind: str, rows: tuple[int, ...]) -> Estimator:
     """The configuration's estimator of ``kind`` (``"paper"`` or ``"rls"``) on ``rows``, with its
     bounds, confidence monitor and gains from the ``[estimator]`` section."""
     est = config.estimator
