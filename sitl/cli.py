@@ -23,7 +23,7 @@ from sitl.authority import hover_authority
 from sitl.cli_sim import sim_app
 from sitl.physics import PlantError
 from sitl.physics.jsbsim import Wind
-from sitl.px4 import ParamError, SigningKeyError
+from sitl.px4 import ParamError, SigningKeyError, load_signing_key
 from sitl.runner import LinkPorts, RunOptions, SitlVehicle
 from sitl.scenario import Scenario, load_scenario
 
@@ -124,8 +124,22 @@ def run(
     cfg = load_or_exit(config)
     if duration is not None and not duration > 0.0:
         _fail(f"--duration must be positive, got {duration:g}")
-    if signing_key is not None and not signing_key.is_file():
-        _fail(f"signing key {signing_key}: no such file")
+    ports = (
+        ("--onboard-port", onboard_port),
+        ("--onboard-local-port", onboard_local_port),
+        ("--gcs-port", gcs_port),
+        ("--gcs-local-port", gcs_local_port),
+    )
+    for option, port in ports:
+        if not 0 <= port <= 65535:
+            _fail(f"{option} must be a UDP port number 0-65535, got {port}")
+    if signing_key is not None:
+        try:
+            load_signing_key(signing_key)
+        except OSError as exc:
+            _fail(f"--signing-key {signing_key}: cannot read: {exc.strerror or exc}")
+        except SigningKeyError as exc:
+            _fail(f"--signing-key {exc}")
     silent = _servo_fault(servo_silent) if servo_silent is not None else None
     if physics not in ("pinocchio", "jsbsim"):
         _fail(f"--physics must be pinocchio or jsbsim, got {physics!r}")
