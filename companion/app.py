@@ -55,6 +55,7 @@ from arm_driver.errors import ArmDriverError
 from companion.arm_supervisor import BUS_FAILURES, SERVO_FAILURE_S, ArmSupervisor
 from companion.config import CompanionConfig
 from companion.control import ControlRateError, DesiredState
+from companion.coordinates import HORIZONTAL, JOINTS, N_Q, PHI, PSI, THETA, TILT, Z
 from companion.estimation import Skip
 from companion.failsafe import FailsafeMonitor, Fault, FaultEvent, Reaction
 from companion.flight_control import ControlOutput, FlightControl, FlightControllerName
@@ -398,7 +399,7 @@ class PickupApp:
             raise MissionError(f"PX4 refused OFFBOARD: {exc}") from None
         state = self.assembler.estimate
         q = state.q
-        self.control.tilt.reset(float(q[3]), float(q[4]))
+        self.control.tilt.reset(float(q[PHI]), float(q[THETA]))
         self.mission.start(self.t_s, q, state.q_dot)
         if self.control.trim.gain > 0.0:
             self.control.trim.start(self.hold_bias.force_n(self._mass_kg()))
@@ -473,10 +474,10 @@ class PickupApp:
         return bool(status and status.armed)
 
     def _altitude(self) -> float:
-        return float(self.assembler.estimate.q[2]) if self.assembler.ready else -math.inf
+        return float(self.assembler.estimate.q[Z]) if self.assembler.ready else -math.inf
 
     def _climb_rate(self) -> float:
-        return float(self.assembler.estimate.q_dot[2]) if self.assembler.ready else math.inf
+        return float(self.assembler.estimate.q_dot[Z]) if self.assembler.ready else math.inf
 
     def _mass_kg(self) -> float:
         """Mass of vehicle + arm the model believes [kg]."""
@@ -574,14 +575,14 @@ class PickupApp:
         if self.offboard.stream in (Stream.OFF, Stream.HOLD) and self._in_hold():
             q = state.q
             force = thrust_force_world(
-                float(q[3]), float(q[4]), float(q[5]), self.control.weight_n()
+                float(q[PHI]), float(q[THETA]), float(q[PSI]), self.control.weight_n()
             )
-            self.hold_bias.record(t_s, force[0:2], state.q_dot[0:2])
+            self.hold_bias.record(t_s, force[HORIZONTAL], state.q_dot[HORIZONTAL])
         if sp is not None:
             self.link.send_setpoint(sp, pose.time_boot_ms)
             self.report.setpoint_latency_us.append((time.perf_counter() - received) * 1e6)
         self._last_thrust_n = sp.thrust_n if sp is not None and self.offboard.flying else math.nan
-        tau_cmd = self.arm.command(out.tau[6:8])
+        tau_cmd = self.arm.command(out.tau[JOINTS])
         if command is not None:
             self.arm.grip(command.gripper)
         self.report.cycle_latency_us.append((time.perf_counter() - received) * 1e6)
@@ -669,10 +670,10 @@ class PickupApp:
         ground = self._ground_z + self.config.flight.ground_margin_m
         if landed is not None and landed.on_ground:
             self._fault(Fault.GROUND_CONTACT, "PX4's land detector reports the vehicle landed")
-        elif float(q[2]) < ground:
+        elif float(q[Z]) < ground:
             self._fault(
                 Fault.GROUND_CONTACT,
-                f"height {q[2]:.2f} m below the take-off height + margin ({ground:.2f} m)",
+                f"height {q[Z]:.2f} m below the take-off height + margin ({ground:.2f} m)",
             )
         sp = out.setpoint
         for event in self.failsafe.update(
@@ -688,10 +689,10 @@ class PickupApp:
         """Outside CONTROL: the controller tracks where the vehicle is (its output is not
         flown) and the joints where the mission last put them (stowed before)."""
         target = np.array(q, dtype=float)
-        target[3:5] = 0.0
+        target[TILT] = 0.0
         last = self._last_desired
-        target[6:8] = self._q_stow[6:8] if last is None else last.q[6:8]
-        zero = np.zeros(8)
+        target[JOINTS] = self._q_stow[JOINTS] if last is None else last.q[JOINTS]
+        zero = np.zeros(N_Q)
         return DesiredState(target, zero, zero.copy())
 
     def _confident(self) -> bool:

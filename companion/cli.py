@@ -27,6 +27,9 @@ app = typer.Typer(
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     add_completion=False,
+    # Help texts are plain text: units such as [m] and section names such as [arm_bus] are
+    # not Rich markup (typer hands this mode down to every subcommand).
+    rich_markup_mode=None,
 )
 
 

@@ -95,16 +95,26 @@ def _joints(config: Path | None) -> tuple[tuple[JointConfig, ...], GripperConfig
     return arm_bus_configs(section)
 
 
+MAX_SERVO_ID = 255
+"""Largest id ``--ids`` accepts: DroneCAN actuator ids are 0-255 (Dynamixel's 0-252; the
+backend rejects the ids its protocol cannot address)."""
+
+
 def _parse_ids(text: str | None) -> list[int] | None:
     if text is None:
         return None
     ids: list[int] = []
-    try:
-        for part in text.split(","):
-            low, _, high = part.partition("-")
-            ids.extend(range(int(low), int(high or low) + 1))
-    except ValueError:
-        raise _fail(f"--ids {text!r}: expected ids and ranges like 1-5,7") from None
+    for part in text.split(","):
+        low_text, dash, high_text = part.partition("-")
+        try:
+            low, high = int(low_text), int(high_text if dash else low_text)
+        except ValueError:
+            raise _fail(f"--ids {text!r}: expected ids and ranges like 1-5,7") from None
+        if not 0 <= low <= MAX_SERVO_ID or not 0 <= high <= MAX_SERVO_ID:
+            raise _fail(f"--ids {text!r}: {part} is not an id or range of ids 0-{MAX_SERVO_ID}")
+        if low > high:
+            raise _fail(f"--ids {text!r}: the range {part} is empty (lower id first: {high}-{low})")
+        ids.extend(i for i in range(low, high + 1) if i not in ids)
     return ids
 
 

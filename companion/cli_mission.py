@@ -6,7 +6,10 @@ by URL, and writes into ``--out``: ``flight.csv`` / ``flight.events.csv`` (the f
 (``sitl demo`` runs the same mission against the simulator: :func:`run_mission`.)
 
 Exit status: 0 mission completed; 1 the mission failed or a failsafe aborted it (the log
-and summary are still written); 2 a user mistake (config, URL, unreachable vehicle or bus).
+and summary are still written); 2 a user mistake (config, option out of range, URL,
+signing key, output directory, unreachable vehicle or bus), one ``error:`` line found
+before anything flies. A flight log is never overwritten: when ``--out`` holds an earlier
+flight, this one goes to ``OUT-2``, ``OUT-3``, ... (:func:`companion.usage.output_dir_or_exit`).
 """
 
 from __future__ import annotations
@@ -17,21 +20,44 @@ import math
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 
 from arm_driver.bus import open_bus
 from arm_driver.errors import ArmDriverError
 from companion.app import BUS_FAILURES, MissionAborted, MissionError, MissionReport, PickupApp
-from companion.cli_plot import figures_available, plot_flight_log
+from companion.cli_plot import FIGURES, figures_available, plot_flight_log
 from companion.config import CompanionConfig, arm_bus_configs
 from companion.control import ControlRateError
 from companion.flight_control import FlightControl, FlightControllerName
-from companion.flightlog import FlightLogWriter, read_flight_log
-from companion.link import LinkError, MavlinkLink, SigningConfig
+from companion.flightlog import FlightLogError, FlightLogWriter, read_flight_log
+from companion.link import LinkError, MavlinkLink, SigningConfig, SigningKeyError
 from companion.mission import PickupPlan
-from companion.usage import config_or_exit, fail
+from companion.usage import check_range, config_or_exit, fail, output_dir_or_exit
 
-__all__ = ["ControllerOpt", "fly_pickup", "mission_app", "parse_xyz", "plan_for", "run_mission"]
+__all__ = [
+    "MISSION_FILES",
+    "ControllerOpt",
+    "check_mission_options",
+    "fly_pickup",
+    "mission_app",
+    "parse_xyz",
+    "plan_for",
+    "run_mission",
+]
+
+MISSION_FILES = ("flight.csv", "flight.events.csv", "summary.json", *FIGURES)
+"""What a mission writes into its output directory."""
+
+HORIZONTAL_RANGE_M = 1000.0
+"""Largest |x|, |y| of a mission point from home [m]: a battery flight of a hexacopter
+(about 15 minutes at the mission's 0.5 m/s is 450 m there and back)."""
+ALTITUDE_RANGE_M = (0.0, 120.0)
+"""Heights of a mission point or the transit [m, up from the take-off point]: on or above
+the ground, below the 120 m ceiling of open-category drone flight."""
+CONTROL_RATE_RANGE_HZ = (2.0, 1000.0)
+"""--control-rate: PX4 leaves OFFBOARD below a 2 Hz setpoint stream, and the loop is paced
+by PX4's ODOMETRY, which comes at most at the estimator's 1 kHz IMU rate."""
 
 mission_app = typer.Typer(
     name="mission",
@@ -47,14 +73,23 @@ class UsageError(Exception):
 
 
 def parse_xyz(text: str, option: str) -> tuple[float, float, float]:
-    """X,Y,Z [m, ENU] of an option; one ``error:`` line and exit 2 otherwise."""
+    """X,Y,Z [m, ENU] of a mission point: |X|, |Y| within :data:`HORIZONTAL_RANGE_M` of
+    home, Z in :data:`ALTITUDE_RANGE_M`; one ``error:`` line and exit 2 otherwise."""
     try:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
         values = ()
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
         fail(f"{option} needs three numbers X,Y,Z in metres (ENU), got {text!r}")
-    return values  # type: ignore[return-value]
+    x, y, z = values
+    reach, (low, high) = HORIZONTAL_RANGE_M, ALTITUDE_RANGE_M
+    if max(abs(x), abs(y)) > reach or not low <= z <= high:
+        fail(
+            f"{option} {text}: a mission point lies within {reach:g} m of home "
+            f"(|X|, |Y|: one battery's flight) and {low:g}-{high:g} m up (Z: on the ground "
+            "or above, below the 120 m ceiling)"
+        )
+    return x, y, z
 
 
 async def fly_pickup(
@@ -77,12 +112,15 @@ async def fly_pickup(
     if scenario.arm_bus is None:
         raise UsageError(f"{scenario.name}: the scenario has no [arm_bus] section (joints)")
     joints, gripper = arm_bus_configs(scenario.arm_bus)
-    q_stow = [0.0, 0.0, 1.0, 0.0, 0.0, 0.0, *plan.stow_joints_rad]
+    q_stow = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0, *plan.stow_joints_rad])
     try:
         FlightControl(scenario, controller).check_rate(control_rate_hz, q_stow)
     except ControlRateError as exc:
         raise UsageError(f"{scenario.name}: {exc}") from None
-    signing = SigningConfig.from_file(signing_key) if signing_key is not None else None
+    try:
+        signing = SigningConfig.from_file(signing_key) if signing_key is not None else None
+    except SigningKeyError as exc:
+        raise UsageError(f"--signing-key: {exc}") from None
     log_path = out_dir / "flight.csv"
     try:
         link = MavlinkLink(connect, signing=signing)
@@ -94,37 +132,49 @@ async def fly_pickup(
         raise UsageError(f"arm bus {arm_bus_url}: {exc}") from None
     failure: BaseException | None = None
     try:
-        async with link:
+        await link.open()
+    except LinkError as exc:  # refused, no such device, unknown host: nothing flew
+        raise UsageError(f"--connect {exc}") from None
+    except OSError as exc:
+        raise UsageError(f"--connect {connect}: cannot open: {exc}") from None
+    try:
+        try:
+            await link.wait_vehicle(vehicle_timeout_s)
+        except LinkError as exc:
+            raise UsageError(str(exc)) from None
+        try:
+            await bus.open()
+        except (ArmDriverError, OSError) as exc:
+            raise UsageError(f"arm bus {arm_bus_url}: {exc}") from None
+        try:
+            writer = FlightLogWriter(log_path)
             try:
-                await link.wait_vehicle(vehicle_timeout_s)
-            except LinkError as exc:
+                writer.open()
+            except FlightLogError as exc:
                 raise UsageError(str(exc)) from None
             try:
-                await bus.open()
-            except ArmDriverError as exc:
-                raise UsageError(f"arm bus {arm_bus_url}: {exc}") from None
-            try:
-                with FlightLogWriter(log_path) as writer:
-                    app = PickupApp(
-                        scenario,
-                        link,
-                        bus,
-                        plan,
-                        controller=controller,
-                        control_rate_hz=control_rate_hz,
-                        log=writer.write,
-                        event=writer.event,
-                    )
-                    try:
-                        report = await app.run()
-                    except (MissionError, MissionAborted, ArmDriverError, LinkError) as exc:
-                        failure = exc
-                        report = app.report
-                        writer.event("failure", str(exc), app.t_s)
+                app = PickupApp(
+                    scenario,
+                    link,
+                    bus,
+                    plan,
+                    controller=controller,
+                    control_rate_hz=control_rate_hz,
+                    log=writer.write,
+                    event=writer.event,
+                )
+                try:
+                    report = await app.run()
+                except (MissionError, MissionAborted, ArmDriverError, LinkError) as exc:
+                    failure = exc
+                    report = app.report
+                    writer.event("failure", str(exc), app.t_s)
             finally:
-                await bus.close()
-    except OSError as exc:
-        raise UsageError(f"cannot open {connect}: {exc}") from None
+                writer.close()
+        finally:
+            await bus.close()
+    finally:
+        await link.close()
     summary = report.as_dict()
     summary["failure"] = None if failure is None else f"{type(failure).__name__}: {failure}"
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
@@ -184,12 +234,18 @@ def pickup(
         str | None, typer.Option(help="Arm bus URL [default: the config's arm_bus.url].")
     ] = None,
     controller: ControllerOpt = "passivity",
-    out: Annotated[Path, typer.Option(help="Directory for log, summary and figures.")] = Path(
-        "out/mission"
-    ),
+    out: Annotated[
+        Path,
+        typer.Option(
+            help="Directory for log, summary and figures; if it holds an earlier flight, "
+            "this one goes to OUT-2, OUT-3, ... (never overwritten)."
+        ),
+    ] = Path("out/mission"),
     signing_key: Annotated[Path | None, typer.Option(help="MAVLink 2 signing key file.")] = None,
-    control_rate: Annotated[float, typer.Option(help="Control loop rate [Hz].")] = 250.0,
-    cruise_altitude: Annotated[float, typer.Option(help="Transit altitude [m].")] = 1.5,
+    control_rate: Annotated[float, typer.Option(help="Control loop rate [Hz], 2-1000.")] = 250.0,
+    cruise_altitude: Annotated[
+        float, typer.Option(help="Transit altitude [m], above 0.5 and at most 120.")
+    ] = 1.5,
 ) -> None:
     """Fly a payload pickup: take off, grasp, learn the payload, carry, place, land."""
     scenario = config_or_exit(config)
@@ -198,15 +254,38 @@ def pickup(
     bus_url = arm_bus or (scenario.arm_bus.url if scenario.arm_bus else None)
     if bus_url is None:
         fail(f"{config}: no --arm-bus and no [arm_bus] url in the config")
+    check_mission_options(controller, control_rate, signing_key)
+    out = output_dir_or_exit(out, MISSION_FILES)
     status = run_mission(scenario, connect, bus_url, plan, controller, out, signing_key,
                           control_rate)  # fmt: skip
     raise typer.Exit(status)
 
 
+def check_mission_options(
+    controller: str, control_rate_hz: float, signing_key: Path | None
+) -> None:
+    """The options every mission command shares; one ``error:`` line and exit 2 for a bad
+    one, before anything is opened."""
+    if controller not in ("passivity", "nonadaptive"):
+        fail(f"--controller must be passivity or nonadaptive, got {controller!r}")
+    low, high = CONTROL_RATE_RANGE_HZ
+    check_range(control_rate_hz, "--control-rate", low, high, "Hz",
+                "PX4 drops OFFBOARD below 2 Hz; its ODOMETRY comes at most at 1 kHz")  # fmt: skip
+    if signing_key is not None:
+        try:
+            SigningConfig.from_file(signing_key)
+        except SigningKeyError as exc:
+            fail(f"--signing-key: {exc}")
+
+
 def plan_for(scenario: CompanionConfig, payload_at, place_at, cruise_altitude: float) -> PickupPlan:
     """The mission's plan from the options (one ``error:`` line and exit 2 for a bad one)."""
-    if not cruise_altitude > 0.5:
-        fail(f"--cruise-altitude must be above 0.5 m, got {cruise_altitude:g}")
+    top = ALTITUDE_RANGE_M[1]
+    if not 0.5 < cruise_altitude <= top:
+        fail(
+            f"--cruise-altitude must lie above 0.5 m (clear of the payload on the ground) and "
+            f"at most {top:g} m (the open-category ceiling), got {cruise_altitude:g}"
+        )
     stow = scenario.flight.stow_joints_rad
     return PickupPlan(
         home_m=(0.0, 0.0),
@@ -218,9 +297,9 @@ def plan_for(scenario: CompanionConfig, payload_at, place_at, cruise_altitude: f
 
 
 def run_mission(scenario, connect, bus_url, plan, controller, out, signing_key, rate) -> int:
-    """Fly, print the report; the exit status (0 completed, 1 failed)."""
-    if controller not in ("passivity", "nonadaptive"):
-        fail(f"--controller must be passivity or nonadaptive, got {controller!r}")
+    """Fly, print the report; the exit status (0 completed, 1 failed). ``out`` is the
+    directory :func:`companion.usage.output_dir_or_exit` chose (created if missing)."""
+    check_mission_options(controller, rate, signing_key)
     out.mkdir(parents=True, exist_ok=True)
     try:
         report, failure = asyncio.run(

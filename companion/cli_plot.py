@@ -10,7 +10,10 @@ matplotlib's non-interactive Agg backend (files only):
 - ``arm.png``: joint angles (filtered, desired, read from the servos) and joint torques
   (commanded and measured from present current).
 
-A missing or malformed log prints one ``error:`` line and exits with status 2.
+A missing or malformed log prints one ``error:`` line and exits with status 2; a log
+whose last line was cut (a crash, a power cut) is drawn up to its last whole row, with a
+``warning:`` line. Figures are never overwritten: an ``--out`` that already holds them
+gets its figures in ``OUT-2``, ``OUT-3``, ... (:func:`companion.usage.output_dir_or_exit`).
 """
 
 from __future__ import annotations
@@ -23,9 +26,12 @@ import numpy as np
 import typer
 
 from companion.flightlog import FlightLog, FlightLogError, read_flight_log
-from companion.usage import fail
+from companion.usage import fail, output_dir_or_exit
 
-__all__ = ["figures_available", "plot", "plot_flight_log"]
+__all__ = ["FIGURES", "figures_available", "plot", "plot_flight_log"]
+
+FIGURES = ("tracking.png", "estimation.png", "arm.png")
+"""The figures :func:`plot_flight_log` writes."""
 
 
 def figures_available() -> bool:
@@ -140,7 +146,12 @@ def plot(
     log: Annotated[Path, typer.Argument(help="Flight log CSV (its .events.csv is read too).")],
     out: Annotated[
         Path,
-        typer.Option("--out", help="Output directory (created if missing).", show_default=False),
+        typer.Option(
+            "--out",
+            help="Output directory (created if missing); if it already holds figures, they "
+            "go to OUT-2, OUT-3, ... (never overwritten).",
+            show_default=False,
+        ),
     ],
 ) -> None:
     """Draw tracking, estimation and arm figures (PNG) from a flight log."""
@@ -151,8 +162,10 @@ def plot(
         flight = read_flight_log(log)
     except FlightLogError as exc:
         fail(str(exc))
+    for warning in flight.warnings:
+        typer.echo(f"warning: {warning}", err=True)
     if len(flight) == 0:
         fail(f"{log}: the flight log has no rows")
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_dir_or_exit(out, FIGURES)
     paths = plot_flight_log(flight, out)
     typer.echo(f"{log}: {len(flight)} rows; wrote {', '.join(str(p) for p in paths)}")

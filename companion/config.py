@@ -11,7 +11,9 @@ docstring of its field. Vectors of 8 follow the state order of DESIGN.md section
 ``q = [x, y, z, phi, theta, psi, eta1, eta2]``.
 
 Errors are raised as :class:`ConfigError`, whose message names the file, the dotted key
-and the reason; nothing is read unless a path is passed explicitly.
+and the reason; nothing is read unless a path is passed explicitly. Numbers are finite and
+bounded by what a real vehicle can have (a multirotor of 0.1-100 kg, an arm within 5 m,
+gains below 1e6, ...); a number outside says the range and why.
 """
 
 from __future__ import annotations
@@ -24,6 +26,8 @@ from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 from pydantic_core import ErrorDetails
+
+from companion.coordinates import N_Q
 
 if TYPE_CHECKING:
     from arm_driver.joint import GripperConfig, JointConfig
@@ -57,8 +61,6 @@ __all__ = [
     "validate",
 ]
 
-N_Q = 8
-"""Number of generalized coordinates (DESIGN.md section 2)."""
 
 _REL_TOL = 1e-9
 """Relative tolerance for the consistency check m4 >= m3^2 / m2 (equality is a point mass)."""
@@ -98,6 +100,47 @@ NonNegativeVec3 = Annotated[tuple[NonNegative, ...], Field(min_length=3, max_len
 Fraction = Annotated[float, Field(strict=True, ge=0.0, le=1.0, allow_inf_nan=False)]
 
 
+def _within(high: float, unit: str, why: str, low: float = 0.0) -> AfterValidator:
+    """A validator keeping a number within [low, high] ``unit``, the range a real vehicle
+    has (``why``); finiteness and the sign are the field type's."""
+
+    def check(value: float) -> float:
+        if not low <= value <= high:
+            units = f" {unit}" if unit else ""
+            raise ValueError(f"must lie within [{low:g}, {high:g}]{units} ({why})")
+        return value
+
+    return AfterValidator(check)
+
+
+_ARM_REACH = "an arm on a multirotor reaches at most 5 m"
+Gravity = Annotated[
+    Positive, _within(30.0, "m/s^2", "a planet's surface gravity; Earth 9.81", low=1.0)
+]
+VehicleMass = Annotated[
+    Positive,
+    _within(100.0, "kg", "a multirotor carrying an arm; small drones stop at 25 kg", low=0.1),
+]
+VehicleInertia = Annotated[
+    Positive, _within(100.0, "kg m^2", "a multirotor of 0.1-100 kg", low=1e-5)
+]
+Length = Annotated[Positive, _within(5.0, "m", _ARM_REACH, low=0.01)]
+Distance = Annotated[NonNegative, _within(5.0, "m", _ARM_REACH)]
+Offset = Annotated[Real, _within(5.0, "m", _ARM_REACH, low=-5.0)]
+LinkMass = Annotated[
+    Positive, _within(50.0, "kg", "an arm link or a payload a multirotor lifts", low=0.001)
+]
+LinkInertia = Annotated[NonNegative, _within(100.0, "kg m^2", "50 kg at the 5 m reach")]
+Thrust = Annotated[Positive, _within(1000.0, "N", "a multirotor rotor's static thrust", low=0.01)]
+TimeConstant = Annotated[Positive, _within(10.0, "s", "a motor or filter on a vehicle", low=1e-4)]
+SensorRate = Annotated[
+    Positive, _within(10000.0, "Hz", "vehicle sensors: 1 Hz GPS to 10 kHz IMUs", low=1.0)
+]
+Gain = Annotated[Positive, _within(1e6, "", "no vehicle's gain is larger; larger overflows")]
+PositiveGains3 = Annotated[tuple[Gain, ...], Field(min_length=3, max_length=3)]
+PositiveGainsQ = Annotated[tuple[Gain, ...], Field(min_length=N_Q, max_length=N_Q)]
+
+
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
 
@@ -105,7 +148,7 @@ class _Section(BaseModel):
 class Environment(_Section):
     """World constants."""
 
-    gravity_m_s2: Positive
+    gravity_m_s2: Gravity
     """Gravitational acceleration along -z of the ENU world frame [m/s^2]."""
 
 
@@ -119,27 +162,27 @@ class Rotors(_Section):
     ``plant.thrust_mismatch``.
     """
 
-    arm_length_m: Positive
+    arm_length_m: Length
     """Distance of each rotor axis from the vehicle CoM in the body x-y plane [m]."""
-    max_thrust_per_rotor_n: Positive
+    max_thrust_per_rotor_n: Thrust
     """Static thrust of one rotor at full command u = 1 [N]."""
     thr_mdl_fac: Fraction
     """Shape f of the static thrust curve rel_thrust = f u^2 + (1 - f) u, u the normalized
     motor command in [0, 1] (PX4's THR_MDL_FAC model) [-]. The simulated PX4 does not
     linearize it (PX4 with THR_MDL_FAC = 0), so PX4's normalized thrust setpoint maps to
     thrust through this curve."""
-    motor_time_constant_s: Positive
+    motor_time_constant_s: TimeConstant
     """Time constant of the first-order lag from commanded to produced thrust [s]."""
-    yaw_moment_per_thrust_m: NonNegative
+    yaw_moment_per_thrust_m: Distance
     """Reaction (drag) moment about the rotor axis per unit thrust [N m / N = m]."""
 
 
 class Vehicle(_Section):
     """The hexacopter body without the arm."""
 
-    mass_kg: Positive
+    mass_kg: VehicleMass
     """Mass m_b of the vehicle body [kg]."""
-    inertia_kg_m2: PositiveVec3
+    inertia_kg_m2: Annotated[tuple[VehicleInertia, ...], Field(min_length=3, max_length=3)]
     """Principal moments (Ixx, Iyy, Izz) about the body CoM, FLU axes [kg m^2]."""
     rotors: Rotors
 
@@ -151,15 +194,15 @@ class Link(_Section):
     second moment ``mass_kg * com_m**2 + inertia_about_com_kg_m2`` about its joint.
     """
 
-    length_m: Positive
+    length_m: Length
     """Joint-to-joint (or joint-to-end-effector) length [m]."""
-    mass_kg: Positive
+    mass_kg: LinkMass
     """Link mass [kg]."""
-    com_m: NonNegative
+    com_m: Distance
     """Distance of the centre of mass from the link's joint along the link axis [m]."""
-    inertia_about_com_kg_m2: NonNegative
+    inertia_about_com_kg_m2: LinkInertia
     """Moment of inertia about an axis through the CoM perpendicular to the link [kg m^2]."""
-    armature_kg_m2: NonNegative
+    armature_kg_m2: LinkInertia
     """Reflected rotor inertia of the joint's servo, added on the joint axis [kg m^2]."""
 
     @property
@@ -176,7 +219,7 @@ class Link(_Section):
 class Arm(_Section):
     """The 2-DOF arm; both joint axes are parallel to the body y axis."""
 
-    mount_point_m: Vec3
+    mount_point_m: Annotated[tuple[Offset, ...], Field(min_length=3, max_length=3)]
     """Position r_a of joint 1 in the body frame (FLU, from the vehicle CoM) [m]."""
     link1: Link
     link2: Link
@@ -186,7 +229,7 @@ class Arm(_Section):
 class Theta(_Section):
     """Link-2 parameters theta = (m2, m3, m4) of the paper's parametrization."""
 
-    m2_kg: Positive
+    m2_kg: LinkMass
     """Total mass of link 2 with payload [kg]."""
     m3_kg_m: NonNegative
     """First moment m2 * lc about joint 2 [kg m]."""
@@ -206,7 +249,7 @@ class Theta(_Section):
 class Confidence(_Section):
     """When an estimate is published as confident (companion.estimation.ExcitationMonitor)."""
 
-    window_s: Positive
+    window_s: TimeConstant
     """Time constant of the exponential window [s]."""
     excitation_min: Positive
     """Smallest eigenvalue of the scaled information matrix to call the motion exciting [-]."""
@@ -221,18 +264,18 @@ class Rls(_Section):
     """Forgetting factor per control step, in (0, 1] [-]."""
     initial_std: PositiveVec3
     """Initial standard deviation of (m2 [kg], m3 [kg m], m4 [kg m^2])."""
-    row_noise: PositiveVecQ
+    row_noise: PositiveGainsQ
     """Noise std of each row's generalized-force residual (N on x, y, z; N m otherwise)."""
 
 
 class Estimator(_Section):
     """Gains and initial values of the paper's on-line estimator (eqs. estimator, update)."""
 
-    gamma: PositiveVec3
+    gamma: PositiveGains3
     """Learning rates (gamma_1, gamma_2, gamma_3) of m2, m3, m4."""
-    c_star: PositiveVecQ
+    c_star: PositiveGainsQ
     """Diagonal of the damping-like gain C* (positive definite), one entry per row of q."""
-    k_star: PositiveVecQ
+    k_star: PositiveGainsQ
     """Diagonal of the stiffness-like gain K* (positive definite), one entry per row of q."""
     initial_theta: Theta
     """Initial estimates (m2, m3, m4)."""
@@ -245,7 +288,7 @@ class Estimator(_Section):
         Field(min_length=1, max_length=N_Q),
     ]
     """Rows of q whose generalized force is known, increasing (flight: [0, 1, 2, 6, 7])."""
-    m2_bounds_kg: Annotated[tuple[Positive, ...], Field(min_length=2, max_length=2)]
+    m2_bounds_kg: Annotated[tuple[LinkMass, ...], Field(min_length=2, max_length=2)]
     """Projection bounds [min, max] of m2 [kg]."""
     confidence: Confidence
     rls: Rls
@@ -254,26 +297,26 @@ class Estimator(_Section):
 class SlidingMode(_Section):
     """Adaptive sliding-mode baseline (eqs. asc1, asc2); the paper gives no gains."""
 
-    k1: PositiveVecQ
+    k1: PositiveGainsQ
     """Diagonal of K1 (N s/m, N m s/rad)."""
-    k2: PositiveVecQ
+    k2: PositiveGainsQ
     """Diagonal of K2, the switching gain (N, N m)."""
-    lambda_: PositiveVecQ = Field(alias="lambda")
+    lambda_: PositiveGainsQ = Field(alias="lambda")
     """Diagonal of Lambda of the sliding surface [1/s]."""
-    boundary_layer: PositiveVecQ
+    boundary_layer: PositiveGainsQ
     """Width phi of sat(s / phi) replacing sgn(s) (m/s, rad/s)."""
-    gamma_delta: PositiveVecQ
+    gamma_delta: PositiveGainsQ
     """Adaptation rate of Deltahat (N per m/s s, ...)."""
-    mass_filter_s: Positive
+    mass_filter_s: TimeConstant
     """Time constant of the low-pass on the eq. asc2 mass read-out [s]."""
 
 
 class Controller(_Section):
     """Gains of the augmented passivity-based controller (eq. tau2)."""
 
-    k: PositiveVecQ
+    k: PositiveGainsQ
     """Diagonal of k (N s/m on positions, N m s/rad on angles and joints)."""
-    lambda_: PositiveVecQ = Field(alias="lambda")
+    lambda_: PositiveGainsQ = Field(alias="lambda")
     """Diagonal of Lambda [1/s]."""
     tilt_max_rad: Annotated[float, Field(strict=True, gt=0.0, lt=1.2, allow_inf_nan=False)]
     """Limit of the commanded tilt of the small-angle mapping (eq. phid) [rad]."""
@@ -294,22 +337,22 @@ class Sensors(_Section):
     filter's tuning (``jerk_psd``) is used.
     """
 
-    pose_rate_hz: Positive
+    pose_rate_hz: SensorRate
     """Motion-capture rate of position and attitude [Hz]."""
     position_std_m: NonNegative
     attitude_std_rad: NonNegative
-    pose_latency_s: NonNegative
-    gyro_rate_hz: Positive
+    pose_latency_s: Annotated[NonNegative, _within(10.0, "s", "a sensor's latency")]
+    gyro_rate_hz: SensorRate
     """Body-rate (IMU gyro) rate [Hz]."""
     gyro_std_rad_s: NonNegative
-    joint_rate_hz: Positive
+    joint_rate_hz: SensorRate
     """Servo position read-back rate [Hz]."""
     joint_std_rad: NonNegative
     joint_velocity_unit_rad_s: Positive
     """Resolution of the servo's velocity read-back (XM430: 0.229 rev/min) [rad/s]."""
     joint_torque_std_n_m: NonNegative
     """Noise of the joint torque read back from servo present current [N m]."""
-    jerk_psd: PositiveVecQ
+    jerk_psd: PositiveGainsQ
     """Process noise of the constant-acceleration state filter per row (m^2/s^5, rad^2/s^5)."""
     velocity_std_m_s: Positive = 0.05
     """Noise of the vehicle velocity the autopilot reports (ODOMETRY, EKF2), fused by the
@@ -461,7 +504,8 @@ def _describe(err: ErrorDetails, root: type[BaseModel]) -> tuple[str, str]:
         return key, f"unknown key{hint}"
     if err["type"] == "missing":
         return key, "missing key"
-    return key, f"{err['msg']} (got {err['input']!r})"
+    reason = err["msg"].removeprefix("Value error, ")
+    return key, f"{reason} (got {err['input']!r})"
 
 
 def _section_model(loc: tuple[int | str, ...], root: type[BaseModel]) -> type[BaseModel] | None:
@@ -598,8 +642,12 @@ def validate(model: type[Model], data: dict, path: str) -> Model:
     try:
         return model.model_validate(data)
     except ValidationError as exc:
+        errors = exc.errors()
+        # A bad item of a tuple also shortens it: that length is no second problem.
+        inner = {err["loc"][:-1] for err in errors if err["loc"]}
+        errors = [e for e in errors if not (e["type"] == "too_short" and e["loc"] in inner)]
         problems = sorted(
-            (_describe(err, model) for err in exc.errors()),
+            (_describe(err, model) for err in errors),
             key=lambda kr: not kr[1].startswith("unknown key"),
         )
         raise ConfigError(path, *problems[0], *problems[1:]) from None

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from companion.coordinates import N_Q
 from companion.estimation import Skip
 from companion.filters import FilteredState
 from companion.model import ModelTerms
@@ -261,7 +262,7 @@ class SlidingModeController:
         self.m2_bounds = m2_bounds_kg
         self.mass_filter_s = mass_filter_s
         self.m2 = m2_0
-        self.delta = np.zeros(8)
+        self.delta = np.zeros(N_Q)
 
     @classmethod
     def from_config(cls, config: CompanionConfig) -> SlidingModeController:

@@ -21,9 +21,10 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections import Counter, deque
+from collections.abc import Iterable
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -36,6 +37,7 @@ if TYPE_CHECKING:
 __all__ = [
     "TRANSLATION_AND_JOINT_ROWS",
     "Estimate",
+    "Estimator",
     "ExcitationMonitor",
     "PaperEstimator",
     "RlsEstimator",
@@ -102,9 +104,9 @@ class ThetaBounds:
         m4 = min(max(m4, m3 * m3 / m2), m2 * l2 * l2)
         return m2, m3, m4
 
-    def contains(self, theta: ArrayLike, rel_tol: float = 1e-9) -> bool:
+    def contains(self, theta: Iterable[float], rel_tol: float = 1e-9) -> bool:
         """True if theta lies in the set (with a relative tolerance for rounding)."""
-        m2, m3, m4 = theta
+        m2, m3, m4 = (float(v) for v in theta)
         l2 = self.link2_length_m
         tol = 1.0 + rel_tol
         return bool(
@@ -183,7 +185,9 @@ class ExcitationMonitor:
     ) -> None:
         self.window_s = window_s
         self.sample_period_s = sample_period_s
-        self.weight = np.outer(1.0 / np.asarray(row_scale, dtype=float), theta_scale)
+        self.weight = np.outer(
+            1.0 / np.asarray(row_scale, dtype=float), np.asarray(theta_scale, dtype=float)
+        )
         self.excitation_min = excitation_min
         self.spread_max = spread_max
         self._window_samples = max(2, round(window_s / sample_period_s))
@@ -226,6 +230,48 @@ def _all_finite(values: FloatArray) -> bool:
     """True if values hold no NaN or infinity, read from their sum (finite values large
     enough for the sum to overflow are not forces or regressors either)."""
     return math.isfinite(values.sum())
+
+
+class Estimator(Protocol):
+    """What the flight cycle needs of an on-line payload estimator (paper section III-A, or
+    RLS): theta = (m2 [kg], m3 [kg m], m4 [kg m^2]) advanced once per control period on
+    the rows of q whose generalized force is known."""
+
+    theta: FloatArray
+    """Current estimate, inside the bounds."""
+    frozen: bool
+    """True while theta is held."""
+    skipped: Counter[Skip]
+    """Steps skipped while not frozen, by reason."""
+
+    @property
+    def skipped_steps(self) -> int:
+        """Steps skipped while not frozen, all reasons."""
+        ...
+
+    def freeze(self) -> None:
+        """Hold theta."""
+        ...
+
+    def resume(self) -> None:
+        """Continue estimating from the held theta."""
+        ...
+
+    def reset(self, theta: ArrayLike) -> None:
+        """Restart from theta."""
+        ...
+
+    def update(
+        self,
+        dt: float,
+        terms: ModelTerms,
+        q: FloatArray,
+        q_dot: FloatArray,
+        q_ddot: FloatArray,
+        tau: FloatArray | Skip,
+    ) -> Estimate:
+        """Advance one control period of ``dt`` [s] (see :meth:`_Base.update`)."""
+        ...
 
 
 class _Base(ABC):
@@ -459,7 +505,7 @@ class RlsEstimator(_Base):
         self.p = p
 
 
-def estimator_from_config(config: CompanionConfig, kind: str, rows: tuple[int, ...]):
+def estimator_from_config(config: CompanionConfig, kind: str, rows: tuple[int, ...]) -> Estimator:
     """The configuration's estimator of ``kind`` (``"paper"`` or ``"rls"``) on ``rows``, with its
     bounds, confidence monitor and gains from the ``[estimator]`` section."""
     est = config.estimator

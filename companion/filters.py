@@ -78,6 +78,8 @@ import numpy as np
 from filterpy.common import Q_continuous_white_noise
 from numpy.typing import ArrayLike, NDArray
 
+from companion.coordinates import N_Q
+
 __all__ = [
     "DEFAULT_JERK_PSD",
     "FilterNotReadyError",
@@ -88,8 +90,6 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 
-N_Q = 8
-"""Number of generalized coordinates (DESIGN.md section 2)."""
 
 DEFAULT_JERK_PSD = (0.1, 0.1, 0.1, 1.0, 1.0, 1.0, 1.0, 1.0)
 """Default jerk power spectral density per row of q: [m^2/s^5] for x, y, z, [rad^2/s^5]

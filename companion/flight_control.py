@@ -39,6 +39,7 @@ from companion.control import (
     check_control_rate,
     damping_step_ratio,
 )
+from companion.coordinates import HORIZONTAL, JOINTS, N_Q, PHI, POSITION, PSI, THETA
 from companion.estimation import (
     TRANSLATION_AND_JOINT_ROWS,
     Estimate,
@@ -173,13 +174,13 @@ class FlightControl:
         )
         if self.trim_active:
             lam = self.scenario.controller.lambda_
-            sliding = (q_dot[0:2] - reference.q_dot[0:2]) + np.asarray(lam[0:2]) * (
-                q[0:2] - reference.q[0:2]
-            )
+            e = q[HORIZONTAL] - reference.q[HORIZONTAL]
+            e_dot = q_dot[HORIZONTAL] - reference.q_dot[HORIZONTAL]
+            sliding = e_dot + np.asarray(lam[HORIZONTAL]) * e
             self.trim.update(dt_s, sliding)
-        tau[0:2] += self.trim.force_n
+        tau[HORIZONTAL] += self.trim.force_n
         setpoint = attitude_thrust_setpoint(
-            tau[0:3], float(q[5]), float(reference.q[5]), self.tilt_max_rad, self.thrust
+            tau[POSITION], float(q[PSI]), float(reference.q[PSI]), self.tilt_max_rad, self.thrust
         )
         self.tilt.step(dt_s, (setpoint.roll_rad, setpoint.pitch_rad))
         return ControlOutput(
@@ -206,7 +207,7 @@ class FlightControl:
         x, y, z: the thrust [N] PX4 was commanded, along the measured attitude of ``q``;
         joints: the servos' torque read-back [N m] (present current x torque constant).
         """
-        tau = np.full(8, math.nan)
-        tau[0:3] = thrust_force_world(float(q[3]), float(q[4]), float(q[5]), thrust_n)
-        tau[6:8] = joint_torques_n_m
+        tau = np.full(N_Q, math.nan)
+        tau[POSITION] = thrust_force_world(float(q[PHI]), float(q[THETA]), float(q[PSI]), thrust_n)
+        tau[JOINTS] = joint_torques_n_m
         return tau

@@ -48,6 +48,7 @@ fsyncs. A crash loses at most the last ``flush_every_rows`` rows.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 import time
@@ -241,7 +242,8 @@ class FlightLogWriter:
     """Writes ``LOG.csv`` and ``LOG.events.csv`` (see the module docstring).
 
     Nothing is opened in the constructor; use ``with FlightLogWriter(path) as log`` or
-    :meth:`open` / :meth:`close` (idempotent). Existing files are replaced.
+    :meth:`open` / :meth:`close` (idempotent). A log is never overwritten: :meth:`open`
+    raises :class:`FlightLogError` if either file exists.
 
     Parameters
     ----------
@@ -278,8 +280,13 @@ class FlightLogWriter:
             raise FlightLogError(f"{self.path}: a FlightLogWriter opens once")
         try:
             for p in (self.path, self.events_path):
-                f = open(p, "w", newline="", encoding="utf-8", buffering=1 << 20)
+                f = open(p, "x", newline="", encoding="utf-8", buffering=1 << 20)
                 self._files.append(f)
+        except FileExistsError as exc:
+            self.close()
+            raise FlightLogError(
+                f"{exc.filename}: exists; a flight log is never overwritten"
+            ) from None
         except OSError as exc:
             self.close()
             raise FlightLogError(f"{exc.filename}: cannot write: {exc.strerror}") from None
@@ -342,6 +349,8 @@ class FlightLog:
     """Numeric columns as float64 (empty cells NaN); :data:`TEXT_COLUMNS` as str arrays."""
     events: dict[str, NDArray]
     """Event columns (``t_vehicle_s``, ``t_wall_s`` float64; ``kind``, ``detail`` str)."""
+    warnings: tuple[str, ...] = ()
+    """What was left out on reading: a last line cut by a crash or a power cut."""
 
     def __getitem__(self, name: str) -> NDArray:
         return self.columns[name]
@@ -350,12 +359,35 @@ class FlightLog:
         return len(self.columns["t_vehicle_s"])
 
 
-def _read_csv(path: Path, expected: Sequence[str], text: Iterable[str]) -> dict[str, NDArray]:
+def _whole_rows(path: Path, data: bytes, warnings: list[str]) -> bytes:
+    """``data`` up to its last whole row: a row the writer finished ends with a newline;
+    a crash or a power cut leaves the last one cut (and on some file systems zeros after
+    it). The cut part is dropped and named in ``warnings``."""
+    kept = data.rstrip(b"\0")
+    if not kept or kept.endswith((b"\n", b"\r")):
+        return kept
+    end = kept.rfind(b"\n") + 1
+    if end == 0:
+        raise FlightLogError(
+            f"{path}: the header row is cut (the file ends after {len(kept)} bytes)"
+        )
+    line = kept.count(b"\n", 0, end) + 1
+    warnings.append(
+        f"{path}: line {line} is cut (a crash or a power cut?): read the whole rows before it"
+    )
+    return kept[:end]
+
+
+def _read_csv(
+    path: Path, expected: Sequence[str], text: Iterable[str], warnings: list[str]
+) -> dict[str, NDArray]:
     try:
-        with open(path, newline="", encoding="utf-8") as f:
-            rows = list(csv.reader(f))
+        data = path.read_bytes()
     except OSError as exc:
         raise FlightLogError(f"{path}: cannot read: {exc.strerror}") from None
+    try:
+        content = _whole_rows(path, data, warnings).decode("utf-8")
+        rows = list(csv.reader(io.StringIO(content, newline="")))
     except (UnicodeDecodeError, csv.Error) as exc:
         raise FlightLogError(f"{path}: not a CSV flight log: {exc}") from None
     if not rows:
@@ -393,17 +425,19 @@ def _read_csv(path: Path, expected: Sequence[str], text: Iterable[str]) -> dict[
 def read_flight_log(path: str | Path) -> FlightLog:
     """Read ``LOG.csv`` and ``LOG.events.csv`` (absent events file: no events).
 
-    Raises ``FlightLogError`` naming the file and line for a missing file, a foreign
-    header, a ragged row or a non-numeric cell.
+    A last line cut by a crash or a power cut is left out and named in
+    :attr:`FlightLog.warnings`. Raises ``FlightLogError`` naming the file and line for a
+    missing file, a foreign header, a ragged row or a non-numeric cell.
     """
     path = Path(path)
-    columns = _read_csv(path, COLUMNS, TEXT_COLUMNS)
+    warnings: list[str] = []
+    columns = _read_csv(path, COLUMNS, TEXT_COLUMNS, warnings)
     ev_path = events_path(path)
     if ev_path.exists():
-        events = _read_csv(ev_path, EVENT_COLUMNS, ("kind", "detail"))
+        events = _read_csv(ev_path, EVENT_COLUMNS, ("kind", "detail"), warnings)
     else:
         events = {
             name: np.array([], dtype=str if name in ("kind", "detail") else np.float64)
             for name in EVENT_COLUMNS
         }
-    return FlightLog(path, columns, events)
+    return FlightLog(path, columns, events, tuple(warnings))

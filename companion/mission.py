@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 
 from companion.config import CompanionConfig
 from companion.control import DesiredState
+from companion.coordinates import ETA1, ETA2, HORIZONTAL, JOINTS, N_Q, POSITION, PSI, TILT, X, Y, Z
 
 __all__ = [
     "EstimatorAction",
@@ -260,25 +261,25 @@ class PickupMission:
         rest), so the first move continues the motion PX4 handed over instead of braking
         it at once."""
         yaw = self.plan.yaw_rad
-        self._yaw_rad = float(q_now[5]) if yaw is None else yaw
+        self._yaw_rad = float(q_now[PSI]) if yaw is None else yaw
         self.phase = Phase.TO_OBJECT
         self.phase_log = [(t_s, self.phase)]
         self._begin(t_s, np.asarray(q_now, dtype=np.float64), Phase.TO_OBJECT)
         if q_dot_now is not None:
             assert self._segment is not None
-            v = np.zeros(8)
-            v[0:3] = np.asarray(q_dot_now, dtype=np.float64)[0:3]
+            v = np.zeros(N_Q)
+            v[POSITION] = np.asarray(q_dot_now, dtype=np.float64)[POSITION]
             self._segment.v_from = v
 
     def _begin(self, t_s: float, q_from: FloatArray, phase: Phase) -> None:
         p = self.plan
         q_from = q_from.copy()
-        q_from[3:5] = 0.0
-        q_from[5] = self._yaw_rad
+        q_from[TILT] = 0.0
+        q_from[PSI] = self._yaw_rad
         q_to = self._targets(phase)
-        horizontal = float(np.linalg.norm(q_to[0:2] - q_from[0:2]))
-        vertical = abs(float(q_to[2] - q_from[2]))
-        joints = float(np.max(np.abs(q_to[6:8] - q_from[6:8])))
+        horizontal = float(np.linalg.norm(q_to[HORIZONTAL] - q_from[HORIZONTAL]))
+        vertical = abs(float(q_to[Z] - q_from[Z]))
+        joints = float(np.max(np.abs(q_to[JOINTS] - q_from[JOINTS])))
         # Minimum-jerk peak speed is 1.875 x the mean speed.
         duration = max(
             1.875 * horizontal / p.cruise_speed_m_s,
@@ -342,7 +343,7 @@ class PickupMission:
             return False
         if not seg.check_arrival:
             return True
-        error = float(np.linalg.norm(q[0:3] - seg.q_to[0:3]))
+        error = float(np.linalg.norm(q[POSITION] - seg.q_to[POSITION]))
         if elapsed >= seg.duration_s + self.plan.arrive_timeout_s:
             return True
         if self.phase not in (Phase.DESCEND, Phase.LOWER):
@@ -362,7 +363,7 @@ class PickupMission:
         if self.phase == Phase.EXCITE:
             return self._excitation(elapsed, seg.q_to)
         if self.phase == Phase.DONE:
-            zero = np.zeros(8)
+            zero = np.zeros(N_Q)
             return DesiredState(seg.q_to.copy(), zero, zero.copy())
         q, q_dot, q_ddot = min_jerk(elapsed, seg.duration_s, seg.q_from, seg.q_to, seg.v_from)
         return DesiredState(q, q_dot, q_ddot)
@@ -382,15 +383,15 @@ class PickupMission:
             o, do, ddo = 1.0 - env_out[0], -env_out[1], -env_out[2]
             e, de, dde = e * o, de * o + e * do, dde * o + 2.0 * de * do + e * ddo
         s, c = math.sin(w * elapsed_s), math.cos(w * elapsed_s)
-        f = np.zeros(8)
-        df = np.zeros(8)
-        ddf = np.zeros(8)
-        amp = np.zeros(8)
-        amp[0] = amp[1] = p.excite_radius_m
-        amp[6], amp[7] = p.excite_eta1_rad, p.excite_eta2_rad
+        f = np.zeros(N_Q)
+        df = np.zeros(N_Q)
+        ddf = np.zeros(N_Q)
+        amp = np.zeros(N_Q)
+        amp[X] = amp[Y] = p.excite_radius_m
+        amp[ETA1], amp[ETA2] = p.excite_eta1_rad, p.excite_eta2_rad
         # x: r (1 - cos) keeps the circle through the centre; y: r sin; joints: sin.
-        f[0], df[0], ddf[0] = 1.0 - c, w * s, w * w * c
-        for row in (1, 6, 7):
+        f[X], df[X], ddf[X] = 1.0 - c, w * s, w * w * c
+        for row in (Y, ETA1, ETA2):
             f[row], df[row], ddf[row] = s, w * c, -w * w * s
         q = centre + amp * e * f
         q_dot = amp * (de * f + e * df)

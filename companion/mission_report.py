@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from companion.coordinates import PHI, POSITION, THETA
 from companion.mission import MissionCommand, Phase
 
 __all__ = ["FlightFigures", "MissionReport", "carrying"]
@@ -115,18 +116,18 @@ class FlightFigures:
     def handover(self, t_s: float, q: FloatArray) -> None:
         """OFFBOARD accepted at vehicle time ``t_s`` [s] with the vehicle at ``q``."""
         self._accepted_s = t_s
-        self._handover_tilt0_rad = math.hypot(float(q[3]), float(q[4]))
+        self._handover_tilt0_rad = math.hypot(float(q[PHI]), float(q[THETA]))
 
     def update(self, t_s: float, q: FloatArray, command: MissionCommand | None) -> None:
         """One cycle: measured state ``q`` against the mission's command."""
-        tilt = math.hypot(float(q[3]), float(q[4]))
+        tilt = math.hypot(float(q[PHI]), float(q[THETA]))
         if command is not None and command.phase != Phase.EXCITE:
             self._max_tilt_rad = max(self._max_tilt_rad, tilt)
         if t_s - self._accepted_s <= 2.0:
             change = abs(tilt - self._handover_tilt0_rad)
             self._handover_tilt_rad = max(self._handover_tilt_rad, change)
         if command is not None:
-            error = float(np.linalg.norm(q[0:3] - command.desired.q[0:3]))
+            error = float(np.linalg.norm(q[POSITION] - command.desired.q[POSITION]))
             self._errors.append((error, carrying(command.phase)))
 
     def finish(self, report: MissionReport) -> None:

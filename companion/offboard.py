@@ -26,6 +26,7 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
+from companion.coordinates import PHI, PSI, THETA
 from companion.link.telemetry import VehicleStatus
 from companion.setpoints import AttitudeThrustSetpoint, ThrustModel, fixed_setpoint
 
@@ -100,11 +101,11 @@ class Offboard:
         ``control`` is the controller's setpoint, ``q`` the measured state (ENU/FLU,
         ZYX Euler angles in q[3:6]), ``weight_n`` the hover thrust the model believes [N].
         """
-        yaw = float(q[5])
+        yaw = float(q[PSI])
         if self.stream == Stream.CONTROL:
             return control
         if self.stream == Stream.HOLD:
-            return fixed_setpoint(float(q[3]), float(q[4]), yaw, weight_n, thrust)
+            return fixed_setpoint(float(q[PHI]), float(q[THETA]), yaw, weight_n, thrust)
         if self.stream == Stream.LEVEL:
             return fixed_setpoint(0.0, 0.0, yaw, weight_n, thrust)
         if self.stream == Stream.GROUND:

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from companion.coordinates import ATTITUDE, N_Q, PHI, THETA
 from companion.filters import FilteredState, StateFilter
 
 if TYPE_CHECKING:
@@ -27,7 +28,7 @@ FloatArray = NDArray[np.float64]
 # Tuples: the filter caches its row selections by them without a conversion.
 _POSE_ROWS = (0, 1, 2, 3, 4, 5)
 _POSITION_ROWS = (0, 1, 2)
-_EULER_ROWS = (3, 4, 5)
+_EULER_ROWS = tuple(range(N_Q)[ATTITUDE])
 _JOINT_ROWS = (6, 7)
 
 
@@ -99,7 +100,7 @@ class StateAssembler:
         """For exact measurements of q and q_dot (idealised runs): fused with std 1e-6
         (m, rad) and 1e-5 (m/s, rad/s). Smaller values make the update ill-conditioned
         without improving q_ddot (about 1e-3 m/s^2 RMS on the paper run)."""
-        return cls(jerk_psd, np.full(8, 1e-6), np.full(8, 1e-5))
+        return cls(jerk_psd, np.full(N_Q, 1e-6), np.full(N_Q, 1e-5))
 
     @property
     def ready(self) -> bool:
@@ -134,7 +135,7 @@ class StateAssembler:
         if not self.filter.ready:
             return
         q = self.filter.estimate.q
-        rates = euler_rates_from_body_rates(q[3], q[4], omega_body_rad_s)
+        rates = euler_rates_from_body_rates(q[PHI], q[THETA], omega_body_rad_s)
         self.filter.update_velocity(rates, latency_s=age_s, rows=_EULER_ROWS)
 
     def joints(self, eta_rad: ArrayLike, age_s: float = 0.0) -> None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 
 from companion.control import DesiredState
+from companion.coordinates import PHI, THETA
 
 __all__ = ["TiltReference"]
 
@@ -66,7 +67,7 @@ class TiltReference:
     def apply(self, desired: DesiredState) -> DesiredState:
         """``desired`` with rows phi, theta replaced by this reference."""
         q, q_dot, q_ddot = desired.q.copy(), desired.q_dot.copy(), desired.q_ddot.copy()
-        q[3], q[4] = self.x
-        q_dot[3], q_dot[4] = self.v
-        q_ddot[3], q_ddot[4] = self.a
+        q[PHI], q[THETA] = self.x
+        q_dot[PHI], q_dot[THETA] = self.v
+        q_ddot[PHI], q_ddot[THETA] = self.a
         return DesiredState(q=q, q_dot=q_dot, q_ddot=q_ddot)

@@ -1,12 +1,16 @@
 """One-line user errors of the command lines (``companion`` and ``sitl``).
 
-A user mistake (a bad config, a missing file, an option out of range) prints one
-``error:`` line per problem and exits with status :data:`EXIT_USAGE`, never a traceback.
+A user mistake (a bad config, a missing file, an option out of range, an output directory
+that cannot be written) prints one ``error:`` line per problem and exits with status
+:data:`EXIT_USAGE`, never a traceback. Output directories are chosen before any work is
+done and never overwritten (:func:`output_dir_or_exit`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import math
+import tempfile
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import NoReturn, TypeVar
 
@@ -14,7 +18,14 @@ import typer
 
 from companion.config import CompanionConfig, ConfigError, load_config
 
-__all__ = ["EXIT_USAGE", "config_or_exit", "fail", "load_or_exit"]
+__all__ = [
+    "EXIT_USAGE",
+    "check_range",
+    "config_or_exit",
+    "fail",
+    "load_or_exit",
+    "output_dir_or_exit",
+]
 
 EXIT_USAGE = 2
 """Exit status of a user mistake (the same as a command-line usage error)."""
@@ -41,3 +52,56 @@ def load_or_exit(path: Path, loader: Callable[[Path], Config]) -> Config:
 def config_or_exit(path: Path) -> CompanionConfig:
     """The companion's configuration in ``path`` (:func:`load_or_exit`)."""
     return load_or_exit(path, load_config)
+
+
+def check_range(value: float, option: str, low: float, high: float, unit: str, why: str) -> float:
+    """``value`` if it is a number in [low, high]; otherwise one ``error:`` line naming
+    ``option``, the range and ``why`` it is that range, and exit status 2."""
+    if not (math.isfinite(value) and low <= value <= high):
+        fail(f"{option} must lie in [{low:g}, {high:g}] {unit} ({why}), got {value:g}")
+    return value
+
+
+def output_dir_or_exit(out: Path, writes: Iterable[str], option: str = "--out") -> Path:
+    """The directory a command writes its results into, created before any work is done.
+
+    ``out`` itself when it is new, or an existing directory holding none of the files the
+    command ``writes``. Results are never overwritten: when ``out`` already holds one of
+    them (an earlier run), the results go to the first free ``OUT-2``, ``OUT-3``, ...
+    beside it, and a ``note:`` line says so. ``out`` naming a file, or a place that cannot
+    be created or written, is one ``error:`` line and exit status 2.
+    """
+    names = tuple(writes)
+    base = out if out.name else out.resolve()
+    if not base.name:
+        fail(f"{option} {out}: not a directory results can go into; name a new one")
+    try:
+        candidate = _fresh_dir(out, base, names, option)
+        with tempfile.TemporaryFile(dir=candidate):
+            pass
+    except OSError as exc:
+        fail(f"{option} {out}: cannot write there ({exc.strerror or exc})")
+    if candidate != out:
+        typer.echo(
+            f"note: {out} holds an earlier run's results, which are never overwritten; "
+            f"writing to {candidate}",
+            err=True,
+        )
+    return candidate
+
+
+def _fresh_dir(out: Path, base: Path, names: tuple[str, ...], option: str) -> Path:
+    if out.exists() and not out.is_dir():
+        fail(f"{option} {out}: is a file, not a directory; name a new or empty directory")
+    n, candidate = 1, out
+    while True:
+        if not candidate.exists():
+            try:
+                candidate.mkdir(parents=True)
+            except FileExistsError:
+                continue  # another run took it meanwhile: look at it again
+            return candidate
+        if candidate.is_dir() and not any((candidate / name).exists() for name in names):
+            return candidate
+        n += 1
+        candidate = base.with_name(f"{base.name}-{n}")

@@ -27,7 +27,7 @@ from sitl.hil.link import SimulatorLinkError
 from sitl.hil.sensors import GPS_GRADES
 from sitl.physics import PlantError
 from sitl.physics.jsbsim import Wind
-from sitl.px4 import ParamError, SigningKeyError
+from sitl.px4 import ParamError, SigningKeyError, load_signing_key
 from sitl.px4_sitl import Px4Build, Px4BuildError, Px4NotReadyError
 from sitl.runner import LinkPorts, RunOptions, RunStats, SitlVehicle
 from sitl.scenario import Scenario, load_scenario
@@ -38,6 +38,7 @@ app = typer.Typer(
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     add_completion=False,
+    rich_markup_mode=None,  # plain help: [m/s], [arm_bus] are units and sections, not markup
 )
 
 
@@ -176,8 +177,22 @@ def run(
             _fail(str(exc))
     if duration is not None and not duration > 0.0:
         _fail(f"--duration must be positive, got {duration:g}")
-    if signing_key is not None and not signing_key.is_file():
-        _fail(f"signing key {signing_key}: no such file")
+    ports = (
+        ("--onboard-port", onboard_port),
+        ("--onboard-local-port", onboard_local_port),
+        ("--gcs-port", gcs_port),
+        ("--gcs-local-port", gcs_local_port),
+    )
+    for option, port in ports:
+        if not 0 <= port <= 65535:
+            _fail(f"{option} must be a UDP port number 0-65535, got {port}")
+    if signing_key is not None:
+        try:
+            load_signing_key(signing_key)
+        except OSError as exc:
+            _fail(f"--signing-key {signing_key}: cannot read: {exc.strerror or exc}")
+        except SigningKeyError as exc:
+            _fail(f"--signing-key {exc}")
     silent = _servo_fault(servo_silent) if servo_silent is not None else None
     if physics not in ("pinocchio", "jsbsim"):
         _fail(f"--physics must be pinocchio or jsbsim, got {physics!r}")

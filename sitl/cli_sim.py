@@ -3,6 +3,10 @@
 ``sitl sim`` and ``sitl compare`` (the offline closed loop, :mod:`sitl.offline`, and the
 paper's comparison), ``sitl check`` (a whole scenario file, truth included) and
 ``sitl demo`` (``sitl run`` plus the pickup mission, compared with the truth).
+
+Options and the output directory are checked before anything runs (one ``error:`` line,
+exit status 2); results are never overwritten: an ``--out`` that holds an earlier run's
+results gets this run's in ``OUT-2``, ``OUT-3``, ... (:func:`companion.usage.output_dir_or_exit`).
 """
 
 from __future__ import annotations
@@ -20,12 +24,26 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from companion.cli_mission import ControllerOpt, parse_xyz, plan_for, run_mission
-from companion.usage import EXIT_USAGE, fail, load_or_exit
+from companion.cli_mission import (
+    MISSION_FILES,
+    ControllerOpt,
+    check_mission_options,
+    parse_xyz,
+    plan_for,
+    run_mission,
+)
+from companion.usage import EXIT_USAGE, check_range, fail, load_or_exit, output_dir_or_exit
 from sitl.launch import SitlNotReadyError, start_sitl
-from sitl.scenario import Scenario, load_scenario
+from sitl.scenario import MAX_DURATION_S, Scenario, load_scenario
 
-__all__ = ["DEFAULT_SCENARIO", "sim_app"]
+__all__ = ["COMPARE_FILES", "DEFAULT_SCENARIO", "DEMO_FILES", "SIM_FILES", "sim_app"]
+
+SIM_FILES = ("summary.json", "timeseries.csv", "tracking.png", "estimation.png", "parameters.png")
+"""What ``sitl sim`` writes into ``--out``."""
+COMPARE_FILES = ("compare.md", "summaries.json", "compare.png")
+"""What ``sitl compare`` writes into ``--out``."""
+DEMO_FILES = (*MISSION_FILES, "truth.jsonl")
+"""What ``sitl demo`` writes into ``--out``."""
 
 DEFAULT_SCENARIO = Path(str(files("sitl.configs") / "sitl_pickup.toml"))
 """The demo's built-in scenario (package data: configs/ is also ``sitl.configs``)."""
@@ -81,14 +99,23 @@ ScenarioOpt = Annotated[
     Path, typer.Option("--scenario", help="Scenario TOML file (see configs/).", show_default=False)
 ]
 OutOpt = Annotated[
-    Path, typer.Option("--out", help="Output directory (created if missing).", show_default=False)
+    Path,
+    typer.Option(
+        "--out",
+        help="Output directory (created if missing); if it holds an earlier run's results, "
+        "this run's go to OUT-2, OUT-3, ... (never overwritten).",
+        show_default=False,
+    ),
 ]
 PlantOpt = Annotated[PlantChoice, typer.Option(help="Truth plant: tau on all 8 rows, or PX4-like.")]
 DurationOpt = Annotated[
     float | None,
-    typer.Option(help="Simulated seconds [default: the scenario's simulation.duration_s]."),
+    typer.Option(
+        help="Simulated seconds, one control step to 3600 [default: the scenario's "
+        "simulation.duration_s]."
+    ),
 ]
-SeedOpt = Annotated[int, typer.Option(help="Seed of the sensor-noise generator.")]
+SeedOpt = Annotated[int, typer.Option(help="Seed of the sensor-noise generator, 0 or more.")]
 PhysicsOpt = Annotated[
     PhysicsChoice,
     typer.Option(help="Truth physics: our Pinocchio plant, or JSBSim (underactuated only)."),
@@ -168,14 +195,20 @@ def _wind_label(air) -> str:
 
 
 def _check_times(cfg: Scenario, duration: float | None, *times: float | None) -> None:
+    step = 1.0 / cfg.simulation.control_rate_hz
+    if duration is not None:
+        rate = cfg.simulation.control_rate_hz
+        why = f"one control step at the scenario's {rate:g} Hz; a battery lasts under an hour"
+        check_range(duration, "--duration", step, MAX_DURATION_S, "s", why)
     end = duration if duration is not None else cfg.simulation.duration_s
-    if end <= 0.0:
-        typer.echo(f"error: --duration must be positive, got {end:g}", err=True)
-        raise typer.Exit(EXIT_USAGE)
     for t in times:
         if t is not None and not 0.0 <= t <= end:
-            typer.echo(f"error: event time {t:g} s lies outside the run [0, {end:g}] s", err=True)
-            raise typer.Exit(EXIT_USAGE)
+            fail(f"event time {t:g} s lies outside the run [0, {end:g}] s")
+
+
+def _check_seed(seed: int) -> None:
+    if seed < 0:
+        fail(f"--seed must be a whole number 0 or more (a numpy seed), got {seed}")
 
 
 @sim_app.command()
@@ -210,7 +243,9 @@ def sim(
 
     cfg = load_or_exit(scenario, load_scenario)
     _check_times(cfg, duration, pickup_at, release_at)
+    _check_seed(seed)
     air = _check_physics(physics, plant, wind, turbulence, seed)
+    out = output_dir_or_exit(out, SIM_FILES)
     options = SimOptions(
         controller=controller.value,
         estimator=estimator.value if estimator else None,
@@ -224,7 +259,6 @@ def sim(
         release_at_s=release_at,
     )
     result = _run(cfg, options, f"{cfg.name}: {controller.value}")
-    out.mkdir(parents=True, exist_ok=True)
     write_summary(result.summary, out / "summary.json")
     write_timeseries(result, out / "timeseries.csv")
     plot_run(result, out)
@@ -270,7 +304,9 @@ def compare(
 
     cfg = load_or_exit(scenario, load_scenario)
     _check_times(cfg, duration)
+    _check_seed(seed)
     air = _check_physics(physics, plant, wind, turbulence, seed)
+    out = output_dir_or_exit(out, COMPARE_FILES)
     runs = []
     for name, ctl, est in COMPARED:
         options = SimOptions(
@@ -284,7 +320,6 @@ def compare(
             noise=noise,
         )
         runs.append((name, _run(cfg, options, f"{cfg.name}: {name}")))
-    out.mkdir(parents=True, exist_ok=True)
     title = (
         f"# {cfg.name}: {plant.value} plant, {physics.value} physics"
         f"{_wind_label(air)}, {'noisy' if noise else 'exact'} sensors, seed {seed}\n\n"
@@ -298,9 +333,13 @@ def compare(
 
 @sim_app.command()
 def demo(
-    out: Annotated[Path, typer.Option(help="Directory for log, summary and figures.")] = Path(
-        "out/demo"
-    ),
+    out: Annotated[
+        Path,
+        typer.Option(
+            help="Directory for log, summary, truth and figures; if it holds an earlier "
+            "run, this one goes to OUT-2, OUT-3, ... (never overwritten)."
+        ),
+    ] = Path("out/demo"),
     config: Annotated[
         Path, typer.Option(help="Scenario with [world] and [arm_bus].")
     ] = DEFAULT_SCENARIO,
@@ -342,13 +381,12 @@ def demo(
     if autopilot == "px4":
         if px4_dir is None:
             fail("--autopilot px4 needs a PX4 SITL build: pass --px4-dir DIR or set PX4_SITL_DIR")
-        extra += ["--autopilot", "px4", "--px4-dir", str(px4_dir), "--keep-log", str(out / "px4")]
+        extra += ["--autopilot", "px4", "--px4-dir", str(px4_dir)]
         if navigation == "gps":
             extra += ["--gps", "rtk"]
     scenario = load_or_exit(config, load_scenario)
     if scenario.world is None or scenario.world.payload_position_m is None:
         fail(f"{config}: the demo needs a [world] section with payload_position_m")
-    out.mkdir(parents=True, exist_ok=True)
     beliefs = scenario.beliefs
     payload_at = scenario.world.payload_position_m
     place_world = parse_xyz(place_at, "--place-at")
@@ -364,6 +402,11 @@ def demo(
             f"GPS: PX4's local frame starts at the standing vehicle ({east}, {north}, {up}) m"
         )
     plan = plan_for(beliefs, payload_at, place, 1.5)
+    check_mission_options(controller, 250.0, None)
+    _check_seed(seed)
+    out = output_dir_or_exit(out, DEMO_FILES)
+    if autopilot == "px4":
+        extra += ["--keep-log", str(out / "px4")]
     try:
         sitl = start_sitl(
             config,

@@ -35,6 +35,7 @@ from typing import Literal
 
 import numpy as np
 
+from companion.coordinates import ATTITUDE, POSITION
 from sitl.physics.frames import quaternion_from_euler
 from sitl.px4.measurement import EstimatorReport, VehicleMeasurement
 from sitl.scenario import Scenario
@@ -252,11 +253,11 @@ class Navigation:
         self._attitude.step(dt_s)
         q = state.q
         if self.local_origin_enu_m is None:
-            self.local_origin_enu_m = np.array(q[0:3])
-        position = np.array(q[0:3]) - self.local_origin_enu_m + self._position.smooth
-        velocity = np.array(state.q_dot[0:3]) + self._position.rate
+            self.local_origin_enu_m = np.array(q[POSITION])
+        position = np.array(q[POSITION]) - self.local_origin_enu_m + self._position.smooth
+        velocity = np.array(state.q_dot[POSITION]) + self._position.rate
         if self._noise:
-            angles = np.array(q[3:6]) + self._attitude.smooth
+            angles = np.array(q[ATTITUDE]) + self._attitude.smooth
             quaternion = quaternion_from_euler(*angles.tolist())
         else:
             quaternion = np.array(state.quaternion_wxyz)

@@ -33,11 +33,19 @@ from typing import Literal
 import numpy as np
 
 from companion.control import SlidingModeController
+from companion.coordinates import JOINTS, POSITION, PSI
 from companion.estimation import TRANSLATION_AND_JOINT_ROWS, PaperEstimator, Skip
 from companion.flight_control import FlightControl
 from companion.setpoints import attitude_thrust_setpoint
 from companion.state import StateAssembler
-from sitl.physics import AttitudeSetpoint, PhysicsBackend, TruthPlant, make_plant
+from sitl.physics import (
+    AttitudeSetpoint,
+    IdealPlant,
+    PhysicsBackend,
+    Plant,
+    PlantCore,
+    make_plant,
+)
 from sitl.physics.jsbsim.wind import Wind
 from sitl.scenario import Scenario
 from sitl.sensors import GyroSensor, JointEncoders, PoseSensor
@@ -136,10 +144,10 @@ class _Measurements:
         pose = self.pose.sample(t, state.q)
         if pose is not None:
             a.pose(pose.position_m, pose.euler_rad, t - pose.stamp_s)
-        joints = self.joints.sample(t, state.q[6:8])
+        joints = self.joints.sample(t, state.q[JOINTS])
         if joints is not None:
             a.joints(joints.eta_rad, t - joints.stamp_s)
-        rates = self.joint_rates.sample(t, state.q_dot[6:8])
+        rates = self.joint_rates.sample(t, state.q_dot[JOINTS])
         if rates is not None:
             a.joint_rates(rates.eta_rad, t - rates.stamp_s)
         gyro = self.gyro.sample(t, state.omega_body_rad_s)
@@ -175,13 +183,18 @@ def simulate(
         raise ValueError("no estimator row has a known generalized force on this plant")
 
     rng = np.random.default_rng(opts.seed)
-    plant = make_plant(
-        scenario,
-        opts.physics,
-        opts.plant,
-        payload_attached=scenario.simulation.payload_attached_at_start,
-        wind=opts.wind,
-    )
+    attached = scenario.simulation.payload_attached_at_start
+    plant: PlantCore
+    ideal: IdealPlant | None = None
+    flown: Plant | None = None
+    if opts.plant == "ideal":
+        plant = ideal = make_plant(
+            scenario, opts.physics, "ideal", payload_attached=attached, wind=opts.wind
+        )
+    else:
+        plant = flown = make_plant(
+            scenario, opts.physics, "underactuated", payload_attached=attached, wind=opts.wind
+        )
     # The rows the companion actuates: all on the ideal plant; on the underactuated one PX4
     # closes the attitude loop itself.
     actuated = tuple(range(8)) if opts.plant == "ideal" else TRANSLATION_AND_JOINT_ROWS
@@ -209,7 +222,7 @@ def simulate(
     # the scenario's start pose with the initial estimate (a few ms with latency).
     tau = control.model.gravity(q0, scenario.estimator.initial_theta.as_tuple())
     setpoint = attitude_thrust_setpoint(
-        tau[0:3], q0[5], q0[5], control.tilt_max_rad, control.thrust
+        tau[POSITION], q0[PSI], q0[PSI], control.tilt_max_rad, control.thrust
     )
     applied: np.ndarray | Skip = Skip.NO_FORCE
     events = sorted(
@@ -278,17 +291,17 @@ def simulate(
             step_us,
         )
 
-        if opts.plant == "ideal":
+        if ideal is not None:
             for _ in range(sub):
-                plant.step_ideal(tau)
+                ideal.step_ideal(tau)
             applied = tau
-        else:
+        elif flown is not None:
             command = AttitudeSetpoint.from_euler(
                 setpoint.roll_rad, setpoint.pitch_rad, setpoint.yaw_rad, setpoint.thrust_relative
             )
             for _ in range(sub):
-                plant.step(command, tau[6:8])
-            read_back = sensing.joint_torques(plant.actuators.joint_torques_n_m)
+                flown.step(command, tau[JOINTS])
+            read_back = sensing.joint_torques(flown.actuators.joint_torques_n_m)
             # The thrust along the filtered attitude of this step, the servos' read-back.
             applied = (
                 control.applied_force(q, setpoint.thrust_n, read_back) if ready else Skip.NO_FORCE
@@ -302,7 +315,7 @@ def simulate(
     return result
 
 
-def _truth_row(plant: TruthPlant) -> tuple[float, ...]:
+def _truth_row(plant: PlantCore) -> tuple[float, ...]:
     """(m2, m3, m4, lc, attached) of the plant's link 2 now (logged, never shown to the
     companion side)."""
     truth = plant.true_theta

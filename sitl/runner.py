@@ -35,6 +35,7 @@ import numpy as np
 
 from arm_driver.joint import GripperConfig, JointConfig
 from companion.config import arm_bus_configs
+from companion.coordinates import POSITION
 from companion.frames import ned_from_enu
 from sitl.navigation import ERROR_MODELS, Navigation
 from sitl.physics import Plant, make_plant
@@ -180,7 +181,7 @@ def _local_origin(world_origin: GeoReference, navigation: Navigation, world: Wor
     capture, the vehicle's start with GPS (where EKF2 starts its local frame)."""
     if navigation.mode != "gps":
         return world_origin
-    east, north, up = (float(v) for v in world.state.q[0:3])
+    east, north, up = (float(v) for v in world.state.q[POSITION])
     lat, lon, alt = world_origin.global_from_ned(*ned_from_enu((east, north, up)))
     return GeoReference(lat, lon, alt)
 

@@ -18,7 +18,9 @@ from pydantic import Field
 from companion.config import (
     CompanionConfig,
     ConfigError,
+    Distance,
     Fraction,
+    LinkInertia,
     NonNegative,
     NonNegativeVec3,
     Positive,
@@ -28,6 +30,7 @@ from companion.config import (
     Vec3,
     VecQ,
     _Section,
+    _within,
     check_companion,
     read_toml,
     validate,
@@ -48,16 +51,20 @@ __all__ = [
 
 MIN_PLANT_RATE_HZ = 1000.0
 """Lowest accepted integration rate of the SITL truth plant [Hz]."""
+MAX_DURATION_S = 3600.0
+"""Longest offline run [s]: a multirotor's battery lasts well under an hour."""
+
+PayloadMass = Annotated[NonNegative, _within(50.0, "kg", "a payload a multirotor lifts")]
 
 
 class Payload(_Section):
     """A grasped object, rigidly attached to link 2 on its axis."""
 
-    mass_kg: NonNegative
+    mass_kg: PayloadMass
     """Payload mass [kg]."""
-    position_m: NonNegative
+    position_m: Distance
     """Distance of the payload CoM from joint 2 along link 2 [m]."""
-    inertia_about_com_kg_m2: NonNegative
+    inertia_about_com_kg_m2: LinkInertia
     """Moment of inertia about its CoM, perpendicular to link 2 [kg m^2]."""
 
 
@@ -82,10 +89,14 @@ class Trajectory(_Section):
 class Simulation(_Section):
     """Offline simulation settings."""
 
-    duration_s: Positive
+    duration_s: Annotated[
+        Positive, _within(MAX_DURATION_S, "s", "a multirotor's battery lasts under an hour")
+    ]
     initial_q: VecQ
     """Initial generalized coordinates q(0) (m, rad); q_dot(0) = 0."""
-    control_rate_hz: Positive
+    control_rate_hz: Annotated[
+        Positive, _within(10000.0, "Hz", "a control loop on a vehicle's computer", low=1.0)
+    ]
     """Rate of the companion's control step (a divisor of plant.rate_hz) [Hz]."""
     payload_attached_at_start: bool
     """Start with the payload grasped (the paper's scenario)."""
@@ -123,18 +134,24 @@ class AttitudeControl(_Section):
 class Plant(_Section):
     """The SITL truth plant: integration rate, truth-only effects and the PX4-like loops."""
 
-    rate_hz: Annotated[float, Field(strict=True, ge=MIN_PLANT_RATE_HZ, allow_inf_nan=False)]
+    rate_hz: Annotated[
+        float,
+        Field(strict=True, ge=MIN_PLANT_RATE_HZ, allow_inf_nan=False),
+        _within(1e5, "Hz", "a fixed-step truth integration", low=MIN_PLANT_RATE_HZ),
+    ]
     """Fixed integration rate of the truth dynamics, at least 1000 [Hz]."""
     integrator: Literal["semi_implicit_euler", "rk4"]
     """Fixed-step scheme: ``semi_implicit_euler`` (one dynamics evaluation per step, first
     order) or ``rk4`` (four, fourth order); see ``sitl.physics.integration``."""
-    thrust_mismatch: Positive
+    thrust_mismatch: Annotated[Positive, _within(10.0, "", "true over believed thrust")]
     """True maximum rotor thrust over the believed ``vehicle.rotors.max_thrust_per_rotor_n``
     (1 = the companion's thrust model is exact) [-]."""
     linear_drag_n_s_m: NonNegativeVec3
     """Diagonal D of the linear drag force -D v on the vehicle, v the world-frame (ENU)
     velocity of the vehicle CoM [N s/m]; underactuated plant only."""
-    servo_torque_limit_n_m: Positive
+    servo_torque_limit_n_m: Annotated[
+        Positive, _within(1000.0, "N m", "a servo an arm on a multirotor carries")
+    ]
     """Magnitude limit of each joint torque the simulated servos can apply [N m]."""
     attitude_control: AttitudeControl
 

@@ -32,6 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from companion.coordinates import ATTITUDE, N_Q
+
 __all__ = [
     "GyroMeasurement",
     "GyroSensor",
@@ -46,10 +48,8 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 
-N_Q = 8
-"""Number of generalized coordinates (DESIGN.md section 2)."""
 
-EULER_ROWS = (3, 4, 5)
+EULER_ROWS = tuple(range(N_Q)[ATTITUDE])
 """Rows of q holding the Euler angles phi, theta, psi."""
 
 _TIME_TOL_S = 1e-9

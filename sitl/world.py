@@ -39,6 +39,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from arm_driver.joint import GripperConfig, JointConfig
+from companion.coordinates import ETA1, ETA2, JOINTS, POSITION, PSI, X, Y, Z
 from sitl.physics import AttitudeSetpoint, PlantState
 from sitl.physics.frames import quaternion_from_euler
 from sitl.servo import ServoJoint
@@ -287,8 +288,8 @@ class World:
         state = self._state
         dt = self.dt_s
         torques = self._torques
-        etas = state.q[6:8].tolist()
-        eta_rates = state.q_dot[6:8].tolist()
+        etas = state.q[JOINTS].tolist()
+        eta_rates = state.q_dot[JOINTS].tolist()
         for i, (config, servo) in enumerate(self._joints):
             servo.set_state(config.servo_angle_rad(etas[i]), config.direction * eta_rates[i])
             torques[i] = config.direction * servo.torque_n_m()
@@ -310,15 +311,15 @@ class World:
     def _ground_contact(self, state: PlantState) -> PlantState:
         height = self.settings.landing_gear_height_m
         if self.plant.has_ground:  # the plant's own gear holds it (JSBSim)
-            self.on_ground = state.q[2] <= height + _CONTACT_SLACK_M and abs(state.q_dot[2]) < 0.1
+            self.on_ground = state.q[Z] <= height + _CONTACT_SLACK_M and abs(state.q_dot[Z]) < 0.1
             return state
-        if state.q[2] >= height:
+        if state.q[Z] >= height:
             self.on_ground = False
             self._ground_pose = None
             return state
         self.on_ground = True
         if self._ground_pose is None:  # touch-down: stay where the gear met the ground
-            self._ground_pose = (float(state.q[0]), float(state.q[1]), float(state.q[5]))
+            self._ground_pose = (float(state.q[X]), float(state.q[Y]), float(state.q[PSI]))
         x, y, yaw = self._ground_pose
         return self.plant.hold_base((x, y, height), yaw)
 
@@ -327,7 +328,7 @@ class World:
     def payload_point_m(self) -> FloatArray:
         """World ENU position [m] of the payload point of link 2 (where a grasped CoM sits)."""
         q = self._state.q
-        e1, e2 = float(q[6]), float(q[7])
+        e1, e2 = float(q[ETA1]), float(q[ETA2])
         arm_b = self._mount + np.array(
             [
                 self._l1 * math.cos(e1) + self._lc * math.cos(e1 + e2),
@@ -335,7 +336,7 @@ class World:
                 self._l1 * math.sin(e1) + self._lc * math.sin(e1 + e2),
             ]
         )
-        return q[0:3] + self._state.rotation_world_body @ arm_b
+        return q[POSITION] + self._state.rotation_world_body @ arm_b
 
     @property
     def object_position_m(self) -> FloatArray | None:
@@ -369,7 +370,7 @@ class World:
     def specific_force_flu_m_s2(self) -> FloatArray:
         """What an accelerometer on the base reads: R^T (a - g), body FLU [m/s^2]."""
         state = self._state
-        accel = np.zeros(3) if self.on_ground else np.array(state.q_ddot[0:3])
+        accel = np.zeros(3) if self.on_ground else np.array(state.q_ddot[POSITION])
         accel[2] += self._gravity
         return state.rotation_world_body.T @ accel
 

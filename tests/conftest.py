@@ -1,15 +1,19 @@
 """Shared test fixtures."""
 
 import asyncio
+import shutil
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import pytest
 
 from arm_driver.bus import open_buses
 
 Runner = Callable[..., subprocess.CompletedProcess]
+
+ROOT = Path(__file__).parent.parent
 
 
 def _command_line(module: str) -> Runner:
@@ -70,3 +74,38 @@ def pytest_runtest_makereport(item, call):
     report = yield
     setattr(item, f"rep_{report.when}", report)
     return report
+
+
+@pytest.fixture(scope="session")
+def flight_install(tmp_path_factory) -> Path:
+    """The python of a fresh venv holding only the flight install (``pip install .``, no
+    extra), as on the vehicle's companion computer; built once per session from the
+    repository's files (tracked and new, not ignored: no stale ``build/``)."""
+    where = tmp_path_factory.mktemp("flight-install")
+    source = where / "source"
+    listed = subprocess.run(
+        ["git", "ls-files", "-co", "--exclude-standard", "-z"],
+        cwd=ROOT,
+        capture_output=True,
+        check=True,
+    ).stdout.decode()
+    for name in filter(None, listed.split("\0")):
+        origin, copy = ROOT / name, source / name
+        copy.parent.mkdir(parents=True, exist_ok=True)
+        if origin.is_symlink():
+            copy.symlink_to(origin.readlink())
+        elif origin.is_file():
+            shutil.copy2(origin, copy)
+    venv = where / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+    python = venv / "bin" / "python"
+    done = subprocess.run(
+        [python, "-m", "pip", "install", "--quiet", "--disable-pip-version-check", str(source)],
+        capture_output=True,
+        text=True,
+        timeout=1200,
+    )
+    if done.returncode != 0:
+        output = done.stdout[-3000:] + done.stderr[-3000:]
+        pytest.fail(f"pip install . failed in a fresh venv:\n{output}")
+    return python

@@ -33,17 +33,20 @@ TRUE_COM_M = 0.15
 SPEED = 1.0
 
 
-def run_mission(sitl, out: Path, *extra: str, port: int | None = None, timeout_s=900):
+def run_mission(
+    sitl, out: Path, *extra: str, port: int | None = None, python=sys.executable, timeout_s=900
+):
     port = sitl.onboard_port if port is None else port
     return subprocess.run(
         [
-            sys.executable, "-c", "from companion.cli import main; main()",
+            str(python), "-c", "from companion.cli import main; main()",
             "mission", "pickup", "--config", str(CONFIG),
             "--connect", f"udpin://127.0.0.1:{port}", "--arm-bus", sitl.arm_bus,
             "--payload-at", PAYLOAD_AT, "--place-at", PLACE_AT, "--out", str(out), *extra,
         ],
         capture_output=True, text=True, timeout=timeout_s,
         env=dict(os.environ, PYTHONUNBUFFERED="1"),
+        cwd=out.parent,  # not the repository: an installed companion must not be shadowed
     )  # fmt: skip
 
 
@@ -51,14 +54,18 @@ def truth(path: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
 
-def fly(tmp: Path, name: str, *extra_sitl: str, mission_args=(), relay=None):
+def fly(tmp: Path, name: str, *extra_sitl: str, mission_args=(), relay=None, python=sys.executable):
     truth_log = tmp / f"{name}.truth.jsonl"
     sitl = start_sitl(CONFIG, "--seed", "1", *extra_sitl, speed=SPEED, truth_log=truth_log)
     try:
         if relay is not None:
             relay.start(sitl)
         result = run_mission(
-            sitl, tmp / name, *mission_args, port=None if relay is None else relay.app_port
+            sitl,
+            tmp / name,
+            *mission_args,
+            port=None if relay is None else relay.app_port,
+            python=python,
         )
     finally:
         if relay is not None:
@@ -98,9 +105,12 @@ def test_pickup_learns_the_payload_places_it_and_lands(adaptive):
 
 
 @pytest.fixture(scope="module")
-def nonadaptive(tmp_path_factory):
+def nonadaptive(tmp_path_factory, flight_install):
+    """The baseline flight, flown by the flight install alone (a fresh venv with ``pip
+    install .``: no simulator packages), as on the vehicle."""
     tmp = tmp_path_factory.mktemp("nonadaptive")
-    return (tmp, *fly(tmp, "nonadaptive", mission_args=("--controller", "nonadaptive")))
+    args = ("--controller", "nonadaptive")
+    return (tmp, *fly(tmp, "nonadaptive", mission_args=args, python=flight_install))
 
 
 MISSION_PHASES = [

@@ -154,7 +154,7 @@ def test_cli_sim_writes_summary_timeseries_and_figures(run_sitl, tmp_path: Path)
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--duration", "-1"], "--duration must be positive"),
+        (["--duration", "-1"], "--duration must lie in"),
         (["--pickup-at", "50"], "outside the run"),
         (["--controller", "pid"], "Invalid value"),
     ],

@@ -22,8 +22,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from companion.config import CompanionConfig, load_config
+from companion.coordinates import N_Q
 from companion.model import _mcg
-from companion.model.layout import N_Q, N_XI, PARAM_NAMES, ROW
+from companion.model.layout import N_XI, PARAM_NAMES, ROW
 
 __all__ = ["ManipulatorModel", "ModelParameters", "ModelTerms"]
 

@@ -6,8 +6,8 @@ row i being ``[M_k[i, 0:8] | C_k[i, 0:8] | G_k[i]]``. Hence ``xi @ pieces`` is M
 one theta, and ``pieces.reshape(N_XI * N_Q, ROW) @ [qr_ddot; qr_dot; 1]`` is Y^T.
 """
 
-N_Q = 8
-"""Generalized coordinates q = [x, y, z, phi, theta, psi, eta1, eta2]."""
+from companion.coordinates import N_Q
+
 N_XI = 4
 """xi = [m2, m3, m4, 1]."""
 ROW = 2 * N_Q + 1

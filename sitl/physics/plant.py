@@ -38,6 +38,7 @@ import pinocchio as pin
 from numpy.typing import ArrayLike, NDArray
 
 from companion.config import Theta
+from companion.coordinates import N_Q
 from sitl.physics.articulation import ETA2_JOINT, build_articulation, theta_of
 from sitl.physics.attitude_control import (
     AttitudeLoopParams,
@@ -73,7 +74,6 @@ __all__ = ["PlantMode", "TruthPlant"]
 
 FloatArray = NDArray[np.float64]
 PlantMode = Literal["ideal", "underactuated"]
-N_Q = 8
 
 
 class TruthPlant:

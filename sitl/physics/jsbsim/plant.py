@@ -63,6 +63,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from companion.config import Theta
+from companion.coordinates import ATTITUDE, ETA1, ETA2, JOINTS, N_Q, POSITION
 from sitl.physics.attitude_control import (
     AttitudeLoopParams,
     AttitudeSetpoint,
@@ -93,7 +94,6 @@ from sitl.scenario import Scenario
 __all__ = ["JsbsimError", "JsbsimPlant"]
 
 FloatArray = NDArray[np.float64]
-N_Q = 8
 
 
 class JsbsimPlant:
@@ -238,15 +238,15 @@ class JsbsimPlant:
 
     def _apply_ic(self, q: np.ndarray, q_dot: np.ndarray) -> None:
         """Start JSBSim at (q, q_dot): arm pose, CG location and velocity, attitude, rates."""
-        phi, theta, psi = (float(a) for a in q[3:6])
-        self._arm.eta = [float(q[6]), float(q[7])]
-        self._arm.eta_dot = [float(q_dot[6]), float(q_dot[7])]
+        phi, theta, psi = (float(a) for a in q[ATTITUDE])
+        self._arm.eta = [float(q[ETA1]), float(q[ETA2])]
+        self._arm.eta_dot = [float(q_dot[ETA1]), float(q_dot[ETA2])]
         self._fdm.set_point_masses(self._arm.point_masses())
-        omega = euler_rate_matrix(phi, theta) @ q_dot[3:6]
+        omega = euler_rate_matrix(phi, theta) @ q_dot[ATTITUDE]
         c, c_dot = (np.array(v) for v in self._arm.centre_of_mass())
         rot = rotation_from_euler(phi, theta, psi)
-        p_cg = q[0:3] + rot @ c
-        v_cg = q_dot[0:3] + rot @ (np.cross(omega, c) + c_dot)
+        p_cg = q[POSITION] + rot @ c
+        v_cg = q_dot[POSITION] + rot @ (np.cross(omega, c) + c_dot)
         reading = self._fdm.start(p_cg, v_cg, (phi, theta, psi), omega, self.wind)
         self._euler = (phi, theta, psi)
         self._take(reading)
@@ -326,7 +326,7 @@ class JsbsimPlant:
         and move the vehicle instead); the autopilot and rotors carry on."""
         q, q_dot = np.array(self._q), np.array(self._qd)
         self._arm.set_payload(attached)
-        q_dot[6:8] = self._arm.eta_dot
+        q_dot[JOINTS] = self._arm.eta_dot
         self._apply_ic(q, q_dot)
 
     @property

@@ -1,0 +1,384 @@
+"""Every bad input of the command lines is one ``error:`` line and exit status 2 (issue 15).
+
+Each case names the input and what is wrong, never prints a traceback, loses nothing and
+is found before any work is done. The commands run in this process (typer's runner):
+nothing here starts a vehicle or a simulation.
+"""
+
+from __future__ import annotations
+
+import socket
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner, Result
+
+from companion.cli import app as companion_app
+from companion.flightlog import FlightLogError, FlightLogWriter
+from sitl.cli import app as sitl_app
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+PAPER = CONFIGS / "paper_sim.toml"
+PICKUP = CONFIGS / "sitl_pickup.toml"
+POINTS = ("--payload-at", "1.5,1.0,0.05", "--place-at", "-1.0,0.5,0.05")
+
+
+def companion(*args: str | Path) -> Result:
+    return CliRunner().invoke(companion_app, [str(a) for a in args])
+
+
+def sitl(*args: str | Path) -> Result:
+    return CliRunner().invoke(sitl_app, [str(a) for a in args])
+
+
+def one_error(result: Result, *words: str) -> str:
+    """The run's one ``error:`` line (status 2, no traceback), which holds ``words``."""
+    assert isinstance(result.exception, SystemExit), result.exception
+    assert result.exit_code == 2, (result.stdout, result.stderr)
+    errors = [line for line in result.stderr.splitlines() if line.strip()]
+    errors = [line for line in errors if not line.startswith(("note: ", "warning: "))]
+    assert len(errors) == 1 and errors[0].startswith("error: "), result.stderr
+    assert "Traceback" not in result.stderr + result.stdout
+    for word in words:
+        assert word in errors[0], errors[0]
+    return errors[0]
+
+
+def closed_port() -> int:
+    """A loopback TCP port nobody listens on (bound, then released)."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def changed(tmp_path: Path, source: Path, old: str, new: str) -> Path:
+    text = source.read_text()
+    assert old in text
+    path = tmp_path / f"changed_{source.name}"
+    path.write_text(text.replace(old, new, 1))
+    return path
+
+
+@pytest.fixture
+def no_simulation(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Fail the test if a simulation starts: the error must come before any work."""
+    import sitl.offline
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the simulation ran before the bad input was found")
+
+    monkeypatch.setattr(sitl.offline, "simulate", refuse)
+
+
+# --- configuration files --------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ("companion", "check", "{f}"),
+        ("companion", "arm", "status", "--bus", "dynamixel:///dev/null", "--config", "{f}"),
+        ("companion", "mission", "pickup", "--config", "{f}", *POINTS),
+        ("sitl", "check", "{f}"),
+        ("sitl", "sim", "--scenario", "{f}", "--out", "{out}"),
+        ("sitl", "authority", "--config", "{f}"),
+        ("sitl", "run", "--config", "{f}"),
+    ],
+)
+def test_a_config_of_random_bytes(tmp_path, command):
+    config = tmp_path / "random.toml"
+    config.write_bytes(bytes([0x9F, 0xFF, 0x00, 0xC3]) * 64)
+    tool, *args = command
+    args = [a.format(f=config, out=tmp_path / "out") for a in args]
+    result = (companion if tool == "companion" else sitl)(*args)
+    one_error(result, str(config), "not a UTF-8 text file")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "key", "range_"),
+    [
+        ("mass_kg = 1.0 ", "mass_kg = 1e308 ", "vehicle.mass_kg", "[0.1, 100] kg"),
+        ("mass_kg = 1.0 ", "mass_kg = 1e-300 ", "vehicle.mass_kg", "[0.1, 100] kg"),
+        ("length_m = 0.2 ", "length_m = 1e9 ", "arm.link1.length_m", "[0.01, 5] m"),
+        ("gravity_m_s2 = 9.81", "gravity_m_s2 = 1e30", "environment.gravity_m_s2", "Earth"),
+        ("pose_rate_hz = 100.0", "pose_rate_hz = 1e-300", "sensors.pose_rate_hz", "Hz"),
+        ("k = [4.5,", "k = [4.5e300,", "controller.k[0]", "[0, 1e+06]"),
+    ],
+)
+def test_numbers_no_vehicle_has_are_refused_with_the_range(tmp_path, old, new, key, range_):
+    config = changed(tmp_path, PAPER, old, new)
+    for result in (companion("check", config), sitl("check", config)):
+        one_error(result, str(config), key, range_)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "key"),
+    [
+        ("control_rate_hz = 1000.0", "control_rate_hz = 1e-300", "simulation.control_rate_hz"),
+        ("duration_s = 10.0", "duration_s = 1e12", "simulation.duration_s"),
+        ("[payload]\nmass_kg = 0.4", "[payload]\nmass_kg = 1e308", "payload.mass_kg"),
+    ],
+)
+def test_simulator_numbers_no_run_has_are_refused(tmp_path, no_simulation, old, new, key):
+    config = changed(tmp_path, PAPER, old, new)
+    one_error(sitl("check", config), key, "must lie within")
+    one_error(sitl("sim", "--scenario", config, "--out", tmp_path / "out"), key)
+    assert not (tmp_path / "out").exists()
+
+
+# --- sitl sim / compare options --------------------------------------------------------
+
+
+@pytest.mark.parametrize("command", ["sim", "compare"])
+@pytest.mark.parametrize(
+    ("option", "value", "words"),
+    [
+        ("--duration", "0.0001", ("--duration", "[0.001, 3600] s", "control step")),
+        ("--duration", "nan", ("--duration", "got nan")),
+        ("--duration", "inf", ("--duration", "got inf")),
+        ("--duration", "-1", ("--duration", "got -1")),
+        ("--seed", "-1", ("--seed", "0 or more")),
+    ],
+)
+def test_bad_run_options(tmp_path, no_simulation, command, option, value, words):
+    out = tmp_path / "out"
+    one_error(sitl(command, "--scenario", PAPER, "--out", out, option, value), *words)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("command", ["sim", "compare"])
+def test_an_output_that_is_a_file_is_refused_before_the_run(tmp_path, no_simulation, command):
+    out = tmp_path / "results"
+    out.write_text("not a directory")
+    one_error(sitl(command, "--scenario", PAPER, "--out", out), str(out), "is a file")
+    assert out.read_text() == "not a directory"
+
+
+@pytest.mark.parametrize("command", ["sim", "compare"])
+def test_an_output_that_cannot_be_made_is_refused_before_the_run(tmp_path, no_simulation, command):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    out = blocker / "results"  # below a file: no directory can be made there
+    one_error(sitl(command, "--scenario", PAPER, "--out", out), str(out), "cannot write")
+
+
+def test_sim_results_are_never_overwritten(tmp_path):
+    out = tmp_path / "run"
+    first = sitl("sim", "--scenario", PAPER, "--out", out, "--duration", "0.01")
+    assert first.exit_code == 0, first.stderr
+    summary = (out / "summary.json").read_text()
+    second = sitl("sim", "--scenario", PAPER, "--out", out, "--duration", "0.02")
+    assert second.exit_code == 0, second.stderr
+    assert f"writing to {tmp_path / 'run-2'}" in second.stderr
+    assert (out / "summary.json").read_text() == summary
+    assert (tmp_path / "run-2" / "summary.json").read_text() != summary
+
+
+def test_demo_output_is_checked_before_the_simulator_starts(tmp_path):
+    out = tmp_path / "demo"
+    out.write_text("")
+    one_error(sitl("demo", "--out", out), str(out), "is a file")
+    one_error(sitl("demo", "--out", tmp_path / "d", "--seed", "-1"), "--seed")
+
+
+# --- companion mission pickup --------------------------------------------------------------
+
+
+def mission(tmp_path: Path, *extra: str | Path) -> Result:
+    args = ["mission", "pickup", "--config", PICKUP, *POINTS, "--out", tmp_path / "m"]
+    return companion(*args, "--connect", f"tcpout://127.0.0.1:{closed_port()}", *extra)
+
+
+def test_mission_refused_connection(tmp_path):
+    line = one_error(mission(tmp_path), "--connect tcpout://127.0.0.1:", "refused")
+    assert "cannot open" in line
+
+
+@pytest.mark.parametrize(
+    ("url", "words"),
+    [
+        ("serial:///dev/no-such-serial-device:921600", ("/dev/no-such-serial-device",)),
+        ("udpout://no-such-host.invalid:14550", ("no-such-host.invalid", "cannot open")),
+    ],
+)
+def test_mission_missing_device_or_unknown_host(tmp_path, url, words):
+    one_error(mission(tmp_path, "--connect", url), "--connect", *words)
+
+
+@pytest.mark.parametrize(
+    ("content", "words"),
+    [
+        (None, ("--signing-key", "cannot read")),
+        (b"short", ("--signing-key", "32 raw bytes")),
+    ],
+)
+def test_mission_signing_key(tmp_path, content, words):
+    key = tmp_path / "signing.key"
+    if content is not None:
+        key.write_bytes(content)
+    one_error(mission(tmp_path, "--signing-key", key), str(key), *words)
+    assert not (tmp_path / "m").exists()
+
+
+@pytest.mark.parametrize("rate", ["0", "nan", "inf", "-5", "1e9"])
+def test_mission_control_rate(tmp_path, rate):
+    one_error(mission(tmp_path, "--control-rate", rate), "--control-rate", "[2, 1000] Hz")
+    assert not (tmp_path / "m").exists()
+
+
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [
+        ("--payload-at", "1e9,0,0.05"),
+        ("--place-at", "0,-2000,0.05"),
+        ("--place-at", "0,0,-1"),
+        ("--payload-at", "0,0,500"),
+        ("--payload-at", "nan,0,0"),
+    ],
+)
+def test_mission_points_out_of_reach(tmp_path, option, value):
+    one_error(mission(tmp_path, option, value), option, value)
+
+
+@pytest.mark.parametrize("altitude", ["0.2", "1e5", "nan"])
+def test_mission_cruise_altitude(tmp_path, altitude):
+    one_error(mission(tmp_path, "--cruise-altitude", altitude), "--cruise-altitude", "120 m")
+
+
+def test_mission_output_that_is_a_file(tmp_path):
+    out = tmp_path / "m"
+    out.write_text("")
+    one_error(mission(tmp_path), "--out", str(out), "is a file")
+
+
+def test_mission_never_overwrites_an_earlier_flight(tmp_path):
+    out = tmp_path / "m"
+    out.mkdir()
+    (out / "flight.csv").write_text("the first flight\n")
+    result = mission(tmp_path)  # refused connection: nothing flies
+    one_error(result, "refused")
+    assert f"writing to {tmp_path / 'm-2'}" in result.stderr
+    assert (out / "flight.csv").read_text() == "the first flight\n"
+
+
+def test_the_flight_log_writer_never_overwrites(tmp_path):
+    path = tmp_path / "flight.csv"
+    path.write_text("the first flight\n")
+    with pytest.raises(FlightLogError, match="never overwritten"):
+        FlightLogWriter(path).open()
+    assert path.read_text() == "the first flight\n"
+
+
+# --- companion plot -------------------------------------------------------------------------
+
+
+@pytest.fixture
+def flight_log(tmp_path) -> Path:
+    import numpy as np
+
+    from companion.flightlog import CycleRecord
+
+    path = tmp_path / "flight.csv"
+    with FlightLogWriter(path) as log:
+        for i in range(50):
+            q = np.array([0.1 * i, 0.0, 1.0, 0.0, 0.0, 0.0, -1.5, 0.2])
+            log.write(
+                CycleRecord(t_vehicle_s=0.004 * i, q=q, q_d=q, px4_mode="OFFBOARD", armed=True)
+            )
+    return path
+
+
+@pytest.mark.parametrize("tail", [b"", b"\0" * 4096], ids=["cut", "cut-and-zeros"])
+def test_plot_reads_a_cut_log_up_to_its_last_whole_row(tmp_path, flight_log, tail):
+    data = flight_log.read_bytes()
+    flight_log.write_bytes(data[: data.rfind(b"\n", 0, -1) + 10] + tail)  # last row cut
+    result = companion("plot", flight_log, "--out", tmp_path / "fig")
+    assert result.exit_code == 0, result.stderr
+    assert "49 rows" in result.stdout
+    warning = [line for line in result.stderr.splitlines() if line.startswith("warning: ")]
+    assert len(warning) == 1 and "line 51 is cut" in warning[0], result.stderr
+
+
+def test_plot_output_that_is_a_file(tmp_path, flight_log):
+    out = tmp_path / "fig"
+    out.write_text("")
+    one_error(companion("plot", flight_log, "--out", out), str(out), "is a file")
+
+
+def test_plot_never_overwrites_figures(tmp_path, flight_log):
+    out = tmp_path / "fig"
+    out.mkdir()
+    (out / "tracking.png").write_bytes(b"earlier figure")
+    result = companion("plot", flight_log, "--out", out)
+    assert result.exit_code == 0, result.stderr
+    assert (out / "tracking.png").read_bytes() == b"earlier figure"
+    assert (tmp_path / "fig-2" / "tracking.png").stat().st_size > 1000
+
+
+# --- companion arm --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("ids", "words"),
+    [
+        ("5-1", ("--ids '5-1'", "empty", "1-5")),
+        ("1-300", ("--ids '1-300'", "0-255")),
+        ("x", ("--ids 'x'", "1-5,7")),
+    ],
+)
+def test_arm_scan_ids(ids, words):
+    one_error(companion("arm", "scan", "--bus", "dynamixel:///dev/null", "--ids", ids), *words)
+
+
+# --- sitl run --------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [
+        ("--onboard-port", "70000"),
+        ("--onboard-local-port", "65536"),
+        ("--gcs-port", "-1"),
+        ("--gcs-local-port", "100000"),
+    ],
+)
+def test_sitl_run_port_out_of_range(option, value):
+    one_error(sitl("run", "--config", PICKUP, option, value), option, "0-65535", value)
+
+
+@pytest.mark.parametrize(
+    ("kind", "words"),
+    [
+        ("missing", ("cannot read", "No such file")),
+        ("directory", ("cannot read",)),
+        ("short", ("32 raw bytes",)),
+    ],
+)
+def test_sitl_run_signing_key_it_cannot_read(tmp_path, kind, words):
+    key = tmp_path / "signing.key"
+    if kind == "directory":
+        key.mkdir()
+    elif kind == "short":
+        key.write_bytes(b"0123")
+    one_error(sitl("run", "--config", PICKUP, "--signing-key", key), "--signing-key", *words)
+
+
+# --- help texts -------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("tool", "command", "texts"),
+    [
+        ("companion", ["mission", "pickup"], ["[m, ENU]", "[arm_bus]", "[Hz]", "[m]"]),
+        ("companion", ["arm", "move"], ["[deg]", "[arm_bus]"]),
+        ("sitl", ["run"], ["[m/s]", "[s, sim time]"]),
+        ("sitl", ["sim"], ["[s]"]),
+    ],
+)
+def test_help_shows_units_and_section_names(tool, command, texts):
+    result = (companion if tool == "companion" else sitl)(*command, "--help")
+    assert result.exit_code == 0
+    text = " ".join(result.stdout.split())  # the help wraps lines
+    for expected in texts:
+        assert expected in text, (expected, result.stdout)
