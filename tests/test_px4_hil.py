@@ -290,3 +290,20 @@ def test_a_2_s_link_cut_under_px4_ends_in_a_landing(px4_build, tmp_path):
     assert "AUTO_LAND" in airborne_modes, (airborne_modes, flight.context())
     last = flight.truth[-1]
     assert last["on_ground"] and not last["armed"], flight.context()
+
+
+def test_autopilot_px4_without_a_px4_build_is_one_line_and_status_2(
+    run_sitl, monkeypatch, tmp_path
+):
+    monkeypatch.delenv("PX4_SITL_DIR", raising=False)
+    run = ("run", "--config", str(CONFIG), "--duration", "1")
+    for extra, says in (
+        (("--autopilot", "px4"), "PX4_SITL_DIR"),
+        (("--autopilot", "px4", "--px4-dir", str(tmp_path)), "bin/px4"),
+        (("--autopilot", "ardupilot"), "imitation or px4"),
+        (("--autopilot", "px4", "--px4-dir", str(tmp_path), "--gps", "dgps"), "--gps"),
+    ):
+        result = run_sitl(*run, *extra)
+        assert result.returncode == 2, (extra, result.stderr)
+        lines = [line for line in result.stderr.splitlines() if line.strip()]
+        assert len(lines) == 1 and lines[0].startswith("error:") and says in lines[0], extra
