@@ -44,7 +44,7 @@ MISSION_PHASES = [
 ]  # fmt: skip
 NAVIGATION = {
     "mocap": ("--navigation", "mocap"),
-    # A standard receiver's metre-level error cannot put a 5 cm gripper on the object.
+    # A standard receiver's wander (0.7 m per axis) is far beyond the 5 cm grasp tolerance.
     "gps": ("--navigation", "gps", "--gps", "rtk"),
 }
 GEAR_HEIGHT_M = 0.25
