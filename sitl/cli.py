@@ -177,6 +177,16 @@ def run(
             _fail(str(exc))
     if duration is not None and not duration > 0.0:
         _fail(f"--duration must be positive, got {duration:g}")
+    if seed < 0:
+        _fail(f"--seed must be a whole number 0 or more (a numpy seed), got {seed}")
+    if truth_log is not None:
+        if truth_log.exists():
+            _fail(
+                f"--truth-log {truth_log}: exists; an earlier run's truth is never "
+                "overwritten: name a new file"
+            )
+        if not truth_log.parent.is_dir():
+            _fail(f"--truth-log {truth_log}: no directory {truth_log.parent}")
     ports = (
         ("--onboard-port", onboard_port),
         ("--onboard-local-port", onboard_local_port),

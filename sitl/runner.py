@@ -111,7 +111,7 @@ class RunOptions:
     signing_key
         32-byte MAVLink 2 signing key file; ``None``: signing off.
     truth_log
-        JSON-lines ground-truth file; ``None``: none written.
+        JSON-lines ground-truth file, created (never overwritten); ``None``: none written.
     truth_rate_hz
         Truth-log lines per simulated second.
     """
@@ -285,7 +285,7 @@ class SitlVehicle:
             for link in self.links.values():
                 link.open()
             if self.options.truth_log is not None:
-                self._truth_file = open(self.options.truth_log, "w", encoding="utf-8")
+                self._truth_file = open(self.options.truth_log, "x", encoding="utf-8")
         except BaseException:
             self.close()
             raise

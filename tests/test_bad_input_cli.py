@@ -364,6 +364,19 @@ def test_sitl_run_signing_key_it_cannot_read(tmp_path, kind, words):
     one_error(sitl("run", "--config", PICKUP, "--signing-key", key), "--signing-key", *words)
 
 
+def test_sitl_run_never_overwrites_a_truth_log(tmp_path):
+    earlier = tmp_path / "truth.jsonl"
+    earlier.write_text('{"t_s": 0.0}\n')
+    one_error(sitl("run", "--config", PICKUP, "--truth-log", earlier), "--truth-log", "exists")
+    assert earlier.read_text() == '{"t_s": 0.0}\n'
+    missing = tmp_path / "nowhere" / "truth.jsonl"
+    one_error(sitl("run", "--config", PICKUP, "--truth-log", missing), "no directory")
+
+
+def test_sitl_run_seed_below_zero():
+    one_error(sitl("run", "--config", PICKUP, "--seed", "-1"), "--seed", "0 or more", "-1")
+
+
 # --- help texts -------------------------------------------------------------------------------
 
 

@@ -259,7 +259,7 @@ class Px4InTheLoop:
         try:
             self.servo_bus.start()
             if self.options.truth_log is not None:
-                self._truth_file = open(self.options.truth_log, "w", encoding="utf-8")
+                self._truth_file = open(self.options.truth_log, "x", encoding="utf-8")
             self.ports = ports = free_instance()
             self._link = SimulatorLink(ports.simulator_tcp)
             self._link.open()
