@@ -291,16 +291,6 @@ class ThrustScale(_Section):
     (battery sag; 0: s is held constant apart from the forgetting)."""
     gamma: Gain = 1.0
     """Paper estimator: learning rate of s [-]."""
-    compensate: bool = False
-    """Divide the commanded thrust by the estimated s (low-passed, see
-    ``compensation_time_constant_s``), so that the force the vehicle produces is the
-    controller's."""
-    compensation_time_constant_s: Annotated[
-        Positive, _within(60.0, "s", "a battery's sag", low=0.01)
-    ] = 2.0
-    """Time constant of the first-order low-pass of s the compensation divides by [s]:
-    dividing by the raw estimate closes a fast loop through the regressor (the commanded
-    force it changes is the column of s) and ran s to its bound offline."""
 
 
 class Estimator(_Section):

@@ -17,13 +17,7 @@ and send the result to PX4 (or the plant) and the servos. The pieces are the pap
   paper's configs),
 - the small-angle tilt mapping (eq. phid) and PX4's relative thrust (:class:`ThrustModel`),
   with the tilt fed back as the attitude reference through a third-order filter
-  (:class:`TiltReference`); with ``[estimator.thrust_scale] compensate``, the thrust is
-  the controller's force divided by the estimated thrust scale s, low-passed (the vehicle
-  produces s times what its thrust model says).
-
-The applied force the hosts pass back to :meth:`FlightControl.step` is always the
-commanded one (:meth:`FlightControl.applied_force` of the setpoint's ``thrust_n``, the
-thrust model's Newtons): the estimator applies its s to it itself.
+  (:class:`TiltReference`).
 """
 
 from __future__ import annotations
@@ -142,12 +136,6 @@ class FlightControl:
         self.trim = HorizontalTrim(ctl.horizontal_trim_gain_n_per_m, ctl.horizontal_trim_limit_n)
         self.trim_active = False
         """The trim integrates only while the vehicle flies these setpoints (the app)."""
-        scale = config.estimator.thrust_scale
-        self.compensate_thrust = scale is not None and scale.compensate and any(r < 3 for r in rows)
-        """Divide the commanded thrust by the (low-passed) estimated thrust scale."""
-        self.compensation_scale = 1.0 if scale is None else scale.initial
-        """The low-passed thrust scale the commanded thrust is divided by [-]."""
-        self._compensation_tc_s = 1.0 if scale is None else scale.compensation_time_constant_s
 
     def check_rate(self, rate_hz: float, q: FloatArray) -> float:
         """Raise :class:`~companion.control.ControlRateError` if ``rate_hz`` is too low for
@@ -191,15 +179,8 @@ class FlightControl:
             sliding = e_dot + np.asarray(lam[HORIZONTAL]) * e
             self.trim.update(dt_s, sliding)
         tau[HORIZONTAL] += self.trim.force_n
-        force = tau[POSITION]
-        if self.compensate_thrust:
-            # the vehicle produces s times the thrust model's force: ask for tau / s, with s
-            # low-passed (the raw estimate would close a fast loop through its own column)
-            a = 1.0 - math.exp(-dt_s / self._compensation_tc_s)
-            self.compensation_scale += a * (estimate.thrust_scale - self.compensation_scale)
-            force = force / self.compensation_scale
         setpoint = attitude_thrust_setpoint(
-            force, float(q[PSI]), float(reference.q[PSI]), self.tilt_max_rad, self.thrust
+            tau[POSITION], float(q[PSI]), float(reference.q[PSI]), self.tilt_max_rad, self.thrust
         )
         self.tilt.step(dt_s, (setpoint.roll_rad, setpoint.pitch_rad))
         return ControlOutput(
