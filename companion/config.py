@@ -51,6 +51,7 @@ __all__ = [
     "Sensors",
     "SlidingMode",
     "Theta",
+    "ThrustScale",
     "Vehicle",
     "arm_bus_configs",
     "check_companion",
@@ -268,6 +269,30 @@ class Rls(_Section):
     """Noise std of each row's generalized-force residual (N on x, y, z; N m otherwise)."""
 
 
+ThrustScaleValue = Annotated[Positive, _within(2.0, "", "true over believed thrust", low=0.2)]
+
+
+class ThrustScale(_Section):
+    """The vehicle's thrust scale s (true force = s x the thrust model's force) estimated
+    with theta (companion.estimation): the translational rows' commanded force becomes a
+    column of the regressor, the joint rows (servo torque) anchor m2, m3, m4."""
+
+    initial: ThrustScaleValue = 1.0
+    """Initial estimate of s [-] (1: the thrust model is exact)."""
+    bounds: Annotated[tuple[ThrustScaleValue, ...], Field(min_length=2, max_length=2)] = (
+        0.5,
+        1.5,
+    )
+    """Projection bounds [min, max] of s [-]."""
+    initial_std: Annotated[Positive, _within(1.0, "", "a thrust model within 100 %")] = 0.1
+    """RLS: initial standard deviation of s [-]."""
+    drift_std_per_sqrt_s: Annotated[NonNegative, _within(1.0, "1/sqrt(s)", "battery sag")] = 0.0
+    """RLS: random-walk process noise of s, std per square root of a second [1/sqrt(s)]
+    (battery sag; 0: s is held constant apart from the forgetting)."""
+    gamma: Gain = 1.0
+    """Paper estimator: learning rate of s [-]."""
+
+
 class Estimator(_Section):
     """Gains and initial values of the paper's on-line estimator (eqs. estimator, update)."""
 
@@ -292,6 +317,9 @@ class Estimator(_Section):
     """Projection bounds [min, max] of m2 [kg]."""
     confidence: Confidence
     rls: Rls
+    thrust_scale: ThrustScale | None = None
+    """Estimate the vehicle's thrust scale with theta (absent: the thrust model is taken
+    as exact, the paper's assumption)."""
 
 
 class SlidingMode(_Section):
@@ -629,6 +657,20 @@ def check_companion(cfg: CompanionConfig, path: str) -> None:
             "estimator.initial_theta.m2_kg",
             f"{est.initial_theta.m2_kg:g} kg lies outside m2_bounds_kg {est.m2_bounds_kg}",
         )
+    if est.thrust_scale is not None:
+        s_low, s_high = est.thrust_scale.bounds
+        if not s_low < s_high:
+            raise ConfigError(
+                path,
+                "estimator.thrust_scale.bounds",
+                f"need min < max, got {est.thrust_scale.bounds}",
+            )
+        if not s_low <= est.thrust_scale.initial <= s_high:
+            raise ConfigError(
+                path,
+                "estimator.thrust_scale.initial",
+                f"{est.thrust_scale.initial:g} lies outside bounds {est.thrust_scale.bounds}",
+            )
     if cfg.arm_bus is not None:
         _check_arm_bus(cfg.arm_bus, path)
 

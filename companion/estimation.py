@@ -10,6 +10,13 @@ the thrust model and measured attitude, and the joint rows, from servo current).
 - :class:`RlsEstimator`: recursive least squares with exponential forgetting on the same
   regression ``tau - Y[:, 3] = Y[:, :3] theta`` (beyond the paper).
 
+Beyond the paper, both can estimate the vehicle's thrust scale s with theta
+(:class:`ThrustScaleModel`): the force on the translational rows is then ``s`` times the
+commanded one, which moves to the unknown side as a fourth column of the regressor,
+``Y_theta theta - s f_cmd = -Y_4`` on x, y, z and ``Y_theta theta = tau - Y_4`` on the
+joints; the joint rows, whose torque comes from the servos and not from the thrust, are
+what separates m2 from s.
+
 Beyond the paper, both project onto physically consistent values after every step
 (:class:`ThetaBounds`), can be frozen (take-off, landing: tau is not what the model assumes
 while touching the ground), resumed and reset (payload released), and publish an
@@ -43,6 +50,7 @@ __all__ = [
     "RlsEstimator",
     "Skip",
     "ThetaBounds",
+    "ThrustScaleModel",
     "estimator_from_config",
 ]
 
@@ -117,6 +125,44 @@ class ThetaBounds:
 
 
 @dataclass(frozen=True)
+class ThrustScaleModel:
+    """The thrust scale s as an unknown: true force = s x commanded force on x, y, z.
+
+    Parameters
+    ----------
+    initial : float
+        Initial (and after :meth:`_Base.reset_thrust_scale`) estimate of s [-].
+    low, high : float
+        Projection bounds of s [-].
+    initial_std : float
+        RLS: initial standard deviation of s, also the cap on its variance [-].
+    drift_std_per_sqrt_s : float
+        RLS: random-walk std of s per square root of a second [1/sqrt(s)].
+    gamma : float
+        Paper estimator: learning rate of s [-].
+    """
+
+    initial: float = 1.0
+    low: float = 0.5
+    high: float = 1.5
+    initial_std: float = 0.1
+    drift_std_per_sqrt_s: float = 0.0
+    gamma: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.low <= self.initial <= self.high:
+            raise ValueError("need 0 < low <= initial <= high")
+        if not (self.initial_std > 0.0 and self.drift_std_per_sqrt_s >= 0.0 and self.gamma > 0):
+            raise ValueError("need initial_std > 0, drift_std_per_sqrt_s >= 0, gamma > 0")
+
+    def clip(self, s: float) -> float:
+        """s within [low, high]; raises FloatingPointError on NaN or infinity."""
+        if not math.isfinite(s):
+            raise FloatingPointError(f"non-finite thrust scale estimate {s}")
+        return min(max(s, self.low), self.high)
+
+
+@dataclass(frozen=True)
 class Estimate:
     """What an estimator publishes each step."""
 
@@ -131,6 +177,8 @@ class Estimate:
     confident: bool
     """Excitation above its threshold, spread below its threshold, and not frozen."""
     frozen: bool
+    thrust_scale: float = 1.0
+    """Estimated true over commanded thrust s [-] (1 when it is not estimated)."""
 
     @property
     def m2_kg(self) -> float:
@@ -243,6 +291,8 @@ class Estimator(Protocol):
     """True while theta is held."""
     skipped: Counter[Skip]
     """Steps skipped while not frozen, by reason."""
+    thrust_scale: float
+    """Current estimate of the thrust scale s (1 when it is not estimated)."""
 
     @property
     def skipped_steps(self) -> int:
@@ -283,6 +333,7 @@ class _Base(ABC):
         bounds: ThetaBounds,
         monitor: ExcitationMonitor,
         rows: tuple[int, ...],
+        scale: ThrustScaleModel | None = None,
     ) -> None:
         if not rows or sorted(set(rows)) != list(rows) or rows[0] < 0 or rows[-1] > 7:
             raise ValueError(f"rows must be increasing indices into q (0..7), got {rows}")
@@ -296,6 +347,13 @@ class _Base(ABC):
         self.skipped: Counter[Skip] = Counter()
         """Skipped steps by reason."""
         self.theta = bounds.project(np.asarray(theta0, dtype=float))
+        self.scale = scale
+        """The thrust scale model, or None: the commanded force is taken as exact."""
+        self.thrust_scale = 1.0 if scale is None else scale.initial
+        # The used rows whose force is the thrust's (x, y, z).
+        self._thrust_rows = self.rows < 3
+        if scale is not None and not self._thrust_rows.any():
+            raise ValueError("a thrust scale needs at least one of the rows x, y, z")
 
     @property
     def skipped_steps(self) -> int:
@@ -312,10 +370,22 @@ class _Base(ABC):
         self._restart()
 
     def reset(self, theta: ArrayLike) -> None:
-        """Restart from theta (for example the empty-arm values after a release)."""
+        """Restart from theta (for example the empty-arm values after a release). The
+        thrust scale, the vehicle's and not the payload's, is kept with its confidence:
+        learnt with the known empty arm before a grasp, it is a hover calibration."""
         self.theta = self.bounds.project(np.asarray(theta, dtype=float))
         self.monitor.reset()
         self._restart()
+
+    def reset_thrust_scale(self) -> None:
+        """Restart the thrust scale from its initial value (another vehicle or battery)."""
+        if self.scale is not None:
+            self.thrust_scale = self.scale.initial
+            self._restart_scale()
+
+    @abstractmethod
+    def _restart_scale(self) -> None:
+        """Reset internal states of the thrust scale's estimate other than its value."""
 
     @abstractmethod
     def _restart(self) -> None:
@@ -330,6 +400,7 @@ class _Base(ABC):
             spread=spread,
             confident=(not self.frozen) and self.monitor.confident(),
             frozen=self.frozen,
+            thrust_scale=self.thrust_scale,
         )
 
     def update(
@@ -353,8 +424,10 @@ class _Base(ABC):
             Measured/filtered state and derivatives (m, rad and their rates).
         tau : ndarray, shape (8,), or Skip
             Generalized force applied over the last period (only ``rows`` are read), or
-            why it is not known. A skipped step holds theta and is counted in
-            :attr:`skipped` by reason; so is a force or regressor that is not finite.
+            why it is not known. With a thrust scale, x, y, z are the commanded force
+            (the thrust model's), of which s times acted. A skipped step holds theta and
+            is counted in :attr:`skipped` by reason; so is a force or regressor that is
+            not finite.
         """
         select = self._select
         y = terms.regressor(q_dot, q_ddot)[select]
@@ -389,6 +462,10 @@ class PaperEstimator(_Base):
         Initial qhat_dot. The observer is first order, so after the start qhat_dot is set by
         the observer equation; qhat_dot0 is the rate of the first step from qhat = q, which
         makes e != 0 when qhat_dot0 != q_dot (the paper's condition for estimation).
+    scale : ThrustScaleModel, optional
+        Estimate the thrust scale s too: its column of the regressor is ``-f_cmd`` (the
+        commanded force on x, y, z), so ``s_dot = -gamma_s e^T f_cmd``, and the observer
+        uses ``s f_cmd`` as the force on those rows.
     """
 
     def __init__(
@@ -401,8 +478,9 @@ class PaperEstimator(_Base):
         k_star: ArrayLike,
         qhat_dot0: ArrayLike,
         rows: tuple[int, ...] = ALL_ROWS,
+        scale: ThrustScaleModel | None = None,
     ) -> None:
-        super().__init__(theta0, bounds, monitor, rows)
+        super().__init__(theta0, bounds, monitor, rows, scale)
         self.gamma = np.asarray(gamma, dtype=float)
         self._gamma = tuple(self.gamma.tolist())
         self.c_star = np.asarray(c_star, dtype=float)[self.rows]
@@ -418,6 +496,9 @@ class PaperEstimator(_Base):
     def _restart(self) -> None:
         self.qhat = None
 
+    def _restart_scale(self) -> None:
+        """The paper's update has no state of s besides its value."""
+
     def _step(self, dt, y, q, q_dot, tau) -> None:
         if self.qhat is None:
             self.qhat = q + dt * self.qhat_dot0
@@ -432,6 +513,12 @@ class PaperEstimator(_Base):
         m2, m3, m4 = self.bounds.clip(m2 + dt * g2 * ey2, m3 + dt * g3 * ey3, m4 + dt * g4 * ey4)
         xi = np.array((m2, m3, m4, 1.0))
         self.theta = xi[:3]
+        if self.scale is not None:
+            thrust = self._thrust_rows
+            force = np.where(thrust, tau, 0.0)
+            s = self.scale.clip(self.thrust_scale - dt * self.scale.gamma * float(e @ force))
+            self.thrust_scale = s
+            tau = np.where(thrust, s * tau, tau)
         # Then the observer (eq. estimator) with this theta, forward Euler from qhat = q + e:
         # qhat + dt C*^-1 (tau - Y xi + C* q_dot - K* e)
         #   = q + dt q_dot + (1 - dt C*^-1 K*) e + dt C*^-1 (tau - Y xi),
@@ -460,6 +547,12 @@ class RlsEstimator(_Base):
         Initial variances of (m2, m3, m4), also the cap on P's trace.
     row_noise : array_like, shape (8,)
         Noise std of each row's generalized-force residual.
+    scale : ThrustScaleModel, optional
+        Estimate the thrust scale s too, as a fourth state (x = (theta, s),
+        ``H = [Y_theta, -f_cmd]``, ``z = -Y_4`` on x, y, z and ``tau - Y_4`` on the joints).
+        P is then 4 x 4; the variance of s grows by ``drift_std_per_sqrt_s^2 dt`` each step
+        (a random walk: battery sag) and is capped at ``initial_std^2``, theta's block at
+        ``p0``'s trace as before.
     """
 
     def __init__(
@@ -471,8 +564,9 @@ class RlsEstimator(_Base):
         p0: ArrayLike,
         row_noise: ArrayLike,
         rows: tuple[int, ...] = ALL_ROWS,
+        scale: ThrustScaleModel | None = None,
     ) -> None:
-        super().__init__(theta0, bounds, monitor, rows)
+        super().__init__(theta0, bounds, monitor, rows, scale)
         if not 0.0 < forgetting <= 1.0:
             raise ValueError("forgetting must lie in (0, 1]")
         self.forgetting = forgetting
@@ -481,9 +575,22 @@ class RlsEstimator(_Base):
         self.r = np.diag(np.asarray(row_noise, dtype=float)[self.rows] ** 2)
         self._r_forgotten = self.r / forgetting
         self.p = self.p0.copy()
+        if scale is not None:
+            self.s_var_max = scale.initial_std**2
+            self.p_s = np.zeros(3)
+            """Covariance of theta with s."""
+            self.var_s = self.s_var_max
+            """Variance of s."""
 
     def _restart(self) -> None:
+        """theta's covariance back to p0, uncorrelated with s (whose variance is kept)."""
         self.p = self.p0.copy()
+        if self.scale is not None:
+            self.p_s = np.zeros(3)
+
+    def _restart_scale(self) -> None:
+        self.p_s = np.zeros(3)
+        self.var_s = self.s_var_max
 
     @property
     def std(self) -> FloatArray:
@@ -491,6 +598,9 @@ class RlsEstimator(_Base):
         return np.sqrt(np.diag(self.p))
 
     def _step(self, dt, y, q, q_dot, tau) -> None:
+        if self.scale is not None:
+            self._step_with_scale(dt, y, tau)
+            return
         h = y[:, :3]
         z = tau - y[:, 3]
         ph = self.p @ h.T
@@ -504,10 +614,42 @@ class RlsEstimator(_Base):
             p *= self.p_trace_max / trace
         self.p = p
 
+    def _step_with_scale(self, dt: float, y: FloatArray, tau: FloatArray) -> None:
+        """The RLS step on x = (theta, s): the regressor gains the column -f_cmd."""
+        assert self.scale is not None
+        thrust = self._thrust_rows
+        force = np.where(thrust, tau, 0.0)
+        h = np.column_stack((y[:, :3], -force))
+        z = np.where(thrust, 0.0, tau) - y[:, 3]
+        p = np.empty((4, 4))
+        p[:3, :3] = self.p
+        p[:3, 3] = p[3, :3] = self.p_s
+        p[3, 3] = self.var_s + self.scale.drift_std_per_sqrt_s**2 * dt
+        x = np.append(self.theta, self.thrust_scale)
+        ph = p @ h.T
+        gain = np.linalg.solve(h @ ph + self._r_forgotten, ph.T).T
+        x = x + gain @ (z - h @ x)
+        self.theta = self.bounds.project(x[:3])
+        self.thrust_scale = self.scale.clip(float(x[3]))
+        p = (p - gain @ ph.T) / self.forgetting
+        p = 0.5 * (p + p.T)
+        # Caps as congruences D P D (D diagonal), which keep P positive semi-definite.
+        d = np.ones(4)
+        trace = p[0, 0] + p[1, 1] + p[2, 2]
+        if trace > self.p_trace_max:
+            d[:3] = math.sqrt(self.p_trace_max / trace)
+        if p[3, 3] > self.s_var_max:
+            d[3] = math.sqrt(self.s_var_max / p[3, 3])
+        p *= np.outer(d, d)
+        self.p = p[:3, :3].copy()
+        self.p_s = p[:3, 3].copy()
+        self.var_s = float(p[3, 3])
+
 
 def estimator_from_config(config: CompanionConfig, kind: str, rows: tuple[int, ...]) -> Estimator:
     """The configuration's estimator of ``kind`` (``"paper"`` or ``"rls"``) on ``rows``, with its
-    bounds, confidence monitor and gains from the ``[estimator]`` section."""
+    bounds, confidence monitor and gains from the ``[estimator]`` section; with its thrust
+    scale if ``[estimator.thrust_scale]`` is set and a row of x, y, z is used."""
     est = config.estimator
     bounds = ThetaBounds(est.m2_bounds_kg[0], est.m2_bounds_kg[1], config.arm.link2.length_m)
     m2_max, l2 = est.m2_bounds_kg[1], config.arm.link2.length_m
@@ -519,9 +661,28 @@ def estimator_from_config(config: CompanionConfig, kind: str, rows: tuple[int, .
         spread_max=est.confidence.spread_max,
     )
     theta0 = est.initial_theta.as_tuple()
+    ts = est.thrust_scale
+    scale = None
+    if ts is not None and any(r < 3 for r in rows):
+        scale = ThrustScaleModel(
+            initial=ts.initial,
+            low=ts.bounds[0],
+            high=ts.bounds[1],
+            initial_std=ts.initial_std,
+            drift_std_per_sqrt_s=ts.drift_std_per_sqrt_s,
+            gamma=ts.gamma,
+        )
     if kind == "paper":
         return PaperEstimator(
-            theta0, bounds, monitor, est.gamma, est.c_star, est.k_star, est.initial_qhat_dot, rows
+            theta0,
+            bounds,
+            monitor,
+            est.gamma,
+            est.c_star,
+            est.k_star,
+            est.initial_qhat_dot,
+            rows,
+            scale,
         )
     return RlsEstimator(
         theta0,
@@ -531,4 +692,5 @@ def estimator_from_config(config: CompanionConfig, kind: str, rows: tuple[int, .
         p0=np.square(est.rls.initial_std),
         row_noise=est.rls.row_noise,
         rows=rows,
+        scale=scale,
     )

@@ -64,14 +64,16 @@ COLUMNS: tuple[str, ...] = (
     *(f"qd_{n}" for n in _Q),
     *(f"qfilt_{n}" for n in _Q),
     *(f"qhat_{n}" for n in _Q),
-    *("m2_hat", "m3_hat", "m4_hat", "lc_hat", "excitation", "confident"),
-    *("m2_true", "m3_true", "m4_true", "lc_true", "payload_attached"),
+    *("m2_hat", "m3_hat", "m4_hat", "lc_hat", "excitation", "confident", "thrust_scale_hat"),
+    *("m2_true", "m3_true", "m4_true", "lc_true", "payload_attached", "thrust_scale_true"),
     *(f"tau_{n}" for n in _Q),
     *("sp_roll_rad", "sp_pitch_rad", "sp_yaw_rad", "sp_thrust_n", "sp_thrust_rel"),
     "step_time_us",
 )
 """Time-series columns: truth q, desired q_d, filtered q, the paper observer's qhat (NaN
-for unused rows or other estimators), estimates, truth theta, tau, setpoint, step cost."""
+for unused rows or other estimators), estimates (with the thrust scale s, 1 when not
+estimated), truth theta and s (true over believed thrust per command: thrust mismatch x
+battery sag; 1 on the ideal plant), tau, setpoint, step cost."""
 _COL = {name: i for i, name in enumerate(COLUMNS)}
 
 
@@ -215,7 +217,8 @@ def simulate(
     n_ctrl = math.floor(duration / dt_c + 1e-9)
     data = np.empty((n_ctrl, len(COLUMNS)))
     observer = estimator if isinstance(estimator, PaperEstimator) else None
-    not_ready = (math.nan,) * (_COL["confident"] + 1 - _COL["qd_x"])  # columns qd_x..confident
+    # columns qd_x..thrust_scale_hat
+    not_ready = (math.nan,) * (_COL["thrust_scale_hat"] + 1 - _COL["qd_x"])
     start = time.perf_counter()
 
     # Until the filter has a first measurement of every row, hold gravity compensation at
@@ -273,6 +276,7 @@ def simulate(
                 m3_hat / m2_hat,
                 est.excitation,
                 est.confident,
+                est.thrust_scale,
             )
         else:
             companion, step_us = not_ready, math.nan
@@ -282,6 +286,7 @@ def simulate(
             *state.q.tolist(),
             *companion,
             *truth_row,
+            _true_thrust_scale(scenario, opts.plant, t),
             *tau.tolist(),
             setpoint.roll_rad,
             setpoint.pitch_rad,
@@ -320,6 +325,15 @@ def _truth_row(plant: PlantCore) -> tuple[float, ...]:
     companion side)."""
     truth = plant.true_theta
     return (*truth.as_tuple(), truth.lc_m, float(plant.payload_attached))
+
+
+def _true_thrust_scale(scenario: Scenario, plant: PlantName, time_s: float) -> float:
+    """True over believed thrust per command at ``time_s`` (logged, never shown to the
+    companion side)."""
+    if plant == "ideal":
+        return 1.0
+    sag = scenario.plant.battery_sag
+    return scenario.plant.thrust_mismatch * (1.0 if sag is None else sag.scale(time_s))
 
 
 def _settle_time(t: np.ndarray, estimate: np.ndarray, truth: np.ndarray) -> float | None:

@@ -39,6 +39,7 @@ from companion.config import (
 __all__ = [
     "MIN_PLANT_RATE_HZ",
     "AttitudeControl",
+    "BatterySag",
     "Payload",
     "Plant",
     "Scenario",
@@ -131,6 +132,27 @@ class AttitudeControl(_Section):
     (IMU_DGYRO_CUTOFF) [Hz]."""
 
 
+class BatterySag(_Section):
+    """Battery sag of the truth rotors: the thrust a given command produces falls linearly
+    with the plant's time, from ``thrust_mismatch`` at t = 0 to ``(1 - thrust_loss)`` times
+    that at ``over_s``, and stays there (a discharging battery's voltage; the companion's
+    thrust model does not know it). PX4's ``MC_BAT_SCALE_EN`` compensation is not modelled.
+    """
+
+    thrust_loss: Annotated[
+        float,
+        Field(strict=True, ge=0.0, lt=1.0, allow_inf_nan=False),
+        _within(0.5, "", "a battery that still flies the vehicle"),
+    ]
+    """Fraction of the thrust per command lost at ``over_s`` [-] (0.1: 10 % less)."""
+    over_s: Annotated[Positive, _within(MAX_DURATION_S, "s", "a multirotor's flight")]
+    """Time over which the loss builds up linearly [s]."""
+
+    def scale(self, time_s: float) -> float:
+        """Thrust per command at ``time_s`` relative to t = 0 [-]."""
+        return 1.0 - self.thrust_loss * min(max(time_s, 0.0) / self.over_s, 1.0)
+
+
 class Plant(_Section):
     """The SITL truth plant: integration rate, truth-only effects and the PX4-like loops."""
 
@@ -146,6 +168,9 @@ class Plant(_Section):
     thrust_mismatch: Annotated[Positive, _within(10.0, "", "true over believed thrust")]
     """True maximum rotor thrust over the believed ``vehicle.rotors.max_thrust_per_rotor_n``
     (1 = the companion's thrust model is exact) [-]."""
+    battery_sag: BatterySag | None = None
+    """Thrust per command decaying over the flight (absent: constant); Pinocchio and
+    JSBSim plants only (SIH's thrust is PX4's own)."""
     linear_drag_n_s_m: NonNegativeVec3
     """Diagonal D of the linear drag force -D v on the vehicle, v the world-frame (ENU)
     velocity of the vehicle CoM [N s/m]; underactuated plant only."""

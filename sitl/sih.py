@@ -38,13 +38,19 @@ def sih_parameters(scenario: Scenario, joints_rad: tuple[float, float] | None = 
     2 down).
 
     Raises :class:`SihMismatchError` when the rotors' thrust curve is not linear
-    (``vehicle.rotors.thr_mdl_fac`` > 0): SIH's motors are.
+    (``vehicle.rotors.thr_mdl_fac`` > 0): SIH's motors are; and when the scenario has a
+    ``plant.battery_sag``, which SIH does not model.
     """
     rotors = scenario.vehicle.rotors
     if rotors.thr_mdl_fac > 0.0:
         raise SihMismatchError(
             f"{scenario.name}: vehicle.rotors.thr_mdl_fac = {rotors.thr_mdl_fac:g}, but SIH "
             "motors are linear in the command: use a scenario with thr_mdl_fac = 0"
+        )
+    if scenario.plant.battery_sag is not None:
+        raise SihMismatchError(
+            f"{scenario.name}: plant.battery_sag is a truth model of sitl's own plants; SIH's "
+            "thrust is PX4's: remove the section to fly SIH"
         )
     if joints_rad is None:
         world = scenario.world

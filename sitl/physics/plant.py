@@ -10,7 +10,9 @@ Two modes (DESIGN.md sections 2-4):
     The vehicle as flown: a PX4-like attitude/rate loop tracks an
     :class:`~sitl.physics.attitude_control.AttitudeSetpoint` (relative thrust, linearized
     per motor with the autopilot's THR_MDL_FAC, :meth:`TruthPlant.configure_autopilot`),
-    six lagged rotors with their own THR_MDL_FAC-shaped curve push the body, linear drag
+    six lagged rotors with their own THR_MDL_FAC-shaped curve (scaled by
+    ``plant.thrust_mismatch`` and, if set, the ``plant.battery_sag`` of the plant's time)
+    push the body, linear drag
     -D v acts on the vehicle CoM, and the servos apply joint torques clipped to
     ``plant.servo_torque_limit_n_m``
     (:meth:`TruthPlant.step`).
@@ -132,6 +134,8 @@ class TruthPlant:
             rotors.motor_time_constant_s,
             self.dt_s,
         )
+        self._max_thrust_n = self._rotors.max_thrust_n
+        self._sag = scenario.plant.battery_sag
         mixer = SequentialDesaturationMixer(self._geometry, rotors.max_thrust_per_rotor_n)
         self._autopilot = Px4AttitudeLoop.from_params(
             AttitudeLoopParams.from_config(scenario.plant.attitude_control, rotors.thr_mdl_fac),
@@ -494,6 +498,9 @@ class TruthPlant:
     ) -> None:
         """One integration step pushed by the rotors' lagged thrusts, whose lag then moves
         toward ``motor_commands``; records the actuator signals."""
+        if self._sag is not None:
+            # battery sag: the thrust the next commands produce (truth only)
+            self._rotors.max_thrust_n = self._max_thrust_n * self._sag.scale(self.time_s)
         thrusts = self._rotors.thrust_list_n
         t0, t1, t2, t3, t4, t5 = thrusts
         wx, wy, wz = self._rotor_wrench

@@ -160,6 +160,8 @@ class JsbsimPlant:
             rotors.motor_time_constant_s,
             self.dt_s,
         )
+        self._max_thrust_n = self._rotors.max_thrust_n
+        self._sag = scenario.plant.battery_sag
         mixer = SequentialDesaturationMixer(geometry, rotors.max_thrust_per_rotor_n)
         self._autopilot = Px4AttitudeLoop.from_params(
             AttitudeLoopParams.from_config(scenario.plant.attitude_control, rotors.thr_mdl_fac),
@@ -398,6 +400,9 @@ class JsbsimPlant:
     ) -> None:
         """One JSBSim step with the rotors' thrusts after their lag moved toward
         ``motor_commands``, the arm stepped alongside; records the actuator signals."""
+        if self._sag is not None:
+            # battery sag: the thrust the next commands produce (truth only)
+            self._rotors.max_thrust_n = self._max_thrust_n * self._sag.scale(self.time_s)
         thrusts = self._rotors.thrust_list_n  # acting over this step (written last step)
         self._rotors.advance(motor_commands)
         self._set_rotor_forces(self._rotors.thrust_list_n)
