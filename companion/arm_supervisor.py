@@ -48,6 +48,10 @@ BUS_FAILURES = 30
 :data:`SERVO_FAILURE_S`, so the supervisor, not the bus, decides."""
 PREFLIGHT_ATTEMPTS = 3
 """Tries of the preflight set-up; a reply that came late once is not a broken bus."""
+PREFLIGHT_PAUSE_S = 0.5
+"""Wall-clock pause before the n-th retry is n times this [s]: tries back to back all
+fell inside the same busy moment of the servo adapter's host (a SITL's servo thread
+starved at start-up answered none of three reads within 21 ms)."""
 
 
 class ArmSupervisor:
@@ -125,7 +129,8 @@ class ArmSupervisor:
     async def prepare(self) -> dict[str, JointState]:
         """Preflight: read the joints, make them limp (an earlier abort may have left them
         holding), current (torque) mode, torque on, the gripper open. Tries
-        :data:`PREFLIGHT_ATTEMPTS` times on link failures; raises the last
+        :data:`PREFLIGHT_ATTEMPTS` times on link failures, pausing between tries
+        (:data:`PREFLIGHT_PAUSE_S`); raises the last
         :class:`~arm_driver.errors.ArmDriverError`."""
         for attempt in range(1, PREFLIGHT_ATTEMPTS + 1):
             try:
@@ -139,7 +144,9 @@ class ArmSupervisor:
             except (BusTimeoutError, CommunicationError) as exc:
                 if attempt == PREFLIGHT_ATTEMPTS:
                     raise
-                self._note("preflight", f"arm bus: {exc}; trying again")
+                pause_s = PREFLIGHT_PAUSE_S * attempt
+                self._note("preflight", f"arm bus: {exc}; trying again in {pause_s:g} s")
+                await asyncio.sleep(pause_s)
         raise AssertionError("unreachable")
 
     async def run(self) -> None:
