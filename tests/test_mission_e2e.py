@@ -18,8 +18,8 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
+from flight_checks import assert_calm_flight
 
 from companion.flightlog import read_flight_log
 from sitl.launch import free_udp_port, start_sitl
@@ -113,12 +113,6 @@ def nonadaptive(tmp_path_factory, flight_install):
     return (tmp, *fly(tmp, "nonadaptive", mission_args=args, python=flight_install))
 
 
-MISSION_PHASES = [
-    "to_object", "descend", "grasp", "lift", "excite", "to_place",
-    "lower", "release", "climb", "to_home", "done",
-]  # fmt: skip
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("flight", ["adaptive", "nonadaptive"])
 def test_the_flight_meets_the_px4_acceptance_against_the_imitation(flight, request):
@@ -132,17 +126,7 @@ def test_the_flight_meets_the_px4_acceptance_against_the_imitation(flight, reque
     assert result.returncode == 0, result.stdout + result.stderr
     assert summary["faults"] == [] and summary["landed"] and summary["disarmed"]
     log = read_flight_log(tmp / summary["controller"] / "flight.csv")
-    c = log.columns
-    flown = np.isin(c["phase"], MISSION_PHASES)
-    tilt_deg = np.degrees(np.hypot(c["q_phi_rad"], c["q_theta_rad"]))
-    assert not np.any(c["sp_tilt_saturated"][flown] == 1.0)
-    calm = flown & (c["phase"] != "excite")
-    assert tilt_deg[calm].max() < 15.0
-    first = np.flatnonzero(flown)[0]
-    window = flown & (c["t_vehicle_s"] <= c["t_vehicle_s"][first] + 2.0)
-    assert np.max(np.abs(tilt_deg[window] - tilt_deg[first])) < 5.0
-    error = np.stack([c[f"q_{a}_m"][calm] - c[f"qd_{a}_m"][calm] for a in "xyz"])
-    assert math.sqrt(float(np.mean(np.sum(error**2, axis=0)))) < 0.10
+    assert_calm_flight(log.columns)
 
 
 @pytest.mark.slow

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from flight_checks import MISSION_PHASES, assert_calm_flight
 from test_mission_e2e import LinkCutter
 
 from companion.flightlog import read_flight_log
@@ -38,10 +39,6 @@ PAYLOAD_AT = "1.5,1.0,0.05"
 PLACE_AT = (-1.0, 0.5)
 TRUE_MASS_KG = 0.25
 TRUE_COM_M = 0.15
-MISSION_PHASES = [
-    "to_object", "descend", "grasp", "lift", "excite", "to_place",
-    "lower", "release", "climb", "to_home", "done",
-]  # fmt: skip
 NAVIGATION = {
     "mocap": ("--navigation", "mocap"),
     # A standard receiver's wander (0.7 m per axis) is far beyond the 5 cm grasp tolerance.
@@ -212,17 +209,7 @@ def test_attitude_stays_calm_and_the_handover_is_bumpless_under_px4(pickup):
     below 10 cm against the vehicle's own estimate."""
     flight = pickup
     log = read_flight_log(flight.out / "flight.csv")
-    c = log.columns
-    flown = np.isin(c["phase"], MISSION_PHASES)
-    tilt_deg = np.degrees(np.hypot(c["q_phi_rad"], c["q_theta_rad"]))
-    assert not np.any(c["sp_tilt_saturated"][flown] == 1.0)
-    calm = flown & (c["phase"] != "excite")
-    assert tilt_deg[calm].max() < 15.0
-    first = np.flatnonzero(flown)[0]
-    window = flown & (c["t_vehicle_s"] <= c["t_vehicle_s"][first] + 2.0)
-    assert np.max(np.abs(tilt_deg[window] - tilt_deg[first])) < 5.0
-    error = np.stack([c[f"q_{a}_m"][calm] - c[f"qd_{a}_m"][calm] for a in "xyz"])
-    assert math.sqrt(float(np.mean(np.sum(error**2, axis=0)))) < 0.10
+    assert_calm_flight(log.columns)
 
 
 BEYOND_BUDGET = pytest.mark.skipif(

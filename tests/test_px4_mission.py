@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from flight_checks import MISSION_PHASES
 
 from companion.flightlog import read_flight_log
 from sitl.launch import start_sih
@@ -30,10 +31,6 @@ ROOT = Path(__file__).parent.parent
 CONFIG = ROOT / "configs" / "px4_sih_pickup.toml"
 PAYLOAD_AT = "1.5,1.0,0.05"
 PLACE_AT = "-1.0,0.5,0.05"
-MISSION_PHASES = [
-    "to_object", "descend", "grasp", "lift", "excite", "to_place",
-    "lower", "release", "climb", "to_home", "done",
-]  # fmt: skip
 
 
 def mission(connect: str, arm_bus: str, out: Path, *extra: str, config: Path = CONFIG):

@@ -1,0 +1,30 @@
+"""Checks shared by the pickup flights (imitation, PX4 in the loop, PX4 SIH)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+MISSION_PHASES = [
+    "to_object", "descend", "grasp", "lift", "excite", "to_place",
+    "lower", "release", "climb", "to_home", "done",
+]  # fmt: skip
+"""The pickup's phases in order (what the flight log's ``phase`` column holds in OFFBOARD)."""
+
+
+def assert_calm_flight(c: dict[str, np.ndarray]) -> None:
+    """The issue-11 acceptance figures of a flight log's columns ``c``: no tilt saturation
+    in OFFBOARD, tilt below 15 deg outside the excitation, the handover's tilt change below
+    5 deg over its first 2 s, position RMS outside the excitation below 10 cm against the
+    vehicle's own estimate."""
+    flown = np.isin(c["phase"], MISSION_PHASES)
+    tilt_deg = np.degrees(np.hypot(c["q_phi_rad"], c["q_theta_rad"]))
+    assert not np.any(c["sp_tilt_saturated"][flown] == 1.0)
+    calm = flown & (c["phase"] != "excite")
+    assert tilt_deg[calm].max() < 15.0
+    first = np.flatnonzero(flown)[0]
+    window = flown & (c["t_vehicle_s"] <= c["t_vehicle_s"][first] + 2.0)
+    assert np.max(np.abs(tilt_deg[window] - tilt_deg[first])) < 5.0
+    error = np.stack([c[f"q_{a}_m"][calm] - c[f"qd_{a}_m"][calm] for a in "xyz"])
+    assert math.sqrt(float(np.mean(np.sum(error**2, axis=0)))) < 0.10
