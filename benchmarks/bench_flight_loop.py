@@ -1,52 +1,91 @@
-"""Latency and CPU cost of the companion's flight loop at 250 Hz, against the SITL.
+"""The flight loop on a busy computer: the demo flown with N CPU-bound processes beside it.
 
-Runs ``companion demo`` (the SITL vehicle process and the pickup mission, speed 1) into a
-temporary directory and prints, from its summary.json:
+For each N in ``--busy`` (default 0, 1, 2) starts N processes that spin on the CPU (plain
+Python loops, as a user's other work would), flies ``sitl demo`` (the SITL vehicle process
+and the pickup mission, speed 1, imitation unless ``--autopilot px4``) into a temporary
+directory, stops the busy processes and prints, from the demo's summary.json:
 
-- pose taken from the MAVLink link -> SET_ATTITUDE_TARGET sent (includes the joints' Sync
-  Read over the pty, which comes first in the cycle): median and p99 [us];
-- pose -> joint torques written (the whole cycle): median and p99 [us];
-- CPU share of one core of the companion process over the OFFBOARD part;
-- control cycles run.
+- whether the mission completed, and its faults;
+- late cycles (control cycles later than 2.5 periods in vehicle time: the SITL's stream or
+  the companion) and poses dropped (the companion's loop too slow to take the poses: late
+  cycles the companion caused itself), the longest period [ms];
+- pose taken from the MAVLink link -> SET_ATTITUDE_TARGET sent, and -> joint torques written
+  (the whole cycle): median and p99 [us];
+- the companion's CPU share of one core over the OFFBOARD part.
 
-The SITL process runs on the same two cores, so these are upper bounds for a dedicated
-onboard computer. Usage: ``python benchmarks/bench_flight_loop.py``
+The SITL runs on the same cores, so these are upper bounds for a dedicated onboard
+computer. Numbers only, no pass/fail. The load average before each flight is printed.
+Usage: ``python benchmarks/bench_flight_loop.py [--busy 0,1,2] [--autopilot imitation]``
 """
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
+SPIN = "while True:\n    pass\n"
 
-def main() -> None:
-    with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp) / "demo"
+
+def fly(busy: int, autopilot: str, tmp: Path) -> tuple[dict | None, str]:
+    """The demo with ``busy`` spinning processes; (summary or None, the demo's output)."""
+    spinners = [subprocess.Popen([sys.executable, "-c", SPIN]) for _ in range(busy)]
+    try:
+        out = tmp / f"demo-busy{busy}"
         result = subprocess.run(
-            [sys.executable, "-c", "from companion.cli import main; main()", "demo",
-             "--out", str(out)],
+            [sys.executable, "-c", "from sitl.cli import main; main()", "demo",
+             "--out", str(out), "--autopilot", autopilot],
             capture_output=True, text=True, timeout=900,
         )  # fmt: skip
-        if not (out / "summary.json").exists():
-            print(result.stdout, result.stderr)
-            raise SystemExit("the demo wrote no summary")
-        summary = json.loads((out / "summary.json").read_text())
-    print(result.stdout.strip())
-    print()
-    print(f"{'measure':<48} {'median us':>10} {'p99 us':>10}")
-    for key, label in (
-        ("setpoint_latency_us", "pose received -> setpoint sent"),
-        ("cycle_latency_us", "pose received -> joint torques written"),
-    ):
-        stats = summary.get(key) or {}
-        print(f"{label:<48} {stats.get('median', float('nan')):10.0f} "
-              f"{stats.get('p99', float('nan')):10.0f}")  # fmt: skip
-    share = summary.get("cpu_share_of_one_core")
-    print(f"CPU share of one core (companion, OFFBOARD part): {share:.2f}" if share else "")
-    print(f"control cycles: {summary['control_cycles']}; mission completed: {summary['completed']}")
+    finally:
+        for spinner in spinners:
+            spinner.kill()
+            spinner.wait()
+    summary_path = out / "summary.json"
+    summary = json.loads(summary_path.read_text()) if summary_path.exists() else None
+    return summary, result.stdout + result.stderr
+
+
+def row(busy: int, summary: dict) -> str:
+    def pct(key: str, which: str) -> float:
+        return (summary.get(key) or {}).get(which, float("nan"))
+
+    faults = ",".join(f["fault"] for f in summary["faults"]) or "-"
+    share = summary.get("cpu_share_of_one_core") or float("nan")
+    return (
+        f"{busy:>4} {'yes' if summary['completed'] else 'NO':>9} {faults:<14} "
+        f"{summary['late_cycles']:>6} {summary['poses_dropped']:>7} "
+        f"{summary.get('longest_period_ms') or float('nan'):>8.1f} "
+        f"{pct('setpoint_latency_us', 'median'):>8.0f} {pct('setpoint_latency_us', 'p99'):>8.0f} "
+        f"{pct('cycle_latency_us', 'median'):>8.0f} {pct('cycle_latency_us', 'p99'):>8.0f} "
+        f"{share:>5.2f}"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--busy", default="0,1,2", help="numbers of busy processes")
+    parser.add_argument("--autopilot", default="imitation", choices=("imitation", "px4"))
+    args = parser.parse_args()
+    counts = [int(n) for n in args.busy.split(",")]
+    print(f"{os.cpu_count()} cores; sitl demo --autopilot {args.autopilot}, speed 1")
+    print(
+        f"{'busy':>4} {'completed':>9} {'faults':<14} {'late':>6} {'dropped':>7} "
+        f"{'max ms':>8} {'set p50':>8} {'set p99':>8} {'cyc p50':>8} {'cyc p99':>8} {'cpu':>5}"
+    )
+    with tempfile.TemporaryDirectory() as tmp:
+        for busy in counts:
+            load = os.getloadavg()[0]
+            summary, output = fly(busy, args.autopilot, Path(tmp))
+            if summary is None:
+                print(f"{busy:>4} the demo wrote no summary (load {load:.1f}):\n{output[-2000:]}")
+                continue
+            print(f"{row(busy, summary)}   (load before {load:.1f})")
+    print("latencies in us: set = pose -> setpoint sent, cyc = pose -> joint torques written")
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """Start ``sitl run`` or ``sitl sih`` as a child process and wait until it is ready.
 
-Used by ``companion demo`` and the end-to-end tests: the vehicle runs in its own process,
+Used by ``sitl demo`` and the end-to-end tests: the vehicle runs in its own process,
 as a user runs it, and prints a ``ready {json}`` line saying where to connect (the servo
 bus URL, and for ``sitl sih`` the companion's MAVLink URL and PX4's log); a thread keeps
 its output pipe drained. Both commands stop cleanly on SIGINT (``sitl sih`` stops the PX4
