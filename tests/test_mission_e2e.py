@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 import pytest
-from flight_checks import assert_calm_flight
+from flight_checks import CARRY_RMS_BOUND_M, assert_calm_flight, carry_rms_m
 
 from companion.flightlog import read_flight_log
 from sitl.launch import free_udp_port, start_sitl
@@ -136,13 +136,22 @@ def test_nonadaptive_controller_flies_the_same_mission_for_comparison(adaptive, 
     assert result.returncode == 0, result.stdout + result.stderr
     assert summary["controller"] == "nonadaptive" and summary["completed"]
     # Reported beside each other (the README table comes from these two summaries).
+    carry = {
+        name: carry_rms_m(read_flight_log(tmp / name / "flight.csv").columns)
+        for name, tmp in (("passivity", adaptive[0]), ("nonadaptive", tmp_path))
+    }
     comparison = {
         "passivity": adaptive_summary["position_rms_with_payload_m"],
         "nonadaptive": summary["position_rms_with_payload_m"],
+        "carry_rms_m": carry,
     }
     (tmp_path / "comparison.json").write_text(json.dumps(comparison))
     print("position RMS error with the payload [m]:", comparison)
-    assert all(v is not None and v > 0.0 for v in comparison.values())
+    # The paper's claim (issue 16): over the carry (lift to place, the excitation left out)
+    # the adaptive controller keeps at most half the baseline's error, and within an
+    # absolute bound (1.8-2.1 cm measured against 6.6 cm).
+    assert carry["passivity"] < CARRY_RMS_BOUND_M
+    assert carry["passivity"] <= 0.5 * carry["nonadaptive"]
 
 
 class LinkCutter:
@@ -225,7 +234,16 @@ class LinkCutter:
             self._log.close()
 
 
+JUDGED_AGAINST_PX4 = pytest.mark.skipif(
+    bool(os.environ.get("PX4_SITL_DIR")) and os.environ.get("PX4_ALL_FLIGHTS") != "1",
+    reason="flown against the real PX4 instead (tests/test_px4_hil.py: the same fault, the "
+    "same companion; the suite's time budget); PX4_ALL_FLIGHTS=1 flies it here too",
+)
+"""The fault flights whose twin against real PX4 runs where the PX4 build is present."""
+
+
 @pytest.mark.slow
+@JUDGED_AGAINST_PX4
 def test_link_cut_mid_flight_is_detected_and_the_vehicle_lands(tmp_path):
     relay = LinkCutter(tmp_path / "linkcut.truth.jsonl")
     result, summary, log = fly(tmp_path, "linkcut", relay=relay)
@@ -241,6 +259,7 @@ def test_link_cut_mid_flight_is_detected_and_the_vehicle_lands(tmp_path):
 
 
 @pytest.mark.slow
+@JUDGED_AGAINST_PX4
 def test_servo_that_stops_answering_makes_the_app_land(tmp_path):
     result, summary, log = fly(tmp_path, "servo", "--servo-silent", "2@12")
     assert result.returncode == 1, result.stdout + result.stderr
