@@ -99,8 +99,19 @@ def flight_install(tmp_path_factory) -> Path:
     venv = where / "venv"
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
     python = venv / "bin" / "python"
+    # --no-compile: no byte-code for the thousands of modules of SciPy and Matplotlib the
+    # tests never import (half the install's CPU time); Python compiles what they import.
     done = subprocess.run(
-        [python, "-m", "pip", "install", "--quiet", "--disable-pip-version-check", str(source)],
+        [
+            python,
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--disable-pip-version-check",
+            "--no-compile",
+            str(source),
+        ],
         capture_output=True,
         text=True,
         timeout=1200,
