@@ -139,6 +139,7 @@ static void mcg_eval(const double *q, const double *qd, const double *p, double 
 {mcg_body}
 }}
 
+#ifndef MCG_EVAL_ONLY /* companion/_step.c includes the evaluation only */
 static void potential_eval(const double *q, const double *p, double *out)
 {{
 {potential_body}
@@ -240,6 +241,7 @@ static struct PyModuleDef module = {{
 }};
 
 PyMODINIT_FUNC PyInit__mcg(void) {{ return PyModule_Create(&module); }}
+#endif
 """
 
 
