@@ -580,34 +580,65 @@ static PyObject *py_step(PyObject *self, PyObject *args)
     return result;
 }
 
-/* terms(q, q_dot, p, xi, qr_dot, qr_ddot, out): M, C, G for one theta and Y in one call
- * (out: 64 + 64 + 8 + 32 values: M, C row-major, G, Y^T), for the model benchmark. */
-static PyObject *py_terms(PyObject *self, PyObject *args)
+/* StateFilter._fuse: one scalar Kalman update per column of the stacked filter state X
+ * (17 x n, row-major; layout in companion/filters.py) with the (25 x 17) measurement
+ * matrix G: W = G X; the innovation rows of the columns in `wrap` wrapped to [-pi, pi);
+ * X[0:12] += (W[12:24] / W[24]) * W[0:12]. X is unchanged if W[0] is not finite. */
+#define N_STACK 17
+static double wrap_angle(double a)
 {
-    Py_buffer q, qd, p, xi, v, a, out;
-    PyObject *result = NULL;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*w*", &q, &qd, &p, &xi, &v, &a, &out)) return NULL;
-    if (check_len(&q, NQ, "q") && check_len(&qd, NQ, "q_dot") && check_len(&p, 14, "p")
-        && check_len(&xi, 4, "xi") && check_len(&v, NQ, "qr_dot")
-        && check_len(&a, NQ, "qr_ddot") && check_len(&out, 168, "out")) {
-        double pieces[4 * PIECE];
-        const double *w = (const double *)xi.buf;
-        double *o = (double *)out.buf;
-        mcg_eval((const double *)q.buf, (const double *)qd.buf, (const double *)p.buf, pieces);
-        for (int i = 0; i < NQ; ++i)
-            for (int j = 0; j < 17; ++j) {
-                int at = 17 * i + j;
-                double value = w[0] * pieces[at] + w[1] * pieces[PIECE + at]
-                               + w[2] * pieces[2 * PIECE + at] + w[3] * pieces[3 * PIECE + at];
-                if (j < 8) o[8 * i + j] = value;
-                else if (j < 16) o[64 + 8 * i + j - 8] = value;
-                else o[128 + i] = value;
+    double w = py_mod(a + PI, 2.0 * PI) - PI;
+    return w >= PI ? w - 2.0 * PI : w; /* (a + pi) % 2 pi can round up to 2 pi */
+}
+
+static PyObject *py_fuse(PyObject *self, PyObject *args)
+{
+    Py_buffer g, x;
+    PyObject *wrap, *result = NULL;
+    if (!PyArg_ParseTuple(args, "w*y*O!", &x, &g, &PyTuple_Type, &wrap)) return NULL;
+    Py_ssize_t n = x.len / (Py_ssize_t)(N_STACK * sizeof(double));
+    if (check_len(&g, 25 * N_STACK, "G") && n >= 1 && n <= NQ
+        && check_len(&x, N_STACK * n, "X")) {
+        const double *G = (const double *)g.buf;
+        double *X = (double *)x.buf, W[25 * NQ];
+        double total = 0.0;
+        for (int i = 0; i < 25; ++i)
+            for (Py_ssize_t c = 0; c < n; ++c) {
+                double acc = 0.0;
+                for (int k = 0; k < N_STACK; ++k) acc += G[N_STACK * i + k] * X[n * k + c];
+                W[n * i + c] = acc;
             }
-        regress(pieces, (const double *)v.buf, (const double *)a.buf, o + 136);
-        result = Py_NewRef(Py_None);
+        for (Py_ssize_t c = 0; c < n; ++c) total += W[c];
+        if (!isfinite(total)) {
+            PyErr_SetString(PyExc_ValueError, "measurement or state is not finite");
+        } else {
+            int ok = 1;
+            for (Py_ssize_t j = 0; ok && j < PyTuple_GET_SIZE(wrap); ++j) {
+                Py_ssize_t c = PyLong_AsSsize_t(PyTuple_GET_ITEM(wrap, j));
+                if (c < 0 || c >= n) {
+                    if (!PyErr_Occurred())
+                        PyErr_SetString(PyExc_ValueError, "wrap: column out of range");
+                    ok = 0;
+                    break;
+                }
+                double a = W[c];
+                if (!(-PI <= a && a < PI)) W[c] = W[4 * n + c] = W[8 * n + c] = wrap_angle(a);
+            }
+            if (ok) {
+                for (int i = 0; i < 3; ++i)
+                    for (int cc = 0; cc < 4; ++cc)
+                        for (Py_ssize_t c = 0; c < n; ++c) {
+                            double neg_k = W[n * (12 + 4 * i + cc) + c] / W[24 * n + c];
+                            X[n * (4 * i + cc) + c] += neg_k * W[n * (4 * i + cc) + c];
+                        }
+                result = Py_NewRef(Py_None);
+            }
+        }
+    } else if (!PyErr_Occurred()) {
+        PyErr_SetString(PyExc_ValueError, "X must hold 17 x n float64 values, 1 <= n <= 8");
     }
-    PyBuffer_Release(&q); PyBuffer_Release(&qd); PyBuffer_Release(&p); PyBuffer_Release(&xi);
-    PyBuffer_Release(&v); PyBuffer_Release(&a); PyBuffer_Release(&out);
+    PyBuffer_Release(&g);
+    PyBuffer_Release(&x);
     return result;
 }
 
@@ -615,8 +646,8 @@ static PyMethodDef methods[] = {
     {"step", py_step, METH_VARARGS,
      "step(params, state, dt, skip, q, q_dot, q_ddot, qd, qd_dot, qd_ddot, tau, out): one "
      "control step; skip is -1 or the index of the Skip reason."},
-    {"terms", py_terms, METH_VARARGS,
-     "terms(q, q_dot, p, xi, qr_dot, qr_ddot, out): M, C, G for xi and Y^T into out."},
+    {"fuse", py_fuse, METH_VARARGS,
+     "fuse(X, G, wrap): the state filter's scalar updates of every column of X, in place."},
     {NULL, NULL, 0, NULL}
 };
 

@@ -26,13 +26,6 @@ def step(
 ) -> None:
     """One control step; ``state`` and ``out`` are written (see ``_step.c``)."""
 
-def terms(
-    q: NDArray[np.float64],
-    q_dot: NDArray[np.float64],
-    p: NDArray[np.float64],
-    xi: NDArray[np.float64],
-    qr_dot: NDArray[np.float64],
-    qr_ddot: NDArray[np.float64],
-    out: NDArray[np.float64],
-) -> None:
-    """M (8 x 8), C (8 x 8), G (8) for xi and Y^T (4 x 8), 168 values, into ``out``."""
+def fuse(x: NDArray[np.float64], g: NDArray[np.float64], wrap: tuple[int, ...]) -> None:
+    """The state filter's scalar update of every column of ``x`` (17 x n) in place, with the
+    (25 x 17) matrix ``g``; ValueError (``x`` unchanged) if the innovation is not finite."""

@@ -17,7 +17,6 @@ Python methods unchanged.
 
 from __future__ import annotations
 
-import logging
 import math
 from collections import Counter
 from types import ModuleType
@@ -38,37 +37,12 @@ from companion.estimation import (
 from companion.setpoints import AttitudeThrustSetpoint, ThrustModel
 from companion.trajectory import TiltReference
 
-__all__ = ["CompiledStep", "compiled_step_module"]
+__all__ = ["CompiledStep"]
 
 FloatArray = NDArray[np.float64]
-_log = logging.getLogger(__name__)
-
-try:
-    from companion import _step as _module
-
-    _step: ModuleType | None = _module
-    _MISSING = ""
-except ImportError as error:  # not built: the Python step runs
-    _step = None
-    _MISSING = str(error)
-
 _SKIPS = tuple(Skip)
 _SKIP_INDEX = {reason: i for i, reason in enumerate(_SKIPS)}
 _NO_FORCE = np.full(8, math.nan)
-_warned = False
-
-
-def compiled_step_module() -> ModuleType | None:
-    """The extension, or None (once per process a one-line warning says why)."""
-    global _warned
-    if _step is None and not _warned:
-        _warned = True
-        _log.warning(
-            "companion._step is not built (%s): the control step runs in Python "
-            "(`pip install .` builds it)",
-            _MISSING,
-        )
-    return _step
 
 
 class _Field:

@@ -35,14 +35,13 @@ the step, in Python, on either path.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.compiled_step import CompiledStep, compiled_step_module
+from companion.compiled_step import CompiledStep
 from companion.config import CompanionConfig
 from companion.control import (
     ControlLaw,
@@ -62,6 +61,7 @@ from companion.estimation import (
 )
 from companion.filters import FilteredState
 from companion.model import ManipulatorModel
+from companion.native import native_module
 from companion.setpoints import AttitudeThrustSetpoint, ThrustModel, attitude_thrust_setpoint
 from companion.state import thrust_force_world
 from companion.trajectory import TiltReference
@@ -155,10 +155,7 @@ class FlightControl:
         self.tilt_max_rad = ctl.tilt_max_rad
         self.trim = HorizontalTrim(ctl.horizontal_trim_gain_n_per_m, ctl.horizontal_trim_limit_n)
         self._trim_active = False
-        wanted = os.environ.get("COMPANION_STEP") != "python" if compiled is None else compiled
-        module = compiled_step_module() if wanted else None
-        if compiled and module is None:
-            raise RuntimeError("compiled=True but the extension companion._step is not built")
+        module = native_module(compiled)
         if module is not None and CompiledStep.supports(self.controller, self.estimator):
             assert isinstance(self.controller, PassivityController)
             self._compiled = CompiledStep(
