@@ -185,6 +185,37 @@ class ManipulatorModel:
         _mcg.mcg(_vector(q, "q"), _vector(q_dot, "q_dot"), self._p, out)
         return ModelTerms(out)
 
+    def evaluate(
+        self,
+        q: ArrayLike,
+        q_dot: ArrayLike,
+        theta: ArrayLike,
+        qr_dot: ArrayLike,
+        qr_ddot: ArrayLike,
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """M(q), C(q, q_dot), G(q) for theta = (m2, m3, m4) and the regressor
+        Y(q, q_dot, qr_dot, qr_ddot) (paper eq. reg), shapes (8, 8), (8, 8), (8,), (8, 4),
+        in one call of the generated C: ``terms(q, q_dot).evaluate(theta)`` and
+        ``.regressor(qr_dot, qr_ddot)`` without the pieces in between."""
+        m2, m3, m4 = np.asarray(theta, dtype=np.float64).tolist()
+        out = np.empty(2 * N_Q * N_Q + N_Q + N_XI * N_Q)
+        _mcg.all(
+            _vector(q, "q"),
+            _vector(q_dot, "q_dot"),
+            self._p,
+            np.array((m2, m3, m4, 1.0)),
+            _vector(qr_dot, "qr_dot"),
+            _vector(qr_ddot, "qr_ddot"),
+            out,
+        )
+        mcg = N_Q * N_Q
+        return (
+            out[:mcg].reshape(N_Q, N_Q),
+            out[mcg : 2 * mcg].reshape(N_Q, N_Q),
+            out[2 * mcg : 2 * mcg + N_Q],
+            out[2 * mcg + N_Q :].reshape(N_XI, N_Q).T,
+        )
+
     def mass_matrix(self, q: ArrayLike, theta: ArrayLike) -> FloatArray:
         """M(q) for theta = (m2, m3, m4), shape (8, 8)."""
         return self.terms(q, np.zeros(N_Q)).mass_matrix(theta)
