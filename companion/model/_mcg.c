@@ -6,8 +6,8 @@
  * G_k[i]] (see companion/model/layout.py).
  * potential(q, p, out): fills out (float64[4]) with the potential energy pieces.
  * combine(pieces, xi, out) and regress(pieces, qr_dot, qr_ddot, out) are the two products
- * the controller needs on those pieces, all(q, qd, p, xi, qr_dot, qr_ddot, out) both of them
- * after mcg in one call (hand-written, not generated).
+ * the controller needs on those pieces, all(q, qd, p, theta, qr_dot, qr_ddot, out) both of
+ * them after mcg in one call (hand-written, not generated).
  * q, qd: float64[8]; p: float64[14] = mb, ixx, iyy, izz, m1, s1, j1, a1, a2, l1, rax, ray, raz, g.
  */
 #define PY_SSIZE_T_CLEAN
@@ -1686,19 +1686,19 @@ static PyObject *py_regress(PyObject *self, PyObject *args)
     return result;
 }
 
-/* all(q, qd, p, xi, qr_dot, qr_ddot, out): M (8 x 8), C (8 x 8), G (8) for one theta and
- * Y^T (4 x 8) in one call, 168 values */
+/* all(q, qd, p, theta, qr_dot, qr_ddot, out): M (8 x 8), C (8 x 8), G (8) for
+ * theta = (m2, m3, m4) and Y^T (4 x 8) in one call, 168 values */
 static PyObject *py_all(PyObject *self, PyObject *args)
 {
-    Py_buffer q, qd, p, xi, qrd, qrdd, out;
+    Py_buffer q, qd, p, th, qrd, qrdd, out;
     PyObject *result = NULL;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*w*", &q, &qd, &p, &xi, &qrd, &qrdd, &out))
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*w*", &q, &qd, &p, &th, &qrd, &qrdd, &out))
         return NULL;
     if (check(&q, 8, "q") && check(&qd, 8, "qd") && check(&p, 14, "p")
-        && check(&xi, 4, "xi") && check(&qrd, 8, "qr_dot") && check(&qrdd, 8, "qr_ddot")
+        && check(&th, 3, "theta") && check(&qrd, 8, "qr_dot") && check(&qrdd, 8, "qr_ddot")
         && check(&out, 168, "out")) {
         double pieces[4 * 136];
-        const double *w = (const double *)xi.buf;
+        const double *t = (const double *)th.buf, w[4] = {t[0], t[1], t[2], 1.0};
         const double *v = (const double *)qrd.buf, *a = (const double *)qrdd.buf;
         double *o = (double *)out.buf;
         mcg_eval((const double *)q.buf, (const double *)qd.buf, (const double *)p.buf, pieces);
@@ -1719,7 +1719,7 @@ static PyObject *py_all(PyObject *self, PyObject *args)
         }
         result = Py_NewRef(Py_None);
     }
-    PyBuffer_Release(&q); PyBuffer_Release(&qd); PyBuffer_Release(&p); PyBuffer_Release(&xi);
+    PyBuffer_Release(&q); PyBuffer_Release(&qd); PyBuffer_Release(&p); PyBuffer_Release(&th);
     PyBuffer_Release(&qrd); PyBuffer_Release(&qrdd); PyBuffer_Release(&out);
     return result;
 }
@@ -1731,7 +1731,7 @@ static PyMethodDef methods[] = {
     {"regress", py_regress, METH_VARARGS,
       "regress(pieces, qr_dot, qr_ddot, out): Y^T (4 x 8) into out."},
     {"all", py_all, METH_VARARGS,
-      "all(q, qd, p, xi, qr_dot, qr_ddot, out): M, C, G for xi and Y^T into out."},
+      "all(q, qd, p, theta, qr_dot, qr_ddot, out): M, C, G for theta and Y^T into out."},
     {NULL, NULL, 0, NULL}
 };
 

@@ -31,9 +31,10 @@ def all(
     q: NDArray[np.float64],
     qd: NDArray[np.float64],
     p: NDArray[np.float64],
-    xi: NDArray[np.float64],
+    theta: NDArray[np.float64],
     qr_dot: NDArray[np.float64],
     qr_ddot: NDArray[np.float64],
     out: NDArray[np.float64],
 ) -> None:
-    """M (8 x 8), C (8 x 8), G (8) for xi and Y^T (4 x 8): 168 values into ``out``."""
+    """M (8 x 8), C (8 x 8), G (8) for theta (3 values) and Y^T (4 x 8): 168 values into
+    ``out``."""

@@ -29,6 +29,11 @@ from companion.model.layout import N_XI, PARAM_NAMES, ROW
 __all__ = ["ManipulatorModel", "ModelParameters", "ModelTerms"]
 
 FloatArray = NDArray[np.float64]
+_C_AT = N_Q * N_Q
+_G_AT = 2 * N_Q * N_Q
+_Y_AT = _G_AT + N_Q
+_ALL_SIZE = _Y_AT + N_XI * N_Q
+"""Layout of ``_mcg.all``'s output: M, C (row-major), G, Y^T."""
 
 
 @dataclass(frozen=True)
@@ -197,23 +202,21 @@ class ManipulatorModel:
         Y(q, q_dot, qr_dot, qr_ddot) (paper eq. reg), shapes (8, 8), (8, 8), (8,), (8, 4),
         in one call of the generated C: ``terms(q, q_dot).evaluate(theta)`` and
         ``.regressor(qr_dot, qr_ddot)`` without the pieces in between."""
-        m2, m3, m4 = np.asarray(theta, dtype=np.float64).tolist()
-        out = np.empty(2 * N_Q * N_Q + N_Q + N_XI * N_Q)
+        out = np.empty(_ALL_SIZE)
         _mcg.all(
             _vector(q, "q"),
             _vector(q_dot, "q_dot"),
             self._p,
-            np.array((m2, m3, m4, 1.0)),
+            np.ascontiguousarray(theta, dtype=np.float64),
             _vector(qr_dot, "qr_dot"),
             _vector(qr_ddot, "qr_ddot"),
             out,
         )
-        mcg = N_Q * N_Q
         return (
-            out[:mcg].reshape(N_Q, N_Q),
-            out[mcg : 2 * mcg].reshape(N_Q, N_Q),
-            out[2 * mcg : 2 * mcg + N_Q],
-            out[2 * mcg + N_Q :].reshape(N_XI, N_Q).T,
+            out[:_C_AT].reshape(N_Q, N_Q),
+            out[_C_AT:_G_AT].reshape(N_Q, N_Q),
+            out[_G_AT:_Y_AT],
+            out[_Y_AT:].reshape(N_XI, N_Q).T,
         )
 
     def mass_matrix(self, q: ArrayLike, theta: ArrayLike) -> FloatArray:
