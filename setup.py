@@ -16,7 +16,7 @@ setup(
             "companion._step",
             sources=["companion/_step.c"],
             depends=["companion/model/_mcg.c"],
-            extra_compile_args=["-O2", "-std=c99", "-ffp-contract=off"],
+            extra_compile_args=["-O2", "-ffp-contract=off"],
         ),
     ]
 )

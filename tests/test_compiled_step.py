@@ -159,7 +159,9 @@ def random_cycles(control: FlightControl, seed: int, n: int) -> tuple[list, dict
     """Outputs of ``n`` seeded random cycles, and how often each rare case occurred."""
     rng = np.random.default_rng(seed)
     q = np.array([0.0, 0.0, 1.5, 0.0, 0.0, 0.3, -1.2, 0.4])
-    seen = dict.fromkeys(("skip", "tilt", "thrust", "bound", "trim", "substep"), 0)
+    seen = dict.fromkeys(
+        ("skip", "tilt", "thrust", "bound", "trim", "substep", "spread", "excitation"), 0
+    )
     outputs = []
     control.trim_active = True
     control.trim.start(np.array([0.3, -2.0]))
@@ -200,6 +202,8 @@ def random_cycles(control: FlightControl, seed: int, n: int) -> tuple[list, dict
         seen["thrust"] += out.setpoint.thrust_saturated
         seen["bound"] += est.theta[0] in (b.m2_min_kg, b.m2_max_kg)
         seen["trim"] += bool(np.any(np.abs(control.trim.force_n) == control.trim.limit))
+        seen["spread"] += math.isfinite(est.spread)  # the monitor's window is full
+        seen["excitation"] += est.excitation > 0.0
         outputs.append(
             (
                 out.tau,
