@@ -1,4 +1,5 @@
-"""Build the generated dynamics extension; all other metadata lives in pyproject.toml."""
+"""Build the generated dynamics extension and the compiled control step; all other metadata
+lives in pyproject.toml."""
 
 from setuptools import Extension, setup
 
@@ -8,6 +9,14 @@ setup(
             "companion.model._mcg",
             sources=["companion/model/_mcg.c"],
             extra_compile_args=["-O2"],
-        )
+        ),
+        # The step must reproduce the Python reference operation for operation: no fused
+        # multiply-add (aarch64 compilers contract a * b + c by default).
+        Extension(
+            "companion._step",
+            sources=["companion/_step.c"],
+            depends=["companion/model/_mcg.c"],
+            extra_compile_args=["-O2", "-ffp-contract=off"],
+        ),
     ]
 )

@@ -1,32 +1,45 @@
-"""Cost of one control step and of the whole offline simulation.
+"""Cost of one control step, compiled and Python, and of the whole offline simulation.
 
-Runs ``sitl.offline.simulate`` on the paper scenario (10 s, ideal plant, exact
-measurements) for passivity + paper estimator, passivity + RLS and the adaptive
-sliding-mode controller, and prints for each
+For the paper scenario (10 s, ideal plant, exact measurements) and three runs --
+passivity + paper estimator, passivity + RLS, and the adaptive sliding-mode controller
+(eq. asc1, which always runs in Python) -- prints
 
-- the median and 99th percentile of one control step as the simulator times it (feed the
-  measurements to the state filter, read q, q_dot, q_ddot, model terms, estimator,
-  desired state, controller, setpoint mapping, tilt reference), in microseconds;
-- the wall time of the whole run (control steps, truth plant at ``plant.rate_hz``,
-  logging).
+- ``step``: :meth:`FlightControl.step <companion.flight_control.FlightControl.step>` alone
+  (model terms, estimator, tilt reference, control law, trim, setpoint mapping), median
+  and 99th percentile in microseconds, for the compiled step (``companion._step``) and the
+  Python reference. The inputs (filtered state, desired state, applied force, dt) are
+  recorded from one offline run and replayed cycle by cycle through a fresh
+  ``FlightControl`` of each kind, so both paths time the same sequence;
+- ``sim step``: the step as the offline simulator times it, which adds the state filter
+  (feeding the measurements, reading q, q_dot, q_ddot; in Python on both paths);
+- ``wall``: the whole 10 s run (control steps, truth plant at ``plant.rate_hz``, logging),
+  best of ``--repeat``; the truth plant's own cost is printed by
+  ``benchmarks/bench_plant.py``.
 
-Each run is repeated ``--repeat`` times; the best wall time and the step statistics of
-that run are printed (the machine's noise only ever adds time). The truth plant's own cost
-is printed by ``benchmarks/bench_plant.py``.
-Targets (tracker): <= 50 us median per control step, <= 2 s wall for the 10 s run.
+``--cpu N`` pins the process to core N (``os.sched_setaffinity``); ``--scale F`` also
+prints every figure multiplied by F, labelled as scaled, for a slower computer (a
+Raspberry Pi 4 runs this Python 3-5 times slower than the development machine; nothing
+here changes the clock). The CPU frequency is read from
+``/sys/devices/system/cpu/cpu<N>/cpufreq`` when the machine exposes it and printed.
+Targets (issue 14): <= 20 us median per control step, <= 0.5 s wall for the 10 s run.
 
 Usage: ``python benchmarks/bench_control_step.py [--config configs/paper_sim.toml]
-[--repeat 3]``
+[--repeat 3] [--cpu 1] [--scale 4]``
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
-from sitl.offline import SimOptions, simulate
-from sitl.scenario import load_scenario
+import numpy as np
+
+from companion.estimation import Skip
+from companion.flight_control import FlightControl
+from sitl.offline import SimOptions, SimResult, simulate
+from sitl.scenario import Scenario, load_scenario
 
 DEFAULT = Path(__file__).resolve().parent.parent / "configs" / "paper_sim.toml"
 RUNS = {
@@ -36,28 +49,102 @@ RUNS = {
 }
 
 
+def record(scenario: Scenario, options: SimOptions) -> list[tuple]:
+    """The (dt, state, desired, applied force) of every step of one run."""
+    calls: list[tuple] = []
+    step = FlightControl.step
+
+    def recording(self, dt_s, state, desired, applied):
+        kept = applied if isinstance(applied, Skip) else np.array(applied)
+        calls.append((dt_s, state, desired, kept))
+        return step(self, dt_s, state, desired, applied)
+
+    FlightControl.step = recording  # type: ignore[method-assign]
+    try:
+        simulate(scenario, options)
+    finally:
+        FlightControl.step = step  # type: ignore[method-assign]
+    return calls
+
+
+def replay(scenario: Scenario, options: SimOptions, calls: list[tuple], compiled: bool):
+    """Microseconds per step of a fresh FlightControl over the recorded calls (None if
+    this law has no compiled step)."""
+    control = FlightControl(
+        scenario.beliefs,
+        options.controller,
+        rows=tuple(scenario.estimator.rows),
+        actuated_rows=tuple(range(8)),
+        estimator_kind=options.estimator or scenario.estimator.kind,
+        compiled=compiled,
+    )
+    if control.compiled != compiled:
+        return None
+    us = np.empty(len(calls))
+    clock = time.perf_counter_ns
+    step = control.step
+    for i, (dt_s, state, desired, applied) in enumerate(calls):
+        start = clock()
+        step(dt_s, state, desired, applied)
+        us[i] = (clock() - start) / 1e3
+    return us
+
+
+def best_run(scenario: Scenario, options: SimOptions, repeat: int) -> tuple[float, SimResult]:
+    best: tuple[float, SimResult] | None = None
+    for _ in range(repeat):
+        start = time.perf_counter()
+        result = simulate(scenario, options)
+        wall = time.perf_counter() - start
+        if best is None or wall < best[0]:
+            best = (wall, result)
+    assert best is not None
+    return best
+
+
+def cpu_frequency(cpu: int) -> str:
+    base = Path(f"/sys/devices/system/cpu/cpu{cpu}/cpufreq")
+    if not base.is_dir():
+        return f"{base} absent: the clock cannot be read or lowered here"
+    cur = (base / "scaling_cur_freq").read_text().strip()
+    return f"cpu{cpu} at {int(cur) / 1e3:.0f} MHz ({base})"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", type=Path, default=DEFAULT)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--cpu", type=int, default=None, help="pin to this core")
+    parser.add_argument("--scale", type=float, default=None, help="also print figures x F")
     args = parser.parse_args()
+    if args.cpu is not None:
+        os.sched_setaffinity(0, {args.cpu})
+        print(f"pinned to core {args.cpu}; {cpu_frequency(args.cpu)}")
     scenario = load_scenario(args.config)
     print(f"scenario {scenario.name}: ideal plant, exact measurements, best of {args.repeat}")
+
+    def show(label: str, us: np.ndarray | None) -> str:
+        if us is None:
+            return f"{label} (Python only)"
+        median, p99 = np.median(us), np.percentile(us, 99)
+        text = f"{label} median {median:6.1f} p99 {p99:6.1f} us"
+        if args.scale:
+            text += f" [x{args.scale:g}: {median * args.scale:6.1f} / {p99 * args.scale:6.1f}]"
+        return text
+
     for label, options in RUNS.items():
-        best = None
-        for _ in range(args.repeat):
-            start = time.perf_counter()
-            summary = simulate(scenario, options).summary
-            wall = time.perf_counter() - start
-            if best is None or wall < best[0]:
-                best = (wall, summary)
-        wall, summary = best
-        step = summary["step_time_us"]
-        print(
-            f"{label:<20} {summary['duration_s']:4.1f} s simulated  "
-            f"step median {step['median']:6.1f} us  p99 {step['p99']:6.1f} us  "
-            f"wall {wall:5.2f} s"
-        )
+        calls = record(scenario, options)
+        fast = replay(scenario, options, calls, compiled=True)
+        slow = replay(scenario, options, calls, compiled=False)
+        wall, result = best_run(scenario, options, args.repeat)
+        sim = result.column("step_time_us")
+        sim = sim[~np.isnan(sim)]
+        walls = f"wall {wall:5.2f} s"
+        if args.scale:
+            walls += f" [x{args.scale:g}: {wall * args.scale:5.2f} s]"
+        print(f"{label}:")
+        print(f"  step  {show('compiled', fast)}   {show('python', slow)}")
+        print(f"  {show('sim step (filter + step)', sim)}   {walls}")
 
 
 if __name__ == "__main__":

@@ -1,11 +1,13 @@
 """Benchmark: M, C, G and the regressor Y for one state, beside Pinocchio.
 
 Prints median and p99 microseconds of
-  - companion.model: terms(q, q_dot), then evaluate(theta) -> (M, C, G), then
-    regressor(qr_dot, qr_ddot) -> Y
+  - companion.model in one call: ManipulatorModel.evaluate(q, q_dot, theta, qr_dot,
+    qr_ddot) -> (M, C, G, Y) (the generated C and both products in one extension call)
+  - companion.model in three calls: terms(q, q_dot), then evaluate(theta) -> (M, C, G),
+    then regressor(qr_dot, qr_ddot) -> Y
   - Pinocchio (same model, Translation -> RZ -> RY -> RX base): crba + computeCoriolisMatrix
-    + computeGeneralizedGravity
-Target (issue 2): <= 20 us median for companion.model on the project machine.
+    + computeGeneralizedGravity, in the same run
+Targets: issue 2, <= 20 us median for companion.model; issue 14, <= 10 us (one call).
 
 Usage: python benchmarks/bench_model.py [--config configs/paper_sim.toml] [--n 20000]
 """
@@ -62,6 +64,9 @@ def main() -> None:
         terms = model.terms(q, q_dot)
         return terms.evaluate(theta), terms.regressor(qr_dot, qr_ddot)
 
+    def ours_one_call(q, q_dot, qr_dot, qr_ddot):
+        return model.evaluate(q, q_dot, theta, qr_dot, qr_ddot)
+
     def ours_terms(q, q_dot, qr_dot, qr_ddot):
         return model.terms(q, q_dot)
 
@@ -74,10 +79,11 @@ def main() -> None:
         pin.computeCoriolisMatrix(ref, data, qp, vp)
         pin.computeGeneralizedGravity(ref, data, qp)
 
-    for fn in (ours, pinocchio):  # warm up caches and allocators
+    for fn in (ours_one_call, ours, pinocchio):  # warm up caches and allocators
         timed(fn, states[:500])
     print(f"config {args.config}, {args.n} random states, one call per sample")
-    report("companion.model: M, C, G, Y (all pieces, theta applied)", timed(ours, states))
+    report("companion.model: M, C, G, Y in one call (evaluate)", timed(ours_one_call, states))
+    report("companion.model: M, C, G, Y in three calls (pieces)", timed(ours, states))
     report("companion.model: terms() only (generated C + wrapping)", timed(ours_terms, states))
     report("pinocchio: crba + computeCoriolisMatrix + gravity", timed(pinocchio, states))
 

@@ -40,7 +40,12 @@ form, equal in exact arithmetic; a test checks that P stays symmetric positive d
 Measured on the development machine (median / p99, us): predict 1.5 / 3, estimate
 3.5 / 6.5, predict + update 12 / 25 whether all rows or a subset are measured; a 1 kHz
 control step with 100 Hz motion capture, 100 Hz encoders and 250 Hz gyro rates costs
-7 / 30 (most steps only predict and read the estimate).
+7 / 30 (most steps only predict and read the estimate). Where the extension
+``companion._step`` is built, the update's product and element-wise steps run there in
+one call (``_step.fuse``, the same operations as :meth:`StateFilter._fuse`, which stays
+the reference; tests/test_compiled_step.py compares them call by call): an update of all
+rows costs 3-5 us instead of 13-16 (``benchmarks/bench_filters.py``, 2 Dec 2026, loaded
+machine: predict + update 5.5 us median).
 
 Angles
 ------
@@ -79,6 +84,7 @@ from filterpy.common import Q_continuous_white_noise
 from numpy.typing import ArrayLike, NDArray
 
 from companion.coordinates import N_Q
+from companion.native import native_module
 
 __all__ = [
     "DEFAULT_JERK_PSD",
@@ -224,6 +230,10 @@ class StateFilter:
         Standard deviation of the zero initial rate [m/s or rad/s].
     initial_acceleration_std : float or array_like, shape (n,)
         Standard deviation of the zero initial acceleration [m/s^2 or rad/s^2].
+    compiled : bool, optional
+        Fuse measurements in C (``companion._step.fuse``, the same operations as
+        :meth:`_fuse`, which stays the reference) or in numpy [default: C where it is
+        built, unless ``COMPANION_STEP=python``; see :mod:`companion.native`].
     """
 
     def __init__(
@@ -236,6 +246,7 @@ class StateFilter:
         wrap_rows: Sequence[int] = (3, 4, 5),
         initial_velocity_std: ArrayLike = 1.0,
         initial_acceleration_std: ArrayLike = 5.0,
+        compiled: bool | None = None,
     ) -> None:
         if n < 1:
             raise ValueError(f"n must be >= 1, got {n!r}")
@@ -259,6 +270,9 @@ class StateFilter:
         self._predict_cache: dict[float, FloatArray] = {}
         self._update_cache: dict[tuple[int, float, int], FloatArray] = {}
         self._selection_cache: dict[tuple[int, ...] | None, _Selection] = {}
+        native = native_module(compiled)
+        self._fuse_columns = self._fuse if native is None else native.fuse
+        """The scalar updates of every column: C, or the numpy reference."""
 
     # -- properties -------------------------------------------------------------------
 
@@ -543,9 +557,13 @@ class StateFilter:
                     _R_UNMEASURED  # not fused: just initialised, or a rate before any position
                 )
             X[_R_CALL] = var
-        self._fuse(
-            X, self._measurement_matrix(order, latency_s, r_row), sel.wrap if order == 0 else ()
-        )
+        try:
+            self._fuse_columns(
+                X, self._measurement_matrix(order, latency_s, r_row), sel.wrap if order == 0 else ()
+            )
+        except ValueError:
+            X[_Z] = 0.0  # a rejected measurement must not stay in the unmeasured columns
+            raise
 
     def _initialise(self, idx: NDArray[np.intp], z: FloatArray, var: FloatArray) -> None:
         """Start rows ``idx`` at ``q = z``, zero derivatives, ``P = diag(var, v0^2, a0^2)``."""

@@ -18,6 +18,18 @@ and send the result to PX4 (or the plant) and the servos. The pieces are the pap
 - the small-angle tilt mapping (eq. phid) and PX4's relative thrust (:class:`ThrustModel`),
   with the tilt fed back as the attitude reference through a third-order filter
   (:class:`TiltReference`).
+
+Compiled and reference paths
+----------------------------
+Where the C extension ``companion._step`` is built (``pip install .`` always builds it),
+the step of the passivity and non-adaptive laws, with the paper or the RLS estimator (with
+or without the thrust scale), runs in one C call per cycle
+(:mod:`companion.compiled_step`); the Python classes remain the reference it is tested
+against to 1e-12 (tests/test_compiled_step.py). The sliding-mode law (eq. asc1) always runs
+in Python. ``FlightControl(..., compiled=False)`` or the environment variable
+``COMPANION_STEP=python`` selects the Python step; if the extension is missing the Python
+step runs after a one-line warning. The state filter (:mod:`companion.filters`) runs before
+the step, in Python, on either path.
 """
 
 from __future__ import annotations
@@ -29,6 +41,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from companion.compiled_step import CompiledStep
 from companion.config import CompanionConfig
 from companion.control import (
     ControlLaw,
@@ -48,6 +61,7 @@ from companion.estimation import (
 )
 from companion.filters import FilteredState
 from companion.model import ManipulatorModel
+from companion.native import native_module
 from companion.setpoints import AttitudeThrustSetpoint, ThrustModel, attitude_thrust_setpoint
 from companion.state import thrust_force_world
 from companion.trajectory import TiltReference
@@ -92,6 +106,11 @@ class FlightControl:
         and the joints (PX4 closes the attitude loop); all on the ideal plant.
     estimator_kind
         ``"paper"`` or ``"rls"`` [default: ``estimator.kind``].
+    compiled
+        Run the step in C (True; RuntimeError if the extension is not built) or in Python,
+        the reference (False) [default: C where it is built and the law is eq. tau2,
+        unless the environment variable ``COMPANION_STEP`` is ``python``]. The attribute
+        :attr:`compiled` says which runs.
     """
 
     def __init__(
@@ -102,6 +121,7 @@ class FlightControl:
         rows: tuple[int, ...] | None = None,
         actuated_rows: tuple[int, ...] = TRANSLATION_AND_JOINT_ROWS,
         estimator_kind: str | None = None,
+        compiled: bool | None = None,
     ) -> None:
         if controller not in ("passivity", "nonadaptive", "asmc"):
             raise ValueError(
@@ -130,12 +150,66 @@ class FlightControl:
             self.controller = PassivityController(ctl.k, ctl.lambda_)
         self.tilt = TiltReference(ctl.tilt_reference_bandwidth_rad_s)
         rotors = config.vehicle.rotors
+        self._compiled: CompiledStep | None = None
         self.thrust = ThrustModel(6 * rotors.max_thrust_per_rotor_n)
-        """Newtons <-> PX4 relative thrust; the flight app sets its floor from the vehicle."""
         self.tilt_max_rad = ctl.tilt_max_rad
         self.trim = HorizontalTrim(ctl.horizontal_trim_gain_n_per_m, ctl.horizontal_trim_limit_n)
-        self.trim_active = False
+        self._trim_active = False
+        module = native_module(compiled)
+        if module is not None and CompiledStep.supports(self.controller, self.estimator):
+            assert isinstance(self.controller, PassivityController)
+            self._compiled = CompiledStep(
+                module,
+                self.model.params.vector(),
+                self.estimator,
+                self.controller,
+                np.asarray(ctl.lambda_, dtype=float),
+                self.tilt,
+                self.trim,
+                self.thrust,
+                self.tilt_max_rad,
+            )
+            self.estimator = self._compiled.estimator
+            self.tilt = self._compiled.tilt
+            self.trim = self._compiled.trim
+
+    @property
+    def compiled(self) -> bool:
+        """True if the step runs in C (:mod:`companion.compiled_step`)."""
+        return self._compiled is not None
+
+    @property
+    def thrust(self) -> ThrustModel:
+        """Newtons <-> PX4 relative thrust; the flight app sets its floor from the vehicle."""
+        return self._thrust if self._compiled is None else self._compiled.thrust
+
+    @thrust.setter
+    def thrust(self, model: ThrustModel) -> None:
+        self._thrust = model
+        if self._compiled is not None:
+            self._compiled.thrust = model
+
+    @property
+    def tilt_max_rad(self) -> float:
+        """Tilt limit of eq. phid [rad]."""
+        return self._tilt_max_rad
+
+    @tilt_max_rad.setter
+    def tilt_max_rad(self, value: float) -> None:
+        self._tilt_max_rad = value
+        if self._compiled is not None:
+            self._compiled.tilt_max_rad = value
+
+    @property
+    def trim_active(self) -> bool:
         """The trim integrates only while the vehicle flies these setpoints (the app)."""
+        return self._trim_active
+
+    @trim_active.setter
+    def trim_active(self, value: bool) -> None:
+        self._trim_active = value
+        if self._compiled is not None:
+            self._compiled.trim_active = value
 
     def check_rate(self, rate_hz: float, q: FloatArray) -> float:
         """Raise :class:`~companion.control.ControlRateError` if ``rate_hz`` is too low for
@@ -164,15 +238,21 @@ class FlightControl:
 
         ``applied_tau`` is the generalized force applied over the last cycle (see
         :meth:`applied_force`), or why it is not known: the estimator skips the step.
+        Runs in C when :attr:`compiled`, with the same result (see the module docstring).
         """
         q, q_dot, q_ddot = state.q, state.q_dot, state.q_ddot
+        if self._compiled is not None:
+            tau, setpoint, estimate, theta_hat, reference = self._compiled.step(
+                dt_s, q, q_dot, q_ddot, desired, applied_tau
+            )
+            return ControlOutput(tau, setpoint, estimate, theta_hat, reference)
         terms = self.model.terms(q, q_dot)
         estimate = self.estimator.update(dt_s, terms, q, q_dot, q_ddot, applied_tau)
         reference = self.tilt.apply(desired)
         tau, theta_hat = self.controller.control(
             dt_s, terms, state, reference, estimate.theta, applied_tau
         )
-        if self.trim_active:
+        if self._trim_active:
             lam = self.scenario.controller.lambda_
             e = q[HORIZONTAL] - reference.q[HORIZONTAL]
             e_dot = q_dot[HORIZONTAL] - reference.q_dot[HORIZONTAL]

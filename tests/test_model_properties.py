@@ -139,6 +139,21 @@ def test_potential_energy_gradient_is_gravity(setup) -> None:
         np.testing.assert_allclose(grad, model.gravity(q, theta), atol=1e-7)
 
 
+def test_one_call_evaluate_equals_the_pieces(setup) -> None:
+    """ManipulatorModel.evaluate (one C call) gives what terms, evaluate and regressor give."""
+    cfg, model = setup
+    theta = cfg.true_theta.as_tuple()
+    rng = np.random.default_rng(4)
+    for q, q_dot in states(5):
+        qr_dot, qr_ddot = rng.normal(size=8), rng.normal(size=8)
+        terms = model.terms(q, q_dot)
+        expected = (*terms.evaluate(theta), terms.regressor(qr_dot, qr_ddot))
+        for got, want in zip(
+            model.evaluate(q, q_dot, theta, qr_dot, qr_ddot), expected, strict=True
+        ):
+            np.testing.assert_array_equal(got, want)
+
+
 def test_rejects_wrong_shapes(setup) -> None:
     _, model = setup
     with pytest.raises(ValueError, match=r"q must have shape \(8,\)"):

@@ -6,7 +6,8 @@
  * G_k[i]] (see companion/model/layout.py).
  * potential(q, p, out): fills out (float64[4]) with the potential energy pieces.
  * combine(pieces, xi, out) and regress(pieces, qr_dot, qr_ddot, out) are the two products
- * the controller needs on those pieces (hand-written, not generated).
+ * the controller needs on those pieces, all(q, qd, p, theta, qr_dot, qr_ddot, out) both of
+ * them after mcg in one call (hand-written, not generated).
  * q, qd: float64[8]; p: float64[14] = mb, ixx, iyy, izz, m1, s1, j1, a1, a2, l1, rax, ray, raz, g.
  */
 #define PY_SSIZE_T_CLEAN
@@ -1563,6 +1564,7 @@ static void mcg_eval(const double *q, const double *qd, const double *p, double 
     out[534] = a2;
 }
 
+#ifndef MCG_EVAL_ONLY /* companion/_step.c includes the evaluation only */
 static void potential_eval(const double *q, const double *p, double *out)
 {
     const double x = q[0];
@@ -1684,12 +1686,52 @@ static PyObject *py_regress(PyObject *self, PyObject *args)
     return result;
 }
 
+/* all(q, qd, p, theta, qr_dot, qr_ddot, out): M (8 x 8), C (8 x 8), G (8) for
+ * theta = (m2, m3, m4) and Y^T (4 x 8) in one call, 168 values */
+static PyObject *py_all(PyObject *self, PyObject *args)
+{
+    Py_buffer q, qd, p, th, qrd, qrdd, out;
+    PyObject *result = NULL;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*w*", &q, &qd, &p, &th, &qrd, &qrdd, &out))
+        return NULL;
+    if (check(&q, 8, "q") && check(&qd, 8, "qd") && check(&p, 14, "p")
+        && check(&th, 3, "theta") && check(&qrd, 8, "qr_dot") && check(&qrdd, 8, "qr_ddot")
+        && check(&out, 168, "out")) {
+        double pieces[4 * 136];
+        const double *t = (const double *)th.buf, w[4] = {t[0], t[1], t[2], 1.0};
+        const double *v = (const double *)qrd.buf, *a = (const double *)qrdd.buf;
+        double *o = (double *)out.buf;
+        mcg_eval((const double *)q.buf, (const double *)qd.buf, (const double *)p.buf, pieces);
+        for (int i = 0; i < 8; ++i)
+            for (int j = 0; j < 17; ++j) {
+                int at = 17 * i + j;
+                double value = w[0] * pieces[at] + w[1] * pieces[136 + at]
+                               + w[2] * pieces[2 * 136 + at] + w[3] * pieces[3 * 136 + at];
+                if (j < 8) o[8 * i + j] = value;
+                else if (j < 16) o[64 + 8 * i + j - 8] = value;
+                else o[128 + i] = value;
+            }
+        const double *r = pieces;
+        for (int k = 0; k < 32; ++k, r += 17) {
+            double acc = r[16];
+            for (int j = 0; j < 8; ++j) acc += r[j] * a[j] + r[8 + j] * v[j];
+            o[136 + k] = acc;
+        }
+        result = Py_NewRef(Py_None);
+    }
+    PyBuffer_Release(&q); PyBuffer_Release(&qd); PyBuffer_Release(&p); PyBuffer_Release(&th);
+    PyBuffer_Release(&qrd); PyBuffer_Release(&qrdd); PyBuffer_Release(&out);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"mcg", py_mcg, METH_VARARGS, "mcg(q, qd, p, out): stacked M, C, G pieces into out."},
     {"potential", py_potential, METH_VARARGS, "potential(q, p, out): V pieces into out."},
     {"combine", py_combine, METH_VARARGS, "combine(pieces, xi, out): xi @ pieces into out."},
     {"regress", py_regress, METH_VARARGS,
       "regress(pieces, qr_dot, qr_ddot, out): Y^T (4 x 8) into out."},
+    {"all", py_all, METH_VARARGS,
+      "all(q, qd, p, theta, qr_dot, qr_ddot, out): M, C, G for theta and Y^T into out."},
     {NULL, NULL, 0, NULL}
 };
 
@@ -1699,3 +1741,4 @@ static struct PyModuleDef module = {
 };
 
 PyMODINIT_FUNC PyInit__mcg(void) { return PyModule_Create(&module); }
+#endif

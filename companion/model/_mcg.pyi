@@ -26,3 +26,15 @@ def regress(
     out: NDArray[np.float64],
 ) -> None:
     """Y^T (N_XI x N_Q) into ``out``."""
+
+def all(
+    q: NDArray[np.float64],
+    qd: NDArray[np.float64],
+    p: NDArray[np.float64],
+    theta: NDArray[np.float64],
+    qr_dot: NDArray[np.float64],
+    qr_ddot: NDArray[np.float64],
+    out: NDArray[np.float64],
+) -> None:
+    """M (8 x 8), C (8 x 8), G (8) for theta (3 values) and Y^T (4 x 8): 168 values into
+    ``out``."""

@@ -29,6 +29,11 @@ from companion.model.layout import N_XI, PARAM_NAMES, ROW
 __all__ = ["ManipulatorModel", "ModelParameters", "ModelTerms"]
 
 FloatArray = NDArray[np.float64]
+_C_AT = N_Q * N_Q
+_G_AT = 2 * N_Q * N_Q
+_Y_AT = _G_AT + N_Q
+_ALL_SIZE = _Y_AT + N_XI * N_Q
+"""Layout of ``_mcg.all``'s output: M, C (row-major), G, Y^T."""
 
 
 @dataclass(frozen=True)
@@ -184,6 +189,35 @@ class ManipulatorModel:
         out = np.empty((N_XI, N_Q * ROW))
         _mcg.mcg(_vector(q, "q"), _vector(q_dot, "q_dot"), self._p, out)
         return ModelTerms(out)
+
+    def evaluate(
+        self,
+        q: ArrayLike,
+        q_dot: ArrayLike,
+        theta: ArrayLike,
+        qr_dot: ArrayLike,
+        qr_ddot: ArrayLike,
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """M(q), C(q, q_dot), G(q) for theta = (m2, m3, m4) and the regressor
+        Y(q, q_dot, qr_dot, qr_ddot) (paper eq. reg), shapes (8, 8), (8, 8), (8,), (8, 4),
+        in one call of the generated C: ``terms(q, q_dot).evaluate(theta)`` and
+        ``.regressor(qr_dot, qr_ddot)`` without the pieces in between."""
+        out = np.empty(_ALL_SIZE)
+        _mcg.all(
+            _vector(q, "q"),
+            _vector(q_dot, "q_dot"),
+            self._p,
+            np.ascontiguousarray(theta, dtype=np.float64),
+            _vector(qr_dot, "qr_dot"),
+            _vector(qr_ddot, "qr_ddot"),
+            out,
+        )
+        return (
+            out[:_C_AT].reshape(N_Q, N_Q),
+            out[_C_AT:_G_AT].reshape(N_Q, N_Q),
+            out[_G_AT:_Y_AT],
+            out[_Y_AT:].reshape(N_XI, N_Q).T,
+        )
 
     def mass_matrix(self, q: ArrayLike, theta: ArrayLike) -> FloatArray:
         """M(q) for theta = (m2, m3, m4), shape (8, 8)."""
