@@ -1,4 +1,5 @@
-"""Build the generated dynamics extension; all other metadata lives in pyproject.toml."""
+"""Build the C extensions (the model's generated dynamics, the truth plant's step kernel);
+all other metadata lives in pyproject.toml."""
 
 from setuptools import Extension, setup
 
@@ -8,6 +9,13 @@ setup(
             "companion.model._mcg",
             sources=["companion/model/_mcg.c"],
             extra_compile_args=["-O2"],
-        )
+        ),
+        # the truth plant's per-step arithmetic; no contraction into fused multiply-adds, so
+        # that it computes what the Python it mirrors computes
+        Extension(
+            "sitl.physics._kernel",
+            sources=["sitl/physics/_kernel.c"],
+            extra_compile_args=["-O2", "-ffp-contract=off"],
+        ),
     ]
 )
