@@ -9,6 +9,7 @@
  *                  never re-implemented here), then the plant's kinematics of the new state
  *                  (TruthPlant._update_kinematics) and the step's q_ddot (_to_q_ddot).
  * kinematics(...)  the plant's kinematics of a state alone (after reset, hold, payload).
+ * pack(...)       a state's floats as the bytes of one float64 array (PlantState).
  * attitude_loop(...) one update of sitl.physics.attitude_control.Px4AttitudeLoop: PX4's
  *                  attitude P, rate PID, the sequential-desaturation mixer of
  *                  sitl.physics.rotors and the THR_MDL_FAC linearization; its Python classes
@@ -695,7 +696,38 @@ static PyObject *py_attitude_loop(PyObject *self, PyObject *const *args, Py_ssiz
     return Py_BuildValue("(NNNN)", a, b, s, t);
 }
 
+/* The doubles of the given sequences, in order, as one bytes object (a frozen state's
+ * storage: numpy reads it in place, read-only). */
+static PyObject *py_pack(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    double values[64];
+    Py_ssize_t n = 0;
+    for (Py_ssize_t a = 0; a < nargs; a++) {
+        PyObject *fast = PySequence_Fast(args[a], "pack: sequences of floats");
+        if (fast == NULL) return NULL;
+        Py_ssize_t size = PySequence_Fast_GET_SIZE(fast);
+        if (n + size > 64) {
+            Py_DECREF(fast);
+            PyErr_SetString(PyExc_ValueError, "pack: more than 64 values");
+            return NULL;
+        }
+        PyObject **items = PySequence_Fast_ITEMS(fast);
+        for (Py_ssize_t i = 0; i < size; i++) {
+            double v = PyFloat_AsDouble(items[i]);
+            if (v == -1.0 && PyErr_Occurred()) {
+                Py_DECREF(fast);
+                return NULL;
+            }
+            values[n++] = v;
+        }
+        Py_DECREF(fast);
+    }
+    return PyBytes_FromStringAndSize((const char *)values, n * (Py_ssize_t)sizeof(double));
+}
+
 static PyMethodDef methods[] = {
+    {"pack", (PyCFunction)(void (*)(void))py_pack, METH_FASTCALL,
+     "pack(*sequences): their floats as the bytes of float64 values."},
     {"step", (PyCFunction)(void (*)(void))py_step, METH_FASTCALL,
      "step(rk4, dt, x, u, r9, euler, q_dot, w_inv9, kind, force, aba, model, data, q, v, tau):"
      " one integration step and the new state's kinematics."},

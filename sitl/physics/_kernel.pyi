@@ -42,3 +42,6 @@ def attitude_loop(
     saturation: list[float],
 ) -> tuple[list[float], list[float], tuple[float, float, float], tuple[float, float, float]]:
     """One update of the PX4-like attitude loop; the four lists are updated in place."""
+
+def pack(*sequences: Sequence[float]) -> bytes:
+    """The floats of the sequences, in order, as the bytes of float64 values (at most 64)."""
