@@ -31,7 +31,11 @@ from sitl.physics.frames import (
     rotation9_from_quaternion,
 )
 from sitl.physics.integration import ArticulatedIntegrator, BodyWrench, GeneralizedForce
-from sitl.physics.rotors import RotorGeometry, SequentialDesaturationMixer
+from sitl.physics.rotors import (
+    RotorGeometry,
+    SequentialDesaturationMixer,
+    inverse_thrust_curve,
+)
 from sitl.scenario import Scenario, load_scenario
 
 CONFIGS = Path(__file__).parent.parent / "configs"
@@ -136,9 +140,8 @@ def test_compiled_attitude_loop_matches_its_python_parts() -> None:
             mixed = reference.mixer.mix(torque, setpoint.thrust)
             flags = (mixed.saturation_positive, mixed.saturation_negative)
             saturated += any(flags[0] + flags[1])
-            f = reference.thr_mdl_fac
             rel = np.array(mixed.relative_thrusts)
-            commands = (np.sqrt((1 - f) ** 2 + 4 * f * rel) - (1 - f)) / (2 * f) if f else rel
+            commands = inverse_thrust_curve(rel, reference.thr_mdl_fac)
             np.testing.assert_allclose(out.rate_setpoint_rad_s, rate_sp, rtol=0, atol=TOL)
             np.testing.assert_allclose(out.torque_normalized, torque, rtol=0, atol=TOL)
             np.testing.assert_allclose(out.relative_thrusts, rel, rtol=0, atol=TOL)

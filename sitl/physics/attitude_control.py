@@ -490,14 +490,3 @@ class Px4AttitudeLoop:
                 *self.mixer.kernel_constants(),
             ]
         )
-
-
-def _linearize(relative: list[float], f: float) -> list[float]:
-    """PX4 ``FunctionMotors``: motor commands u giving relative thrusts ``relative`` (each in
-    [0, 1]) on the curve f u^2 + (1 - f) u (:func:`~sitl.physics.rotors.inverse_thrust_curve`
-    on Python floats, the per-step path)."""
-    if f < 1e-9:
-        return list(relative)
-    b = 1.0 - f
-    b2, inv = b * b, 0.5 / f
-    return [(math.sqrt(b2 + 4.0 * f * r) - b) * inv for r in relative]

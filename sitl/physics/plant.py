@@ -525,8 +525,9 @@ class TruthPlant:
         self._actuators = None
 
     # -------------------------------------------------------------- internals
-    # The per-step path works on Python floats (lists, tuples): on 3-vectors that is several
-    # times faster than numpy. Row-major 9-tuples hold R and W^-1.
+    # The per-step path works on Python floats (lists, tuples) around the compiled kernel
+    # (sitl.physics._kernel), which reads and returns them. Row-major 9-tuples hold R and
+    # W^-1.
 
     def _advance(self, force: GeneralizedForce | BodyWrench) -> None:
         """One integration step under ``force`` (the compiled kernel, which also returns the
