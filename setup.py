@@ -1,5 +1,5 @@
-"""Build the generated dynamics extension and the compiled control step; all other metadata
-lives in pyproject.toml."""
+"""Build the C extensions (the model's generated dynamics, the compiled control step, the
+truth plant's step kernel); all other metadata lives in pyproject.toml."""
 
 from setuptools import Extension, setup
 
@@ -16,6 +16,13 @@ setup(
             "companion._step",
             sources=["companion/_step.c"],
             depends=["companion/model/_mcg.c"],
+            extra_compile_args=["-O2", "-ffp-contract=off"],
+        ),
+        # The truth plant's per-step arithmetic; no contraction into fused multiply-adds, so
+        # that it computes what the Python it mirrors computes.
+        Extension(
+            "sitl.physics._kernel",
+            sources=["sitl/physics/_kernel.c"],
             extra_compile_args=["-O2", "-ffp-contract=off"],
         ),
     ]

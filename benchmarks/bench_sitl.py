@@ -14,8 +14,11 @@ and counts what arrives.
    loopback ports) and once with the client consuming both links; with the CPU time of
    this process per simulated second (less sensitive than wall time to other processes
    on a loaded machine).
-   Also the wall time per step split by phase (links in, navigation, autopilot,
-   world, telemetry out), from a separate instrumented loop with the same calls.
+   Also the time per step split by phase (links in, navigation, autopilot, world,
+   telemetry out), from a separate instrumented loop with the same calls, airborne (from
+   3.5 simulated seconds after the take-off command): the main thread's CPU time per phase
+   (``time.thread_time``, what the step costs whatever else runs on the machine) and the
+   wall time of the whole.
 2. At speed 1 for ``--rate-seconds``: each stream's rate as the client measures it
    (messages after the first, over the wall time between first and last arrival)
    against the configured rate (and the count per simulated second: the streams keep
@@ -24,7 +27,13 @@ and counts what arrives.
    window starts after 5 simulated seconds, hovering.
 
 Numbers only, no pass/fail; the machine's load shows in them (``os.getloadavg`` is
-printed). Run: ``python benchmarks/bench_sitl.py [--seconds 10] [--rate-seconds 20]``.
+printed). Each figure of part 1 is the best of ``--repeat`` runs (noise only ever adds
+time). ``--before DIR`` also measures part 1 on the code in DIR (a checkout of an earlier
+commit with its C extensions built in place, e.g. ``git worktree add /tmp/before a08a115
+&& cd /tmp/before && python setup.py build_ext --inplace``) in a subprocess, alternating
+with this code, and prints both. ``--rate-seconds 0`` skips part 2.
+Run: ``python benchmarks/bench_sitl.py [--seconds 10] [--rate-seconds 20] [--repeat 3]
+[--before DIR]``.
 """
 
 from __future__ import annotations
@@ -162,43 +171,81 @@ def real_time_factor(seconds: float, with_client: bool) -> tuple[float, float, s
     return stats.real_time_factor, cpu, state
 
 
+PHASES = ("links in", "navigation", "autopilot", "world", "telemetry")
+
+
 def phase_split(seconds: float) -> dict[str, float]:
-    """Wall time per step [us] by phase, the same calls as ``SitlVehicle.run``."""
+    """Main-thread CPU time per step [us] by phase, the same calls as ``SitlVehicle.run``,
+    airborne; and the wall time per step of the whole (key ``wall``)."""
     vehicle = _vehicle(speed=1000.0)
-    pc = time.perf_counter
-    totals = dict.fromkeys(("links in", "navigation", "autopilot", "world", "telemetry"), 0.0)
+    tt = time.thread_time_ns
+    totals = dict.fromkeys(PHASES, 0)
     with vehicle:
         vehicle.run(threading.Event(), until_s=0.5)
         _take_off(vehicle)
+        vehicle.run(threading.Event(), until_s=4.0)  # climbing, then holding
         world, autopilot, links = vehicle.world, vehicle.autopilot, vehicle.links
         steps = round(seconds / world.dt_s)
+        wall0 = time.perf_counter()
         for _ in range(steps):
-            t0 = pc()
+            t0 = tt()
             now_s = world.time_s
             for name, link in links.items():
                 for message in link.receive():
                     for reply_link, reply in autopilot.handle(message, name, now_s):
                         links[reply_link].send(reply)
-            t1 = pc()
+            t1 = tt()
             measurement = vehicle.navigation.measure(world)
-            t2 = pc()
+            t2 = tt()
             setpoint = autopilot.control(now_s, measurement)
-            t3 = pc()
+            t3 = tt()
             with vehicle.servo_bus.lock:
                 world.step(setpoint)
-            t4 = pc()
+            t4 = tt()
             for link_name, message in autopilot.telemetry(now_s, measurement):
                 links[link_name].send(message)
-            t5 = pc()
-            for key, a, b in (
-                ("links in", t0, t1),
-                ("navigation", t1, t2),
-                ("autopilot", t2, t3),
-                ("world", t3, t4),
-                ("telemetry", t4, t5),
-            ):
+            t5 = tt()
+            for key, a, b in zip(PHASES, (t0, t1, t2, t3, t4), (t1, t2, t3, t4, t5), strict=True):
                 totals[key] += b - a
-    return {key: value / steps * 1e6 for key, value in totals.items()}
+        wall = time.perf_counter() - wall0
+    out = {key: value / steps / 1e3 for key, value in totals.items()}
+    out["wall"] = wall / steps * 1e6
+    return out
+
+
+def measure(seconds: float, repeat: int) -> dict:
+    """Part 1, each figure the best of ``repeat`` runs."""
+    out: dict = {}
+    for with_client in (False, True):
+        runs = [real_time_factor(seconds, with_client) for _ in range(repeat)]
+        rtf = max(r[0] for r in runs)
+        cpu = min(r[1] for r in runs)
+        out["client" if with_client else "nobody"] = (rtf, cpu, runs[-1][2])
+    splits = [phase_split(min(seconds, 5.0)) for _ in range(repeat)]
+    out["split"] = {key: min(s[key] for s in splits) for key in splits[0]}
+    return out
+
+
+def _run_before(before: Path, seconds: float, repeat: int) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(before)}
+    args = ["--seconds", str(seconds), "--repeat", str(repeat), "--json"]
+    done = subprocess.run(
+        [sys.executable, __file__, *args],
+        env=env,
+        check=True,
+        capture_output=True,
+        text=True,
+        cwd=before,
+    )
+    return json.loads(done.stdout)
+
+
+def _best(a: dict, b: dict) -> dict:
+    out = {}
+    for key in ("nobody", "client"):
+        out[key] = (max(a[key][0], b[key][0]), min(a[key][1], b[key][1]), b[key][2])
+    out["split"] = {k: min(a["split"][k], b["split"][k]) for k in a["split"]}
+    return out
 
 
 _WARM_UP_S = 5.0
@@ -237,26 +284,48 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0, help="sim s per flat-out run")
     parser.add_argument("--rate-seconds", type=float, default=20.0, help="sim s at speed 1")
+    parser.add_argument("--repeat", type=int, default=3, help="runs per figure of part 1")
+    parser.add_argument("--before", type=Path, help="checkout of the code to compare with")
     parser.add_argument("--client", nargs=2, type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--json", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.client:
         client(*args.client)
         return
+    if args.json:
+        print(json.dumps(measure(args.seconds, args.repeat)))
+        return
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs\n")
+    now = measure(args.seconds, args.repeat)
+    before = None
+    if args.before is not None:  # alternate: before, now again; best of each
+        before = _run_before(args.before, args.seconds, args.repeat)
+        now = _best(now, measure(args.seconds, args.repeat))
+        before = _best(before, _run_before(args.before, args.seconds, args.repeat))
 
-    print(f"Real-time factor, 1 kHz plant, full telemetry, flat out, {args.seconds:g} sim s")
-    print(f"{'telemetry':<28} {'real-time factor':>16} {'CPU s / sim s':>14}  state at the end")
-    for with_client in (False, True):
-        rtf, cpu, state = real_time_factor(args.seconds, with_client)
-        label = "client consuming both links" if with_client else "nobody listening"
-        print(f"{label:<28} {rtf:>15.2f}x {cpu:>14.3f}  {state}")
+    print(
+        f"Real-time factor, 1 kHz plant, full telemetry, flat out, {args.seconds:g} sim s, "
+        f"best of {args.repeat}"
+    )
+    print(f"{'':<8} {'telemetry':<28} {'real-time factor':>16} {'CPU s / sim s':>14}  state")
+    for label, figures in (("before", before), ("now", now)):
+        if figures is None:
+            continue
+        for key, name in (("nobody", "nobody listening"), ("client", "client on both links")):
+            rtf, cpu, state = figures[key]
+            print(f"{label:<8} {name:<28} {rtf:>15.2f}x {cpu:>14.3f}  {state}")
 
-    print("\nWall time per step by phase (no client)")
-    split = phase_split(min(args.seconds, 5.0))
-    for key, us in split.items():
-        print(f"  {key:<12} {us:7.1f} us")
-    total = sum(split.values())
-    print(f"  {'total':<12} {total:7.1f} us  (-> {1e3 / total:.2f}x real time)")
+    print("\nTime per step by phase, airborne, no client: main-thread CPU [us]")
+    print(f"{'':<8}" + "".join(f"{key:>12}" for key in (*PHASES, "total", "wall")))
+    for label, figures in (("before", before), ("now", now)):
+        if figures is None:
+            continue
+        split = figures["split"]
+        total = sum(split[key] for key in PHASES)
+        cells = [split[key] for key in PHASES] + [total, split["wall"]]
+        print(f"{label:<8}" + "".join(f"{value:12.1f}" for value in cells))
+    if args.rate_seconds <= 0.0:
+        return
 
     print(
         f"\nAt speed 1 for {args.rate_seconds:g} s after a {_WARM_UP_S:g} s take-off, "

@@ -40,8 +40,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from sitl.physics import _kernel
 from sitl.physics.frames import quaternion_from_euler
-from sitl.physics.rotors import MixerOutput, SequentialDesaturationMixer
+from sitl.physics.rotors import SequentialDesaturationMixer
 from sitl.scenario import AttitudeControl as AttitudeControlConfig
 
 __all__ = [
@@ -386,14 +387,23 @@ class ControllerOutput:
 @dataclass
 class Px4AttitudeLoop:
     """Attitude P -> rate PID -> mixer -> THR_MDL_FAC linearization, one :meth:`update` per
-    plant step."""
+    plant step.
+
+    :meth:`update` runs in the compiled kernel ``sitl.physics._kernel`` on the state of
+    :attr:`rate` (its integrators and filter, updated in place) with the constants of the
+    three parts; the parts' own Python methods (``attitude.rate_setpoint``,
+    ``rate.update``, ``mixer.mix``) are the reference it is tested against
+    (tests/test_sitl_kernel.py). Change gains through :meth:`configure`.
+    """
 
     attitude: AttitudeController
     rate: RateController
     mixer: SequentialDesaturationMixer
     thr_mdl_fac: float = 0.0
     """The autopilot's THR_MDL_FAC: relative rotor thrust -> motor command."""
-    _last_mix: MixerOutput | None = field(default=None, repr=False)
+    _saturation: list[float] = field(default_factory=lambda: [0.0] * 6, repr=False)
+    """The mixer's last saturation flags (positive roll, pitch, yaw; negative), 0 or 1."""
+    _constants: FloatArray | None = field(default=None, repr=False)
 
     @classmethod
     def from_params(
@@ -431,11 +441,12 @@ class Px4AttitudeLoop:
             params.d_cutoff_hz,
         )
         self.thr_mdl_fac = params.thr_mdl_fac
+        self._constants = None
 
     def reset(self, rate_rad_s: Iterable[float] = (0.0, 0.0, 0.0)) -> None:
         """Clear integrators, filters and the saturation feedback."""
         self.rate.reset(rate_rad_s)
-        self._last_mix = None
+        self._saturation = [0.0] * 6
 
     def update(
         self,
@@ -444,30 +455,38 @@ class Px4AttitudeLoop:
         setpoint: AttitudeSetpoint,
     ) -> ControllerOutput:
         """Motor commands for measured attitude ``q_wxyz`` and body rate ``rate_rad_s`` (FLU)."""
-        rate_sp = self.attitude.rate_setpoint(q_wxyz, setpoint.quaternion_wxyz)
-        if self._last_mix is None:
-            sat_pos = sat_neg = (False, False, False)
-        else:
-            sat_pos = self._last_mix.saturation_positive
-            sat_neg = self._last_mix.saturation_negative
-        torque = self.rate.update(rate_rad_s, rate_sp, sat_pos, sat_neg)
-        mixed = self.mixer.mix(torque, setpoint.thrust)
-        self._last_mix = mixed
-        return ControllerOutput(
-            motor_commands=_linearize(mixed.relative_thrusts, self.thr_mdl_fac),
-            relative_thrusts=mixed.relative_thrusts,
-            rate_setpoint_rad_s=rate_sp,
-            torque_normalized=torque,
-            thrust_normalized=setpoint.thrust,
+        if self._constants is None:
+            self._constants = self._kernel_constants()
+        rate = self.rate
+        commands, relative, rate_sp, torque = _kernel.attitude_loop(
+            q_wxyz,
+            rate_rad_s,
+            setpoint.quaternion_wxyz,
+            setpoint.thrust,
+            self._constants,
+            rate._integral,
+            rate._previous_rate,
+            rate._angular_accel,
+            self._saturation,
         )
+        return ControllerOutput(commands, relative, rate_sp, torque, setpoint.thrust)
 
-
-def _linearize(relative: list[float], f: float) -> list[float]:
-    """PX4 ``FunctionMotors``: motor commands u giving relative thrusts ``relative`` (each in
-    [0, 1]) on the curve f u^2 + (1 - f) u (:func:`~sitl.physics.rotors.inverse_thrust_curve`
-    on Python floats, the per-step path)."""
-    if f < 1e-9:
-        return list(relative)
-    b = 1.0 - f
-    b2, inv = b * b, 0.5 / f
-    return [(math.sqrt(b2 + 4.0 * f * r) - b) * inv for r in relative]
+    def _kernel_constants(self) -> FloatArray:
+        """Gains, limits and allocation of the three parts in the kernel's layout."""
+        att, rate = self.attitude, self.rate
+        return np.array(
+            [
+                *att._gains,
+                att.yaw_weight,
+                *att._rate_max,
+                *rate._p,
+                *rate._i,
+                *rate._d,
+                *rate._limit,
+                rate._alpha,
+                rate._dt,
+                _I_FACTOR_RATE_RAD_S,
+                self.thr_mdl_fac,
+                *self.mixer.kernel_constants(),
+            ]
+        )

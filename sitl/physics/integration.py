@@ -27,8 +27,12 @@ stage from a held input (see :class:`GeneralizedForce`, :class:`BodyWrench`):
     same test.
 
 The retraction x (+) h u moves p and eta linearly and the attitude by the exact exponential
-of the body rate, quaternion <- quaternion * exp(h omega / 2). Everything per step is on
-Python floats: on 3-vectors that is several times faster than numpy.
+of the body rate, quaternion <- quaternion * exp(h omega / 2).
+
+The plant steps with :meth:`ArticulatedIntegrator.step_kinematics`: the same scheme in the
+compiled kernel ``sitl.physics._kernel`` (its floats, Pinocchio's ABA called back), which
+also returns the new state's kinematics. :meth:`ArticulatedIntegrator.step` is the Python
+of the scheme, the reference the kernel is tested against (tests/test_sitl_kernel.py).
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ from typing import Literal
 import numpy as np
 import pinocchio as pin
 
+from sitl.physics import _kernel
 from sitl.physics.frames import Rot9, euler_rate_matrix_inverse9, rotation9_from_quaternion
 
 __all__ = ["ArticulatedIntegrator", "BodyWrench", "GeneralizedForce", "IntegratorMethod"]
@@ -61,9 +66,16 @@ class GeneralizedForce:
     """
 
     __slots__ = ("tau",)
+    KIND = 0
+    """The kernel's tag of this force."""
 
     def __init__(self, tau: list[float]) -> None:
         self.tau = tau
+
+    @property
+    def values(self) -> list[float]:
+        """tau (8 floats), as the kernel takes it."""
+        return self.tau
 
     def __call__(self, r: Rot9, u: list[float]) -> tuple[float, ...]:
         phi = math.atan2(r[7], r[8])
@@ -98,6 +110,8 @@ class BodyWrench:
     """
 
     __slots__ = ("drag_n_s_m", "joint_torques_n_m", "thrust_n", "torque_n_m")
+    KIND = 1
+    """The kernel's tag of this force."""
 
     def __init__(
         self,
@@ -110,6 +124,11 @@ class BodyWrench:
         self.torque_n_m = torque_n_m
         self.drag_n_s_m = drag_n_s_m
         self.joint_torques_n_m = joint_torques_n_m
+
+    @property
+    def values(self) -> tuple[float, ...]:
+        """(thrust, torque (3), drag (3), joint torques (2)), as the kernel takes it."""
+        return (self.thrust_n, *self.torque_n_m, *self.drag_n_s_m, *self.joint_torques_n_m)
 
     def __call__(self, r: Rot9, u: list[float]) -> tuple[float, ...]:
         dx, dy, dz = self.drag_n_s_m
@@ -217,10 +236,50 @@ class ArticulatedIntegrator:
             a[7],
         ]
 
+    def step_kinematics(
+        self,
+        x: list[float],
+        u: list[float],
+        force: GeneralizedForce | BodyWrench,
+        r: Rot9,
+        euler: tuple[float, float, float],
+        q_dot: list[float],
+        w_inv9: Rot9,
+    ) -> tuple:
+        """One step from (x, u) in the compiled kernel, and the kinematics of the result.
+
+        ``r``, ``euler`` (ZYX [rad]), ``q_dot`` (ours) and ``w_inv9`` (W(Phi)^-1) are those
+        of (x, u), as the plant keeps them. Returns ``(0, x+ (quaternion renormalized), u+,
+        q_ddot of the step, quaternion wxyz, R9, euler, W^-1 9, omega, q, q_dot)`` of the
+        new state; on failure ``(status, theta)``: 1 non-finite accelerations or body rate,
+        2 the force's W(Phi) singular at pitch theta [rad]; or ``(3 or 4, theta, x+, u+,
+        q_ddot)`` when the new state itself is non-finite (3) or at the singularity (4).
+        """
+        return _kernel.step(
+            self.method == "rk4",
+            self.dt_s,
+            x,
+            u,
+            r,
+            euler,
+            q_dot,
+            w_inv9,
+            force.KIND,
+            force.values,
+            pin.aba,
+            self.model,
+            self._data,
+            self._q,
+            self._v,
+            self._tau,
+        )
+
     def step(
         self, x: list[float], u: list[float], force: Force, r: Rot9 | None = None
     ) -> tuple[list[float], list[float], list[float]]:
-        """One step from (x, u) (rotation ``r`` if known); returns (x+, u+, du/dt at x, u)."""
+        """One step from (x, u) (rotation ``r`` if known); returns (x+, u+, du/dt at x, u).
+
+        The Python reference of :meth:`step_kinematics`'s integration."""
         dt = self.dt_s
         k1 = self.accelerations(x, u, force, r)
         if self.method == "semi_implicit_euler":

@@ -41,20 +41,23 @@ from numpy.typing import ArrayLike, NDArray
 
 from companion.config import Theta
 from companion.coordinates import N_Q
+from sitl.physics import _kernel
 from sitl.physics.articulation import ETA2_JOINT, build_articulation, theta_of
 from sitl.physics.attitude_control import (
     AttitudeLoopParams,
     AttitudeSetpoint,
     Px4AttitudeLoop,
 )
-from sitl.physics.errors import PlantDivergedError, PlantError, PlantModeError
+from sitl.physics.errors import (
+    EulerSingularityError,
+    PlantDivergedError,
+    PlantError,
+    PlantModeError,
+)
 from sitl.physics.frames import (
     euler_accelerations,
-    euler_from_rotation9,
     euler_rate_matrix,
-    euler_rate_matrix_inverse9,
     quaternion_from_euler,
-    rotation9_from_quaternion,
 )
 from sitl.physics.integration import (
     ArticulatedIntegrator,
@@ -522,51 +525,47 @@ class TruthPlant:
         self._actuators = None
 
     # -------------------------------------------------------------- internals
-    # The per-step path works on Python floats (lists, tuples): on 3-vectors that is several
-    # times faster than numpy. Row-major 9-tuples hold R and W^-1.
+    # The per-step path works on Python floats (lists, tuples) around the compiled kernel
+    # (sitl.physics._kernel), which reads and returns them. Row-major 9-tuples hold R and
+    # W^-1.
 
     def _advance(self, force: GeneralizedForce | BodyWrench) -> None:
-        """One integration step under ``force``; records the step's q_ddot."""
-        try:
-            x, u, k1 = self._integrator.step(self._x, self._u, force, self._R9)
-        except DivergedError:
-            raise PlantDivergedError(self.time_s) from None
-        self._qdd = self._to_q_ddot(k1)
-        self._x, self._u = x, u
+        """One integration step under ``force`` (the compiled kernel, which also returns the
+        new state's kinematics); records the step's q_ddot."""
+        out = self._integrator.step_kinematics(
+            self._x, self._u, force, self._R9, self._euler, self._qd_ours, self._w_inv9
+        )
+        status = out[0]
+        if status == 0:
+            self._steps += 1
+            self._set_kinematics(out[3:])
+            self._x, self._u, self._qdd = out[1], out[2], out[3]
+            return
+        if status == _DIVERGED:
+            raise PlantDivergedError(self.time_s)
+        if status == _SINGULAR:
+            raise EulerSingularityError(out[1])
+        # the step was taken, the new state cannot be reported
+        self._x, self._u, self._qdd = out[2], out[3], out[4]
         self._steps += 1
-        self._update_kinematics()
+        if status == _SINGULAR + 2:
+            raise EulerSingularityError(out[1])
+        raise PlantDivergedError(self.time_s)
 
     def _update_kinematics(self) -> None:
         """Renormalize the quaternion and cache R, Euler angles, W^-1 and our q, q_dot."""
-        x, u = self._x, self._u
-        if not math.isfinite(sum(x) + sum(u)):
+        out = _kernel.kinematics(self._x, self._u, self._euler)
+        if out[0] == _SINGULAR:
+            raise EulerSingularityError(out[1])
+        if out[0] != 0:
             raise PlantDivergedError(self.time_s)
-        px, py, pz, qx, qy, qz, qw, e1, e2 = x
-        n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
-        if qw < 0.0:
-            n = -n
-        qx, qy, qz, qw = qx / n, qy / n, qz / n, qw / n
-        x[3:7] = (qx, qy, qz, qw)
-        self._quat = (qw, qx, qy, qz)
-        r = rotation9_from_quaternion(qw, qx, qy, qz)
-        self._R9 = r
-        self._euler = euler_from_rotation9(r, self._euler)
-        phi, theta, psi = self._euler
-        wi = euler_rate_matrix_inverse9(phi, theta)
-        self._w_inv9 = wi
-        ox, oy, oz = u[3], u[4], u[5]
-        self._omega = (ox, oy, oz)
-        self._q_ours = [px, py, pz, phi, theta, psi, e1, e2]
-        self._qd_ours = [
-            u[0],
-            u[1],
-            u[2],
-            ox + wi[1] * oy + wi[2] * oz,
-            wi[4] * oy + wi[5] * oz,
-            wi[7] * oy + wi[8] * oz,
-            u[6],
-            u[7],
-        ]
+        self._x, self._u = out[1], out[2]
+        self._set_kinematics(out[2:])
+
+    def _set_kinematics(self, k: tuple) -> None:
+        """Cache (quaternion, R9, euler, W^-1, omega, q, q_dot) from ``k[1:8]``."""
+        _, self._quat, self._R9, self._euler, self._w_inv9, self._omega, q, qd = k
+        self._q_ours, self._qd_ours = q, qd
         self._state_cache = None
 
     def _to_q_ddot(self, k: list[float]) -> list[float]:
@@ -575,6 +574,10 @@ class TruthPlant:
         euler_ddot = euler_accelerations(phi, theta, self._qd_ours[3:6], k[3:6], self._w_inv9)
         return [k[0], k[1], k[2], *euler_ddot, k[6], k[7]]
 
+
+_DIVERGED = 1
+_SINGULAR = 2
+"""Failure codes of the kernel's step and kinematics (see ``step_kinematics``)."""
 
 _UNKNOWN3 = (math.nan, math.nan, math.nan)
 """Signals of an autopilot outside the plant (rate setpoint, normalized torques)."""

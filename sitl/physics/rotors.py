@@ -262,6 +262,13 @@ class SequentialDesaturationMixer:
         believed maximum thrust."""
         return 1.0 / self._scale[:3]
 
+    def kernel_constants(self) -> list[float]:
+        """The allocation as the compiled loop takes it (:mod:`sitl.physics.attitude_control`):
+        the roll, pitch, yaw and thrust columns (6 each), the allocated-torque rows (3 x 6)
+        and the raised upper bound of the yaw desaturation."""
+        rows = [a for row in self._allocated_rows for a in row]
+        return [*self._roll, *self._pitch, *self._yaw, *self._thrust, *rows, self._hi_yaw]
+
     def mix(self, torque_normalized: Iterable[float], thrust_normalized: float) -> MixerOutput:
         """Allocate normalized torques (roll, pitch, yaw) and the relative collective thrust
         to six relative rotor thrusts in [0, 1]; see the class docstring for the priorities.

@@ -7,6 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from sitl.physics import _kernel
+
 __all__ = ["ActuatorState", "PlantState", "frozen_array"]
 
 FloatArray = NDArray[np.float64]
@@ -68,11 +70,10 @@ class PlantState:
         payload_attached: bool,
     ) -> PlantState:
         """A state from a plant's per-step float lists (one read-only array behind all
-        fields; ``rotation9`` is R row-major)."""
-        flat = np.array(
-            q + q_dot + q_ddot + list(quaternion_wxyz) + list(rotation9) + list(omega_body_rad_s)
+        fields, over an immutable bytes object; ``rotation9`` is R row-major)."""
+        flat = np.frombuffer(
+            _kernel.pack(q, q_dot, q_ddot, quaternion_wxyz, rotation9, omega_body_rad_s)
         )
-        flat.flags.writeable = False
         return cls(
             time_s=time_s,
             q=flat[0:8],

@@ -33,6 +33,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
+import numpy as np
+from numpy.typing import NDArray
 from pymavlink.dialects.v20 import common as mavlink
 from pymavlink.dialects.v20 import development
 
@@ -43,6 +45,9 @@ from sitl.physics.frames import euler_from_rotation
 from sitl.px4.geo import GeoReference
 from sitl.px4.measurement import VehicleMeasurement
 from sitl.px4.modes import Px4Mode, base_mode_flags
+
+_NedAttitude = tuple[NDArray[np.float64], tuple[float, float, float]]
+"""A NED/FRD quaternion [w, x, y, z] and its ZYX Euler angles [rad]."""
 
 __all__ = [
     "ESTIMATOR_STREAMS",
@@ -314,6 +319,8 @@ class TelemetryEncoder:
         self.flight_sw_version = flight_sw_version
         self.unix_time_at_boot_us = int(unix_time_at_boot_us)
         self._ping_seq = 0
+        self._attitude_of: VehicleMeasurement | None = None
+        self._attitude_ned: _NedAttitude | None = None
 
     def build(
         self, msg_id: int, now_s: float, m: VehicleMeasurement, status: VehicleStatus
@@ -414,14 +421,27 @@ class TelemetryEncoder:
     def _timesync(self, now_s, m, status):
         return M.MAVLink_timesync_message(0, round(now_s * 1e9))
 
+    def _ned_attitude(self, m: VehicleMeasurement) -> _NedAttitude:
+        """The measured attitude as a NED/FRD quaternion ``[w, x, y, z]`` and its ZYX Euler
+        angles (roll, pitch, yaw from north) [rad]; converted once per estimate, which every
+        attitude stream due at its step shares."""
+        if m is not self._attitude_of or self._attitude_ned is None:
+            q = quaternion_ned_frd_from_enu_flu(m.quaternion_enu_flu_wxyz)
+            self._attitude_ned = (q, euler_from_rotation(rotation_from_quaternion_wxyz(q)))
+            self._attitude_of = m
+        return self._attitude_ned
+
+    def _heading(self, m: VehicleMeasurement) -> float:
+        """NED yaw of the measured attitude [rad] (heading from north, clockwise)."""
+        return self._ned_attitude(m)[1][2]
+
     def _attitude(self, now_s, m, status):
-        q = quaternion_ned_frd_from_enu_flu(m.quaternion_enu_flu_wxyz)
-        roll, pitch, yaw = euler_from_rotation(rotation_from_quaternion_wxyz(q))
+        roll, pitch, yaw = self._ned_attitude(m)[1]
         p, q_rate, r = frd_from_flu(m.omega_flu_rad_s)
         return M.MAVLink_attitude_message(self._estimate_ms(m), roll, pitch, yaw, p, q_rate, r)
 
     def _attitude_quaternion(self, now_s, m, status):
-        w, x, y, z = quaternion_ned_frd_from_enu_flu(m.quaternion_enu_flu_wxyz)
+        w, x, y, z = self._ned_attitude(m)[0]
         p, q_rate, r = frd_from_flu(m.omega_flu_rad_s)
         return M.MAVLink_attitude_quaternion_message(
             self._estimate_ms(m), w, x, y, z, p, q_rate, r, [0.0] * 4
@@ -452,7 +472,7 @@ class TelemetryEncoder:
 
     def _odometry(self, now_s, m, status):
         x, y, z = ned_from_enu(m.position_enu_m)
-        q = quaternion_ned_frd_from_enu_flu(m.quaternion_enu_flu_wxyz)
+        q = self._ned_attitude(m)[0]
         vx, vy, vz = ned_from_enu(m.velocity_enu_m_s)
         p, q_rate, r = frd_from_flu(m.omega_flu_rad_s)
         report = m.estimator
@@ -483,7 +503,7 @@ class TelemetryEncoder:
         return M.MAVLink_global_position_int_message(
             self._estimate_ms(m), round(lat * 1e7), round(lon * 1e7), round(alt * 1e3),
             round((alt - home_amsl) * 1e3), round(vn * 100), round(ve * 100), round(vd * 100),
-            round(math.degrees(_heading(m)) * 100) % 36000,
+            round(math.degrees(self._heading(m)) * 100) % 36000,
         )  # fmt: skip
 
     def _vfr_hud(self, now_s, m, status):
@@ -492,7 +512,7 @@ class TelemetryEncoder:
         return M.MAVLink_vfr_hud_message(
             math.nan,
             math.hypot(ve, vn),
-            round(math.degrees(_heading(m))) % 360,
+            round(math.degrees(self._heading(m))) % 360,
             round(100.0 * thrust),
             self.geo.altitude_amsl_m + float(m.position_enu_m[2]),
             vu,
@@ -568,12 +588,6 @@ class TelemetryEncoder:
         M.MAVLINK_MSG_ID_HOME_POSITION: _home_position,
         _CURRENT_MODE: _current_mode,
     }
-
-
-def _heading(m: VehicleMeasurement) -> float:
-    """NED yaw of the measured attitude [rad] (heading from north, clockwise)."""
-    q = quaternion_ned_frd_from_enu_flu(m.quaternion_enu_flu_wxyz)
-    return euler_from_rotation(rotation_from_quaternion_wxyz(q))[2]
 
 
 assert set(ONBOARD_RATES_HZ) <= set(TelemetryEncoder._builders)

@@ -50,6 +50,7 @@ stall current (2.3 A) at 12 V, an example value, not a calibration.
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -200,6 +201,8 @@ class XM430Servo:
             self._put(entry, int(value))
         self._put(ct.ID, servo_id)
         self._current_a = 0.0
+        self._lag_dt_s = math.nan
+        self._lag = 0.0
         self._overload_s = 0.0
         self._silent_s = 0.0
         self._hold_rad = float(angle_rad)
@@ -353,8 +356,13 @@ class XM430Servo:
         """Present Position(132) and Present Velocity(128) from the shaft's angle and rate."""
         self._angle_rad = float(angle_rad)
         self._rate_rad_s = float(rate_rad_s)
-        self._put(ct.PRESENT_POSITION, units.rad_to_ticks(self._angle_rad))
-        self._put(ct.PRESENT_VELOCITY, units.rad_s_to_velocity_units(self._rate_rad_s))
+        ticks = units.rad_to_ticks(self._angle_rad)
+        velocity = units.rad_s_to_velocity_units(self._rate_rad_s)
+        try:  # the two adjacent entries in one pack (every servo, every plant step)
+            _VELOCITY_POSITION.pack_into(self.table, _PRESENT_VELOCITY, velocity, ticks)
+        except struct.error:  # out of range: _put raises as the encoders do
+            self._put(ct.PRESENT_POSITION, ticks)
+            self._put(ct.PRESENT_VELOCITY, velocity)
 
     # The loops below run for every servo at every plant step: they read the few entries
     # they need straight from the table (as get() does, without its per-call lookups).
@@ -367,13 +375,18 @@ class XM430Servo:
 
     def commanded_current_a(self) -> float:
         """Current the active control mode asks for now [A], clamped to the limits."""
-        table = self.table
-        if table[_TORQUE_ENABLE] != 1:
+        if self.table[_TORQUE_ENABLE] != 1:
             return 0.0
-        limit_a = units.current_units_to_a(int.from_bytes(table[_CURRENT_LIMIT], "little"))
-        goal_a = units.current_units_to_a(
-            int.from_bytes(table[_GOAL_CURRENT], "little", signed=True)
-        )
+        return self._command_a(self._limit_a())
+
+    def _limit_a(self) -> float:
+        """Current Limit(38) [A]."""
+        return units.current_units_to_a(_UINT16.unpack_from(self.table, _CURRENT_LIMIT)[0])
+
+    def _command_a(self, limit_a: float) -> float:
+        """:meth:`commanded_current_a` with torque on and Current Limit ``limit_a`` [A]."""
+        table = self.table
+        goal_a = units.current_units_to_a(_INT16.unpack_from(table, _GOAL_CURRENT)[0])
         mode = table[_OPERATING_MODE]
         tripped = table[_BUS_WATCHDOG] == _TRIPPED
         if mode == _CURRENT_MODE:
@@ -382,9 +395,7 @@ class XM430Servo:
             goal_rad = (
                 self._hold_rad
                 if tripped
-                else units.ticks_to_rad(
-                    int.from_bytes(table[_GOAL_POSITION], "little", signed=True)
-                )
+                else units.ticks_to_rad(_INT32.unpack_from(table, _GOAL_POSITION)[0])
             )
             p = self.parameters
             command = p.position_kp_a_per_rad * (goal_rad - self._angle_rad)
@@ -399,18 +410,24 @@ class XM430Servo:
             raise ValueError(f"time step {dt_s} s must be >= 0")
         self._watch(dt_s)
         p = self.parameters
-        command = self.commanded_current_a()
-        self._current_a += (command - self._current_a) * -math.expm1(
-            -dt_s / p.current_time_constant_s
-        )
-        limit_a = units.current_units_to_a(int.from_bytes(self.table[_CURRENT_LIMIT], "little"))
+        table = self.table
+        limit_a = self._limit_a()
+        command = self._command_a(limit_a) if table[_TORQUE_ENABLE] == 1 else 0.0
+        if dt_s != self._lag_dt_s:  # the current loop's factor, once per step size
+            self._lag_dt_s = dt_s
+            self._lag = -math.expm1(-dt_s / p.current_time_constant_s)
+        self._current_a += (command - self._current_a) * self._lag
         overloaded = abs(command) >= p.overload_current_fraction * limit_a > 0.0
         self._overload_s = self._overload_s + dt_s if overloaded else 0.0
         if self._overload_s >= p.overload_time_s:
             self.inject_hardware_error(HardwareErrorStatus.OVERLOAD)
-        if self.table[_TORQUE_ENABLE] != 1:
+        if table[_TORQUE_ENABLE] != 1:
             self._current_a = 0.0
-        self._put(ct.PRESENT_CURRENT, units.a_to_current_units(self._current_a))
+        current = units.a_to_current_units(self._current_a)
+        try:
+            _INT16.pack_into(table, _PRESENT_CURRENT, current)
+        except struct.error:  # out of range: _put raises as the encoders do
+            self._put(ct.PRESENT_CURRENT, current)
 
     def _watch(self, dt_s: float) -> None:
         """Count the silence while the watchdog is armed; trip when it exceeds the timeout."""
@@ -424,17 +441,24 @@ class XM430Servo:
             self._hold_rad = self._angle_rad
 
 
-def _span(entry: ct.ControlTableEntry) -> slice:
-    return slice(entry.address, entry.end)
-
-
 assert ct.TORQUE_ENABLE.size == ct.OPERATING_MODE.size == 1
 assert not ct.CURRENT_LIMIT.signed and ct.GOAL_CURRENT.signed and ct.GOAL_POSITION.signed
+assert (ct.CURRENT_LIMIT.size, ct.GOAL_CURRENT.size, ct.PRESENT_CURRENT.size) == (2, 2, 2)
+assert ct.PRESENT_CURRENT.signed and ct.GOAL_POSITION.size == 4
+assert ct.PRESENT_VELOCITY.end == ct.PRESENT_POSITION.address
+assert ct.PRESENT_VELOCITY.size == ct.PRESENT_POSITION.size == 4
 _TORQUE_ENABLE = ct.TORQUE_ENABLE.address
 _OPERATING_MODE = ct.OPERATING_MODE.address
-_CURRENT_LIMIT = _span(ct.CURRENT_LIMIT)
-_GOAL_CURRENT = _span(ct.GOAL_CURRENT)
-_GOAL_POSITION = _span(ct.GOAL_POSITION)
+_CURRENT_LIMIT = ct.CURRENT_LIMIT.address
+_GOAL_CURRENT = ct.GOAL_CURRENT.address
+_GOAL_POSITION = ct.GOAL_POSITION.address
+_PRESENT_CURRENT = ct.PRESENT_CURRENT.address
+_PRESENT_VELOCITY = ct.PRESENT_VELOCITY.address
+_UINT16 = struct.Struct("<H")
+_INT16 = struct.Struct("<h")
+_INT32 = struct.Struct("<i")
+_VELOCITY_POSITION = struct.Struct("<ii")
+"""Little-endian control-table fields (Protocol 2.0), read and written in place."""
 _BUS_WATCHDOG = ct.BUS_WATCHDOG.address
 _TRIPPED = ct.BUS_WATCHDOG_TRIPPED & 0xFF
 _GOAL_VALUES = range(100, ct.GOAL_POSITION.end)

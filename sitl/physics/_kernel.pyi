@@ -1,0 +1,47 @@
+"""Type stub of the C extension ``_kernel`` (source ``_kernel.c``): the truth plant's
+per-step arithmetic; see :mod:`sitl.physics.integration`, :mod:`sitl.physics.plant` and
+:mod:`sitl.physics.attitude_control` for the layouts."""
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+def step(
+    rk4: bool,
+    dt: float,
+    x: Sequence[float],
+    u: Sequence[float],
+    r9: Sequence[float],
+    euler: Sequence[float],
+    q_dot: Sequence[float],
+    w_inv9: Sequence[float],
+    kind: int,
+    force: Sequence[float],
+    aba: Callable[..., NDArray[np.float64]],
+    model: object,
+    data: object,
+    q: NDArray[np.float64],
+    v: NDArray[np.float64],
+    tau: NDArray[np.float64],
+) -> tuple:
+    """One integration step and the new state's kinematics (status first)."""
+
+def kinematics(x: Sequence[float], u: Sequence[float], euler_previous: Sequence[float]) -> tuple:
+    """The plant's kinematics of a state (status first)."""
+
+def attitude_loop(
+    q_wxyz: Sequence[float],
+    rate: Sequence[float],
+    q_setpoint_wxyz: NDArray[np.float64],
+    thrust: float,
+    constants: NDArray[np.float64],
+    integral: list[float],
+    previous_rate: list[float],
+    angular_accel: list[float],
+    saturation: list[float],
+) -> tuple[list[float], list[float], tuple[float, float, float], tuple[float, float, float]]:
+    """One update of the PX4-like attitude loop; the four lists are updated in place."""
+
+def pack(*sequences: Sequence[float]) -> bytes:
+    """The floats of the sequences, in order, as the bytes of float64 values (at most 64)."""
