@@ -752,7 +752,7 @@ class PickupApp:
             if holds is not None:
                 verdict = self.carry.gripper(holds)
             out = self._last_output
-            if verdict is None and out is not None:
+            if verdict is None and out is not None and self.config.flight.carry_check_estimate:
                 verdict = self.carry.estimate(float(out.estimate.theta[0]), self._confident())
         if verdict is None:
             return command

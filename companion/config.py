@@ -486,6 +486,9 @@ class Flight(_Section):
     carry_mass_margin_kg: Annotated[Positive, _within(10.0, "kg", "a payload")] = 0.05
     """Once the estimator is confident in the carry, m2 below the empty link 2's plus this
     means the object is not carried [kg]."""
+    carry_check_estimate: Annotated[bool, Field(strict=True)] = True
+    """The estimate is a witness of the carry (``carry_mass_margin_kg``); false: the
+    gripper alone (a simulator whose arm carries no mass, as PX4 SIH's arm stand)."""
 
 
 SIMULATOR_SECTIONS = ("payload", "plant", "world", "simulation", "trajectory")
