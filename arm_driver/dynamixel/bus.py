@@ -522,7 +522,12 @@ class DynamixelBus(ArmBus):
     async def _read_gripper_hook(self) -> GripperState:
         gripper = self.gripper
         assert gripper is not None
-        raw = await self._read_range(gripper.servo_id, _STATE_START, _STATE_LENGTH)
+        # A Sync Read of one servo, as the joints': a late reply of an earlier read that
+        # arrives with this one is a CommunicationError (a counted link failure).
+        ids = [gripper.servo_id]
+        packet = encode_sync_read(_STATE_START, _STATE_LENGTH, ids)
+        replies = await self._exchange(packet, ids, _STATE_LENGTH)
+        raw = parse_sync_read_replies(replies, ids, _STATE_LENGTH)[gripper.servo_id]
         return GripperState(
             position_rad=units.ticks_to_rad(ct.PRESENT_POSITION.decode(raw[6:10])),
             current_a=units.current_units_to_a(ct.PRESENT_CURRENT.decode(raw[0:2])),
