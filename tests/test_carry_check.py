@@ -154,3 +154,65 @@ def test_abandon_needs_a_reason():
     mission.start(0.0, np.zeros(8))
     with pytest.raises(ValueError):
         mission.abandon(1.0, Outcome.COMPLETED, "")
+
+
+class GripperBus:
+    """An arm bus stand-in: joints answer, the gripper reads as given (or cannot)."""
+
+    joints = ()
+    watchdog_s = 0.0
+
+    def __init__(self, readable: bool) -> None:
+        self.readable = readable
+        self.gripper_reads = 0
+
+    def torque_limit_n_m(self, name: str) -> float:
+        return 1.0
+
+    async def read_joint_states(self):
+        return {}
+
+    async def read_gripper(self):
+        from arm_driver.bus import BusStateError, GripperState
+
+        if not self.readable:
+            raise BusStateError("this bus cannot read the gripper's state")
+        self.gripper_reads += 1
+        return GripperState(GRIPPER.closed_position_rad + 0.2, -2.1, 0.0)
+
+
+def test_the_arm_task_reads_the_gripper_only_while_watched_and_notes_a_bus_that_cannot():
+    import asyncio
+
+    from companion.arm_supervisor import ArmSupervisor
+
+    async def turns(supervisor: ArmSupervisor, n: int) -> None:
+        for _ in range(n):
+            supervisor.due()
+            await asyncio.sleep(0.06)
+
+    async def body(bus: GripperBus, notes: list):
+        supervisor = ArmSupervisor(
+            bus,
+            vehicle_time=lambda: 0.0,
+            note=lambda kind, text: notes.append((kind, text)),
+            on_failure=lambda reason: None,
+        )
+        task = asyncio.create_task(supervisor.run())
+        await turns(supervisor, 3)
+        unwatched = supervisor.take_gripper()
+        supervisor.watch_gripper(True)
+        await turns(supervisor, 6)
+        watched = supervisor.take_gripper()
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        return supervisor, unwatched, watched
+
+    notes: list = []
+    supervisor, unwatched, watched = asyncio.run(body(GripperBus(True), notes))
+    assert unwatched is None and watched is not None and watched.current_a == -2.1
+    assert supervisor.bus.gripper_reads >= 1 and notes == []
+    notes = []
+    supervisor, _, watched = asyncio.run(body(GripperBus(False), notes))
+    assert watched is None and not supervisor.gripper_readable
+    assert [kind for kind, _ in notes] == ["gripper"] and "estimate alone" in notes[0][1]
