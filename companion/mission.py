@@ -385,12 +385,18 @@ class PickupMission:
             return MissionCommand(
                 self.phase, self._desired(t_s), GripperAction.HOLD, EstimatorAction.RUN, False
             )
-        q_from = self._desired(t_s).q
+        now = self._desired(t_s)
+        q_from = now.q
         self.outcome, self.outcome_detail = outcome, detail
         self.phase = Phase.RETURN
         self.phase_log.append((t_s, self.phase))
         self._return_xy_m = (float(q_from[X]), float(q_from[Y]))
         self._begin(t_s, q_from, Phase.RETURN)
+        assert self._segment is not None
+        v_from = now.q_dot.copy()  # leave the move it was in (a carry, the swing) smoothly
+        v_from[TILT] = 0.0
+        v_from[PSI] = 0.0
+        self._segment.v_from = v_from
         gripper = GripperAction.OPEN if outcome == Outcome.GRASP_FAILED else GripperAction.HOLD
         return MissionCommand(
             self.phase, self._desired(t_s), gripper, EstimatorAction.RESET_EMPTY, True
