@@ -57,7 +57,7 @@ from dataclasses import dataclass
 from typing import Any, ParamSpec, Protocol, TypeVar, cast
 
 from arm_driver.errors import ArmDriverError, BusTimeoutError, CommunicationError, LimitError
-from arm_driver.joint import GripperConfig, JointConfig, JointState
+from arm_driver.joint import GripperConfig, GripperState, JointConfig, JointState
 from arm_driver.url import parse_bus_url
 
 __all__ = [
@@ -68,6 +68,7 @@ __all__ = [
     "BusStateError",
     "DeviceInfo",
     "GripperConfig",
+    "GripperState",
     "JointConfig",
     "JointState",
     "OperatingMode",
@@ -382,6 +383,12 @@ class ArmBus(abc.ABC):
         gripper = self._require_gripper()
         await self._transact(self._write_gripper_hook, gripper.closed_position_rad)
 
+    async def read_gripper(self) -> GripperState:
+        """The gripper servo's position and current (:class:`BusStateError` from a backend
+        that cannot read them)."""
+        self._require_gripper()
+        return await self._transact(self._read_gripper_hook)
+
     # -- shared policy --------------------------------------------------------------------
 
     def _check_open(self) -> None:
@@ -473,6 +480,10 @@ class ArmBus(abc.ABC):
     @abc.abstractmethod
     async def _write_gripper_hook(self, servo_angle_rad: float) -> None:
         """Send the gripper servo's goal shaft angle [rad]."""
+
+    async def _read_gripper_hook(self) -> GripperState:
+        """Read the gripper servo's position and current (default: not supported)."""
+        raise BusStateError(f"{type(self).__name__} cannot read the gripper's state")
 
     @abc.abstractmethod
     async def _safe_state_hook(self) -> None:

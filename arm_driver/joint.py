@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["GripperConfig", "JointConfig", "JointState"]
+__all__ = ["GripperConfig", "GripperState", "JointConfig", "JointState"]
 
 
 @dataclass(frozen=True)
@@ -118,4 +118,25 @@ class JointState:
     position_rad: float
     velocity_rad_s: float
     torque_n_m: float
+    timestamp_s: float
+
+
+@dataclass(frozen=True)
+class GripperState:
+    """The gripper servo's measured state: closed on an object it stops short of its closed
+    position and pushes against it (current); closed on nothing it reaches it.
+
+    Attributes
+    ----------
+    position_rad
+        Servo shaft angle [rad] (0 at the servo's centre, as ``GripperConfig``).
+    current_a
+        Present motor current [A], signed as the shaft angle; NaN where the backend does
+        not report a current.
+    timestamp_s
+        ``time.monotonic()`` when the reply was received [s].
+    """
+
+    position_rad: float
+    current_a: float
     timestamp_s: float

@@ -32,7 +32,15 @@ The app is the composition of parts with one job each:
 - :mod:`companion.mission_report`: the report and the flight figures.
 
 Faults (:mod:`companion.failsafe`) are raised by the control loop and carried out by the
-sequence. The generalized force handed to the estimator is the one applied over the last
+sequence. Whether the object is carried (:mod:`companion.carry_check`: the gripper servo's
+position and current, read from the grasp to the release, and the confident estimate) is
+checked every cycle from the end of the grasp to the release; an object not carried
+(``grasp_failed``, ``payload_lost``) ends the pickup where it is
+(:meth:`~companion.mission.PickupMission.abandon`): climb, estimator back at the empty arm,
+home, land; the report says which and ``run`` raises :class:`MissionError` after the
+landing, so the mission never reports ``completed`` for an object it did not carry.
+
+The generalized force handed to the estimator is the one applied over the last
 cycle: the thrust commanded to PX4 along the measured attitude while the stream is
 ``CONTROL`` (PX4 flies it), and the servos' torque read-back; otherwise the reason it is
 not known (:class:`~companion.estimation.Skip`).
@@ -53,6 +61,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from arm_driver.bus import ArmBus, JointState
 from arm_driver.errors import ArmDriverError
 from companion.arm_supervisor import BUS_FAILURES, SERVO_FAILURE_S, ArmSupervisor
+from companion.carry_check import CarryThresholds, CarryVerdict, CarryWatch, gripper_holds
 from companion.config import CompanionConfig
 from companion.control import ControlRateError, DesiredState
 from companion.coordinates import HORIZONTAL, JOINTS, N_Q, PHI, PSI, THETA, TILT, Z
@@ -65,8 +74,15 @@ from companion.link.errors import CommandError, ParamError
 from companion.link.px4_modes import px4_mode
 from companion.link.telemetry import BodyRates, LandedState, VehiclePose, VehicleStatus
 from companion.loop_period import CyclePeriod, LoopPeriodMonitor
-from companion.mission import EstimatorAction, MissionCommand, Phase, PickupMission, PickupPlan
-from companion.mission_report import FlightFigures, MissionReport
+from companion.mission import (
+    EstimatorAction,
+    MissionCommand,
+    Outcome,
+    Phase,
+    PickupMission,
+    PickupPlan,
+)
+from companion.mission_report import FlightFigures, MissionReport, carrying
 from companion.navigation import NavigationWatch
 from companion.offboard import HoldBias, Offboard, Stream
 from companion.px4_preflight import (
@@ -180,6 +196,15 @@ class PickupApp:
             note=self._note,
             on_failure=lambda reason: self._fault(Fault.SERVO_BUS, reason),
         )
+        self.carry = CarryWatch(
+            CarryThresholds(
+                flight.gripper_margin_rad, flight.gripper_current_a, flight.carry_mass_margin_kg
+            ),
+            config.nominal_theta.m2_kg,
+        )
+        """Whether the object is in the gripper (:mod:`companion.carry_check`)."""
+        self._grasp_holds: bool | None = None
+        """The gripper's last reading in the grasp phase (None: none)."""
         self.report = MissionReport(controller=controller)
         self.figures = FlightFigures()
         self._log = log or (lambda row: None)
@@ -259,6 +284,11 @@ class PickupApp:
                     self._note("mode", "mission failed in the air: landing")
                     await self._land(Stream.LEVEL)
                 raise
+            mission = self.mission
+            if mission.outcome != Outcome.COMPLETED:
+                raise MissionError(
+                    f"{mission.outcome.value}: {mission.outcome_detail}; flew home and landed"
+                )
             self.report.completed = True
             return self.report
         finally:
@@ -560,7 +590,7 @@ class PickupApp:
         state = a.estimate
         command = None
         if self.offboard.flying:
-            command = self.mission.update(t_s, state.q, self._confident())
+            command = self._check_carry(t_s, self.mission.update(t_s, state.q, self._confident()))
             desired = command.desired
             self._apply_estimator(command)
         else:
@@ -695,6 +725,52 @@ class PickupApp:
         zero = np.zeros(N_Q)
         return DesiredState(target, zero, zero.copy())
 
+    def _check_carry(self, t_s: float, command: MissionCommand) -> MissionCommand:
+        """Watch the gripper from the grasp to the release and whether the object is carried
+        (:mod:`companion.carry_check`); an object not carried abandons the pickup: this
+        cycle's command is the mission's way home."""
+        phase, arm = command.phase, self.arm
+        if command.phase_changed and phase in (Phase.GRASP, Phase.RELEASE):
+            arm.watch_gripper(phase == Phase.GRASP)
+        reading = arm.take_gripper()
+        gripper = self.config.arm_bus.gripper if self.config.arm_bus else None
+        holds = None
+        if reading is not None and gripper is not None:
+            holds = gripper_holds(
+                reading.position_rad,
+                reading.current_a,
+                gripper.open_position_rad,
+                gripper.closed_position_rad,
+                self.carry.thresholds,
+            )
+        verdict: CarryVerdict | None = None
+        if phase == Phase.GRASP and holds is not None:
+            self._grasp_holds = holds
+        elif command.phase_changed and phase == Phase.LIFT:
+            verdict = self.carry.grasp(self._grasp_holds)
+        if verdict is None and carrying(phase) and not command.phase_changed:
+            if holds is not None:
+                verdict = self.carry.gripper(holds)
+            out = self._last_output
+            if verdict is None and out is not None and self.config.flight.carry_check_estimate:
+                verdict = self.carry.estimate(float(out.estimate.theta[0]), self._confident())
+        if verdict is None:
+            return command
+        arm.watch_gripper(False)
+        reactions = ["reset_estimate", "return_home", "land"]
+        if verdict.outcome == Outcome.GRASP_FAILED:
+            reactions.insert(0, "open_gripper")
+        self.report.faults.append(
+            {
+                "t_s": t_s,
+                "fault": verdict.outcome.value,
+                "detail": verdict.detail,
+                "reactions": reactions,
+            }
+        )
+        self._note("fault", f"{verdict.outcome.value}: {verdict.detail}")
+        return self.mission.abandon(t_s, verdict.outcome, verdict.detail)
+
     def _confident(self) -> bool:
         return bool(self._last_output is not None and self._last_output.estimate.confident)
 
@@ -784,3 +860,10 @@ class PickupApp:
         report.navigation_resets = self.navigation.resets
         self.figures.finish(report)
         report.phases = [(t, p.value) for t, p in self.mission.phase_log] or report.phases
+        outcome = self.mission.outcome
+        if outcome != Outcome.COMPLETED:
+            report.outcome = outcome.value
+        elif report.completed:
+            report.outcome = Outcome.COMPLETED.value
+        else:
+            report.outcome = "aborted" if self.failsafe.aborted else "failed"

@@ -16,6 +16,11 @@ current-mode joints limp, the gripper holding): a torque command held after the 
 lost the bus drives the joints on and on (measured in the SITL: a silenced servo kept its
 last goal current and the arm spun up until the vehicle could not land).
 
+While the app watches the gripper (:meth:`ArmSupervisor.watch_gripper`: from the grasp to
+the release), the task also reads the gripper servo's position and current every
+:data:`GRIPPER_READ_PERIOD_S` (:meth:`ArmSupervisor.take_gripper`), after the joints; a
+bus that cannot read it is noted once and not asked again.
+
 With the servos' Bus Watchdog armed (``watchdog_ms``), a bus silent for most of its
 timeout (a lost MAVLink link pauses the loop) has stopped the current-mode joints, which
 then refuse torque without a word: the task enables them again first.
@@ -31,11 +36,18 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from arm_driver.bus import ArmBus, BusFailedError, JointState, OperatingMode
+from arm_driver.bus import (
+    ArmBus,
+    BusFailedError,
+    BusStateError,
+    GripperState,
+    JointState,
+    OperatingMode,
+)
 from arm_driver.errors import ArmDriverError, BusTimeoutError, CommunicationError
 from companion.mission import GripperAction
 
-__all__ = ["BUS_FAILURES", "SERVO_FAILURE_S", "ArmSupervisor"]
+__all__ = ["BUS_FAILURES", "GRIPPER_READ_PERIOD_S", "SERVO_FAILURE_S", "ArmSupervisor"]
 
 FloatArray = NDArray[np.float64]
 SERVO_FAILURE_S = 0.3
@@ -46,6 +58,10 @@ goal current; a servo that stopped answering is not. Open the bus with a
 BUS_FAILURES = 30
 """``max_consecutive_failures`` for the arm bus: more than the transactions in
 :data:`SERVO_FAILURE_S`, so the supervisor, not the bus, decides."""
+GRIPPER_READ_PERIOD_S = 0.1
+"""Wall-clock period of the gripper reads while it is watched [s]: an object that slipped
+out shows within two reads (:data:`companion.carry_check.EMPTY_READINGS`), one extra
+transaction every 25 cycles at 250 Hz."""
 PREFLIGHT_ATTEMPTS = 3
 """Tries of the preflight set-up; a reply that came late once is not a broken bus."""
 PREFLIGHT_PAUSE_S = 0.5
@@ -94,6 +110,11 @@ class ArmSupervisor:
         self._torques: FloatArray | None = None
         self._gripper: GripperAction | None = None
         self._due = asyncio.Event()
+        self._watch_gripper = False
+        self.gripper_readable = True
+        """False once the bus said it cannot read the gripper."""
+        self._gripper_state: GripperState | None = None
+        self._gripper_read_s = -math.inf
         self._last_transaction_s = time.monotonic()
         """Wall-clock time of the last joint transaction [s] (the servos' watchdog clock)."""
 
@@ -119,6 +140,15 @@ class ArmSupervisor:
         """Open or close the gripper on the task's next turn."""
         if action != GripperAction.HOLD:
             self._gripper = action
+
+    def watch_gripper(self, watch: bool) -> None:
+        """Read the gripper's state (every :data:`GRIPPER_READ_PERIOD_S`) or stop."""
+        self._watch_gripper = watch
+
+    def take_gripper(self) -> GripperState | None:
+        """The gripper state read since the last call, or None."""
+        state, self._gripper_state = self._gripper_state, None
+        return state
 
     def due(self) -> None:
         """A control cycle ended: write its commands and read the joints."""
@@ -167,6 +197,8 @@ class ArmSupervisor:
             joints = await self.read_joints()
             if joints is not None:
                 self._joints, self._read_s = joints, time.monotonic()
+            if self._watch_gripper and self.gripper_readable:
+                await self._read_gripper()
 
     async def read_joints(self) -> dict[str, JointState] | None:
         """One Sync Read; None when it failed (counted)."""
@@ -213,6 +245,25 @@ class ArmSupervisor:
             f"bus silent for {silent_s * 1e3:.0f} ms (servo watchdog "
             f"{watchdog_s * 1e3:.0f} ms): torque enabled again",
         )
+
+    async def _read_gripper(self) -> None:
+        """Read the gripper's state if its period is over; failures counted, a bus that
+        cannot read it noted once."""
+        now = time.monotonic()
+        if now - self._gripper_read_s < GRIPPER_READ_PERIOD_S:
+            return
+        self._gripper_read_s = now
+        try:
+            self._gripper_state = await self.bus.read_gripper()
+        except BusFailedError as exc:
+            self._failed_once(exc)
+        except BusStateError as exc:
+            self.gripper_readable = False
+            self._note("gripper", f"not read ({exc}): the estimate alone tells the carry")
+        except ArmDriverError as exc:
+            self._failed_once(exc)
+        finally:
+            self._last_transaction_s = time.monotonic()
 
     async def _move_gripper(self, action: GripperAction) -> None:
         try:

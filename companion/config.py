@@ -477,6 +477,18 @@ class Flight(_Section):
     """(latitude [deg], longitude [deg], altitude AMSL [m]) the app sets as PX4's global
     origin when the vehicle has none (no GPS: motion capture indoors); PX4 SITL's default
     home (Zurich)."""
+    gripper_margin_rad: Annotated[Positive, _within(3.2, "rad", "a gripper's travel")] = 0.1
+    """The gripper holds an object when its servo stopped more than this short of
+    ``arm_bus.gripper.closed_position_rad``, toward open [rad]
+    (:mod:`companion.carry_check`)."""
+    gripper_current_a: Annotated[NonNegative, _within(10.0, "A", "a gripper servo")] = 0.2
+    """... and draws at least this current [A] (buses that report it)."""
+    carry_mass_margin_kg: Annotated[Positive, _within(10.0, "kg", "a payload")] = 0.05
+    """Once the estimator is confident in the carry, m2 below the empty link 2's plus this
+    means the object is not carried [kg]."""
+    carry_check_estimate: Annotated[bool, Field(strict=True)] = True
+    """The estimate is a witness of the carry (``carry_mass_margin_kg``); false: the
+    gripper alone (a simulator whose arm carries no mass, as PX4 SIH's arm stand)."""
 
 
 SIMULATOR_SECTIONS = ("payload", "plant", "world", "simulation", "trajectory")

@@ -16,6 +16,16 @@ estimator should do. Phases, in order:
 ``climb``       climb to cruise altitude
 ``to_home``     fly back above the start point, arm stowed; then the app asks PX4 to land
 
+When the object is not in the gripper (:mod:`companion.carry_check` decides, the app calls
+:meth:`PickupMission.abandon`), the pickup stops where it is and ends with
+
+``return``      climb straight up to cruise altitude (at least ``return_hold_s``, holding
+                position), arm down, the estimator back at the empty arm and running;
+                then ``to_home`` and the landing, with the :class:`Outcome` the reason
+                (``grasp_failed``: the gripper is opened, whatever it touches is let go;
+                ``payload_lost``: it stays as it is). The mission never ends
+                ``completed`` without having carried the object to the place point.
+
 Every move is a minimum-jerk (quintic) segment, so q_d_dot and q_d_ddot are continuous and
 at rest at both ends; a phase ends when its segment is over and the vehicle is within
 ``arrive_tolerance_m`` of its end point (the tracking error is part of the mission, not
@@ -31,6 +41,7 @@ payload: the grasp point is where its own jaws close (``PickupPlan.grasp_point_m
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -43,9 +54,11 @@ from companion.control import DesiredState
 from companion.coordinates import ETA1, ETA2, HORIZONTAL, JOINTS, N_Q, POSITION, PSI, TILT, X, Y, Z
 
 __all__ = [
+    "PICKUP_ORDER",
     "EstimatorAction",
     "GripperAction",
     "MissionCommand",
+    "Outcome",
     "Phase",
     "PickupMission",
     "PickupPlan",
@@ -71,6 +84,27 @@ class Phase(StrEnum):
     CLIMB = "climb"
     TO_HOME = "to_home"
     DONE = "done"
+    RETURN = "return"
+    """Out of order: after :meth:`PickupMission.abandon`, then ``to_home``."""
+
+
+PICKUP_ORDER = tuple(p for p in Phase if p != Phase.RETURN)
+"""The phases of a pickup that carried its object, in order."""
+_NEXT: dict[Phase, Phase] = {
+    **dict(itertools.pairwise(PICKUP_ORDER)),
+    Phase.RETURN: Phase.TO_HOME,
+}
+
+
+class Outcome(StrEnum):
+    """How the mission ended (the summary's ``outcome``)."""
+
+    COMPLETED = "completed"
+    """The object was carried to the place point and released there."""
+    GRASP_FAILED = "grasp_failed"
+    """The gripper closed on nothing: nothing carried; returned home."""
+    PAYLOAD_LOST = "payload_lost"
+    """The object left the gripper before the place point: carry stopped; returned home."""
 
 
 _FROZEN_PHASES = frozenset({Phase.TO_OBJECT, Phase.DESCEND, Phase.GRASP, Phase.RELEASE, Phase.DONE})
@@ -132,6 +166,9 @@ class PickupPlan:
     """Tracking error within which the jaws may close on (or open over) a point [m]."""
     settle_s: float = 0.5
     """Time the error must stay within ``grasp_tolerance_m`` before grasping or placing [s]."""
+    return_hold_s: float = 2.0
+    """Shortest ``return`` phase [s]: the vehicle holds (or climbs) while the estimator,
+    back at the empty arm, settles."""
 
     def __post_init__(self) -> None:
         values = [*self.home_m, *self.payload_at_m, *self.place_at_m]
@@ -139,7 +176,8 @@ class PickupPlan:
         values += list(self.stow_joints_rad)
         if not all(math.isfinite(v) for v in values):
             raise ValueError("mission positions must be finite")
-        for name in ("cruise_speed_m_s", "vertical_speed_m_s", "arm_move_s", "excite_period_s"):
+        positive = ("cruise_speed_m_s", "vertical_speed_m_s", "arm_move_s", "excite_period_s")
+        for name in (*positive, "return_hold_s"):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name} must be positive")
         if not self.excite_max_s >= self.excite_min_s + self.excite_period_s:
@@ -220,10 +258,15 @@ class PickupMission:
     phase: Phase = Phase.TO_OBJECT
     confident_when_done: bool = False
     phase_log: list[tuple[float, Phase]] = field(default_factory=list)
+    outcome: Outcome = Outcome.COMPLETED
+    """How the mission ends (final once ``phase`` is DONE)."""
+    outcome_detail: str = ""
+    """Why, for an outcome other than ``completed``."""
     _segment: _Segment | None = None
     _excite_stop_s: float = math.nan
     _settled_since: float = math.nan
     _yaw_rad: float = 0.0
+    _return_xy_m: tuple[float, float] = (0.0, 0.0)
 
     @property
     def hang_m(self) -> float:
@@ -253,6 +296,7 @@ class PickupMission:
             Phase.RELEASE: self._pose((place[0], place[1], place[2] + hang), ARM_DOWN),
             Phase.CLIMB: self._pose((place[0], place[1], cruise), ARM_DOWN),
             Phase.TO_HOME: self._pose((p.home_m[0], p.home_m[1], cruise), p.stow_joints_rad),
+            Phase.RETURN: self._pose((*self._return_xy_m, cruise), ARM_DOWN),
         }[phase]
 
     def start(self, t_s: float, q_now: FloatArray, q_dot_now: FloatArray | None = None) -> None:
@@ -289,6 +333,8 @@ class PickupMission:
         )
         if phase in (Phase.GRASP, Phase.RELEASE):
             duration = p.grasp_wait_s
+        if phase == Phase.RETURN:
+            duration = max(duration, p.return_hold_s)
         if phase == Phase.EXCITE:
             duration = p.excite_max_s
             self._excite_stop_s = math.nan
@@ -308,8 +354,7 @@ class PickupMission:
         if self.phase != Phase.DONE and self._finished(t_s, q, confident):
             q_end = self._desired(t_s).q
             finished = self.phase
-            order = list(Phase)
-            self.phase = order[order.index(self.phase) + 1]
+            self.phase = _NEXT[self.phase]
             self.phase_log.append((t_s, self.phase))
             changed = True
             if finished == Phase.GRASP:
@@ -325,6 +370,37 @@ class PickupMission:
         if self.phase in _FROZEN_PHASES:
             estimator = estimator if estimator != EstimatorAction.RUN else EstimatorAction.FREEZE
         return MissionCommand(self.phase, self._desired(t_s), gripper, estimator, changed)
+
+    def abandon(self, t_s: float, outcome: Outcome, detail: str) -> MissionCommand:
+        """Stop the pickup at vehicle time ``t_s`` [s] because the object is not carried
+        (``outcome`` ``grasp_failed`` or ``payload_lost``, ``detail`` why): from where the
+        desired state is now, climb straight up to cruise altitude (``return``), then home;
+        returns this cycle's command (the estimator back at the empty arm). Once only: a
+        mission already returning, going home or done is left as it is."""
+        if outcome == Outcome.COMPLETED:
+            raise ValueError("abandon() needs the reason the object is not carried")
+        if self._segment is None:
+            raise RuntimeError("call start() before abandon()")
+        if self.phase in (Phase.RETURN, Phase.TO_HOME, Phase.DONE):
+            return MissionCommand(
+                self.phase, self._desired(t_s), GripperAction.HOLD, EstimatorAction.RUN, False
+            )
+        now = self._desired(t_s)
+        q_from = now.q
+        self.outcome, self.outcome_detail = outcome, detail
+        self.phase = Phase.RETURN
+        self.phase_log.append((t_s, self.phase))
+        self._return_xy_m = (float(q_from[X]), float(q_from[Y]))
+        self._begin(t_s, q_from, Phase.RETURN)
+        assert self._segment is not None
+        v_from = now.q_dot.copy()  # leave the move it was in (a carry, the swing) smoothly
+        v_from[TILT] = 0.0
+        v_from[PSI] = 0.0
+        self._segment.v_from = v_from
+        gripper = GripperAction.OPEN if outcome == Outcome.GRASP_FAILED else GripperAction.HOLD
+        return MissionCommand(
+            self.phase, self._desired(t_s), gripper, EstimatorAction.RESET_EMPTY, True
+        )
 
     def _finished(self, t_s: float, q: FloatArray, confident: bool) -> bool:
         seg = self._segment

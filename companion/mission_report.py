@@ -24,6 +24,13 @@ class MissionReport:
 
     controller: str
     completed: bool = False
+    """The object was carried to the place point and released there, and the vehicle
+    landed (``outcome`` ``completed``)."""
+    outcome: str | None = None
+    """How the mission ended: ``completed``, ``grasp_failed`` (the gripper closed on
+    nothing: nothing carried, flew home), ``payload_lost`` (the object left the gripper
+    before the place point: carry stopped, flew home), ``aborted`` (a failsafe ended it) or
+    ``failed`` (it could not start or go on)."""
     phases: list[tuple[float, str]] = field(default_factory=list)
     faults: list[dict[str, Any]] = field(default_factory=list)
     payload_mass_kg: float | None = None
@@ -68,6 +75,7 @@ class MissionReport:
         return {
             "controller": self.controller,
             "completed": self.completed,
+            "outcome": self.outcome,
             "phases": [{"t_s": t, "phase": p} for t, p in self.phases],
             "faults": self.faults,
             "payload_mass_kg": self.payload_mass_kg,

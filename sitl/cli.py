@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import json
+import math
 import signal
 import threading
 from collections.abc import Callable
@@ -30,7 +31,7 @@ from sitl.physics.jsbsim import Wind
 from sitl.px4 import ParamError, SigningKeyError, load_signing_key
 from sitl.px4_sitl import Px4Build, Px4BuildError, Px4NotReadyError
 from sitl.runner import LinkPorts, RunOptions, RunStats, SitlVehicle
-from sitl.scenario import Scenario, load_scenario
+from sitl.scenario import MAX_DURATION_S, PayloadSlip, Scenario, load_scenario
 
 app = typer.Typer(
     name="sitl",
@@ -127,6 +128,19 @@ def run(
         str | None,
         typer.Option(help="Fault injection 'ID@T': servo ID stops answering at T [s, sim time]."),
     ] = None,
+    grasp_fails: Annotated[
+        bool,
+        typer.Option(
+            "--grasp-fails", help="Fault injection: the gripper closes on nothing (no grasp)."
+        ),
+    ] = False,
+    payload_slip: Annotated[
+        float | None,
+        typer.Option(
+            help="Fault injection: the grasped object slips out this many seconds after "
+            "the grasp [s, sim time]."
+        ),
+    ] = None,
     autopilot: Annotated[
         str,
         typer.Option(
@@ -204,6 +218,7 @@ def run(
         except SigningKeyError as exc:
             _fail(f"--signing-key {exc}")
     silent = _servo_fault(servo_silent) if servo_silent is not None else None
+    cfg = _pickup_faults(cfg, config, grasp_fails, payload_slip)
     if physics not in ("pinocchio", "jsbsim"):
         _fail(f"--physics must be pinocchio or jsbsim, got {physics!r}")
     if navigation not in ("mocap", "gps"):
@@ -285,6 +300,29 @@ def _kept(vehicle: SitlVehicle | Px4InTheLoop) -> None:
     if isinstance(vehicle, Px4InTheLoop) and vehicle.kept_dir is not None:
         kept = vehicle.kept_dir
         typer.echo(f"sitl: PX4's working directory kept in {kept}")
+
+
+def _pickup_faults(
+    cfg: Scenario, config: Path, grasp_fails: bool, slip_after_s: float | None
+) -> Scenario:
+    """The scenario with the pickup faults of the options (``--grasp-fails``,
+    ``--payload-slip``) in its ``[world]``; one ``error:`` line for a bad value."""
+    if not grasp_fails and slip_after_s is None:
+        return cfg
+    if cfg.world is None or cfg.world.payload_position_m is None:
+        _fail(f"--grasp-fails and --payload-slip need an object: {config} has no [world] "
+              "payload_position_m")  # fmt: skip
+    update: dict[str, object] = {}
+    if grasp_fails:
+        update["grasp_fails"] = True
+    if slip_after_s is not None:
+        if not (math.isfinite(slip_after_s) and 0.0 <= slip_after_s <= MAX_DURATION_S):
+            _fail(
+                f"--payload-slip must be 0-{MAX_DURATION_S:g} s after the grasp, "
+                f"got {slip_after_s:g}"
+            )
+        update["payload_slip"] = PayloadSlip(after_grasp_s=slip_after_s)
+    return cfg.model_copy(update={"world": cfg.world.model_copy(update=update)})
 
 
 def _servo_fault(text: str) -> tuple[int, float]:

@@ -191,8 +191,10 @@ def build_world(
 ) -> tuple[World, PtyServoBus, list[JointConfig], GripperConfig]:
     """The world of a scenario (truth plant of ``options.physics``, ``[world]`` settings)
     with its arm's XM430 servos on a pseudo-terminal bus (not started): the servos of the
-    ``[arm_bus]`` section, or ids 1, 2 and gripper 3. Returns (world, servo bus, joint
-    configs, gripper config); ValueError for an arm bus without two joints."""
+    ``[arm_bus]`` section (the joints' torque constants times
+    ``plant.servo_torque_constant_mismatch``), or ids 1, 2 and gripper 3. Returns (world,
+    servo bus, joint configs, gripper config); ValueError for an arm bus without two
+    joints."""
     if scenario.arm_bus is not None:
         joints, gripper = arm_bus_configs(scenario.arm_bus)
         if len(joints) != 2:
@@ -200,9 +202,11 @@ def build_world(
     else:
         joints, gripper = DEFAULT_JOINTS, DEFAULT_GRIPPER
     gripper = gripper if gripper is not None else DEFAULT_GRIPPER
+    mismatch = scenario.plant.servo_torque_constant_mismatch
     servos = {
         j.servo_id: XM430Servo(
-            j.servo_id, XM430Parameters(torque_constant_n_m_per_a=j.torque_constant_n_m_per_a)
+            j.servo_id,
+            XM430Parameters(torque_constant_n_m_per_a=j.torque_constant_n_m_per_a * mismatch),
         )
         for j in joints
     }
@@ -225,6 +229,7 @@ def world_settings(scenario: Scenario) -> WorldSettings:
     payload = world.payload_position_m
     east, north = world.start_position_m
     shoulder, elbow = world.start_joints_rad
+    slip = world.payload_slip
     return WorldSettings(
         landing_gear_height_m=world.landing_gear_height_m,
         payload_position_m=None if payload is None else (payload[0], payload[1], payload[2]),
@@ -232,6 +237,9 @@ def world_settings(scenario: Scenario) -> WorldSettings:
         start_position_m=(east, north, 0.0),
         start_yaw_rad=world.start_yaw_rad,
         start_joints_rad=(shoulder, elbow),
+        jaw_closure_on_object=world.jaw_closure_on_object,
+        grasp_fails=world.grasp_fails,
+        payload_slip_after_s=None if slip is None else slip.after_grasp_s,
     )
 
 

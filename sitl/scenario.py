@@ -41,6 +41,7 @@ __all__ = [
     "AttitudeControl",
     "BatterySag",
     "Payload",
+    "PayloadSlip",
     "Plant",
     "Scenario",
     "Simulation",
@@ -179,6 +180,19 @@ class Plant(_Section):
     ]
     """Magnitude limit of each joint torque the simulated servos can apply [N m]."""
     attitude_control: AttitudeControl
+    servo_torque_constant_mismatch: Annotated[
+        Positive, _within(2.0, "", "a servo within a factor of two of its datasheet")
+    ] = 1.0
+    """True torque constant of the simulated joint servos over the believed
+    ``arm_bus.joints.torque_constant_n_m_per_a`` (1.1: 10 % more torque per amp than the
+    companion thinks) [-]; ``sitl run`` only (the offline simulator has no servos)."""
+
+
+class PayloadSlip(_Section):
+    """The grasped object slips out of the gripper mid-carry (truth; ``sitl run``)."""
+
+    after_grasp_s: Annotated[NonNegative, _within(MAX_DURATION_S, "s", "a multirotor's flight")]
+    """Time after the grasp at which the object slips out and falls [s]."""
 
 
 class WorldSection(_Section):
@@ -201,6 +215,16 @@ class WorldSection(_Section):
     grasp_tolerance_m: Positive
     """Largest distance between the object and link 2's payload point at which closing the
     gripper grasps it [m]."""
+    jaw_closure_on_object: Annotated[
+        float, Field(strict=True, gt=0.5, lt=1.0, allow_inf_nan=False)
+    ] = 0.8
+    """Fraction of the gripper's travel from open to closed at which its jaws meet a grasped
+    object (the object's width; past the middle) [-]: the gripper servo reads short of its
+    closed position and draws current."""
+    grasp_fails: Annotated[bool, Field(strict=True)] = False
+    """Truth fault: closing the gripper never grasps (the jaws close on nothing)."""
+    payload_slip: PayloadSlip | None = None
+    """Truth fault: the grasped object slips out of the gripper; absent: it stays."""
     autopilot_params: dict[str, Real] = Field(default_factory=dict)
     """PX4 parameter overrides of the simulated autopilot (name -> value), checked against
     the simulated parameter table when the SITL starts."""

@@ -23,8 +23,15 @@ Simplifications, all stated here:
   positions) driven by the gripper servo. It counts as closed past the middle of its
   travel toward the closed position. When it closes with the payload's centre of mass
   within ``grasp_tolerance_m`` of the object, the plant attaches the payload (an inelastic
-  capture, see :meth:`~sitl.physics.TruthPlant.attach_payload`); when it opens, the
-  object is released where it is and falls straight down to its resting height.
+  capture, see :meth:`~sitl.physics.TruthPlant.attach_payload`) and the jaws stop on the
+  object, ``jaw_closure_on_object`` of the way from open to closed: the servo then reads
+  short of its closed position and draws its stall current (closed on nothing it reaches
+  the closed stop and draws none). When it opens, the object is released where it is and
+  falls straight down to its resting height.
+- What goes wrong in a pickup (truth only): ``grasp_fails`` makes the jaws close on
+  nothing whatever the distance (the object slides away); ``payload_slip_after_s`` makes a
+  grasped object slip out that long after the grasp: it falls straight down to its resting
+  height and the jaws close on nothing.
 - Battery: voltage falls linearly from full to empty with the charge drawn, the current
   being proportional to the total rotor thrust.
 """
@@ -74,6 +81,17 @@ class WorldSettings:
         Heading at the start (ENU: 0 = east, counter-clockwise positive) [rad].
     start_joints_rad
         (eta1, eta2) at the start [rad].
+    jaw_closure_on_object
+        Fraction of the jaw's travel from open to closed at which the jaws meet a grasped
+        object, in (0.5, 1) (past the middle: the gripper counts as closed) [-]. The
+        gripper servo's position loop pushes against the object with ``kp`` x the rest of
+        the travel; past its overload current for a second it shuts down, as a real
+        XM430 in Position mode would.
+    grasp_fails
+        Closing the gripper never grasps (truth: the object slides out of the jaws).
+    payload_slip_after_s
+        Time after a grasp at which the object slips out of the closed gripper and falls
+        [s]; ``None``: it stays until the gripper opens.
     """
 
     landing_gear_height_m: float = 0.25
@@ -82,12 +100,20 @@ class WorldSettings:
     start_position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     start_yaw_rad: float = 0.0
     start_joints_rad: tuple[float, float] = (0.0, 0.0)
+    jaw_closure_on_object: float = 0.8
+    grasp_fails: bool = False
+    payload_slip_after_s: float | None = None
 
     def __post_init__(self) -> None:
         if not self.landing_gear_height_m > 0.0:
             raise ValueError("landing_gear_height_m must be > 0")
         if not self.grasp_tolerance_m > 0.0:
             raise ValueError("grasp_tolerance_m must be > 0")
+        if not 0.5 < self.jaw_closure_on_object < 1.0:
+            raise ValueError("jaw_closure_on_object must lie between 0.5 and 1 (exclusive)")
+        slip = self.payload_slip_after_s
+        if slip is not None and not (math.isfinite(slip) and slip >= 0.0):
+            raise ValueError("payload_slip_after_s must be >= 0 and finite")
         values = [*self.start_position_m, self.start_yaw_rad, *self.start_joints_rad]
         if self.payload_position_m is not None:
             values += list(self.payload_position_m)
@@ -106,6 +132,8 @@ class GripperJaw:
         Reflected inertia of jaw and gear train [kg m^2].
     friction_n_m_s
         Viscous friction [N m s/rad].
+    closure_on_object
+        Fraction of the travel from open to closed at which the jaws meet a held object [-].
     """
 
     def __init__(
@@ -114,14 +142,28 @@ class GripperJaw:
         *,
         inertia_kg_m2: float = 2e-3,
         friction_n_m_s: float = 0.02,
+        closure_on_object: float = 0.8,
     ) -> None:
         self.config = config
-        self._low = min(config.open_position_rad, config.closed_position_rad)
-        self._high = max(config.open_position_rad, config.closed_position_rad)
+        opened, closed = config.open_position_rad, config.closed_position_rad
+        self._empty_stops = (min(opened, closed), max(opened, closed))
+        on_object = opened + closure_on_object * (closed - opened)
+        self._object_stops = (min(opened, on_object), max(opened, on_object))
+        self._low, self._high = self._empty_stops
         self._inertia = inertia_kg_m2
         self._friction = friction_n_m_s
-        self.angle_rad = config.open_position_rad
+        self.angle_rad = opened
         self.rate_rad_s = 0.0
+        self.holding = False
+        """An object is between the jaws: they stop on it, short of the closed stop."""
+
+    def hold(self, holding: bool) -> None:
+        """An object between the jaws (they stop on it) or none (they close fully)."""
+        self.holding = holding
+        self._low, self._high = self._object_stops if holding else self._empty_stops
+        if not self._low <= self.angle_rad <= self._high:
+            self.angle_rad = min(max(self.angle_rad, self._low), self._high)
+            self.rate_rad_s = 0.0
 
     @property
     def closed(self) -> bool:
@@ -234,7 +276,11 @@ class World:
         self.settings = settings
         self._joints = list(joints)
         self._gripper_servo = gripper[1] if gripper else None
-        self.jaw = GripperJaw(gripper[0]) if gripper else None
+        self.jaw = (
+            GripperJaw(gripper[0], closure_on_object=settings.jaw_closure_on_object)
+            if gripper
+            else None
+        )
         self.battery = Battery()
         self.dt_s = 1.0 / plant.rate_hz
         scenario = plant.scenario
@@ -253,6 +299,9 @@ class World:
         self.on_ground = True
         self._ground_pose: tuple[float, float, float] | None = None
         self.grasps = 0
+        self._grasped_at_s = math.nan
+        self.slipped_at_s: float | None = None
+        """Simulation time the grasped object slipped out of the gripper [s], if it did."""
         self._state = plant.reset(start_state(settings))
         self._motors_off = AttitudeSetpoint(quaternion_from_euler(0.0, 0.0, 0.0), 0.0)
 
@@ -346,24 +395,43 @@ class World:
         return self.payload_point_m() if self.plant.payload_attached else self._object.copy()
 
     def _update_payload(self) -> None:
-        if self.jaw is None:
+        jaw = self.jaw
+        if jaw is None:
             return
-        closed = self.jaw.closed
+        closed = jaw.closed
+        settings = self.settings
         if closed and not self._was_closed and self._object is not None:
-            if not self.plant.payload_attached:
+            if not self.plant.payload_attached and not settings.grasp_fails:
                 gap = float(np.linalg.norm(self.payload_point_m() - self._object))
-                if gap <= self.settings.grasp_tolerance_m:
+                if gap <= settings.grasp_tolerance_m:
                     self.plant.attach_payload()
                     self._state = self.plant.state
                     self.grasps += 1
+                    self._grasped_at_s = self._state.time_s
+                    jaw.hold(True)
         elif not closed and self._was_closed and self.plant.payload_attached:
-            released = self.payload_point_m()
-            self.plant.detach_payload()
-            self._state = self.plant.state
-            assert self._object_rest_z is not None
-            released[2] = min(released[2], self._object_rest_z)
-            self._object = released
+            self._drop()
+        slip = settings.payload_slip_after_s
+        if (
+            slip is not None
+            and self.plant.payload_attached
+            and self._state.time_s - self._grasped_at_s >= slip
+        ):
+            self._drop()
+            self.slipped_at_s = self._state.time_s
         self._was_closed = closed
+
+    def _drop(self) -> None:
+        """Detach the payload: the object falls straight down to its resting height and
+        the jaws hold nothing."""
+        released = self.payload_point_m()
+        self.plant.detach_payload()
+        self._state = self.plant.state
+        assert self._object_rest_z is not None
+        released[2] = min(released[2], self._object_rest_z)
+        self._object = released
+        assert self.jaw is not None
+        self.jaw.hold(False)
 
     # --------------------------------------------------------------------- truth
 

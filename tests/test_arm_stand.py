@@ -111,15 +111,24 @@ def test_direction_and_zero_offset_map_joint_to_shaft(scenario):
     assert eta1 < -0.05
 
 
-def test_the_gripper_servo_closes_the_jaw(scenario):
+def test_the_gripper_servo_closes_the_jaw_on_a_weightless_stand_in(scenario):
+    """SIH carries no payload; the jaws still close on something, so the companion's
+    gripper check (stopped short of closed, pushing) sees a grasp."""
     stand = ArmStand(scenario)
     gripper, servo = stand.gripper
     assert stand.jaw.angle_rad == gripper.open_position_rad and not stand.jaw.closed
     _put(servo, ct.TORQUE_ENABLE, 1)
     _put(servo, ct.GOAL_POSITION, units.rad_to_ticks(gripper.closed_position_rad))
     _run(stand, 0.5)
-    assert stand.jaw.closed
-    assert stand.jaw.angle_rad == pytest.approx(gripper.closed_position_rad, abs=0.02)
+    assert stand.jaw.closed and stand.jaw.holding
+    travel = gripper.closed_position_rad - gripper.open_position_rad
+    on_object = gripper.open_position_rad + 0.8 * travel
+    assert stand.jaw.angle_rad == pytest.approx(on_object, abs=0.02)
+    assert abs(units.current_units_to_a(servo.get(ct.PRESENT_CURRENT))) > 1.0
+    _put(servo, ct.GOAL_POSITION, units.rad_to_ticks(gripper.open_position_rad))
+    _run(stand, 0.5)
+    assert not stand.jaw.closed and not stand.jaw.holding
+    assert stand.jaw.angle_rad == pytest.approx(gripper.open_position_rad, abs=0.02)
 
 
 def test_a_scenario_without_servos_is_refused():

@@ -7,6 +7,7 @@ import pytest
 
 from companion.config import load_config
 from companion.mission import (
+    PICKUP_ORDER,
     EstimatorAction,
     GripperAction,
     Phase,
@@ -53,7 +54,7 @@ def test_min_jerk_is_at_rest_at_both_ends():
 
 def test_phases_run_in_order_with_gripper_and_estimator_actions():
     mission, records = fly()
-    assert [p for _, p in mission.phase_log] == list(Phase)
+    assert [p for _, p in mission.phase_log] == list(PICKUP_ORDER)
     closes = [cmd for _, cmd in records if cmd.gripper == GripperAction.CLOSE]
     opens = [cmd for _, cmd in records if cmd.gripper == GripperAction.OPEN]
     assert [c.phase for c in closes] == [Phase.GRASP]

@@ -81,6 +81,7 @@ from arm_driver.bus import (
     BusStateError,
     DeviceInfo,
     GripperConfig,
+    GripperState,
     JointConfig,
     JointState,
     OperatingMode,
@@ -516,6 +517,22 @@ class DynamixelBus(ArmBus):
                 f"(Operating Mode(11) = {self._servos[gripper.servo_id].mode})"
             )
         await self._write(gripper.servo_id, ct.GOAL_POSITION, units.rad_to_ticks(servo_angle_rad))
+
+    @_hardware_details
+    async def _read_gripper_hook(self) -> GripperState:
+        gripper = self.gripper
+        assert gripper is not None
+        # A Sync Read of one servo, as the joints': a late reply of an earlier read that
+        # arrives with this one is a CommunicationError (a counted link failure).
+        ids = [gripper.servo_id]
+        packet = encode_sync_read(_STATE_START, _STATE_LENGTH, ids)
+        replies = await self._exchange(packet, ids, _STATE_LENGTH)
+        raw = parse_sync_read_replies(replies, ids, _STATE_LENGTH)[gripper.servo_id]
+        return GripperState(
+            position_rad=units.ticks_to_rad(ct.PRESENT_POSITION.decode(raw[6:10])),
+            current_a=units.current_units_to_a(ct.PRESENT_CURRENT.decode(raw[0:2])),
+            timestamp_s=time.monotonic(),
+        )
 
     async def _safe_state_hook(self) -> None:
         if self.operating_mode not in (OperatingMode.CURRENT, None):

@@ -23,9 +23,12 @@ scenario's ``plant.rate_hz``, as the SITL plants.
 Coupling (as :mod:`sitl.world`): each step, every joint servo gets its shaft angle
 ``zero_offset + direction * eta`` and rate ``direction * eta_dot``; ``direction`` x its
 output torque is the joint torque. The gripper is a :class:`~sitl.world.GripperJaw` (jaw
-shaft between hard stops) turned by its servo. Simplifications: no payload (SIH cannot
-carry one), no joint friction and no joint stops (neither has ``sitl run``'s plant): a
-limp arm swings without losing energy.
+shaft between hard stops) turned by its servo; closed, it holds a weightless stand-in
+object (the jaws stop on it, the servo reads short of closed and pushes, as on a real
+object), so the companion's gripper check sees a grasp. Simplifications: no payload mass
+(SIH cannot carry one; a scenario flown here turns the estimate's carry check off,
+``[flight] carry_check_estimate = false``), no joint friction and no joint stops (neither
+has ``sitl run``'s plant): a limp arm swings without losing energy.
 
 Time: the thread steps the fixed plant step ``1 / plant.rate_hz`` as often as the wall
 clock (times ``speed``) asks, several steps at once when it woke late; a backlog longer
@@ -147,6 +150,8 @@ class ArmStand:
             servo = self.gripper[1]
             servo.set_state(self.jaw.angle_rad, self.jaw.rate_rad_s)
             self.jaw.advance(servo.torque_n_m(), dt)
+            if self.jaw.closed != self.jaw.holding:
+                self.jaw.hold(self.jaw.closed)
         arm.step(
             (self.torques_n_m[0], self.torques_n_m[1]),
             (0.0, 0.0, self._gravity),
