@@ -608,19 +608,23 @@ class PickupApp:
                 float(q[PHI]), float(q[THETA]), float(q[PSI]), self.control.weight_n()
             )
             self.hold_bias.record(t_s, force[HORIZONTAL], state.q_dot[HORIZONTAL])
+        setpoint_us = None
         if sp is not None:
             self.link.send_setpoint(sp, pose.time_boot_ms)
-            self.report.setpoint_latency_us.append((time.perf_counter() - received) * 1e6)
+            setpoint_us = (time.perf_counter() - received) * 1e6
+            self.report.setpoint_latency_us.append(setpoint_us)
         self._last_thrust_n = sp.thrust_n if sp is not None and self.offboard.flying else math.nan
         tau_cmd = self.arm.command(out.tau[JOINTS])
         if command is not None:
             self.arm.grip(command.gripper)
-        self.report.cycle_latency_us.append((time.perf_counter() - received) * 1e6)
+        cycle_us = (time.perf_counter() - received) * 1e6
+        self.report.cycle_latency_us.append(cycle_us)
         self.report.control_cycles += 1
         if self.offboard.flying:
             self._watch_flight(t_s, state.q, out, period, command)
         phase = command.phase.value if command else self.offboard.stream.value
-        self._log_row(t_s, state, out, sp, joints, phase, tau_cmd)
+        timing = (dt * 1e3, setpoint_us, cycle_us)
+        self._log_row(t_s, state, out, sp, joints, phase, tau_cmd, timing)
 
     def _sense(self, pose: VehiclePose, dt: float | None) -> None:
         """Feed one pose to the state filter, after the navigation watch: an estimator reset
@@ -821,7 +825,10 @@ class PickupApp:
         joints: dict[str, JointState] | None,
         phase: str,
         tau_cmd: FloatArray,
+        timing: tuple[float, float | None, float],
     ) -> None:
+        """One row of the flight log; ``timing`` is (period [ms], pose -> setpoint sent
+        [us] or None, pose -> joint torques handed over [us])."""
         names = self.arm.names
         nan = [math.nan] * len(names)
         torques = nan if joints is None else [joints[n].torque_n_m for n in names]
@@ -843,6 +850,9 @@ class PickupApp:
                 servo_torque_cmd_n_m=tau_cmd,
                 servo_torque_meas_n_m=torques,
                 servo_position_rad=positions,
+                loop_period_ms=timing[0],
+                setpoint_latency_us=timing[1],
+                cycle_latency_us=timing[2],
                 px4_mode=self._mode() or "",
                 armed=self._armed(),
                 phase=phase,

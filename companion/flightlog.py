@@ -27,6 +27,10 @@ columns                            content
 ``servo_tau_cmd_eta<j>_n_m``       joint torque commanded / measured (present current)
 ``servo_tau_meas_eta<j>_n_m``      [N m]
 ``servo_pos_eta<j>_rad``           joint position read from the servos [rad]
+``loop_period_ms``                 vehicle time since the previous control cycle [ms]
+``setpoint_latency_us``            pose taken from the link -> setpoint sent, this cycle [us]
+``cycle_latency_us``               pose taken from the link -> joint torques handed to the
+                                   arm task, this cycle [us] (empty: nothing was sent)
 ``px4_mode``, ``armed``            PX4 mode name, armed flag
 ``phase``, ``faults``              mission phase; active faults, ``;``-separated
 =================================  =========================================================
@@ -110,6 +114,9 @@ COLUMNS: tuple[str, ...] = (
     *(f"servo_tau_cmd_{j}_n_m" for j in _JOINTS),
     *(f"servo_tau_meas_{j}_n_m" for j in _JOINTS),
     *(f"servo_pos_{j}_rad" for j in _JOINTS),
+    "loop_period_ms",
+    "setpoint_latency_us",
+    "cycle_latency_us",
     "px4_mode",
     "armed",
     "phase",
@@ -149,6 +156,10 @@ class CycleRecord:
         What was sent to PX4.
     servo_torque_cmd_n_m, servo_torque_meas_n_m, servo_position_rad : array_like, shape (2,)
         Joint torque commands, torques from present current, joint positions.
+    loop_period_ms, setpoint_latency_us, cycle_latency_us : float, optional
+        The cycle's timing: vehicle time since the previous cycle [ms]; wall time from the
+        pose taken off the link to the setpoint sent and to the joint torques handed to the
+        arm task [us].
     faults : sequence of str
         Names of the active faults (no ``;`` in a name).
     t_wall_s : float, optional
@@ -170,6 +181,9 @@ class CycleRecord:
     servo_torque_cmd_n_m: ArrayLike | None = None
     servo_torque_meas_n_m: ArrayLike | None = None
     servo_position_rad: ArrayLike | None = None
+    loop_period_ms: float | None = None
+    setpoint_latency_us: float | None = None
+    cycle_latency_us: float | None = None
     px4_mode: str = ""
     armed: bool | None = None
     phase: str = ""
@@ -231,6 +245,9 @@ def format_row(record: CycleRecord, t_wall_s: float) -> list[str]:
         *_vec("servo_torque_cmd_n_m", r.servo_torque_cmd_n_m, 2),
         *_vec("servo_torque_meas_n_m", r.servo_torque_meas_n_m, 2),
         *_vec("servo_position_rad", r.servo_position_rad, 2),
+        _num(r.loop_period_ms),
+        _num(r.setpoint_latency_us),
+        _num(r.cycle_latency_us),
         r.px4_mode,
         _flag(r.armed),
         r.phase,

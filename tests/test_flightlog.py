@@ -36,6 +36,9 @@ def record(i, mode="POSCTL", phase="takeoff", faults=()):
         servo_torque_cmd_n_m=(0.1, -0.2),
         servo_torque_meas_n_m=(0.09, -0.21),
         servo_position_rad=(-1.5, 0.3),
+        loop_period_ms=4.0 + 0.1 * i,
+        setpoint_latency_us=None if i == 1 else 900.0 + i,
+        cycle_latency_us=1100.0 + i,
         px4_mode=mode,
         armed=True,
         phase=phase,
@@ -63,6 +66,10 @@ def test_round_trip_is_exact(tmp_path):
     np.testing.assert_array_equal(out["sp_thrust_saturated"], [0, 0, 0, 0, 1])
     assert out["thrust_rel"] == pytest.approx([0.47] * 5)
     assert list(out["px4_mode"]) == ["POSCTL"] * 5
+    # The cycle's timing; no setpoint sent in cycle 1 (an empty cell, NaN).
+    assert out["loop_period_ms"] == pytest.approx([4.0, 4.1, 4.2, 4.3, 4.4])
+    assert math.isnan(out["setpoint_latency_us"][1]) and out["setpoint_latency_us"][2] == 902.0
+    np.testing.assert_array_equal(out["cycle_latency_us"], [1100.0, 1101.0, 1102.0, 1103.0, 1104.0])
 
 
 def test_header_is_one_row_with_units_and_pandas_style(tmp_path):
