@@ -1,6 +1,7 @@
 """The flight install (``pip install .``, no extra) in a fresh venv: what flies, and nothing
-of the simulator. The same install flies the imitation in ``test_mission_e2e`` (the
-non-adaptive pickup)."""
+of the simulator. The same install flies the non-adaptive pickup: against real PX4 in the
+loop of our physics where the PX4 build is present (``test_px4_hil``), against the
+imitation elsewhere (``test_mission_e2e``)."""
 
 from __future__ import annotations
 

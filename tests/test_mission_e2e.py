@@ -31,6 +31,13 @@ PLACE_AT = "-1.0,0.5,0.05"
 TRUE_MASS_KG = 0.25
 TRUE_COM_M = 0.15
 SPEED = 1.0
+JUDGED_AGAINST_PX4 = pytest.mark.skipif(
+    bool(os.environ.get("PX4_SITL_DIR")) and os.environ.get("PX4_ALL_FLIGHTS") != "1",
+    reason="flown against the real PX4 instead (tests/test_px4_hil.py: the same flight, the "
+    "same companion; the suite's time budget); PX4_ALL_FLIGHTS=1 flies it here too",
+)
+"""Flights whose twin against real PX4 runs where the PX4 build is present: the link cut,
+the silenced servo, and the non-adaptive pickup (there flown by the flight install)."""
 
 
 def run_mission(
@@ -107,14 +114,18 @@ def test_pickup_learns_the_payload_places_it_and_lands(adaptive):
 @pytest.fixture(scope="module")
 def nonadaptive(tmp_path_factory, flight_install):
     """The baseline flight, flown by the flight install alone (a fresh venv with ``pip
-    install .``: no simulator packages), as on the vehicle."""
+    install .``: no simulator packages), as on the vehicle. Where the PX4 build is present
+    the flight install flies the same mission against real PX4 instead
+    (tests/test_px4_hil.py, the non-adaptive comparison)."""
     tmp = tmp_path_factory.mktemp("nonadaptive")
     args = ("--controller", "nonadaptive")
     return (tmp, *fly(tmp, "nonadaptive", mission_args=args, python=flight_install))
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("flight", ["adaptive", "nonadaptive"])
+@pytest.mark.parametrize(
+    "flight", ["adaptive", pytest.param("nonadaptive", marks=JUDGED_AGAINST_PX4)]
+)
 def test_the_flight_meets_the_px4_acceptance_against_the_imitation(flight, request):
     """The same flight figures as against real PX4 (tests/test_px4_mission.py): no fault, no
     tilt saturation, tilt < 15 deg outside the excitation, handover < 5 deg, position RMS
@@ -130,6 +141,7 @@ def test_the_flight_meets_the_px4_acceptance_against_the_imitation(flight, reque
 
 
 @pytest.mark.slow
+@JUDGED_AGAINST_PX4
 def test_nonadaptive_controller_flies_the_same_mission_for_comparison(adaptive, nonadaptive):
     _, _, adaptive_summary, _ = adaptive
     tmp_path, result, summary, _ = nonadaptive
@@ -232,14 +244,6 @@ class LinkCutter:
         self.app.close()
         if self._log is not None:
             self._log.close()
-
-
-JUDGED_AGAINST_PX4 = pytest.mark.skipif(
-    bool(os.environ.get("PX4_SITL_DIR")) and os.environ.get("PX4_ALL_FLIGHTS") != "1",
-    reason="flown against the real PX4 instead (tests/test_px4_hil.py: the same fault, the "
-    "same companion; the suite's time budget); PX4_ALL_FLIGHTS=1 flies it here too",
-)
-"""The fault flights whose twin against real PX4 runs where the PX4 build is present."""
 
 
 @pytest.mark.slow

@@ -96,9 +96,11 @@ def fly_pickup(
     config=CONFIG,
     controller="passivity",
     relay=None,
+    python=sys.executable,
 ):
     """The pickup as a user flies it: ``sitl run --autopilot px4`` and the mission command
-    (through ``relay``, a :class:`LinkCutter`, when given)."""
+    (through ``relay``, a :class:`LinkCutter`, when given; run by ``python``, e.g. the
+    flight install's)."""
     truth_log = tmp / "truth.jsonl"
     px4_dir = tmp / "px4"
     sitl = start_sitl(
@@ -114,7 +116,7 @@ def fly_pickup(
             port = relay.app_port
         result = subprocess.run(
             [
-                sys.executable, "-c", "from companion.cli import main; main()",
+                str(python), "-c", "from companion.cli import main; main()",
                 "mission", "pickup", "--config", str(config),
                 "--connect", f"udpin://127.0.0.1:{port}", "--arm-bus", sitl.arm_bus,
                 "--payload-at", PAYLOAD_AT, "--place-at", f"{PLACE_AT[0]},{PLACE_AT[1]},0.05",
@@ -122,6 +124,7 @@ def fly_pickup(
             ],
             capture_output=True, text=True, timeout=900,
             env=dict(os.environ, PYTHONUNBUFFERED="1"),
+            cwd=tmp,  # not the repository: an installed companion must not be shadowed
         )  # fmt: skip
     finally:
         if relay is not None:
@@ -134,17 +137,24 @@ def fly_pickup(
 
 
 @pytest.fixture(scope="module")
-def flights(px4_build, tmp_path_factory):
-    """Fly (navigation, controller) once per module; later tests share the flight."""
+def flights(px4_build, tmp_path_factory, request):
+    """Fly (navigation, controller) once per module; later tests share the flight. The
+    non-adaptive baseline is flown by the flight install (a fresh venv with ``pip install
+    .``: no simulator packages), as on the vehicle."""
     flown: dict[tuple[str, str], Flight] = {}
 
     def get(navigation: str, controller: str = "passivity") -> Flight:
         if (navigation, controller) not in flown:
             tmp = tmp_path_factory.mktemp(f"px4-hil-{navigation}-{controller}")
             config = scenario_for(navigation, tmp)
+            python = (
+                request.getfixturevalue("flight_install")
+                if controller == "nonadaptive"
+                else sys.executable
+            )
             flown[navigation, controller] = fly_pickup(
                 px4_build.root, tmp, navigation, *NAVIGATION[navigation],
-                config=config, controller=controller,
+                config=config, controller=controller, python=python,
             )  # fmt: skip
         return flown[navigation, controller]
 
