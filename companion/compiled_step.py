@@ -372,9 +372,10 @@ class CompiledStep:
         args = (q, q_dot, q_ddot, desired.q, desired.q_dot, desired.q_ddot, tau)
         try:
             self._module.step(self.params, self.state, dt_s, skip, *args, out)
-        except (BufferError, ValueError):
-            # Not contiguous float64 arrays of 8 values: convert (ValueError if they are
-            # not 8 values).
+        except (BufferError, TypeError, ValueError):
+            # Not C-contiguous float64 arrays (numpy says so with ValueError): convert and
+            # call again, which raises if they are not 8 values each. Every check precedes
+            # any change of the state.
             arrays = [np.ascontiguousarray(a, dtype=np.float64) for a in args]
             self._module.step(self.params, self.state, float(dt_s), skip, *arrays, out)
         v = out.tolist()

@@ -349,3 +349,18 @@ def test_compiled_state_is_the_objects_state():
     control.thrust = ThrustModel(control.thrust.max_thrust_n, 0.9)
     out = control.step(0.004, state, DesiredState(q, zero, zero), Skip.NO_FORCE)
     assert out.setpoint.thrust_relative == 0.9 and out.setpoint.thrust_saturated
+
+
+def test_inputs_that_are_not_contiguous_float64_are_converted():
+    config = load_config(CONFIGS / "sitl_pickup.toml")
+    a, b = FlightControl(config), FlightControl(config)
+    q = np.array([0.0, 0.0, 1.5, 0.0, 0.0, 0.3, -1.2, 0.4])
+    wide = np.zeros((8, 2))
+    wide[:, 0] = q  # a strided view
+    zero = np.zeros(8)
+    tau = np.array([0, 0, 12, 0, 0, 0, 0, 0])  # integers
+    out_a = a.step(0.004, FilteredState(q, zero, zero), DesiredState(q, zero, zero), tau)
+    out_b = b.step(0.004, FilteredState(wide[:, 0], zero, zero), DesiredState(q, zero, zero), tau)
+    np.testing.assert_array_equal(out_a.tau, out_b.tau)
+    with pytest.raises(ValueError, match="8"):
+        a.step(0.004, FilteredState(q[:7], zero, zero), DesiredState(q, zero, zero), tau)
