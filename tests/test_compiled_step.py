@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion import filters, native
+from companion import compiled_step, filters, native
 from companion.config import load_config
 from companion.control import DesiredState
 from companion.estimation import Skip
@@ -364,3 +364,33 @@ def test_inputs_that_are_not_contiguous_float64_are_converted():
     np.testing.assert_array_equal(out_a.tau, out_b.tau)
     with pytest.raises(ValueError, match="8"):
         a.step(0.004, FilteredState(q[:7], zero, zero), DesiredState(q, zero, zero), tau)
+
+
+def test_frozen_record_builds_what_the_constructor_builds():
+    from dataclasses import dataclass
+
+    from companion.setpoints import AttitudeThrustSetpoint
+
+    fields = dict(
+        roll_rad=0.1,
+        pitch_rad=-0.2,
+        yaw_rad=0.3,
+        thrust_n=12.0,
+        thrust_relative=0.4,
+        tilt_saturated=False,
+        thrust_saturated=True,
+    )
+    made = compiled_step.frozen_record(AttitudeThrustSetpoint, **fields)
+    assert made == AttitudeThrustSetpoint(**fields) and hash(made) is not None
+    with pytest.raises(TypeError, match="fields"):
+        compiled_step.frozen_record(AttitudeThrustSetpoint, roll_rad=0.1)
+
+    @dataclass(frozen=True)
+    class Checked:
+        value: float
+
+        def __post_init__(self) -> None:
+            assert self.value > 0
+
+    with pytest.raises(TypeError, match="__init__"):
+        compiled_step.frozen_record(Checked, value=-1.0)
