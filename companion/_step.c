@@ -661,10 +661,50 @@ static PyObject *py_fuse(PyObject *self, PyObject *args)
     return result;
 }
 
+/* StateFilter.predict's product: X_next = A X (A 17 x 17, X and X_next 17 x n). */
+static PyObject *py_predict(PyObject *self, PyObject *args)
+{
+    PyObject *ao, *xo, *yo, *result = NULL;
+    Py_buffer a, x, y;
+    if (!PyArg_ParseTuple(args, "OOO", &ao, &xo, &yo)) return NULL;
+    if (!get_doubles(ao, &a, N_STACK * N_STACK, "A", 0)) return NULL;
+    if (!get_doubles(xo, &x, -1, "X", 0)) {
+        PyBuffer_Release(&a);
+        return NULL;
+    }
+    if (!get_doubles(yo, &y, x.len / (Py_ssize_t)sizeof(double), "X_next", 1)) {
+        PyBuffer_Release(&a);
+        PyBuffer_Release(&x);
+        return NULL;
+    }
+    Py_ssize_t n = x.len / (Py_ssize_t)(N_STACK * sizeof(double));
+    if (n >= 1 && n <= NQ && x.len == n * N_STACK * (Py_ssize_t)sizeof(double)
+        && x.buf != y.buf) {
+        const double *A = (const double *)a.buf, *X = (const double *)x.buf;
+        double *Y = (double *)y.buf;
+        for (int i = 0; i < N_STACK; ++i)
+            for (Py_ssize_t c = 0; c < n; ++c) {
+                double acc = 0.0;
+                for (int k = 0; k < N_STACK; ++k) acc += A[N_STACK * i + k] * X[n * k + c];
+                Y[n * i + c] = acc;
+            }
+        result = Py_NewRef(Py_None);
+    } else {
+        PyErr_SetString(PyExc_ValueError,
+                        "X must hold 17 x n float64 values, 1 <= n <= 8, and not be X_next");
+    }
+    PyBuffer_Release(&a);
+    PyBuffer_Release(&x);
+    PyBuffer_Release(&y);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"step", py_step, METH_VARARGS,
      "step(params, state, dt, skip, q, q_dot, q_ddot, qd, qd_dot, qd_ddot, tau, out): one "
      "control step; skip is -1 or the index of the Skip reason."},
+    {"predict", py_predict, METH_VARARGS,
+     "predict(A, X, X_next): the state filter's prediction product X_next = A X."},
     {"fuse", py_fuse, METH_VARARGS,
      "fuse(X, G, wrap): the state filter's scalar updates of every column of X, in place."},
     {NULL, NULL, 0, NULL}

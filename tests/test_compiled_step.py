@@ -270,9 +270,9 @@ def test_the_python_step_when_the_extension_is_missing(monkeypatch, caplog):
 
 
 def test_filter_updates_agree():
-    """The state filter's C update against its numpy reference, call by call on the same
-    stacked state: positions with latencies, subsets of rows, rates, yaw across +-pi
-    (wrapped innovations), a rejected non-finite measurement. (Over thousands of updates
+    """The state filter's C update and predict product against their numpy references,
+    call by call on the same stacked state: positions with latencies, subsets of rows,
+    rates, yaw across +-pi (wrapped innovations), a rejected non-finite measurement. (Over thousands of updates
     both drift apart by more: the covariance update ``P - K (P h)^T`` walks with rounding
     whichever way it is rounded, see companion.filters.)"""
     fuse = native.native_module(True).fuse
@@ -295,9 +295,21 @@ def test_filter_updates_agree():
         scale = np.maximum(1.0, np.abs(X).max(axis=1, keepdims=True))
         assert (np.abs(X - compiled) <= TOL * scale).all()
 
+    predict = native.native_module(True).predict
+
+    def both_predict(A, X, X_next):
+        compiled = np.empty_like(X_next)
+        predict(A, X, compiled)
+        np.dot(A, X, out=X_next)  # the reference
+        seen["predicts"] += 1
+        scale = np.maximum(1.0, np.abs(X_next).max(axis=1, keepdims=True))
+        assert (np.abs(X_next - compiled) <= TOL * scale).all()
+
+    seen["predicts"] = 0
     rng = np.random.default_rng(3)
     f = StateFilter(compiled=False)
     f._fuse_columns = both
+    f._propagate = both_predict
     truth = np.array([0.0, 0.0, 1.0, 0.1, -0.1, 3.1, -1.0, 0.5])
     for i in range(3000):
         truth = truth + rng.normal(0.0, 0.02, 8)
@@ -313,6 +325,7 @@ def test_filter_updates_agree():
             with pytest.raises(ValueError, match="not finite"), np.errstate(invalid="ignore"):
                 f.update_position(np.full(8, math.inf))
     assert seen["calls"] > 5000 and seen["wrapped"] > 0 and seen["rejected"] == 1, seen
+    assert seen["predicts"] == 3000
 
 
 def test_selection(monkeypatch):
