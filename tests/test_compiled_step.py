@@ -272,9 +272,9 @@ def test_the_python_step_when_the_extension_is_missing(monkeypatch, caplog):
 def test_filter_updates_agree():
     """The state filter's C update and predict product against their numpy references,
     call by call on the same stacked state: positions with latencies, subsets of rows,
-    rates, yaw across +-pi (wrapped innovations), a rejected non-finite measurement. (Over thousands of updates
-    both drift apart by more: the covariance update ``P - K (P h)^T`` walks with rounding
-    whichever way it is rounded, see companion.filters.)"""
+    rates, yaw across +-pi (wrapped innovations), a rejected non-finite measurement.
+    (Over thousands of updates both drift apart by more: the covariance update
+    ``P - K (P h)^T`` walks with rounding whichever way it is rounded.)"""
     fuse = native.native_module(True).fuse
     seen = {"calls": 0, "wrapped": 0, "rejected": 0}
 
