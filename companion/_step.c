@@ -330,7 +330,8 @@ static int rls_step(const Params *P, State *S, int n, double dt, const double *y
         for (int i = 0; i < m; ++i) B[m * r + i] = ph[n * i + r];
     }
     if (!solve(n, m, A, B)) {
-        PyErr_SetString(PyExc_ArithmeticError, "RLS: singular innovation covariance");
+        /* numpy.linalg.solve raises LinAlgError, a ValueError (before any state changed) */
+        PyErr_SetString(PyExc_ValueError, "Singular matrix");
         return 0;
     }
     /* gain[i][r] = B[r][i]; x += gain (z - H x) */
@@ -528,55 +529,69 @@ static int control_step(const Params *P, State *S, double dt, int skip, const do
     return 1;
 }
 
-static int check_len(Py_buffer *b, Py_ssize_t n, const char *name)
+/* A C-contiguous buffer of native float64 values (n of them, or any number if n < 0;
+ * writable if asked): TypeError on another element type (an int64 array of 8 values has
+ * the length of 8 doubles), BufferError if not contiguous, ValueError on a wrong count. */
+static int get_doubles(PyObject *obj, Py_buffer *b, Py_ssize_t n, const char *name,
+                       int writable)
 {
-    if (b->len != n * (Py_ssize_t)sizeof(double)) {
-        PyErr_Format(PyExc_ValueError, "%s: expected %zd float64 values, got %zd bytes",
-                     name, n, b->len);
+    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, b, flags) < 0) return 0;
+    const char *f = b->format ? b->format : "B";
+    if (b->itemsize != (Py_ssize_t)sizeof(double)
+        || !(strcmp(f, "d") == 0 || strcmp(f, "@d") == 0 || strcmp(f, "=d") == 0)) {
+        PyErr_Format(PyExc_TypeError, "%s: expected float64 values, got format '%s'", name, f);
+        PyBuffer_Release(b);
+        return 0;
+    }
+    if (n >= 0 && b->len != n * (Py_ssize_t)sizeof(double)) {
+        PyErr_Format(PyExc_ValueError, "%s: expected %zd float64 values, got %zd", name, n,
+                     b->len / (Py_ssize_t)sizeof(double));
+        PyBuffer_Release(b);
         return 0;
     }
     return 1;
 }
 
+#define N_STEP_BUFFERS 10
 static PyObject *py_step(PyObject *self, PyObject *args)
 {
-    Py_buffer params, state, b[7], out;
+    PyObject *obj[N_STEP_BUFFERS];
+    Py_buffer b[N_STEP_BUFFERS];
     double dt;
-    int skip;
-    static const char *names[7] = {"q", "q_dot", "q_ddot", "qd", "qd_dot", "qd_ddot", "tau"};
-    PyObject *result = NULL;
-    if (!PyArg_ParseTuple(args, "y*w*diy*y*y*y*y*y*y*w*", &params, &state, &dt, &skip, &b[0],
-                          &b[1], &b[2], &b[3], &b[4], &b[5], &b[6], &out))
+    int skip, got = 0;
+    static const char *names[N_STEP_BUFFERS] = {
+        "params", "q", "q_dot", "q_ddot", "qd", "qd_dot", "qd_ddot", "tau", "out", "state"};
+    if (!PyArg_ParseTuple(args, "OOdiOOOOOOOO", &obj[0], &obj[9], &dt, &skip, &obj[1], &obj[2],
+                          &obj[3], &obj[4], &obj[5], &obj[6], &obj[7], &obj[8]))
         return NULL;
-    int ok = check_len(&params, sizeof(Params) / sizeof(double), "params")
-             && check_len(&out, OUT_SIZE, "out");
-    for (int i = 0; ok && i < 7; ++i) ok = check_len(&b[i], NQ, names[i]);
-    const Params *P = (const Params *)params.buf;
-    if (ok) {
-        Py_ssize_t need = sizeof(State) / sizeof(double) + 2 * (Py_ssize_t)P->window_samples;
-        ok = check_len(&state, need, "state");
+    PyObject *result = NULL;
+    const Params *P = NULL;
+    for (; got < N_STEP_BUFFERS; ++got) {
+        Py_ssize_t n = got == 0 ? (Py_ssize_t)(sizeof(Params) / sizeof(double))
+                       : got == 8 ? OUT_SIZE
+                       : got == 9 ? (Py_ssize_t)(sizeof(State) / sizeof(double))
+                                        + 2 * (Py_ssize_t)P->window_samples
+                                  : NQ;
+        if (!get_doubles(obj[got], &b[got], n, names[got], got >= 8)) break;
+        if (got == 0) P = (const Params *)b[0].buf;
     }
-    if (ok && !(dt > 0.0)) {
+    if (got < N_STEP_BUFFERS) {
+        /* error set */
+    } else if (!(dt > 0.0)) {
         char msg[80];
         snprintf(msg, sizeof msg, "dt must be positive, got %.17g", dt);
         PyErr_SetString(PyExc_ValueError, msg);
-        ok = 0;
-    }
-    if (ok && (skip < -1 || skip >= N_SKIP)) {
+    } else if (skip < -1 || skip >= N_SKIP) {
         PyErr_Format(PyExc_ValueError, "skip must lie in [-1, %d), got %d", N_SKIP, skip);
-        ok = 0;
-    }
-    if (ok
-        && control_step(P, (State *)state.buf, dt, skip, (const double *)b[0].buf,
-                        (const double *)b[1].buf, (const double *)b[2].buf,
-                        (const double *)b[3].buf, (const double *)b[4].buf,
-                        (const double *)b[5].buf, (const double *)b[6].buf,
-                        (double *)out.buf))
+    } else if (control_step(P, (State *)b[9].buf, dt, skip, (const double *)b[1].buf,
+                            (const double *)b[2].buf, (const double *)b[3].buf,
+                            (const double *)b[4].buf, (const double *)b[5].buf,
+                            (const double *)b[6].buf, (const double *)b[7].buf,
+                            (double *)b[8].buf)) {
         result = Py_NewRef(Py_None);
-    PyBuffer_Release(&params);
-    PyBuffer_Release(&state);
-    for (int i = 0; i < 7; ++i) PyBuffer_Release(&b[i]);
-    PyBuffer_Release(&out);
+    }
+    for (int i = 0; i < got; ++i) PyBuffer_Release(&b[i]);
     return result;
 }
 
@@ -594,11 +609,15 @@ static double wrap_angle(double a)
 static PyObject *py_fuse(PyObject *self, PyObject *args)
 {
     Py_buffer g, x;
-    PyObject *wrap, *result = NULL;
-    if (!PyArg_ParseTuple(args, "w*y*O!", &x, &g, &PyTuple_Type, &wrap)) return NULL;
+    PyObject *xo, *go, *wrap, *result = NULL;
+    if (!PyArg_ParseTuple(args, "OOO!", &xo, &go, &PyTuple_Type, &wrap)) return NULL;
+    if (!get_doubles(xo, &x, -1, "X", 1)) return NULL;
+    if (!get_doubles(go, &g, 25 * N_STACK, "G", 0)) {
+        PyBuffer_Release(&x);
+        return NULL;
+    }
     Py_ssize_t n = x.len / (Py_ssize_t)(N_STACK * sizeof(double));
-    if (check_len(&g, 25 * N_STACK, "G") && n >= 1 && n <= NQ
-        && check_len(&x, N_STACK * n, "X")) {
+    if (n >= 1 && n <= NQ && x.len == n * N_STACK * (Py_ssize_t)sizeof(double)) {
         const double *G = (const double *)g.buf;
         double *X = (double *)x.buf, W[25 * NQ];
         double total = 0.0;
@@ -634,7 +653,7 @@ static PyObject *py_fuse(PyObject *self, PyObject *args)
                 result = Py_NewRef(Py_None);
             }
         }
-    } else if (!PyErr_Occurred()) {
+    } else {
         PyErr_SetString(PyExc_ValueError, "X must hold 17 x n float64 values, 1 <= n <= 8");
     }
     PyBuffer_Release(&g);
@@ -642,10 +661,50 @@ static PyObject *py_fuse(PyObject *self, PyObject *args)
     return result;
 }
 
+/* StateFilter.predict's product: X_next = A X (A 17 x 17, X and X_next 17 x n). */
+static PyObject *py_predict(PyObject *self, PyObject *args)
+{
+    PyObject *ao, *xo, *yo, *result = NULL;
+    Py_buffer a, x, y;
+    if (!PyArg_ParseTuple(args, "OOO", &ao, &xo, &yo)) return NULL;
+    if (!get_doubles(ao, &a, N_STACK * N_STACK, "A", 0)) return NULL;
+    if (!get_doubles(xo, &x, -1, "X", 0)) {
+        PyBuffer_Release(&a);
+        return NULL;
+    }
+    if (!get_doubles(yo, &y, x.len / (Py_ssize_t)sizeof(double), "X_next", 1)) {
+        PyBuffer_Release(&a);
+        PyBuffer_Release(&x);
+        return NULL;
+    }
+    Py_ssize_t n = x.len / (Py_ssize_t)(N_STACK * sizeof(double));
+    if (n >= 1 && n <= NQ && x.len == n * N_STACK * (Py_ssize_t)sizeof(double)
+        && x.buf != y.buf) {
+        const double *A = (const double *)a.buf, *X = (const double *)x.buf;
+        double *Y = (double *)y.buf;
+        for (int i = 0; i < N_STACK; ++i)
+            for (Py_ssize_t c = 0; c < n; ++c) {
+                double acc = 0.0;
+                for (int k = 0; k < N_STACK; ++k) acc += A[N_STACK * i + k] * X[n * k + c];
+                Y[n * i + c] = acc;
+            }
+        result = Py_NewRef(Py_None);
+    } else {
+        PyErr_SetString(PyExc_ValueError,
+                        "X must hold 17 x n float64 values, 1 <= n <= 8, and not be X_next");
+    }
+    PyBuffer_Release(&a);
+    PyBuffer_Release(&x);
+    PyBuffer_Release(&y);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"step", py_step, METH_VARARGS,
      "step(params, state, dt, skip, q, q_dot, q_ddot, qd, qd_dot, qd_ddot, tau, out): one "
      "control step; skip is -1 or the index of the Skip reason."},
+    {"predict", py_predict, METH_VARARGS,
+     "predict(A, X, X_next): the state filter's prediction product X_next = A X."},
     {"fuse", py_fuse, METH_VARARGS,
      "fuse(X, G, wrap): the state filter's scalar updates of every column of X, in place."},
     {NULL, NULL, 0, NULL}

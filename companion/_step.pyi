@@ -26,6 +26,9 @@ def step(
 ) -> None:
     """One control step; ``state`` and ``out`` are written (see ``_step.c``)."""
 
+def predict(a: NDArray[np.float64], x: NDArray[np.float64], x_next: NDArray[np.float64]) -> None:
+    """The state filter's prediction ``x_next = a @ x`` (17 x 17 times 17 x n)."""
+
 def fuse(x: NDArray[np.float64], g: NDArray[np.float64], wrap: tuple[int, ...]) -> None:
     """The state filter's scalar update of every column of ``x`` (17 x n) in place, with the
     (25 x 17) matrix ``g``; ValueError (``x`` unchanged) if the innovation is not finite."""

@@ -45,7 +45,9 @@ control step with 100 Hz motion capture, 100 Hz encoders and 250 Hz gyro rates c
 one call (``_step.fuse``, the same operations as :meth:`StateFilter._fuse`, which stays
 the reference; tests/test_compiled_step.py compares them call by call): an update of all
 rows costs 3-5 us instead of 13-16 (``benchmarks/bench_filters.py``, 2 Dec 2026, loaded
-machine: predict + update 5.5 us median).
+machine: predict + update 5.5 us median); so does the predict's product (``_step.predict``,
+a plain loop: OpenBLAS's call for a 17 x 17 by 17 x 8 product cost 7 us inside the offline
+simulator).
 
 Angles
 ------
@@ -191,6 +193,11 @@ class _Selection:
     ``_R_UNMEASURED`` elsewhere."""
 
 
+def _propagate(A: FloatArray, X: FloatArray, X_next: FloatArray) -> None:
+    """X_next = A X, the predict's product (numpy, the reference of ``_step.predict``)."""
+    np.dot(A, X, out=X_next)
+
+
 def _wrap_scalar(a: float) -> float:
     w = (a + math.pi) % _TWO_PI - math.pi
     return w - _TWO_PI if w >= math.pi else w  # (a + pi) % 2 pi can round up to 2 pi
@@ -273,6 +280,8 @@ class StateFilter:
         native = native_module(compiled)
         self._fuse_columns = self._fuse if native is None else native.fuse
         """The scalar updates of every column: C, or the numpy reference."""
+        self._propagate = _propagate if native is None else native.predict
+        """The prediction product ``X_next = A X``: C, or the numpy reference."""
 
     # -- properties -------------------------------------------------------------------
 
@@ -363,7 +372,7 @@ class StateFilter:
         A = self._predict_cache.get(dt_s)
         if A is None:
             A = self._predict_matrix(dt_s)
-        np.dot(A, self._X, out=self._X_next)
+        self._propagate(A, self._X, self._X_next)
         self._X, self._X_next = self._X_next, self._X
 
     def update_position(

@@ -41,7 +41,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.compiled_step import CompiledStep
+from companion.compiled_step import CompiledStep, frozen_record
 from companion.config import CompanionConfig
 from companion.control import (
     ControlLaw,
@@ -245,7 +245,14 @@ class FlightControl:
             tau, setpoint, estimate, theta_hat, reference = self._compiled.step(
                 dt_s, q, q_dot, q_ddot, desired, applied_tau
             )
-            return ControlOutput(tau, setpoint, estimate, theta_hat, reference)
+            return frozen_record(
+                ControlOutput,
+                tau=tau,
+                setpoint=setpoint,
+                estimate=estimate,
+                theta_hat=theta_hat,
+                desired=reference,
+            )
         terms = self.model.terms(q, q_dot)
         estimate = self.estimator.update(dt_s, terms, q, q_dot, q_ddot, applied_tau)
         reference = self.tilt.apply(desired)

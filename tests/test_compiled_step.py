@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion import filters, native
+from companion import compiled_step, filters, native
 from companion.config import load_config
 from companion.control import DesiredState
 from companion.estimation import Skip
@@ -270,11 +270,11 @@ def test_the_python_step_when_the_extension_is_missing(monkeypatch, caplog):
 
 
 def test_filter_updates_agree():
-    """The state filter's C update against its numpy reference, call by call on the same
-    stacked state: positions with latencies, subsets of rows, rates, yaw across +-pi
-    (wrapped innovations), a rejected non-finite measurement. (Over thousands of updates
-    both drift apart by more: the covariance update ``P - K (P h)^T`` walks with rounding
-    whichever way it is rounded, see companion.filters.)"""
+    """The state filter's C update and predict product against their numpy references,
+    call by call on the same stacked state: positions with latencies, subsets of rows,
+    rates, yaw across +-pi (wrapped innovations), a rejected non-finite measurement.
+    (Over thousands of updates both drift apart by more: the covariance update
+    ``P - K (P h)^T`` walks with rounding whichever way it is rounded.)"""
     fuse = native.native_module(True).fuse
     seen = {"calls": 0, "wrapped": 0, "rejected": 0}
 
@@ -295,9 +295,21 @@ def test_filter_updates_agree():
         scale = np.maximum(1.0, np.abs(X).max(axis=1, keepdims=True))
         assert (np.abs(X - compiled) <= TOL * scale).all()
 
+    predict = native.native_module(True).predict
+
+    def both_predict(A, X, X_next):
+        compiled = np.empty_like(X_next)
+        predict(A, X, compiled)
+        np.dot(A, X, out=X_next)  # the reference
+        seen["predicts"] += 1
+        scale = np.maximum(1.0, np.abs(X_next).max(axis=1, keepdims=True))
+        assert (np.abs(X_next - compiled) <= TOL * scale).all()
+
+    seen["predicts"] = 0
     rng = np.random.default_rng(3)
     f = StateFilter(compiled=False)
     f._fuse_columns = both
+    f._propagate = both_predict
     truth = np.array([0.0, 0.0, 1.0, 0.1, -0.1, 3.1, -1.0, 0.5])
     for i in range(3000):
         truth = truth + rng.normal(0.0, 0.02, 8)
@@ -313,6 +325,7 @@ def test_filter_updates_agree():
             with pytest.raises(ValueError, match="not finite"), np.errstate(invalid="ignore"):
                 f.update_position(np.full(8, math.inf))
     assert seen["calls"] > 5000 and seen["wrapped"] > 0 and seen["rejected"] == 1, seen
+    assert seen["predicts"] == 3000
 
 
 def test_selection(monkeypatch):
@@ -349,3 +362,48 @@ def test_compiled_state_is_the_objects_state():
     control.thrust = ThrustModel(control.thrust.max_thrust_n, 0.9)
     out = control.step(0.004, state, DesiredState(q, zero, zero), Skip.NO_FORCE)
     assert out.setpoint.thrust_relative == 0.9 and out.setpoint.thrust_saturated
+
+
+def test_inputs_that_are_not_contiguous_float64_are_converted():
+    config = load_config(CONFIGS / "sitl_pickup.toml")
+    a, b = FlightControl(config), FlightControl(config)
+    q = np.array([0.0, 0.0, 1.5, 0.0, 0.0, 0.3, -1.2, 0.4])
+    wide = np.zeros((8, 2))
+    wide[:, 0] = q  # a strided view
+    zero = np.zeros(8)
+    tau = np.array([0, 0, 12, 0, 0, 0, 0, 0])  # integers
+    out_a = a.step(0.004, FilteredState(q, zero, zero), DesiredState(q, zero, zero), tau)
+    out_b = b.step(0.004, FilteredState(wide[:, 0], zero, zero), DesiredState(q, zero, zero), tau)
+    np.testing.assert_array_equal(out_a.tau, out_b.tau)
+    with pytest.raises(ValueError, match="8"):
+        a.step(0.004, FilteredState(q[:7], zero, zero), DesiredState(q, zero, zero), tau)
+
+
+def test_frozen_record_builds_what_the_constructor_builds():
+    from dataclasses import dataclass
+
+    from companion.setpoints import AttitudeThrustSetpoint
+
+    fields = dict(
+        roll_rad=0.1,
+        pitch_rad=-0.2,
+        yaw_rad=0.3,
+        thrust_n=12.0,
+        thrust_relative=0.4,
+        tilt_saturated=False,
+        thrust_saturated=True,
+    )
+    made = compiled_step.frozen_record(AttitudeThrustSetpoint, **fields)
+    assert made == AttitudeThrustSetpoint(**fields) and hash(made) is not None
+    with pytest.raises(TypeError, match="fields"):
+        compiled_step.frozen_record(AttitudeThrustSetpoint, roll_rad=0.1)
+
+    @dataclass(frozen=True)
+    class Checked:
+        value: float
+
+        def __post_init__(self) -> None:
+            assert self.value > 0
+
+    with pytest.raises(TypeError, match="__init__"):
+        compiled_step.frozen_record(Checked, value=-1.0)
