@@ -30,12 +30,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from checkout import now_and_before
 
 DEFAULT = Path(__file__).resolve().parent.parent / "configs" / "paper_sim.toml"
 INTEGRATORS = ("semi_implicit_euler", "rk4")
@@ -128,19 +127,6 @@ def _best(a: dict, b: dict) -> dict:
     return {key: {k: min(a[key][k], b[key][k]) for k in a[key]} for key in a}
 
 
-def _run_before(before: Path, config: Path, repeat: int) -> dict:
-    env = {**os.environ, "PYTHONPATH": str(before)}
-    done = subprocess.run(
-        [sys.executable, __file__, "--config", str(config), "--repeat", str(repeat), "--json"],
-        env=env,
-        check=True,
-        capture_output=True,
-        text=True,
-        cwd=before,
-    )
-    return json.loads(done.stdout)
-
-
 def _print(label: str, now: dict, before: dict | None) -> None:
     print(f"\n{label}")
     head = f"{'':<34} {'median':>8} {'p99':>8} {'CPU/step':>9} {'loop':>8}"
@@ -168,12 +154,10 @@ def main() -> None:
         print(json.dumps(measure(args.config, args.repeat)))
         return
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
-    now = measure(args.config, args.repeat)
-    before = None
-    if args.before is not None:  # alternate: before, now again; best of each
-        before = _run_before(args.before, args.config, args.repeat)
-        now = _best(now, measure(args.config, args.repeat))
-        before = _best(before, _run_before(args.before, args.config, args.repeat))
+    now, before = now_and_before(
+        lambda: measure(args.config, args.repeat), args.before, __file__,
+        ["--config", str(args.config), "--repeat", str(args.repeat)], _best,
+    )  # fmt: skip
     _print(f"Truth plant, {args.config.name}, 10 s, step + state, best of runs", now, before)
 
     plant_side = now["ideal / semi_implicit_euler"]

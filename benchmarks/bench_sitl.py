@@ -52,6 +52,7 @@ from pathlib import Path
 
 os.environ.setdefault("MAVLINK20", "1")
 
+from checkout import now_and_before
 from pymavlink.dialects.v20 import common as mavlink
 from pymavlink.dialects.v20 import development
 
@@ -226,20 +227,6 @@ def measure(seconds: float, repeat: int) -> dict:
     return out
 
 
-def _run_before(before: Path, seconds: float, repeat: int) -> dict:
-    env = {**os.environ, "PYTHONPATH": str(before)}
-    args = ["--seconds", str(seconds), "--repeat", str(repeat), "--json"]
-    done = subprocess.run(
-        [sys.executable, __file__, *args],
-        env=env,
-        check=True,
-        capture_output=True,
-        text=True,
-        cwd=before,
-    )
-    return json.loads(done.stdout)
-
-
 def _best(a: dict, b: dict) -> dict:
     out = {}
     for key in ("nobody", "client"):
@@ -296,12 +283,10 @@ def main() -> None:
         print(json.dumps(measure(args.seconds, args.repeat)))
         return
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs\n")
-    now = measure(args.seconds, args.repeat)
-    before = None
-    if args.before is not None:  # alternate: before, now again; best of each
-        before = _run_before(args.before, args.seconds, args.repeat)
-        now = _best(now, measure(args.seconds, args.repeat))
-        before = _best(before, _run_before(args.before, args.seconds, args.repeat))
+    now, before = now_and_before(
+        lambda: measure(args.seconds, args.repeat), args.before, __file__,
+        ["--seconds", str(args.seconds), "--repeat", str(args.repeat)], _best,
+    )  # fmt: skip
 
     print(
         f"Real-time factor, 1 kHz plant, full telemetry, flat out, {args.seconds:g} sim s, "
