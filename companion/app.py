@@ -382,6 +382,9 @@ class PickupApp:
                 f"the cruise altitude {plan.cruise_altitude_m:g} m is less than 0.5 m above "
                 f"where the vehicle stands (z = {self._ground_z:.2f} m in PX4's local frame)"
             )
+        unreachable = self.mission.unreachable(self._ground_z, flight.ground_margin_m)
+        if unreachable is not None:
+            raise MissionError(unreachable)
         self._note("mode", f"arming (standing at z = {self._ground_z:.2f} m)")
         try:
             await link.arm()

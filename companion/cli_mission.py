@@ -53,8 +53,13 @@ HORIZONTAL_RANGE_M = 1000.0
 """Largest |x|, |y| of a mission point from home [m]: a battery flight of a hexacopter
 (about 15 minutes at the mission's 0.5 m/s is 450 m there and back)."""
 ALTITUDE_RANGE_M = (0.0, 120.0)
-"""Heights of a mission point or the transit [m, up from the take-off point]: on or above
-the ground, below the 120 m ceiling of open-category drone flight."""
+"""Transit altitude [m, PX4's local frame]: below the 120 m ceiling of open-category drone
+flight."""
+POINT_HEIGHT_RANGE_M = (-120.0, 120.0)
+"""Z of a mission point [m, PX4's local frame]. With GPS, EKF2's origin is the standing
+vehicle's CoM, so an object on the ground lies below it (about minus the landing gear's
+height); whether the arm reaches a point is checked against where the vehicle stands, before
+arming (:meth:`~companion.mission.PickupMission.unreachable`)."""
 CONTROL_RATE_RANGE_HZ = (2.0, 1000.0)
 """--control-rate: PX4 leaves OFFBOARD below a 2 Hz setpoint stream, and the loop is paced
 by PX4's ODOMETRY, which comes at most at the estimator's 1 kHz IMU rate."""
@@ -74,7 +79,7 @@ class UsageError(Exception):
 
 def parse_xyz(text: str, option: str) -> tuple[float, float, float]:
     """X,Y,Z [m, ENU] of a mission point: |X|, |Y| within :data:`HORIZONTAL_RANGE_M` of
-    home, Z in :data:`ALTITUDE_RANGE_M`; one ``error:`` line and exit 2 otherwise."""
+    home, Z in :data:`POINT_HEIGHT_RANGE_M`; one ``error:`` line and exit 2 otherwise."""
     try:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
@@ -82,12 +87,12 @@ def parse_xyz(text: str, option: str) -> tuple[float, float, float]:
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
         fail(f"{option} needs three numbers X,Y,Z in metres (ENU), got {text!r}")
     x, y, z = values
-    reach, (low, high) = HORIZONTAL_RANGE_M, ALTITUDE_RANGE_M
+    reach, (low, high) = HORIZONTAL_RANGE_M, POINT_HEIGHT_RANGE_M
     if max(abs(x), abs(y)) > reach or not low <= z <= high:
         fail(
             f"{option} {text}: a mission point lies within {reach:g} m of home "
-            f"(|X|, |Y|: one battery's flight) and {low:g}-{high:g} m up (Z: on the ground "
-            "or above, below the 120 m ceiling)"
+            f"(|X|, |Y|: one battery's flight) and {low:g} to {high:g} m in Z (PX4's local "
+            "frame; the 120 m ceiling)"
         )
     return x, y, z
 
@@ -222,8 +227,12 @@ ControllerOpt = Annotated[
 @mission_app.command("pickup")
 def pickup(
     config: Annotated[Path, typer.Option("--config", help="Scenario TOML with [arm_bus].")],
-    payload_at: Annotated[str, typer.Option(help="Object's position X,Y,Z [m, ENU].")],
-    place_at: Annotated[str, typer.Option(help="Where to put it, X,Y,Z [m, ENU].")],
+    payload_at: Annotated[
+        str, typer.Option(help="Object's position X,Y,Z [m, ENU, PX4's local frame].")
+    ],
+    place_at: Annotated[
+        str, typer.Option(help="Where to put it, X,Y,Z [m, ENU, PX4's local frame].")
+    ],
     connect: Annotated[
         str,
         typer.Option(

@@ -277,6 +277,28 @@ class PickupMission:
             grasp = arm.link2.length_m - 0.02
         return -arm.mount_point_m[2] + arm.link1.length_m + grasp
 
+    def unreachable(self, ground_z_m: float, margin_m: float) -> str | None:
+        """Why the object or the place point cannot be reached from a vehicle standing at
+        ``ground_z_m`` [m, local frame], or None: the grasp and the release hover the
+        base's CoM :attr:`hang_m` above the point, which must stay ``margin_m`` above
+        where the vehicle stands (the ground_contact fault's height). The points are in
+        PX4's local frame, whose origin need not be on the ground (with GPS, EKF2's
+        origin is the standing vehicle), so only the vehicle can tell."""
+        floor = ground_z_m + margin_m
+        for name, point in (
+            ("object", self.plan.payload_at_m),
+            ("place point", self.plan.place_at_m),
+        ):
+            hover = point[2] + self.hang_m
+            if hover < floor:
+                return (
+                    f"the {name} at z = {point[2]:.2f} m is out of the arm's reach: the vehicle "
+                    f"would hover at z = {hover:.2f} m, below where it stands "
+                    f"(z = {ground_z_m:.2f} m in PX4's local frame) + the {margin_m:g} m "
+                    "ground margin"
+                )
+        return None
+
     def _pose(self, xyz: tuple[float, float, float] | FloatArray, eta) -> FloatArray:
         return np.array([xyz[0], xyz[1], xyz[2], 0.0, 0.0, self._yaw_rad, eta[0], eta[1]])
 

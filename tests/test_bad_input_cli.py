@@ -232,7 +232,7 @@ def test_mission_control_rate(tmp_path, rate):
     [
         ("--payload-at", "1e9,0,0.05"),
         ("--place-at", "0,-2000,0.05"),
-        ("--place-at", "0,0,-1"),
+        ("--place-at", "0,0,-500"),
         ("--payload-at", "0,0,500"),
         ("--payload-at", "nan,0,0"),
     ],

@@ -1,6 +1,7 @@
 """The pickup mission planner: phases, gripper and estimator actions, smooth references."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -170,3 +171,30 @@ def test_the_mission_starts_at_the_handed_over_velocity():
     np.testing.assert_allclose(first.q_dot[0:3], [0.3, -0.1, 0.05])
     np.testing.assert_allclose(first.q_dot[3:], 0.0)
     assert first.q[5] == pytest.approx(0.7)  # the heading the vehicle had
+
+
+def test_a_point_below_where_the_vehicle_stands_is_out_of_reach():
+    """The arm reaches the object from a hover hang_m above it: with motion capture (z = 0
+    on the ground, the vehicle standing at its gear height) and with GPS (EKF2's origin at
+    the standing vehicle, the same object at minus the gear height) the pickup reaches; an
+    object deeper than the arm can reach from where the vehicle stands is refused."""
+    mission = PickupMission(PLAN, SCENARIO)
+    gear_m = 0.25
+    object_z = PLAN.payload_at_m[2]
+    assert mission.unreachable(gear_m, 0.03) is None  # motion capture: lab frame
+    gps = PickupMission(
+        replace(PLAN, payload_at_m=(*PLAN.payload_at_m[:2], object_z - gear_m),
+                place_at_m=(*PLAN.place_at_m[:2], PLAN.place_at_m[2] - gear_m)),
+        SCENARIO,
+    )  # fmt: skip
+    assert gps.unreachable(0.0, 0.03) is None
+
+    def at(z: float) -> PickupMission:
+        return PickupMission(replace(PLAN, payload_at_m=(*PLAN.payload_at_m[:2], z)), SCENARIO)
+
+    edge = gear_m + 0.03 - mission.hang_m  # the object whose grasp hovers at the margin
+    assert at(edge + 0.001).unreachable(gear_m, 0.03) is None
+    why = at(edge - 0.001).unreachable(gear_m, 0.03)
+    assert why is not None and why.startswith("the object at z = ") and "reach" in why
+    low_place = PickupMission(replace(PLAN, place_at_m=(*PLAN.place_at_m[:2], -1.0)), SCENARIO)
+    assert "place point" in (low_place.unreachable(gear_m, 0.03) or "")

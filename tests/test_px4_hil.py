@@ -34,7 +34,8 @@ from sitl.launch import start_sitl
 
 ROOT = Path(__file__).parent.parent
 CONFIG = ROOT / "configs" / "sitl_pickup.toml"
-PAYLOAD_AT = "1.5,1.0,0.05"
+PAYLOAD_AT = (1.5, 1.0, 0.05)
+"""The object on the ground in the world (CONFIG's ``[world] payload_position_m``)."""
 PLACE_AT = (-1.0, 0.5)
 TRUE_MASS_KG = 0.25
 TRUE_COM_M = 0.15
@@ -47,25 +48,18 @@ GEAR_HEIGHT_M = 0.25
 """``[world] landing_gear_height_m`` of CONFIG: the standing vehicle's CoM above the ground."""
 
 
-def scenario_for(navigation: str, tmp: Path) -> Path:
-    """The pickup scenario in the frame the companion's mission points are given in.
-
-    With motion capture PX4's local frame is the lab's: z = 0 on the ground. With GPS,
-    EKF2 starts its local frame at the vehicle where it got its first fix: z = 0 at the
-    standing vehicle's CoM, 0.25 m above the ground, and the companion takes mission
-    points at or above z = 0 (up from the take-off point). So for GPS the objects lie on a
-    0.25 m high table (the object's resting height in the world): the same mission
-    coordinates, the same reach of the arm."""
-    if navigation == "mocap":
-        return CONFIG
-    text = CONFIG.read_text()
-    on_ground = "payload_position_m = [1.5, 1.0, 0.05]"
-    assert on_ground in text and f"landing_gear_height_m = {GEAR_HEIGHT_M}" in text
-    config = tmp / "sitl_pickup_table.toml"
-    config.write_text(
-        text.replace(on_ground, f"payload_position_m = [1.5, 1.0, {0.05 + GEAR_HEIGHT_M}]")
+def mission_points(navigation: str) -> tuple[str, str]:
+    """(--payload-at, --place-at) in the frame the companion's mission points are given in:
+    PX4's local frame. With motion capture it is the lab's: z = 0 on the ground. With GPS,
+    EKF2 starts it where the vehicle stands at its first fix: z = 0 at the standing
+    vehicle's CoM, the landing gear's 0.25 m above the ground, so the same objects on the
+    ground lie at z = 0.05 - 0.25 m (``sitl demo --navigation gps`` moves them the same
+    way)."""
+    down = GEAR_HEIGHT_M if navigation == "gps" else 0.0
+    return (
+        f"{PAYLOAD_AT[0]},{PAYLOAD_AT[1]},{PAYLOAD_AT[2] - down:g}",
+        f"{PLACE_AT[0]},{PLACE_AT[1]},{0.05 - down:g}",
     )
-    return config
 
 
 @dataclass
@@ -93,7 +87,7 @@ def fly_pickup(
     tmp: Path,
     name: str,
     *sitl_args: str,
-    config=CONFIG,
+    navigation="mocap",
     controller="passivity",
     relay=None,
     python=sys.executable,
@@ -103,8 +97,9 @@ def fly_pickup(
     flight install's)."""
     truth_log = tmp / "truth.jsonl"
     px4_dir = tmp / "px4"
+    payload_at, place_at = mission_points(navigation)
     sitl = start_sitl(
-        config, "--seed", "1", "--autopilot", "px4", "--px4-dir", str(px4_root),
+        CONFIG, "--seed", "1", "--autopilot", "px4", "--px4-dir", str(px4_root),
         "--keep-log", str(px4_dir), *sitl_args,
         truth_log=truth_log, timeout_s=180.0,
     )  # fmt: skip
@@ -117,9 +112,9 @@ def fly_pickup(
         result = subprocess.run(
             [
                 str(python), "-c", "from companion.cli import main; main()",
-                "mission", "pickup", "--config", str(config),
+                "mission", "pickup", "--config", str(CONFIG),
                 "--connect", f"udpin://127.0.0.1:{port}", "--arm-bus", sitl.arm_bus,
-                "--payload-at", PAYLOAD_AT, "--place-at", f"{PLACE_AT[0]},{PLACE_AT[1]},0.05",
+                "--payload-at", payload_at, "--place-at", place_at,
                 "--out", str(out), "--controller", controller,
             ],
             capture_output=True, text=True, timeout=900,
@@ -146,7 +141,6 @@ def flights(px4_build, tmp_path_factory, request):
     def get(navigation: str, controller: str = "passivity") -> Flight:
         if (navigation, controller) not in flown:
             tmp = tmp_path_factory.mktemp(f"px4-hil-{navigation}-{controller}")
-            config = scenario_for(navigation, tmp)
             python = (
                 request.getfixturevalue("flight_install")
                 if controller == "nonadaptive"
@@ -154,7 +148,7 @@ def flights(px4_build, tmp_path_factory, request):
             )
             flown[navigation, controller] = fly_pickup(
                 px4_build.root, tmp, navigation, *NAVIGATION[navigation],
-                config=config, controller=controller, python=python,
+                navigation=navigation, controller=controller, python=python,
             )  # fmt: skip
         return flown[navigation, controller]
 
