@@ -228,10 +228,10 @@ ControllerOpt = Annotated[
 def pickup(
     config: Annotated[Path, typer.Option("--config", help="Scenario TOML with [arm_bus].")],
     payload_at: Annotated[
-        str, typer.Option(help="Object's position X,Y,Z [m, ENU, PX4's local frame].")
+        str, typer.Option(help="Object's position X,Y,Z [m, ENU] in PX4's local frame.")
     ],
     place_at: Annotated[
-        str, typer.Option(help="Where to put it, X,Y,Z [m, ENU, PX4's local frame].")
+        str, typer.Option(help="Where to put it, X,Y,Z [m, ENU] in PX4's local frame.")
     ],
     connect: Annotated[
         str,
