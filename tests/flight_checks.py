@@ -31,13 +31,17 @@ def assert_calm_flight(c: dict[str, np.ndarray]) -> None:
     first = np.flatnonzero(flown)[0]
     window = flown & (c["t_vehicle_s"] <= c["t_vehicle_s"][first] + 2.0)
     assert np.max(np.abs(tilt_deg[window] - tilt_deg[first])) < 5.0
-    error = np.stack([c[f"q_{a}_m"][calm] - c[f"qd_{a}_m"][calm] for a in "xyz"])
-    assert math.sqrt(float(np.mean(np.sum(error**2, axis=0)))) < 0.10
+    assert position_rms_m(c, calm) < 0.10
+
+
+def position_rms_m(c: dict[str, np.ndarray], rows: np.ndarray) -> float:
+    """Position RMS [m] against the plan over the ``rows`` (a mask) of a flight log's
+    columns ``c``."""
+    error = np.stack([c[f"q_{a}_m"][rows] - c[f"qd_{a}_m"][rows] for a in "xyz"])
+    return math.sqrt(float(np.mean(np.sum(error**2, axis=0))))
 
 
 def carry_rms_m(c: dict[str, np.ndarray]) -> float:
     """Position RMS [m] against the plan over :data:`CARRY_PHASES` of a flight log's
     columns ``c``."""
-    carry = np.isin(c["phase"], CARRY_PHASES)
-    error = np.stack([c[f"q_{a}_m"][carry] - c[f"qd_{a}_m"][carry] for a in "xyz"])
-    return math.sqrt(float(np.mean(np.sum(error**2, axis=0))))
+    return position_rms_m(c, np.isin(c["phase"], CARRY_PHASES))
