@@ -135,6 +135,40 @@ def test_closed_loop_with_a_physics_joint_settles_on_the_goal() -> None:
     assert not servo.hardware_error
 
 
+def test_full_command_runs_at_the_datasheet_no_load_speed_and_draws_stall_current() -> None:
+    """The voltage limit: a free shaft on the largest current command settles near 46 rpm
+    (4.8 rad/s at 12 V) and not beyond, however long it runs; held still it draws the
+    datasheet's 2.3 A stall current, not the 2.9 A asked (below the overload threshold)."""
+    servo = XM430Servo(1)
+    write(servo, ct.OPERATING_MODE, ct.OperatingMode.CURRENT)
+    write(servo, ct.GOAL_CURRENT, units.a_to_current_units(2.9))
+    write(servo, ct.TORQUE_ENABLE, 1)
+    settle(servo)
+    assert units.current_units_to_a(servo.get(ct.PRESENT_CURRENT)) == pytest.approx(2.3, rel=0.01)
+    inertia_kg_m2, rate, dt = 0.002, 0.0, 1e-3
+    for _ in range(5000):
+        servo.set_state(0.0, rate)
+        servo.step(dt)
+        rate += servo.torque_n_m() / inertia_kg_m2 * dt
+    assert not servo.hardware_error
+    no_load_rad_s = 46.0 * 2.0 * math.pi / 60.0
+    assert 0.9 * no_load_rad_s < rate < no_load_rad_s
+
+
+def test_an_unpowered_shaft_is_slowed_by_the_gearbox_friction() -> None:
+    """Torque off, a spinning shaft meets viscous friction (it would coast for ever
+    without it): its torque opposes the rate, and a free inertia comes to rest."""
+    servo = XM430Servo(1)
+    servo.set_state(0.0, 2.0)
+    assert servo.torque_n_m() == pytest.approx(-0.02 * 2.0)
+    inertia_kg_m2, rate, dt = 0.005, 2.0, 1e-3
+    for _ in range(2000):
+        servo.set_state(0.0, rate)
+        servo.step(dt)
+        rate += servo.torque_n_m() / inertia_kg_m2 * dt
+    assert 0.0 < rate < 2.0 * math.exp(-1.0)
+
+
 def test_sustained_overload_sets_the_bit_shuts_down_and_needs_a_reboot() -> None:
     servo = XM430Servo(1, XM430Parameters(overload_time_s=0.2))
     write(servo, ct.OPERATING_MODE, ct.OperatingMode.CURRENT)

@@ -19,7 +19,13 @@ What is modelled (addresses, sizes and units from
 - Position and Current-based Position Control Modes: a PD law on Goal Position(116),
   ``i = kp (theta_goal - theta) - kd omega`` [A], clamped to +-Current Limit, and in
   Current-based Position mode also to +-|Goal Current| (the mode's torque limit);
-- output torque = ``torque_constant_n_m_per_a`` x present current (0 with torque off);
+- the motor's voltage limit: the current the H-bridge can drive at shaft rate omega lies
+  in ``[(-V - k_e omega) / R, (V - k_e omega) / R]`` with V = Present Input Voltage(144),
+  so a servo on full command runs no faster than the datasheet's no-load speed (46 rpm at
+  12 V, 4.8 rad/s) and its current at stall is the datasheet's 2.3 A;
+- output torque = ``torque_constant_n_m_per_a`` x present current (0 with torque off)
+  minus the gearbox's viscous friction ``viscous_friction_n_m_s_per_rad`` x omega, which
+  acts with torque off too (an unpowered arm does not swing freely);
 - overload: a command at or above ``overload_current_fraction`` x Current Limit for
   ``overload_time_s`` sets the Overload bit of Hardware Error Status(70); when
   Shutdown(63) selects a bit that is set, torque turns off and stays off until a Reboot;
@@ -41,10 +47,13 @@ refused (Data Range Error), only 0 clears; once cleared, the servo applies its o
 Goal Current or Goal Position again, so a host must write a new goal.
 
 Not modelled: velocity and PWM modes (refused: Data Range Error), profiles, indirect
-addresses, voltage and temperature dynamics, Drive Mode's reverse bit.
+addresses, voltage and temperature dynamics, Drive Mode's reverse bit, the gearbox's
+Coulomb friction and backlash.
 
 Torque constant: 1.78 N m/A is the ratio of the datasheet's stall torque (4.1 N m) to
-stall current (2.3 A) at 12 V, an example value, not a calibration.
+stall current (2.3 A) at 12 V, an example value, not a calibration. Winding resistance
+12 V / 2.3 A and back-EMF constant 12 V / 4.8 rad/s come from the same datasheet figures;
+the viscous friction (0.02 N m s/rad at the output) is an example value.
 """
 
 from __future__ import annotations
@@ -71,6 +80,9 @@ __all__ = [
 
 EXAMPLE_TORQUE_CONSTANT_N_M_PER_A = 4.1 / 2.3
 """Stall torque / stall current of the XM430-W350 datasheet at 12 V [N m/A] (~1.78)."""
+_DATASHEET_VOLTAGE_V = 12.0
+_DATASHEET_STALL_CURRENT_A = 2.3
+_DATASHEET_NO_LOAD_SPEED_RAD_S = 46.0 * 2.0 * math.pi / 60.0
 TABLE_SIZE = ct.PRESENT_TEMPERATURE.end
 """Bytes of control table modelled: addresses 0-146."""
 
@@ -137,6 +149,12 @@ class XM430Parameters:
         Fraction of Current Limit at or above which the command counts as overload [-].
     overload_time_s
         Sustained overload time before the Overload bit is set [s].
+    winding_resistance_ohm
+        Motor resistance seen by the H-bridge [ohm] (12 V / 2.3 A stall).
+    back_emf_v_s_per_rad
+        Back-EMF per output shaft rate [V s/rad] (12 V at the 46 rpm no-load speed).
+    viscous_friction_n_m_s_per_rad
+        Gearbox viscous friction at the output shaft [N m s/rad], torque on or off.
     """
 
     torque_constant_n_m_per_a: float = EXAMPLE_TORQUE_CONSTANT_N_M_PER_A
@@ -145,11 +163,22 @@ class XM430Parameters:
     position_kd_a_s_per_rad: float = 0.3
     overload_current_fraction: float = 0.95
     overload_time_s: float = 1.0
+    winding_resistance_ohm: float = _DATASHEET_VOLTAGE_V / _DATASHEET_STALL_CURRENT_A
+    back_emf_v_s_per_rad: float = _DATASHEET_VOLTAGE_V / _DATASHEET_NO_LOAD_SPEED_RAD_S
+    viscous_friction_n_m_s_per_rad: float = 0.02
 
     def __post_init__(self) -> None:
-        for name in ("torque_constant_n_m_per_a", "current_time_constant_s", "overload_time_s"):
+        for name in (
+            "torque_constant_n_m_per_a",
+            "current_time_constant_s",
+            "overload_time_s",
+            "winding_resistance_ohm",
+        ):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        for name in ("back_emf_v_s_per_rad", "viscous_friction_n_m_s_per_rad"):
+            if not getattr(self, name) >= 0.0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not 0.0 < self.overload_current_fraction <= 1.0:
             raise ValueError("overload_current_fraction must be in (0, 1]")
 
@@ -368,10 +397,13 @@ class XM430Servo:
     # they need straight from the table (as get() does, without its per-call lookups).
 
     def torque_n_m(self) -> float:
-        """Output torque [N m]: torque constant x present current, 0 with torque off."""
+        """Output torque [N m]: torque constant x present current (0 with torque off)
+        minus the gearbox's viscous friction."""
+        p = self.parameters
+        friction = p.viscous_friction_n_m_s_per_rad * self._rate_rad_s
         if self.table[_TORQUE_ENABLE] != 1:
-            return 0.0
-        return self.parameters.torque_constant_n_m_per_a * self._current_a
+            return -friction
+        return p.torque_constant_n_m_per_a * self._current_a - friction
 
     def commanded_current_a(self) -> float:
         """Current the active control mode asks for now [A], clamped to the limits."""
@@ -413,10 +445,11 @@ class XM430Servo:
         table = self.table
         limit_a = self._limit_a()
         command = self._command_a(limit_a) if table[_TORQUE_ENABLE] == 1 else 0.0
+        driven = self._drivable_a(command)
         if dt_s != self._lag_dt_s:  # the current loop's factor, once per step size
             self._lag_dt_s = dt_s
             self._lag = -math.expm1(-dt_s / p.current_time_constant_s)
-        self._current_a += (command - self._current_a) * self._lag
+        self._current_a += (driven - self._current_a) * self._lag
         overloaded = abs(command) >= p.overload_current_fraction * limit_a > 0.0
         self._overload_s = self._overload_s + dt_s if overloaded else 0.0
         if self._overload_s >= p.overload_time_s:
@@ -428,6 +461,15 @@ class XM430Servo:
             _INT16.pack_into(table, _PRESENT_CURRENT, current)
         except struct.error:  # out of range: _put raises as the encoders do
             self._put(ct.PRESENT_CURRENT, current)
+
+    def _drivable_a(self, command_a: float) -> float:
+        """``command_a`` [A] within what the supply voltage drives against the back-EMF."""
+        p = self.parameters
+        volts = units.voltage_units_to_v(_UINT16.unpack_from(self.table, _PRESENT_INPUT_VOLTAGE)[0])
+        emf = p.back_emf_v_s_per_rad * self._rate_rad_s
+        low = (-volts - emf) / p.winding_resistance_ohm
+        high = (volts - emf) / p.winding_resistance_ohm
+        return max(low, min(high, command_a))
 
     def _watch(self, dt_s: float) -> None:
         """Count the silence while the watchdog is armed; trip when it exceeds the timeout."""
@@ -445,6 +487,7 @@ assert ct.TORQUE_ENABLE.size == ct.OPERATING_MODE.size == 1
 assert not ct.CURRENT_LIMIT.signed and ct.GOAL_CURRENT.signed and ct.GOAL_POSITION.signed
 assert (ct.CURRENT_LIMIT.size, ct.GOAL_CURRENT.size, ct.PRESENT_CURRENT.size) == (2, 2, 2)
 assert ct.PRESENT_CURRENT.signed and ct.GOAL_POSITION.size == 4
+assert not ct.PRESENT_INPUT_VOLTAGE.signed and ct.PRESENT_INPUT_VOLTAGE.size == 2
 assert ct.PRESENT_VELOCITY.end == ct.PRESENT_POSITION.address
 assert ct.PRESENT_VELOCITY.size == ct.PRESENT_POSITION.size == 4
 _TORQUE_ENABLE = ct.TORQUE_ENABLE.address
@@ -454,6 +497,7 @@ _GOAL_CURRENT = ct.GOAL_CURRENT.address
 _GOAL_POSITION = ct.GOAL_POSITION.address
 _PRESENT_CURRENT = ct.PRESENT_CURRENT.address
 _PRESENT_VELOCITY = ct.PRESENT_VELOCITY.address
+_PRESENT_INPUT_VOLTAGE = ct.PRESENT_INPUT_VOLTAGE.address
 _UINT16 = struct.Struct("<H")
 _INT16 = struct.Struct("<h")
 _INT32 = struct.Struct("<i")
