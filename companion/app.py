@@ -113,6 +113,8 @@ _HOLD_WINDOW_S = 3.0
 """Vehicle time of PX4's hold before the handover the horizontal bias is taken over [s]."""
 _MAX_JOINT_AGE_S = 0.05
 """Age [s] a joint state is fused with at most (a cycle that waited on the link)."""
+_NOT_ARMED = object()
+"""``PickupApp._status_at_arm`` before the app armed the vehicle."""
 
 
 class MissionError(RuntimeError):
@@ -225,6 +227,8 @@ class PickupApp:
         self.control.estimator.freeze()  # until the mission flies in OFFBOARD
         self._tick = asyncio.Condition()
         """Notified after every control cycle (vehicle time advanced)."""
+        self._status_at_arm: object = _NOT_ARMED
+        """The latest HEARTBEAT when PX4 acknowledged the arm command."""
 
     # ----------------------------------------------------------------- events
 
@@ -388,6 +392,7 @@ class PickupApp:
         self._note("mode", f"arming (standing at z = {self._ground_z:.2f} m)")
         try:
             await link.arm()
+            self._status_at_arm = link.latest(VehicleStatus)
             # MIS_TAKEOFF_ALT is above home (where PX4 armed): the cruise altitude is in the
             # local frame, whose origin need not be on the ground.
             await link.param_set("MIS_TAKEOFF_ALT", plan.cruise_altitude_m - self._ground_z)
@@ -443,15 +448,20 @@ class PickupApp:
 
     async def _land(self, stream: Stream) -> None:
         """Hand the vehicle to PX4's AUTO.LAND, streaming ``stream`` until it acknowledges;
-        wait until it has landed and disarmed."""
+        wait until a HEARTBEAT sent after the acknowledgement says it has disarmed (PX4
+        sends them at 1 Hz: a land soon after arming finds the latest one still from
+        before the arming, disarmed)."""
         await self._release(
             stream,
             lambda: self.link.command_long(mavlink2.MAV_CMD_NAV_LAND, [0, 0, 0] + [math.nan] * 4),
             "land",
         )
         self._note("mode", "landing")
+        acknowledged = self.link.latest(VehicleStatus)
         await self._wait_for(
-            lambda: not self._armed(), self.land_timeout_s, "the vehicle did not land and disarm"
+            lambda: self._disarmed_since(acknowledged),
+            self.land_timeout_s,
+            "the vehicle did not land and disarm",
         )
         self.report.landed = True
         self.report.disarmed = True
@@ -503,8 +513,15 @@ class PickupApp:
         return None if status is None else status.mode.name
 
     def _armed(self) -> bool:
+        """PX4 is armed: its latest HEARTBEAT says so, or it acknowledged the app's arm
+        command after that HEARTBEAT (at 1 Hz they lag an arming by up to 1 s)."""
         status = self.link.latest(VehicleStatus)
-        return bool(status and status.armed)
+        return status is self._status_at_arm or bool(status and status.armed)
+
+    def _disarmed_since(self, seen: VehicleStatus | None) -> bool:
+        """A HEARTBEAT newer than ``seen`` (each is a new object) says disarmed."""
+        status = self.link.latest(VehicleStatus)
+        return status is not None and status is not seen and not status.armed
 
     def _altitude(self) -> float:
         return float(self.assembler.estimate.q[Z]) if self.assembler.ready else -math.inf

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import time
 
 import numpy as np
@@ -19,7 +20,8 @@ import pytest
 from arm_driver.bus import JointConfig, OperatingMode, open_bus
 from companion.app import MissionError, PickupApp
 from companion.config import load_config
-from companion.link.telemetry import VehiclePose
+from companion.link.px4_modes import px4_mode
+from companion.link.telemetry import VehiclePose, VehicleStatus
 from companion.mission import PickupPlan
 from companion.offboard import Stream
 from sitl.servo import PtyServoBus, XM430Servo
@@ -167,3 +169,76 @@ def test_touching_the_ground_in_offboard_is_a_fault_flown_level_at_the_thrust_fl
     sp = app.offboard.setpoint(out.setpoint, q, app.control.weight_n(), app.control.thrust)
     assert (sp.roll_rad, sp.pitch_rad, sp.yaw_rad) == (0.0, 0.0, 0.3)
     assert sp.thrust_relative == pytest.approx(0.12)
+
+
+class StatusLink(PoseLink):
+    """A link whose HEARTBEAT the test sets; every command is acknowledged."""
+
+    def __init__(self, status: VehicleStatus) -> None:
+        super().__init__(ScriptedPoses(8000))
+        self.status = status
+
+    def latest(self, key):
+        return self.status if key is VehicleStatus else None
+
+    async def command_long(self, *args, **kwargs) -> None:
+        await asyncio.sleep(0)
+
+    async def arm(self) -> None:
+        await asyncio.sleep(0)
+
+
+def _heartbeat(armed: bool, mode: str) -> VehicleStatus:
+    return VehicleStatus(1000, armed, px4_mode(mode), 4 if armed else 3)
+
+
+def test_a_land_right_after_arming_waits_for_a_newer_heartbeat_that_says_disarmed():
+    """PX4's HEARTBEAT comes at 1 Hz. Under PX4 a servo fell silent 0.5 s after the app
+    armed: the land found the HEARTBEAT from before the arming (disarmed), and the app
+    reported landed and disarmed while PX4 was still armed and landing. Now the app
+    counts as armed from PX4's acknowledgement, and the land ends on a newer HEARTBEAT."""
+    link = StatusLink(_heartbeat(False, "LOITER"))
+    app = PickupApp(SCENARIO, link, TwoJoints(), PLAN, land_timeout_s=5.0)
+
+    async def fly() -> tuple[float, float]:
+        await link.arm()
+        app._status_at_arm = link.latest(VehicleStatus)
+        assert app._armed()  # the stale heartbeat says disarmed
+        landing = asyncio.create_task(app._land(Stream.LEVEL))
+        newer_s = math.nan
+        for cycle in range(1, 1000):
+            await asyncio.sleep(0)
+            app.t_s = 0.004 * cycle
+            if cycle == 100:
+                link.status = _heartbeat(True, "LAND")
+            if cycle == 350:
+                link.status, newer_s = _heartbeat(False, "LAND"), app.t_s
+            async with app._tick:
+                app._tick.notify_all()
+            if landing.done():
+                break
+        await landing
+        return newer_s, app.t_s
+
+    newer_s, landed_s = asyncio.run(fly())
+    assert newer_s <= landed_s <= newer_s + 0.0041  # the next control cycle
+    assert app.report.landed and app.report.disarmed
+    assert not app._armed()
+
+
+def test_a_land_without_a_newer_heartbeat_is_a_mission_error_not_a_disarm():
+    link = StatusLink(_heartbeat(False, "LOITER"))
+    app = PickupApp(SCENARIO, link, TwoJoints(), PLAN, land_timeout_s=1.0)
+
+    async def fly() -> None:
+        landing = asyncio.create_task(app._land(Stream.LEVEL))
+        for cycle in range(1, 400):
+            await asyncio.sleep(0)
+            app.t_s = 0.004 * cycle
+            async with app._tick:
+                app._tick.notify_all()
+        await landing
+
+    with pytest.raises(MissionError, match="did not land and disarm"):
+        asyncio.run(fly())
+    assert not app.report.disarmed
