@@ -17,8 +17,10 @@ Simplifications, all stated here:
   own): flat, at world z = 0. The base stands when its CoM is ``landing_gear_height_m``
   above it. When a step ends with the CoM below that height, the base is pinned level and
   at rest where it touched down (x, y and yaw of the touch-down; roll, pitch and all base
-  velocities zero): a perfectly inelastic contact with static friction. The arm and the
-  payload do not collide with the ground.
+  velocities zero): a perfectly inelastic contact with static friction. The arm then
+  moves as on a fixed stand under gravity and its torques (the step is taken again with
+  the base held, :meth:`~sitl.physics.TruthPlant.hold_base`). The arm and the payload do
+  not collide with the ground.
 - Gripper: one jaw shaft (inertia, viscous friction, hard stops at the open and closed
   positions) driven by the gripper servo. It counts as closed past the middle of its
   travel toward the closed position. When it closes with the payload's centre of mass
@@ -346,18 +348,24 @@ class World:
             self._gripper_servo.set_state(self.jaw.angle_rad, self.jaw.rate_rad_s)
             self.jaw.advance(self._gripper_servo.torque_n_m(), dt)
         state = plant_step(torques)
+        arm_before = (etas, eta_rates, torques.tolist())
         for _, servo in self._joints:
             servo.step(dt)
         if self._gripper_servo is not None:
             self._gripper_servo.step(dt)
         # sum() adds in order, as numpy does for six values: the same float, 3 us cheaper
         self.battery.draw(sum(self.plant.rotor_thrusts_n.tolist()), dt)
-        state = self._ground_contact(state)
+        state = self._ground_contact(state, arm_before)
         self._state = state
         self._update_payload()
         return state
 
-    def _ground_contact(self, state: PlantState) -> PlantState:
+    def _ground_contact(
+        self, state: PlantState, arm_before: tuple[list[float], list[float], list[float]]
+    ) -> PlantState:
+        """Stand the base on the ground (see the module docstring); ``arm_before`` is the
+        joints' angles, rates and torques at the start of the step, which the arm takes
+        again on the standing base."""
         height = self.settings.landing_gear_height_m
         if self.plant.has_ground:  # the plant's own gear holds it (JSBSim)
             self.on_ground = state.q[Z] <= height + _CONTACT_SLACK_M and abs(state.q_dot[Z]) < 0.1
@@ -370,7 +378,7 @@ class World:
         if self._ground_pose is None:  # touch-down: stay where the gear met the ground
             self._ground_pose = (float(state.q[X]), float(state.q[Y]), float(state.q[PSI]))
         x, y, yaw = self._ground_pose
-        return self.plant.hold_base((x, y, height), yaw)
+        return self.plant.hold_base((x, y, height), yaw, arm_before)
 
     # ------------------------------------------------------------------- payload
 

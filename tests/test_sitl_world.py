@@ -88,6 +88,25 @@ def test_servo_direction_reverses_the_joint_torque():
     assert torques[0] * torques[1] < 0.0
 
 
+def test_a_standing_arm_swings_down_under_gravity_and_the_rotors_do_not_pump_it():
+    """On the ground the arm moves as on a stand. Before, the ground pinned the base after
+    a free step: a limp arm floated (it fell with the base) and the rotors' torque on the
+    held base spun it (5 rad/s on the ground under PX4 after a landing)."""
+    world, servos = _world(joints=(0.0, -0.5 * math.pi))
+    for i in (1, 2):
+        assert servos[i].write(ct.TORQUE_ENABLE.address, b"\x00").error == 0
+    for _ in range(300):
+        state = world.step(None)
+    assert world.on_ground and state.q[6] < -0.3  # link 1 falls
+    pitch_up = AttitudeSetpoint.from_euler(0.0, 0.3, 0.0, 0.15)  # a pitch torque, no lift
+    for _ in range(8000):
+        state = world.step(pitch_up)
+    assert world.on_ground
+    assert abs(world.plant.actuators.torque_normalized[1]) > 0.05  # pitch torque asked
+    np.testing.assert_allclose(state.q[6:8], [-0.5 * math.pi, 0.0], atol=0.05)
+    np.testing.assert_allclose(state.q_dot[6:8], 0.0, atol=0.05)
+
+
 def _close_gripper(world, servos, steps=400):
     goal = int(units.rad_to_ticks(GRIPPER.closed_position_rad)).to_bytes(4, "little", signed=True)
     servos[3].write(ct.GOAL_POSITION.address, goal)

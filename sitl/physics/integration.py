@@ -236,6 +236,26 @@ class ArticulatedIntegrator:
             a[7],
         ]
 
+    def fixed_base_joint_accelerations(
+        self, x: list[float], eta_dot: tuple[float, float], joint_torques_n_m: tuple[float, float]
+    ) -> tuple[float, float]:
+        """eta_ddot [rad/s^2] of the arm on a base held at rest at the pose of ``x``.
+
+        The joint rows of M(q) v_dot + h(q, v) = tau with the base's velocity and
+        acceleration zero: M_ee eta_ddot = tau_e - h_e(q, [0, eta_dot]) (Pinocchio's CRBA
+        and RNEA, gravity and armature included). The ground's reaction, whatever it is,
+        acts on the base rows only.
+        """
+        self._q[:] = x
+        self._v[:] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, *eta_dot)
+        m = pin.crba(self.model, self._data, self._q)  # upper triangle filled
+        h = pin.rnea(self.model, self._data, self._q, self._v, np.zeros(8))
+        a11, a12, a22 = m[6, 6], m[6, 7], m[7, 7]
+        b1 = joint_torques_n_m[0] - h[6]
+        b2 = joint_torques_n_m[1] - h[7]
+        det = a11 * a22 - a12 * a12
+        return ((a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det)
+
     def step_kinematics(
         self,
         x: list[float],

@@ -230,18 +230,43 @@ class TruthPlant:
             self._actuators = None
         return self.state
 
-    def hold_base(self, position_m: tuple[float, float, float], yaw_rad: float) -> PlantState:
+    def hold_base(
+        self,
+        position_m: tuple[float, float, float],
+        yaw_rad: float,
+        arm_before: tuple[list[float], list[float], list[float]] | None = None,
+    ) -> PlantState:
         """Pin the base level at ``position_m`` (world ENU [m]) and ``yaw_rad``, at rest.
 
-        A rigid contact for a SITL's ground: the joints keep their angles and rates, the
-        rotors their thrust, time goes on; the autopilot's integrators are cleared, as
-        PX4 does while landed. Cheaper than :meth:`reset` (called every step on the ground).
+        A rigid contact for a SITL's ground: the rotors keep their thrust, time goes on;
+        the autopilot's integrators are cleared, as PX4 does while landed. Cheaper than
+        :meth:`reset` (called every step on the ground).
+
+        The joints keep the angles and rates of the free step just taken, or, with
+        ``arm_before = (eta [rad], eta_dot [rad/s], joint torques [N m])`` of the start
+        of that step (the torques clipped as :meth:`step` clips them), take it again on
+        the held base (semi-implicit Euler, whatever
+        ``plant.integrator``): gravity then swings the arm as on a stand, and the base's
+        own torques (rotors, the ground) do not reach it. Without it a standing arm is
+        weightless (the free step falls with the base) and the rotors' torques, cancelled
+        on the base each step, pump the joints.
         """
         half = 0.5 * yaw_rad
         x = self._x
         x[0:7] = (*position_m, 0.0, 0.0, math.sin(half), math.cos(half))
         self._u[0:6] = (0.0,) * 6
         self._euler = (0.0, 0.0, yaw_rad)
+        if arm_before is not None:
+            eta, eta_dot, torques = arm_before
+            x[7:9] = eta
+            j1, j2 = self._joint_torques(torques)
+            dd1, dd2 = self._integrator.fixed_base_joint_accelerations(
+                x, (eta_dot[0], eta_dot[1]), (j1, j2)
+            )
+            rate1, rate2 = eta_dot[0] + self.dt_s * dd1, eta_dot[1] + self.dt_s * dd2
+            x[7:9] = (eta[0] + self.dt_s * rate1, eta[1] + self.dt_s * rate2)
+            self._u[6:8] = (rate1, rate2)
+            self._qdd = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, dd1, dd2]
         if self.mode == "underactuated":
             self._autopilot.reset()
         self._update_kinematics()
