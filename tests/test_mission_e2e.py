@@ -265,7 +265,9 @@ def test_link_cut_mid_flight_is_detected_and_the_vehicle_lands(tmp_path):
 @pytest.mark.slow
 @JUDGED_AGAINST_PX4
 def test_servo_that_stops_answering_makes_the_app_land(tmp_path):
-    result, summary, log = fly(tmp_path, "servo", "--servo-silent", "2@12")
+    result, summary, log = fly(tmp_path, "servo", "--servo-silent", "2@20")
+    silenced = next(row for row in log if row["t_s"] >= 20.0)  # in the air: armed at ~11 s
+    assert silenced["armed"] and not silenced["on_ground"]
     assert result.returncode == 1, result.stdout + result.stderr
     assert "Traceback" not in result.stderr
     assert [f["fault"] for f in summary["faults"]][:1] == ["servo_bus"]

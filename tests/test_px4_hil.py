@@ -259,9 +259,12 @@ def test_adaptive_carry_rms_is_at_most_half_the_nonadaptive_under_px4(flights):
 
 @pytest.mark.slow
 def test_a_silenced_servo_under_px4_makes_the_app_land(px4_build, tmp_path):
-    """Servo 2 stops answering at 12 s (the emulated bus, as with the imitation): the app
-    raises servo_bus and PX4 lands and disarms."""
-    flight = fly_pickup(px4_build.root, tmp_path, "servo", "--servo-silent", "2@12")
+    """Servo 2 stops answering at 20 s (the emulated bus, as with the imitation), in the
+    air (PX4 arms at about 12 s): the app raises servo_bus and PX4 lands and disarms. (At
+    12 s a loaded machine had not armed yet, and the app rightly refused to fly.)"""
+    flight = fly_pickup(px4_build.root, tmp_path, "servo", "--servo-silent", "2@20")
+    silenced = next(row for row in flight.truth if row["t_s"] >= 20.0)
+    assert silenced["armed"] and not silenced["on_ground"], flight.context()
     assert flight.result.returncode == 1, flight.context()
     assert "Traceback" not in flight.result.stderr, flight.context()
     assert flight.summary is not None, flight.context()
