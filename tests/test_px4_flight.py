@@ -163,3 +163,22 @@ def test_takeoff_hold_offboard_failsafes_return_and_disarm(payload):
         M.MAV_LANDED_STATE_LANDING,
         M.MAV_LANDED_STATE_ON_GROUND,
     ]
+
+
+def test_a_takeoff_is_not_the_mode_after_the_disarm():
+    """Take-off, land at once, auto-disarm: the intention returns to Hold, not Takeoff.
+    Measured on the PX4 build (v1.17.0-alpha1, a servo silenced during the take-off of a
+    PX4-in-the-loop pickup: AUTO_TAKEOFF, AUTO_LAND, disarmed, AUTO_LOITER); PX4 keeps
+    the last intended mode that neither prevents arming nor is a take-off. (After
+    OFFBOARD then Land it is OFFBOARD, as the pickups under PX4 end.)"""
+    f = Flight(payload=False)
+    assert ack_of(f.send(command(400, 1))).result == M.MAV_RESULT_ACCEPTED
+    f.send(command(M.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 7))
+    f.run(0.3)
+    assert f.vehicle.mode is Px4Mode.AUTO_TAKEOFF
+    assert ack_of(f.send(command(M.MAV_CMD_NAV_LAND))).result == M.MAV_RESULT_ACCEPTED
+    f.run(0.01)
+    assert f.vehicle.mode is Px4Mode.AUTO_LAND
+    f.run(12.0)
+    assert f.on_ground and not f.vehicle.armed
+    assert f.vehicle.mode is Px4Mode.AUTO_LOITER

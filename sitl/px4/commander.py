@@ -19,7 +19,8 @@ and on what the real SITL build did:
   PX4 runs these checks for every MAVLink arm command, forced (param2 21196) or not:
   force skips them only for commands from inside PX4. Home is set at arming. Disarming in
   the air is TEMPORARILY_REJECTED unless forced. After a disarm the intended mode returns
-  to the last one asked for that does not prevent arming.
+  to the last one asked for that neither prevents arming nor is Takeoff (measured: a
+  take-off landed at once ends in Hold).
 - **Offboard proof of life** (PX4 ``offboardCheck.cpp``): alive while ``now < t_last +
   COM_OF_LOSS_T``, ``t_last`` the time of the last valid SET_ATTITUDE_TARGET that does
   not ignore attitude.
@@ -382,7 +383,7 @@ class Commander:
     def _intend(self, mode: Px4Mode) -> None:
         """The user asks for ``mode`` (a command, or the navigator after a takeoff)."""
         self.user_mode = mode
-        if mode not in _PREVENT_ARMING:
+        if mode not in _PREVENT_ARMING and mode != Px4Mode.AUTO_TAKEOFF:
             self._after_disarm = mode
         self._fly(mode)
         self.failsafe = False
