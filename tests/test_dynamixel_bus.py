@@ -7,6 +7,7 @@ autouse fixture fails any test that leaves a bus open.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import math
 import time
 from collections.abc import Awaitable, Callable, Iterator
@@ -236,6 +237,38 @@ def test_joint_states_in_si_units_with_sign_offset_and_timestamp(sim: PtyServoBu
             assert elbow.position_rad == pytest.approx(-(0.7 - 0.5), abs=tick)
             assert elbow.velocity_rad_s == pytest.approx(-0.6, abs=rate_unit)
             assert before <= shoulder.timestamp_s == elbow.timestamp_s <= time.monotonic()
+            await bus.disable_torque()
+
+    run(body)
+
+
+def test_measured_torque_is_the_links_the_calibrated_friction_subtracted(
+    sim: PtyServoBus,
+) -> None:
+    """Kt * current less b * rate + Fc * sign(rate), at the rate of the same read."""
+    b, fc = 0.05, 0.02
+    joints = tuple(
+        dataclasses.replace(j, viscous_friction_n_m_s_per_rad=b, coulomb_friction_n_m=fc)
+        for j in JOINTS
+    )
+
+    async def body() -> None:
+        async with DynamixelBus(sim.device, joints, timeout_margin_s=RELAXED_MARGIN_S) as bus:
+            await bus.set_operating_mode(OperatingMode.CURRENT)
+            await bus.enable_torque()
+            await bus.write_joint_torques({"shoulder": 0.89, "elbow": 0.89})
+            await bus.read_joint_states()  # a round trip: the sync write was handled
+            with sim.lock:
+                sim.servos[1].set_state(0.0, 1.2)  # shoulder moving up
+                sim.servos[2].set_state(0.5, 0.0)  # elbow at rest
+                for servo in sim.servos.values():
+                    servo.step(0.05)
+            states = await bus.read_joint_states()
+            rate = states["shoulder"].velocity_rad_s
+            assert rate == pytest.approx(1.2, abs=units.VELOCITY_RAD_S_PER_UNIT)
+            step = KT * units.CURRENT_A_PER_UNIT
+            assert states["shoulder"].torque_n_m == pytest.approx(0.89 - b * rate - fc, abs=step)
+            assert states["elbow"].torque_n_m == pytest.approx(0.89, abs=step)  # no friction
             await bus.disable_torque()
 
     run(body)

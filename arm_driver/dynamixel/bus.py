@@ -11,7 +11,9 @@ Transactions (one at a time; the base class holds the lock):
   Status Return Level(68), Hardware Error Status(70). A joint's torque limit is lowered
   to what its Current Limit allows;
 - joint states: one Sync Read of Present Current/Velocity/Position (addresses 126-135,
-  10 bytes) from every joint servo;
+  10 bytes) from every joint servo; the torque is the link's, the torque constant times
+  the current less the joint's calibrated gearbox friction at the read velocity
+  (:meth:`~arm_driver.joint.JointConfig.link_torque_n_m`);
 - torques and positions: one Sync Write of Goal Current(102) or Goal Position(116)
   (never answered, so it costs only its own bytes on the line);
 - torque on/off, operating mode, gripper, Bus Watchdog: a Write per servo, each
@@ -465,8 +467,9 @@ class DynamixelBus(ArmBus):
             )
 
     def _current_units(self, joint: JointConfig, torque_n_m: float) -> int:
-        """Goal Current [2.69 mA] for a joint torque [N m], within the Current Limit."""
-        current_a = joint.direction * torque_n_m / joint.torque_constant_n_m_per_a
+        """Goal Current [2.69 mA] for a joint torque [N m] (the motor's: no friction
+        feed-forward, see :mod:`arm_driver.joint`), within the Current Limit."""
+        current_a = joint.servo_current_a(torque_n_m)
         limit = self._servos[joint.servo_id].current_limit_units
         return max(-limit, min(limit, units.a_to_current_units(current_a)))
 
@@ -496,13 +499,12 @@ class DynamixelBus(ArmBus):
             current = ct.PRESENT_CURRENT.decode(raw[0:2])
             velocity = ct.PRESENT_VELOCITY.decode(raw[2:6])
             position = ct.PRESENT_POSITION.decode(raw[6:10])
+            rate_rad_s = joint.direction * units.velocity_units_to_rad_s(velocity)
             states[joint.name] = JointState(
                 name=joint.name,
                 position_rad=joint.joint_angle_rad(units.ticks_to_rad(position)),
-                velocity_rad_s=joint.direction * units.velocity_units_to_rad_s(velocity),
-                torque_n_m=joint.direction
-                * joint.torque_constant_n_m_per_a
-                * units.current_units_to_a(current),
+                velocity_rad_s=rate_rad_s,
+                torque_n_m=joint.link_torque_n_m(units.current_units_to_a(current), rate_rad_s),
                 timestamp_s=stamp,
             )
         return states
