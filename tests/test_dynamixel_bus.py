@@ -274,6 +274,22 @@ def test_measured_torque_is_the_links_the_calibrated_friction_subtracted(
     run(body)
 
 
+def test_profile_velocity_is_written_per_joint_and_checked(sim: PtyServoBus) -> None:
+    async def body() -> None:
+        async with make_bus(sim) as bus:
+            await bus.set_profile_velocity({"shoulder": 1.5, "elbow": 1e-4})
+            assert sim.servos[1].get(ct.PROFILE_VELOCITY) == units.rad_s_to_velocity_units(1.5)
+            assert sim.servos[2].get(ct.PROFILE_VELOCITY) == 1  # slow, but not 0 (none)
+            await bus.set_profile_velocity({"elbow": 0.0})
+            assert sim.servos[2].get(ct.PROFILE_VELOCITY) == 0
+            for bad in (-1.0, math.nan, 1e4):
+                with pytest.raises(ValueError, match="profile velocity"):
+                    await bus.set_profile_velocity({"shoulder": bad})
+            assert sim.servos[1].get(ct.PROFILE_VELOCITY) == units.rad_s_to_velocity_units(1.5)
+
+    run(body)
+
+
 def test_gripper_open_and_close(sim: PtyServoBus) -> None:
     async def body() -> None:
         async with make_bus(sim) as bus:

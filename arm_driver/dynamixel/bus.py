@@ -16,7 +16,8 @@ Transactions (one at a time; the base class holds the lock):
   (:meth:`~arm_driver.joint.JointConfig.link_torque_n_m`);
 - torques and positions: one Sync Write of Goal Current(102) or Goal Position(116)
   (never answered, so it costs only its own bytes on the line);
-- torque on/off, operating mode, gripper, Bus Watchdog: a Write per servo, each
+- torque on/off, operating mode, gripper, Bus Watchdog, Profile Velocity
+  (:meth:`DynamixelBus.set_profile_velocity`, bench use): a Write per servo, each
   answered and checked when Status Return Level(68) is 2. The mode is in EEPROM: a
   servo with torque on refuses it (Access Error), reported as
   :class:`~arm_driver.errors.InstructionError`.
@@ -282,6 +283,40 @@ class DynamixelBus(ArmBus):
         finally:
             probe._transport.close()
         return found
+
+    async def set_profile_velocity(self, rates_rad_s: Mapping[str, float]) -> None:
+        """Profile Velocity(112) of joints [rad/s, joint rate magnitude]; 0 turns it off.
+
+        In a position mode a servo with a Profile Velocity moves to each new Goal Position
+        along a ramp it generates itself at that rate (velocity-based profile; Profile
+        Acceleration(108) is left as it is, 0 from the factory: no ramp of the rate). A
+        smooth constant-speed move, without a stream of goals from the host (each new goal
+        jerks the arm by the position loop's stiffness times the goal's step). Bench use
+        (``companion arm calibrate``); one answered Write per joint.
+
+        Raises
+        ------
+        ValueError
+            A rate that is negative, not finite, or beyond the register's range.
+        """
+        commands = self._joint_commands(rates_rad_s)
+        values = {}
+        for joint, rate in commands.items():
+            if not (math.isfinite(rate) and rate >= 0.0):
+                raise ValueError(f"joint {joint.name!r}: profile velocity {rate} rad/s")
+            value = max(units.rad_s_to_velocity_units(rate), 1 if rate > 0.0 else 0)
+            if value > ct.PROFILE_VELOCITY_MAX:
+                raise ValueError(
+                    f"joint {joint.name!r}: profile velocity {rate:g} rad/s above the "
+                    f"register's {ct.PROFILE_VELOCITY_MAX} x 0.229 rev/min"
+                )
+            values[joint.servo_id] = value
+        await self._transact(self._write_profile_velocities, values)
+
+    @_hardware_details
+    async def _write_profile_velocities(self, values: Mapping[int, int]) -> None:
+        for servo_id, value in values.items():
+            await self._write(servo_id, ct.PROFILE_VELOCITY, value)
 
     # -- transactions -------------------------------------------------------------------
 
