@@ -120,6 +120,23 @@ def test_torque_on_and_off_reaches_every_servo(sim: PtyServoBus) -> None:
     run(body)
 
 
+def test_torque_off_reaches_every_servo_even_past_one_that_does_not_answer(
+    sim: PtyServoBus,
+) -> None:
+    async def body() -> None:
+        async with make_bus(sim) as bus:
+            await bus.enable_torque()
+            sim.set_faults(Faults(silent_ids=frozenset({1})))
+            with pytest.raises(BusTimeoutError) as info:
+                await bus.disable_torque()
+            assert info.value.servo_id == 1
+            with sim.lock:  # the silent servo carried it out too
+                assert not any(servo.torque_enabled for servo in sim.servos.values())
+            sim.set_faults(Faults())
+
+    run(body)
+
+
 def test_operating_mode_is_written_with_torque_off(sim: PtyServoBus) -> None:
     async def body() -> None:
         async with make_bus(sim) as bus:

@@ -18,7 +18,8 @@ Transactions (one at a time; the base class holds the lock):
   (never answered, so it costs only its own bytes on the line);
 - torque on/off, operating mode, gripper, Bus Watchdog, Profile Velocity
   (:meth:`DynamixelBus.set_profile_velocity`, bench use): a Write per servo, each
-  answered and checked when Status Return Level(68) is 2. The mode is in EEPROM: a
+  answered and checked when Status Return Level(68) is 2; torque off is written to
+  every servo even when one fails, then the first error is raised. The mode is in EEPROM: a
   servo with torque on refuses it (Access Error), reported as
   :class:`~arm_driver.errors.InstructionError`.
   Entering current-based position mode writes each joint's torque limit as its Goal
@@ -459,14 +460,29 @@ class DynamixelBus(ArmBus):
 
     @_hardware_details
     async def _set_torque_hook(self, enabled: bool) -> None:
-        watch = enabled and self._watchdog_units > 0
+        if not enabled:
+            await self._torque_off_every_servo()
+            return
+        watch = self._watchdog_units > 0
         if watch:
             await self._clear_watchdogs()
         for servo_id in self._ids:
-            await self._write(servo_id, ct.TORQUE_ENABLE, int(enabled))
+            await self._write(servo_id, ct.TORQUE_ENABLE, 1)
         if watch:
             for servo_id in self._current_mode_joints():
                 await self._write(servo_id, ct.BUS_WATCHDOG, self._watchdog_units)
+
+    async def _torque_off_every_servo(self) -> None:
+        """Torque Enable 0 written to every servo, even after one did not answer or answered
+        garbled (the late reply of an interrupted read); then the first error is raised."""
+        failure: ArmDriverError | None = None
+        for servo_id in self._ids:
+            try:
+                await self._write(servo_id, ct.TORQUE_ENABLE, 0)
+            except ArmDriverError as error:
+                failure = failure or error
+        if failure is not None:
+            raise failure
 
     def _current_mode_joints(self) -> list[int]:
         return [i for i in self._joint_ids if self._servos[i].mode == ct.OperatingMode.CURRENT]
