@@ -88,7 +88,7 @@ SWEEP_SPEEDS_RAD_S = (0.5, 1.5)
 Coulomb friction can be told apart; a tenth and a third of the XM430-W350's 4.8 rad/s
 no-load speed."""
 TRANSIT_SPEED_RAD_S = 0.8
-"""Speed of the ramps between static poses [rad/s]."""
+"""Speed of the moves between static poses [rad/s]."""
 READ_PERIOD_S = 0.005
 """Mean time between two reads during a move [s], each drawn in [0.5, 1.5] x this."""
 CYCLE_S = 0.01
@@ -99,13 +99,14 @@ the servo would jump to its goal)."""
 ARRIVAL_TOLERANCE_RAD = math.radians(2.0)
 """How close to its goal a joint must come [rad] (a position loop sags under gravity)."""
 ARRIVAL_TIMEOUT_S = 3.0
-"""Longest wait for the joints to reach a ramp's end, or to settle there [s]."""
+"""Longest wait for the joints to reach a move's end beyond its planned duration, or to
+settle there [s]."""
 SETTLE_S = 0.3
 """Time every joint must read zero rate before a static pose is read [s]."""
 STATIC_READS = 5
 """Reads averaged at each static pose."""
 SWEEP_MIDDLE = (0.15, 0.85)
-"""Part of each sweep ramp (fraction of its duration) whose reads are kept."""
+"""Part of each sweep (fraction of the longest joint travel done) whose reads are kept."""
 _POSITION_MODES = (OperatingMode.POSITION, OperatingMode.CURRENT_BASED_POSITION)
 
 
@@ -197,11 +198,17 @@ async def measure(url: str, joints: Sequence[JointConfig], rng: np.random.Genera
 
 
 async def _hold_here(arm: DynamixelBus, joints: Sequence[JointConfig]) -> None:
-    """Torque off, current-based position mode, goal = the present angles, torque on."""
+    """Torque off, current-based position mode, goal = the present angles (within the
+    limits: the limp arm may have slipped past one), torque on."""
     await arm.disable_torque()
     await arm.set_operating_mode(OperatingMode.CURRENT_BASED_POSITION)
     states = await arm.read_joint_states()
-    await arm.write_joint_positions({j.name: states[j.name].position_rad for j in joints})
+    await arm.write_joint_positions(
+        {
+            j.name: min(max(states[j.name].position_rad, j.position_min_rad), j.position_max_rad)
+            for j in joints
+        }
+    )
     await arm.enable_torque()
 
 

@@ -8,7 +8,11 @@
 - ``companion arm move --bus URL --joint NAME|INDEX --deg D [--config FILE]``: puts the
   joints in position mode if needed (torque off, mode, torque on: the arm is limp for a
   moment), commands one joint to ``D`` degrees and waits up to 5 s for it to get there.
-  The servos keep holding the position after the command exits.
+  The servos keep holding the position after the command exits;
+- ``companion arm calibrate --bus URL --config FILE [--write] [--torque-limit N_M]``
+  (Dynamixel): each joint's torque constant against gravity and its gearbox friction from
+  constant-speed sweeps (:mod:`companion.arm_calibration`), a table, a refusal of a poor
+  fit, and with ``--write`` the results in ``FILE``'s ``[[arm_bus.joints]]``, comments kept.
 
 Joints come from the ``[arm_bus]`` section of ``--config`` (a scenario TOML), or, without
 it, from :data:`DEFAULT_JOINTS`: ``joint1`` and ``joint2`` on ids 1 and 2, direction +1,
