@@ -293,9 +293,9 @@ def calibrate(
         raise typer.Exit(EXIT_INTERRUPTED) from None
     results = fit_joints(readings, model, cfg.nominal_theta.as_tuple(), joints)
     Console().print(_calibration_table(results))
-    for result in results:
-        if result.problem is not None:
-            raise _fail(f"joint {result.joint.name!r}: {result.problem}; nothing written")
+    refused = [f"joint {r.joint.name!r}: {r.problem}" for r in results if r.problem is not None]
+    if refused:
+        raise _fail("; ".join(refused) + "; nothing written")
     values = {
         r.joint.name: dict(
             zip(
@@ -330,23 +330,17 @@ def _rounded(value: float) -> float:
 
 
 def _calibration_table(results: list[JointCalibration]) -> Table:
+    """Config -> fitted values per joint, residuals (static / sweep) and the verdict; the
+    caption has the largest gravity torque at the poses and the sample counts."""
     table = Table(title="servo calibration (config -> fitted)", show_header=True)
-    for column in (
-        "joint",
-        "Kt [N m/A]",
-        "Kt error",
-        "static rms [N m]",
-        "max gravity [N m]",
-        "viscous [N m s/rad]",
-        "Coulomb [N m]",
-        "sweep rms [N m]",
-        "samples",
-        "verdict",
-    ):
-        table.add_column(column, justify="left" if column == "verdict" else "right")
+    for column in ("joint", "Kt [N m/A]", "viscous [N m s/rad]", "Coulomb [N m]"):
+        table.add_column(column, justify="right")
+    table.add_column("rms [N m]", justify="right")
+    table.add_column("verdict")
+    caption = []
     for r in results:
         kt, friction, joint = r.torque_constant, r.friction, r.joint
-        coulomb = f"{friction.coulomb_friction_n_m:.4f}"
+        coulomb = f"{friction.coulomb_friction_n_m:.4g}"
         if friction.coulomb_friction_n_m == 0.0 and math.isfinite(friction.coulomb_estimate_n_m):
             coulomb = (
                 f"0 (fit {friction.coulomb_estimate_n_m:+.4f} "
@@ -354,15 +348,17 @@ def _calibration_table(results: list[JointCalibration]) -> Table:
             )
         table.add_row(
             joint.name,
-            f"{joint.torque_constant_n_m_per_a:.4g} -> {kt.torque_constant_n_m_per_a:.4g}",
-            f"{100 * kt.relative_standard_error:.2f} %",
-            f"{kt.residual_rms_n_m:.4f}",
-            f"{kt.max_gravity_torque_n_m:.3f}",
+            f"{joint.torque_constant_n_m_per_a:.4g} -> {kt.torque_constant_n_m_per_a:.4g} "
+            f"(+- {100 * kt.relative_standard_error:.2f} %)",
             f"{joint.viscous_friction_n_m_s_per_rad:.4g} -> "
             f"{friction.viscous_friction_n_m_s_per_rad:.4g}",
             coulomb,
-            f"{friction.residual_rms_n_m:.4f}",
-            f"{kt.poses} + {friction.samples}",
-            "ok" if r.problem is None else r.problem,
+            f"{kt.residual_rms_n_m:.4f} / {friction.residual_rms_n_m:.4f}",
+            "ok" if r.problem is None else "refused",
         )
+        caption.append(
+            f"{joint.name}: largest gravity torque {kt.max_gravity_torque_n_m:.3f} N m, "
+            f"{kt.poses} poses, {friction.samples} sweep samples"
+        )
+    table.caption = "rms: static poses / sweeps. " + "; ".join(caption)
     return table

@@ -121,6 +121,8 @@ def test_too_little_gravity_torque_at_the_poses_is_refused(run_cli, tmp_path: Pa
         torque = [servo.torque_enabled for _, servo in stand.joints]
     assert done.returncode == 2
     assert done.stderr.startswith("error: joint 'eta1': too little gravity torque")
+    assert "; joint 'eta2': too little gravity torque" in done.stderr
+    assert "refused" in done.stdout  # the table's verdict
     assert done.stderr.strip().endswith("nothing written")
     assert len(done.stderr.strip().splitlines()) == 1
     assert config.read_text() == text
