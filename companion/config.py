@@ -421,6 +421,16 @@ class ArmBusJoint(_Section):
     """Lower joint angle limit [rad]."""
     position_max_rad: Real
     """Upper joint angle limit [rad]."""
+    viscous_friction_n_m_s_per_rad: Annotated[
+        NonNegative, _within(10.0, "N m s/rad", "a servo gearbox an arm joint turns through")
+    ] = 0.0
+    """Calibrated viscous friction of the servo's gearbox at the joint [N m s/rad]
+    (``companion arm calibrate``); 0: none. The measured joint torque is the motor's less
+    ``viscous * rate + coulomb * sign(rate)``."""
+    coulomb_friction_n_m: Annotated[
+        NonNegative, _within(100.0, "N m", "a servo gearbox an arm joint turns through")
+    ] = 0.0
+    """Calibrated Coulomb (dry) friction of the servo's gearbox at the joint [N m]; 0: none."""
 
 
 class ArmBusGripper(_Section):
@@ -595,11 +605,21 @@ def check_theta(theta: Theta, link2_length_m: float, path: str, key: str) -> Non
 
 
 def _check_arm_bus(section: ArmBusSection, path: str) -> None:
-    """Joint names and servo ids unique, angle limits ordered."""
+    """Joint names and servo ids unique, angle limits ordered, no friction on a DroneCAN
+    bus (its actuators report their output torque: the friction would be ignored)."""
     names: set[str] = set()
     ids: dict[int, str] = {}
+    dronecan = section.url.lower().startswith("dronecan:")
     for i, joint in enumerate(section.joints):
         key = f"arm_bus.joints[{i}]"
+        for friction in ("viscous_friction_n_m_s_per_rad", "coulomb_friction_n_m"):
+            if dronecan and getattr(joint, friction) != 0.0:
+                raise ConfigError(
+                    path,
+                    f"{key}.{friction}",
+                    "a DroneCAN actuator reports its output torque: the bus uses no friction "
+                    "(set 0 or remove the key)",
+                )
         if joint.name in names:
             raise ConfigError(path, f"{key}.name", f"joint {joint.name!r} is named twice")
         names.add(joint.name)

@@ -17,7 +17,6 @@ from companion.config import arm_bus_configs
 from companion.model import ManipulatorModel
 from sitl.scenario import load_scenario
 from sitl.servo.arm_stand import ArmStand, held_base_arm
-from sitl.servo.xm430 import XM430Parameters
 
 CONFIG = Path(__file__).parent.parent / "configs" / "px4_sih_pickup.toml"
 
@@ -103,15 +102,14 @@ def test_direction_and_zero_offset_map_joint_to_shaft(scenario):
     _put(servo, ct.GOAL_CURRENT, units.a_to_current_units(0.5))  # CCW at the shaft
     _run(stand, 0.05)
     # THEN the shaft reads 0.3 - eta (as of the step's start), and a CCW shaft torque is a
-    # negative joint torque
+    # negative joint torque (less the gearbox friction at the shaft's rate -eta_dot)
     eta1, step = stand.arm.eta[0], abs(stand.arm.eta_dot[0]) * stand.dt_s
     assert units.ticks_to_rad(servo.get(ct.PRESENT_POSITION)) == pytest.approx(
         config.servo_angle_rad(eta1), abs=units.RAD_PER_TICK + step
     )
-    # (the gearbox's viscous friction acts on the shaft rate direction * eta_dot)
-    friction_n_m_s = XM430Parameters().viscous_friction_n_m_s_per_rad
-    expected_n_m = -config.torque_constant_n_m_per_a * 0.5 - friction_n_m_s * stand.arm.eta_dot[0]
-    assert stand.torques_n_m[0] == pytest.approx(expected_n_m, rel=0.05)
+    shaft_n_m = servo.parameters.torque_constant_n_m_per_a * 0.5
+    shaft_n_m -= servo.parameters.viscous_friction_n_m_s_per_rad * -stand.arm.eta_dot[0]
+    assert stand.torques_n_m[0] == pytest.approx(-shaft_n_m, rel=0.05)
     assert eta1 < -0.05
 
 
@@ -133,6 +131,17 @@ def test_the_gripper_servo_closes_the_jaw_on_a_weightless_stand_in(scenario):
     _run(stand, 0.5)
     assert not stand.jaw.closed and not stand.jaw.holding
     assert stand.jaw.angle_rad == pytest.approx(gripper.open_position_rad, abs=0.02)
+
+
+def test_the_servos_torque_constant_is_the_configs_times_the_plants_mismatch(scenario):
+    plant = scenario.plant.model_copy(update={"servo_torque_constant_mismatch": 0.9})
+    stand = ArmStand(scenario.model_copy(update={"plant": plant}))
+    for config, servo in stand.joints:
+        believed = config.torque_constant_n_m_per_a
+        assert servo.parameters.torque_constant_n_m_per_a == pytest.approx(0.9 * believed)
+    assert ArmStand(scenario).joints[0][1].parameters.torque_constant_n_m_per_a == (
+        scenario.arm_bus.joints[0].torque_constant_n_m_per_a
+    )
 
 
 def test_a_scenario_without_servos_is_refused():

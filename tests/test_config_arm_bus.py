@@ -80,6 +80,10 @@ def test_unknown_key_in_the_gripper_suggests() -> None:
         ("torque_max_n_m", -1.0),
         ("zero_offset_rad", math.inf),
         ("name", ""),
+        ("viscous_friction_n_m_s_per_rad", -0.01),
+        ("viscous_friction_n_m_s_per_rad", math.nan),
+        ("coulomb_friction_n_m", -0.1),
+        ("coulomb_friction_n_m", math.inf),
     ],
 )
 def test_bad_joint_values_name_the_key(field: str, value: object) -> None:
@@ -146,3 +150,36 @@ def test_the_section_is_frozen() -> None:
     cfg = load_scenario(EXPERIMENT)
     with pytest.raises(Exception, match="frozen"):
         cfg.arm_bus.url = "dronecan://can0"
+
+
+def test_friction_keys_default_to_none_and_reach_the_joint_config() -> None:
+    data = experiment_data()
+    data["arm_bus"]["joints"][1]["viscous_friction_n_m_s_per_rad"] = 0.02
+    data["arm_bus"]["joints"][1]["coulomb_friction_n_m"] = 0.01
+    joints, _ = arm_bus_configs(parse_scenario(data, "x.toml").arm_bus)
+    assert (joints[0].viscous_friction_n_m_s_per_rad, joints[0].coulomb_friction_n_m) == (0, 0)
+    assert joints[1].viscous_friction_n_m_s_per_rad == 0.02
+    assert joints[1].coulomb_friction_n_m == 0.01
+
+
+def test_friction_on_a_dronecan_bus_is_refused() -> None:
+    """DroneCAN actuators report their output torque: the bus would ignore the friction."""
+    data = experiment_data()
+    data["arm_bus"]["url"] = "dronecan://can0?interface=socketcan"
+    data["arm_bus"]["joints"][0]["coulomb_friction_n_m"] = 0.01
+    error = problem(data)
+    assert error.key == "arm_bus.joints[0].coulomb_friction_n_m"
+    assert "DroneCAN" in error.reason
+
+
+@pytest.mark.parametrize(
+    ("rate", "friction"), [(0.0, 0.0), (2.0, 0.02 * 2.0 + 0.01), (-0.5, -0.02 * 0.5 - 0.01)]
+)
+def test_link_torque_is_the_motor_torque_less_the_friction(rate: float, friction: float) -> None:
+    joint = JointConfig(
+        "j", 1, 1.5, 4.0, direction=-1,
+        viscous_friction_n_m_s_per_rad=0.02, coulomb_friction_n_m=0.01,
+    )  # fmt: skip
+    assert joint.friction_torque_n_m(rate) == pytest.approx(friction)
+    assert joint.link_torque_n_m(0.4, rate) == pytest.approx(-1.5 * 0.4 - friction)
+    assert joint.servo_current_a(0.6) == pytest.approx(-0.4)  # no friction feed-forward

@@ -7,6 +7,7 @@ autouse fixture fails any test that leaves a bus open.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import math
 import time
 from collections.abc import Awaitable, Callable, Iterator
@@ -115,6 +116,23 @@ def test_torque_on_and_off_reaches_every_servo(sim: PtyServoBus) -> None:
             await bus.disable_torque()
             with sim.lock:
                 assert not any(servo.torque_enabled for servo in sim.servos.values())
+
+    run(body)
+
+
+def test_torque_off_reaches_every_servo_even_past_one_that_does_not_answer(
+    sim: PtyServoBus,
+) -> None:
+    async def body() -> None:
+        async with make_bus(sim) as bus:
+            await bus.enable_torque()
+            sim.set_faults(Faults(silent_ids=frozenset({1})))
+            with pytest.raises(BusTimeoutError) as info:
+                await bus.disable_torque()
+            assert info.value.servo_id == 1
+            with sim.lock:  # the silent servo carried it out too
+                assert not any(servo.torque_enabled for servo in sim.servos.values())
+            sim.set_faults(Faults())
 
     run(body)
 
@@ -237,6 +255,54 @@ def test_joint_states_in_si_units_with_sign_offset_and_timestamp(sim: PtyServoBu
             assert elbow.velocity_rad_s == pytest.approx(-0.6, abs=rate_unit)
             assert before <= shoulder.timestamp_s == elbow.timestamp_s <= time.monotonic()
             await bus.disable_torque()
+
+    run(body)
+
+
+def test_measured_torque_is_the_links_the_calibrated_friction_subtracted(
+    sim: PtyServoBus,
+) -> None:
+    """Kt * current less b * rate + Fc * sign(rate), at the rate of the same read."""
+    b, fc = 0.05, 0.02
+    joints = tuple(
+        dataclasses.replace(j, viscous_friction_n_m_s_per_rad=b, coulomb_friction_n_m=fc)
+        for j in JOINTS
+    )
+
+    async def body() -> None:
+        async with DynamixelBus(sim.device, joints, timeout_margin_s=RELAXED_MARGIN_S) as bus:
+            await bus.set_operating_mode(OperatingMode.CURRENT)
+            await bus.enable_torque()
+            await bus.write_joint_torques({"shoulder": 0.89, "elbow": 0.89})
+            await bus.read_joint_states()  # a round trip: the sync write was handled
+            with sim.lock:
+                sim.servos[1].set_state(0.0, 1.2)  # shoulder moving up
+                sim.servos[2].set_state(0.5, 0.0)  # elbow at rest
+                for servo in sim.servos.values():
+                    servo.step(0.05)
+            states = await bus.read_joint_states()
+            rate = states["shoulder"].velocity_rad_s
+            assert rate == pytest.approx(1.2, abs=units.VELOCITY_RAD_S_PER_UNIT)
+            step = KT * units.CURRENT_A_PER_UNIT
+            assert states["shoulder"].torque_n_m == pytest.approx(0.89 - b * rate - fc, abs=step)
+            assert states["elbow"].torque_n_m == pytest.approx(0.89, abs=step)  # no friction
+            await bus.disable_torque()
+
+    run(body)
+
+
+def test_profile_velocity_is_written_per_joint_and_checked(sim: PtyServoBus) -> None:
+    async def body() -> None:
+        async with make_bus(sim) as bus:
+            await bus.set_profile_velocity({"shoulder": 1.5, "elbow": 1e-4})
+            assert sim.servos[1].get(ct.PROFILE_VELOCITY) == units.rad_s_to_velocity_units(1.5)
+            assert sim.servos[2].get(ct.PROFILE_VELOCITY) == 1  # slow, but not 0 (none)
+            await bus.set_profile_velocity({"elbow": 0.0})
+            assert sim.servos[2].get(ct.PROFILE_VELOCITY) == 0
+            for bad in (-1.0, math.nan, 1e4):
+                with pytest.raises(ValueError, match="profile velocity"):
+                    await bus.set_profile_velocity({"shoulder": bad})
+            assert sim.servos[1].get(ct.PROFILE_VELOCITY) == units.rad_s_to_velocity_units(1.5)
 
     run(body)
 

@@ -135,6 +135,31 @@ def test_closed_loop_with_a_physics_joint_settles_on_the_goal() -> None:
     assert not servo.hardware_error
 
 
+def test_profile_velocity_moves_the_shaft_to_the_goal_at_that_rate() -> None:
+    """GIVEN Profile Velocity 0.5 rad/s, WHEN the goal is 1 rad away, THEN the shaft turns
+    at 0.5 rad/s (the servo's own ramp) and stops on the goal; 0 again takes goals at once."""
+    servo = XM430Servo(1)
+    write(servo, ct.PROFILE_VELOCITY, units.rad_s_to_velocity_units(0.5))
+    write(servo, ct.TORQUE_ENABLE, 1)
+    write(servo, ct.GOAL_POSITION, units.rad_to_ticks(1.0))
+    inertia_kg_m2, angle, rate, dt = 0.01, 0.0, 0.0, 1e-3
+    rates = []
+    for _ in range(3000):
+        servo.set_state(angle, rate)
+        servo.step(dt)
+        rate += servo.torque_n_m() / inertia_kg_m2 * dt
+        angle += rate * dt
+        rates.append(rate)
+    assert rates[1000] == pytest.approx(0.5, rel=0.02)  # mid-move, 1 s after the goal
+    assert max(rates) < 0.5 * 1.1
+    assert angle == pytest.approx(1.0, abs=2 * units.RAD_PER_TICK)
+    write(servo, ct.PROFILE_VELOCITY, 0)
+    write(servo, ct.GOAL_POSITION, units.rad_to_ticks(0.0))
+    servo.step(dt)
+    limit_a = units.current_units_to_a(servo.get(ct.CURRENT_LIMIT))
+    assert servo.commanded_current_a() == pytest.approx(-limit_a)  # the whole step at once
+
+
 def test_full_command_runs_at_the_datasheet_no_load_speed_and_draws_stall_current() -> None:
     """The voltage limit: a free shaft on the largest current command settles near 46 rpm
     (4.8 rad/s at 12 V) and not beyond, however long it runs; held still it draws the

@@ -24,7 +24,10 @@ Messages (DSDL of the ``uavcan.equipment`` namespace, through the ``dronecan`` p
 
 Operating modes, honestly: DroneCAN has no persistent mode, each command carries its
 type. CURRENT (torque) maps to COMMAND_TYPE_FORCE, the actuator closing its own current
-loop, so the joint's ``torque_constant_n_m_per_a`` is not used; POSITION maps to
+loop and reporting its output torque as ``force``, so the joint's
+``torque_constant_n_m_per_a`` and its friction keys (``viscous_friction_n_m_s_per_rad``,
+``coulomb_friction_n_m``) are not used: the companion's config refuses friction on a
+DroneCAN bus, and ``companion arm calibrate`` refuses the bus; POSITION maps to
 COMMAND_TYPE_POSITION. CURRENT_BASED_POSITION (a position goal with a torque limit) has
 no DroneCAN command and raises :class:`~arm_driver.bus.UnsupportedModeError`.
 

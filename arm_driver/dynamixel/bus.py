@@ -11,11 +11,15 @@ Transactions (one at a time; the base class holds the lock):
   Status Return Level(68), Hardware Error Status(70). A joint's torque limit is lowered
   to what its Current Limit allows;
 - joint states: one Sync Read of Present Current/Velocity/Position (addresses 126-135,
-  10 bytes) from every joint servo;
+  10 bytes) from every joint servo; the torque is the link's, the torque constant times
+  the current less the joint's calibrated gearbox friction at the read velocity
+  (:meth:`~arm_driver.joint.JointConfig.link_torque_n_m`);
 - torques and positions: one Sync Write of Goal Current(102) or Goal Position(116)
   (never answered, so it costs only its own bytes on the line);
-- torque on/off, operating mode, gripper, Bus Watchdog: a Write per servo, each
-  answered and checked when Status Return Level(68) is 2. The mode is in EEPROM: a
+- torque on/off, operating mode, gripper, Bus Watchdog, Profile Velocity
+  (:meth:`DynamixelBus.set_profile_velocity`, bench use): a Write per servo, each
+  answered and checked when Status Return Level(68) is 2; torque off is written to
+  every servo even when one fails, then the first error is raised. The mode is in EEPROM: a
   servo with torque on refuses it (Access Error), reported as
   :class:`~arm_driver.errors.InstructionError`.
   Entering current-based position mode writes each joint's torque limit as its Goal
@@ -281,6 +285,40 @@ class DynamixelBus(ArmBus):
             probe._transport.close()
         return found
 
+    async def set_profile_velocity(self, rates_rad_s: Mapping[str, float]) -> None:
+        """Profile Velocity(112) of joints [rad/s, joint rate magnitude]; 0 turns it off.
+
+        In a position mode a servo with a Profile Velocity moves to each new Goal Position
+        along a ramp it generates itself at that rate (velocity-based profile; Profile
+        Acceleration(108) is left as it is, 0 from the factory: no ramp of the rate). A
+        smooth constant-speed move, without a stream of goals from the host (each new goal
+        jerks the arm by the position loop's stiffness times the goal's step). Bench use
+        (``companion arm calibrate``); one answered Write per joint.
+
+        Raises
+        ------
+        ValueError
+            A rate that is negative, not finite, or beyond the register's range.
+        """
+        commands = self._joint_commands(rates_rad_s)
+        values = {}
+        for joint, rate in commands.items():
+            if not (math.isfinite(rate) and rate >= 0.0):
+                raise ValueError(f"joint {joint.name!r}: profile velocity {rate} rad/s")
+            value = max(units.rad_s_to_velocity_units(rate), 1 if rate > 0.0 else 0)
+            if value > ct.PROFILE_VELOCITY_MAX:
+                raise ValueError(
+                    f"joint {joint.name!r}: profile velocity {rate:g} rad/s above the "
+                    f"register's {ct.PROFILE_VELOCITY_MAX} x 0.229 rev/min"
+                )
+            values[joint.servo_id] = value
+        await self._transact(self._write_profile_velocities, values)
+
+    @_hardware_details
+    async def _write_profile_velocities(self, values: Mapping[int, int]) -> None:
+        for servo_id, value in values.items():
+            await self._write(servo_id, ct.PROFILE_VELOCITY, value)
+
     # -- transactions -------------------------------------------------------------------
 
     def _timeout_s(self, request_bytes: int, repliers: Sequence[int], reply_params: int) -> float:
@@ -422,14 +460,29 @@ class DynamixelBus(ArmBus):
 
     @_hardware_details
     async def _set_torque_hook(self, enabled: bool) -> None:
-        watch = enabled and self._watchdog_units > 0
+        if not enabled:
+            await self._torque_off_every_servo()
+            return
+        watch = self._watchdog_units > 0
         if watch:
             await self._clear_watchdogs()
         for servo_id in self._ids:
-            await self._write(servo_id, ct.TORQUE_ENABLE, int(enabled))
+            await self._write(servo_id, ct.TORQUE_ENABLE, 1)
         if watch:
             for servo_id in self._current_mode_joints():
                 await self._write(servo_id, ct.BUS_WATCHDOG, self._watchdog_units)
+
+    async def _torque_off_every_servo(self) -> None:
+        """Torque Enable 0 written to every servo, even after one did not answer or answered
+        garbled (the late reply of an interrupted read); then the first error is raised."""
+        failure: ArmDriverError | None = None
+        for servo_id in self._ids:
+            try:
+                await self._write(servo_id, ct.TORQUE_ENABLE, 0)
+            except ArmDriverError as error:
+                failure = failure or error
+        if failure is not None:
+            raise failure
 
     def _current_mode_joints(self) -> list[int]:
         return [i for i in self._joint_ids if self._servos[i].mode == ct.OperatingMode.CURRENT]
@@ -465,8 +518,9 @@ class DynamixelBus(ArmBus):
             )
 
     def _current_units(self, joint: JointConfig, torque_n_m: float) -> int:
-        """Goal Current [2.69 mA] for a joint torque [N m], within the Current Limit."""
-        current_a = joint.direction * torque_n_m / joint.torque_constant_n_m_per_a
+        """Goal Current [2.69 mA] for a joint torque [N m] (the motor's: no friction
+        feed-forward, see :mod:`arm_driver.joint`), within the Current Limit."""
+        current_a = joint.servo_current_a(torque_n_m)
         limit = self._servos[joint.servo_id].current_limit_units
         return max(-limit, min(limit, units.a_to_current_units(current_a)))
 
@@ -496,13 +550,12 @@ class DynamixelBus(ArmBus):
             current = ct.PRESENT_CURRENT.decode(raw[0:2])
             velocity = ct.PRESENT_VELOCITY.decode(raw[2:6])
             position = ct.PRESENT_POSITION.decode(raw[6:10])
+            rate_rad_s = joint.direction * units.velocity_units_to_rad_s(velocity)
             states[joint.name] = JointState(
                 name=joint.name,
                 position_rad=joint.joint_angle_rad(units.ticks_to_rad(position)),
-                velocity_rad_s=joint.direction * units.velocity_units_to_rad_s(velocity),
-                torque_n_m=joint.direction
-                * joint.torque_constant_n_m_per_a
-                * units.current_units_to_a(current),
+                velocity_rad_s=rate_rad_s,
+                torque_n_m=joint.link_torque_n_m(units.current_units_to_a(current), rate_rad_s),
                 timestamp_s=stamp,
             )
         return states

@@ -71,6 +71,7 @@ __all__ = [
     "PRESENT_VELOCITY",
     "PROFILE_ACCELERATION",
     "PROFILE_VELOCITY",
+    "PROFILE_VELOCITY_MAX",
     "REALTIME_TICK",
     "RETURN_DELAY_TIME",
     "SHUTDOWN",
@@ -152,6 +153,8 @@ BUS_WATCHDOG_MAX = 127
 """Largest Bus Watchdog(98) timeout [20 ms]: 2.54 s."""
 BUS_WATCHDOG_UNIT_S = 0.020
 """One count of Bus Watchdog(98) [s]."""
+PROFILE_VELOCITY_MAX = 32767
+"""Largest Profile Velocity(112) [0.229 rev/min] (e-Manual: 0 ~ 32,767; 0 is infinite)."""
 
 
 @dataclass(frozen=True)

@@ -25,10 +25,15 @@ Coupling (as :mod:`sitl.world`): each step, every joint servo gets its shaft ang
 output torque is the joint torque. The gripper is a :class:`~sitl.world.GripperJaw` (jaw
 shaft between hard stops) turned by its servo; closed, it holds a weightless stand-in
 object (the jaws stop on it, the servo reads short of closed and pushes, as on a real
-object), so the companion's gripper check sees a grasp. Simplifications: no payload mass
-(SIH cannot carry one; a scenario flown here turns the estimate's carry check off,
-``[flight] carry_check_estimate = false``), no joint friction and no joint stops (neither
-has ``sitl run``'s plant): a limp arm swings without losing energy.
+object), so the companion's gripper check sees a grasp. The joint servos are XM430 models
+(:mod:`sitl.servo.xm430`) with the gearbox's viscous friction (torque on or off: a limp
+arm swings down and comes to rest hanging, slowly) and the motor's voltage limit; their
+torque constant is the ``[arm_bus]`` joint's times ``plant.servo_torque_constant_mismatch``
+(as ``sitl run``'s :func:`sitl.runner.build_world`), so the stand can stand in for servos
+the config's datasheet value does not describe (``companion arm calibrate``).
+Simplifications: no payload mass (SIH cannot carry one; a scenario flown here turns the
+estimate's carry check off, ``[flight] carry_check_estimate = false``), no Coulomb
+friction and no joint stops (neither has ``sitl run``'s plant).
 
 Time: the thread steps the fixed plant step ``1 / plant.rate_hz`` as often as the wall
 clock (times ``speed``) asks, several steps at once when it woke late; a backlog longer
@@ -73,7 +78,8 @@ class ArmStand:
     ----------
     scenario
         Validated scenario with an ``[arm_bus]`` section of two joints (the gripper is
-        optional); the start pose is ``[world] start_joints_rad``.
+        optional); the start pose is ``[world] start_joints_rad``, the servos' torque
+        constants the joints' times ``plant.servo_torque_constant_mismatch``.
     speed
         Simulated seconds per wall-clock second (> 0), as PX4's ``PX4_SIM_SPEED_FACTOR``.
     max_lag_s
@@ -105,8 +111,10 @@ class ArmStand:
         start = tuple(world.start_joints_rad) if world is not None else _DEFAULT_START_RAD
         self.arm = held_base_arm(scenario, self.dt_s)
         self.arm.eta = [float(start[0]), float(start[1])]
+        mismatch = scenario.plant.servo_torque_constant_mismatch
         self.joints: list[tuple[JointConfig, XM430Servo]] = [
-            (j, _servo(j, j.servo_angle_rad(eta))) for j, eta in zip(joints, start, strict=True)
+            (j, _servo(j, j.servo_angle_rad(eta), mismatch))
+            for j, eta in zip(joints, start, strict=True)
         ]
         self.gripper: tuple[GripperConfig, XM430Servo] | None = None
         self.jaw: GripperJaw | None = None
@@ -214,7 +222,10 @@ class ArmStand:
             due_at += owed * wall_step
 
 
-def _servo(joint: JointConfig, angle_rad: float) -> XM430Servo:
-    """A joint's XM430 at its start shaft angle (Goal Position there), its torque constant."""
-    parameters = XM430Parameters(torque_constant_n_m_per_a=joint.torque_constant_n_m_per_a)
+def _servo(joint: JointConfig, angle_rad: float, mismatch: float) -> XM430Servo:
+    """A joint's XM430 at its start shaft angle (Goal Position there), its torque constant
+    times ``mismatch`` (the truth over the config's)."""
+    parameters = XM430Parameters(
+        torque_constant_n_m_per_a=joint.torque_constant_n_m_per_a * mismatch
+    )
     return XM430Servo(joint.servo_id, parameters, angle_rad=angle_rad)

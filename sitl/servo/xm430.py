@@ -16,9 +16,13 @@ What is modelled (addresses, sizes and units from
   with time constant ``current_time_constant_s``, the command clamped to +-Current
   Limit(38);
 - Current Control Mode: command = Goal Current(102);
-- Position and Current-based Position Control Modes: a PD law on Goal Position(116),
-  ``i = kp (theta_goal - theta) - kd omega`` [A], clamped to +-Current Limit, and in
+- Position and Current-based Position Control Modes: a PD law on the profile's position,
+  ``i = kp (theta_profile - theta) - kd omega`` [A], clamped to +-Current Limit, and in
   Current-based Position mode also to +-|Goal Current| (the mode's torque limit);
+- the velocity-based profile: with Profile Velocity(112) 0 (the factory default) the
+  profile's position is Goal Position(116) itself; with a Profile Velocity, it moves
+  toward Goal Position at that rate (the servo's own smooth ramp to each new goal);
+  with torque off it follows the shaft, so torque on starts the ramp where the shaft is;
 - the motor's voltage limit: the current the H-bridge can drive at shaft rate omega lies
   in ``[(-V - k_e omega) / R, (V - k_e omega) / R]`` with V = Present Input Voltage(144),
   so a servo on full command runs no faster than the datasheet's no-load speed (46 rpm at
@@ -46,8 +50,9 @@ shaft angle where it tripped in the position modes; writing 1-127 while tripped 
 refused (Data Range Error), only 0 clears; once cleared, the servo applies its old
 Goal Current or Goal Position again, so a host must write a new goal.
 
-Not modelled: velocity and PWM modes (refused: Data Range Error), profiles, indirect
-addresses, voltage and temperature dynamics, Drive Mode's reverse bit, the gearbox's
+Not modelled: velocity and PWM modes (refused: Data Range Error), Profile
+Acceleration(108) (infinite, as its 0) and the time-based profile (Drive Mode bit 2),
+indirect addresses, voltage and temperature dynamics, Drive Mode's reverse bit, the gearbox's
 Coulomb friction and backlash.
 
 Torque constant: 1.78 N m/A is the ratio of the datasheet's stall torque (4.1 N m) to
@@ -235,6 +240,7 @@ class XM430Servo:
         self._overload_s = 0.0
         self._silent_s = 0.0
         self._hold_rad = float(angle_rad)
+        self._profile_rad = float(angle_rad)
         self.set_state(angle_rad, 0.0)
         self._put(ct.GOAL_POSITION, self.get(ct.PRESENT_POSITION))
 
@@ -335,6 +341,7 @@ class XM430Servo:
         self._put(ct.TORQUE_ENABLE, 0)
         self._put(ct.BUS_WATCHDOG, 0)
         self._put(ct.GOAL_CURRENT, 0)
+        self._put(ct.PROFILE_VELOCITY, 0)
         self._put(ct.GOAL_POSITION, self.get(ct.PRESENT_POSITION))
         self._overload_s = 0.0
         return reply
@@ -424,11 +431,12 @@ class XM430Servo:
         if mode == _CURRENT_MODE:
             command = 0.0 if tripped else goal_a
         else:
-            goal_rad = (
-                self._hold_rad
-                if tripped
-                else units.ticks_to_rad(_INT32.unpack_from(table, _GOAL_POSITION)[0])
-            )
+            if tripped:
+                goal_rad = self._hold_rad
+            elif _UINT32.unpack_from(table, _PROFILE_VELOCITY)[0] == 0:
+                goal_rad = units.ticks_to_rad(_INT32.unpack_from(table, _GOAL_POSITION)[0])
+            else:
+                goal_rad = self._profile_rad
             p = self.parameters
             command = p.position_kp_a_per_rad * (goal_rad - self._angle_rad)
             command -= p.position_kd_a_s_per_rad * self._rate_rad_s
@@ -441,6 +449,7 @@ class XM430Servo:
         if not dt_s >= 0.0:
             raise ValueError(f"time step {dt_s} s must be >= 0")
         self._watch(dt_s)
+        self._advance_profile(dt_s)
         p = self.parameters
         table = self.table
         limit_a = self._limit_a()
@@ -461,6 +470,21 @@ class XM430Servo:
             _INT16.pack_into(table, _PRESENT_CURRENT, current)
         except struct.error:  # out of range: _put raises as the encoders do
             self._put(ct.PRESENT_CURRENT, current)
+
+    def _advance_profile(self, dt_s: float) -> None:
+        """Move the profile's position toward Goal Position at Profile Velocity (at once
+        when it is 0); with torque off it follows the shaft."""
+        table = self.table
+        goal_rad = units.ticks_to_rad(_INT32.unpack_from(table, _GOAL_POSITION)[0])
+        if table[_TORQUE_ENABLE] != 1:
+            self._profile_rad = self._angle_rad
+            return
+        rate = units.velocity_units_to_rad_s(_UINT32.unpack_from(table, _PROFILE_VELOCITY)[0])
+        if rate == 0.0:
+            self._profile_rad = goal_rad
+            return
+        step = rate * dt_s
+        self._profile_rad += max(-step, min(step, goal_rad - self._profile_rad))
 
     def _drivable_a(self, command_a: float) -> float:
         """``command_a`` [A] within what the supply voltage drives against the back-EMF."""
@@ -490,6 +514,7 @@ assert ct.PRESENT_CURRENT.signed and ct.GOAL_POSITION.size == 4
 assert not ct.PRESENT_INPUT_VOLTAGE.signed and ct.PRESENT_INPUT_VOLTAGE.size == 2
 assert ct.PRESENT_VELOCITY.end == ct.PRESENT_POSITION.address
 assert ct.PRESENT_VELOCITY.size == ct.PRESENT_POSITION.size == 4
+assert ct.PROFILE_VELOCITY.size == 4 and not ct.PROFILE_VELOCITY.signed
 _TORQUE_ENABLE = ct.TORQUE_ENABLE.address
 _OPERATING_MODE = ct.OPERATING_MODE.address
 _CURRENT_LIMIT = ct.CURRENT_LIMIT.address
@@ -498,7 +523,9 @@ _GOAL_POSITION = ct.GOAL_POSITION.address
 _PRESENT_CURRENT = ct.PRESENT_CURRENT.address
 _PRESENT_VELOCITY = ct.PRESENT_VELOCITY.address
 _PRESENT_INPUT_VOLTAGE = ct.PRESENT_INPUT_VOLTAGE.address
+_PROFILE_VELOCITY = ct.PROFILE_VELOCITY.address
 _UINT16 = struct.Struct("<H")
+_UINT32 = struct.Struct("<I")
 _INT16 = struct.Struct("<h")
 _INT32 = struct.Struct("<i")
 _VELOCITY_POSITION = struct.Struct("<ii")
