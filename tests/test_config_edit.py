@@ -18,26 +18,37 @@ def test_values_change_in_place_and_every_other_line_stays() -> None:
     text = CONFIG.read_text()
     edited = with_joint_values(
         text,
-        {"eta2": {"torque_constant_n_m_per_a": 1.9583, "viscous_friction_n_m_s_per_rad": 0.0201}},
+        {
+            "eta2": {
+                "torque_constant_n_m_per_a": 1.9583,
+                "viscous_friction_n_m_s_per_rad": 0.0201,
+                "coulomb_friction_n_m": 0.004,
+            }
+        },
         NOTE,
     )
     joints, _ = arm_bus_configs(parse_config(tomllib.loads(edited)).arm_bus)
     assert joints[1].torque_constant_n_m_per_a == 1.9583
     assert joints[1].viscous_friction_n_m_s_per_rad == 0.0201
+    assert joints[1].coulomb_friction_n_m == 0.004
     assert joints[0] == arm_bus_configs(parse_config(tomllib.loads(text)).arm_bus)[0][0]
     old, new = text.splitlines(), edited.splitlines()
-    changed = [line for line in old if line not in new]
-    assert len(changed) == 1 and changed[0].startswith("torque_constant_n_m_per_a = 1.78")
-    kept = next(line for line in new if line.startswith("torque_constant_n_m_per_a = 1.9583"))
-    assert kept.index("#") == changed[0].index("#")  # its comment, in its column
-    assert kept.split("#", 1)[1] == changed[0].split("#", 1)[1]
-    added = [line for line in new if line not in old]
-    assert added[1].startswith("viscous_friction_n_m_s_per_rad = 0.0201 ")
-    assert added[1].endswith(f"# {NOTE}") and added[1].index("#") == changed[0].index("#")
+    assert len(new) == len(old) + 1
+    (at,) = [i for i, line in enumerate(new) if line.startswith("coulomb_friction_n_m")]
+    added, rest = new[at], new[:at] + new[at + 1 :]
+    changed = [(before, after) for before, after in zip(old, rest, strict=True) if before != after]
+    assert [(b.split(" = ")[0], a.split(" = ")[1].split()[0]) for b, a in changed] == [
+        ("torque_constant_n_m_per_a", "1.9583"),
+        ("viscous_friction_n_m_s_per_rad", "0.0201"),
+    ]
+    for before, after in changed:  # each keeps its comment, in its column
+        assert after.index("#") == before.index("#")
+        assert after.split("#", 1)[1] == before.split("#", 1)[1]
+    assert added.startswith("coulomb_friction_n_m = 0.004 ")
+    assert added.endswith(f"# {NOTE}") and added.index("#") == changed[0][0].index("#")
     eta2 = new.index('name = "eta2"')
     gripper = next(i for i, line in enumerate(new) if line.startswith("[arm_bus.gripper]"))
-    assert eta2 < new.index(added[1]) < gripper  # at the end of eta2's table
-    assert len(new) == len(old) + 1
+    assert eta2 < at < gripper  # at the end of eta2's table
 
 
 def test_an_unknown_joint_is_refused() -> None:
