@@ -162,7 +162,6 @@ def test_rejects_wrong_shapes(setup) -> None:
         model.terms(np.zeros(8), np.zeros((8, 1)))
 
 
-@pytest.mark.slow
 def test_generated_code_is_up_to_date() -> None:
     """The committed C file is exactly what the sympy derivation produces (about 40 s)."""
     pytest.importorskip("sympy")

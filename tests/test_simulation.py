@@ -76,7 +76,6 @@ def test_companion_never_sees_truth_derivatives(paper_runs) -> None:
     assert 0.0 < np.max(np.abs(err)) < 1e-3
 
 
-@pytest.mark.slow
 def test_underactuated_noisy_flight_estimates_within_20_s() -> None:
     """PX4-like plant, noisy sensors, filtered derivatives, flight rows only."""
     cfg = load_scenario(FLIGHT)
@@ -87,7 +86,6 @@ def test_underactuated_noisy_flight_estimates_within_20_s() -> None:
     assert abs(s["errors_pct"]["lc"]) < 10.0
 
 
-@pytest.mark.slow
 def test_estimate_follows_pickup_and_release() -> None:
     cfg = scenario_with(PAPER, simulation__payload_attached_at_start=False)
     r = simulate(
@@ -108,7 +106,6 @@ def test_estimate_follows_pickup_and_release() -> None:
     assert m2[-1] == pytest.approx(0.1, rel=0.05)  # released
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("estimator", ["paper", "rls"])
 def test_estimates_stay_finite_and_bounded_for_120_s_under_noise(estimator: str) -> None:
     cfg = scenario_with(FLIGHT, simulation__control_rate_hz=250.0)
@@ -189,7 +186,6 @@ def test_cli_sim_rejects_a_control_rate_too_low_for_the_gains(run_sitl, tmp_path
     assert "Traceback" not in result.stderr
 
 
-@pytest.mark.slow
 def test_cli_compare_writes_table(run_sitl, tmp_path: Path) -> None:
     result = run_sitl(
         "compare", "--scenario", str(PAPER), "--duration", "2", "--out", str(tmp_path)

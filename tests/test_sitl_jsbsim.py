@@ -302,7 +302,6 @@ def test_cli_refuses_jsbsim_ideal_and_wind_on_pinocchio(run_sitl, tmp_path: Path
     assert "three values E,N,U" in bad.stderr
 
 
-@pytest.mark.slow
 def test_cli_sim_on_jsbsim_with_wind(run_sitl, tmp_path: Path) -> None:
     """companion sim --physics jsbsim --wind --turbulence: the run is recorded as such."""
     import json

@@ -108,7 +108,6 @@ def test_arm_swing_agrees() -> None:
     assert diff[0] < 1e-2 and diff[2] < 1e-2
 
 
-@pytest.mark.slow
 def test_arm_coupling_converges_with_the_step() -> None:
     """The lagged coupling is consistent: without drag (whose point of action differs by
     design), the arm-swing difference shrinks at least 2x from 1 kHz to 3 kHz (measured

@@ -267,7 +267,6 @@ def _errors(result, t_s: float) -> tuple[float, float]:
     return abs(m2), abs(lc)
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("mismatch", [0.9, 1.0, 1.1])
 def test_estimate_survives_thrust_mismatch_and_battery_sag(mismatch: float) -> None:
     """Issue 16: paper_sim_flight, noise, RLS with the thrust scale, thrust mismatch at
@@ -283,7 +282,6 @@ def test_estimate_survives_thrust_mismatch_and_battery_sag(mismatch: float) -> N
     assert s_hat == pytest.approx(s_true, rel=0.02)
 
 
-@pytest.mark.slow
 def test_without_the_thrust_scale_the_sag_drives_the_estimate_off() -> None:
     """The same run with the thrust model taken as exact (today's default): the sag alone
     (no mismatch) puts m2 more than 10 % and lc more than 15 % off by the end."""
