@@ -67,6 +67,16 @@ def px4_build():
     return build
 
 
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """A test that runs PX4 (it needs ``px4_build``, directly or through a fixture) is
+    ``slow``: the test command runs those alone, after the rest (PX4 boots in real time,
+    takes free ports and two cores' worth of timing)."""
+    for item in items:
+        if "px4_build" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.slow)
+
+
 @pytest.hookimpl(wrapper=True, tryfirst=True)
 def pytest_runtest_makereport(item, call):
     """Record each phase's report on the test item (``item.rep_call.failed``), so that

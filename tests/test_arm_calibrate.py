@@ -25,6 +25,8 @@ from sitl.scenario import Scenario, load_scenario
 from sitl.servo import Faults
 from sitl.servo.arm_stand import ArmStand
 
+pytestmark = pytest.mark.slow  # the stand steps in real time; the calibration waits on it
+
 CONFIG = Path(__file__).parent.parent / "configs" / "px4_sih_pickup.toml"
 
 
@@ -54,7 +56,6 @@ def comments(text: str) -> list[str]:
     return [line.split("#", 1)[1] for line in text.splitlines() if "#" in line]
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("mismatch", [1.1, 0.9])
 def test_calibrate_recovers_the_torque_constant_and_friction_and_writes_them(
     run_cli, tmp_path: Path, mismatch: float

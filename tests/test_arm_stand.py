@@ -149,6 +149,7 @@ def test_a_scenario_without_servos_is_refused():
         ArmStand(load_scenario(CONFIG.parent / "paper_sim.toml"))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("speed", [1.0, 3.0])
 def test_the_thread_steps_in_real_time(scenario, speed):
     stand = ArmStand(scenario, speed=speed)
@@ -162,6 +163,7 @@ def test_the_thread_steps_in_real_time(scenario, speed):
     assert stand.overruns == 0
 
 
+@pytest.mark.slow
 @pytest.mark.usefixtures("no_leaked_bus")
 def test_our_driver_holds_the_arm_through_the_pty(scenario):
     joints, gripper = arm_bus_configs(scenario.arm_bus)

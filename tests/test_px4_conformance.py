@@ -46,6 +46,8 @@ FAILSAFE_DELAY_S = (1.0, 1.3)
 """Offboard loss: the mode changes COM_OF_LOSS_T (1 s) after the last setpoint, plus PX4's
 commander period (measured 1.06-1.12 s)."""
 
+pytestmark = pytest.mark.slow  # PX4 and the imitation run as processes in real time
+
 GPS_PEERS = ["imitation-gps", "px4-gps"]
 MOCAP_PEERS = ["imitation-mocap", "px4-mocap"]
 FIGURES: dict[str, dict] = {}
