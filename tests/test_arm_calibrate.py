@@ -8,6 +8,7 @@ test acts while it runs); the stand steps in real time in this process.
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import signal
@@ -56,7 +57,20 @@ def comments(text: str) -> list[str]:
     return [line.split("#", 1)[1] for line in text.splitlines() if "#" in line]
 
 
-@pytest.mark.parametrize("mismatch", [1.1, 0.9])
+@pytest.mark.parametrize(
+    "mismatch",
+    [
+        1.1,
+        pytest.param(
+            0.9,
+            marks=pytest.mark.skipif(
+                os.environ.get("ALL_SLOW_TESTS") != "1",
+                reason="the second mismatch is beyond the suite's time budget (60 s): "
+                "set ALL_SLOW_TESTS=1 to run it",
+            ),
+        ),
+    ],
+)
 def test_calibrate_recovers_the_torque_constant_and_friction_and_writes_them(
     run_cli, tmp_path: Path, mismatch: float
 ) -> None:
@@ -91,7 +105,8 @@ def test_calibrate_recovers_the_torque_constant_and_friction_and_writes_them(
         exclude={"arm_bus"}
     )
     old, new = comments(CONFIG.read_text()), comments(config.read_text())
-    assert [c for c in new if "companion arm calibrate" not in c] == old
+    dated = re.compile(r" companion arm calibrate, \d{4}-\d{2}-\d{2}$")  # on added keys
+    assert [c for c in new if not dated.fullmatch(c)] == old
 
 
 def test_too_little_gravity_torque_at_the_poses_is_refused(run_cli, tmp_path: Path) -> None:
@@ -166,10 +181,13 @@ def test_a_servo_that_does_not_answer_is_a_user_error(run_cli, stand: ArmStand) 
 def calibrate_in_background(stand: ArmStand, config: Path) -> subprocess.Popen:
     """The command started, returned once it has the joints in current-based position mode
     with torque on (it is moving the arm)."""
+    # SIGINT as in a terminal, even where the suite runs as a background job (the shell
+    # then ignores SIGINT for its children, and Python keeps an ignored SIGINT ignored)
     process = subprocess.Popen(
         [sys.executable, "-c", "from companion.cli import main; main()", "arm", "calibrate",
          "--bus", url(stand), "--config", str(config)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )  # fmt: skip
     based = int(ct.OperatingMode.CURRENT_BASED_POSITION)
     deadline = time.monotonic() + 60.0
