@@ -362,6 +362,13 @@ class ImitationPeer(Peer):
         "MAV_TYPE": "a configured hexacopter airframe (PX4's 6001_hexa_x sets 13); PX4's SIH "
         "hex airframe leaves the multicopter default 2",
         "THR_MDL_FAC": "the airframe's motors have the scenario's curve (0.3); SIH's are linear",
+        "Return height": "NOT YET IMITATED: at the offboard loss with the default action the "
+        "imitation's vehicle is 0.1-0.2 m above home (it sinks in the wrong-THR_MDL_FAC "
+        "step, and its Hold returns to where the failsafe struck) where PX4 SIH's is about "
+        "7 m up and 10 m away (it climbs on the test's fixed thrust, and PX4's Hold brakes "
+        "and stops): its Return lands at once, and the landing state shows LANDING or not "
+        "as the EXTENDED_SYS_STATE samples fall (measured 2026-12-02, the same before that "
+        "day's physics changes)",
     }
 
     def __init__(self, navigation: str) -> None:
