@@ -222,6 +222,10 @@ def test_px4s_own_modes_flew_the_mission_and_its_log_is_kept(pickup):
         modes,
         flight.context(),
     )
+    # Hold after the take-off, before the handover (motion capture: with its global origin)
+    sequence = [r["mode"] for r in flight.truth if r["armed"]]
+    takeoff = sequence.index("AUTO_TAKEOFF")
+    assert sequence[takeoff:].index("AUTO_LOITER") < sequence[takeoff:].index("OFFBOARD")
     logs = list(flight.px4_dir.rglob("px4.log"))
     ulogs = list(flight.px4_dir.rglob("*.ulg"))
     assert logs and ulogs, flight.context()
