@@ -473,12 +473,15 @@ class XM430Servo:
 
     def _advance_profile(self, dt_s: float) -> None:
         """Move the profile's position toward Goal Position at Profile Velocity (at once
-        when it is 0); with torque off it follows the shaft."""
+        when it is 0); with torque off it follows the shaft. Not kept in Current Control
+        Mode, which has no position goal (leaving it needs torque off, which resets it)."""
         table = self.table
-        goal_rad = units.ticks_to_rad(_INT32.unpack_from(table, _GOAL_POSITION)[0])
         if table[_TORQUE_ENABLE] != 1:
             self._profile_rad = self._angle_rad
             return
+        if table[_OPERATING_MODE] == _CURRENT_MODE:
+            return
+        goal_rad = units.ticks_to_rad(_INT32.unpack_from(table, _GOAL_POSITION)[0])
         rate = units.velocity_units_to_rad_s(_UINT32.unpack_from(table, _PROFILE_VELOCITY)[0])
         if rate == 0.0:
             self._profile_rad = goal_rad
