@@ -348,24 +348,23 @@ class World:
             self._gripper_servo.set_state(self.jaw.angle_rad, self.jaw.rate_rad_s)
             self.jaw.advance(self._gripper_servo.torque_n_m(), dt)
         state = plant_step(torques)
-        arm_before = (etas, eta_rates, torques.tolist())
         for _, servo in self._joints:
             servo.step(dt)
         if self._gripper_servo is not None:
             self._gripper_servo.step(dt)
         # sum() adds in order, as numpy does for six values: the same float, 3 us cheaper
         self.battery.draw(sum(self.plant.rotor_thrusts_n.tolist()), dt)
-        state = self._ground_contact(state, arm_before)
+        state = self._ground_contact(state, etas, eta_rates)
         self._state = state
         self._update_payload()
         return state
 
     def _ground_contact(
-        self, state: PlantState, arm_before: tuple[list[float], list[float], list[float]]
+        self, state: PlantState, etas: list[float], eta_rates: list[float]
     ) -> PlantState:
-        """Stand the base on the ground (see the module docstring); ``arm_before`` is the
-        joints' angles, rates and torques at the start of the step, which the arm takes
-        again on the standing base."""
+        """Stand the base on the ground (see the module docstring); ``etas`` and
+        ``eta_rates`` are the joints' angles and rates at the start of the step, which the
+        arm takes again on the standing base under the step's torques."""
         height = self.settings.landing_gear_height_m
         if self.plant.has_ground:  # the plant's own gear holds it (JSBSim)
             self.on_ground = state.q[Z] <= height + _CONTACT_SLACK_M and abs(state.q_dot[Z]) < 0.1
@@ -378,6 +377,7 @@ class World:
         if self._ground_pose is None:  # touch-down: stay where the gear met the ground
             self._ground_pose = (float(state.q[X]), float(state.q[Y]), float(state.q[PSI]))
         x, y, yaw = self._ground_pose
+        arm_before = (etas, eta_rates, self._torques.tolist())
         return self.plant.hold_base((x, y, height), yaw, arm_before)
 
     # ------------------------------------------------------------------- payload
