@@ -609,7 +609,12 @@ def _check_arm_bus(section: ArmBusSection, path: str) -> None:
     bus (its actuators report their output torque: the friction would be ignored)."""
     names: set[str] = set()
     ids: dict[int, str] = {}
-    dronecan = section.url.lower().startswith("dronecan:")
+    from arm_driver.url import parse_bus_url
+
+    try:
+        dronecan = parse_bus_url(section.url).backend == "dronecan"
+    except ValueError:  # a malformed URL is open_bus's one-line error, when the bus opens
+        dronecan = False
     for i, joint in enumerate(section.joints):
         key = f"arm_bus.joints[{i}]"
         for friction in ("viscous_friction_n_m_s_per_rad", "coulomb_friction_n_m"):
