@@ -128,6 +128,13 @@ def run(
         str | None,
         typer.Option(help="Fault injection 'ID@T': servo ID stops answering at T [s, sim time]."),
     ] = None,
+    servo_reply_delay_ms: Annotated[
+        float,
+        typer.Option(
+            help="Extra delay before every servo reply [ms], as a USB-serial adapter's latency "
+            "timer adds (an FTDI chip's default is 16 ms)."
+        ),
+    ] = 0.0,
     grasp_fails: Annotated[
         bool,
         typer.Option(
@@ -218,6 +225,8 @@ def run(
         except SigningKeyError as exc:
             _fail(f"--signing-key {exc}")
     silent = _servo_fault(servo_silent) if servo_silent is not None else None
+    if not (math.isfinite(servo_reply_delay_ms) and 0.0 <= servo_reply_delay_ms < 1000.0):
+        _fail(f"--servo-reply-delay-ms must be 0 to 999 ms, got {servo_reply_delay_ms:g}")
     cfg = _pickup_faults(cfg, config, grasp_fails, payload_slip)
     if physics not in ("pinocchio", "jsbsim"):
         _fail(f"--physics must be pinocchio or jsbsim, got {physics!r}")
@@ -245,6 +254,7 @@ def run(
             signing_key=signing_key,
             truth_log=truth_log,
             servo_silent=silent,
+            servo_reply_delay_s=servo_reply_delay_ms * 1e-3,
             physics=physics,
             wind=air,
         )

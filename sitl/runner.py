@@ -131,12 +131,19 @@ class RunOptions:
     servo_silent: tuple[int, float] | None = None
     """Fault injection: (servo id, simulation time [s]) from which that servo carries out
     instructions but never answers again (a broken TX line)."""
+    servo_reply_delay_s: float = 0.0
+    """Extra delay before every servo reply [s], wall clock (a USB-serial adapter's latency
+    timer: an FTDI chip's default is 16 ms)."""
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.speed) and self.speed > 0.0):
             raise ValueError(f"speed must be a positive factor, got {self.speed!r}")
         if not (math.isfinite(self.truth_rate_hz) and self.truth_rate_hz > 0.0):
             raise ValueError(f"truth_rate_hz must be positive, got {self.truth_rate_hz!r}")
+        if not (math.isfinite(self.servo_reply_delay_s) and 0.0 <= self.servo_reply_delay_s < 1.0):
+            raise ValueError(
+                f"servo_reply_delay_s must be 0 to 1 s, got {self.servo_reply_delay_s!r}"
+            )
         if self.navigation not in ERROR_MODELS:
             raise ValueError(
                 f"navigation must be one of {sorted(ERROR_MODELS)}, got {self.navigation!r}"
@@ -211,7 +218,9 @@ def build_world(
         for j in joints
     }
     servos[gripper.servo_id] = XM430Servo(gripper.servo_id)
-    servo_bus = PtyServoBus(servos, step_servos=False)
+    servo_bus = PtyServoBus(
+        servos, faults=Faults(reply_delay_s=options.servo_reply_delay_s), step_servos=False
+    )
     world = World(
         _plant(scenario, options),
         [(j, servos[j.servo_id]) for j in joints],
@@ -219,6 +228,12 @@ def build_world(
         world_settings(scenario),
     )
     return world, servo_bus, list(joints), gripper
+
+
+def silenced(servo_id: int, options: RunOptions) -> Faults:
+    """The servo bus's faults once servo ``servo_id`` fell silent (``servo_silent``), the
+    run's reply delay kept."""
+    return Faults(silent_ids=frozenset({servo_id}), reply_delay_s=options.servo_reply_delay_s)
 
 
 def world_settings(scenario: Scenario) -> WorldSettings:
@@ -380,7 +395,7 @@ class SitlVehicle:
                 for line in lines:
                     console(_console_text(line.severity, line.text))
             if silent is not None and world.time_s >= silent[1]:
-                self.servo_bus.set_faults(Faults(silent_ids=frozenset({silent[0]})))
+                self.servo_bus.set_faults(silenced(silent[0], self.options))
                 silent = None
             if self._truth_file is not None and step % truth_every == 0:
                 self._write_truth()

@@ -373,6 +373,15 @@ def test_sitl_run_never_overwrites_a_truth_log(tmp_path):
     one_error(sitl("run", "--config", PICKUP, "--truth-log", missing), "no directory")
 
 
+@pytest.mark.parametrize("value", ["-1", "1000", "nan"])
+def test_sitl_run_servo_reply_delay_out_of_range(value):
+    one_error(
+        sitl("run", "--config", PICKUP, "--servo-reply-delay-ms", value),
+        "--servo-reply-delay-ms",
+        "0 to 999 ms",
+    )
+
+
 def test_sitl_run_seed_below_zero():
     one_error(sitl("run", "--config", PICKUP, "--seed", "-1"), "--seed", "0 or more", "-1")
 
