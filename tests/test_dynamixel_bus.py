@@ -412,6 +412,34 @@ def test_slow_replies_within_the_margin_still_succeed(sim: PtyServoBus) -> None:
     run(body)
 
 
+def test_a_late_reply_to_a_timed_out_request_is_skipped_by_the_next_ones(
+    sim: PtyServoBus,
+) -> None:
+    """A USB-serial adapter's latency timer (16 ms on FTDI chips by default) can deliver a
+    reply after its request timed out, in the middle of the next transaction."""
+
+    async def body() -> None:
+        async with make_bus(sim, timeout_margin_s=0.02) as bus:
+            sim.set_faults(Faults(reply_delay_s=0.03))
+            with pytest.raises(BusTimeoutError):
+                await bus.read_gripper()  # its 10-byte reply comes after about 20 ms
+            sim.set_faults(Faults())
+            await bus.open_gripper()  # a Write, answered with no parameters
+            with sim.lock:
+                assert sim.servos[3].get(ct.GOAL_POSITION) == units.rad_to_ticks(0.8)
+            assert bus.stale_replies == 1
+            sim.set_faults(Faults(reply_delay_s=0.03))
+            with pytest.raises(BusTimeoutError):
+                await bus.read_gripper()
+            sim.set_faults(Faults())
+            states = await bus.read_joint_states()  # the late reply is from servo 3
+            assert set(states) == {"shoulder", "elbow"}
+            assert bus.stale_replies == 2
+            assert bus.state is BusState.OPEN
+
+    run(body)
+
+
 def test_servos_that_do_not_answer_writes_still_take_them(sim: PtyServoBus) -> None:
     with sim.lock:
         for servo in sim.servos.values():

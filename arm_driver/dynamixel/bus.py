@@ -36,6 +36,14 @@ thread scheduling, use a larger margin, e.g. ``timeout_margin_ms=20``: measured 
 loaded two-core machine, a Sync Read of two emulated servos took 1.4 ms median and up
 to 5 ms.
 
+Late replies: a reply that comes after its request timed out (a USB-serial adapter holds
+received bytes up to its latency timer, 16 ms by default on FTDI chips) arrives during a
+later transaction. Input is discarded before each request, and a status packet from a
+servo not asked, a second one from the same servo, or one without error whose parameter
+count is not the one asked for is skipped and counted (``stale_replies``); the Dynamixel
+SDK likewise reads on past a reply from another id. A late reply that looks like the one
+asked for (same servo, same length) cannot be told apart: it is one transaction old.
+
 Damaged replies (CRC, framing) and a servo's own CRC Error are retried up to
 ``crc_retries`` times (default 2), then raised as
 :class:`~arm_driver.errors.CommunicationError`. A reply with the Alert bit makes the bus
@@ -240,6 +248,9 @@ class DynamixelBus(ArmBus):
         self._transport = SerialTransport(device, baudrate, low_latency=low_latency)
         self._parser = StatusParser()
         self._servos: dict[int, _Servo] = {}
+        self.stale_replies = 0
+        """Status packets skipped as late answers to an earlier request (see the module
+        docstring)."""
 
     @property
     def watchdog_s(self) -> float:
@@ -373,6 +384,9 @@ class DynamixelBus(ArmBus):
                     continue
                 if reply is None:
                     break
+                if _stale(reply, repliers, replies, reply_params):
+                    self.stale_replies += 1
+                    continue
                 replies.append(reply)
         if damaged is not None:
             raise damaged
@@ -384,8 +398,6 @@ class DynamixelBus(ArmBus):
                 timeout.add_note(f"servos {missing} did not answer")
             raise timeout
         for reply in replies:
-            if reply.servo_id not in repliers:
-                raise CommunicationError(f"reply from servo {reply.servo_id}, which was not asked")
             if reply.error == StatusError.CRC:  # the servo got our packet damaged
                 raise InstructionError(reply.servo_id, reply.error)
         return replies
@@ -607,3 +619,16 @@ def _watchdog_units(watchdog_s: float) -> int:
             "(Bus Watchdog(98) counts 1-127 x 20 ms)"
         )
     return math.ceil(round(watchdog_s / unit_s, 6))
+
+
+def _stale(
+    reply: StatusPacket,
+    repliers: Sequence[int],
+    taken: Sequence[StatusPacket],
+    reply_params: int,
+) -> bool:
+    """True if ``reply`` cannot answer this request: from a servo not asked or already
+    answered, or without error and not carrying the ``reply_params`` bytes asked for."""
+    if reply.servo_id not in repliers or any(r.servo_id == reply.servo_id for r in taken):
+        return True
+    return reply.error == 0 and not reply.alert and len(reply.params) != reply_params
