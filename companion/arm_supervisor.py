@@ -47,7 +47,13 @@ from arm_driver.bus import (
 from arm_driver.errors import ArmDriverError, BusTimeoutError, CommunicationError
 from companion.mission import GripperAction
 
-__all__ = ["BUS_FAILURES", "GRIPPER_READ_PERIOD_S", "SERVO_FAILURE_S", "ArmSupervisor"]
+__all__ = [
+    "BUS_FAILURES",
+    "GRIPPER_ATTEMPTS",
+    "GRIPPER_READ_PERIOD_S",
+    "SERVO_FAILURE_S",
+    "ArmSupervisor",
+]
 
 FloatArray = NDArray[np.float64]
 SERVO_FAILURE_S = 0.3
@@ -62,6 +68,9 @@ GRIPPER_READ_PERIOD_S = 0.1
 """Wall-clock period of the gripper reads while it is watched [s]: an object that slipped
 out shows within two reads (:data:`companion.carry_check.EMPTY_READINGS`), one extra
 transaction every 25 cycles at 250 Hz."""
+GRIPPER_ATTEMPTS = 2
+"""Tries of an open or close that timed out or came back damaged (a position goal: writing
+it again is harmless) before the bus counts as lost."""
 PREFLIGHT_ATTEMPTS = 3
 """Tries of the preflight set-up; a reply that came late once is not a broken bus."""
 PREFLIGHT_PAUSE_S = 0.5
@@ -266,14 +275,23 @@ class ArmSupervisor:
             self._last_transaction_s = time.monotonic()
 
     async def _move_gripper(self, action: GripperAction) -> None:
-        try:
-            if action == GripperAction.CLOSE:
-                await self.bus.close_gripper()
-            else:
-                await self.bus.open_gripper()
-        except ArmDriverError as exc:
-            self._lose(f"gripper: {exc}")
-            return
+        """Open or close, tried :data:`GRIPPER_ATTEMPTS` times on link errors; a gripper
+        that cannot be commanded loses the bus."""
+        move = self.bus.close_gripper if action == GripperAction.CLOSE else self.bus.open_gripper
+        for attempt in range(1, GRIPPER_ATTEMPTS + 1):
+            try:
+                await move()
+            except (BusTimeoutError, CommunicationError) as exc:
+                if attempt < GRIPPER_ATTEMPTS:
+                    continue
+                self._lose(f"gripper: {exc}")
+                return
+            except ArmDriverError as exc:
+                self._lose(f"gripper: {exc}")
+                return
+            finally:
+                self._last_transaction_s = time.monotonic()
+            break
         self._note("gripper", action.value)
 
     def _failed_once(self, exc: ArmDriverError) -> None:

@@ -220,6 +220,54 @@ def test_the_arm_task_reads_the_gripper_only_while_watched_and_notes_a_bus_that_
     assert [kind for kind, _ in notes] == ["gripper"] and "estimate alone" in notes[0][1]
 
 
+class FlakyGripperBus(GripperBus):
+    """A gripper whose first ``timeouts`` commands time out (a late reply on a slow bus)."""
+
+    def __init__(self, timeouts: int) -> None:
+        super().__init__(True)
+        self.timeouts = timeouts
+        self.closed = False
+
+    async def close_gripper(self):
+        from arm_driver.errors import BusTimeoutError
+
+        if self.timeouts > 0:
+            self.timeouts -= 1
+            raise BusTimeoutError(3, 0.02)
+        self.closed = True
+
+
+@pytest.mark.parametrize("timeouts", [1, 2])
+def test_a_gripper_command_that_timed_out_is_sent_again_once(timeouts):
+    import asyncio
+
+    from companion.arm_supervisor import GRIPPER_ATTEMPTS, ArmSupervisor
+    from companion.mission import GripperAction
+
+    async def body():
+        lost: list[str] = []
+        supervisor = ArmSupervisor(
+            FlakyGripperBus(timeouts),
+            vehicle_time=lambda: 0.0,
+            note=lambda kind, text: None,
+            on_failure=lost.append,
+        )
+        task = asyncio.create_task(supervisor.run())
+        supervisor.grip(GripperAction.CLOSE)
+        supervisor.due()
+        await asyncio.sleep(0.05)
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        return supervisor, lost
+
+    supervisor, lost = asyncio.run(body())
+    if timeouts < GRIPPER_ATTEMPTS:
+        assert supervisor.bus.closed and lost == [] and not supervisor.failed
+    else:
+        assert not supervisor.bus.closed and supervisor.failed
+        assert len(lost) == 1 and lost[0].startswith("gripper: servo 3")
+
+
 def test_abandon_in_the_excitation_leaves_the_swing_without_a_jump_in_velocity():
     mission = PickupMission(PLAN, SCENARIO)
     mission.start(0.0, np.array([0.0, 0.0, 1.5, 0.0, 0.0, 0.0, 0.0, -1.5]))
