@@ -103,8 +103,10 @@ def test_px4s_125_hz_becomes_the_loop_period_in_microseconds():
 
 
 def test_too_slow_for_the_gains_refuses_to_fly():
-    with pytest.raises(MissionError, match=r"arrives at 20 Hz .* raise the control rate"):
-        check(50_000)
+    """configs/sitl_pickup.toml's joint gains (0.15 N m s/rad) need 14.3 Hz at the stow
+    pose."""
+    with pytest.raises(MissionError, match=r"arrives at 10 Hz .* raise the control rate"):
+        check(100_000)
 
 
 def test_joints_stopped_by_the_servo_watchdog_are_enabled_again():

@@ -83,10 +83,16 @@ def fly(tmp: Path, name: str, *extra_sitl: str, mission_args=(), relay=None, pyt
     return result, summary, truth(truth_log)
 
 
+SLOW_SERVO_REPLY_MS = "4"
+"""The adaptive pickup's servos answer this late (``--servo-reply-delay-ms``): the joint
+state reaches the 125 Hz loop every second or third cycle, as it did in CI at stop 20 when
+the elbow oscillated at the earlier joint gain; the other flights keep the prompt bus."""
+
+
 @pytest.fixture(scope="module")
 def adaptive(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("adaptive")
-    return (tmp, *fly(tmp, "passivity"))
+    return (tmp, *fly(tmp, "passivity", "--servo-reply-delay-ms", SLOW_SERVO_REPLY_MS))
 
 
 @pytest.mark.slow
