@@ -59,7 +59,7 @@ from numpy.typing import NDArray
 from pymavlink.dialects.v20 import common as mavlink2
 
 from arm_driver.bus import ArmBus, JointState
-from arm_driver.errors import ArmDriverError
+from arm_driver.errors import ArmDriverError, BusTimeoutError
 from companion.arm_supervisor import BUS_FAILURES, SERVO_FAILURE_S, ArmSupervisor
 from companion.carry_check import CarryThresholds, CarryVerdict, CarryWatch, gripper_holds
 from companion.config import CompanionConfig
@@ -113,6 +113,12 @@ _HOLD_WINDOW_S = 3.0
 """Vehicle time of PX4's hold before the handover the horizontal bias is taken over [s]."""
 _MAX_JOINT_AGE_S = 0.05
 """Age [s] a joint state is fused with at most (a cycle that waited on the link)."""
+_NO_REPLY_HINT = (
+    "check the servos' power, ids and baud rate, and the USB adapter's latency timer "
+    "(1 ms: README, 'Deploying on an onboard computer')"
+)
+"""Added to a preflight servo timeout: replies held by an FTDI adapter's default 16 ms
+latency timer come after the bus's deadline as surely as none at all."""
 _NOT_ARMED = object()
 """``PickupApp._status_at_arm`` before the app armed the vehicle."""
 
@@ -328,6 +334,8 @@ class PickupApp:
             raise MissionError(f"preflight: {exc}") from None
         try:
             states = await self.arm.prepare()
+        except BusTimeoutError as exc:
+            raise MissionError(f"preflight: arm bus: {exc}; {_NO_REPLY_HINT}") from None
         except ArmDriverError as exc:
             raise MissionError(f"preflight: arm bus: {exc}") from None
         missing = set(self.arm.names) - set(states)

@@ -195,7 +195,11 @@ def _draw_figures(log_path: Path, out_dir: Path) -> None:
         typer.echo("note: figures not drawn (matplotlib not installed: pip install '.[plot]')")
         return
     try:
-        plot_flight_log(read_flight_log(log_path), out_dir)
+        flight = read_flight_log(log_path)
+        if len(flight) == 0:
+            typer.echo("note: no figures: the flight log has no control cycle")
+            return
+        plot_flight_log(flight, out_dir)
     except Exception as exc:
         typer.echo(f"warning: figures not drawn: {exc}", err=True)
 

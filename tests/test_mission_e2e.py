@@ -117,6 +117,20 @@ def test_pickup_learns_the_payload_places_it_and_lands(adaptive):
     assert "estimated payload" in result.stdout
 
 
+@pytest.mark.slow
+def test_servos_answering_too_late_are_refused_on_the_ground(tmp_path):
+    """Servo replies 12 ms late (a USB adapter's latency timer): every Sync Read of the two
+    joints misses its deadline; the mission says so in one line, with what to check, and
+    the vehicle is never armed."""
+    result, summary, log = fly(tmp_path, "late", "--servo-reply-delay-ms", "12")
+    assert result.returncode != 0 and "Traceback" not in result.stderr
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("mission failed: preflight: arm bus: servo")
+    assert "latency timer" in lines[0] and "no figures" in result.stdout
+    assert summary is not None and not summary["completed"]
+    assert not any(r["armed"] for r in log)
+
+
 @pytest.fixture(scope="module")
 def nonadaptive(tmp_path_factory, flight_install):
     """The baseline flight, flown by the flight install alone (a fresh venv with ``pip
