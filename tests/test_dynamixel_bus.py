@@ -419,16 +419,16 @@ def test_a_late_reply_to_a_timed_out_request_is_skipped_by_the_next_ones(
     reply after its request timed out, in the middle of the next transaction."""
 
     async def body() -> None:
-        async with make_bus(sim, timeout_margin_s=0.02) as bus:
-            sim.set_faults(Faults(reply_delay_s=0.03))
+        async with make_bus(sim, timeout_margin_s=RELAXED_MARGIN_S) as bus:
+            sim.set_faults(Faults(reply_delay_s=1.5 * RELAXED_MARGIN_S))
             with pytest.raises(BusTimeoutError):
-                await bus.read_gripper()  # its 10-byte reply comes after about 20 ms
+                await bus.read_gripper()  # its 10-byte reply comes 25 ms after the deadline
             sim.set_faults(Faults())
             await bus.open_gripper()  # a Write, answered with no parameters
             with sim.lock:
                 assert sim.servos[3].get(ct.GOAL_POSITION) == units.rad_to_ticks(0.8)
             assert bus.stale_replies == 1
-            sim.set_faults(Faults(reply_delay_s=0.03))
+            sim.set_faults(Faults(reply_delay_s=1.5 * RELAXED_MARGIN_S))
             with pytest.raises(BusTimeoutError):
                 await bus.read_gripper()
             sim.set_faults(Faults())
