@@ -281,18 +281,16 @@ class ArmSupervisor:
         for attempt in range(1, GRIPPER_ATTEMPTS + 1):
             try:
                 await move()
-            except (BusTimeoutError, CommunicationError) as exc:
-                if attempt < GRIPPER_ATTEMPTS:
-                    continue
-                self._lose(f"gripper: {exc}")
+                self._note("gripper", action.value)
                 return
+            except (BusTimeoutError, CommunicationError) as exc:
+                if attempt == GRIPPER_ATTEMPTS:
+                    self._lose(f"gripper: {exc}")
             except ArmDriverError as exc:
                 self._lose(f"gripper: {exc}")
                 return
             finally:
                 self._last_transaction_s = time.monotonic()
-            break
-        self._note("gripper", action.value)
 
     def _failed_once(self, exc: ArmDriverError) -> None:
         self._failures += 1

@@ -22,15 +22,14 @@ import difflib
 import tomllib
 import typing
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Literal
+from typing import Annotated, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 from pydantic_core import ErrorDetails
 
+from arm_driver.joint import GripperConfig, JointConfig
+from arm_driver.url import parse_bus_url
 from companion.coordinates import N_Q
-
-if TYPE_CHECKING:
-    from arm_driver.joint import GripperConfig, JointConfig
 
 __all__ = [
     "SIMULATOR_SECTIONS",
@@ -609,8 +608,6 @@ def _check_arm_bus(section: ArmBusSection, path: str) -> None:
     bus (its actuators report their output torque: the friction would be ignored)."""
     names: set[str] = set()
     ids: dict[int, str] = {}
-    from arm_driver.url import parse_bus_url
-
     try:
         dronecan = parse_bus_url(section.url).backend == "dronecan"
     except ValueError:  # a malformed URL is open_bus's one-line error, when the bus opens
@@ -656,8 +653,6 @@ def arm_bus_configs(
         ``arm_driver.joint.JointConfig`` per joint in file order, and the
         ``GripperConfig`` or None; ready for ``arm_driver.bus.open_bus(section.url, ...)``.
     """
-    from arm_driver.joint import GripperConfig, JointConfig
-
     joints = tuple(JointConfig(**joint.model_dump()) for joint in section.joints)
     gripper = None if section.gripper is None else GripperConfig(**section.gripper.model_dump())
     return joints, gripper

@@ -218,9 +218,7 @@ def build_world(
         for j in joints
     }
     servos[gripper.servo_id] = XM430Servo(gripper.servo_id)
-    servo_bus = PtyServoBus(
-        servos, faults=Faults(reply_delay_s=options.servo_reply_delay_s), step_servos=False
-    )
+    servo_bus = PtyServoBus(servos, faults=servo_faults(options), step_servos=False)
     world = World(
         _plant(scenario, options),
         [(j, servos[j.servo_id]) for j in joints],
@@ -230,10 +228,11 @@ def build_world(
     return world, servo_bus, list(joints), gripper
 
 
-def silenced(servo_id: int, options: RunOptions) -> Faults:
-    """The servo bus's faults once servo ``servo_id`` fell silent (``servo_silent``), the
-    run's reply delay kept."""
-    return Faults(silent_ids=frozenset({servo_id}), reply_delay_s=options.servo_reply_delay_s)
+def servo_faults(options: RunOptions, silent_id: int | None = None) -> Faults:
+    """The servo bus's faults: the run's reply delay, and servo ``silent_id`` silent once
+    ``servo_silent``'s time has come."""
+    silent = frozenset() if silent_id is None else frozenset({silent_id})
+    return Faults(silent_ids=silent, reply_delay_s=options.servo_reply_delay_s)
 
 
 def world_settings(scenario: Scenario) -> WorldSettings:
@@ -395,7 +394,7 @@ class SitlVehicle:
                 for line in lines:
                     console(_console_text(line.severity, line.text))
             if silent is not None and world.time_s >= silent[1]:
-                self.servo_bus.set_faults(silenced(silent[0], self.options))
+                self.servo_bus.set_faults(servo_faults(self.options, silent[0]))
                 silent = None
             if self._truth_file is not None and step % truth_every == 0:
                 self._write_truth()

@@ -74,7 +74,7 @@ from sitl.launch import free_udp_port
 from sitl.physics.rotors import N_ROTORS
 from sitl.px4 import GeoReference, MavlinkEndpoint, Px4Mode
 from sitl.px4_sitl import Px4Build, Px4NotReadyError, Px4Ports, Px4Sitl, free_instance
-from sitl.runner import RunOptions, RunStats, build_world, silenced, truth_record
+from sitl.runner import RunOptions, RunStats, build_world, servo_faults, truth_record
 from sitl.scenario import Scenario
 from sitl.sensors import PoseSensor
 
@@ -388,7 +388,7 @@ class Px4InTheLoop:
                 force += world.specific_force_flu_m_s2()
                 omega += state.omega_body_rad_s
                 if silent is not None and world.time_s >= silent[1]:
-                    self.servo_bus.set_faults(silenced(silent[0], self.options))
+                    self.servo_bus.set_faults(servo_faults(self.options, silent[0]))
                     silent = None
                 if self._truth_file is not None and step % truth_every == 0:
                     self._truth_file.write(
