@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 import pytest
-from flight_checks import CARRY_RMS_BOUND_M, assert_calm_flight, carry_rms_m
+from flight_checks import ALL_FLIGHTS, CARRY_RMS_BOUND_M, assert_calm_flight, carry_rms_m
 
 from companion.flightlog import read_flight_log
 from sitl.launch import free_udp_port, start_sitl
@@ -32,7 +32,7 @@ TRUE_MASS_KG = 0.25
 TRUE_COM_M = 0.15
 SPEED = 1.0
 JUDGED_AGAINST_PX4 = pytest.mark.skipif(
-    bool(os.environ.get("PX4_SITL_DIR")) and os.environ.get("PX4_ALL_FLIGHTS") != "1",
+    bool(os.environ.get("PX4_SITL_DIR")) and not ALL_FLIGHTS,
     reason="flown against the real PX4 instead (tests/test_px4_hil.py: the same flight, the "
     "same companion; the suite's time budget); PX4_ALL_FLIGHTS=1 flies it here too",
 )

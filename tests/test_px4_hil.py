@@ -26,7 +26,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from flight_checks import CARRY_RMS_BOUND_M, MISSION_PHASES, assert_calm_flight, carry_rms_m
+from flight_checks import (
+    ALL_FLIGHTS,
+    CARRY_RMS_BOUND_M,
+    MISSION_PHASES,
+    assert_calm_flight,
+    carry_rms_m,
+)
 from test_mission_e2e import LinkCutter
 
 from companion.flightlog import read_flight_log
@@ -196,7 +202,7 @@ def assert_pickup_completed(flight: Flight) -> None:
 
 @pytest.mark.slow
 @pytest.mark.skipif(
-    os.environ.get("PX4_ALL_FLIGHTS") != "1",
+    not ALL_FLIGHTS,
     reason="a PX4 flight beyond the suite's time budget: set PX4_ALL_FLIGHTS=1 to fly it",
 )
 def test_pickup_under_px4_on_jsbsim_in_wind(px4_build, tmp_path):

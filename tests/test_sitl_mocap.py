@@ -9,13 +9,13 @@ as the companion does, on the onboard link, with a 1 Hz onboard-controller heart
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
+from flight_checks import ALL_FLIGHTS
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -297,7 +297,7 @@ def test_without_a_global_origin_px4_arms_only_in_takeoff_and_stays_there(mocap_
 
 @pytest.mark.slow
 @pytest.mark.skipif(
-    os.environ.get("PX4_ALL_FLIGHTS") != "1",
+    not ALL_FLIGHTS,
     reason="flown in every suite by the motion-capture pickup under PX4 (tests/test_px4_hil.py: "
     "origin set, armed, Hold after the take-off); the suite's time budget: "
     "PX4_ALL_FLIGHTS=1 flies it here too",
