@@ -22,6 +22,7 @@ __all__ = [
     "enu_from_ned",
     "euler_enu_flu_from_ned_frd",
     "euler_ned_frd_from_enu_flu",
+    "euler_zyx_from_quaternion",
     "flu_from_frd",
     "frd_from_flu",
     "ned_from_enu",
@@ -73,15 +74,14 @@ def _multiply(a: tuple[float, ...], b: tuple[float, ...]) -> tuple[float, float,
     )
 
 
-def _unit(q_wxyz: ArrayLike) -> tuple[float, ...]:
-    q = np.asarray(q_wxyz, dtype=np.float64).reshape(4)
-    norm = float(np.linalg.norm(q))
+def _unit(q_wxyz: ArrayLike) -> tuple[float, float, float, float]:
+    w, x, y, z = np.asarray(q_wxyz, dtype=np.float64).reshape(4).tolist()
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
     if not math.isfinite(norm) or norm < 1e-9:
-        raise ValueError(f"not a rotation quaternion: {q.tolist()}")
-    q = q / norm
-    if q[0] < 0.0:
-        q = -q
-    return tuple(float(c) for c in q)
+        raise ValueError(f"not a rotation quaternion: {[w, x, y, z]}")
+    if w < 0.0:
+        norm = -norm
+    return (w / norm, x / norm, y / norm, z / norm)
 
 
 def quaternion_ned_frd_from_enu_flu(q_enu_flu: ArrayLike) -> FloatArray:
@@ -108,6 +108,19 @@ def rotation_from_quaternion(q_wxyz: ArrayLike) -> FloatArray:
             [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
             [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
         ]
+    )
+
+
+def euler_zyx_from_quaternion(q_wxyz: ArrayLike) -> tuple[float, float, float]:
+    """ZYX Euler angles (phi, theta, psi) [rad] of a quaternion ``[w, x, y, z]`` (normalized
+    first), with R = Rz(psi) Ry(theta) Rx(phi): the entries of
+    :func:`rotation_from_quaternion` it needs, without the matrix (once per pose)."""
+    w, x, y, z = _unit(q_wxyz)
+    sin_theta = 2 * (x * z - w * y)
+    return (
+        math.atan2(2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
+        -math.asin(max(-1.0, min(1.0, sin_theta))),
+        math.atan2(2 * (x * y + w * z), 1 - 2 * (y * y + z * z)),
     )
 
 

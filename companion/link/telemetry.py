@@ -35,6 +35,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.frames import (
     enu_from_ned,
+    euler_zyx_from_quaternion,
     flu_from_frd,
     quaternion_enu_flu_from_ned_frd,
     rotation_from_quaternion,
@@ -96,13 +97,7 @@ class VehiclePose:
 
     def euler_zyx_rad(self) -> Vec3:
         """(phi, theta, psi) [rad] with R = Rz(psi) Ry(theta) Rx(phi) (DESIGN.md section 2)."""
-        r = rotation_from_quaternion(self.q_enu_flu)
-        theta = -math.asin(max(-1.0, min(1.0, float(r[2, 0]))))
-        return (
-            math.atan2(float(r[2, 1]), float(r[2, 2])),
-            theta,
-            math.atan2(float(r[1, 0]), float(r[0, 0])),
-        )
+        return euler_zyx_from_quaternion(self.q_enu_flu)
 
 
 @dataclass(frozen=True)
