@@ -49,6 +49,7 @@ not known (:class:`~companion.estimation.Skip`).
 from __future__ import annotations
 
 import asyncio
+import gc
 import math
 import time
 from collections.abc import Awaitable, Callable
@@ -230,6 +231,10 @@ class PickupApp:
         """Thrust PX4 flew over the last cycle [N] (NaN: PX4 flew its own)."""
         self._faults: asyncio.Queue[FaultEvent] = asyncio.Queue()
         self._late_noted_s = -math.inf
+        self._collecting = True
+        """Whether Python's garbage collector ran automatically before this cycle: no
+        collection starts between a pose and its setpoint (a young-generation collection
+        measured 0.06-13 ms in flight); it is enabled again once the setpoint is sent."""
         self.control.estimator.freeze()  # until the mission flies in OFFBOARD
         self._tick = asyncio.Condition()
         """Notified after every control cycle (vehicle time advanced)."""
@@ -398,6 +403,7 @@ class PickupApp:
         if unreachable is not None:
             raise MissionError(unreachable)
         self._note("mode", f"arming (standing at z = {self._ground_z:.2f} m)")
+        gc.freeze()  # collections in flight skip everything built before it
         try:
             await link.arm()
             self._status_at_arm = link.latest(VehicleStatus)
@@ -594,7 +600,13 @@ class PickupApp:
                 self.report.poses_dropped = poses.dropped
                 if self.link.lost is not None:
                     continue
-                self._cycle(pose, received)
+                self._collecting = gc.isenabled()
+                gc.disable()  # _cycle enables it again once the setpoint is sent
+                try:
+                    self._cycle(pose, received)
+                finally:
+                    if self._collecting:
+                        gc.enable()
                 self.arm.due()  # write this cycle's torques, read for the next
                 async with self._tick:  # vehicle time advanced, whatever the cycle did
                     self._tick.notify_all()
@@ -641,6 +653,8 @@ class PickupApp:
             self.link.send_setpoint(sp, pose.time_boot_ms)
             setpoint_us = (time.perf_counter() - received) * 1e6
             self.report.setpoint_latency_us.append(setpoint_us)
+        if self._collecting:
+            gc.enable()  # garbage collection may run from here on, after the setpoint
         self._last_thrust_n = sp.thrust_n if sp is not None and self.offboard.flying else math.nan
         tau_cmd = self.arm.command(out.tau[JOINTS])
         if command is not None:
