@@ -15,7 +15,10 @@ directory, stops the busy processes and prints, from the demo's summary.json:
 
 The SITL runs on the same cores, so these are upper bounds for a dedicated onboard
 computer. Numbers only, no pass/fail. The load average before each flight is printed.
-Usage: ``python benchmarks/bench_flight_loop.py [--busy 0,1,2] [--autopilot imitation]``
+``--fifo P`` runs the demo under ``chrt --fifo P`` (real-time scheduling, as a flight
+computer's service would run the companion); ``--repeat K`` flies K times per N.
+Usage: ``python benchmarks/bench_flight_loop.py [--busy 0,1,2] [--autopilot imitation]
+[--fifo 50] [--repeat 1]``
 """
 
 from __future__ import annotations
@@ -31,13 +34,14 @@ from pathlib import Path
 SPIN = "while True:\n    pass\n"
 
 
-def fly(busy: int, autopilot: str, tmp: Path) -> tuple[dict | None, str]:
+def fly(busy: int, autopilot: str, tmp: Path, fifo_priority: int | None) -> tuple[dict | None, str]:
     """The demo with ``busy`` spinning processes; (summary or None, the demo's output)."""
     spinners = [subprocess.Popen([sys.executable, "-c", SPIN]) for _ in range(busy)]
+    prefix = [] if fifo_priority is None else ["chrt", "--fifo", str(fifo_priority)]
     try:
-        out = tmp / f"demo-busy{busy}"
+        out = Path(tempfile.mkdtemp(prefix=f"busy{busy}-", dir=tmp)) / "demo"
         result = subprocess.run(
-            [sys.executable, "-c", "from sitl.cli import main; main()", "demo",
+            [*prefix, sys.executable, "-c", "from sitl.cli import main; main()", "demo",
              "--out", str(out), "--autopilot", autopilot],
             capture_output=True, text=True, timeout=900,
         )  # fmt: skip
@@ -70,17 +74,27 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--busy", default="0,1,2", help="numbers of busy processes")
     parser.add_argument("--autopilot", default="imitation", choices=("imitation", "px4"))
+    parser.add_argument(
+        "--fifo",
+        type=int,
+        default=None,
+        metavar="PRIORITY",
+        help="run the demo (companion and SITL) under chrt --fifo PRIORITY (needs the "
+        "privilege to set real-time priorities)",
+    )
+    parser.add_argument("--repeat", type=int, default=1, help="flights per number of busy")
     args = parser.parse_args()
     counts = [int(n) for n in args.busy.split(",")]
-    print(f"{os.cpu_count()} cores; sitl demo --autopilot {args.autopilot}, speed 1")
+    policy = "" if args.fifo is None else f", SCHED_FIFO priority {args.fifo}"
+    print(f"{os.cpu_count()} cores; sitl demo --autopilot {args.autopilot}, speed 1{policy}")
     print(
         f"{'busy':>4} {'completed':>9} {'faults':<14} {'late':>6} {'dropped':>7} "
         f"{'max ms':>8} {'set p50':>8} {'set p99':>8} {'cyc p50':>8} {'cyc p99':>8} {'cpu':>5}"
     )
     with tempfile.TemporaryDirectory() as tmp:
-        for busy in counts:
+        for busy in (n for n in counts for _ in range(args.repeat)):
             load = os.getloadavg()[0]
-            summary, output = fly(busy, args.autopilot, Path(tmp))
+            summary, output = fly(busy, args.autopilot, Path(tmp), args.fifo)
             if summary is None:
                 print(f"{busy:>4} the demo wrote no summary (load {load:.1f}):\n{output[-2000:]}")
                 continue
