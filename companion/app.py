@@ -836,11 +836,12 @@ class PickupApp:
                 self._record_estimate(self._last_output)
         if command.estimator == EstimatorAction.RESTART:
             est.reset(est.theta)
-        elif command.estimator == EstimatorAction.RESET_EMPTY:
+        elif command.estimator in (EstimatorAction.RESET_EMPTY, EstimatorAction.EMPTY):
             est.reset(self.config.estimator.initial_theta.as_tuple())
-        hold = command.estimator == EstimatorAction.FREEZE or self.failsafe.has(
-            Fault.ESTIMATE_BOUND
-        )
+        hold = command.estimator in (
+            EstimatorAction.FREEZE,
+            EstimatorAction.EMPTY,
+        ) or self.failsafe.has(Fault.ESTIMATE_BOUND)
         if hold and not est.frozen:
             est.freeze()
         elif not hold and est.frozen and not self.failsafe.aborted:

@@ -20,7 +20,7 @@ When the object is not in the gripper (:mod:`companion.carry_check` decides, the
 :meth:`PickupMission.abandon`), the pickup stops where it is and ends with
 
 ``return``      climb straight up to cruise altitude (at least ``return_hold_s``, holding
-                position), arm down, the estimator back at the empty arm and running;
+                position), arm down, the estimator back at the empty arm and held;
                 then ``to_home`` and the landing, with the :class:`Outcome` the reason
                 (``grasp_failed``: the gripper is opened, whatever it touches is let go;
                 ``payload_lost``: it stays as it is). The mission never ends
@@ -109,7 +109,8 @@ class Outcome(StrEnum):
 
 _FROZEN_PHASES = frozenset({Phase.TO_OBJECT, Phase.DESCEND, Phase.GRASP, Phase.RELEASE, Phase.DONE})
 """The estimator holds the empty-arm values until the grasp (nothing to learn: the arm is
-known empty), and holds still while the gripper acts and after the mission."""
+known empty), and holds still while the gripper acts and after the mission; after an
+:meth:`PickupMission.abandon` it holds the empty arm's values to the end."""
 
 
 class GripperAction(StrEnum):
@@ -129,6 +130,12 @@ class EstimatorAction(StrEnum):
     """Keep theta, restart confidence: the payload was just grasped."""
     RESET_EMPTY = "reset_empty"
     """Back to the empty-arm values: the payload was just released."""
+    EMPTY = "empty"
+    """Back to the empty-arm values and held there for the rest of the flight: the object
+    was lost or never grasped, the arm is known to be empty (as before the grasp), and the
+    cycles after the loss carry its transient (measured in the SITL's slip: estimating on
+    from the reset, m2 went to its lower bound in the first cycle, then to twice the empty
+    value)."""
 
 
 @dataclass(frozen=True)
@@ -389,7 +396,8 @@ class PickupMission:
             gripper = GripperAction.CLOSE
         if changed and self.phase == Phase.RELEASE:
             gripper = GripperAction.OPEN
-        if self.phase in _FROZEN_PHASES:
+        abandoned = self.outcome != Outcome.COMPLETED
+        if self.phase in _FROZEN_PHASES or abandoned:
             estimator = estimator if estimator != EstimatorAction.RUN else EstimatorAction.FREEZE
         return MissionCommand(self.phase, self._desired(t_s), gripper, estimator, changed)
 
@@ -397,7 +405,8 @@ class PickupMission:
         """Stop the pickup at vehicle time ``t_s`` [s] because the object is not carried
         (``outcome`` ``grasp_failed`` or ``payload_lost``, ``detail`` why): from where the
         desired state is now, climb straight up to cruise altitude (``return``), then home;
-        returns this cycle's command (the estimator back at the empty arm). Once only: a
+        returns this cycle's command (the estimator back at the empty arm, held there for
+        the rest of the flight: :attr:`EstimatorAction.EMPTY`). Once only: a
         mission already returning, going home or done is left as it is."""
         if outcome == Outcome.COMPLETED:
             raise ValueError("abandon() needs the reason the object is not carried")
@@ -420,9 +429,7 @@ class PickupMission:
         v_from[PSI] = 0.0
         self._segment.v_from = v_from
         gripper = GripperAction.OPEN if outcome == Outcome.GRASP_FAILED else GripperAction.HOLD
-        return MissionCommand(
-            self.phase, self._desired(t_s), gripper, EstimatorAction.RESET_EMPTY, True
-        )
+        return MissionCommand(self.phase, self._desired(t_s), gripper, EstimatorAction.EMPTY, True)
 
     def _finished(self, t_s: float, q: FloatArray, confident: bool) -> bool:
         seg = self._segment

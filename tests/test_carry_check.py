@@ -125,11 +125,11 @@ def test_abandon_climbs_where_it_is_resets_the_estimate_goes_home_and_never_comp
     q = mission.update(t_s, q, confident=True).desired.q
     command = mission.abandon(t_s, outcome, "test")
     assert command.phase == Phase.RETURN and command.phase_changed
-    assert command.estimator == EstimatorAction.RESET_EMPTY and command.gripper == gripper
+    assert command.estimator == EstimatorAction.EMPTY and command.gripper == gripper
     np.testing.assert_allclose(command.desired.q, q, atol=1e-9)  # continuous: no jump
     again = mission.abandon(t_s + 0.1, Outcome.PAYLOAD_LOST, "twice")
     assert not again.phase_changed and mission.outcome == outcome
-    # Up to cruise altitude where it was, at least return_hold_s, arm down, estimator on.
+    # Up to cruise altitude where it was, at least return_hold_s, arm down, estimator held.
     start_xy = q[POSITION][:2].copy()
     t_return = t_s
     while mission.phase == Phase.RETURN:
@@ -138,11 +138,12 @@ def test_abandon_climbs_where_it_is_resets_the_estimate_goes_home_and_never_comp
         q = command.desired.q
         if command.phase == Phase.RETURN:  # where it was (the carry's speed run out)
             assert np.linalg.norm(q[POSITION][:2] - start_xy) < 0.05
-            assert command.estimator == EstimatorAction.RUN
+            assert command.estimator == EstimatorAction.FREEZE
             end_xy = q[POSITION][:2].copy()
     np.testing.assert_allclose(end_xy, start_xy, atol=1e-9)
     assert t_s - t_return >= PLAN.return_hold_s
     assert mission.phase == Phase.TO_HOME and q[Z] == pytest.approx(PLAN.cruise_altitude_m)
+    assert mission.update(t_s, q, confident=True).estimator == EstimatorAction.FREEZE
     t_s, q = fly_to(mission, Phase.DONE, t_s)
     np.testing.assert_allclose(q[POSITION][:2], PLAN.home_m, atol=1e-9)
     np.testing.assert_allclose(q[JOINTS], PLAN.stow_joints_rad)

@@ -96,9 +96,10 @@ def test_an_object_slipping_out_is_payload_lost_within_1_s_and_the_estimate_empt
     assert held and held[-1] - held[0] == pytest.approx(2.5, abs=0.05)
     slipped_s = held[-1]
     assert 0.0 < fault["t_s"] - slipped_s < 1.0, (fault["t_s"], slipped_s)
-    # The estimate went back to the empty arm and stayed there on the way home.
+    # The estimate went back to the empty arm and was held there on the way home (estimating
+    # on, the loss's transient took m2 to its 0.05 kg bound in the first cycle).
     c = read_flight_log(tmp_path / "slip" / "flight.csv").columns
-    home = c["phase"] == "to_home"
+    home = np.isin(c["phase"], ["return", "to_home"])
     assert home.any()
     m2 = c["theta_hat_m2_kg"][home]
-    assert np.max(np.abs(m2 - EMPTY_M2_KG)) < 0.03, (m2.min(), m2.max())
+    np.testing.assert_allclose(m2, EMPTY_M2_KG, rtol=1e-9)
