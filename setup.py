@@ -25,5 +25,11 @@ setup(
             sources=["sitl/physics/_kernel.c"],
             extra_compile_args=["-O2", "-ffp-contract=off"],
         ),
+        # The XM430 servo model's per-step physics, operation for operation as its Python.
+        Extension(
+            "sitl.servo._xm430",
+            sources=["sitl/servo/_xm430.c"],
+            extra_compile_args=["-O2", "-ffp-contract=off"],
+        ),
     ]
 )

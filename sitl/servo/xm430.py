@@ -65,6 +65,7 @@ from __future__ import annotations
 
 import math
 import struct
+from array import array
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -73,6 +74,11 @@ from arm_driver.dynamixel import units
 from arm_driver.dynamixel.instructions import encode_int
 from arm_driver.dynamixel.protocol import InstructionPacket
 from arm_driver.errors import HardwareErrorStatus, StatusError
+
+try:
+    from sitl.servo import _xm430
+except ImportError:  # a source checkout without ``python setup.py build_ext --inplace``
+    _xm430 = None  # type: ignore[assignment]
 
 __all__ = [
     "EXAMPLE_TORQUE_CONSTANT_N_M_PER_A",
@@ -207,8 +213,41 @@ class ServoReply:
     alert: bool = False
 
 
+class _LoopValue:
+    """One float of :attr:`XM430Servo._loop`, the loops' state the compiled step shares."""
+
+    def __init__(self, index: int) -> None:
+        self.index = index
+
+    def __get__(self, obj: XM430Servo, owner: type | None = None) -> float:
+        return obj._loop[self.index]
+
+    def __set__(self, obj: XM430Servo, value: float) -> None:
+        obj._loop[self.index] = value
+
+
+_LOOP = (
+    "_angle_rad",
+    "_rate_rad_s",
+    "_current_a",
+    "_lag_dt_s",
+    "_lag",
+    "_overload_s",
+    "_silent_s",
+    "_hold_rad",
+    "_profile_rad",
+)
+"""Order of the loop state in :attr:`XM430Servo._loop` (``sitl/servo/_xm430.c``'s L_*)."""
+
+
 class XM430Servo:
     """One simulated XM430-W350; implements :class:`ServoJoint`.
+
+    :meth:`set_state` and :meth:`step` run in the compiled ``sitl.servo._xm430`` where it is
+    built (``compiled``), on the control table and :attr:`_loop`; their Python versions
+    (``_set_state_reference``, ``_step_reference``) are the reference it is tested against
+    bit for bit (tests/test_xm430_model.py) and run any step the compiled one declines (a
+    value out of range, the Overload bit).
 
     Parameters
     ----------
@@ -218,7 +257,19 @@ class XM430Servo:
         Loop and physical parameters.
     angle_rad
         Initial shaft angle [rad] (0 at tick 2048); Goal Position starts there.
+    compiled
+        Use the compiled step where it is built (False: the Python reference).
     """
+
+    _angle_rad = _LoopValue(0)
+    _rate_rad_s = _LoopValue(1)
+    _current_a = _LoopValue(2)
+    _lag_dt_s = _LoopValue(3)
+    _lag = _LoopValue(4)
+    _overload_s = _LoopValue(5)
+    _silent_s = _LoopValue(6)
+    _hold_rad = _LoopValue(7)
+    _profile_rad = _LoopValue(8)
 
     def __init__(
         self,
@@ -226,10 +277,15 @@ class XM430Servo:
         parameters: XM430Parameters | None = None,
         *,
         angle_rad: float = 0.0,
+        compiled: bool = True,
     ) -> None:
         if not 0 <= servo_id <= 252:
             raise ValueError(f"servo id {servo_id} out of range (0-252)")
         self.parameters = parameters if parameters is not None else XM430Parameters()
+        self._loop = array("d", [0.0] * len(_LOOP))
+        self._compiled = _xm430 if compiled else None
+        self._constants_of: XM430Parameters | None = None
+        self._constants = array("d")
         self.table = bytearray(TABLE_SIZE)
         for entry, value in _FACTORY:
             self._put(entry, int(value))
@@ -388,8 +444,58 @@ class XM430Servo:
 
     # -- physics (ServoJoint) -----------------------------------------------------------
 
+    def _constants_now(self) -> array:
+        """The compiled step's constants (``sitl/servo/_xm430.c``'s C_*), rebuilt when
+        :attr:`parameters` is replaced."""
+        p = self.parameters
+        if self._constants_of is not p:
+            self._constants = array(
+                "d",
+                (
+                    p.torque_constant_n_m_per_a,
+                    p.current_time_constant_s,
+                    p.position_kp_a_per_rad,
+                    p.position_kd_a_s_per_rad,
+                    p.overload_current_fraction,
+                    p.overload_time_s,
+                    p.winding_resistance_ohm,
+                    p.back_emf_v_s_per_rad,
+                    p.viscous_friction_n_m_s_per_rad,
+                    units.RAD_PER_TICK,
+                    units.POSITION_CENTER_TICKS,
+                    units.VELOCITY_RAD_S_PER_UNIT,
+                    units.CURRENT_A_PER_UNIT,
+                    units.VOLTAGE_V_PER_UNIT,
+                    _TORQUE_ENABLE,
+                    _OPERATING_MODE,
+                    _CURRENT_LIMIT,
+                    _GOAL_CURRENT,
+                    _GOAL_POSITION,
+                    _PRESENT_CURRENT,
+                    _PRESENT_VELOCITY,
+                    _PRESENT_INPUT_VOLTAGE,
+                    _PROFILE_VELOCITY,
+                    _BUS_WATCHDOG,
+                    _TRIPPED,
+                    ct.BUS_WATCHDOG_MAX,
+                    ct.BUS_WATCHDOG_UNIT_S,
+                    _CURRENT_MODE,
+                    _CURRENT_BASED_POSITION_MODE,
+                    TABLE_SIZE,
+                ),
+            )
+            self._constants_of = p
+        return self._constants
+
     def set_state(self, angle_rad: float, rate_rad_s: float) -> None:
         """Present Position(132) and Present Velocity(128) from the shaft's angle and rate."""
+        compiled = self._compiled
+        if compiled is None or not compiled.set_state(
+            self.table, self._loop, self._constants_now(), angle_rad, rate_rad_s
+        ):
+            self._set_state_reference(angle_rad, rate_rad_s)
+
+    def _set_state_reference(self, angle_rad: float, rate_rad_s: float) -> None:
         self._angle_rad = float(angle_rad)
         self._rate_rad_s = float(rate_rad_s)
         ticks = units.rad_to_ticks(self._angle_rad)
@@ -446,6 +552,13 @@ class XM430Servo:
 
     def step(self, dt_s: float) -> None:
         """Advance the bus watchdog, the current loop and the overload detector by ``dt_s`` [s]."""
+        compiled = self._compiled
+        if compiled is None or not compiled.step(
+            self.table, self._loop, self._constants_now(), dt_s
+        ):
+            self._step_reference(dt_s)
+
+    def _step_reference(self, dt_s: float) -> None:
         if not dt_s >= 0.0:
             raise ValueError(f"time step {dt_s} s must be >= 0")
         self._watch(dt_s)
