@@ -328,6 +328,13 @@ class TruthPlant:
             return np.zeros(N_ROTORS)
         return self._rotors.thrusts_n
 
+    @property
+    def total_thrust_n(self) -> float:
+        """Sum of :attr:`rotor_thrusts_n` [N], added in rotor order (as numpy adds six)."""
+        if self.mode != "underactuated":
+            return 0.0
+        return sum(self._rotors.thrust_list_n)
+
     # ---------------------------------------------------------------- payload
 
     @property

@@ -291,6 +291,11 @@ class JsbsimPlant:
         return self._rotors.thrusts_n
 
     @property
+    def total_thrust_n(self) -> float:
+        """Sum of :attr:`rotor_thrusts_n` [N], added in rotor order."""
+        return sum(self._rotors.thrust_list_n)
+
+    @property
     def height_above_ground_m(self) -> float:
         """JSBSim's height of the CG above the ground [m]."""
         return self._fdm["position/h-agl-ft"] * FT_M
