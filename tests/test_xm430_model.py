@@ -362,7 +362,7 @@ def test_the_compiled_step_is_the_python_step_bit_for_bit(setup: str) -> None:
             servo.set_state(angle, rate)
         assert fast.torque_n_m() == slow.torque_n_m()
         taken += fast._compiled.step(
-            bytearray(fast.table), array("d", fast._loop), fast._constants_now(), dt
+            bytearray(fast.table), array("d", fast._loop), fast._constants, dt
         )
         for servo in (fast, slow):
             servo.step(dt)

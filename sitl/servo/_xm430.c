@@ -106,18 +106,29 @@ static int to_units(double value, double unit, double low, double high, int64_t 
     return 1;
 }
 
+/* A call's (table, loop, constants) views and the n floats after them (nargs must be
+ * 3 + n; ``usage`` is the TypeError's text). */
+static int begin(PyObject *const *args, Py_ssize_t nargs, Py_ssize_t n, const char *usage,
+                 double *values, Views *v)
+{
+    if (nargs != 3 + n) {
+        PyErr_SetString(PyExc_TypeError, usage);
+        return 0;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        values[i] = PyFloat_AsDouble(args[3 + i]);
+        if (values[i] == -1.0 && PyErr_Occurred()) return 0;
+    }
+    return acquire(args, v);
+}
+
 static PyObject *py_set_state(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
-    if (nargs != 5) {
-        PyErr_SetString(PyExc_TypeError, "set_state(table, loop, constants, angle, rate)");
-        return NULL;
-    }
-    double angle = PyFloat_AsDouble(args[3]);
-    if (angle == -1.0 && PyErr_Occurred()) return NULL;
-    double rate = PyFloat_AsDouble(args[4]);
-    if (rate == -1.0 && PyErr_Occurred()) return NULL;
+    double in[2];
     Views v;
-    if (!acquire(args, &v)) return NULL;
+    if (!begin(args, nargs, 2, "set_state(table, loop, constants, angle, rate)", in, &v))
+        return NULL;
+    double angle = in[0], rate = in[1];
     uint8_t *t = (uint8_t *)v.table.buf;
     double *s = (double *)v.loop.buf;
     const double *c = (const double *)v.constants.buf;
@@ -138,14 +149,9 @@ static PyObject *py_set_state(PyObject *self, PyObject *const *args, Py_ssize_t 
 
 static PyObject *py_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
-    if (nargs != 4) {
-        PyErr_SetString(PyExc_TypeError, "step(table, loop, constants, dt_s)");
-        return NULL;
-    }
-    double dt = PyFloat_AsDouble(args[3]);
-    if (dt == -1.0 && PyErr_Occurred()) return NULL;
+    double dt;
     Views v;
-    if (!acquire(args, &v)) return NULL;
+    if (!begin(args, nargs, 1, "step(table, loop, constants, dt_s)", &dt, &v)) return NULL;
     uint8_t *t = (uint8_t *)v.table.buf;
     double *s = (double *)v.loop.buf;
     const double *c = (const double *)v.constants.buf;

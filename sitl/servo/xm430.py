@@ -213,6 +213,45 @@ class ServoReply:
     alert: bool = False
 
 
+def _compiled_constants(p: XM430Parameters) -> array:
+    """The compiled step's constants (``sitl/servo/_xm430.c``'s C_*) for parameters ``p``."""
+    return array(
+        "d",
+        (
+            p.torque_constant_n_m_per_a,
+            p.current_time_constant_s,
+            p.position_kp_a_per_rad,
+            p.position_kd_a_s_per_rad,
+            p.overload_current_fraction,
+            p.overload_time_s,
+            p.winding_resistance_ohm,
+            p.back_emf_v_s_per_rad,
+            p.viscous_friction_n_m_s_per_rad,
+            units.RAD_PER_TICK,
+            units.POSITION_CENTER_TICKS,
+            units.VELOCITY_RAD_S_PER_UNIT,
+            units.CURRENT_A_PER_UNIT,
+            units.VOLTAGE_V_PER_UNIT,
+            _TORQUE_ENABLE,
+            _OPERATING_MODE,
+            _CURRENT_LIMIT,
+            _GOAL_CURRENT,
+            _GOAL_POSITION,
+            _PRESENT_CURRENT,
+            _PRESENT_VELOCITY,
+            _PRESENT_INPUT_VOLTAGE,
+            _PROFILE_VELOCITY,
+            _BUS_WATCHDOG,
+            _TRIPPED,
+            ct.BUS_WATCHDOG_MAX,
+            ct.BUS_WATCHDOG_UNIT_S,
+            _CURRENT_MODE,
+            _CURRENT_BASED_POSITION_MODE,
+            TABLE_SIZE,
+        ),
+    )
+
+
 class _LoopValue:
     """One float of :attr:`XM430Servo._loop`, the loops' state the compiled step shares."""
 
@@ -226,18 +265,9 @@ class _LoopValue:
         obj._loop[self.index] = value
 
 
-_LOOP = (
-    "_angle_rad",
-    "_rate_rad_s",
-    "_current_a",
-    "_lag_dt_s",
-    "_lag",
-    "_overload_s",
-    "_silent_s",
-    "_hold_rad",
-    "_profile_rad",
-)
-"""Order of the loop state in :attr:`XM430Servo._loop` (``sitl/servo/_xm430.c``'s L_*)."""
+_LOOP_SIZE = 9
+"""Floats in :attr:`XM430Servo._loop`, in the order of its :class:`_LoopValue` indices
+(``sitl/servo/_xm430.c``'s L_*)."""
 
 
 class XM430Servo:
@@ -281,11 +311,10 @@ class XM430Servo:
     ) -> None:
         if not 0 <= servo_id <= 252:
             raise ValueError(f"servo id {servo_id} out of range (0-252)")
-        self.parameters = parameters if parameters is not None else XM430Parameters()
-        self._loop = array("d", [0.0] * len(_LOOP))
+        self._parameters = parameters if parameters is not None else XM430Parameters()
+        self._loop = array("d", [0.0] * _LOOP_SIZE)
         self._compiled = _xm430 if compiled else None
-        self._constants_of: XM430Parameters | None = None
-        self._constants = array("d")
+        self._constants = _compiled_constants(self._parameters)
         self.table = bytearray(TABLE_SIZE)
         for entry, value in _FACTORY:
             self._put(entry, int(value))
@@ -319,6 +348,12 @@ class XM430Servo:
             encode = encode_int if entry.signed else _encode_uint
             data = encode(value, size)
         self.table[address : address + size] = data
+
+    @property
+    def parameters(self) -> XM430Parameters:
+        """Loop and physical parameters (fixed at construction: the compiled step holds
+        them as constants)."""
+        return self._parameters
 
     @property
     def servo_id(self) -> int:
@@ -444,54 +479,11 @@ class XM430Servo:
 
     # -- physics (ServoJoint) -----------------------------------------------------------
 
-    def _constants_now(self) -> array:
-        """The compiled step's constants (``sitl/servo/_xm430.c``'s C_*), rebuilt when
-        :attr:`parameters` is replaced."""
-        p = self.parameters
-        if self._constants_of is not p:
-            self._constants = array(
-                "d",
-                (
-                    p.torque_constant_n_m_per_a,
-                    p.current_time_constant_s,
-                    p.position_kp_a_per_rad,
-                    p.position_kd_a_s_per_rad,
-                    p.overload_current_fraction,
-                    p.overload_time_s,
-                    p.winding_resistance_ohm,
-                    p.back_emf_v_s_per_rad,
-                    p.viscous_friction_n_m_s_per_rad,
-                    units.RAD_PER_TICK,
-                    units.POSITION_CENTER_TICKS,
-                    units.VELOCITY_RAD_S_PER_UNIT,
-                    units.CURRENT_A_PER_UNIT,
-                    units.VOLTAGE_V_PER_UNIT,
-                    _TORQUE_ENABLE,
-                    _OPERATING_MODE,
-                    _CURRENT_LIMIT,
-                    _GOAL_CURRENT,
-                    _GOAL_POSITION,
-                    _PRESENT_CURRENT,
-                    _PRESENT_VELOCITY,
-                    _PRESENT_INPUT_VOLTAGE,
-                    _PROFILE_VELOCITY,
-                    _BUS_WATCHDOG,
-                    _TRIPPED,
-                    ct.BUS_WATCHDOG_MAX,
-                    ct.BUS_WATCHDOG_UNIT_S,
-                    _CURRENT_MODE,
-                    _CURRENT_BASED_POSITION_MODE,
-                    TABLE_SIZE,
-                ),
-            )
-            self._constants_of = p
-        return self._constants
-
     def set_state(self, angle_rad: float, rate_rad_s: float) -> None:
         """Present Position(132) and Present Velocity(128) from the shaft's angle and rate."""
         compiled = self._compiled
         if compiled is None or not compiled.set_state(
-            self.table, self._loop, self._constants_now(), angle_rad, rate_rad_s
+            self.table, self._loop, self._constants, angle_rad, rate_rad_s
         ):
             self._set_state_reference(angle_rad, rate_rad_s)
 
@@ -553,9 +545,7 @@ class XM430Servo:
     def step(self, dt_s: float) -> None:
         """Advance the bus watchdog, the current loop and the overload detector by ``dt_s`` [s]."""
         compiled = self._compiled
-        if compiled is None or not compiled.step(
-            self.table, self._loop, self._constants_now(), dt_s
-        ):
+        if compiled is None or not compiled.step(self.table, self._loop, self._constants, dt_s):
             self._step_reference(dt_s)
 
     def _step_reference(self, dt_s: float) -> None:
