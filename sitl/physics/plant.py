@@ -330,10 +330,10 @@ class TruthPlant:
 
     @property
     def total_thrust_n(self) -> float:
-        """Sum of :attr:`rotor_thrusts_n` [N], added in rotor order (as numpy adds six)."""
+        """Sum of :attr:`rotor_thrusts_n` [N] (0 in ideal mode)."""
         if self.mode != "underactuated":
             return 0.0
-        return sum(self._rotors.thrust_list_n)
+        return self._rotors.total_thrust_n
 
     # ---------------------------------------------------------------- payload
 

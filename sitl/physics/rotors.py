@@ -168,6 +168,11 @@ class RotorBank:
         """The same as a list of floats (a copy)."""
         return list(self._thrusts)
 
+    @property
+    def total_thrust_n(self) -> float:
+        """Sum of the produced thrusts [N], added in rotor order (as numpy adds six)."""
+        return sum(self._thrusts)
+
     def reset(self, thrusts_n: ArrayLike) -> None:
         """Set the produced thrusts [N] (the lag states)."""
         t = np.asarray(thrusts_n, dtype=np.float64)

@@ -292,8 +292,8 @@ class JsbsimPlant:
 
     @property
     def total_thrust_n(self) -> float:
-        """Sum of :attr:`rotor_thrusts_n` [N], added in rotor order."""
-        return sum(self._rotors.thrust_list_n)
+        """Sum of :attr:`rotor_thrusts_n` [N]."""
+        return self._rotors.total_thrust_n
 
     @property
     def height_above_ground_m(self) -> float:
