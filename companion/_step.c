@@ -61,6 +61,7 @@ typedef struct {
     double weight[NQ * 3];  /* ExcitationMonitor.weight, per used row */
     double tilt_w;          /* TiltReference */
     double tilt_max, thrust_max, thrust_min_rel; /* mapping and ThrustModel */
+    double compensate;      /* 1: the mapped force is divided by the thrust scale */
     double trim_gain, trim_limit; /* HorizontalTrim */
 } Params;
 
@@ -68,6 +69,7 @@ typedef struct {
     double theta[3];
     double frozen;
     double thrust_scale;
+    double scale_held;      /* 1: s held (no gain) until the monitor is confident */
     double skipped[N_SKIP]; /* counts by companion.estimation.Skip, in its order */
     double qhat_valid;
     double qhat[NQ];        /* paper observer, per used row */
@@ -276,13 +278,15 @@ static int paper_step(const Params *P, State *S, int n, double dt, const double 
     double xi[4] = {m2, m3, m4, 1.0};
     for (int r = 0; r < n; ++r) tau[r] = tau_in[r];
     if (P->has_scale) {
-        double ef = 0.0;
-        for (int r = 0; r < n; ++r) ef += e[r] * (P->rows[r] < 3 ? tau[r] : 0.0);
-        double s = S->thrust_scale - dt * P->s_gamma * ef;
-        if (!clip_scale(P, &s)) return 0;
-        S->thrust_scale = s;
+        if (!S->scale_held) {
+            double ef = 0.0;
+            for (int r = 0; r < n; ++r) ef += e[r] * (P->rows[r] < 3 ? tau[r] : 0.0);
+            double s = S->thrust_scale - dt * P->s_gamma * ef;
+            if (!clip_scale(P, &s)) return 0;
+            S->thrust_scale = s;
+        }
         for (int r = 0; r < n; ++r)
-            if (P->rows[r] < 3) tau[r] = s * tau[r];
+            if (P->rows[r] < 3) tau[r] = S->thrust_scale * tau[r];
     }
     for (int r = 0; r < n; ++r) {
         double dt_over_c = dt / P->c_star[r];
@@ -309,9 +313,10 @@ static int rls_step(const Params *P, State *S, int n, double dt, const double *y
     for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j) p[m * i + j] = S->p[3 * i + j];
     for (int i = 0; i < 3; ++i) x[i] = S->theta[i];
+    double var_s = S->var_s + P->s_drift2 * dt;
     if (m == 4) {
         for (int i = 0; i < 3; ++i) p[4 * i + 3] = p[12 + i] = S->p_s[i];
-        p[15] = S->var_s + P->s_drift2 * dt;
+        p[15] = S->scale_held ? 0.0 : var_s;
         x[3] = S->thrust_scale;
     }
     /* ph = P H^T (m x n); A = H ph + R / lambda (n x n); B = ph^T, solved to gain^T */
@@ -382,7 +387,7 @@ static int rls_step(const Params *P, State *S, int n, double dt, const double *y
         for (int j = 0; j < 3; ++j) S->p[3 * i + j] = p[4 * i + j];
         S->p_s[i] = p[4 * i + 3];
     }
-    S->var_s = p[15];
+    S->var_s = S->scale_held ? py_min(var_s / P->forgetting, P->s_var_max) : p[15];
     return 1;
 }
 
@@ -482,6 +487,7 @@ static int control_step(const Params *P, State *S, double dt, int skip, const do
     out[OUT_SPREAD] = S->spread;
     out[OUT_CONFIDENT] = (!S->frozen && S->excitation >= P->excitation_min
                           && S->spread <= P->spread_max) ? 1.0 : 0.0;
+    if (out[OUT_CONFIDENT] == 1.0) S->scale_held = 0.0;
     out[OUT_FROZEN] = S->frozen;
     out[OUT_SCALE] = S->thrust_scale;
 
@@ -522,8 +528,12 @@ static int control_step(const Params *P, State *S, double dt, int skip, const do
     tau[0] += S->trim_force[0];
     tau[1] += S->trim_force[1];
 
-    /* 5. setpoint, then the tilt reference's step toward it */
-    setpoint(P, tau, q[5], rq[5], out);
+    /* 5. setpoint (of the force over the thrust scale if compensated), then the tilt
+     *    reference's step toward it */
+    double force[3] = {tau[0], tau[1], tau[2]};
+    if (P->compensate)
+        for (int i = 0; i < 3; ++i) force[i] = tau[i] / S->thrust_scale;
+    setpoint(P, force, q[5], rq[5], out);
     double raw[2] = {out[OUT_ROLL], out[OUT_PITCH]};
     tilt_step(P, S, dt, raw);
     return 1;
@@ -741,9 +751,10 @@ static int add_offsets(PyObject *m)
     FIELD(Params, sample_period_s, 1); FIELD(Params, excitation_min, 1);
     FIELD(Params, spread_max, 1); FIELD(Params, window_samples, 1);
     FIELD(Params, weight, 3 * NQ); FIELD(Params, tilt_w, 1); FIELD(Params, tilt_max, 1);
-    FIELD(Params, thrust_max, 1); FIELD(Params, thrust_min_rel, 1);
+    FIELD(Params, thrust_max, 1); FIELD(Params, thrust_min_rel, 1); FIELD(Params, compensate, 1);
     FIELD(Params, trim_gain, 1); FIELD(Params, trim_limit, 1);
     FIELD(State, theta, 3); FIELD(State, frozen, 1); FIELD(State, thrust_scale, 1);
+    FIELD(State, scale_held, 1);
     FIELD(State, skipped, N_SKIP); FIELD(State, qhat_valid, 1); FIELD(State, qhat, NQ);
     FIELD(State, p, 9); FIELD(State, p_s, 3); FIELD(State, var_s, 1); FIELD(State, info, 9);
     FIELD(State, excitation, 1); FIELD(State, spread, 1); FIELD(State, since_sample, 1);

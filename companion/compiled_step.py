@@ -185,6 +185,7 @@ class _EstimatorFields:
     theta = _Field("_state", "State.theta", shape=(3,))
     frozen = _Field("_state", "State.frozen", kind=bool)
     thrust_scale = _Field("_state", "State.thrust_scale")
+    scale_held = _Field("_state", "State.scale_held", kind=bool)
     skipped = _SkippedField()
 
 
@@ -216,8 +217,11 @@ class _CompiledTrim(_Backed, HorizontalTrim):
 
 
 _STATE_ATTRIBUTES = {
-    _CompiledPaperEstimator: ("theta", "frozen", "thrust_scale", "skipped", "qhat"),
-    _CompiledRlsEstimator: ("theta", "frozen", "thrust_scale", "skipped", "p", "p_s", "var_s"),
+    _CompiledPaperEstimator: ("theta", "frozen", "thrust_scale", "scale_held", "skipped", "qhat"),
+    _CompiledRlsEstimator: (
+        *("theta", "frozen", "thrust_scale", "scale_held", "skipped"),
+        *("p", "p_s", "var_s"),
+    ),
     _CompiledMonitor: ("info", "excitation", "spread"),
     _CompiledTilt: ("w", "x", "v", "a"),
     _CompiledTrim: ("gain", "limit", "force_n"),
@@ -262,6 +266,7 @@ class CompiledStep:
         trim: HorizontalTrim,
         thrust: ThrustModel,
         tilt_max_rad: float,
+        compensate_thrust: bool = False,
     ) -> None:
         if not self.supports(controller, estimator):
             raise TypeError("the compiled step runs eq. tau2 with the paper or RLS estimator")
@@ -294,6 +299,7 @@ class CompiledStep:
             "window_samples": window,
             "weight": np.pad(monitor.weight.reshape(-1), (0, 3 * (8 - n))),
             "tilt_max": tilt_max_rad,
+            "compensate": compensate_thrust,
         }
         if controller._fixed_xi is not None:
             par["fixed_xi"] = controller._fixed_xi

@@ -290,6 +290,11 @@ class ThrustScale(_Section):
     (battery sag; 0: s is held constant apart from the forgetting)."""
     gamma: Gain = 1.0
     """Paper estimator: learning rate of s [-]."""
+    compensate: bool = False
+    """Divide the commanded force by the estimated s before the thrust model maps it to
+    PX4's relative thrust, so that the vehicle produces the force the law asks for (as
+    PX4's hover thrust estimate does); the estimator still sees the model's force for the
+    command sent."""
 
 
 class Estimator(_Section):

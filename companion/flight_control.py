@@ -155,6 +155,9 @@ class FlightControl:
         self.tilt_max_rad = ctl.tilt_max_rad
         self.trim = HorizontalTrim(ctl.horizontal_trim_gain_n_per_m, ctl.horizontal_trim_limit_n)
         self._trim_active = False
+        scale = config.estimator.thrust_scale
+        self.compensate_thrust = scale is not None and scale.compensate
+        """Map the law's force divided by the estimated thrust scale (``compensate``)."""
         module = native_module(compiled)
         if module is not None and CompiledStep.supports(self.controller, self.estimator):
             assert isinstance(self.controller, PassivityController)
@@ -168,6 +171,7 @@ class FlightControl:
                 self.trim,
                 self.thrust,
                 self.tilt_max_rad,
+                self.compensate_thrust,
             )
             self.estimator = self._compiled.estimator
             self.tilt = self._compiled.tilt
@@ -266,8 +270,9 @@ class FlightControl:
             sliding = e_dot + np.asarray(lam[HORIZONTAL]) * e
             self.trim.update(dt_s, sliding)
         tau[HORIZONTAL] += self.trim.force_n
+        force = tau[POSITION] / estimate.thrust_scale if self.compensate_thrust else tau[POSITION]
         setpoint = attitude_thrust_setpoint(
-            tau[POSITION], float(q[PSI]), float(reference.q[PSI]), self.tilt_max_rad, self.thrust
+            force, float(q[PSI]), float(reference.q[PSI]), self.tilt_max_rad, self.thrust
         )
         self.tilt.step(dt_s, (setpoint.roll_rad, setpoint.pitch_rad))
         return ControlOutput(

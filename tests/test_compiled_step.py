@@ -98,6 +98,20 @@ RUNS = {
             duration_s=4.0,
         ),
     ),
+    "rls + thrust scale flight pickup, compensated": (
+        lambda: flight_scenario(
+            initial=1.0, bounds=[0.8, 1.2], drift_std_per_sqrt_s=0.01, compensate=True
+        ),
+        SimOptions(
+            controller="passivity",
+            estimator="rls",
+            plant="underactuated",
+            noise=True,
+            duration_s=4.0,
+            release_at_s=1.5,
+            pickup_at_s=2.5,
+        ),
+    ),
 }
 
 
@@ -117,12 +131,18 @@ NAMES = [c for c in COLUMNS if c != "step_time_us"]
 
 @pytest.mark.parametrize("name", list(RUNS))
 def test_offline_runs_agree_column_by_column(name, monkeypatch):
-    """The step, compiled and Python, behind the same (numpy) state filter: 1e-12."""
+    """The step, compiled and Python, behind the same (numpy) state filter: 1e-12, and
+    5e-12 on the attitude rows' tau, which the underactuated plant does not use: after the
+    compensated pickup the pitch row's tau (0.13 N m) is a difference of larger terms, and
+    numpy's dot products round them in another order (measured 2.0e-12; every other
+    column at most 6.4e-13)."""
     make, options = RUNS[name]
     monkeypatch.setattr(filters, "native_module", lambda compiled=None: None)
     reference, compiled = run_both(make(), options, monkeypatch)
+    attitude_tau = ("tau_phi", "tau_theta", "tau_psi")
     for j, column in enumerate(NAMES):
-        close(reference[:, j], compiled[:, j], column)
+        tol = 5 * TOL if options.plant == "underactuated" and column in attitude_tau else TOL
+        close(reference[:, j], compiled[:, j], column, tol)
     # the run moved: the estimate left its start, and (flight) the thrust scale too
     m2 = reference[:, NAMES.index("m2_hat")]
     assert np.nanmax(m2) - np.nanmin(m2) > 1e-3
@@ -151,7 +171,9 @@ def estimator_state(control: FlightControl) -> list:
     if qhat is not None:
         values.append(qhat)
     if hasattr(est, "p"):
-        values.append(est.p)
+        values += [est.p, est.p_s if est.scale is not None else 0.0]
+        values.append(est.var_s if est.scale is not None else 0.0)
+    values += [float(est.scale_held), float(est.calibrating)]
     return values
 
 
@@ -160,7 +182,7 @@ def random_cycles(control: FlightControl, seed: int, n: int) -> tuple[list, dict
     rng = np.random.default_rng(seed)
     q = np.array([0.0, 0.0, 1.5, 0.0, 0.0, 0.3, -1.2, 0.4])
     seen = dict.fromkeys(
-        ("skip", "tilt", "thrust", "bound", "trim", "substep", "spread", "excitation"), 0
+        ("skip", "tilt", "thrust", "bound", "trim", "substep", "spread", "excitation", "held"), 0
     )
     outputs = []
     control.trim_active = True
@@ -188,7 +210,11 @@ def random_cycles(control: FlightControl, seed: int, n: int) -> tuple[list, dict
                 applied[2] = math.nan  # a corrupt read-back: NOT_FINITE
             elif roll == 4:
                 applied = applied * 50.0  # garbage: the projection bounds theta
-        if i == n // 3:
+        if i == n // 6:
+            control.estimator.calibrate()
+        elif i == n // 6 + 200:
+            control.estimator.resume()
+        elif i == n // 3:
             control.estimator.freeze()
         elif i == n // 3 + 40:
             control.estimator.resume()
@@ -204,6 +230,7 @@ def random_cycles(control: FlightControl, seed: int, n: int) -> tuple[list, dict
         seen["trim"] += bool(np.any(np.abs(control.trim.force_n) == control.trim.limit))
         seen["spread"] += math.isfinite(est.spread)  # the monitor's window is full
         seen["excitation"] += est.excitation > 0.0
+        seen["held"] += control.estimator.scale_held or control.estimator.scale is None  # type: ignore[attr-defined]
         outputs.append(
             (
                 out.tau,
@@ -226,6 +253,16 @@ CASES = {
     "nonadaptive paper": ("nonadaptive", "paper", None),
     "passivity rls + scale": ("passivity", "rls", {"initial": 1.0, "bounds": [0.9, 1.1]}),
     "passivity paper + scale": ("passivity", "paper", {"initial": 1.0, "bounds": [0.9, 1.1]}),
+    "passivity rls + scale, compensated": (
+        "passivity",
+        "rls",
+        {"initial": 1.0, "bounds": [0.9, 1.1], "compensate": True},
+    ),
+    "passivity paper + scale, compensated": (
+        "passivity",
+        "paper",
+        {"initial": 1.0, "bounds": [0.9, 1.1], "compensate": True},
+    ),
 }
 
 

@@ -17,6 +17,7 @@ import pytest
 from companion.config import ConfigError
 from companion.estimation import (
     TRANSLATION_AND_JOINT_ROWS,
+    Skip,
     ExcitationMonitor,
     PaperEstimator,
     RlsEstimator,
@@ -151,6 +152,81 @@ def test_a_thrust_scale_learnt_with_the_empty_arm_survives_the_grasp() -> None:
     estimator.reset_thrust_scale()
     assert estimator.thrust_scale == 1.0
     assert estimator.var_s == pytest.approx(0.2**2)
+
+
+def test_calibration_learns_s_with_theta_held() -> None:
+    """Hover calibration (EstimatorAction.CALIBRATE before a grasp): theta stays exactly at
+    the known empty arm's values while s is learnt; an estimator without a thrust scale
+    holds both."""
+    estimator = rls(ThrustScaleModel(initial_std=0.2))
+    estimator.reset(NOMINAL)  # the known empty arm
+    estimator.calibrate()
+    assert estimator.calibrating and not estimator.frozen and not estimator.scale_held
+    est = run(estimator, 5.0, lambda t: 0.92, theta=NOMINAL)
+    np.testing.assert_array_equal(est.theta, NOMINAL)
+    assert est.thrust_scale == pytest.approx(0.92, rel=1e-3)
+    estimator.resume()
+    assert not estimator.calibrating
+    np.testing.assert_array_equal(estimator.p, estimator.p0)
+    plain = rls(None)
+    plain.calibrate()
+    assert plain.frozen and not plain.calibrating
+    for gradient in (paper(ThrustScaleModel()), paper(None)):
+        gradient.calibrate()
+        assert gradient.frozen
+
+
+def test_after_a_reset_s_is_held_until_theta_is_confident() -> None:
+    """A grasp (reset) with a calibrated s: theta alone learns the payload, s keeps its
+    value (its variance grows with the drift) until the monitor is confident, then both
+    run. With s free, the payload's weight went into s (offline pickup, see reset)."""
+    scale = ThrustScaleModel(initial_std=0.2, drift_std_per_sqrt_s=0.01)
+    estimator = rls(scale)
+    run(estimator, 10.0, lambda t: 0.92, theta=NOMINAL)
+    s_calibrated, var_s = estimator.thrust_scale, estimator.var_s
+    estimator.reset(estimator.theta)
+    assert estimator.scale_held
+    held = []
+    t0 = 10.0
+    while estimator.scale_held:
+        held.append(run(estimator, DT, lambda t: 0.92, t0=t0))
+        t0 += DT
+        assert t0 < 20.0, "never confident"
+    assert all(e.thrust_scale == s_calibrated for e in held[:-1])
+    assert held[-1].confident
+    assert estimator.var_s > var_s  # the drift went on while s was held
+    carried = run(estimator, 5.0, lambda t: 0.92, t0=t0)
+    np.testing.assert_allclose(carried.theta, TRUE, rtol=1e-2)
+    assert carried.thrust_scale == pytest.approx(0.92, rel=1e-3)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_compensation_maps_the_force_over_s(compiled: bool) -> None:
+    """``compensate = true``: PX4 is sent the thrust of the law's force over s (the vehicle
+    then produces that force); the setpoint's thrust_n is the model's force for the
+    command, which the estimator gets back as the commanded force."""
+    from companion.control import DesiredState
+    from companion.filters import FilteredState
+    from companion.flight_control import FlightControl
+    from companion.native import native_module
+
+    if compiled and native_module() is None:
+        pytest.skip("companion._step is not built")
+    outputs = {}
+    for compensate in (False, True):
+        cfg = parse_scenario(_flight_data(initial=0.8, bounds=[0.7, 1.3], compensate=compensate))
+        control = FlightControl(cfg.beliefs, compiled=compiled)
+        control.estimator.freeze()
+        q = np.array([0.0, 0.0, 1.0, 0.05, -0.03, 0.2, -1.4, 0.3])
+        state = FilteredState(q, np.zeros(8), np.zeros(8))
+        desired = DesiredState(q + 0.1, np.zeros(8), np.zeros(8))
+        outputs[compensate] = control.step(0.004, state, desired, Skip.NO_FORCE)
+    plain, compensated = outputs[False], outputs[True]
+    np.testing.assert_array_equal(plain.tau, compensated.tau)
+    assert compensated.estimate.thrust_scale == 0.8
+    assert compensated.setpoint.thrust_n == pytest.approx(plain.setpoint.thrust_n / 0.8, rel=1e-12)
+    assert compensated.setpoint.roll_rad == pytest.approx(plain.setpoint.roll_rad, abs=1e-12)
+    assert compensated.setpoint.thrust_relative > plain.setpoint.thrust_relative
 
 
 def test_thrust_scale_stays_in_its_bounds_under_garbage() -> None:
