@@ -851,8 +851,9 @@ class PickupApp:
         return m2 <= low * (1 + 1e-6) or m2 >= high * (1 - 1e-6)
 
     def _apply_estimator(self, command: MissionCommand) -> None:
-        """The mission's word on the estimator: restart, reset to the empty arm, hold or
-        run (held while the estimate sits on its bound, never resumed after an abort)."""
+        """The mission's word on the estimator: restart, reset to the empty arm, hold,
+        calibrate the thrust scale or run (held while the estimate sits on its bound, never
+        resumed after an abort)."""
         est = self.control.estimator
         if command.phase_changed:
             self._note("phase", command.phase.value)
@@ -867,9 +868,13 @@ class PickupApp:
             EstimatorAction.FREEZE,
             EstimatorAction.EMPTY,
         ) or self.failsafe.has(Fault.ESTIMATE_BOUND)
-        if hold and not est.frozen:
-            est.freeze()
-        elif not hold and est.frozen and not self.failsafe.aborted:
+        if hold:
+            if not est.frozen:
+                est.freeze()
+        elif command.estimator == EstimatorAction.CALIBRATE:
+            if not est.calibrating:
+                est.calibrate()
+        elif est.frozen and not self.failsafe.aborted:
             est.resume()
 
     def _record_estimate(self, out: ControlOutput) -> None:
@@ -913,6 +918,7 @@ class PickupApp:
                 theta_spread=out.estimate.spread,
                 theta_confident=out.estimate.confident,
                 theta_frozen=out.estimate.frozen,
+                thrust_scale_hat=out.estimate.thrust_scale,
                 tau=out.tau,
                 setpoint=sp,
                 servo_torque_cmd_n_m=tau_cmd,

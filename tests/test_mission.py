@@ -117,12 +117,19 @@ def test_plan_rejects_nonsense():
 
 
 def test_estimator_learns_only_from_the_grasp_on():
+    """Before the grasp the arm is known empty: only the thrust scale is learnt; the
+    estimator restarts as the grasp begins (the weight comes on as the jaws close) and
+    holds while the jaws open."""
     _, records = fly()
     by_phase = {}
     for _, cmd in records:
         by_phase.setdefault(cmd.phase, set()).add(cmd.estimator)
-    assert by_phase[Phase.TO_OBJECT] == {EstimatorAction.FREEZE}
-    assert by_phase[Phase.DESCEND] == {EstimatorAction.FREEZE}
+    assert by_phase[Phase.TO_OBJECT] == {EstimatorAction.CALIBRATE}
+    assert by_phase[Phase.DESCEND] == {EstimatorAction.CALIBRATE}
+    assert by_phase[Phase.GRASP] == {EstimatorAction.RESTART, EstimatorAction.RUN}
+    restart = next(cmd for _, cmd in records if cmd.estimator == EstimatorAction.RESTART)
+    assert restart.phase == Phase.GRASP and restart.phase_changed
+    assert by_phase[Phase.RELEASE] == {EstimatorAction.FREEZE}
     assert EstimatorAction.RUN in by_phase[Phase.EXCITE]
     assert EstimatorAction.RUN in by_phase[Phase.CLIMB]
 
