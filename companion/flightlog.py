@@ -20,6 +20,8 @@ columns                            content
 ``theta_hat_m2_kg`` ...            estimates m2 [kg], m3 [kg m], m4 [kg m^2], lc = m3/m2 [m]
 ``theta_excitation``, ``_spread``  the estimator's confidence inputs (dimensionless)
 ``theta_confident``, ``_frozen``   its flags
+``thrust_scale_hat``               estimated thrust scale s (true over modelled thrust; 1
+                                   when not estimated)
 ``tau_<i>_<u>``                    controller output tau: x y z [N], phi theta psi eta1 eta2
                                    [N m] (generalized forces, DESIGN.md section 2)
 ``sp_roll_rad`` ... ``thrust_rel`` attitude setpoint (ENU/FLU Euler), thrust [N], PX4
@@ -109,6 +111,7 @@ COLUMNS: tuple[str, ...] = (
     "theta_spread",
     "theta_confident",
     "theta_frozen",
+    "thrust_scale_hat",
     *(f"tau_{n}_{u}" for n, u in zip(Q_NAMES, _TAU_UNITS, strict=True)),
     *_SETPOINT,
     *(f"servo_tau_cmd_{j}_n_m" for j in _JOINTS),
@@ -176,6 +179,7 @@ class CycleRecord:
     theta_spread: float | None = None
     theta_confident: bool | None = None
     theta_frozen: bool | None = None
+    thrust_scale_hat: float | None = None
     tau: ArrayLike | None = None
     setpoint: AttitudeThrustSetpoint | None = None
     servo_torque_cmd_n_m: ArrayLike | None = None
@@ -240,6 +244,7 @@ def format_row(record: CycleRecord, t_wall_s: float) -> list[str]:
         _num(r.theta_spread),
         _flag(r.theta_confident),
         _flag(r.theta_frozen),
+        _num(r.thrust_scale_hat),
         *_vec("tau", r.tau, 8),
         *setpoint,
         *_vec("servo_torque_cmd_n_m", r.servo_torque_cmd_n_m, 2),
@@ -395,6 +400,10 @@ def _whole_rows(path: Path, data: bytes, warnings: list[str]) -> bytes:
     return kept[:end]
 
 
+_ADDED_COLUMNS = ("thrust_scale_hat",)
+"""Columns added after logs were first written: such a log reads with NaN in them."""
+
+
 def _read_csv(
     path: Path, expected: Sequence[str], text: Iterable[str], warnings: list[str]
 ) -> dict[str, NDArray]:
@@ -410,7 +419,8 @@ def _read_csv(
     if not rows:
         raise FlightLogError(f"{path}: empty file, expected a header row")
     header = rows[0]
-    if tuple(header) != tuple(expected):
+    older = tuple(c for c in expected if c not in _ADDED_COLUMNS)
+    if tuple(header) not in (tuple(expected), older):
         missing = [c for c in expected if c not in header]
         unknown = [c for c in header if c not in expected]
         raise FlightLogError(
@@ -433,9 +443,14 @@ def _read_csv(
                 raise FlightLogError(
                     f"{path}, line {line_no}: {name} = {cell!r} is not a number"
                 ) from None
+    n_rows = len(rows) - 1
     return {
-        name: np.array(v, dtype=str) if name in text else np.array(v, dtype=np.float64)
-        for name, v in values.items()
+        name: np.full(n_rows, math.nan)
+        if name not in values
+        else np.array(values[name], dtype=str)
+        if name in text
+        else np.array(values[name], dtype=np.float64)
+        for name in expected
     }
 
 

@@ -31,6 +31,7 @@ def record(i, mode="POSCTL", phase="takeoff", faults=()):
         theta_spread=float("inf") if i == 0 else 0.01,
         theta_confident=i > 2,
         theta_frozen=False,
+        thrust_scale_hat=0.93,
         tau=rng.normal(size=8),
         setpoint=AttitudeThrustSetpoint(0.01, -0.02, 0.3, 14.2, 0.47, False, i == 4),
         servo_torque_cmd_n_m=(0.1, -0.2),
@@ -70,6 +71,24 @@ def test_round_trip_is_exact(tmp_path):
     assert out["loop_period_ms"] == pytest.approx([4.0, 4.1, 4.2, 4.3, 4.4])
     assert math.isnan(out["setpoint_latency_us"][1]) and out["setpoint_latency_us"][2] == 902.0
     np.testing.assert_array_equal(out["cycle_latency_us"], [1100.0, 1101.0, 1102.0, 1103.0, 1104.0])
+    assert out["thrust_scale_hat"] == pytest.approx([0.93] * 5)
+
+
+def test_a_log_written_before_the_thrust_scale_column_reads_with_nan(tmp_path):
+    """Logs of earlier versions lack ``thrust_scale_hat``: they still read (and plot)."""
+    path = tmp_path / "flight.csv"
+    with FlightLogWriter(path) as log:
+        for i in range(3):
+            log.write(record(i))
+    with path.open(newline="") as f:
+        rows = list(csv.reader(f))
+    drop = rows[0].index("thrust_scale_hat")
+    with path.open("w", newline="") as f:
+        csv.writer(f).writerows([r[:drop] + r[drop + 1 :] for r in rows])
+    out = read_flight_log(path)
+    assert tuple(out.columns) == COLUMNS
+    assert np.isnan(out["thrust_scale_hat"]).all() and len(out["thrust_scale_hat"]) == 3
+    assert out["thrust_rel"] == pytest.approx([0.47] * 3)
 
 
 def test_header_is_one_row_with_units_and_pandas_style(tmp_path):
