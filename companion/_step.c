@@ -70,6 +70,8 @@ typedef struct {
     double frozen;
     double thrust_scale;
     double scale_held;      /* 1: s held (no gain) until the monitor is confident */
+    double calibrating;     /* 1: theta held, s learnt (its covariance block is zero) */
+    double s_comp;          /* the last calibrated s, which the compensation divides by */
     double skipped[N_SKIP]; /* counts by companion.estimation.Skip, in its order */
     double qhat_valid;
     double qhat[NQ];        /* paper observer, per used row */
@@ -478,6 +480,7 @@ static int control_step(const Params *P, State *S, double dt, int skip, const do
                 S->skipped[3] += 1.0;
             }
         }
+        if (S->calibrating) S->s_comp = S->thrust_scale;
     }
     monitor_update(P, S, dt, y, n);
     out[OUT_THETA] = S->theta[0];
@@ -528,11 +531,11 @@ static int control_step(const Params *P, State *S, double dt, int skip, const do
     tau[0] += S->trim_force[0];
     tau[1] += S->trim_force[1];
 
-    /* 5. setpoint (of the force over the thrust scale if compensated), then the tilt
+    /* 5. setpoint (of the force over the calibrated s if compensated), then the tilt
      *    reference's step toward it */
     double force[3] = {tau[0], tau[1], tau[2]};
     if (P->compensate)
-        for (int i = 0; i < 3; ++i) force[i] = tau[i] / S->thrust_scale;
+        for (int i = 0; i < 3; ++i) force[i] = tau[i] / S->s_comp;
     setpoint(P, force, q[5], rq[5], out);
     double raw[2] = {out[OUT_ROLL], out[OUT_PITCH]};
     tilt_step(P, S, dt, raw);
@@ -754,7 +757,7 @@ static int add_offsets(PyObject *m)
     FIELD(Params, thrust_max, 1); FIELD(Params, thrust_min_rel, 1); FIELD(Params, compensate, 1);
     FIELD(Params, trim_gain, 1); FIELD(Params, trim_limit, 1);
     FIELD(State, theta, 3); FIELD(State, frozen, 1); FIELD(State, thrust_scale, 1);
-    FIELD(State, scale_held, 1);
+    FIELD(State, scale_held, 1); FIELD(State, calibrating, 1); FIELD(State, s_comp, 1);
     FIELD(State, skipped, N_SKIP); FIELD(State, qhat_valid, 1); FIELD(State, qhat, NQ);
     FIELD(State, p, 9); FIELD(State, p_s, 3); FIELD(State, var_s, 1); FIELD(State, info, 9);
     FIELD(State, excitation, 1); FIELD(State, spread, 1); FIELD(State, since_sample, 1);

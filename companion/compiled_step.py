@@ -186,6 +186,8 @@ class _EstimatorFields:
     frozen = _Field("_state", "State.frozen", kind=bool)
     thrust_scale = _Field("_state", "State.thrust_scale")
     scale_held = _Field("_state", "State.scale_held", kind=bool)
+    calibrating = _Field("_state", "State.calibrating", kind=bool)
+    compensation_scale = _Field("_state", "State.s_comp")
     skipped = _SkippedField()
 
 
@@ -216,12 +218,13 @@ class _CompiledTrim(_Backed, HorizontalTrim):
     limit = _Field("_params", "Params.trim_limit")
 
 
+_ESTIMATOR_STATE = (
+    *("theta", "frozen", "thrust_scale", "scale_held", "calibrating", "compensation_scale"),
+    "skipped",
+)
 _STATE_ATTRIBUTES = {
-    _CompiledPaperEstimator: ("theta", "frozen", "thrust_scale", "scale_held", "skipped", "qhat"),
-    _CompiledRlsEstimator: (
-        *("theta", "frozen", "thrust_scale", "scale_held", "skipped"),
-        *("p", "p_s", "var_s"),
-    ),
+    _CompiledPaperEstimator: (*_ESTIMATOR_STATE, "qhat"),
+    _CompiledRlsEstimator: (*_ESTIMATOR_STATE, "p", "p_s", "var_s"),
     _CompiledMonitor: ("info", "excitation", "spread"),
     _CompiledTilt: ("w", "x", "v", "a"),
     _CompiledTrim: ("gain", "limit", "force_n"),

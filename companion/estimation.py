@@ -297,6 +297,8 @@ class Estimator(Protocol):
     """True while s is held after a :meth:`reset`."""
     calibrating: bool
     """True while theta is held and s learnt (:meth:`calibrate`)."""
+    compensation_scale: float
+    """The last calibrated s, which a compensated mapping divides the force by."""
 
     @property
     def skipped_steps(self) -> int:
@@ -363,6 +365,11 @@ class _Base(ABC):
         monitor is confident again."""
         self.calibrating = False
         """True while theta is held and s alone is learnt (:meth:`calibrate`)."""
+        self.compensation_scale = self.thrust_scale
+        """The s that ``[estimator.thrust_scale] compensate`` divides the force by: the last
+        one calibrated (the initial one before any calibration). Not the running estimate:
+        with theta and s learnt together, dividing by it closed a loop that ran s to its
+        bound (offline, ``configs/sitl_pickup.toml`` from the start: the thrust fell to 0)."""
         # The used rows whose force is the thrust's (x, y, z).
         self._thrust_rows = self.rows < 3
         if scale is not None and not self._thrust_rows.any():
@@ -408,7 +415,7 @@ class _Base(ABC):
     def reset_thrust_scale(self) -> None:
         """Restart the thrust scale from its initial value (another vehicle or battery)."""
         if self.scale is not None:
-            self.thrust_scale = self.scale.initial
+            self.thrust_scale = self.compensation_scale = self.scale.initial
             self._restart_scale()
 
     @abstractmethod
@@ -469,6 +476,8 @@ class _Base(ABC):
                 self._step(dt, y, q[select], q_dot[select], tau[select])
             else:
                 self.skipped[Skip.NOT_FINITE] += 1
+            if self.calibrating:
+                self.compensation_scale = self.thrust_scale
         return self._publish(dt, y[:, :3])
 
     @abstractmethod

@@ -157,7 +157,7 @@ class FlightControl:
         self._trim_active = False
         scale = config.estimator.thrust_scale
         self.compensate_thrust = scale is not None and scale.compensate
-        """Map the law's force divided by the estimated thrust scale (``compensate``)."""
+        """Map the law's force divided by the calibrated thrust scale (``compensate``)."""
         module = native_module(compiled)
         if module is not None and CompiledStep.supports(self.controller, self.estimator):
             assert isinstance(self.controller, PassivityController)
@@ -270,7 +270,9 @@ class FlightControl:
             sliding = e_dot + np.asarray(lam[HORIZONTAL]) * e
             self.trim.update(dt_s, sliding)
         tau[HORIZONTAL] += self.trim.force_n
-        force = tau[POSITION] / estimate.thrust_scale if self.compensate_thrust else tau[POSITION]
+        force = tau[POSITION]
+        if self.compensate_thrust:
+            force = force / self.estimator.compensation_scale
         setpoint = attitude_thrust_setpoint(
             force, float(q[PSI]), float(reference.q[PSI]), self.tilt_max_rad, self.thrust
         )

@@ -173,7 +173,7 @@ def estimator_state(control: FlightControl) -> list:
     if hasattr(est, "p"):
         values += [est.p, est.p_s if est.scale is not None else 0.0]
         values.append(est.var_s if est.scale is not None else 0.0)
-    values += [float(est.scale_held), float(est.calibrating)]
+    values += [float(est.scale_held), float(est.calibrating), est.compensation_scale]
     return values
 
 

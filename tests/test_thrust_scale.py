@@ -17,10 +17,10 @@ import pytest
 from companion.config import ConfigError
 from companion.estimation import (
     TRANSLATION_AND_JOINT_ROWS,
-    Skip,
     ExcitationMonitor,
     PaperEstimator,
     RlsEstimator,
+    Skip,
     ThetaBounds,
     ThrustScaleModel,
     estimator_from_config,
@@ -165,9 +165,14 @@ def test_calibration_learns_s_with_theta_held() -> None:
     est = run(estimator, 5.0, lambda t: 0.92, theta=NOMINAL)
     np.testing.assert_array_equal(est.theta, NOMINAL)
     assert est.thrust_scale == pytest.approx(0.92, rel=1e-3)
+    assert estimator.compensation_scale == est.thrust_scale  # what a compensation divides by
     estimator.resume()
     assert not estimator.calibrating
     np.testing.assert_array_equal(estimator.p, estimator.p0)
+    # Learnt with theta (not calibrated), s moves; the compensation keeps the calibrated one.
+    moved = run(estimator, 5.0, lambda t: 0.85, theta=NOMINAL, t0=5.0)
+    assert abs(moved.thrust_scale - est.thrust_scale) > 1e-3
+    assert estimator.compensation_scale == est.thrust_scale
     plain = rls(None)
     plain.calibrate()
     assert plain.frozen and not plain.calibrating
