@@ -230,7 +230,11 @@ def sim(
     seed: SeedOpt = 0,
     noise: NoiseOpt = False,
     pickup_at: Annotated[
-        float | None, typer.Option(help="Grasp the payload at this time [s].")
+        float | None,
+        typer.Option(
+            help="Grasp the payload at this time [s]; until then the arm is known empty "
+            "(the estimator learns only the thrust scale, or holds)."
+        ),
     ] = None,
     release_at: Annotated[
         float | None, typer.Option(help="Release the payload at this time [s].")

@@ -208,6 +208,10 @@ def simulate(
     q0 = np.asarray(scenario.simulation.initial_q)
     control.check_rate(scenario.simulation.control_rate_hz, q0)
     estimator = control.estimator
+    if opts.pickup_at_s is not None and not attached:
+        # The arm is known empty until the pickup: the thrust scale alone is learnt (as the
+        # mission does before its grasp; an estimator without one holds theta).
+        estimator.calibrate()
     traj = PaperSinusoid(scenario.trajectory)
     sensing = _Measurements(scenario, opts.noise, rng)
     nominal = scenario.nominal_theta.as_tuple()
@@ -243,6 +247,8 @@ def simulate(
             if name == "pickup":
                 plant.attach_payload()
                 estimator.reset(estimator.theta)
+                if estimator.frozen:
+                    estimator.resume()
             else:
                 plant.detach_payload()
                 estimator.reset(nominal)
