@@ -205,8 +205,11 @@ def test_the_vertical_loop_at_px4s_rate_is_stable_with_the_flight_filter(
     """The 1.7 Hz vertical oscillation seen against PX4: at 125 Hz (PX4's ODOMETRY rate) with
     PX4 main's MC_ROLL_P 4, a state filter with jerk PSD 0.1 on x, y, z peaks its velocity
     +56 % / -28 deg at 10 rad/s and the vertical velocity gain closes an oscillation there
-    (relative-thrust std about 0.11); the flight configs' PSD 1.0 does not."""
+    (relative-thrust std about 0.11); the flight configs' PSD 1.0 does not. Without the
+    thrust scale, as measured then (with it learnt beside theta the oscillation at PSD 0.1
+    stays below 0.03 in this run: the filter is what the test is about)."""
     data = tomllib.loads((CONFIGS / "sitl_pickup.toml").read_text())
+    del data["estimator"]["thrust_scale"]
     data["sensors"]["jerk_psd"][0:3] = [jerk_psd] * 3
     data["simulation"]["control_rate_hz"] = 125.0
     data["sensors"]["pose_rate_hz"] = 125.0
