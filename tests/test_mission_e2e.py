@@ -18,6 +18,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from flight_checks import ALL_FLIGHTS, CARRY_RMS_BOUND_M, assert_calm_flight, carry_rms_m
 
@@ -115,6 +116,24 @@ def test_pickup_learns_the_payload_places_it_and_lands(adaptive):
     for name in ("flight.csv", "flight.events.csv", "tracking.png", "estimation.png", "arm.png"):
         assert (out / name).stat().st_size > 0, name
     assert "estimated payload" in result.stdout
+
+
+@pytest.mark.slow
+def test_the_thrust_scale_is_calibrated_before_the_grasp_and_held_after_it(adaptive):
+    """configs/sitl_pickup.toml estimates the thrust scale (the SITL's thrust model is the
+    companion's, s = 1): to the grasp theta stays at the empty arm's values and s alone is
+    learnt; from the grasp s holds while theta learns the payload."""
+    tmp, _, summary, _ = adaptive
+    c = read_flight_log(tmp / "passivity" / "flight.csv").columns
+    before = np.isin(c["phase"], ("to_object", "descend"))
+    assert np.all(c["theta_hat_m2_kg"][before] == 0.12)  # [estimator.initial_theta]
+    s = c["thrust_scale_hat"][before]
+    # measured: 0.969-1.011 (the handover's transient), 1.007 at the grasp
+    assert np.ptp(s) > 1e-4 and np.all(np.abs(s - 1.0) < 0.06) and abs(s[-1] - 1.0) < 0.02
+    carried = np.isin(c["phase"], ("grasp", "lift"))
+    assert np.ptp(c["theta_hat_m2_kg"][carried]) > 0.15  # the payload is learnt ...
+    assert np.ptp(c["thrust_scale_hat"][carried]) == 0.0  # ... with s held
+    assert summary["payload_mass_kg"] == pytest.approx(TRUE_MASS_KG, rel=0.10)
 
 
 @pytest.mark.slow
