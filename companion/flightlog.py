@@ -443,15 +443,13 @@ def _read_csv(
                 raise FlightLogError(
                     f"{path}, line {line_no}: {name} = {cell!r} is not a number"
                 ) from None
-    n_rows = len(rows) - 1
-    return {
-        name: np.full(n_rows, math.nan)
-        if name not in values
-        else np.array(values[name], dtype=str)
-        if name in text
-        else np.array(values[name], dtype=np.float64)
-        for name in expected
+    columns = {
+        name: np.array(v, dtype=str) if name in text else np.array(v, dtype=np.float64)
+        for name, v in values.items()
     }
+    missing = [name for name in expected if name not in columns]  # added columns only
+    columns.update((name, np.full(len(rows) - 1, math.nan)) for name in missing)
+    return {name: columns[name] for name in expected}
 
 
 def read_flight_log(path: str | Path) -> FlightLog:
