@@ -1,16 +1,20 @@
 /* The companion's control step after the state filter, in one call (issue 14).
  *
- * step(params, state, dt, skip, q, q_dot, q_ddot, qd, qd_dot, qd_ddot, tau_applied, out)
+ * step(params, state, dt, skip, q, q_dot, q_ddot, qd, qd_dot, qd_ddot, tau_applied, out
+ *      [, est_q, est_q_dot, est_q_ddot, est_tau, est_skip])
  * runs what companion.flight_control.FlightControl.step runs in Python, in the same order
  * and with the same floating-point operations:
- *   1. the model's pieces of M, C, G at (q, q_dot) (the generated mcg_eval of _mcg.c),
+ *   1. the model's pieces of M, C, G at (q, q_dot) (the generated mcg_eval of _mcg.c), and
+ *      at the estimator's inputs if they are given (an earlier cycle's, with a central-
+ *      difference q_ddot: companion.estimator_inputs; est_skip replaces skip),
  *   2. the estimator on the used rows: the paper's observer and gradient update (eqs.
  *      estimator, update) or RLS with forgetting, optionally with the thrust scale as a
  *      fourth unknown; skip reasons, projection onto the physically consistent set; then
  *      the excitation monitor,
  *   3. the tilt reference applied to the desired state,
  *   4. the augmented passivity-based law (eq. tau2), adaptive or with theta fixed at the
- *      empty-arm values (the non-adaptive baseline), plus the horizontal integral trim,
+ *      empty-arm values (the non-adaptive baseline), with the measured motion on the rows
+ *      of Params.measured, plus the horizontal integral trim,
  *   5. the attitude/thrust setpoint (eq. phid, thrust model), then the tilt reference's
  *      step toward the new roll and pitch.
  * The Python classes (companion.estimation, companion.control, companion.trajectory,
@@ -34,7 +38,7 @@
 #define NQ 8
 #define PIECE 136 /* one piece of the model: 8 rows of [M row | C row | G] */
 #define PI 3.14159265358979311600
-#define N_SKIP 4
+#define N_SKIP 5
 
 typedef struct {
     double model[14];       /* companion.model.ModelParameters.vector() */
@@ -63,6 +67,8 @@ typedef struct {
     double tilt_max, thrust_max, thrust_min_rel; /* mapping and ThrustModel */
     double compensate;      /* 1: the mapped force is divided by the thrust scale */
     double trim_gain, trim_limit; /* HorizontalTrim */
+    double measured[NQ];    /* 1: eq. tau2 takes the measured q_dot, q_ddot on this row */
+    double com_from_joints; /* 1: the RLS rows x, y, z learn m2 (and s) only */
 } Params;
 
 typedef struct {
@@ -308,9 +314,12 @@ static int rls_step(const Params *P, State *S, int n, double dt, const double *y
     double h[NQ * 4], z[NQ], p[16], x[4], ph[4 * NQ], A[NQ * NQ], B[NQ * 4];
     for (int r = 0; r < n; ++r) {
         int thrust = P->has_scale && P->rows[r] < 3;
-        for (int j = 0; j < 3; ++j) h[m * r + j] = y[4 * r + j];
+        int mass_only = P->com_from_joints && P->rows[r] < 3;
+        double known = y[4 * r + 3];
+        if (mass_only) known += y[4 * r + 1] * S->theta[1] + y[4 * r + 2] * S->theta[2];
+        for (int j = 0; j < 3; ++j) h[m * r + j] = mass_only && j > 0 ? 0.0 : y[4 * r + j];
         if (m == 4) h[m * r + 3] = thrust ? -tau[r] : -0.0;
-        z[r] = (thrust ? 0.0 : tau[r]) - y[4 * r + 3];
+        z[r] = (thrust ? 0.0 : tau[r]) - known;
     }
     for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j) p[m * i + j] = S->p[3 * i + j];
@@ -445,23 +454,43 @@ static void tilt_step(const Params *P, State *S, double dt, const double *raw)
         }
 }
 
+/* The estimator's inputs: the cycle's own, or those of an earlier cycle
+ * (companion.estimator_inputs.DelayedInputs, kept by the caller). */
+typedef struct {
+    const double *q, *qd, *qdd, *tau;
+    int skip;
+} EstimatorInputs;
+
 static int control_step(const Params *P, State *S, double dt, int skip, const double *q,
                         const double *qd, const double *qdd, const double *des_q,
                         const double *des_qd, const double *des_qdd, const double *tau_in,
-                        double *out)
+                        const EstimatorInputs *est, double *out)
 {
     double pieces[4 * PIECE], yt[32], y[NQ * 4], ysel_q[NQ], ysel_qd[NQ], tsel[NQ];
     int n = (int)P->n_rows;
 
-    /* 1. model terms and the estimator's regressor Y(q, q_dot, q_dot, q_ddot) */
-    mcg_eval(q, qd, P->model, pieces);
-    regress(pieces, qd, qdd, yt);
+    /* 1. model terms and the estimator's regressor Y(q, q_dot, q_dot, q_ddot), at the
+     *    estimator's state if it is not this cycle's */
+    const double *eq = q, *eqd = qd, *eqdd = qdd, *etau = tau_in;
+    if (est) {
+        eq = est->q;
+        eqd = est->qd;
+        eqdd = est->qdd;
+        etau = est->tau;
+        skip = est->skip;
+        mcg_eval(eq, eqd, P->model, pieces);
+        regress(pieces, eqd, eqdd, yt);
+        mcg_eval(q, qd, P->model, pieces);
+    } else {
+        mcg_eval(q, qd, P->model, pieces);
+        regress(pieces, qd, qdd, yt);
+    }
     for (int r = 0; r < n; ++r) {
         int row = (int)P->rows[r];
         for (int k = 0; k < 4; ++k) y[4 * r + k] = yt[8 * k + row];
-        ysel_q[r] = q[row];
-        ysel_qd[r] = qd[row];
-        tsel[r] = tau_in[row];
+        ysel_q[r] = eq[row];
+        ysel_qd[r] = eqd[row];
+        tsel[r] = etau[row];
     }
 
     /* 2. estimator (_Base.update) and its publication */
@@ -512,14 +541,19 @@ static int control_step(const Params *P, State *S, double dt, int skip, const do
     for (int k = 0; k < 3; ++k) xi[k] = P->fixed ? P->fixed_xi[k] : S->theta[k];
     xi[3] = 1.0;
     for (int k = 0; k < 3; ++k) out[OUT_THETA_USED + k] = xi[k];
-    regress(pieces, rqd, rqdd, yt);
+    double lqd[NQ], lqdd[NQ]; /* the law's q_dot, q_ddot: measured on unactuated rows */
+    for (int i = 0; i < NQ; ++i) {
+        lqd[i] = P->measured[i] ? qd[i] : rqd[i];
+        lqdd[i] = P->measured[i] ? qdd[i] : rqdd[i];
+    }
+    regress(pieces, lqd, lqdd, yt);
     double *tau = out + OUT_TAU;
     for (int i = 0; i < NQ; ++i) {
         double ff = 0.0;
         for (int k = 0; k < 4; ++k) ff += yt[8 * k + i] * xi[k];
         double e = q[i] - rq[i];
         if (i == 5) e = wrap_pi(e);
-        tau[i] = ff - P->k[i] * (qd[i] - rqd[i]) - P->k_lam[i] * e;
+        tau[i] = ff - P->k[i] * (qd[i] - lqd[i]) - P->k_lam[i] * e;
     }
     if (S->trim_active) {
         for (int i = 0; i < 2; ++i) {
@@ -566,42 +600,54 @@ static int get_doubles(PyObject *obj, Py_buffer *b, Py_ssize_t n, const char *na
     return 1;
 }
 
-#define N_STEP_BUFFERS 10
+#define N_STEP_BUFFERS 14
 static PyObject *py_step(PyObject *self, PyObject *args)
 {
-    PyObject *obj[N_STEP_BUFFERS];
+    PyObject *obj[N_STEP_BUFFERS] = {NULL};
     Py_buffer b[N_STEP_BUFFERS];
     double dt;
-    int skip, got = 0;
+    int skip, est_skip = -1, got = 0;
     static const char *names[N_STEP_BUFFERS] = {
-        "params", "q", "q_dot", "q_ddot", "qd", "qd_dot", "qd_ddot", "tau", "out", "state"};
-    if (!PyArg_ParseTuple(args, "OOdiOOOOOOOO", &obj[0], &obj[9], &dt, &skip, &obj[1], &obj[2],
-                          &obj[3], &obj[4], &obj[5], &obj[6], &obj[7], &obj[8]))
+        "params", "q", "q_dot", "q_ddot", "qd", "qd_dot", "qd_ddot", "tau", "out", "state",
+        "est_q", "est_q_dot", "est_q_ddot", "est_tau"};
+    if (!PyArg_ParseTuple(args, "OOdiOOOOOOOO|OOOOi", &obj[0], &obj[9], &dt, &skip, &obj[1],
+                          &obj[2], &obj[3], &obj[4], &obj[5], &obj[6], &obj[7], &obj[8],
+                          &obj[10], &obj[11], &obj[12], &obj[13], &est_skip))
         return NULL;
+    int n_buffers = obj[10] ? N_STEP_BUFFERS : 10;
     PyObject *result = NULL;
     const Params *P = NULL;
-    for (; got < N_STEP_BUFFERS; ++got) {
+    if (obj[10] && !(obj[11] && obj[12] && obj[13])) {
+        PyErr_SetString(PyExc_TypeError, "the estimator's inputs come as q, q_dot, q_ddot, tau");
+        return NULL;
+    }
+    for (; got < n_buffers; ++got) {
         Py_ssize_t n = got == 0 ? (Py_ssize_t)(sizeof(Params) / sizeof(double))
                        : got == 8 ? OUT_SIZE
                        : got == 9 ? (Py_ssize_t)(sizeof(State) / sizeof(double))
                                         + 2 * (Py_ssize_t)P->window_samples
                                   : NQ;
-        if (!get_doubles(obj[got], &b[got], n, names[got], got >= 8)) break;
+        if (!get_doubles(obj[got], &b[got], n, names[got], got == 8 || got == 9)) break;
         if (got == 0) P = (const Params *)b[0].buf;
     }
-    if (got < N_STEP_BUFFERS) {
+    EstimatorInputs est;
+    if (n_buffers == N_STEP_BUFFERS && got == n_buffers)
+        est = (EstimatorInputs){(const double *)b[10].buf, (const double *)b[11].buf,
+                                (const double *)b[12].buf, (const double *)b[13].buf, est_skip};
+    if (got < n_buffers) {
         /* error set */
     } else if (!(dt > 0.0)) {
         char msg[80];
         snprintf(msg, sizeof msg, "dt must be positive, got %.17g", dt);
         PyErr_SetString(PyExc_ValueError, msg);
-    } else if (skip < -1 || skip >= N_SKIP) {
-        PyErr_Format(PyExc_ValueError, "skip must lie in [-1, %d), got %d", N_SKIP, skip);
+    } else if (skip < -1 || skip >= N_SKIP || est_skip < -1 || est_skip >= N_SKIP) {
+        PyErr_Format(PyExc_ValueError, "skip must lie in [-1, %d), got %d", N_SKIP,
+                     skip < -1 || skip >= N_SKIP ? skip : est_skip);
     } else if (control_step(P, (State *)b[9].buf, dt, skip, (const double *)b[1].buf,
                             (const double *)b[2].buf, (const double *)b[3].buf,
                             (const double *)b[4].buf, (const double *)b[5].buf,
                             (const double *)b[6].buf, (const double *)b[7].buf,
-                            (double *)b[8].buf)) {
+                            n_buffers == N_STEP_BUFFERS ? &est : NULL, (double *)b[8].buf)) {
         result = Py_NewRef(Py_None);
     }
     for (int i = 0; i < got; ++i) PyBuffer_Release(&b[i]);
@@ -742,6 +788,7 @@ static int add_offsets(PyObject *m)
         Py_DECREF(v); \
     } while (0)
     FIELD(Params, model, 14); FIELD(Params, rls, 1); FIELD(Params, has_scale, 1);
+    FIELD(Params, measured, NQ); FIELD(Params, com_from_joints, 1);
     FIELD(Params, n_rows, 1); FIELD(Params, rows, NQ); FIELD(Params, yaw_index, 1);
     FIELD(Params, fixed, 1); FIELD(Params, fixed_xi, 4); FIELD(Params, k, NQ);
     FIELD(Params, k_lam, NQ); FIELD(Params, lam_xy, 2); FIELD(Params, gamma, 3);

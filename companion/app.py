@@ -702,6 +702,7 @@ class PickupApp:
         check = self.navigation.update(pose.time_s, pose)
         if check.reset and a.ready:
             a.reset_position(pose.position_enu_m)
+            self.control.restart_estimator_inputs()
             self._note(
                 "navigation",
                 f"PX4's estimate jumped (reset counter {pose.reset_counter}): "

@@ -46,6 +46,18 @@ _SKIP_INDEX = {reason: i for i, reason in enumerate(_SKIPS)}
 _NO_FORCE = np.full(8, math.nan)
 
 
+EstimatorInputs = tuple[FloatArray, FloatArray, FloatArray, FloatArray | Skip]
+"""(q, q_dot, q_ddot, applied force or why it is not known) of the cycle the estimator
+runs on (:class:`companion.estimator_inputs.DelayedInputs`)."""
+
+
+def _skip_and_force(applied_tau: FloatArray | Skip) -> tuple[int, FloatArray]:
+    """The C step's skip index (-1: none) and force (NaN if skipped)."""
+    if isinstance(applied_tau, Skip):
+        return _SKIP_INDEX[applied_tau], _NO_FORCE
+    return -1, applied_tau
+
+
 _new = object.__new__
 _PLAIN_RECORDS: set[type] = set()
 """Classes :func:`frozen_record` has checked."""
@@ -270,6 +282,7 @@ class CompiledStep:
         thrust: ThrustModel,
         tilt_max_rad: float,
         compensate_thrust: bool = False,
+        measured_rows: tuple[int, ...] = (),
     ) -> None:
         if not self.supports(controller, estimator):
             raise TypeError("the compiled step runs eq. tau2 with the paper or RLS estimator")
@@ -303,6 +316,7 @@ class CompiledStep:
             "weight": np.pad(monitor.weight.reshape(-1), (0, 3 * (8 - n))),
             "tilt_max": tilt_max_rad,
             "compensate": compensate_thrust,
+            "measured": np.isin(np.arange(8), measured_rows),
         }
         if controller._fixed_xi is not None:
             par["fixed_xi"] = controller._fixed_xi
@@ -330,6 +344,7 @@ class CompiledStep:
                 p_trace_max=estimator.p_trace_max,
                 p0=estimator.p0,
                 r_forgotten=np.pad(np.diag(estimator._r_forgotten), (0, 8 - n)),
+                com_from_joints=estimator.com_from_joints,
             )
         for name, value in par.items():
             offset, size = self.layout[f"Params.{name}"]
@@ -392,23 +407,29 @@ class CompiledStep:
         q_ddot: FloatArray,
         desired: DesiredState,
         applied_tau: FloatArray | Skip,
+        estimator_inputs: EstimatorInputs | None = None,
     ) -> tuple[FloatArray, AttitudeThrustSetpoint, Estimate, FloatArray, DesiredState]:
         """One cycle: (tau, setpoint, estimate, theta used, desired with the tilt
-        reference), as :meth:`FlightControl.step <companion.flight_control.FlightControl.step>`."""
-        if isinstance(applied_tau, Skip):
-            skip, tau = _SKIP_INDEX[applied_tau], _NO_FORCE
-        else:
-            skip, tau = -1, applied_tau
+        reference), as :meth:`FlightControl.step <companion.flight_control.FlightControl.step>`;
+        the estimator runs on ``estimator_inputs`` (q, q_dot, q_ddot, applied force) if
+        given, else on this cycle's."""
+        skip, tau = _skip_and_force(applied_tau)
         out = np.empty_like(self._out)
-        args = (q, q_dot, q_ddot, desired.q, desired.q_dot, desired.q_ddot, tau)
+        args: tuple[Any, ...] = (q, q_dot, q_ddot, desired.q, desired.q_dot, desired.q_ddot, tau)
+        extra: tuple[Any, ...] = ()
+        if estimator_inputs is not None:
+            est_skip, est_tau = _skip_and_force(estimator_inputs[3])
+            extra = (*estimator_inputs[:3], est_tau, est_skip)
         try:
-            self._module.step(self.params, self.state, dt_s, skip, *args, out)
+            self._module.step(self.params, self.state, dt_s, skip, *args, out, *extra)
         except (BufferError, TypeError, ValueError):
             # Not C-contiguous float64 arrays (numpy says so with ValueError): convert and
             # call again, which raises if they are not 8 values each. Every check precedes
             # any change of the state.
             arrays = [np.ascontiguousarray(a, dtype=np.float64) for a in args]
-            self._module.step(self.params, self.state, float(dt_s), skip, *arrays, out)
+            if extra:
+                extra = (*[np.ascontiguousarray(a, dtype=np.float64) for a in extra[:4]], extra[4])
+            self._module.step(self.params, self.state, float(dt_s), skip, *arrays, out, *extra)
         v = out.tolist()
         setpoint = frozen_record(
             AttitudeThrustSetpoint,

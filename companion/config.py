@@ -266,6 +266,11 @@ class Rls(_Section):
     """Initial standard deviation of (m2 [kg], m3 [kg m], m4 [kg m^2])."""
     row_noise: PositiveGainsQ
     """Noise std of each row's generalized-force residual (N on x, y, z; N m otherwise)."""
+    com_from_joints: bool = False
+    """Learn m3 and m4 (where link 2's mass sits) from the joint rows alone: on x, y, z
+    their columns move to the known side at the current estimate, so those rows learn m2
+    (and the thrust scale) only. In flight the arm's share of the x, y, z forces is small
+    against forces the model does not have (rotor drag); false: every row learns all."""
 
 
 ThrustScaleValue = Annotated[Positive, _within(2.0, "", "true over believed thrust", low=0.2)]
@@ -324,6 +329,11 @@ class Estimator(_Section):
     thrust_scale: ThrustScale | None = None
     """Estimate the vehicle's thrust scale with theta (absent: the thrust model is taken
     as exact, the paper's assumption)."""
+    acceleration_delay_s: Annotated[NonNegative, _within(0.2, "s", "a few control cycles")] = 0.0
+    """Run the estimator this long behind the controller [s], on q_ddot from a central
+    difference of the filtered q_dot (companion.estimator_inputs: no phase lag, where the
+    state filter's accelerations lag 25-80 ms in flight); 0: the filter's q_ddot of the
+    current cycle, as the paper. Rounded to whole control periods, at least one."""
 
 
 class SlidingMode(_Section):
@@ -359,6 +369,12 @@ class Controller(_Section):
     [N/m]; 0: none (the paper's law)."""
     horizontal_trim_limit_n: NonNegative = 1.0
     """Largest trim force per horizontal axis [N]."""
+    measured_unactuated_motion: bool = False
+    """Eq. tau2 with the measured q_dot and q_ddot in place of the desired ones on the rows
+    the companion does not actuate (roll, pitch, yaw in flight: PX4 flies them), so the
+    joints' feedforward ``Mhat qd_ddot`` answers the body's actual rotation and not the
+    tilt asked of PX4, which it realises about a third of (SITL pickup, real PX4 and the
+    imitation alike); false: the desired motion on every row, as the paper."""
     sliding_mode: SlidingMode
 
 

@@ -76,6 +76,9 @@ class Skip(StrEnum):
     for (a gap in the pose stream)."""
     NOT_FINITE = "not_finite"
     """The force or the regressor on the used rows is not finite (a corrupt read-back)."""
+    WARMING_UP = "warming_up"
+    """The delay line of ``estimator.acceleration_delay_s`` is not full yet (the first 2n
+    cycles)."""
 
 
 @dataclass(frozen=True)
@@ -588,6 +591,9 @@ class RlsEstimator(_Base):
         Initial variances of (m2, m3, m4), also the cap on P's trace.
     row_noise : array_like, shape (8,)
         Noise std of each row's generalized-force residual.
+    com_from_joints : bool
+        The x, y, z rows learn m2 (and s) only: their m3 and m4 columns move to the known
+        side at the current theta, so m3 and m4 come from the joint rows.
     scale : ThrustScaleModel, optional
         Estimate the thrust scale s too, as a fourth state (x = (theta, s),
         ``H = [Y_theta, -f_cmd]``, ``z = -Y_4`` on x, y, z and ``tau - Y_4`` on the joints).
@@ -608,8 +614,10 @@ class RlsEstimator(_Base):
         row_noise: ArrayLike,
         rows: tuple[int, ...] = ALL_ROWS,
         scale: ThrustScaleModel | None = None,
+        com_from_joints: bool = False,
     ) -> None:
         super().__init__(theta0, bounds, monitor, rows, scale)
+        self.com_from_joints = com_from_joints and bool(self._thrust_rows.any())
         if not 0.0 < forgetting <= 1.0:
             raise ValueError("forgetting must lie in (0, 1]")
         self.forgetting = forgetting
@@ -650,7 +658,17 @@ class RlsEstimator(_Base):
         """Standard deviations of (m2, m3, m4) from the covariance."""
         return np.sqrt(np.diag(self.p))
 
+    def _mass_only(self, y: FloatArray) -> FloatArray:
+        """Y with the m3, m4 columns of x, y, z moved into the known column at theta."""
+        y = y.copy()
+        t = self._thrust_rows
+        y[t, 3] += y[t, 1] * self.theta[1] + y[t, 2] * self.theta[2]
+        y[t, 1:3] = 0.0
+        return y
+
     def _step(self, dt, y, q, q_dot, tau) -> None:
+        if self.com_from_joints:
+            y = self._mass_only(y)
         if self.scale is not None:
             self._step_with_scale(dt, y, tau)
             return
@@ -748,4 +766,5 @@ def estimator_from_config(config: CompanionConfig, kind: str, rows: tuple[int, .
         row_noise=est.rls.row_noise,
         rows=rows,
         scale=scale,
+        com_from_joints=est.rls.com_from_joints,
     )

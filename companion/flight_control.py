@@ -41,7 +41,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.compiled_step import CompiledStep, frozen_record
+from companion.compiled_step import CompiledStep, EstimatorInputs, frozen_record
 from companion.config import CompanionConfig
 from companion.control import (
     ControlLaw,
@@ -59,8 +59,9 @@ from companion.estimation import (
     Skip,
     estimator_from_config,
 )
+from companion.estimator_inputs import DelayedInputs, delay_cycles
 from companion.filters import FilteredState
-from companion.model import ManipulatorModel
+from companion.model import ManipulatorModel, ModelTerms
 from companion.native import native_module
 from companion.setpoints import AttitudeThrustSetpoint, ThrustModel, attitude_thrust_setpoint
 from companion.state import thrust_force_world
@@ -158,6 +159,14 @@ class FlightControl:
         scale = config.estimator.thrust_scale
         self.compensate_thrust = scale is not None and scale.compensate
         """Map the law's force divided by the calibrated thrust scale (``compensate``)."""
+        unactuated = [r for r in range(N_Q) if r not in actuated_rows]
+        self._unactuated = (
+            np.array(unactuated) if unactuated and ctl.measured_unactuated_motion else None
+        )
+        """Rows on which eq. tau2 takes the measured motion (``measured_unactuated_motion``)."""
+        self.estimator_delay_s = config.estimator.acceleration_delay_s
+        """The estimator's delay behind the controller [s] (``acceleration_delay_s``)."""
+        self._delayed: DelayedInputs | None = None
         module = native_module(compiled)
         if module is not None and CompiledStep.supports(self.controller, self.estimator):
             assert isinstance(self.controller, PassivityController)
@@ -172,6 +181,7 @@ class FlightControl:
                 self.thrust,
                 self.tilt_max_rad,
                 self.compensate_thrust,
+                () if self._unactuated is None else tuple(self._unactuated.tolist()),
             )
             self.estimator = self._compiled.estimator
             self.tilt = self._compiled.tilt
@@ -246,8 +256,13 @@ class FlightControl:
         """
         q, q_dot, q_ddot = state.q, state.q_dot, state.q_ddot
         if self._compiled is not None:
+            inputs = None
+            if self.estimator_delay_s > 0.0:
+                inputs = self._delayed_inputs(dt_s, q, q_dot, applied_tau)
+                if inputs is None:
+                    inputs = (q, q_dot, q_ddot, Skip.WARMING_UP)
             tau, setpoint, estimate, theta_hat, reference = self._compiled.step(
-                dt_s, q, q_dot, q_ddot, desired, applied_tau
+                dt_s, q, q_dot, q_ddot, desired, applied_tau, inputs
             )
             return frozen_record(
                 ControlOutput,
@@ -258,10 +273,16 @@ class FlightControl:
                 desired=reference,
             )
         terms = self.model.terms(q, q_dot)
-        estimate = self.estimator.update(dt_s, terms, q, q_dot, q_ddot, applied_tau)
+        estimate = self._estimate(dt_s, terms, q, q_dot, q_ddot, applied_tau)
         reference = self.tilt.apply(desired)
+        law_reference = reference
+        if self._unactuated is not None:
+            law_q_dot, law_q_ddot = reference.q_dot.copy(), reference.q_ddot.copy()
+            law_q_dot[self._unactuated] = q_dot[self._unactuated]
+            law_q_ddot[self._unactuated] = q_ddot[self._unactuated]
+            law_reference = DesiredState(q=reference.q, q_dot=law_q_dot, q_ddot=law_q_ddot)
         tau, theta_hat = self.controller.control(
-            dt_s, terms, state, reference, estimate.theta, applied_tau
+            dt_s, terms, state, law_reference, estimate.theta, applied_tau
         )
         if self._trim_active:
             lam = self.scenario.controller.lambda_
@@ -284,6 +305,43 @@ class FlightControl:
             theta_hat=np.asarray(theta_hat, dtype=np.float64),
             desired=reference,
         )
+
+    def _estimate(
+        self,
+        dt_s: float,
+        terms: ModelTerms,
+        q: FloatArray,
+        q_dot: FloatArray,
+        q_ddot: FloatArray,
+        applied_tau: FloatArray | Skip,
+    ) -> Estimate:
+        """The estimator's step on this cycle, or with ``acceleration_delay_s`` on the cycle
+        that far back (:mod:`companion.estimator_inputs`; the line's length is set by the
+        first cycle's period)."""
+        if self.estimator_delay_s == 0.0:
+            return self.estimator.update(dt_s, terms, q, q_dot, q_ddot, applied_tau)
+        inputs = self._delayed_inputs(dt_s, q, q_dot, applied_tau)
+        if inputs is None:
+            return self.estimator.update(dt_s, terms, q, q_dot, q_ddot, Skip.WARMING_UP)
+        q_old, q_dot_old, q_ddot_old, tau_old = inputs
+        terms_old = self.model.terms(q_old, q_dot_old)
+        return self.estimator.update(dt_s, terms_old, q_old, q_dot_old, q_ddot_old, tau_old)
+
+    def restart_estimator_inputs(self) -> None:
+        """Forget the estimator's delay line (``acceleration_delay_s``): the state estimate
+        jumped (a navigation reset), so a central difference across the jump would be a
+        spike. The estimator skips the cycles it takes to refill."""
+        if self._delayed is not None:
+            self._delayed.reset()
+
+    def _delayed_inputs(
+        self, dt_s: float, q: FloatArray, q_dot: FloatArray, applied_tau: FloatArray | Skip
+    ) -> EstimatorInputs | None:
+        """This cycle into the delay line; the estimator's inputs n cycles back, or None
+        while the line fills."""
+        if self._delayed is None:
+            self._delayed = DelayedInputs(delay_cycles(self.estimator_delay_s, dt_s))
+        return self._delayed.push(dt_s, q, q_dot, applied_tau)
 
     def weight_n(self, theta: FloatArray | None = None) -> float:
         """Weight of vehicle + arm [N] with link 2's mass from ``theta`` (default: the

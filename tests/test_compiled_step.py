@@ -46,14 +46,20 @@ def close(a, b, what: str, tol: float = TOL) -> None:
     assert ok.all(), f"{what}: largest difference {np.nanmax(np.abs(a - b))}"
 
 
-def flight_scenario(**thrust_scale):
+def flight_scenario(
+    delay_s: float = 0.0, measured: bool = False, com_from_joints: bool = False, **thrust_scale
+):
     """paper_sim_flight with a 5 % thrust mismatch, 10 % sag and, if given, the thrust
-    scale as an unknown."""
+    scale as an unknown, the estimator ``delay_s`` behind and the law on the measured
+    attitude motion."""
     data = tomllib.loads((CONFIGS / "paper_sim_flight.toml").read_text())
     data["plant"]["thrust_mismatch"] = 0.95
     data["plant"]["battery_sag"] = {"thrust_loss": 0.1, "over_s": 20.0}
     if thrust_scale:
         data["estimator"]["thrust_scale"] = thrust_scale
+    data["estimator"]["acceleration_delay_s"] = delay_s
+    data["controller"]["measured_unactuated_motion"] = measured
+    data["estimator"]["rls"]["com_from_joints"] = com_from_joints
     return parse_scenario(data)
 
 
@@ -110,6 +116,44 @@ RUNS = {
             duration_s=4.0,
             release_at_s=1.5,
             pickup_at_s=2.5,
+        ),
+    ),
+    "rls, delayed estimator, measured attitude motion, pickup": (
+        lambda: flight_scenario(
+            delay_s=0.024,
+            measured=True,
+            com_from_joints=True,
+            drift_std_per_sqrt_s=0.01,
+            compensate=True,
+        ),
+        SimOptions(
+            controller="passivity",
+            estimator="rls",
+            plant="underactuated",
+            noise=True,
+            duration_s=4.0,
+            release_at_s=1.5,
+            pickup_at_s=2.5,
+        ),
+    ),
+    "rls, m3 and m4 from the joints": (
+        lambda: flight_scenario(com_from_joints=True),
+        SimOptions(
+            controller="passivity",
+            estimator="rls",
+            plant="underactuated",
+            noise=True,
+            duration_s=3.0,
+        ),
+    ),
+    "paper estimator, delayed, measured attitude motion": (
+        lambda: flight_scenario(delay_s=0.01, measured=True),
+        SimOptions(
+            controller="passivity",
+            estimator="paper",
+            plant="underactuated",
+            noise=True,
+            duration_s=3.0,
         ),
     ),
 }
@@ -376,9 +420,11 @@ def test_selection(monkeypatch):
 
 
 def test_compiled_state_is_the_objects_state():
-    """freeze, reset, tilt.reset, trim.start and the thrust floor reach the C step."""
+    """freeze, reset, tilt.reset, trim.start and the thrust floor reach the C step (the
+    estimator on the cycle's own inputs, so that a skip counts at once)."""
     config = load_config(CONFIGS / "sitl_pickup.toml")
-    control = FlightControl(config)
+    estimator = config.estimator.model_copy(update={"acceleration_delay_s": 0.0})
+    control = FlightControl(config.model_copy(update={"estimator": estimator}))
     est = control.estimator
     est.freeze()
     q = np.array([0.0, 0.0, 1.5, 0.0, 0.0, 0.0, -1.2, 0.4])

@@ -66,7 +66,7 @@ def paper(rows=tuple(range(8)), gamma=(0.2, 0.1, 0.1)) -> PaperEstimator:
     )
 
 
-def rls(rows=tuple(range(8))) -> RlsEstimator:
+def rls(rows=tuple(range(8)), com_from_joints: bool = False) -> RlsEstimator:
     return RlsEstimator(
         CFG.estimator.initial_theta.as_tuple(),
         BOUNDS,
@@ -75,6 +75,7 @@ def rls(rows=tuple(range(8))) -> RlsEstimator:
         p0=(1.0, 0.01, 1e-3),
         row_noise=np.full(8, 0.1),
         rows=rows,
+        com_from_joints=com_from_joints,
     )
 
 
@@ -101,6 +102,19 @@ def test_rls_converges_and_reports_confidence(rows) -> None:
     np.testing.assert_allclose(est.theta, TRUE, rtol=1e-3)
     assert est.confident
     assert estimator.std[0] < 0.01
+
+
+def test_rls_com_from_joints_keeps_x_y_z_off_m3_and_m4() -> None:
+    """With ``com_from_joints`` the x, y, z rows learn m2 alone (m3, m4 held at their
+    initial values when they are the only rows), and with the joints all of theta still
+    converges on exact data."""
+    alone = rls((0, 1, 2), com_from_joints=True)
+    start = alone.theta.copy()
+    est = run(alone, 5.0)
+    np.testing.assert_array_equal(est.theta[1:], start[1:])
+    assert est.theta[0] != start[0]
+    both = rls(TRANSLATION_AND_JOINT_ROWS, com_from_joints=True)
+    np.testing.assert_allclose(run(both, 10.0).theta, TRUE, rtol=1e-3)
 
 
 def test_unused_rows_are_never_read() -> None:
