@@ -9,7 +9,8 @@ estimator should do. Phases, in order:
 ``descend``     lower until link 2's payload point meets the object
 ``grasp``       close the gripper, wait ``grasp_wait_s``; the estimator restarts its confidence
 ``lift``        climb back to cruise altitude with the payload
-``excite``      swing the arm and circle until the estimator is confident (or time out)
+``excite``      swing the arm and circle until the estimator is confident (or time out),
+                fade out, and hold until the vehicle is back within ``arrive_tolerance_m``
 ``to_place``    carry to above the place point
 ``lower``       lower until the payload point is at the place point
 ``release``     open the gripper, wait; the estimate returns to the empty-arm values
@@ -356,6 +357,7 @@ class PickupMission:
 
     def _begin(self, t_s: float, q_from: FloatArray, phase: Phase) -> None:
         p = self.plan
+        self._settled_since = math.nan  # each phase settles on its own
         q_from = q_from.copy()
         q_from[TILT] = 0.0
         q_from[PSI] = self._yaw_rad
@@ -456,7 +458,15 @@ class PickupMission:
                     self._excite_stop_s = t_s
                     self.confident_when_done = confident
                 return False
-            return t_s >= self._excite_stop_s + period
+            waited = t_s - (self._excite_stop_s + period)
+            if waited < 0.0:
+                return False
+            # The swing can push the vehicle far off its centre (a 0.4 kg payload's reaction
+            # against PX4's attitude loop: up to 1.1 m in the SITL, swinging through the
+            # centre): the carry starts once it has stayed back for settle_s.
+            if waited >= self.plan.arrive_timeout_s:
+                return True
+            return self._settled(t_s, q, seg.q_to, self.plan.arrive_tolerance_m)
         if elapsed < seg.duration_s:
             return False
         if not seg.check_arrival:
@@ -467,7 +477,13 @@ class PickupMission:
         if self.phase not in (Phase.DESCEND, Phase.LOWER):
             return error <= self.plan.arrive_tolerance_m
         # Grasping and placing need the jaws on the point, steadily.
-        if error > self.plan.grasp_tolerance_m:
+        return self._settled(t_s, q, seg.q_to, self.plan.grasp_tolerance_m)
+
+    def _settled(self, t_s: float, q: FloatArray, q_to: FloatArray, tolerance_m: float) -> bool:
+        """True once the position has stayed within ``tolerance_m`` of ``q_to`` for
+        ``settle_s``."""
+        error = float(np.linalg.norm(q[POSITION] - q_to[POSITION]))
+        if error > tolerance_m:
             self._settled_since = math.nan
             return False
         if math.isnan(self._settled_since):

@@ -42,6 +42,33 @@ def fly(plan=PLAN, confident_after_s=8.0, lag=0):
     return mission, records
 
 
+@pytest.mark.parametrize("stuck", [False, True])
+def test_the_carry_waits_until_the_swing_has_let_the_vehicle_back(stuck):
+    """After the excitation's fade-out the vehicle, pushed off by the arm, must have been
+    back within arrive_tolerance_m for settle_s before to_place; one that stays off goes on
+    after arrive_timeout_s."""
+    mission = PickupMission(PLAN, SCENARIO)
+    q = np.array([0.0, 0.0, 1.5, 0.0, 0.0, 0.0, 0.0, -1.5])
+    mission.start(0.0, q)
+    t, excite_start = 0.0, None
+    offset = np.zeros(8)
+    offset[0] = 0.4  # > arrive_tolerance_m (0.15 m)
+    back_after_s = 13.0  # 3 s after the fade-out of a confident excitation (6 s + 4 s)
+    while mission.phase != Phase.TO_PLACE and t < 300.0:
+        pushed = excite_start is not None and (stuck or t - excite_start < back_after_s)
+        cmd = mission.update(t, q + offset if pushed else q, confident=True)
+        if cmd.phase == Phase.EXCITE and excite_start is None:
+            excite_start = t
+        q = cmd.desired.q.copy()
+        t += DT
+    assert mission.phase == Phase.TO_PLACE
+    start = dict((p, ts) for ts, p in mission.phase_log)[Phase.TO_PLACE]
+    fade_end = excite_start + PLAN.excite_min_s + PLAN.excite_period_s
+    back = excite_start + back_after_s + PLAN.settle_s
+    expected = fade_end + PLAN.arrive_timeout_s if stuck else back
+    assert start == pytest.approx(expected, abs=2 * DT)
+
+
 def test_min_jerk_is_at_rest_at_both_ends():
     a, b = np.zeros(2), np.array([1.0, -2.0])
     for t, expected in ((0.0, a), (3.0, b)):
@@ -97,7 +124,8 @@ def test_excitation_stops_at_the_time_limit_without_confidence():
     assert mission.phase == Phase.DONE
     assert not mission.confident_when_done
     excite = [t for t, cmd in records if cmd.phase == Phase.EXCITE]
-    assert excite[-1] - excite[0] == pytest.approx(PLAN.excite_max_s, abs=0.05)
+    # the time limit, then settle_s back at the centre (tracked perfectly here)
+    assert excite[-1] - excite[0] == pytest.approx(PLAN.excite_max_s + PLAN.settle_s, abs=0.05)
 
 
 def test_phase_waits_for_the_vehicle_to_arrive():
