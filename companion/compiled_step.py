@@ -34,6 +34,7 @@ from companion.estimation import (
     RlsEstimator,
     Skip,
 )
+from companion.estimator_inputs import EstimatorInputs
 from companion.setpoints import AttitudeThrustSetpoint, ThrustModel
 from companion.trajectory import TiltReference
 
@@ -44,11 +45,6 @@ _R = TypeVar("_R")
 _SKIPS = tuple(Skip)
 _SKIP_INDEX = {reason: i for i, reason in enumerate(_SKIPS)}
 _NO_FORCE = np.full(8, math.nan)
-
-
-EstimatorInputs = tuple[FloatArray, FloatArray, FloatArray, FloatArray | Skip]
-"""(q, q_dot, q_ddot, applied force or why it is not known) of the cycle the estimator
-runs on (:class:`companion.estimator_inputs.DelayedInputs`)."""
 
 
 def _skip_and_force(applied_tau: FloatArray | Skip) -> tuple[int, FloatArray]:

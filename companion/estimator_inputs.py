@@ -24,9 +24,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from companion.estimation import Skip
 
-__all__ = ["DelayedInputs", "delay_cycles"]
+__all__ = ["DelayedInputs", "EstimatorInputs", "delay_cycles"]
 
 FloatArray = NDArray[np.float64]
+EstimatorInputs = tuple[FloatArray, FloatArray, FloatArray, FloatArray | Skip]
+"""(q, q_dot, q_ddot, applied force or why it is not known) of the cycle the estimator
+runs on."""
 
 
 def delay_cycles(delay_s: float, dt_s: float) -> int:
@@ -61,7 +64,7 @@ class DelayedInputs:
 
     def push(
         self, dt_s: float, q: ArrayLike, q_dot: ArrayLike, tau: FloatArray | Skip
-    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray | Skip] | None:
+    ) -> EstimatorInputs | None:
         """Add this cycle (period ``dt_s`` [s] since the last); return the cycle n back as
         ``(q, q_dot, q_ddot, tau)``, q_ddot the central difference, or None until 2n + 1
         cycles are in the line."""

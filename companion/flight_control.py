@@ -41,7 +41,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.compiled_step import CompiledStep, EstimatorInputs, frozen_record
+from companion.compiled_step import CompiledStep, frozen_record
 from companion.config import CompanionConfig
 from companion.control import (
     ControlLaw,
@@ -59,7 +59,7 @@ from companion.estimation import (
     Skip,
     estimator_from_config,
 )
-from companion.estimator_inputs import DelayedInputs, delay_cycles
+from companion.estimator_inputs import DelayedInputs, EstimatorInputs, delay_cycles
 from companion.filters import FilteredState
 from companion.model import ManipulatorModel, ModelTerms
 from companion.native import native_module
@@ -260,7 +260,7 @@ class FlightControl:
             if self.estimator_delay_s > 0.0:
                 inputs = self._delayed_inputs(dt_s, q, q_dot, applied_tau)
                 if inputs is None:
-                    inputs = (q, q_dot, q_ddot, Skip.WARMING_UP)
+                    applied_tau = Skip.WARMING_UP  # the estimator's only input
             tau, setpoint, estimate, theta_hat, reference = self._compiled.step(
                 dt_s, q, q_dot, q_ddot, desired, applied_tau, inputs
             )

@@ -466,7 +466,8 @@ class PickupMission:
             # centre): the carry starts once it has stayed back for settle_s.
             if waited >= self.plan.arrive_timeout_s:
                 return True
-            return self._settled(t_s, q, seg.q_to, self.plan.arrive_tolerance_m)
+            error = float(np.linalg.norm(q[POSITION] - seg.q_to[POSITION]))
+            return self._settled(t_s, error, self.plan.arrive_tolerance_m)
         if elapsed < seg.duration_s:
             return False
         if not seg.check_arrival:
@@ -477,13 +478,11 @@ class PickupMission:
         if self.phase not in (Phase.DESCEND, Phase.LOWER):
             return error <= self.plan.arrive_tolerance_m
         # Grasping and placing need the jaws on the point, steadily.
-        return self._settled(t_s, q, seg.q_to, self.plan.grasp_tolerance_m)
+        return self._settled(t_s, error, self.plan.grasp_tolerance_m)
 
-    def _settled(self, t_s: float, q: FloatArray, q_to: FloatArray, tolerance_m: float) -> bool:
-        """True once the position has stayed within ``tolerance_m`` of ``q_to`` for
-        ``settle_s``."""
-        error = float(np.linalg.norm(q[POSITION] - q_to[POSITION]))
-        if error > tolerance_m:
+    def _settled(self, t_s: float, error_m: float, tolerance_m: float) -> bool:
+        """True once the position error has stayed within ``tolerance_m`` for ``settle_s``."""
+        if error_m > tolerance_m:
             self._settled_since = math.nan
             return False
         if math.isnan(self._settled_since):
