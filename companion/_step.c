@@ -16,7 +16,9 @@
  *      empty-arm values (the non-adaptive baseline), with the measured motion on the rows
  *      of Params.measured, plus the horizontal integral trim,
  *   5. the attitude/thrust setpoint (eq. phid, thrust model), then the tilt reference's
- *      step toward the new roll and pitch.
+ *      step toward the new roll and pitch,
+ *   6. if Params.ff_on, the roll/pitch offset of PX4's tilt loop inverted for the model's
+ *      torque on the tilt rows at the reference attitude (companion.attitude_feedforward).
  * The Python classes (companion.estimation, companion.control, companion.trajectory,
  * companion.setpoints) are the reference; tests/test_compiled_step.py compares the two.
  *
@@ -69,6 +71,9 @@ typedef struct {
     double trim_gain, trim_limit; /* HorizontalTrim */
     double measured[NQ];    /* 1: eq. tau2 takes the measured q_dot, q_ddot on this row */
     double com_from_joints; /* 1: the RLS rows x, y, z learn m2 (and s) only */
+    double ff_on;           /* 1: AttitudeLoopInverse, with (roll, pitch) pairs: */
+    double ff_att_p[2], ff_rate_p[2], ff_rate_i[2], ff_int_lim[2], ff_torque[2];
+    double ff_max;          /* its offset limit [rad] */
 } Params;
 
 typedef struct {
@@ -86,6 +91,7 @@ typedef struct {
     double ring_len, ring_head; /* the monitor's m2 and lc windows, at `ring` */
     double tilt_x[2], tilt_v[2], tilt_a[2];
     double trim_force[2], trim_active;
+    double ff_int[2];       /* AttitudeLoopInverse.integral */
     double ring[];          /* m2 window, then lc window (window_samples each) */
 } State;
 
@@ -573,6 +579,28 @@ static int control_step(const Params *P, State *S, double dt, int skip, const do
     setpoint(P, force, q[5], rq[5], out);
     double raw[2] = {out[OUT_ROLL], out[OUT_PITCH]};
     tilt_step(P, S, dt, raw);
+
+    /* 6. AttitudeLoopInverse.offset for (Mhat qd_ddot + Chat qd_dot + Ghat)[roll, pitch]
+     *    with roll, pitch and their rates at the reference (FlightControl._attitude_offset) */
+    if (P->ff_on) {
+        double fq[NQ], fqd[NQ];
+        for (int i = 0; i < NQ; ++i) {
+            fq[i] = (i == 3 || i == 4) ? rq[i] : q[i];
+            fqd[i] = (i == 3 || i == 4) ? rqd[i] : qd[i];
+        }
+        mcg_eval(fq, fqd, P->model, pieces);
+        regress(pieces, rqd, rqdd, yt);
+        for (int i = 0; i < 2; ++i) {
+            double torque = 0.0;
+            for (int k = 0; k < 4; ++k) torque += yt[8 * k + 3 + i] * xi[k];
+            double v = (torque / P->ff_torque[i] - S->ff_int[i]) / P->ff_rate_p[i];
+            double e = py_min(py_max(v / P->ff_att_p[i], -P->ff_max), P->ff_max);
+            v = P->ff_att_p[i] * e;
+            double integral = S->ff_int[i] + P->ff_rate_i[i] * v * dt;
+            S->ff_int[i] = py_min(py_max(integral, -P->ff_int_lim[i]), P->ff_int_lim[i]);
+            out[OUT_ROLL + i] += e;
+        }
+    }
     return 1;
 }
 
@@ -803,6 +831,9 @@ static int add_offsets(PyObject *m)
     FIELD(Params, weight, 3 * NQ); FIELD(Params, tilt_w, 1); FIELD(Params, tilt_max, 1);
     FIELD(Params, thrust_max, 1); FIELD(Params, thrust_min_rel, 1); FIELD(Params, compensate, 1);
     FIELD(Params, trim_gain, 1); FIELD(Params, trim_limit, 1);
+    FIELD(Params, ff_on, 1); FIELD(Params, ff_att_p, 2); FIELD(Params, ff_rate_p, 2);
+    FIELD(Params, ff_rate_i, 2); FIELD(Params, ff_int_lim, 2); FIELD(Params, ff_torque, 2);
+    FIELD(Params, ff_max, 1);
     FIELD(State, theta, 3); FIELD(State, frozen, 1); FIELD(State, thrust_scale, 1);
     FIELD(State, scale_held, 1); FIELD(State, calibrating, 1); FIELD(State, s_comp, 1);
     FIELD(State, skipped, N_SKIP); FIELD(State, qhat_valid, 1); FIELD(State, qhat, NQ);
@@ -810,7 +841,8 @@ static int add_offsets(PyObject *m)
     FIELD(State, excitation, 1); FIELD(State, spread, 1); FIELD(State, since_sample, 1);
     FIELD(State, samples, 1); FIELD(State, ring_len, 1); FIELD(State, ring_head, 1);
     FIELD(State, tilt_x, 2); FIELD(State, tilt_v, 2); FIELD(State, tilt_a, 2);
-    FIELD(State, trim_force, 2); FIELD(State, trim_active, 1); FIELD(State, ring, 0);
+    FIELD(State, trim_force, 2); FIELD(State, trim_active, 1); FIELD(State, ff_int, 2);
+    FIELD(State, ring, 0);
 #undef FIELD
     if (PyModule_AddIntConstant(m, "PARAMS_SIZE", sizeof(Params) / sizeof(double)) < 0
         || PyModule_AddIntConstant(m, "STATE_SIZE", sizeof(State) / sizeof(double)) < 0

@@ -25,6 +25,7 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
+from companion.attitude_feedforward import AttitudeLoopInverse
 from companion.control import DesiredState, HorizontalTrim, PassivityController
 from companion.estimation import (
     Estimate,
@@ -226,6 +227,16 @@ class _CompiledTrim(_Backed, HorizontalTrim):
     limit = _Field("_params", "Params.trim_limit")
 
 
+class _CompiledAttitudeInverse(_Backed, AttitudeLoopInverse):
+    """The tilt loop inverse whose integrator copy the C step advances."""
+
+    integral = _Field("_state", "State.ff_int", shape=(2,))
+
+    def offset(self, dt_s: float, torque_n_m: FloatArray) -> FloatArray:
+        """Not available: the compiled step computes the offset."""
+        raise TypeError("the compiled control step computes the attitude offset")
+
+
 _ESTIMATOR_STATE = (
     *("theta", "frozen", "thrust_scale", "scale_held", "calibrating", "compensation_scale"),
     "skipped",
@@ -236,6 +247,7 @@ _STATE_ATTRIBUTES = {
     _CompiledMonitor: ("info", "excitation", "spread"),
     _CompiledTilt: ("w", "x", "v", "a"),
     _CompiledTrim: ("gain", "limit", "force_n"),
+    _CompiledAttitudeInverse: ("integral",),
 }
 """Per class, the attributes moved into the buffers."""
 _DROPPED = ("_m2", "_lc", "_since_sample", "_samples")
@@ -279,6 +291,7 @@ class CompiledStep:
         tilt_max_rad: float,
         compensate_thrust: bool = False,
         measured_rows: tuple[int, ...] = (),
+        attitude_inverse: AttitudeLoopInverse | None = None,
     ) -> None:
         if not self.supports(controller, estimator):
             raise TypeError("the compiled step runs eq. tau2 with the paper or RLS estimator")
@@ -316,6 +329,16 @@ class CompiledStep:
         }
         if controller._fixed_xi is not None:
             par["fixed_xi"] = controller._fixed_xi
+        if attitude_inverse is not None:
+            par.update(
+                ff_on=True,
+                ff_att_p=attitude_inverse.attitude_p,
+                ff_rate_p=attitude_inverse.rate_p,
+                ff_rate_i=attitude_inverse.rate_i,
+                ff_int_lim=attitude_inverse.integrator_limit,
+                ff_torque=attitude_inverse.torque_per_normalized_n_m,
+                ff_max=attitude_inverse.max_offset_rad,
+            )
         scale = estimator.scale
         if scale is not None:
             par.update(
@@ -352,6 +375,11 @@ class CompiledStep:
         self.estimator.monitor = _backed(monitor, _CompiledMonitor, self)
         self.tilt: TiltReference = _backed(tilt, _CompiledTilt, self)
         self.trim: HorizontalTrim = _backed(trim, _CompiledTrim, self)
+        self.attitude_inverse: AttitudeLoopInverse | None = (
+            None
+            if attitude_inverse is None
+            else _backed(attitude_inverse, _CompiledAttitudeInverse, self)
+        )
         self.thrust = thrust
         self.tilt_max_rad = tilt_max_rad
         self._out = np.empty(module.OUT_SIZE)

@@ -37,6 +37,7 @@ __all__ = [
     "ArmBusGripper",
     "ArmBusJoint",
     "ArmBusSection",
+    "AttitudeFeedforward",
     "CompanionConfig",
     "Confidence",
     "ConfigError",
@@ -353,6 +354,33 @@ class SlidingMode(_Section):
     """Time constant of the low-pass on the eq. asc2 mass read-out [s]."""
 
 
+Pair = Annotated[tuple[Positive, ...], Field(min_length=2, max_length=2)]
+NonNegativePair = Annotated[tuple[NonNegative, ...], Field(min_length=2, max_length=2)]
+
+
+class AttitudeFeedforward(_Section):
+    """PX4's roll and pitch loop as the companion inverts it (companion.attitude_feedforward):
+    the attitude offset that makes PX4 produce the torque the model needs on the tilt rows.
+    Each pair is (roll, pitch); the flight app checks the gains against the vehicle's."""
+
+    attitude_p: Pair
+    """PX4's MC_ROLL_P, MC_PITCH_P [rad/s per rad]."""
+    rate_p: Pair
+    """PX4's MC_ROLLRATE_P, MC_PITCHRATE_P times MC_ROLLRATE_K, MC_PITCHRATE_K [-]."""
+    rate_i: NonNegativePair
+    """PX4's MC_ROLLRATE_I, MC_PITCHRATE_I times MC_ROLLRATE_K, MC_PITCHRATE_K [-]."""
+    rate_integrator_limit: NonNegativePair
+    """PX4's MC_RR_INT_LIM, MC_PR_INT_LIM [normalized torque]."""
+    torque_per_normalized_n_m: Annotated[
+        tuple[Annotated[Positive, _within(1000.0, "N m", "a multirotor's torque")], ...],
+        Field(min_length=2, max_length=2),
+    ]
+    """Body torque of a normalized roll or pitch torque of 1 in PX4's control allocation
+    for this airframe [N m] (``sitl authority`` prints it for the configured rotors)."""
+    max_offset_rad: Annotated[Positive, _within(0.5, "rad", "a correction, not a manoeuvre")] = 0.3
+    """Largest offset per axis [rad]."""
+
+
 class Controller(_Section):
     """Gains of the augmented passivity-based controller (eq. tau2)."""
 
@@ -375,6 +403,10 @@ class Controller(_Section):
     joints' feedforward ``Mhat qd_ddot`` answers the body's actual rotation and not the
     tilt asked of PX4, which it realises about a third of (SITL pickup, real PX4 and the
     imitation alike); false: the desired motion on every row, as the paper."""
+    attitude_feedforward: AttitudeFeedforward | None = None
+    """Offset the commanded roll and pitch so that PX4's attitude loop makes the torque the
+    model needs on the tilt rows (the arm's reaction and the shifted CoM); absent: the tilt
+    of eq. phid is sent as it is (the paper)."""
     sliding_mode: SlidingMode
 
 

@@ -17,7 +17,9 @@ and send the result to PX4 (or the plant) and the servos. The pieces are the pap
   paper's configs),
 - the small-angle tilt mapping (eq. phid) and PX4's relative thrust (:class:`ThrustModel`),
   with the tilt fed back as the attitude reference through a third-order filter
-  (:class:`TiltReference`).
+  (:class:`TiltReference`); optionally the roll/pitch offset that makes PX4's attitude loop
+  produce the torque the model needs on the tilt rows at the reference attitude
+  (:class:`~companion.attitude_feedforward.AttitudeLoopInverse`).
 
 Compiled and reference paths
 ----------------------------
@@ -35,12 +37,13 @@ the step, in Python, on either path.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
+from companion.attitude_feedforward import AttitudeLoopInverse
 from companion.compiled_step import CompiledStep, frozen_record
 from companion.config import CompanionConfig
 from companion.control import (
@@ -52,7 +55,7 @@ from companion.control import (
     check_control_rate,
     damping_step_ratio,
 )
-from companion.coordinates import HORIZONTAL, JOINTS, N_Q, PHI, POSITION, PSI, THETA
+from companion.coordinates import HORIZONTAL, JOINTS, N_Q, PHI, POSITION, PSI, THETA, TILT
 from companion.estimation import (
     TRANSLATION_AND_JOINT_ROWS,
     Estimate,
@@ -164,6 +167,12 @@ class FlightControl:
             np.array(unactuated) if unactuated and ctl.measured_unactuated_motion else None
         )
         """Rows on which eq. tau2 takes the measured motion (``measured_unactuated_motion``)."""
+        self.attitude_inverse = (
+            None
+            if ctl.attitude_feedforward is None
+            else AttitudeLoopInverse.from_config(ctl.attitude_feedforward)
+        )
+        """PX4's tilt loop inverted (``[controller.attitude_feedforward]``), or None."""
         self.estimator_delay_s = config.estimator.acceleration_delay_s
         """The estimator's delay behind the controller [s] (``acceleration_delay_s``)."""
         self._delayed: DelayedInputs | None = None
@@ -182,8 +191,10 @@ class FlightControl:
                 self.tilt_max_rad,
                 self.compensate_thrust,
                 () if self._unactuated is None else tuple(self._unactuated.tolist()),
+                self.attitude_inverse,
             )
             self.estimator = self._compiled.estimator
+            self.attitude_inverse = self._compiled.attitude_inverse
             self.tilt = self._compiled.tilt
             self.trim = self._compiled.trim
 
@@ -298,6 +309,13 @@ class FlightControl:
             force, float(q[PSI]), float(reference.q[PSI]), self.tilt_max_rad, self.thrust
         )
         self.tilt.step(dt_s, (setpoint.roll_rad, setpoint.pitch_rad))
+        if self.attitude_inverse is not None:
+            offset = self._attitude_offset(dt_s, q, q_dot, reference, theta_hat)
+            setpoint = replace(
+                setpoint,
+                roll_rad=setpoint.roll_rad + float(offset[0]),
+                pitch_rad=setpoint.pitch_rad + float(offset[1]),
+            )
         return ControlOutput(
             tau=tau,
             setpoint=setpoint,
@@ -305,6 +323,28 @@ class FlightControl:
             theta_hat=np.asarray(theta_hat, dtype=np.float64),
             desired=reference,
         )
+
+    def _attitude_offset(
+        self,
+        dt_s: float,
+        q: FloatArray,
+        q_dot: FloatArray,
+        reference: DesiredState,
+        theta_hat: FloatArray,
+    ) -> FloatArray:
+        """Roll/pitch offset [rad] for the torque of eq. tau2's model part on the tilt rows,
+        ``(Mhat qd_ddot + Chat qd_dot + Ghat)[roll, pitch]``, with roll and pitch (and their
+        rates) at the tilt reference, not the measured ones: evaluated at the measured tilt
+        it would cancel the hanging arm's own restoring torque (positive feedback through
+        PX4's loop, unstable with 0.4 kg at 0.41 m)."""
+        assert self.attitude_inverse is not None
+        q_ref, q_dot_ref = q.copy(), q_dot.copy()
+        q_ref[TILT] = reference.q[TILT]
+        q_dot_ref[TILT] = reference.q_dot[TILT]
+        xi = np.append(theta_hat, 1.0)
+        y = self.model.terms(q_ref, q_dot_ref).regressor(reference.q_dot, reference.q_ddot)
+        torque = y[TILT] @ xi
+        return self.attitude_inverse.offset(dt_s, torque)
 
     def _estimate(
         self,

@@ -13,21 +13,33 @@ CA_ROTOR_COUNT the rotors PX4 allocates to; the config's maximum thrust is that 
 COM_OF_LOSS_T  how long PX4 flies on without a setpoint (reported, not checked)
 MC_ROLL_P,     PX4's attitude gains: the bandwidth the companion's tilt commands are
 MC_PITCH_P     followed with (reported in the flight log)
+MC_*RATE_P,    PX4's roll and pitch rate PI, its gain K and integrator limits: with
+_I, _K,        ``[controller.attitude_feedforward]`` the companion inverts PX4's tilt loop
+MC_RR_INT_LIM, (:mod:`companion.attitude_feedforward`), so these and MC_ROLL_P, MC_PITCH_P
+MC_PR_INT_LIM  must be the config's (checked only then)
 ============== ========================================================================
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 
-from companion.config import CompanionConfig
+from companion.config import AttitudeFeedforward, CompanionConfig
 
-__all__ = ["OPTIONAL", "REQUIRED", "VehicleParams", "contradictions"]
+__all__ = ["ATTITUDE_LOOP", "OPTIONAL", "REQUIRED", "VehicleParams", "contradictions"]
 
 REQUIRED = ("THR_MDL_FAC", "MPC_THR_MIN")
 """Parameters every PX4 the companion flies must answer."""
-OPTIONAL = ("CA_ROTOR_COUNT", "COM_OF_LOSS_T", "MC_ROLL_P", "MC_PITCH_P")
+ATTITUDE_LOOP = (
+    *("MC_ROLLRATE_P", "MC_PITCHRATE_P", "MC_ROLLRATE_I", "MC_PITCHRATE_I"),
+    *("MC_ROLLRATE_K", "MC_PITCHRATE_K", "MC_RR_INT_LIM", "MC_PR_INT_LIM"),
+)
+"""PX4's roll and pitch rate loop, which the attitude feed-forward models."""
+OPTIONAL = ("CA_ROTOR_COUNT", "COM_OF_LOSS_T", "MC_ROLL_P", "MC_PITCH_P", *ATTITUDE_LOOP)
 """Parameters checked or reported when the vehicle has them (older PX4 has no CA_*)."""
+GAIN_TOLERANCE = 0.02
+"""Largest relative difference between a PX4 gain and the config's model of it [-]."""
 N_ROTORS = 6
 THR_MDL_FAC_TOLERANCE = 0.02
 """Largest difference between the vehicle's THR_MDL_FAC and the config's [-]."""
@@ -43,6 +55,8 @@ class VehicleParams:
     offboard_loss_timeout_s: float | None = None
     roll_p: float | None = None
     pitch_p: float | None = None
+    attitude_loop: dict[str, float] = field(default_factory=dict)
+    """The :data:`ATTITUDE_LOOP` parameters the vehicle answered, by name."""
 
     @classmethod
     def from_values(cls, values: dict[str, float | None]) -> VehicleParams:
@@ -60,6 +74,11 @@ class VehicleParams:
             offboard_loss_timeout_s=values.get("COM_OF_LOSS_T"),
             roll_p=values.get("MC_ROLL_P"),
             pitch_p=values.get("MC_PITCH_P"),
+            attitude_loop={
+                name: float(value)
+                for name in ATTITUDE_LOOP
+                if (value := values.get(name)) is not None
+            },
         )
 
     def describe(self) -> str:
@@ -94,4 +113,42 @@ def contradictions(params: VehicleParams, scenario: CompanionConfig) -> list[str
         )
     if not 0.0 <= params.thrust_min_relative < 1.0:
         out.append(f"the vehicle's MPC_THR_MIN {params.thrust_min_relative:g} is not in [0, 1)")
+    feedforward = scenario.controller.attitude_feedforward
+    if feedforward is not None:
+        out.extend(_attitude_loop_contradictions(params, feedforward))
+    return out
+
+
+def _attitude_loop_contradictions(params: VehicleParams, model: AttitudeFeedforward) -> list[str]:
+    """Where PX4's roll/pitch loop is not the one ``[controller.attitude_feedforward]``
+    inverts (the offsets would then be wrong by the ratio of the gains)."""
+    loop = {**params.attitude_loop, "MC_ROLL_P": params.roll_p, "MC_PITCH_P": params.pitch_p}
+    missing = [n for n in ("MC_ROLL_P", "MC_PITCH_P", *ATTITUDE_LOOP) if loop.get(n) is None]
+    if missing:
+        return [
+            f"the vehicle does not answer {', '.join(missing)}, which "
+            "[controller.attitude_feedforward] models; remove that section to fly without it"
+        ]
+    out = []
+    for axis, (name, rate) in enumerate((("ROLL", "RR"), ("PITCH", "PR"))):
+        k = loop[f"MC_{name}RATE_K"]
+        assert k is not None
+        expected = (
+            (f"MC_{name}_P", "attitude_p", model.attitude_p[axis], 1.0),
+            (f"MC_{name}RATE_P", "rate_p", model.rate_p[axis], k),
+            (f"MC_{name}RATE_I", "rate_i", model.rate_i[axis], k),
+            (f"MC_{rate}_INT_LIM", "rate_integrator_limit", model.rate_integrator_limit[axis], 1.0),
+        )
+        for param, key, configured, gain in expected:
+            value = loop[param]
+            assert value is not None
+            vehicle = value * gain
+            if not math.isclose(vehicle, configured, rel_tol=GAIN_TOLERANCE, abs_tol=1e-6):
+                times = f" x MC_{name}RATE_K {k:g}" if gain != 1.0 else ""
+                out.append(
+                    f"the vehicle's {param} is {value:g}{times}, but "
+                    f"[controller.attitude_feedforward] {key}[{axis}] is {configured:g}: the "
+                    "offsets would not make the torque they are for; set the config to the "
+                    "vehicle's gains (or remove the section)"
+                )
     return out

@@ -45,6 +45,10 @@ class Authority:
     max_torque_n_m: tuple[float, float, float]
     """Largest torque magnitude per axis with saturated rotors, while the total thrust stays
     at least the hover thrust (else the vehicle sinks) [N m]."""
+    torque_per_normalized_n_m: tuple[float, float, float]
+    """Body torque per unit normalized torque of PX4's allocation, unsaturated, at the
+    believed maximum thrust [N m]: what ``[controller.attitude_feedforward]
+    torque_per_normalized_n_m`` takes (roll, pitch)."""
 
 
 def hover_authority(scenario: Scenario, payload_attached: bool) -> Authority:
@@ -81,6 +85,7 @@ def hover_authority(scenario: Scenario, payload_attached: bool) -> Authority:
                     free = max(free, torque)
             unsaturated[axis] = min(unsaturated[axis], free)
             maximum[axis] = max(maximum[axis], best) if sign > 0 else min(maximum[axis], best)
+    per_unit = mixer.torque_per_normalized_n_m.tolist()
     return Authority(
         mass_kg=mass,
         hover_thrust_n=hover,
@@ -88,4 +93,5 @@ def hover_authority(scenario: Scenario, payload_attached: bool) -> Authority:
         hover_command=u_hover,
         unsaturated_torque_n_m=(unsaturated[0], unsaturated[1], unsaturated[2]),
         max_torque_n_m=(maximum[0], maximum[1], maximum[2]),
+        torque_per_normalized_n_m=(per_unit[0], per_unit[1], per_unit[2]),
     )

@@ -69,6 +69,12 @@ def authority(
     ]
     for i, axis in enumerate(("roll", "pitch", "yaw")):
         rows.append((f"{axis} torque, unsaturated / max [N m]", _torque_cell(i)))
+    rows.append(
+        (
+            "torque per normalized torque 1, roll / pitch / yaw [N m]",
+            lambda a: " / ".join(f"{t:.3f}" for t in a.torque_per_normalized_n_m),
+        )
+    )
     for label, fmt in rows:
         table.add_row(escape(label), fmt(empty), fmt(loaded))
     Console().print(table)
