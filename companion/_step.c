@@ -18,7 +18,8 @@
  *   5. the attitude/thrust setpoint (eq. phid, thrust model), then the tilt reference's
  *      step toward the new roll and pitch,
  *   6. if Params.ff_on, the roll/pitch offset of PX4's tilt loop inverted for the model's
- *      torque on the tilt rows at the reference attitude (companion.attitude_feedforward).
+ *      torque on the tilt rows at the reference attitude, low-passed
+ *      (companion.attitude_feedforward).
  * The Python classes (companion.estimation, companion.control, companion.trajectory,
  * companion.setpoints) are the reference; tests/test_compiled_step.py compares the two.
  *
@@ -74,6 +75,7 @@ typedef struct {
     double ff_on;           /* 1: AttitudeLoopInverse, with (roll, pitch) pairs: */
     double ff_att_p[2], ff_rate_p[2], ff_rate_i[2], ff_int_lim[2], ff_torque[2];
     double ff_max;          /* its offset limit [rad] */
+    double ff_tf;           /* its torque filter's time constant [s] */
 } Params;
 
 typedef struct {
@@ -91,6 +93,7 @@ typedef struct {
     double ring_len, ring_head; /* the monitor's m2 and lc windows, at `ring` */
     double tilt_x[2], tilt_v[2], tilt_a[2];
     double trim_force[2], trim_active;
+    double ff_torque_f[2];  /* AttitudeLoopInverse.torque_n_m (low-passed) */
     double ff_int[2];       /* AttitudeLoopInverse.integral */
     double ring[];          /* m2 window, then lc window (window_samples each) */
 } State;
@@ -590,10 +593,12 @@ static int control_step(const Params *P, State *S, double dt, int skip, const do
         }
         mcg_eval(fq, fqd, P->model, pieces);
         regress(pieces, rqd, rqdd, yt);
+        double alpha = dt / (P->ff_tf + dt);
         for (int i = 0; i < 2; ++i) {
             double torque = 0.0;
             for (int k = 0; k < 4; ++k) torque += yt[8 * k + 3 + i] * xi[k];
-            double v = (torque / P->ff_torque[i] - S->ff_int[i]) / P->ff_rate_p[i];
+            S->ff_torque_f[i] = S->ff_torque_f[i] + alpha * (torque - S->ff_torque_f[i]);
+            double v = (S->ff_torque_f[i] / P->ff_torque[i] - S->ff_int[i]) / P->ff_rate_p[i];
             double e = py_min(py_max(v / P->ff_att_p[i], -P->ff_max), P->ff_max);
             v = P->ff_att_p[i] * e;
             double integral = S->ff_int[i] + P->ff_rate_i[i] * v * dt;
@@ -833,7 +838,7 @@ static int add_offsets(PyObject *m)
     FIELD(Params, trim_gain, 1); FIELD(Params, trim_limit, 1);
     FIELD(Params, ff_on, 1); FIELD(Params, ff_att_p, 2); FIELD(Params, ff_rate_p, 2);
     FIELD(Params, ff_rate_i, 2); FIELD(Params, ff_int_lim, 2); FIELD(Params, ff_torque, 2);
-    FIELD(Params, ff_max, 1);
+    FIELD(Params, ff_max, 1); FIELD(Params, ff_tf, 1);
     FIELD(State, theta, 3); FIELD(State, frozen, 1); FIELD(State, thrust_scale, 1);
     FIELD(State, scale_held, 1); FIELD(State, calibrating, 1); FIELD(State, s_comp, 1);
     FIELD(State, skipped, N_SKIP); FIELD(State, qhat_valid, 1); FIELD(State, qhat, NQ);
@@ -842,6 +847,7 @@ static int add_offsets(PyObject *m)
     FIELD(State, samples, 1); FIELD(State, ring_len, 1); FIELD(State, ring_head, 1);
     FIELD(State, tilt_x, 2); FIELD(State, tilt_v, 2); FIELD(State, tilt_a, 2);
     FIELD(State, trim_force, 2); FIELD(State, trim_active, 1); FIELD(State, ff_int, 2);
+    FIELD(State, ff_torque_f, 2);
     FIELD(State, ring, 0);
 #undef FIELD
     if (PyModule_AddIntConstant(m, "PARAMS_SIZE", sizeof(Params) / sizeof(double)) < 0

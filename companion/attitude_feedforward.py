@@ -17,9 +17,13 @@ to the commanded roll and pitch (``k_a e = (d / T - I) / k_p``), and integrates 
 copy of the part of PX4's integrator that the offset drives (``dI/dt = k_i k_a e``; PX4's
 loop is linear there, so the rest of its integrator answers the rest of the error as
 before). A copy started at zero converges to PX4's with the time constant ``k_p / k_i``
-(0.75 s with PX4's defaults). PX4's damping of the reference's own rate (the ``w`` term)
-is left alone: compensated too, it made the lateral loop oscillate at 0.8 Hz, growing, in
-a SITL pickup of 0.4 kg (125 Hz control on PX4's pose stream).
+(0.75 s with PX4's defaults; the flight app steps the control from the ground on, so a
+steady torque's offset has faded by the OFFBOARD handover). PX4's damping of the
+reference's own rate (the ``w`` term) is left alone: compensated too, it made the lateral
+loop oscillate at 0.8 Hz, growing, in a SITL pickup of 0.4 kg (125 Hz control on PX4's pose
+stream). The torque is low-passed (``torque_filter_s``): it holds the body's and the arm's
+inertia times the tilt reference's acceleration, a lead that, unfiltered, kept the arm and
+the commanded pitch in a 10 Hz oscillation (+-0.5 rad) under the real PX4 in the loop.
 
 Small angles: roll and pitch rows' generalized forces are taken as body torques (FLU x, y).
 Pure (no I/O, no clock).
@@ -59,6 +63,8 @@ class AttitudeLoopInverse:
         Body torque of a normalized roll or pitch torque of 1 on this airframe [N m].
     max_offset_rad : float
         Largest offset per axis [rad].
+    torque_filter_s : float
+        Time constant of the first-order low-pass on the torque [s].
     """
 
     def __init__(
@@ -69,6 +75,7 @@ class AttitudeLoopInverse:
         integrator_limit: ArrayLike,
         torque_per_normalized_n_m: ArrayLike,
         max_offset_rad: float,
+        torque_filter_s: float,
     ) -> None:
         self.attitude_p = _pair(attitude_p, "attitude_p")
         self.rate_p = _pair(rate_p, "rate_p")
@@ -87,9 +94,11 @@ class AttitudeLoopInverse:
             raise ValueError("rate_i and integrator_limit must not be negative")
         if not max_offset_rad > 0.0:
             raise ValueError("max_offset_rad must be positive")
+        if not torque_filter_s > 0.0:
+            raise ValueError("torque_filter_s must be positive")
         self.max_offset_rad = float(max_offset_rad)
-        self.integral = np.zeros(2)
-        """The copy of PX4's rate integrator driven by the offsets [normalized torque]."""
+        self.torque_filter_s = float(torque_filter_s)
+        self.reset()
 
     @classmethod
     def from_config(cls, section: AttitudeFeedforward) -> AttitudeLoopInverse:
@@ -101,16 +110,23 @@ class AttitudeLoopInverse:
             section.rate_integrator_limit,
             section.torque_per_normalized_n_m,
             section.max_offset_rad,
+            section.torque_filter_s,
         )
 
     def reset(self) -> None:
-        """Forget the integrator copy (PX4 reset its own: a new flight)."""
+        """Start from no torque and an empty integrator copy."""
+        self.torque_n_m = np.zeros(2)
+        """The low-passed torque (roll, pitch) [N m]."""
         self.integral = np.zeros(2)
+        """The copy of PX4's rate integrator driven by the offsets [normalized torque]."""
 
     def offset(self, dt_s: float, torque_n_m: FloatArray) -> FloatArray:
         """Offset (roll, pitch) [rad] for the body torque ``torque_n_m`` (FLU x, y) [N m]
-        the rotors must make; advances the integrator copy by ``dt_s`` [s]."""
-        v = (torque_n_m / self.torque_per_normalized_n_m - self.integral) / self.rate_p
+        the rotors must make, low-passed; advances the filter and the integrator copy by
+        ``dt_s`` [s]."""
+        alpha = dt_s / (self.torque_filter_s + dt_s)
+        self.torque_n_m = self.torque_n_m + alpha * (torque_n_m - self.torque_n_m)
+        v = (self.torque_n_m / self.torque_per_normalized_n_m - self.integral) / self.rate_p
         e = np.clip(v / self.attitude_p, -self.max_offset_rad, self.max_offset_rad)
         v = self.attitude_p * e
         self.integral = np.clip(

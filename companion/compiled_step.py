@@ -230,6 +230,7 @@ class _CompiledTrim(_Backed, HorizontalTrim):
 class _CompiledAttitudeInverse(_Backed, AttitudeLoopInverse):
     """The tilt loop inverse whose integrator copy the C step advances."""
 
+    torque_n_m = _Field("_state", "State.ff_torque_f", shape=(2,))
     integral = _Field("_state", "State.ff_int", shape=(2,))
 
     def offset(self, dt_s: float, torque_n_m: FloatArray) -> FloatArray:
@@ -247,7 +248,7 @@ _STATE_ATTRIBUTES = {
     _CompiledMonitor: ("info", "excitation", "spread"),
     _CompiledTilt: ("w", "x", "v", "a"),
     _CompiledTrim: ("gain", "limit", "force_n"),
-    _CompiledAttitudeInverse: ("integral",),
+    _CompiledAttitudeInverse: ("torque_n_m", "integral"),
 }
 """Per class, the attributes moved into the buffers."""
 _DROPPED = ("_m2", "_lc", "_since_sample", "_samples")
@@ -338,6 +339,7 @@ class CompiledStep:
                 ff_int_lim=attitude_inverse.integrator_limit,
                 ff_torque=attitude_inverse.torque_per_normalized_n_m,
                 ff_max=attitude_inverse.max_offset_rad,
+                ff_tf=attitude_inverse.torque_filter_s,
             )
         scale = estimator.scale
         if scale is not None:

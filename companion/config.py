@@ -379,6 +379,8 @@ class AttitudeFeedforward(_Section):
     for this airframe [N m] (``sitl authority`` prints it for the configured rotors)."""
     max_offset_rad: Annotated[Positive, _within(0.5, "rad", "a correction, not a manoeuvre")] = 0.3
     """Largest offset per axis [rad]."""
+    torque_filter_s: TimeConstant = 0.05
+    """Time constant of the first-order low-pass on the torque the offset is for [s]."""
 
 
 class Controller(_Section):

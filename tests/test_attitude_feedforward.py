@@ -71,7 +71,7 @@ def pitch_against_a_disturbance(offsets: bool, duration_s: float = 30.0) -> np.n
 def test_the_offset_makes_px4s_loop_hold_the_attitude_against_the_torque():
     """GIVEN PX4's loop (the SITL's) holding level against a slow disturbance torque
     WHEN the companion adds the offset for that torque to the commanded pitch
-    THEN the held pitch error falls from 0.16 rad to 0.001 rad (measured)."""
+    THEN the held pitch error falls from 0.16 rad to 0.005 rad (measured)."""
     without = pitch_against_a_disturbance(offsets=False)
     with_offset = pitch_against_a_disturbance(offsets=True)
     settled = slice(5000, None)
@@ -108,6 +108,7 @@ def inverse(**changes) -> AttitudeLoopInverse:
         "integrator_limit": (0.3, 0.3),
         "torque_per_normalized_n_m": (3.16, 3.16),
         "max_offset_rad": 0.3,
+        "torque_filter_s": 1e-6,
     }
     values.update(changes)
     return AttitudeLoopInverse(**values)
@@ -120,7 +121,9 @@ def test_a_constant_torque_is_left_to_px4s_integrator():
     loop = inverse()
     dt = 1e-3
     first = loop.offset(dt, np.array([0.5, -0.5]))
-    np.testing.assert_allclose(first, [0.5 / (3.16 * 0.15 * 4.0), -0.5 / (3.16 * 0.15 * 4.0)])
+    np.testing.assert_allclose(
+        first, [0.5 / (3.16 * 0.15 * 4.0), -0.5 / (3.16 * 0.15 * 4.0)], rtol=2e-3
+    )
     for _ in range(round(0.75 / dt)):
         e = loop.offset(dt, np.array([0.5, -0.5]))
     np.testing.assert_allclose(e, first * math.exp(-1.0), rtol=0.01)
@@ -130,6 +133,17 @@ def test_a_constant_torque_is_left_to_px4s_integrator():
     np.testing.assert_allclose(loop.integral, [0.5 / 3.16, -0.5 / 3.16], rtol=1e-3)
     loop.reset()
     assert np.array_equal(loop.integral, [0.0, 0.0])
+    assert np.array_equal(loop.torque_n_m, [0.0, 0.0])
+
+
+def test_the_torque_is_low_passed_with_its_time_constant():
+    loop = inverse(torque_filter_s=0.05, rate_i=(0.0, 0.0))
+    dt = 1e-3
+    for _ in range(50):
+        e = loop.offset(dt, np.array([0.2, 0.4]))
+    step = 1.0 - math.exp(-1.0)
+    np.testing.assert_allclose(loop.torque_n_m, [0.2 * step, 0.4 * step], rtol=0.01)
+    np.testing.assert_allclose(e, loop.torque_n_m / (3.16 * 0.15 * 4.0))
 
 
 def test_offset_and_integrator_copy_are_limited_as_px4s():
@@ -149,6 +163,7 @@ def test_offset_and_integrator_copy_are_limited_as_px4s():
         {"rate_i": (-0.1, 0.2)},
         {"torque_per_normalized_n_m": (math.nan, 3.0)},
         {"max_offset_rad": 0.0},
+        {"torque_filter_s": 0.0},
     ],
 )
 def test_bad_loop_values_are_refused(changes):

