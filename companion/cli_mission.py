@@ -306,6 +306,7 @@ def plan_for(scenario: CompanionConfig, payload_at, place_at, cruise_altitude: f
         place_at_m=place_at,
         cruise_altitude_m=cruise_altitude,
         stow_joints_rad=tuple(stow),  # type: ignore[arg-type]
+        excite_eta1_rad=scenario.flight.excite_eta1_rad,
     )
 
 

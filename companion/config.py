@@ -537,6 +537,9 @@ class Flight(_Section):
     )
     """(eta1, eta2) the arm is held at outside the mission (take-off, home, landing)
     [rad]: link 1 forward, link 2 down."""
+    excite_eta1_rad: Annotated[Positive, _within(1.0, "rad", "a swing that stays clear")] = 0.5
+    """Amplitude of joint 1's swing in the mission's excitation [rad] (what the estimator
+    learns m3 and m4 from)."""
     global_origin_deg_m: Vec3 = (47.397742, 8.545594, 488.0)
     """(latitude [deg], longitude [deg], altitude AMSL [m]) the app sets as PX4's global
     origin when the vehicle has none (no GPS: motion capture indoors); PX4 SITL's default

@@ -233,3 +233,14 @@ def test_a_point_below_where_the_vehicle_stands_is_out_of_reach():
     assert why is not None and why.startswith("the object at z = ") and "reach" in why
     low_place = PickupMission(replace(PLAN, place_at_m=(*PLAN.place_at_m[:2], -1.0)), SCENARIO)
     assert "place point" in (low_place.unreachable(gear_m, 0.03) or "")
+
+
+def test_the_configs_swing_amplitude_reaches_the_plan():
+    """``[flight] excite_eta1_rad`` (0.7 in sitl_pickup.toml, 0.5 by default) is the
+    amplitude of joint 1 in the excitation the mission flies."""
+    from companion.cli_mission import plan_for
+
+    for name, amplitude in (("sitl_pickup.toml", 0.7), ("px4_sih_pickup.toml", 0.5)):
+        config = load_config(f"configs/{name}")
+        plan = plan_for(config, (1.5, 1.0, 0.05), (-1.0, 0.5, 0.05), 1.5)
+        assert plan.excite_eta1_rad == amplitude
