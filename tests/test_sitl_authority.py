@@ -32,10 +32,23 @@ def test_authority_is_positive_and_ordered() -> None:
     assert loaded.unsaturated_torque_n_m[1] > empty.unsaturated_torque_n_m[1]
 
 
+def test_torque_per_normalized_torque_is_pxs_allocation_for_the_rotors() -> None:
+    """The figure [controller.attitude_feedforward] takes: for the Firefly layout (0.215 m
+    arms, 6 N rotors) a normalized roll or pitch torque of 1 is 3.16 N m, whatever the
+    payload; a small torque command around hover makes that much body torque."""
+    cfg = load_scenario(CONFIGS / "paper_sim.toml")
+    empty, loaded = hover_authority(cfg, False), hover_authority(cfg, True)
+    assert empty.torque_per_normalized_n_m == loaded.torque_per_normalized_n_m
+    roll, pitch, _ = loaded.torque_per_normalized_n_m
+    assert roll == pytest.approx(3.16, rel=2e-3) and pitch == pytest.approx(3.16, rel=2e-3)
+    assert loaded.unsaturated_torque_n_m[1] < pitch  # saturates before a command of 1
+
+
 def test_cli_authority_prints_table_and_rejects_bad_config(run_sitl, tmp_path: Path) -> None:
     ok = run_sitl("authority", "--config", str(CONFIGS / "paper_sim.toml"))
     assert ok.returncode == 0, ok.stderr
     assert "pitch torque" in ok.stdout
+    assert "torque per normalized" in ok.stdout and "3.160 / 3.160" in ok.stdout
     bad = tmp_path / "bad.toml"
     bad.write_text("name = 1\n")
     result = run_sitl("authority", "--config", str(bad))
