@@ -16,6 +16,13 @@ passivity + paper estimator, passivity + RLS, and the adaptive sliding-mode cont
   best of ``--repeat``; the truth plant's own cost is printed by
   ``benchmarks/bench_plant.py``.
 
+``--gap-ms G`` also times the compiled step over its first 1000 calls with a sleep of G ms
+before each (the flight loop sleeps between poses, 8 ms at 125 Hz): what a step costs when
+the core has been idle. On the 2-core VM of 2 Dec 2026 the step of ``sitl_pickup.toml``
+took 14-15 us back to back and 200-290 us after an 8 ms sleep (176 us with
+``/dev/cpu_dma_latency`` held at 0): the wake-up, not the code, dominates the flight loop's
+pose -> setpoint latency there.
+
 ``--cpu N`` pins the process to core N (``os.sched_setaffinity``); ``--scale F`` also
 prints every figure multiplied by F, labelled as scaled, for a slower computer (a
 Raspberry Pi 4 runs this Python 3-5 times slower than the development machine; nothing
@@ -67,9 +74,11 @@ def record(scenario: Scenario, options: SimOptions) -> list[tuple]:
     return calls
 
 
-def replay(scenario: Scenario, options: SimOptions, calls: list[tuple], compiled: bool):
+def replay(
+    scenario: Scenario, options: SimOptions, calls: list[tuple], compiled: bool, gap_s: float = 0.0
+):
     """Microseconds per step of a fresh FlightControl over the recorded calls (None if
-    this law has no compiled step)."""
+    this law has no compiled step), each after a sleep of ``gap_s`` [s] if positive."""
     control = FlightControl(
         scenario.beliefs,
         options.controller,
@@ -84,6 +93,8 @@ def replay(scenario: Scenario, options: SimOptions, calls: list[tuple], compiled
     clock = time.perf_counter_ns
     step = control.step
     for i, (dt_s, state, desired, applied) in enumerate(calls):
+        if gap_s > 0.0:
+            time.sleep(gap_s)
         start = clock()
         step(dt_s, state, desired, applied)
         us[i] = (clock() - start) / 1e3
@@ -116,6 +127,7 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--cpu", type=int, default=None, help="pin to this core")
     parser.add_argument("--scale", type=float, default=None, help="also print figures x F")
+    parser.add_argument("--gap-ms", type=float, default=0.0, help="also time after G ms idle")
     args = parser.parse_args()
     if args.cpu is not None:
         os.sched_setaffinity(0, {args.cpu})
@@ -136,6 +148,11 @@ def main() -> None:
         calls = record(scenario, options)
         fast = replay(scenario, options, calls, compiled=True)
         slow = replay(scenario, options, calls, compiled=False)
+        idle = (
+            replay(scenario, options, calls[:1000], compiled=True, gap_s=args.gap_ms / 1e3)
+            if args.gap_ms > 0.0
+            else None
+        )
         wall, result = best_run(scenario, options, args.repeat)
         sim = result.column("step_time_us")
         sim = sim[~np.isnan(sim)]
@@ -145,6 +162,8 @@ def main() -> None:
         print(f"{label}:")
         print(f"  step  {show('compiled', fast)}   {show('python', slow)}")
         print(f"  {show('sim step (filter + step)', sim)}   {walls}")
+        if args.gap_ms > 0.0 and fast is not None:
+            print(f"  step  {show(f'compiled after {args.gap_ms:g} ms idle', idle)}")
 
 
 if __name__ == "__main__":
