@@ -122,8 +122,9 @@ def contradictions(params: VehicleParams, scenario: CompanionConfig) -> list[str
 def _attitude_loop_contradictions(params: VehicleParams, model: AttitudeFeedforward) -> list[str]:
     """Where PX4's roll/pitch loop is not the one ``[controller.attitude_feedforward]``
     inverts (the offsets would then be wrong by the ratio of the gains)."""
-    loop = {**params.attitude_loop, "MC_ROLL_P": params.roll_p, "MC_PITCH_P": params.pitch_p}
-    missing = [n for n in ("MC_ROLL_P", "MC_PITCH_P", *ATTITUDE_LOOP) if loop.get(n) is None]
+    answered = {**params.attitude_loop, "MC_ROLL_P": params.roll_p, "MC_PITCH_P": params.pitch_p}
+    loop = {name: value for name, value in answered.items() if value is not None}
+    missing = [n for n in ("MC_ROLL_P", "MC_PITCH_P", *ATTITUDE_LOOP) if n not in loop]
     if missing:
         return [
             f"the vehicle does not answer {', '.join(missing)}, which "
@@ -132,19 +133,22 @@ def _attitude_loop_contradictions(params: VehicleParams, model: AttitudeFeedforw
     out = []
     for axis, (name, rate) in enumerate((("ROLL", "RR"), ("PITCH", "PR"))):
         k = loop[f"MC_{name}RATE_K"]
-        assert k is not None
-        expected = (
-            (f"MC_{name}_P", "attitude_p", model.attitude_p[axis], 1.0),
-            (f"MC_{name}RATE_P", "rate_p", model.rate_p[axis], k),
-            (f"MC_{name}RATE_I", "rate_i", model.rate_i[axis], k),
-            (f"MC_{rate}_INT_LIM", "rate_integrator_limit", model.rate_integrator_limit[axis], 1.0),
+        expected = (  # (parameter, the section's key, its value, scaled by the rate K)
+            (f"MC_{name}_P", "attitude_p", model.attitude_p[axis], False),
+            (f"MC_{name}RATE_P", "rate_p", model.rate_p[axis], True),
+            (f"MC_{name}RATE_I", "rate_i", model.rate_i[axis], True),
+            (
+                f"MC_{rate}_INT_LIM",
+                "rate_integrator_limit",
+                model.rate_integrator_limit[axis],
+                False,
+            ),
         )
-        for param, key, configured, gain in expected:
+        for param, key, configured, scaled in expected:
             value = loop[param]
-            assert value is not None
-            vehicle = value * gain
+            vehicle = value * k if scaled else value
             if not math.isclose(vehicle, configured, rel_tol=GAIN_TOLERANCE, abs_tol=1e-6):
-                times = f" x MC_{name}RATE_K {k:g}" if gain != 1.0 else ""
+                times = f" x MC_{name}RATE_K {k:g}" if scaled and k != 1.0 else ""
                 out.append(
                     f"the vehicle's {param} is {value:g}{times}, but "
                     f"[controller.attitude_feedforward] {key}[{axis}] is {configured:g}: the "
