@@ -698,57 +698,159 @@ static double wrap_angle(double a)
     return w >= PI ? w - 2.0 * PI : w; /* (a + pi) % 2 pi can round up to 2 pi */
 }
 
+/* The scalar updates of every column (n of them) of X with G; 0 with an exception set (X
+ * unchanged) if W[0] is not finite or a column of `wrap` is out of range. */
+static int fuse_columns(double *X, Py_ssize_t n, const double *G, PyObject *wrap)
+{
+    double W[25 * NQ], total = 0.0;
+    for (int i = 0; i < 25; ++i)
+        for (Py_ssize_t c = 0; c < n; ++c) {
+            double acc = 0.0;
+            for (int k = 0; k < N_STACK; ++k) acc += G[N_STACK * i + k] * X[n * k + c];
+            W[n * i + c] = acc;
+        }
+    for (Py_ssize_t c = 0; c < n; ++c) total += W[c];
+    if (!isfinite(total)) {
+        PyErr_SetString(PyExc_ValueError, "measurement or state is not finite");
+        return 0;
+    }
+    for (Py_ssize_t j = 0; j < PyTuple_GET_SIZE(wrap); ++j) {
+        Py_ssize_t c = PyLong_AsSsize_t(PyTuple_GET_ITEM(wrap, j));
+        if (c < 0 || c >= n) {
+            if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "wrap: column out of range");
+            return 0;
+        }
+        double a = W[c];
+        if (!(-PI <= a && a < PI)) W[c] = W[4 * n + c] = W[8 * n + c] = wrap_angle(a);
+    }
+    for (int i = 0; i < 3; ++i)
+        for (int cc = 0; cc < 4; ++cc)
+            for (Py_ssize_t c = 0; c < n; ++c) {
+                double neg_k = W[n * (12 + 4 * i + cc) + c] / W[24 * n + c];
+                X[n * (4 * i + cc) + c] += neg_k * W[n * (4 * i + cc) + c];
+            }
+    return 1;
+}
+
+static int stacked_columns(const Py_buffer *x, Py_ssize_t *n)
+{
+    *n = x->len / (Py_ssize_t)(N_STACK * sizeof(double));
+    if (*n >= 1 && *n <= NQ && x->len == *n * N_STACK * (Py_ssize_t)sizeof(double)) return 1;
+    PyErr_SetString(PyExc_ValueError, "X must hold 17 x n float64 values, 1 <= n <= 8");
+    return 0;
+}
+
 static PyObject *py_fuse(PyObject *self, PyObject *args)
 {
     Py_buffer g, x;
     PyObject *xo, *go, *wrap, *result = NULL;
+    Py_ssize_t n;
     if (!PyArg_ParseTuple(args, "OOO!", &xo, &go, &PyTuple_Type, &wrap)) return NULL;
     if (!get_doubles(xo, &x, -1, "X", 1)) return NULL;
     if (!get_doubles(go, &g, 25 * N_STACK, "G", 0)) {
         PyBuffer_Release(&x);
         return NULL;
     }
-    Py_ssize_t n = x.len / (Py_ssize_t)(N_STACK * sizeof(double));
-    if (n >= 1 && n <= NQ && x.len == n * N_STACK * (Py_ssize_t)sizeof(double)) {
-        const double *G = (const double *)g.buf;
-        double *X = (double *)x.buf, W[25 * NQ];
-        double total = 0.0;
-        for (int i = 0; i < 25; ++i)
-            for (Py_ssize_t c = 0; c < n; ++c) {
-                double acc = 0.0;
-                for (int k = 0; k < N_STACK; ++k) acc += G[N_STACK * i + k] * X[n * k + c];
-                W[n * i + c] = acc;
-            }
-        for (Py_ssize_t c = 0; c < n; ++c) total += W[c];
-        if (!isfinite(total)) {
-            PyErr_SetString(PyExc_ValueError, "measurement or state is not finite");
-        } else {
-            int ok = 1;
-            for (Py_ssize_t j = 0; ok && j < PyTuple_GET_SIZE(wrap); ++j) {
-                Py_ssize_t c = PyLong_AsSsize_t(PyTuple_GET_ITEM(wrap, j));
-                if (c < 0 || c >= n) {
-                    if (!PyErr_Occurred())
-                        PyErr_SetString(PyExc_ValueError, "wrap: column out of range");
-                    ok = 0;
-                    break;
-                }
-                double a = W[c];
-                if (!(-PI <= a && a < PI)) W[c] = W[4 * n + c] = W[8 * n + c] = wrap_angle(a);
-            }
-            if (ok) {
-                for (int i = 0; i < 3; ++i)
-                    for (int cc = 0; cc < 4; ++cc)
-                        for (Py_ssize_t c = 0; c < n; ++c) {
-                            double neg_k = W[n * (12 + 4 * i + cc) + c] / W[24 * n + c];
-                            X[n * (4 * i + cc) + c] += neg_k * W[n * (4 * i + cc) + c];
-                        }
-                result = Py_NewRef(Py_None);
-            }
-        }
-    } else {
-        PyErr_SetString(PyExc_ValueError, "X must hold 17 x n float64 values, 1 <= n <= 8");
-    }
+    if (stacked_columns(&x, &n) && fuse_columns((double *)x.buf, n, (const double *)g.buf, wrap))
+        result = Py_NewRef(Py_None);
     PyBuffer_Release(&g);
+    PyBuffer_Release(&x);
+    return result;
+}
+
+/* StateFilter._measurement_matrix: the (25 x 17) G of a measurement of derivative `order`
+ * taken `latency` ago, its variance in stacked row `r_row` (the same values as the numpy
+ * construction). */
+#define X_Z 13
+#define X_R_POS 14
+#define X_R_CALL 16
+#define R_UNMEASURED 1e150
+static void measurement_matrix(int order, double latency, int r_row, double *G)
+{
+    double dt = -latency, h[3], v[4][N_STACK];
+    if (order == 0) {
+        h[0] = 1.0; h[1] = dt; h[2] = 0.5 * dt * dt;
+    } else {
+        h[0] = 0.0; h[1] = 1.0; h[2] = dt;
+    }
+    memset(v, 0, sizeof v);
+    for (int i = 0; i < 3; ++i) v[0][4 * i] = h[i];
+    v[0][X_Z] = -1.0;
+    for (int j = 0; j < 3; ++j)
+        for (int i = 0; i < 3; ++i) v[1 + j][4 * j + 1 + i] = h[i];
+    memset(G, 0, 25 * N_STACK * sizeof(double));
+    for (int i = 0; i < 3; ++i) {
+        for (int r = 0; r < 4; ++r) {
+            memcpy(G + N_STACK * (4 * i + r), v[r], sizeof v[r]);
+            memcpy(G + N_STACK * (12 + 4 * i + r), v[1 + i], sizeof v[r]);
+        }
+        for (int j = 0; j < 3; ++j) G[N_STACK * 24 + 4 * i + 1 + j] = -h[i] * h[j];
+    }
+    G[N_STACK * 24 + r_row] = -1.0;
+}
+
+/* StateFilter._update's common case (default variance, every row initialised) in one call:
+ * the measurement into X's row 13 on the measured columns, their default variance (row 14
+ * + order) into row 16 and 1e150 elsewhere unless every column is measured in order, G,
+ * and the scalar updates. On a non-finite measurement or state, or a bad latency, X's
+ * row 13 is zeroed (as the reference's) and ValueError raised. */
+static PyObject *py_update(PyObject *self, PyObject *args)
+{
+    PyObject *xo, *rows, *zo, *wrap, *zseq = NULL, *result = NULL;
+    int order;
+    double latency, z[NQ], G[25 * N_STACK];
+    Py_buffer x;
+    Py_ssize_t n, k;
+    if (!PyArg_ParseTuple(args, "OidO!OO!", &xo, &order, &latency, &PyTuple_Type, &rows, &zo,
+                          &PyTuple_Type, &wrap))
+        return NULL;
+    if (order != 0 && order != 1) {
+        PyErr_SetString(PyExc_ValueError, "order must be 0 or 1");
+        return NULL;
+    }
+    if (!get_doubles(xo, &x, -1, "X", 1)) return NULL;
+    if (!stacked_columns(&x, &n)) goto done;
+    k = PyTuple_GET_SIZE(rows);
+    zseq = PySequence_Fast(zo, "the measurement must be a sequence of numbers");
+    if (!zseq) goto done;
+    if (k < 1 || k > n || PySequence_Fast_GET_SIZE(zseq) != k) {
+        PyErr_Format(PyExc_ValueError, "measurement must have shape (%zd,), got %zd values", k,
+                     PySequence_Fast_GET_SIZE(zseq));
+        goto done;
+    }
+    int col[NQ], measured[NQ] = {0}, in_order = (k == n);
+    for (Py_ssize_t i = 0; i < k; ++i) {
+        Py_ssize_t c = PyLong_AsSsize_t(PyTuple_GET_ITEM(rows, i));
+        if (c < 0 || c >= n || measured[c]) {
+            if (!PyErr_Occurred())
+                PyErr_SetString(PyExc_ValueError, "rows must lie in [0, n) and not repeat");
+            goto done;
+        }
+        z[i] = PyFloat_AsDouble(PySequence_Fast_GET_ITEM(zseq, i));
+        if (z[i] == -1.0 && PyErr_Occurred()) goto done;
+        col[i] = (int)c;
+        measured[c] = 1;
+        in_order = in_order && c == i;
+    }
+    double *X = (double *)x.buf;
+    for (Py_ssize_t i = 0; i < k; ++i) X[n * X_Z + col[i]] = z[i];
+    int r_row = X_R_POS + order;
+    if (!in_order) {
+        for (Py_ssize_t c = 0; c < n; ++c)
+            X[n * X_R_CALL + c] = measured[c] ? X[n * (X_R_POS + order) + c] : R_UNMEASURED;
+        r_row = X_R_CALL;
+    }
+    if (!(isfinite(latency) && latency >= 0.0)) {
+        PyErr_Format(PyExc_ValueError, "latency_s must be finite and >= 0, got %R",
+                     PyTuple_GET_ITEM(args, 2));
+    } else {
+        measurement_matrix(order, latency, r_row, G);
+        if (fuse_columns(X, n, G, wrap)) result = Py_NewRef(Py_None);
+    }
+    if (!result)
+        for (Py_ssize_t c = 0; c < n; ++c) X[n * X_Z + c] = 0.0;
+done:
+    Py_XDECREF(zseq);
     PyBuffer_Release(&x);
     return result;
 }
@@ -799,6 +901,9 @@ static PyMethodDef methods[] = {
      "predict(A, X, X_next): the state filter's prediction product X_next = A X."},
     {"fuse", py_fuse, METH_VARARGS,
      "fuse(X, G, wrap): the state filter's scalar updates of every column of X, in place."},
+    {"update", py_update, METH_VARARGS,
+     "update(X, order, latency_s, rows, z, wrap): the state filter's update with the "
+     "default variance, in place (G built here)."},
     {NULL, NULL, 0, NULL}
 };
 

@@ -180,6 +180,8 @@ class _Selection:
 
     idx: NDArray[np.intp]
     """The measured rows, in the order of the measurement vector."""
+    rows: tuple[int, ...]
+    """``idx`` as a tuple (the compiled update's argument)."""
     columns: slice | NDArray[np.intp]
     """``idx`` as a slice when the rows are contiguous and increasing (faster)."""
     all_rows: bool
@@ -282,6 +284,9 @@ class StateFilter:
         """The scalar updates of every column: C, or the numpy reference."""
         self._propagate = _propagate if native is None else native.predict
         """The prediction product ``X_next = A X``: C, or the numpy reference."""
+        self._native_update = None if native is None else native.update
+        """The common update (default variance, every row started) in one C call, or None:
+        the numpy steps of :meth:`_update` then run, which stay its reference."""
 
     # -- properties -------------------------------------------------------------------
 
@@ -317,6 +322,16 @@ class StateFilter:
                     q[r] = _wrap_scalar(a)
         out.flags.writeable = False
         return FilteredState(out[0], out[1], out[2])
+
+    def value(self, row: int) -> float:
+        """The estimate of row ``row`` of q, as :attr:`estimate` reports it (without
+        building the whole estimate). FilterNotReadyError before :attr:`ready`."""
+        if not self._ready:
+            return float(self.estimate.q[row])  # raises
+        a = float(self._X[0, row])
+        if self._is_angle[row] and not -math.pi <= a < math.pi:
+            return _wrap_scalar(a)
+        return a
 
     @property
     def std(self) -> FilteredState:
@@ -515,6 +530,7 @@ class StateFilter:
         contiguous = bool(np.array_equal(idx, np.arange(first, first + idx.size)))
         sel = _Selection(
             idx=idx,
+            rows=tuple(idx.tolist()),
             columns=slice(first, first + idx.size) if contiguous else idx,
             all_rows=contiguous and idx.size == n,
             mask=mask,
@@ -538,6 +554,10 @@ class StateFilter:
         rows: ArrayLike | None,
     ) -> None:
         sel = self._selection(rows)
+        if std is None and self._ready and self._native_update is not None:
+            wrap = sel.wrap if order == 0 else ()
+            self._native_update(self._X, order, latency_s, sel.rows, z_in, wrap)
+            return
         z = np.asarray(z_in, dtype=np.float64)
         if z.shape != sel.idx.shape:
             raise ValueError(f"measurement must have shape {sel.idx.shape}, got {z.shape}")

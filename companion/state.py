@@ -116,9 +116,11 @@ class StateAssembler:
         """Bring the filter to the current time (once per control step)."""
         self.filter.predict(dt_s)
 
-    def pose(self, position_m: ArrayLike, euler_rad: ArrayLike, age_s: float = 0.0) -> None:
+    def pose(
+        self, position_m: Iterable[float], euler_rad: Iterable[float], age_s: float = 0.0
+    ) -> None:
         """Motion-capture pose: ENU position [m] and ZYX Euler angles [rad]."""
-        values = np.concatenate((position_m, euler_rad), dtype=float)
+        values = (*position_m, *euler_rad)
         self.filter.update_position(values, latency_s=age_s, rows=_POSE_ROWS)
 
     def velocity(self, velocity_enu_m_s: ArrayLike, age_s: float = 0.0) -> None:
@@ -134,8 +136,8 @@ class StateAssembler:
         """Gyro body rates (FLU) [rad/s], converted with the filter's attitude."""
         if not self.filter.ready:
             return
-        q = self.filter.estimate.q
-        rates = euler_rates_from_body_rates(q[PHI], q[THETA], omega_body_rad_s)
+        phi, theta = self.filter.value(PHI), self.filter.value(THETA)
+        rates = euler_rates_from_body_rates(phi, theta, omega_body_rad_s)
         self.filter.update_velocity(rates, latency_s=age_s, rows=_EULER_ROWS)
 
     def joints(self, eta_rad: ArrayLike, age_s: float = 0.0) -> None:

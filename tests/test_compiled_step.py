@@ -409,6 +409,46 @@ def test_filter_updates_agree():
     assert seen["predicts"] == 3000
 
 
+def test_filter_update_in_one_call_is_the_compiled_fuse():
+    """``_step.update`` (the measurement placed, the variance row, G built in C) leaves the
+    stacked state bit for bit where the numpy steps of ``StateFilter._update`` around the
+    C fuse leave it: subsets of rows out of order, latencies drawn from a continuous range
+    (the joints' ages), rates, yaw across +-pi, and the rejected measurements (non-finite,
+    negative latency, wrong length) that must leave the estimate alone."""
+    rng = np.random.default_rng(5)
+    one_call = StateFilter(compiled=True)
+    steps = StateFilter(compiled=True)
+    steps._native_update = None  # the numpy steps around _step.fuse
+    assert one_call._native_update is not None
+    truth = np.array([0.0, 0.0, 1.0, 0.1, -0.1, 3.1, -1.0, 0.5])
+    rejected = 0
+    for i in range(2000):
+        truth = truth + rng.normal(0.0, 0.02, 8)
+        z = truth + rng.normal(0.0, 1e-3, 8)
+        z[5] = (z[5] + math.pi) % (2 * math.pi) - math.pi
+        latency = float(rng.uniform(0.0, 0.02)) if i % 3 else 0.0
+        rows = [None, (0, 1, 2, 3, 4, 5), (6, 7), (3, 4, 5), (7, 2)][i % 5]
+        rates = rng.normal(0.0, 0.1, 3)
+        bad = [
+            ([math.nan, 1.0], {"rows": (6, 7)}),
+            ([1.0, 2.0], {"rows": (6, 7), "latency_s": -0.001}),
+            ([1.0, 2.0, 3.0], {"rows": (6, 7)}),
+        ][i % 3]
+        for f in (one_call, steps):
+            f.predict(0.004 if i % 7 else 0.011)
+            meas = z if rows is None else tuple(z[list(rows)])
+            f.update_position(meas, latency_s=latency, rows=rows)
+            if f.ready:
+                f.update_velocity(rates, latency_s=latency, rows=(3, 4, 5))
+            if f.ready and i % 97 == 0:
+                with pytest.raises(ValueError), np.errstate(invalid="ignore"):
+                    f.update_position(bad[0], **bad[1])
+                rejected += f is steps
+        np.testing.assert_array_equal(one_call._X, steps._X)
+    assert rejected > 15
+    assert one_call.value(5) == one_call.estimate.q[5]
+
+
 def test_selection(monkeypatch):
     config = load_config(CONFIGS / "sitl_pickup.toml")
     assert FlightControl(config).compiled
