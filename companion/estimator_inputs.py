@@ -37,6 +37,18 @@ def delay_cycles(delay_s: float, dt_s: float) -> int:
     return max(1, round(delay_s / dt_s))
 
 
+def _read_only(values: ArrayLike) -> FloatArray:
+    """A read-only float64 copy of 8 values (ValueError for another shape)."""
+    a = np.array(values, dtype=float)
+    if a.shape != (8,):
+        raise ValueError(f"expected 8 values, got shape {a.shape}")
+    a.flags.writeable = False
+    return a
+
+
+_ZERO = _read_only(np.zeros(8))
+
+
 class DelayedInputs:
     """A delay line of (q, q_dot, applied force, period) over 2n + 1 cycles.
 
@@ -51,8 +63,9 @@ class DelayedInputs:
             raise ValueError(f"the delay must be at least one cycle, got {n}")
         self.n = n
         size = 2 * n + 1
-        self._q = np.zeros((size, 8))
-        self._q_dot = np.zeros((size, 8))
+        # Read-only copies, handed out as they are (fewer array operations per cycle).
+        self._q: list[FloatArray] = [_ZERO] * size
+        self._q_dot: list[FloatArray] = [_ZERO] * size
         self._tau: list[FloatArray | Skip] = [Skip.NO_FORCE] * size
         self._dt = np.zeros(size)
         self._head = 0
@@ -70,8 +83,8 @@ class DelayedInputs:
         cycles are in the line."""
         size = len(self._dt)
         head = self._head
-        self._q[head] = q
-        self._q_dot[head] = q_dot
+        self._q[head] = _read_only(q)
+        self._q_dot[head] = q_dot_now = _read_only(q_dot)
         self._tau[head] = tau if isinstance(tau, Skip) else np.array(tau, dtype=float)
         self._dt[head] = dt_s
         self._head = (head + 1) % size
@@ -82,5 +95,5 @@ class DelayedInputs:
         mid = (head - self.n) % size
         # The periods after the oldest cycle, up to and including this one.
         span_s = float(self._dt.sum() - self._dt[oldest])
-        q_ddot = (self._q_dot[head] - self._q_dot[oldest]) / span_s
-        return self._q[mid].copy(), self._q_dot[mid].copy(), q_ddot, self._tau[mid]
+        q_ddot = (q_dot_now - self._q_dot[oldest]) / span_s
+        return self._q[mid], self._q_dot[mid], q_ddot, self._tau[mid]
