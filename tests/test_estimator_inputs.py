@@ -67,6 +67,22 @@ def test_a_stored_force_is_a_copy():
     assert line.push(0.01, zero, zero, tau)[3][0] == 1.0
 
 
+def test_stored_states_are_copies_handed_out_read_only():
+    line = DelayedInputs(1)
+    zero = np.zeros(8)
+    q, q_dot = np.arange(8.0), np.ones(8)
+    line.push(0.01, zero, zero, Skip.NO_FORCE)
+    line.push(0.01, q, q_dot, Skip.NO_FORCE)
+    q[:] = -1.0  # the caller reuses its arrays
+    q_dot[:] = -1.0
+    q_old, q_dot_old, _, _ = line.push(0.01, zero, zero, Skip.NO_FORCE)
+    np.testing.assert_array_equal(q_old, np.arange(8.0))
+    np.testing.assert_array_equal(q_dot_old, np.ones(8))
+    assert not q_old.flags.writeable and not q_dot_old.flags.writeable
+    with pytest.raises(ValueError, match="expected 8 values"):
+        line.push(0.01, np.zeros(7), zero, Skip.NO_FORCE)
+
+
 @pytest.mark.parametrize("compiled", [False, True])
 def test_the_estimator_warms_up_then_runs_behind(compiled):
     config = SCENARIO.model_copy(
