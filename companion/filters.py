@@ -47,7 +47,11 @@ the reference; tests/test_compiled_step.py compares them call by call): an updat
 rows costs 3-5 us instead of 13-16 (``benchmarks/bench_filters.py``, 2 Dec 2026, loaded
 machine: predict + update 5.5 us median); so does the predict's product (``_step.predict``,
 a plain loop: OpenBLAS's call for a 17 x 17 by 17 x 8 product cost 7 us inside the offline
-simulator).
+simulator). The common update (default variance, every row started) is one C call,
+``_step.update``: it places the measurement and the variance row and builds G itself, bit
+for bit as the numpy steps around ``_step.fuse`` do (the joints' ages are continuous, so
+their G was never in the cache; in flight, after the idle wait between poses, each numpy
+call of the glue cost 3-5 us).
 
 Angles
 ------
