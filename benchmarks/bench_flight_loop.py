@@ -10,7 +10,8 @@ directory, stops the busy processes and prints, from the demo's summary.json:
   the companion) and poses dropped (the companion's loop too slow to take the poses: late
   cycles the companion caused itself), the longest period [ms];
 - pose taken from the MAVLink link -> SET_ATTITUDE_TARGET sent, and -> joint torques written
-  (the whole cycle): median and p99 [us];
+  (the whole cycle): median and p99 [us]; the control thread's CPU time from the pose to
+  the setpoint, median and p99 [us] (the rest of the latency it waited for a core);
 - the companion's CPU share of one core over the OFFBOARD part.
 
 The SITL runs on the same cores, so these are upper bounds for a dedicated onboard
@@ -66,6 +67,7 @@ def row(busy: int, summary: dict) -> str:
         f"{summary.get('longest_period_ms') or float('nan'):>8.1f} "
         f"{pct('setpoint_latency_us', 'median'):>8.0f} {pct('setpoint_latency_us', 'p99'):>8.0f} "
         f"{pct('cycle_latency_us', 'median'):>8.0f} {pct('cycle_latency_us', 'p99'):>8.0f} "
+        f"{pct('setpoint_cpu_us', 'median'):>8.0f} {pct('setpoint_cpu_us', 'p99'):>8.0f} "
         f"{share:>5.2f}"
     )
 
@@ -89,7 +91,8 @@ def main() -> None:
     print(f"{os.cpu_count()} cores; sitl demo --autopilot {args.autopilot}, speed 1{policy}")
     print(
         f"{'busy':>4} {'completed':>9} {'faults':<14} {'late':>6} {'dropped':>7} "
-        f"{'max ms':>8} {'set p50':>8} {'set p99':>8} {'cyc p50':>8} {'cyc p99':>8} {'cpu':>5}"
+        f"{'max ms':>8} {'set p50':>8} {'set p99':>8} {'cyc p50':>8} {'cyc p99':>8} "
+        f"{'cpu p50':>8} {'cpu p99':>8} {'cpu':>5}"
     )
     with tempfile.TemporaryDirectory() as tmp:
         for busy in (n for n in counts for _ in range(args.repeat)):
@@ -99,7 +102,10 @@ def main() -> None:
                 print(f"{busy:>4} the demo wrote no summary (load {load:.1f}):\n{output[-2000:]}")
                 continue
             print(f"{row(busy, summary)}   (load before {load:.1f})")
-    print("latencies in us: set = pose -> setpoint sent, cyc = pose -> joint torques written")
+    print(
+        "latencies in us: set = pose -> setpoint sent, cyc = pose -> joint torques written, "
+        "cpu p50/p99 = the control thread's CPU time over set; cpu = share of one core"
+    )
 
 
 if __name__ == "__main__":

@@ -622,13 +622,14 @@ class PickupApp:
             while True:
                 pose = await poses.get()
                 received = time.perf_counter()
+                received_cpu = time.thread_time()
                 self.report.poses_dropped = poses.dropped
                 if self.link.lost is not None:
                     continue
                 self._collecting = gc.isenabled()
                 gc.disable()  # _cycle enables it again once the setpoint is sent
                 try:
-                    self._cycle(pose, received)
+                    self._cycle(pose, received, received_cpu)
                 finally:
                     if self._collecting:
                         gc.enable()
@@ -636,8 +637,9 @@ class PickupApp:
                 async with self._tick:  # vehicle time advanced, whatever the cycle did
                     self._tick.notify_all()
 
-    def _cycle(self, pose: VehiclePose, received: float) -> None:
-        """One control cycle on a new pose (see the module docstring)."""
+    def _cycle(self, pose: VehiclePose, received: float, received_cpu: float) -> None:
+        """One control cycle on a new pose (see the module docstring), taken off the link
+        at ``received`` (perf_counter) and ``received_cpu`` (thread_time) [s]."""
         if pose.time_usec <= self._t_us:
             return
         self._t_us = pose.time_usec
@@ -673,11 +675,13 @@ class PickupApp:
                 float(q[PHI]), float(q[THETA]), float(q[PSI]), self.control.weight_n()
             )
             self.hold_bias.record(t_s, force[HORIZONTAL], state.q_dot[HORIZONTAL])
-        setpoint_us = None
+        setpoint_us = setpoint_cpu_us = None
         if sp is not None:
             self.link.send_setpoint(sp, pose.time_boot_ms)
             setpoint_us = (time.perf_counter() - received) * 1e6
+            setpoint_cpu_us = (time.thread_time() - received_cpu) * 1e6
             self.report.setpoint_latency_us.append(setpoint_us)
+            self.report.setpoint_cpu_us.append(setpoint_cpu_us)
         if self._collecting:
             gc.enable()  # garbage collection may run from here on, after the setpoint
         self._last_thrust_n = sp.thrust_n if sp is not None and self.offboard.flying else math.nan
@@ -690,7 +694,7 @@ class PickupApp:
         if self.offboard.flying:
             self._watch_flight(t_s, state.q, out, period, command)
         phase = command.phase.value if command else self.offboard.stream.value
-        timing = (dt * 1e3, setpoint_us, cycle_us)
+        timing = (dt * 1e3, setpoint_us, cycle_us, setpoint_cpu_us)
         self._log_row(t_s, state, out, sp, joints, phase, tau_cmd, timing)
 
     def _sense(self, pose: VehiclePose, dt: float | None) -> None:
@@ -899,10 +903,11 @@ class PickupApp:
         joints: dict[str, JointState] | None,
         phase: str,
         tau_cmd: FloatArray,
-        timing: tuple[float, float | None, float],
+        timing: tuple[float, float | None, float, float | None],
     ) -> None:
         """One row of the flight log; ``timing`` is (period [ms], pose -> setpoint sent
-        [us] or None, pose -> joint torques handed over [us])."""
+        [us] or None, pose -> joint torques handed over [us], CPU time up to the setpoint
+        [us] or None)."""
         names = self.arm.names
         nan = [math.nan] * len(names)
         torques = nan if joints is None else [joints[n].torque_n_m for n in names]
@@ -928,6 +933,7 @@ class PickupApp:
                 loop_period_ms=timing[0],
                 setpoint_latency_us=timing[1],
                 cycle_latency_us=timing[2],
+                setpoint_cpu_us=timing[3],
                 px4_mode=self._mode() or "",
                 armed=self._armed(),
                 phase=phase,

@@ -33,6 +33,9 @@ columns                            content
 ``setpoint_latency_us``            pose taken from the link -> setpoint sent, this cycle [us]
 ``cycle_latency_us``               pose taken from the link -> joint torques handed to the
                                    arm task, this cycle [us] (empty: nothing was sent)
+``setpoint_cpu_us``                the companion thread's CPU time over
+                                   ``setpoint_latency_us`` [us]: the rest of that time it
+                                   waited for a core
 ``px4_mode``, ``armed``            PX4 mode name, armed flag
 ``phase``, ``faults``              mission phase; active faults, ``;``-separated
 =================================  =========================================================
@@ -120,6 +123,7 @@ COLUMNS: tuple[str, ...] = (
     "loop_period_ms",
     "setpoint_latency_us",
     "cycle_latency_us",
+    "setpoint_cpu_us",
     "px4_mode",
     "armed",
     "phase",
@@ -159,10 +163,10 @@ class CycleRecord:
         What was sent to PX4.
     servo_torque_cmd_n_m, servo_torque_meas_n_m, servo_position_rad : array_like, shape (2,)
         Joint torque commands, torques from present current, joint positions.
-    loop_period_ms, setpoint_latency_us, cycle_latency_us : float, optional
+    loop_period_ms, setpoint_latency_us, cycle_latency_us, setpoint_cpu_us : float, optional
         The cycle's timing: vehicle time since the previous cycle [ms]; wall time from the
         pose taken off the link to the setpoint sent and to the joint torques handed to the
-        arm task [us].
+        arm task [us]; the thread's CPU time from the pose to the setpoint [us].
     faults : sequence of str
         Names of the active faults (no ``;`` in a name).
     t_wall_s : float, optional
@@ -188,6 +192,7 @@ class CycleRecord:
     loop_period_ms: float | None = None
     setpoint_latency_us: float | None = None
     cycle_latency_us: float | None = None
+    setpoint_cpu_us: float | None = None
     px4_mode: str = ""
     armed: bool | None = None
     phase: str = ""
@@ -253,6 +258,7 @@ def format_row(record: CycleRecord, t_wall_s: float) -> list[str]:
         _num(r.loop_period_ms),
         _num(r.setpoint_latency_us),
         _num(r.cycle_latency_us),
+        _num(r.setpoint_cpu_us),
         r.px4_mode,
         _flag(r.armed),
         r.phase,

@@ -57,6 +57,9 @@ class MissionReport:
     """Pose taken from the link -> joint torques written, per cycle [us]."""
     setpoint_latency_us: list[float] = field(default_factory=list)
     """Pose taken from the link -> SET_ATTITUDE_TARGET sent (joint read included) [us]."""
+    setpoint_cpu_us: list[float] = field(default_factory=list)
+    """The control thread's CPU time over the same span [us] (the rest: waiting for a
+    core)."""
     cpu_share: float | None = None
     """Process CPU time / wall time over the OFFBOARD part (1.0 = one core)."""
     late_cycles: int = 0
@@ -94,6 +97,7 @@ class MissionReport:
             "navigation_resets": self.navigation_resets,
             "cycle_latency_us": _percentiles(self.cycle_latency_us),
             "setpoint_latency_us": _percentiles(self.setpoint_latency_us),
+            "setpoint_cpu_us": _percentiles(self.setpoint_cpu_us),
             "cpu_share_of_one_core": self.cpu_share,
             "late_cycles": self.late_cycles,
             "poses_dropped": self.poses_dropped,

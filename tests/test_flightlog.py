@@ -40,6 +40,7 @@ def record(i, mode="POSCTL", phase="takeoff", faults=()):
         loop_period_ms=4.0 + 0.1 * i,
         setpoint_latency_us=None if i == 1 else 900.0 + i,
         cycle_latency_us=1100.0 + i,
+        setpoint_cpu_us=None if i == 1 else 700.0 + i,
         px4_mode=mode,
         armed=True,
         phase=phase,
@@ -71,6 +72,7 @@ def test_round_trip_is_exact(tmp_path):
     assert out["loop_period_ms"] == pytest.approx([4.0, 4.1, 4.2, 4.3, 4.4])
     assert math.isnan(out["setpoint_latency_us"][1]) and out["setpoint_latency_us"][2] == 902.0
     np.testing.assert_array_equal(out["cycle_latency_us"], [1100.0, 1101.0, 1102.0, 1103.0, 1104.0])
+    assert math.isnan(out["setpoint_cpu_us"][1]) and out["setpoint_cpu_us"][4] == 704.0
     assert out["thrust_scale_hat"] == pytest.approx([0.93] * 5)
 
 

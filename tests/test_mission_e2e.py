@@ -111,6 +111,9 @@ def test_pickup_learns_the_payload_places_it_and_lands(adaptive):
     # The estimate the companion made in flight, against the truth it never saw.
     assert summary["payload_mass_kg"] == pytest.approx(TRUE_MASS_KG, rel=0.10)
     assert summary["payload_com_along_link2_m"] == pytest.approx(TRUE_COM_M, rel=0.15)
+    # The loop's timing: the thread's CPU time is part of the pose -> setpoint latency.
+    cpu, latency = summary["setpoint_cpu_us"], summary["setpoint_latency_us"]
+    assert 0.0 < cpu["median"] <= latency["median"] and cpu["p99"] <= latency["p99"]
     # Log, events, summary and figures.
     out = tmp / "passivity"
     for name in ("flight.csv", "flight.events.csv", "tracking.png", "estimation.png", "arm.png"):
