@@ -811,8 +811,8 @@ static PyObject *py_update(PyObject *self, PyObject *args)
     if (!get_doubles(xo, &x, -1, "X", 1)) return NULL;
     if (!stacked_columns(&x, &n)) goto done;
     k = PyTuple_GET_SIZE(rows);
-    zseq = PySequence_Fast(zo, "the measurement must be a sequence of numbers");
-    if (!zseq) goto done;
+    zseq = PySequence_Fast(zo, "");
+    if (!zseq) goto not_numbers;
     if (k < 1 || k > n || PySequence_Fast_GET_SIZE(zseq) != k) {
         PyErr_Format(PyExc_ValueError, "measurement must have shape (%zd,), got %zd values", k,
                      PySequence_Fast_GET_SIZE(zseq));
@@ -827,7 +827,7 @@ static PyObject *py_update(PyObject *self, PyObject *args)
             goto done;
         }
         z[i] = PyFloat_AsDouble(PySequence_Fast_GET_ITEM(zseq, i));
-        if (z[i] == -1.0 && PyErr_Occurred()) goto done;
+        if (z[i] == -1.0 && PyErr_Occurred()) goto not_numbers;
         col[i] = (int)c;
         measured[c] = 1;
         in_order = in_order && c == i;
@@ -849,6 +849,10 @@ static PyObject *py_update(PyObject *self, PyObject *args)
     }
     if (!result)
         for (Py_ssize_t c = 0; c < n; ++c) X[n * X_Z + c] = 0.0;
+    goto done;
+not_numbers: /* ValueError, as numpy's conversion in the reference */
+    PyErr_Clear();
+    PyErr_SetString(PyExc_ValueError, "the measurement must be a sequence of numbers");
 done:
     Py_XDECREF(zseq);
     PyBuffer_Release(&x);
@@ -871,9 +875,13 @@ static PyObject *py_predict(PyObject *self, PyObject *args)
         PyBuffer_Release(&x);
         return NULL;
     }
-    Py_ssize_t n = x.len / (Py_ssize_t)(N_STACK * sizeof(double));
-    if (n >= 1 && n <= NQ && x.len == n * N_STACK * (Py_ssize_t)sizeof(double)
-        && x.buf != y.buf) {
+    Py_ssize_t n;
+    int ok = stacked_columns(&x, &n);
+    if (ok && x.buf == y.buf) {
+        PyErr_SetString(PyExc_ValueError, "X_next must not be X");
+        ok = 0;
+    }
+    if (ok) {
         const double *A = (const double *)a.buf, *X = (const double *)x.buf;
         double *Y = (double *)y.buf;
         for (int i = 0; i < N_STACK; ++i)
@@ -883,9 +891,6 @@ static PyObject *py_predict(PyObject *self, PyObject *args)
                 Y[n * i + c] = acc;
             }
         result = Py_NewRef(Py_None);
-    } else {
-        PyErr_SetString(PyExc_ValueError,
-                        "X must hold 17 x n float64 values, 1 <= n <= 8, and not be X_next");
     }
     PyBuffer_Release(&a);
     PyBuffer_Release(&x);

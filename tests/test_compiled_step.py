@@ -414,7 +414,8 @@ def test_filter_update_in_one_call_is_the_compiled_fuse():
     stacked state bit for bit where the numpy steps of ``StateFilter._update`` around the
     C fuse leave it: subsets of rows out of order, latencies drawn from a continuous range
     (the joints' ages), rates, yaw across +-pi, and the rejected measurements (non-finite,
-    negative latency, wrong length) that must leave the estimate alone."""
+    negative latency, wrong length, not numbers: ValueError on both paths) that must leave
+    the estimate alone."""
     rng = np.random.default_rng(5)
     one_call = StateFilter(compiled=True)
     steps = StateFilter(compiled=True)
@@ -433,7 +434,9 @@ def test_filter_update_in_one_call_is_the_compiled_fuse():
             ([math.nan, 1.0], {"rows": (6, 7)}),
             ([1.0, 2.0], {"rows": (6, 7), "latency_s": -0.001}),
             ([1.0, 2.0, 3.0], {"rows": (6, 7)}),
-        ][i % 3]
+            (1.0, {"rows": (6, 7)}),
+            (["a", "b"], {"rows": (6, 7)}),
+        ][i % 5]
         for f in (one_call, steps):
             f.predict(0.004 if i % 7 else 0.011)
             meas = z if rows is None else tuple(z[list(rows)])
