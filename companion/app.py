@@ -51,7 +51,6 @@ from __future__ import annotations
 import asyncio
 import gc
 import math
-import os
 import time
 from collections.abc import Awaitable, Callable
 from typing import Any
@@ -95,6 +94,7 @@ from companion.px4_preflight import (
     read_vehicle_params,
     wait_ready_to_arm,
 )
+from companion.scheduling import enter_real_time
 from companion.setpoints import AttitudeThrustSetpoint, ThrustModel
 from companion.state import StateAssembler, thrust_force_world
 from companion.vehicle_params import contradictions
@@ -107,7 +107,6 @@ __all__ = [
     "MissionReport",
     "PickupApp",
     "Stream",
-    "scheduling_note",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -122,25 +121,6 @@ _NO_REPLY_HINT = (
 )
 """Added to a preflight servo timeout: replies held by an FTDI adapter's default 16 ms
 latency timer come after the bus's deadline as surely as none at all."""
-_REAL_TIME_POLICIES = frozenset(
-    getattr(os, name) for name in ("SCHED_FIFO", "SCHED_RR") if hasattr(os, name)
-)
-
-
-def scheduling_note() -> str | None:
-    """What to say when this process does not run under real-time scheduling (None when
-    it does, or where the OS cannot say): measured with two CPU-bound processes beside the
-    demo, normal scheduling let 3 of 9 flights drop poses, SCHED_FIFO none of 4."""
-    if not hasattr(os, "sched_getscheduler"):
-        return None
-    if os.sched_getscheduler(0) in _REAL_TIME_POLICIES:
-        return None
-    return (
-        "the control loop runs under normal scheduling: other processes on this computer "
-        "can delay it (run it with chrt --fifo 50, README 'Deploying on an onboard computer')"
-    )
-
-
 _NOT_ARMED = object()
 """``PickupApp._status_at_arm`` before the app armed the vehicle."""
 
@@ -291,7 +271,19 @@ class PickupApp:
     # ------------------------------------------------------------------- run
 
     async def run(self) -> MissionReport:
-        """Fly the mission; returns the report, raises MissionError or MissionAborted."""
+        """Fly the mission; returns the report, raises MissionError or MissionAborted.
+        The calling thread runs it under real-time scheduling where permitted
+        (``flight.realtime_priority``, :mod:`companion.scheduling`), its policy given back
+        at the end."""
+        scheduling = enter_real_time(self.config.flight.realtime_priority)
+        self.report.scheduling = scheduling.policy
+        self._note("loop", scheduling.note or f"control loop under {scheduling.policy}")
+        try:
+            return await self._fly()
+        finally:
+            scheduling.restore()
+
+    async def _fly(self) -> MissionReport:
         await self._preflight()
         control = asyncio.create_task(self._control_loop(), name="control-loop")
         arm = asyncio.create_task(self.arm.run(), name="arm")
@@ -368,9 +360,6 @@ class PickupApp:
         missing = set(self.arm.names) - set(states)
         if missing:
             raise MissionError(f"preflight: joints {sorted(missing)} did not answer")
-        note = scheduling_note()
-        if note is not None:
-            self._note("loop", note)
 
     async def _check_vehicle_params(self) -> None:
         """Refuse a vehicle whose PX4 parameters contradict the config; take PX4's

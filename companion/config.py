@@ -556,6 +556,10 @@ class Flight(_Section):
     carry_check_estimate: Annotated[bool, Field(strict=True)] = True
     """The estimate is a witness of the carry (``carry_mass_margin_kg``); false: the
     gripper alone (a simulator whose arm carries no mass, as PX4 SIH's arm stand)."""
+    realtime_priority: Annotated[int, Field(strict=True, ge=0, le=99)] = 50
+    """SCHED_FIFO priority of the control thread for the mission, where Linux permits it
+    (root, CAP_SYS_NICE, an rtprio limit); 0: normal scheduling. A process already under
+    a real-time policy keeps it (:mod:`companion.scheduling`)."""
 
 
 SIMULATOR_SECTIONS = ("payload", "plant", "world", "simulation", "trajectory")

@@ -60,6 +60,8 @@ class MissionReport:
     setpoint_cpu_us: list[float] = field(default_factory=list)
     """The control thread's CPU time over the same span [us] (the rest: waiting for a
     core)."""
+    scheduling: str | None = None
+    """The control thread's scheduling over the mission: ``SCHED_FIFO 50``, ``normal``."""
     cpu_share: float | None = None
     """Process CPU time / wall time over the OFFBOARD part (1.0 = one core)."""
     late_cycles: int = 0
@@ -98,6 +100,7 @@ class MissionReport:
             "cycle_latency_us": _percentiles(self.cycle_latency_us),
             "setpoint_latency_us": _percentiles(self.setpoint_latency_us),
             "setpoint_cpu_us": _percentiles(self.setpoint_cpu_us),
+            "scheduling": self.scheduling,
             "cpu_share_of_one_core": self.cpu_share,
             "late_cycles": self.late_cycles,
             "poses_dropped": self.poses_dropped,

@@ -17,9 +17,8 @@ import time
 import numpy as np
 import pytest
 
-import companion.app as app_module
 from arm_driver.bus import JointConfig, OperatingMode, open_bus
-from companion.app import MissionError, PickupApp, scheduling_note
+from companion.app import MissionError, PickupApp
 from companion.config import load_config
 from companion.link.px4_modes import px4_mode
 from companion.link.telemetry import VehiclePose, VehicleStatus
@@ -245,13 +244,3 @@ def test_a_land_without_a_newer_heartbeat_is_a_mission_error_not_a_disarm():
     with pytest.raises(MissionError, match="did not land and disarm"):
         asyncio.run(fly())
     assert not app.report.disarmed
-
-
-def test_normal_scheduling_is_noted_real_time_is_not(monkeypatch):
-    monkeypatch.setattr(app_module.os, "sched_getscheduler", lambda pid: app_module.os.SCHED_OTHER)
-    note = scheduling_note()
-    assert note is not None and "chrt --fifo" in note
-    monkeypatch.setattr(app_module.os, "sched_getscheduler", lambda pid: app_module.os.SCHED_FIFO)
-    assert scheduling_note() is None
-    monkeypatch.delattr(app_module.os, "sched_getscheduler")
-    assert scheduling_note() is None

@@ -1,0 +1,162 @@
+"""Real-time scheduling of the control thread (:mod:`companion.scheduling`): asked for,
+kept, refused, given back; the flight app notes it and restores it after the mission.
+
+The OS calls are replaced where a test needs a refusal or a policy it cannot set; one test
+makes the real call in a thread of its own where this user may."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import threading
+
+import pytest
+
+import companion.scheduling as scheduling
+from companion.app import MissionError, PickupApp
+from companion.config import ConfigError, parse_config
+from companion.scheduling import enter_real_time
+from tests.test_app_in_process import PLAN, SCENARIO, PoseLink, ScriptedPoses, TwoJoints
+
+pytestmark = pytest.mark.skipif(
+    not hasattr(os, "sched_setscheduler"), reason="no POSIX scheduling calls on this OS"
+)
+
+
+class FakeOs:
+    """The calling thread's policy as the scheduling module sees it; records the sets."""
+
+    def __init__(self, monkeypatch, policy: int, priority: int = 0, refuse: bool = False):
+        self.policy, self.priority, self.refuse = policy, priority, refuse
+        self.sets: list[tuple[int, int]] = []
+        monkeypatch.setattr(scheduling.os, "sched_getscheduler", lambda pid: self.policy)
+        monkeypatch.setattr(
+            scheduling.os, "sched_getparam", lambda pid: os.sched_param(self.priority)
+        )
+        monkeypatch.setattr(scheduling.os, "sched_setscheduler", self.set)
+
+    def set(self, pid: int, policy: int, param: os.sched_param) -> None:
+        assert pid == 0
+        if self.refuse:
+            raise PermissionError(1, "Operation not permitted")
+        self.sets.append((policy, param.sched_priority))
+        self.policy, self.priority = policy, param.sched_priority
+
+
+def test_normal_scheduling_becomes_fifo_and_is_given_back(monkeypatch):
+    fake = FakeOs(monkeypatch, os.SCHED_OTHER)
+    taken = enter_real_time(50)
+    assert (taken.policy, taken.note) == ("SCHED_FIFO 50", None)
+    assert fake.sets == [(os.SCHED_FIFO, 50)]
+    taken.restore()
+    assert fake.sets[-1] == (os.SCHED_OTHER, 0) and fake.policy == os.SCHED_OTHER
+
+
+def test_a_real_time_policy_already_set_is_kept(monkeypatch):
+    fake = FakeOs(monkeypatch, os.SCHED_RR, priority=70)
+    kept = enter_real_time(50)
+    assert (kept.policy, kept.note) == ("SCHED_RR 70", None)
+    kept.restore()
+    assert fake.sets == []
+
+
+def test_a_refusal_is_a_note_not_an_error(monkeypatch):
+    fake = FakeOs(monkeypatch, os.SCHED_OTHER, refuse=True)
+    refused = enter_real_time(50)
+    assert refused.policy == "normal"
+    assert refused.note is not None
+    assert "priority 50 (flight.realtime_priority) is not permitted" in refused.note
+    refused.restore()
+    assert fake.sets == []
+
+
+def test_priority_0_leaves_normal_scheduling_with_a_note(monkeypatch):
+    fake = FakeOs(monkeypatch, os.SCHED_OTHER)
+    left = enter_real_time(0)
+    assert left.policy == "normal" and "realtime_priority = 0" in (left.note or "")
+    assert "chrt --fifo 50" in (left.note or "")
+    assert fake.sets == []
+
+
+@pytest.mark.parametrize("priority", [-1, 100])
+def test_a_priority_outside_1_99_is_refused(priority):
+    with pytest.raises(ValueError, match="1-99"):
+        enter_real_time(priority)
+
+
+def test_the_config_refuses_a_priority_linux_has_not():
+    raw = SCENARIO.model_dump(mode="python")
+    raw["flight"]["realtime_priority"] = 120
+    with pytest.raises(ConfigError, match="realtime_priority"):
+        parse_config(raw)
+
+
+def test_the_real_call_in_a_thread_of_its_own():
+    """Where this user may (root, CAP_SYS_NICE, rtprio), the thread runs SCHED_FIFO and
+    gets its policy back; the test's own thread is never touched."""
+    seen: dict[str, object] = {}
+
+    def work() -> None:
+        taken = enter_real_time(10)
+        seen["taken"] = taken
+        seen["during"] = os.sched_getscheduler(0)
+        taken.restore()
+        seen["after"] = os.sched_getscheduler(0)
+
+    before = os.sched_getscheduler(0)
+    thread = threading.Thread(target=work)
+    thread.start()
+    thread.join()
+    assert os.sched_getscheduler(0) == before
+    taken = seen["taken"]
+    if taken.policy == "normal":
+        pytest.skip(f"this user may not set SCHED_FIFO: {taken.note}")
+    assert taken.policy == "SCHED_FIFO 10"
+    assert seen["during"] == os.SCHED_FIFO
+    assert seen["after"] == os.SCHED_OTHER
+
+
+def _app(events: list[tuple[str, str]]) -> PickupApp:
+    """A flight app whose events land in ``events`` as (kind, text)."""
+    return PickupApp(
+        SCENARIO,
+        PoseLink(ScriptedPoses(4000)),
+        TwoJoints(),
+        PLAN,
+        event=lambda kind, text, t_s: events.append((kind, text)),
+    )
+
+
+def test_the_app_flies_the_mission_under_fifo_and_gives_it_back(monkeypatch):
+    fake = FakeOs(monkeypatch, os.SCHED_OTHER)
+    events: list[tuple[str, str]] = []
+    app = _app(events)
+    during: list[int] = []
+
+    async def fly():
+        during.append(fake.policy)
+        raise MissionError("preflight: stopped here")
+
+    monkeypatch.setattr(app, "_fly", fly)
+    with pytest.raises(MissionError, match="stopped here"):
+        asyncio.run(app.run())
+    assert during == [os.SCHED_FIFO]
+    assert fake.policy == os.SCHED_OTHER
+    assert app.report.scheduling == "SCHED_FIFO 50" == app.report.as_dict()["scheduling"]
+    assert ("loop", "control loop under SCHED_FIFO 50") in events
+
+
+def test_the_app_notes_a_refusal_and_flies_normal(monkeypatch):
+    FakeOs(monkeypatch, os.SCHED_OTHER, refuse=True)
+    events: list[tuple[str, str]] = []
+    app = _app(events)
+
+    async def fly():
+        raise MissionError("preflight: stopped here")
+
+    monkeypatch.setattr(app, "_fly", fly)
+    with pytest.raises(MissionError):
+        asyncio.run(app.run())
+    assert app.report.scheduling == "normal"
+    [(kind, text)] = events
+    assert kind == "loop" and "not permitted" in text
