@@ -16,10 +16,13 @@ directory, stops the busy processes and prints, from the demo's summary.json:
 
 The SITL runs on the same cores, so these are upper bounds for a dedicated onboard
 computer. Numbers only, no pass/fail. The load average before each flight is printed.
-``--fifo P`` runs the demo under ``chrt --fifo P`` (real-time scheduling, as a flight
-computer's service would run the companion); ``--repeat K`` flies K times per N.
+The companion gives its control thread SCHED_FIFO for the mission where it may
+(``flight.realtime_priority``, 50 by default; root here): ``--priority P`` flies the demo
+with that key set to P, ``--priority 0`` under normal scheduling; the table's ``sched``
+column says what the flight had. ``--fifo P`` runs the whole demo, the SITL vehicle too,
+under ``chrt --fifo P``; ``--repeat K`` flies K times per N.
 Usage: ``python benchmarks/bench_flight_loop.py [--busy 0,1,2] [--autopilot imitation]
-[--fifo 50] [--repeat 1]``
+[--priority 50] [--fifo 50] [--repeat 1]``
 """
 
 from __future__ import annotations
@@ -32,10 +35,25 @@ import sys
 import tempfile
 from pathlib import Path
 
+import tomlkit
+
+from sitl.cli_sim import DEFAULT_SCENARIO
+
 SPIN = "while True:\n    pass\n"
 
 
-def fly(busy: int, autopilot: str, tmp: Path, fifo_priority: int | None) -> tuple[dict | None, str]:
+def scenario_with_priority(priority: int, tmp: Path) -> Path:
+    """The demo's scenario with ``flight.realtime_priority`` set, written into ``tmp``."""
+    doc = tomlkit.parse(DEFAULT_SCENARIO.read_text())
+    doc["flight"]["realtime_priority"] = priority  # type: ignore[index]
+    path = tmp / f"scenario-priority-{priority}.toml"
+    path.write_text(tomlkit.dumps(doc))
+    return path
+
+
+def fly(
+    busy: int, autopilot: str, tmp: Path, fifo_priority: int | None, scenario: Path
+) -> tuple[dict | None, str]:
     """The demo with ``busy`` spinning processes; (summary or None, the demo's output)."""
     spinners = [subprocess.Popen([sys.executable, "-c", SPIN]) for _ in range(busy)]
     prefix = [] if fifo_priority is None else ["chrt", "--fifo", str(fifo_priority)]
@@ -43,7 +61,7 @@ def fly(busy: int, autopilot: str, tmp: Path, fifo_priority: int | None) -> tupl
         out = Path(tempfile.mkdtemp(prefix=f"busy{busy}-", dir=tmp)) / "demo"
         result = subprocess.run(
             [*prefix, sys.executable, "-c", "from sitl.cli import main; main()", "demo",
-             "--out", str(out), "--autopilot", autopilot],
+             "--out", str(out), "--autopilot", autopilot, "--config", str(scenario)],
             capture_output=True, text=True, timeout=900,
         )  # fmt: skip
     finally:
@@ -68,7 +86,7 @@ def row(busy: int, summary: dict) -> str:
         f"{pct('setpoint_latency_us', 'median'):>8.0f} {pct('setpoint_latency_us', 'p99'):>8.0f} "
         f"{pct('cycle_latency_us', 'median'):>8.0f} {pct('cycle_latency_us', 'p99'):>8.0f} "
         f"{pct('setpoint_cpu_us', 'median'):>8.0f} {pct('setpoint_cpu_us', 'p99'):>8.0f} "
-        f"{share:>5.2f}"
+        f"{share:>5.2f} {summary.get('scheduling') or '?':>13}"
     )
 
 
@@ -84,27 +102,38 @@ def main() -> None:
         help="run the demo (companion and SITL) under chrt --fifo PRIORITY (needs the "
         "privilege to set real-time priorities)",
     )
+    parser.add_argument(
+        "--priority",
+        type=int,
+        default=None,
+        help="the companion's flight.realtime_priority (default: the scenario's; 0: normal "
+        "scheduling)",
+    )
     parser.add_argument("--repeat", type=int, default=1, help="flights per number of busy")
     args = parser.parse_args()
     counts = [int(n) for n in args.busy.split(",")]
-    policy = "" if args.fifo is None else f", SCHED_FIFO priority {args.fifo}"
+    policy = "" if args.fifo is None else f", the demo under chrt --fifo {args.fifo}"
     print(f"{os.cpu_count()} cores; sitl demo --autopilot {args.autopilot}, speed 1{policy}")
     print(
         f"{'busy':>4} {'completed':>9} {'faults':<14} {'late':>6} {'dropped':>7} "
         f"{'max ms':>8} {'set p50':>8} {'set p99':>8} {'cyc p50':>8} {'cyc p99':>8} "
-        f"{'cpu p50':>8} {'cpu p99':>8} {'cpu':>5}"
+        f"{'cpu p50':>8} {'cpu p99':>8} {'cpu':>5} {'sched':>13}"
     )
     with tempfile.TemporaryDirectory() as tmp:
+        scenario = DEFAULT_SCENARIO
+        if args.priority is not None:
+            scenario = scenario_with_priority(args.priority, Path(tmp))
         for busy in (n for n in counts for _ in range(args.repeat)):
             load = os.getloadavg()[0]
-            summary, output = fly(busy, args.autopilot, Path(tmp), args.fifo)
+            summary, output = fly(busy, args.autopilot, Path(tmp), args.fifo, scenario)
             if summary is None:
                 print(f"{busy:>4} the demo wrote no summary (load {load:.1f}):\n{output[-2000:]}")
                 continue
             print(f"{row(busy, summary)}   (load before {load:.1f})")
     print(
         "latencies in us: set = pose -> setpoint sent, cyc = pose -> joint torques written, "
-        "cpu p50/p99 = the control thread's CPU time over set; cpu = share of one core"
+        "cpu p50/p99 = the control thread's CPU time over set; cpu = share of one core; "
+        "sched = the control thread's scheduling"
     )
 
 
