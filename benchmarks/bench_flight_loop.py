@@ -12,7 +12,8 @@ directory, stops the busy processes and prints, from the demo's summary.json:
 - pose taken from the MAVLink link -> SET_ATTITUDE_TARGET sent, and -> joint torques written
   (the whole cycle): median and p99 [us]; the control thread's CPU time from the pose to
   the setpoint, median and p99 [us] (the rest of the latency it waited for a core);
-- the companion's CPU share of one core over the OFFBOARD part.
+- the companion's CPU share of one core over the OFFBOARD part;
+- estimator steps skipped because no new joint read had come back by the pose.
 
 The SITL runs on the same cores, so these are upper bounds for a dedicated onboard
 computer. Numbers only, no pass/fail. The load average before each flight is printed.
@@ -79,6 +80,7 @@ def row(busy: int, summary: dict) -> str:
 
     faults = ",".join(f["fault"] for f in summary["faults"]) or "-"
     share = summary.get("cpu_share_of_one_core") or float("nan")
+    no_read = (summary.get("estimator_skipped_by_reason") or {}).get("no_servo_read", 0)
     return (
         f"{busy:>4} {'yes' if summary['completed'] else 'NO':>9} {faults:<14} "
         f"{summary['late_cycles']:>6} {summary['poses_dropped']:>7} "
@@ -86,7 +88,7 @@ def row(busy: int, summary: dict) -> str:
         f"{pct('setpoint_latency_us', 'median'):>8.0f} {pct('setpoint_latency_us', 'p99'):>8.0f} "
         f"{pct('cycle_latency_us', 'median'):>8.0f} {pct('cycle_latency_us', 'p99'):>8.0f} "
         f"{pct('setpoint_cpu_us', 'median'):>8.0f} {pct('setpoint_cpu_us', 'p99'):>8.0f} "
-        f"{share:>5.2f} {summary.get('scheduling') or '?':>13}"
+        f"{share:>5.2f} {no_read:>7} {summary.get('scheduling') or '?':>13}"
     )
 
 
@@ -117,7 +119,7 @@ def main() -> None:
     print(
         f"{'busy':>4} {'completed':>9} {'faults':<14} {'late':>6} {'dropped':>7} "
         f"{'max ms':>8} {'set p50':>8} {'set p99':>8} {'cyc p50':>8} {'cyc p99':>8} "
-        f"{'cpu p50':>8} {'cpu p99':>8} {'cpu':>5} {'sched':>13}"
+        f"{'cpu p50':>8} {'cpu p99':>8} {'cpu':>5} {'no read':>7} {'sched':>13}"
     )
     with tempfile.TemporaryDirectory() as tmp:
         scenario = DEFAULT_SCENARIO
@@ -133,7 +135,8 @@ def main() -> None:
     print(
         "latencies in us: set = pose -> setpoint sent, cyc = pose -> joint torques written, "
         "cpu p50/p99 = the control thread's CPU time over set; cpu = share of one core; "
-        "sched = the control thread's scheduling"
+        "no read = estimator steps skipped for want of a new joint read (the arm task's Sync "
+        "Read not back by the next pose); sched = the control thread's scheduling"
     )
 
 
