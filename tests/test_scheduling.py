@@ -60,6 +60,17 @@ def test_a_real_time_policy_already_set_is_kept(monkeypatch):
     assert fake.sets == []
 
 
+def test_another_refusal_is_a_note_too(monkeypatch):
+    def refuse(pid, policy, param):
+        raise OSError(22, "Invalid argument")
+
+    FakeOs(monkeypatch, os.SCHED_OTHER)
+    monkeypatch.setattr(scheduling.os, "sched_setscheduler", refuse)
+    refused = enter_real_time(50)
+    assert refused.policy == "normal"
+    assert "priority 50 refused (Invalid argument)" in (refused.note or "")
+
+
 def test_a_refusal_is_a_note_not_an_error(monkeypatch):
     fake = FakeOs(monkeypatch, os.SCHED_OTHER, refuse=True)
     refused = enter_real_time(50)
@@ -94,6 +105,8 @@ def test_the_config_refuses_a_priority_linux_has_not():
 def test_the_real_call_in_a_thread_of_its_own():
     """Where this user may (root, CAP_SYS_NICE, rtprio), the thread runs SCHED_FIFO and
     gets its policy back; the test's own thread is never touched."""
+    if os.sched_getscheduler(0) in (os.SCHED_FIFO, os.SCHED_RR):
+        pytest.skip("the test process already runs under a real-time policy (kept as is)")
     seen: dict[str, object] = {}
 
     def work() -> None:
