@@ -11,12 +11,12 @@ import os
 import threading
 
 import pytest
+from test_app_in_process import PLAN, SCENARIO, PoseLink, ScriptedPoses, TwoJoints
 
 import companion.scheduling as scheduling
 from companion.app import MissionError, PickupApp
 from companion.config import ConfigError, parse_config
 from companion.scheduling import enter_real_time
-from tests.test_app_in_process import PLAN, SCENARIO, PoseLink, ScriptedPoses, TwoJoints
 
 pytestmark = pytest.mark.skipif(
     not hasattr(os, "sched_setscheduler"), reason="no POSIX scheduling calls on this OS"
