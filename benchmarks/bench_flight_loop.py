@@ -7,8 +7,8 @@ directory, stops the busy processes and prints, from the demo's summary.json:
 
 - whether the mission completed, and its faults;
 - late cycles (control cycles later than 2.5 periods in vehicle time: the SITL's stream or
-  the companion) and poses dropped (the companion's loop too slow to take the poses: late
-  cycles the companion caused itself), the longest period [ms];
+  the companion) and poses dropped (the loop's queue of 4 overflowed: the loop too slow, or
+  poses delivered together after the process did not run), the longest period [ms];
 - pose taken from the MAVLink link -> SET_ATTITUDE_TARGET sent, and -> joint torques written
   (the whole cycle): median and p99 [us]; the control thread's CPU time from the pose to
   the setpoint, median and p99 [us] (the rest of the latency it waited for a core);

@@ -67,8 +67,10 @@ class MissionReport:
     late_cycles: int = 0
     """Cycles later than 2.5 control periods (vehicle time); the estimator skipped them."""
     poses_dropped: int = 0
-    """Poses the control loop was too slow to take (its queue of 4 overflowed): late cycles
-    the companion caused itself, as opposed to gaps in the vehicle's stream."""
+    """Poses dropped because the control loop's queue of 4 overflowed: the loop too slow to
+    take them, or poses held up before the process saw them and delivered together (on a
+    VM, the whole process not running for ~50 ms: README, "The companion takes real-time
+    scheduling itself")."""
     longest_period_ms: float | None = None
     """Longest vehicle-time gap between two control cycles [ms]."""
     estimator_skipped_steps: int = 0
