@@ -31,7 +31,7 @@ _DEPLOY_HINT = "README 'Deploying on an onboard computer'"
 class Scheduling:
     """The control thread's scheduling for the mission: ``policy`` as said (``SCHED_FIFO
     50``, ``normal``, ``unknown``), and a note for the flight's events when the loop runs
-    without real-time scheduling (None otherwise)."""
+    without real-time scheduling or the OS cannot say (None otherwise)."""
 
     policy: str
     note: str | None
@@ -53,7 +53,9 @@ def enter_real_time(priority: int) -> Scheduling:
     if not 0 <= priority <= 99:
         raise ValueError(f"a SCHED_FIFO priority is 1-99 (0: none), not {priority}")
     if not hasattr(os, "sched_getscheduler"):
-        return Scheduling("unknown", None)
+        return Scheduling(
+            "unknown", "this OS cannot set the control thread's scheduling: it runs as started"
+        )
     policy = os.sched_getscheduler(0)
     if policy in _REAL_TIME_POLICIES:
         name = "SCHED_FIFO" if policy == os.SCHED_FIFO else "SCHED_RR"
@@ -71,14 +73,12 @@ def enter_real_time(priority: int) -> Scheduling:
     previous = os.sched_getparam(0)
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except PermissionError:
-        return Scheduling(
-            "normal",
-            f"{delay}: SCHED_FIFO priority {priority} (flight.realtime_priority) is not "
-            f"permitted to this user (root, CAP_SYS_NICE or an rtprio limit: {_DEPLOY_HINT})",
-        )
     except OSError as exc:
-        return Scheduling(
-            "normal", f"{delay}: SCHED_FIFO priority {priority} refused ({exc.strerror})"
+        why = (
+            "(flight.realtime_priority) is not permitted to this user (root, CAP_SYS_NICE "
+            f"or an rtprio limit: {_DEPLOY_HINT})"
+            if isinstance(exc, PermissionError)
+            else f"refused ({exc.strerror})"
         )
+        return Scheduling("normal", f"{delay}: SCHED_FIFO priority {priority} {why}")
     return Scheduling(f"SCHED_FIFO {priority}", None, (policy, previous))

@@ -89,6 +89,13 @@ def test_priority_0_leaves_normal_scheduling_with_a_note(monkeypatch):
     assert fake.sets == []
 
 
+def test_an_os_without_scheduling_calls_is_a_note(monkeypatch):
+    monkeypatch.delattr(scheduling.os, "sched_getscheduler")
+    unknown = enter_real_time(50)
+    assert unknown.policy == "unknown" and "cannot set" in (unknown.note or "")
+    unknown.restore()
+
+
 @pytest.mark.parametrize("priority", [-1, 100])
 def test_a_priority_outside_1_99_is_refused(priority):
     with pytest.raises(ValueError, match="1-99"):
