@@ -13,7 +13,9 @@ directory, stops the busy processes and prints, from the demo's summary.json:
   (the whole cycle): median and p99 [us]; the control thread's CPU time from the pose to
   the setpoint, median and p99 [us] (the rest of the latency it waited for a core);
 - the companion's CPU share of one core over the OFFBOARD part;
-- estimator steps skipped because no new joint read had come back by the pose.
+- estimator steps skipped because no new joint read had come back by the pose;
+- who held up the late cycles and dropped poses (the summary's ``*_by_cause``: companion,
+  host, blocked, arrival; ``companion/loop_period.py`` ``GapCause``), as late/dropped.
 
 The SITL runs on the same cores, so these are upper bounds for a dedicated onboard
 computer. Numbers only, no pass/fail. The load average before each flight is printed.
@@ -81,6 +83,13 @@ def row(busy: int, summary: dict) -> str:
     faults = ",".join(f["fault"] for f in summary["faults"]) or "-"
     share = summary.get("cpu_share_of_one_core") or float("nan")
     no_read = (summary.get("estimator_skipped_by_reason") or {}).get("no_servo_read", 0)
+    late_by, dropped_by = (
+        summary.get(f"{k}_by_cause") or {} for k in ("late_cycles", "poses_dropped")
+    )
+    causes = " ".join(
+        f"{cause} {late_by.get(cause, 0)}/{dropped_by.get(cause, 0)}"
+        for cause in sorted(set(late_by) | set(dropped_by))
+    )
     return (
         f"{busy:>4} {'yes' if summary['completed'] else 'NO':>9} {faults:<14} "
         f"{summary['late_cycles']:>6} {summary['poses_dropped']:>7} "
@@ -88,7 +97,7 @@ def row(busy: int, summary: dict) -> str:
         f"{pct('setpoint_latency_us', 'median'):>8.0f} {pct('setpoint_latency_us', 'p99'):>8.0f} "
         f"{pct('cycle_latency_us', 'median'):>8.0f} {pct('cycle_latency_us', 'p99'):>8.0f} "
         f"{pct('setpoint_cpu_us', 'median'):>8.0f} {pct('setpoint_cpu_us', 'p99'):>8.0f} "
-        f"{share:>5.2f} {no_read:>7} {summary.get('scheduling') or '?':>13}"
+        f"{share:>5.2f} {no_read:>7} {summary.get('scheduling') or '?':>13} {causes or '-'}"
     )
 
 
@@ -119,7 +128,7 @@ def main() -> None:
     print(
         f"{'busy':>4} {'completed':>9} {'faults':<14} {'late':>6} {'dropped':>7} "
         f"{'max ms':>8} {'set p50':>8} {'set p99':>8} {'cyc p50':>8} {'cyc p99':>8} "
-        f"{'cpu p50':>8} {'cpu p99':>8} {'cpu':>5} {'no read':>7} {'sched':>13}"
+        f"{'cpu p50':>8} {'cpu p99':>8} {'cpu':>5} {'no read':>7} {'sched':>13} cause late/dropped"
     )
     with tempfile.TemporaryDirectory() as tmp:
         scenario = DEFAULT_SCENARIO
@@ -136,7 +145,10 @@ def main() -> None:
         "latencies in us: set = pose -> setpoint sent, cyc = pose -> joint torques written, "
         "cpu p50/p99 = the control thread's CPU time over set; cpu = share of one core; "
         "no read = estimator steps skipped for want of a new joint read (the arm task's Sync "
-        "Read not back by the next pose); sched = the control thread's scheduling"
+        "Read not back by the next pose); sched = the control thread's scheduling; cause = "
+        "who held up the late cycles / dropped poses (companion: the control thread ran a "
+        "period or more; host: it waited that long for a CPU; blocked: datagrams waited "
+        "that long while it did neither; arrival: they did not wait)"
     )
 
 

@@ -53,6 +53,7 @@ import gc
 import math
 import time
 from collections.abc import Awaitable, Callable
+from contextlib import closing
 from typing import Any
 
 import numpy as np
@@ -74,7 +75,7 @@ from companion.link import LinkLost, LinkRegained, MavlinkLink
 from companion.link.errors import CommandError, ParamError
 from companion.link.px4_modes import px4_mode
 from companion.link.telemetry import BodyRates, LandedState, VehiclePose, VehicleStatus
-from companion.loop_period import CyclePeriod, LoopPeriodMonitor
+from companion.loop_period import CyclePeriod, CycleWindow, GapTimes, LoopPeriodMonitor
 from companion.mission import (
     EstimatorAction,
     MissionCommand,
@@ -94,7 +95,7 @@ from companion.px4_preflight import (
     read_vehicle_params,
     wait_ready_to_arm,
 )
-from companion.scheduling import enter_real_time
+from companion.scheduling import ThreadTimes, enter_real_time
 from companion.setpoints import AttitudeThrustSetpoint, ThrustModel
 from companion.state import StateAssembler, thrust_force_world
 from companion.vehicle_params import contradictions
@@ -232,6 +233,7 @@ class PickupApp:
         """Thrust PX4 flew over the last cycle [N] (NaN: PX4 flew its own)."""
         self._faults: asyncio.Queue[FaultEvent] = asyncio.Queue()
         self._late_noted_s = -math.inf
+        self._gap_noted_s = -math.inf
         self._collecting = True
         """Whether automatic garbage collection was on when this cycle began: no
         collection starts between a pose and its setpoint (young-generation collections
@@ -401,6 +403,7 @@ class PickupApp:
                 "asked (PX4 sends it at its estimator's rate): the loop runs at that rate",
             )
         self.loop_period = LoopPeriodMonitor(period_s, max(limit.max_period_s, period_s))
+        self.report.late_cycles_by_cause.clear()  # the new monitor counts from zero
 
     # -------------------------------------------------------------- sequence
 
@@ -607,24 +610,63 @@ class PickupApp:
     # ----------------------------------------------------------- control loop
 
     async def _control_loop(self) -> None:
-        with self.link.subscribe(VehiclePose, maxsize=4) as poses:
+        window = CycleWindow()
+        with (
+            self.link.subscribe(VehiclePose, maxsize=4) as poses,
+            closing(ThreadTimes()) as thread_times,
+        ):
             while True:
                 pose = await poses.get()
                 received = time.perf_counter()
                 received_cpu = time.thread_time()
+                dropped = poses.dropped - self.report.poses_dropped
                 self.report.poses_dropped = poses.dropped
-                if self.link.lost is not None:
-                    continue
-                self._collecting = gc.isenabled()
-                gc.disable()  # _cycle enables it again once the setpoint is sent
-                try:
-                    self._cycle(pose, received, received_cpu)
-                finally:
-                    if self._collecting:
-                        gc.enable()
-                self.arm.due()  # write this cycle's torques, read for the next
-                async with self._tick:  # vehicle time advanced, whatever the cycle did
-                    self._tick.notify_all()
+                late = self.loop_period.late_cycles
+                if self.link.lost is None:
+                    self._collecting = gc.isenabled()
+                    gc.disable()  # _cycle enables it again once the setpoint is sent
+                    try:
+                        self._cycle(pose, received, received_cpu)
+                    finally:
+                        if self._collecting:
+                            gc.enable()
+                    self.arm.due()  # write this cycle's torques, read for the next
+                    async with self._tick:  # vehicle time advanced, whatever the cycle did
+                        self._tick.notify_all()
+                late = self.loop_period.late_cycles - late
+                gap = window.push(thread_times.read(), self.link.take_longest_socket_wait_s())
+                if late > 0 or dropped > 0:
+                    self._attribute_gap(gap, late, dropped)
+
+    def _attribute_gap(self, gap: GapTimes, late: int, dropped: int) -> None:
+        """Count ``late`` cycles and ``dropped`` poses under their cause (:class:`GapCause`,
+        from the control thread's last two cycles) and say why, at most once a second."""
+        cause = gap.cause(self.loop_period.period_s)
+        report = self.report
+        for counts, n in (
+            (report.late_cycles_by_cause, late),
+            (report.poses_dropped_by_cause, dropped),
+        ):
+            if n > 0:
+                counts[cause.value] = counts.get(cause.value, 0) + n
+        if self.t_s - self._gap_noted_s < 1.0:
+            return
+        self._gap_noted_s = self.t_s
+        what = " and ".join(
+            f"{n} {noun}{'s' if n > 1 else ''}"
+            for n, noun in ((late, "late cycle"), (dropped, "dropped pose"))
+            if n > 0
+        )
+
+        def ms(value_s: float | None) -> str:
+            return "?" if value_s is None else f"{value_s * 1e3:.1f} ms"
+
+        self._note(
+            "loop",
+            f"{what}: {cause.value} (over the control thread's last two cycles it ran "
+            f"{ms(gap.run_s)}, waited {ms(gap.cpu_wait_s)} for a CPU; datagrams waited up "
+            f"to {ms(gap.socket_wait_s)} in the socket)",
+        )
 
     def _cycle(self, pose: VehiclePose, received: float, received_cpu: float) -> None:
         """One control cycle on a new pose (see the module docstring), taken off the link

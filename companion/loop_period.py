@@ -14,6 +14,10 @@ wrong on a loaded onboard computer:
   longer stable with margin: the app raises ``loop_overrun`` (:mod:`companion.failsafe`).
   A single long gap is one held command, not that instability: the estimator skips it,
   and a silence of 0.5 s is the link watchdog's ``link_lost``.
+
+Who held up a late cycle or a dropped pose (:class:`GapCause`) is read from what the control
+thread did over its last two cycles (:class:`CycleWindow`): its own CPU time, its time
+waiting for a CPU, and how long the vehicle's datagrams waited in its socket.
 """
 
 from __future__ import annotations
@@ -21,8 +25,9 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from enum import StrEnum
 
-__all__ = ["CyclePeriod", "LoopPeriodMonitor"]
+__all__ = ["CyclePeriod", "CycleWindow", "GapCause", "GapTimes", "LoopPeriodMonitor"]
 
 
 @dataclass(frozen=True)
@@ -115,3 +120,71 @@ class LoopPeriodMonitor:
     def overrun(self) -> bool:
         """At least ``overrun_cycles`` cycles within the window were too long."""
         return len(self._long) >= self.overrun_cycles
+
+
+class GapCause(StrEnum):
+    """Who held up a late cycle or dropped poses (:meth:`GapTimes.cause`)."""
+
+    COMPANION = "companion"
+    """The control thread itself ran for a control period or more."""
+    HOST = "host"
+    """It was ready to run for a period or more and not run: the computer's other work or
+    a hypervisor held its CPU."""
+    BLOCKED = "blocked"
+    """Datagrams waited a period or more while the thread neither ran nor waited for a CPU
+    that long: blocked in a system call or a lock, or its CPU stopped under it."""
+    ARRIVAL = "arrival"
+    """The datagrams did not wait for the thread: the poses came late or together."""
+    UNKNOWN = "unknown"
+    """The OS does not account the thread's times or the datagrams' arrival."""
+
+
+@dataclass(frozen=True)
+class GapTimes:
+    """What the control thread did over a window of its cycles [s] (None: not known)."""
+
+    run_s: float | None
+    """Time on a CPU."""
+    cpu_wait_s: float | None
+    """Time ready to run, waiting for a CPU."""
+    socket_wait_s: float | None
+    """Longest wait of a datagram in the socket, arrival to read."""
+
+    def cause(self, period_s: float) -> GapCause:
+        """Who held the cycles up, judged against the control period ``period_s`` [s]: the
+        companion when its thread ran a period or more (checked first: the verdict
+        against ourselves wins), else the host when it waited that long for a CPU, else
+        blocked when datagrams waited that long, else their arrival."""
+        if self.run_s is None or self.cpu_wait_s is None:
+            return GapCause.UNKNOWN
+        if self.run_s >= period_s:
+            return GapCause.COMPANION
+        if self.cpu_wait_s >= period_s:
+            return GapCause.HOST
+        if self.socket_wait_s is None:
+            return GapCause.UNKNOWN
+        return GapCause.BLOCKED if self.socket_wait_s >= period_s else GapCause.ARRIVAL
+
+
+class CycleWindow:
+    """The control thread's times over its last two cycles: the window in which the delay
+    behind a late cycle or a dropped pose happened (the cycle before the one that sees it
+    may be the slow one)."""
+
+    def __init__(self) -> None:
+        self._times: deque[tuple[float, float] | None] = deque(maxlen=3)
+        self._socket_waits: deque[float | None] = deque(maxlen=2)
+
+    def push(self, times: tuple[float, float] | None, socket_wait_s: float | None) -> GapTimes:
+        """Record the end of a cycle: the thread's cumulative (run, CPU wait) [s], None if
+        not known, and the longest socket wait since the previous cycle [s]; returns the
+        window from the end of the cycle before the previous one to now."""
+        self._times.append(times)
+        self._socket_waits.append(socket_wait_s)
+        first = self._times[0]
+        if times is None or first is None:
+            run_s = cpu_wait_s = None
+        else:
+            run_s, cpu_wait_s = times[0] - first[0], times[1] - first[1]
+        waits = [w for w in self._socket_waits if w is not None]
+        return GapTimes(run_s, cpu_wait_s, max(waits) if waits else None)

@@ -71,6 +71,11 @@ class MissionReport:
     take them, or poses held up before the process saw them and delivered together (on a
     VM, the whole process not running for ~50 ms: README, "The companion takes real-time
     scheduling itself")."""
+    late_cycles_by_cause: dict[str, int] = field(default_factory=dict)
+    """The same by who held them up (:class:`~companion.loop_period.GapCause`: companion,
+    host, blocked, arrival, unknown)."""
+    poses_dropped_by_cause: dict[str, int] = field(default_factory=dict)
+    """Dropped poses by who held them up, as ``late_cycles_by_cause``."""
     longest_period_ms: float | None = None
     """Longest vehicle-time gap between two control cycles [ms]."""
     estimator_skipped_steps: int = 0
@@ -106,6 +111,8 @@ class MissionReport:
             "cpu_share_of_one_core": self.cpu_share,
             "late_cycles": self.late_cycles,
             "poses_dropped": self.poses_dropped,
+            "late_cycles_by_cause": self.late_cycles_by_cause,
+            "poses_dropped_by_cause": self.poses_dropped_by_cause,
             "longest_period_ms": self.longest_period_ms,
             "estimator_skipped_steps": self.estimator_skipped_steps,
             "estimator_skipped_by_reason": self.estimator_skipped,

@@ -82,3 +82,31 @@ def enter_real_time(priority: int) -> Scheduling:
         )
         return Scheduling("normal", f"{delay}: SCHED_FIFO priority {priority} {why}")
     return Scheduling(f"SCHED_FIFO {priority}", None, (policy, previous))
+
+
+class ThreadTimes:
+    """The calling thread's time on a CPU and time waiting for one, from Linux's
+    ``/proc/thread-self/schedstat`` (the scheduler's own accounting, in ns).
+
+    Open it in the thread to watch (the file belongs to the thread that opened it) and
+    :meth:`close` it there when done; :meth:`read` is one ``pread``, about 1 us.
+    """
+
+    def __init__(self) -> None:
+        try:
+            self._fd: int | None = os.open("/proc/thread-self/schedstat", os.O_RDONLY)
+        except OSError:
+            self._fd = None
+
+    def read(self) -> tuple[float, float] | None:
+        """(time run, time runnable but waiting for a CPU) since the thread started [s];
+        None where the kernel does not account them (not Linux, no CONFIG_SCHED_INFO)."""
+        if self._fd is None:
+            return None
+        run_ns, wait_ns, _ = os.pread(self._fd, 64, 0).split()
+        return int(run_ns) * 1e-9, int(wait_ns) * 1e-9
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None

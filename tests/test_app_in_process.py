@@ -244,3 +244,60 @@ def test_a_land_without_a_newer_heartbeat_is_a_mission_error_not_a_disarm():
     with pytest.raises(MissionError, match="did not land and disarm"):
         asyncio.run(fly())
     assert not app.report.disarmed
+
+
+class Done(Exception):
+    """Ends a scripted pose stream."""
+
+
+class DroppingPoses(ScriptedPoses):
+    """Scripted poses whose queue reports ``dropped[i]`` after the i-th pose."""
+
+    def __init__(self, dropped: list[int]) -> None:
+        super().__init__(4000)
+        self.script = dropped
+        self.dropped = 0
+
+    async def get(self) -> VehiclePose:
+        if self.count == len(self.script):
+            raise Done
+        self.dropped = self.script[self.count]
+        return await super().get()
+
+
+class ScriptedThreadTimes:
+    """The control thread's (run, CPU wait) [s], one per cycle."""
+
+    def __init__(self, script: list[tuple[float, float]]) -> None:
+        self.script = script
+
+    def read(self) -> tuple[float, float]:
+        return self.script.pop(0)
+
+    def close(self) -> None:
+        pass
+
+
+def test_the_loop_blames_dropped_poses_on_who_held_them_up(monkeypatch):
+    """The control loop counts each drop under its cause from its thread's last two cycles:
+    47 ms waiting for a CPU is the host; a 38 ms cycle of its own is the companion."""
+    link = PoseLink(DroppingPoses([0, 0, 2, 3]))
+    link.lost = "telemetry"  # the cycles themselves are skipped: only the accounting runs
+    waits = [0.0005, 0.0005, 0.047, 0.0005]
+    link.take_longest_socket_wait_s = lambda: waits.pop(0)
+    times = [(1.0, 5.0), (1.001, 5.0), (1.002, 5.047), (1.040, 5.047)]
+    monkeypatch.setattr("companion.app.ThreadTimes", lambda: ScriptedThreadTimes(times))
+    notes: list[tuple[str, str]] = []
+    app = PickupApp(
+        SCENARIO, link, TwoJoints(), PLAN, event=lambda kind, text, t_s: notes.append((kind, text))
+    )
+    with pytest.raises(Done):
+        asyncio.run(app._control_loop())
+    assert app.report.poses_dropped == 3
+    assert app.report.poses_dropped_by_cause == {"host": 2, "companion": 1}
+    assert app.report.late_cycles_by_cause == {}
+    assert [text.split(" (")[0] for kind, text in notes if kind == "loop"] == [
+        "2 dropped poses: host",
+        "1 dropped pose: companion",
+    ]
+    assert "waited 47.0 ms for a CPU; datagrams waited up to 47.0 ms" in notes[0][1]

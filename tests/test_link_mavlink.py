@@ -6,8 +6,10 @@ by each test, so every byte the link sends is decoded by code that is not ours.
 
 import asyncio
 import math
+import os
 import socket
 import struct
+import time
 
 import numpy as np
 import pytest
@@ -34,6 +36,8 @@ from companion.link import (
     px4_mode,
     quaternion_from_euler_zyx,
 )
+from companion.link.transport import open_transport
+from companion.link.url import parse_link_url
 from companion.setpoints import AttitudeThrustSetpoint
 
 WAIT_S = 5.0
@@ -593,3 +597,39 @@ def test_a_second_ack_that_refuses_the_mode_wins():
     with pytest.raises(CommandDenied) as info:
         run(scenario(m.MAV_RESULT_TEMPORARILY_REJECTED))
     assert info.value.result == m.MAV_RESULT_TEMPORARILY_REJECTED
+
+
+def test_datagrams_waiting_in_the_socket_are_timed_from_their_arrival():
+    """The kernel stamps each datagram's arrival: while the event loop is held up (a
+    blocking sleep), the vehicle's poses wait in the socket, and the link says how long."""
+
+    async def scenario():
+        peer = Peer()
+        link = await _connected(peer)
+        try:
+            with link.subscribe(VehiclePose) as poses:
+                link.take_longest_socket_wait_s()
+                peer.odometry(1)
+                time.sleep(0.06)  # noqa: ASYNC251 - holds the loop: the datagram waits
+                await poses.get()
+                held = link.take_longest_socket_wait_s()
+                after = link.take_longest_socket_wait_s()
+        finally:
+            await link.close()
+            peer.close()
+        return held, after
+
+    held, after = run(scenario())
+    assert held >= 0.055
+    assert after == 0.0
+
+
+def test_a_serial_link_cannot_time_its_datagrams():
+    parent, child = os.openpty()
+    try:
+        transport = open_transport(parse_link_url(f"serial://{os.ttyname(child)}:57600"), 1, 191)
+        assert transport.take_longest_socket_wait_s() is None
+        transport.close()
+    finally:
+        os.close(parent)
+        os.close(child)

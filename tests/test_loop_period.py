@@ -8,7 +8,7 @@ import pytest
 from companion.config import load_config
 from companion.control import ControlRateError
 from companion.flight_control import FlightControl
-from companion.loop_period import LoopPeriodMonitor
+from companion.loop_period import CycleWindow, GapCause, GapTimes, LoopPeriodMonitor
 
 
 def feed(monitor, times):
@@ -101,3 +101,45 @@ def test_max_period_is_where_the_rate_check_starts_refusing():
     control.check_rate(1.0 / (0.99 * max_period_s), q)
     with pytest.raises(ControlRateError):
         control.check_rate(1.0 / (1.01 * max_period_s), q)
+
+
+PERIOD_S = 0.008
+
+
+@pytest.mark.parametrize(
+    ("run_s", "cpu_wait_s", "socket_wait_s", "cause"),
+    [
+        (0.009, 0.040, 0.050, GapCause.COMPANION),  # its own work first, whatever else
+        (0.001, 0.046, 0.047, GapCause.HOST),  # ready, not run: the VM trace of 3 Dec
+        (0.001, 0.001, 0.047, GapCause.BLOCKED),  # data waited, the thread did neither
+        (0.001, 0.001, 0.0004, GapCause.ARRIVAL),  # nothing waited: the poses came late
+        (0.001, 0.009, None, GapCause.HOST),  # a serial link: the CPU wait still tells
+        (0.001, 0.001, None, GapCause.UNKNOWN),
+        (None, None, 0.047, GapCause.UNKNOWN),  # no scheduler accounting
+    ],
+)
+def test_a_gap_is_blamed_on_who_held_it_up(run_s, cpu_wait_s, socket_wait_s, cause):
+    assert GapTimes(run_s, cpu_wait_s, socket_wait_s).cause(PERIOD_S) is cause
+
+
+def test_the_window_spans_the_last_two_cycles():
+    """The cycle before the one that sees a drop may be the slow one: its time counts."""
+    window = CycleWindow()
+    assert window.push((1.0, 5.0), 0.001) == GapTimes(0.0, 0.0, 0.001)
+    window.push((1.030, 5.0), 0.002)  # a 30 ms cycle
+    gap = window.push((1.031, 5.047), 0.0)
+    assert gap.run_s == pytest.approx(0.031) and gap.cpu_wait_s == pytest.approx(0.047)
+    assert gap.socket_wait_s == 0.002 and gap.cause(PERIOD_S) is GapCause.COMPANION
+    gap = window.push((1.032, 5.047), 0.0)  # the slow cycle left the window
+    assert gap.run_s == pytest.approx(0.002) and gap.cpu_wait_s == pytest.approx(0.047)
+    assert gap.socket_wait_s == 0.0 and gap.cause(PERIOD_S) is GapCause.HOST
+    assert window.push((1.033, 5.047), 0.0).cause(PERIOD_S) is GapCause.ARRIVAL
+
+
+def test_a_window_without_accounting_is_unknown():
+    window = CycleWindow()
+    window.push((1.0, 5.0), None)
+    assert window.push(None, None) == GapTimes(None, None, None)
+    window.push((1.1, 5.0), None)
+    assert window.push((1.2, 5.0), None).run_s is None  # the window starts at the None
+    assert window.push((1.3, 5.0), None).run_s == pytest.approx(0.2)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import os
 import threading
+import time
 
 import pytest
 from test_app_in_process import PLAN, SCENARIO, PoseLink, ScriptedPoses, TwoJoints
@@ -16,7 +17,7 @@ from test_app_in_process import PLAN, SCENARIO, PoseLink, ScriptedPoses, TwoJoin
 import companion.scheduling as scheduling
 from companion.app import MissionError, PickupApp
 from companion.config import ConfigError, parse_config
-from companion.scheduling import enter_real_time
+from companion.scheduling import ThreadTimes, enter_real_time
 
 pytestmark = pytest.mark.skipif(
     not hasattr(os, "sched_setscheduler"), reason="no POSIX scheduling calls on this OS"
@@ -180,3 +181,36 @@ def test_the_app_notes_a_refusal_and_flies_normal(monkeypatch):
     assert app.report.scheduling == "normal"
     [(kind, text)] = events
     assert kind == "loop" and "not permitted" in text
+
+
+@pytest.mark.skipif(
+    not os.path.exists("/proc/thread-self/schedstat"), reason="no scheduler statistics here"
+)
+def test_thread_times_are_the_opening_threads_own():
+    """The loop's window reads its own thread's time on a CPU: 50 ms of spinning shows, a
+    thread that slept meanwhile shows none of it."""
+    slept: list[float] = []
+
+    def sleeper() -> None:
+        times = ThreadTimes()
+        before = times.read()
+        time.sleep(0.1)
+        after = times.read()
+        times.close()
+        assert before is not None and after is not None
+        slept.append(after[0] - before[0])
+
+    times = ThreadTimes()
+    before = times.read()
+    thread = threading.Thread(target=sleeper)
+    thread.start()
+    start = time.thread_time()
+    while time.thread_time() - start < 0.05:
+        pass
+    after = times.read()
+    thread.join()
+    times.close()
+    assert before is not None and after is not None
+    assert 0.045 <= after[0] - before[0] < 1.0 and after[1] >= before[1] >= 0.0
+    assert slept[0] < 0.02
+    assert times.read() is None  # closed

@@ -300,6 +300,12 @@ class MavlinkLink(Px4Commands):
 
     # --- sending ---------------------------------------------------------------------
 
+    def take_longest_socket_wait_s(self) -> float | None:
+        """The longest a datagram waited in the socket, from its arrival to the reader's
+        read, since the previous call [s]; None where the transport cannot tell (serial,
+        TCP, no kernel arrival times) or the link is not open."""
+        return None if self._transport is None else self._transport.take_longest_socket_wait_s()
+
     @property
     def mav(self) -> mavlink2.MAVLink:
         """pymavlink's codec of this link, to build messages (``link.mav.xxx_encode``)."""

@@ -8,11 +8,18 @@ own MAVLink 2 codec. Reads and writes go to the socket / port directly: a closed
 becomes :class:`LinkClosedError` instead of pymavlink's reconnect attempts and prints.
 ``udpin`` answers the sender of the latest datagram (PX4's onboard link); before the
 first datagram there is nobody to send to and frames are dropped (counted).
+
+On Linux, UDP datagrams carry the kernel's arrival time (``SO_TIMESTAMPNS_NEW``), so the
+transport can say how long datagrams waited in the socket before the process read them
+(:meth:`Transport.take_longest_socket_wait_s`): the part of a delay that happened in this
+process, not on the way.
 """
 
 from __future__ import annotations
 
 import socket
+import struct
+import time
 from typing import Any
 
 from pymavlink import mavutil
@@ -23,6 +30,12 @@ from companion.link.url import LinkUrl
 __all__ = ["Transport", "open_transport"]
 
 _READ_SIZE = 65536
+
+_SO_TIMESTAMPNS_NEW = 64
+"""Linux >= 5.1 (asm-generic/socket.h, also x86): arrival time as a ``__kernel_timespec``
+(two int64 on every architecture). Python's socket module does not name it."""
+_TIMESPEC = struct.Struct("qq")
+_ANCILLARY_SIZE = socket.CMSG_SPACE(_TIMESPEC.size)
 
 
 class Transport:
@@ -39,6 +52,17 @@ class Transport:
         self.unsent_frames = 0
         """Frames dropped: full socket buffer, or no peer yet (``udpin`` before the first
         datagram arrived)."""
+        self._stamped = url.scheme in ("udpin", "udpout") and _enable_arrival_times(conn.port)
+        self._longest_wait_s = 0.0
+
+    def take_longest_socket_wait_s(self) -> float | None:
+        """The longest a datagram waited in the socket, from the kernel's arrival time to
+        this process's read, since the previous call [s]; None where the transport cannot
+        tell (serial, TCP, no kernel arrival times)."""
+        if not self._stamped:
+            return None
+        longest, self._longest_wait_s = self._longest_wait_s, 0.0
+        return longest
 
     def read(self) -> bytes:
         """Bytes available now (one datagram for UDP), or ``b""`` if none."""
@@ -54,7 +78,13 @@ class Transport:
             if self.url.scheme == "serial":
                 return bytes(self._conn.port.read(_READ_SIZE))
             try:
-                data, sender = self._conn.port.recvfrom(_READ_SIZE)
+                if self._stamped:
+                    data, ancillary, _, sender = self._conn.port.recvmsg(
+                        _READ_SIZE, _ANCILLARY_SIZE
+                    )
+                    self._note_arrival(ancillary)
+                else:
+                    data, sender = self._conn.port.recvfrom(_READ_SIZE)
             except (BlockingIOError, ConnectionRefusedError):
                 return b""
             if self.url.scheme == "udpin":
@@ -64,6 +94,13 @@ class Transport:
             raise
         except Exception as exc:  # pyserial raises SerialException, sockets OSError
             raise LinkClosedError(f"{self.url}: read failed: {exc}") from exc
+
+    def _note_arrival(self, ancillary: list[tuple[int, int, bytes]]) -> None:
+        for level, kind, value in ancillary:
+            if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS_NEW:
+                seconds, nanoseconds = _TIMESPEC.unpack_from(value)
+                waited_s = time.time() - (seconds + nanoseconds * 1e-9)
+                self._longest_wait_s = max(self._longest_wait_s, waited_s)
 
     def write(self, buf: bytes) -> None:
         """Send one frame, without waiting (see :attr:`unsent_frames`)."""
@@ -83,6 +120,16 @@ class Transport:
 
     def close(self) -> None:
         self._conn.close()
+
+
+def _enable_arrival_times(sock: socket.socket) -> bool:
+    """Ask the kernel to stamp each datagram with its arrival time (CLOCK_REALTIME);
+    False where it cannot (not Linux, a kernel before 5.1)."""
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS_NEW, 1)
+    except OSError:
+        return False
+    return True
 
 
 def open_transport(url: LinkUrl, system_id: int, component_id: int) -> Transport:
