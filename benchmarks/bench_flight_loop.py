@@ -31,6 +31,7 @@ Usage: ``python benchmarks/bench_flight_loop.py [--busy 0,1,2] [--autopilot imit
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import os
 import subprocess
@@ -56,8 +57,9 @@ def scenario_with_priority(priority: int, tmp: Path) -> Path:
 
 def fly(
     busy: int, autopilot: str, tmp: Path, fifo_priority: int | None, scenario: Path
-) -> tuple[dict | None, str]:
-    """The demo with ``busy`` spinning processes; (summary or None, the demo's output)."""
+) -> tuple[dict | None, str, list[str]]:
+    """The demo with ``busy`` spinning processes; (summary or None, the demo's output, its
+    notes on late cycles and dropped poses)."""
     spinners = [subprocess.Popen([sys.executable, "-c", SPIN]) for _ in range(busy)]
     prefix = [] if fifo_priority is None else ["chrt", "--fifo", str(fifo_priority)]
     try:
@@ -73,7 +75,20 @@ def fly(
             spinner.wait()
     summary_path = out / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.exists() else None
-    return summary, result.stdout + result.stderr
+    return summary, result.stdout + result.stderr, gap_notes(out / "flight.events.csv")
+
+
+def gap_notes(events: Path) -> list[str]:
+    """The flight's notes on late cycles and dropped poses, with their causes' figures."""
+    if not events.exists():
+        return []
+    with events.open(newline="") as f:
+        return [
+            f"t {e['t_vehicle_s']} s: {e['detail']}"
+            for e in csv.DictReader(f)
+            if e["kind"] == "loop"
+            and ("late cycle" in e["detail"] or "dropped pose" in e["detail"])
+        ]
 
 
 def row(busy: int, summary: dict) -> str:
@@ -136,11 +151,13 @@ def main() -> None:
             scenario = scenario_with_priority(args.priority, Path(tmp))
         for busy in (n for n in counts for _ in range(args.repeat)):
             load = os.getloadavg()[0]
-            summary, output = fly(busy, args.autopilot, Path(tmp), args.fifo, scenario)
+            summary, output, notes = fly(busy, args.autopilot, Path(tmp), args.fifo, scenario)
             if summary is None:
                 print(f"{busy:>4} the demo wrote no summary (load {load:.1f}):\n{output[-2000:]}")
                 continue
             print(f"{row(busy, summary)}   (load before {load:.1f})")
+            for note in notes:
+                print(f"       {note}")
     print(
         "latencies in us: set = pose -> setpoint sent, cyc = pose -> joint torques written, "
         "cpu p50/p99 = the control thread's CPU time over set; cpu = share of one core; "

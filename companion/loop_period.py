@@ -123,20 +123,22 @@ class LoopPeriodMonitor:
 
 
 class GapCause(StrEnum):
-    """Who held up a late cycle or dropped poses (:meth:`GapTimes.cause`)."""
+    """Who held up a late cycle or dropped poses (:meth:`GapTimes.cause`): the largest of
+    three shares of the control thread's last two cycles, if it reaches a control period."""
 
     COMPANION = "companion"
-    """The control thread itself ran for a control period or more."""
+    """The thread itself running on a CPU."""
     HOST = "host"
-    """It was ready to run for a period or more and not run: the computer's other work or
-    a hypervisor held its CPU."""
+    """The thread ready to run and not run: the computer's other work or a hypervisor held
+    its CPU."""
     BLOCKED = "blocked"
-    """Datagrams waited a period or more while the thread neither ran nor waited for a CPU
-    that long: blocked in a system call or a lock, or its CPU stopped under it."""
+    """Datagrams waiting in the socket while the thread neither ran nor waited for a CPU:
+    blocked in a system call or a lock (its own, possibly), or its CPU stopped under it."""
     ARRIVAL = "arrival"
-    """The datagrams did not wait for the thread: the poses came late or together."""
+    """None of the three reached a period: the poses came late or together."""
     UNKNOWN = "unknown"
-    """The OS does not account the thread's times or the datagrams' arrival."""
+    """The OS does not account the thread's times, or (serial, TCP: no arrival times)
+    neither of the thread's times reached a period."""
 
 
 @dataclass(frozen=True)
@@ -151,19 +153,22 @@ class GapTimes:
     """Longest wait of a datagram in the socket, arrival to read."""
 
     def cause(self, period_s: float) -> GapCause:
-        """Who held the cycles up, judged against the control period ``period_s`` [s]: the
-        companion when its thread ran a period or more (checked first: the verdict
-        against ourselves wins), else the host when it waited that long for a CPU, else
-        blocked when datagrams waited that long, else their arrival."""
-        if self.run_s is None or self.cpu_wait_s is None:
+        """Who held the cycles up, against the control period ``period_s`` [s]: the
+        largest of the time run, the time waiting for a CPU and the socket wait beyond
+        both (blocked), when it reaches a period; ties go to the companion. The largest,
+        not the first over a period: after a stall the thread's run includes the backlog
+        the stall left (in flight, 5-8 ms of catching up after stalls of 45-100 ms)."""
+        run, cpu_wait = self.run_s, self.cpu_wait_s
+        if run is None or cpu_wait is None:
             return GapCause.UNKNOWN
-        if self.run_s >= period_s:
+        socket_wait = self.socket_wait_s
+        blocked = 0.0 if socket_wait is None else max(0.0, socket_wait - run - cpu_wait)
+        largest = max(run, cpu_wait, blocked)
+        if largest < period_s:
+            return GapCause.UNKNOWN if socket_wait is None else GapCause.ARRIVAL
+        if run == largest:
             return GapCause.COMPANION
-        if self.cpu_wait_s >= period_s:
-            return GapCause.HOST
-        if self.socket_wait_s is None:
-            return GapCause.UNKNOWN
-        return GapCause.BLOCKED if self.socket_wait_s >= period_s else GapCause.ARRIVAL
+        return GapCause.HOST if cpu_wait == largest else GapCause.BLOCKED
 
 
 class CycleWindow:
