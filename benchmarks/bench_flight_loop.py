@@ -163,9 +163,10 @@ def main() -> None:
         "cpu p50/p99 = the control thread's CPU time over set; cpu = share of one core; "
         "no read = estimator steps skipped for want of a new joint read (the arm task's Sync "
         "Read not back by the next pose); sched = the control thread's scheduling; cause = "
-        "who held up the late cycles / dropped poses (companion: the control thread ran a "
-        "period or more; host: it waited that long for a CPU; blocked: datagrams waited "
-        "that long while it did neither; arrival: they did not wait)"
+        "who held up the late cycles / dropped poses, the largest share of the control "
+        "thread's last two cycles if it reaches a period (companion: it ran; host: it "
+        "waited for a CPU; blocked: datagrams waited in its socket beyond both; arrival: "
+        "none reached a period)"
     )
 
 

@@ -68,12 +68,11 @@ class MissionReport:
     """Cycles later than 2.5 control periods (vehicle time); the estimator skipped them."""
     poses_dropped: int = 0
     """Poses dropped because the control loop's queue of 4 overflowed: the loop too slow to
-    take them, or poses held up before the process saw them and delivered together (on a
-    VM, the whole process not running for ~50 ms: README, "The companion takes real-time
-    scheduling itself")."""
+    take them, or poses held up before the process saw them and delivered together
+    (``poses_dropped_by_cause`` says which)."""
     late_cycles_by_cause: dict[str, int] = field(default_factory=dict)
-    """The same by who held them up (:class:`~companion.loop_period.GapCause`: companion,
-    host, blocked, arrival, unknown)."""
+    """Late cycles by who held them up (:class:`~companion.loop_period.GapCause`:
+    companion, host, blocked, arrival, unknown)."""
     poses_dropped_by_cause: dict[str, int] = field(default_factory=dict)
     """Dropped poses by who held them up, as ``late_cycles_by_cause``."""
     longest_period_ms: float | None = None

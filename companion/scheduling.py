@@ -12,6 +12,9 @@ when the mission ends. Linux allows it to root, to a process with CAP_SYS_NICE, 
 the user's RLIMIT_RTPRIO (systemd ``LimitRTPRIO=``, limits.conf ``rtprio``); the kernel's
 real-time throttling (``sched_rt_runtime_us``, 95 % by default) keeps a runaway loop from
 starving the computer.
+
+:class:`ThreadTimes` reads the thread's time on a CPU and waiting for one, from which the
+control loop tells who held up a late cycle (:mod:`companion.loop_period`).
 """
 
 from __future__ import annotations

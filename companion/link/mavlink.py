@@ -298,13 +298,13 @@ class MavlinkLink(Px4Commands):
             telemetry_rejected=dict(self._rejected),
         )
 
-    # --- sending ---------------------------------------------------------------------
-
     def take_longest_socket_wait_s(self) -> float | None:
         """The longest a datagram waited in the socket, from its arrival to the reader's
         read, since the previous call [s]; None where the transport cannot tell (serial,
         TCP, no kernel arrival times) or the link is not open."""
         return None if self._transport is None else self._transport.take_longest_socket_wait_s()
+
+    # --- sending ---------------------------------------------------------------------
 
     @property
     def mav(self) -> mavlink2.MAVLink:
