@@ -634,9 +634,9 @@ class PickupApp:
                     async with self._tick:  # vehicle time advanced, whatever the cycle did
                         self._tick.notify_all()
                 late = self.loop_period.late_cycles - late
-                gap = window.push(thread_times.read(), self.link.take_longest_socket_wait_s())
+                window.push(thread_times.read(), self.link.take_longest_socket_wait_s())
                 if late > 0 or dropped > 0:
-                    self._attribute_gap(gap, late, dropped)
+                    self._attribute_gap(window.gap(), late, dropped)
 
     def _attribute_gap(self, gap: GapTimes, late: int, dropped: int) -> None:
         """Count ``late`` cycles and ``dropped`` poses under their cause (:class:`GapCause`,

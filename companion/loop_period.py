@@ -180,16 +180,19 @@ class CycleWindow:
         self._times: deque[tuple[float, float] | None] = deque(maxlen=3)
         self._socket_waits: deque[float | None] = deque(maxlen=2)
 
-    def push(self, times: tuple[float, float] | None, socket_wait_s: float | None) -> GapTimes:
+    def push(self, times: tuple[float, float] | None, socket_wait_s: float | None) -> None:
         """Record the end of a cycle: the thread's cumulative (run, CPU wait) [s], None if
-        not known, and the longest socket wait since the previous cycle [s]; returns the
-        window from the end of the cycle before the previous one to now."""
+        not known, and the longest socket wait since the previous cycle [s]."""
         self._times.append(times)
         self._socket_waits.append(socket_wait_s)
-        first = self._times[0]
-        if times is None or first is None:
+
+    def gap(self) -> GapTimes:
+        """The window from the end of the cycle before the previous one to the last push
+        (computed only when asked: a late cycle or a drop)."""
+        first, last = self._times[0], self._times[-1]
+        if first is None or last is None:
             run_s = cpu_wait_s = None
         else:
-            run_s, cpu_wait_s = times[0] - first[0], times[1] - first[1]
+            run_s, cpu_wait_s = last[0] - first[0], last[1] - first[1]
         waits = [w for w in self._socket_waits if w is not None]
         return GapTimes(run_s, cpu_wait_s, max(waits) if waits else None)

@@ -126,24 +126,30 @@ def test_a_gap_is_blamed_on_who_held_it_up(run_s, cpu_wait_s, socket_wait_s, cau
     assert GapTimes(run_s, cpu_wait_s, socket_wait_s).cause(PERIOD_S) is cause
 
 
+def after(window, times, socket_wait_s):
+    """Push one cycle's end and return the window's gap."""
+    window.push(times, socket_wait_s)
+    return window.gap()
+
+
 def test_the_window_spans_the_last_two_cycles():
     """The cycle before the one that sees a drop may be the slow one: its time counts."""
     window = CycleWindow()
-    assert window.push((1.0, 5.0), 0.001) == GapTimes(0.0, 0.0, 0.001)
+    assert after(window, (1.0, 5.0), 0.001) == GapTimes(0.0, 0.0, 0.001)
     window.push((1.060, 5.0), 0.002)  # a 60 ms cycle
-    gap = window.push((1.061, 5.047), 0.0)
+    gap = after(window, (1.061, 5.047), 0.0)
     assert gap.run_s == pytest.approx(0.061) and gap.cpu_wait_s == pytest.approx(0.047)
     assert gap.socket_wait_s == 0.002 and gap.cause(PERIOD_S) is GapCause.COMPANION
-    gap = window.push((1.062, 5.047), 0.0)  # the slow cycle left the window
+    gap = after(window, (1.062, 5.047), 0.0)  # the slow cycle left the window
     assert gap.run_s == pytest.approx(0.002) and gap.cpu_wait_s == pytest.approx(0.047)
     assert gap.socket_wait_s == 0.0 and gap.cause(PERIOD_S) is GapCause.HOST
-    assert window.push((1.063, 5.047), 0.0).cause(PERIOD_S) is GapCause.ARRIVAL
+    assert after(window, (1.063, 5.047), 0.0).cause(PERIOD_S) is GapCause.ARRIVAL
 
 
 def test_a_window_without_accounting_is_unknown():
     window = CycleWindow()
     window.push((1.0, 5.0), None)
-    assert window.push(None, None) == GapTimes(None, None, None)
+    assert after(window, None, None) == GapTimes(None, None, None)
     window.push((1.1, 5.0), None)
-    assert window.push((1.2, 5.0), None).run_s is None  # the window starts at the None
-    assert window.push((1.3, 5.0), None).run_s == pytest.approx(0.2)
+    assert after(window, (1.2, 5.0), None).run_s is None  # the window starts at the None
+    assert after(window, (1.3, 5.0), None).run_s == pytest.approx(0.2)

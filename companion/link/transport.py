@@ -52,7 +52,7 @@ class Transport:
         self.unsent_frames = 0
         """Frames dropped: full socket buffer, or no peer yet (``udpin`` before the first
         datagram arrived)."""
-        self._stamped = url.scheme in ("udpin", "udpout") and _enable_arrival_times(conn.port)
+        self._stamped = not url.is_stream and _enable_arrival_times(conn.port)
         self._longest_wait_s = 0.0
 
     def take_longest_socket_wait_s(self) -> float | None:
