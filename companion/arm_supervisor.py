@@ -24,13 +24,16 @@ bus that cannot read it is noted once and not asked again.
 With the servos' Bus Watchdog armed (``watchdog_ms``), a bus silent for most of its
 timeout (a lost MAVLink link pauses the loop) has stopped the current-mode joints, which
 then refuse torque without a word: the task enables them again first.
+
+Time: ages, read periods and the bus's silence are measured on the running event loop's
+clock (``loop.time()``): the monotonic clock in flight, the simulation's in a flight on
+simulated time (:mod:`sitl.lockstep`).
 """
 
 from __future__ import annotations
 
 import asyncio
 import math
-import time
 from collections.abc import Callable
 
 import numpy as np
@@ -79,6 +82,11 @@ fell inside the same busy moment of the servo adapter's host (a SITL's servo thr
 starved at start-up answered none of three reads within 21 ms)."""
 
 
+def _now() -> float:
+    """The running event loop's clock [s]."""
+    return asyncio.get_running_loop().time()
+
+
 class ArmSupervisor:
     """The arm's task and state; see the module docstring.
 
@@ -124,17 +132,19 @@ class ArmSupervisor:
         """False once the bus said it cannot read the gripper."""
         self._gripper_state: GripperState | None = None
         self._gripper_read_s = -math.inf
-        self._last_transaction_s = time.monotonic()
-        """Wall-clock time of the last joint transaction [s] (the servos' watchdog clock)."""
+        self._last_transaction_s = -math.inf
+        """Event-loop time of the last joint transaction [s] (the servos' watchdog clock;
+        none yet before :meth:`prepare`)."""
 
     # --------------------------------------------------------------- the cycle's side
 
     def take(self) -> tuple[dict[str, JointState], float] | None:
-        """The joint state read since the last call and its age [s] (wall clock), or None."""
+        """The joint state read since the last call and its age [s] (on the event loop's
+        clock), or None."""
         joints, self._joints = self._joints, None
         if joints is None:
             return None
-        return joints, max(time.monotonic() - self._read_s, 0.0)
+        return joints, max(_now() - self._read_s, 0.0)
 
     def command(self, torques_n_m: FloatArray) -> FloatArray:
         """Hand over the joint torques [N m] (clipped to the joints' limits); returns what
@@ -178,7 +188,7 @@ class ArmSupervisor:
                 await self.bus.set_operating_mode(OperatingMode.CURRENT)
                 await self.bus.enable_torque()
                 await self.bus.open_gripper()
-                self._last_transaction_s = time.monotonic()
+                self._last_transaction_s = _now()
                 return states
             except (BusTimeoutError, CommunicationError) as exc:
                 if attempt == PREFLIGHT_ATTEMPTS:
@@ -205,7 +215,7 @@ class ArmSupervisor:
                 await self._move_gripper(action)
             joints = await self.read_joints()
             if joints is not None:
-                self._joints, self._read_s = joints, time.monotonic()
+                self._joints, self._read_s = joints, _now()
             if self._watch_gripper and self.gripper_readable:
                 await self._read_gripper()
 
@@ -217,7 +227,7 @@ class ArmSupervisor:
             self._failed_once(exc)
             return None
         finally:
-            self._last_transaction_s = time.monotonic()
+            self._last_transaction_s = _now()
         self._failures, self._failing_since = 0, math.nan
         return joints
 
@@ -232,15 +242,15 @@ class ArmSupervisor:
         except ArmDriverError as exc:
             self._failed_once(exc)
         finally:
-            self._last_transaction_s = time.monotonic()
+            self._last_transaction_s = _now()
 
     async def rearm_after_silence(self) -> None:
         """Enable torque again if the bus was silent long enough (a link loss, a stall)
         for the servos' watchdog to have stopped the joints. 0.8 of the timeout: the
         servos' clock is not ours."""
         watchdog_s = self.watchdog_s
-        silent_s = time.monotonic() - self._last_transaction_s
-        if watchdog_s <= 0.0 or silent_s < 0.8 * watchdog_s:
+        silent_s = _now() - self._last_transaction_s
+        if watchdog_s <= 0.0 or not math.isfinite(silent_s) or silent_s < 0.8 * watchdog_s:
             return
         try:
             await self.bus.enable_torque()
@@ -248,7 +258,7 @@ class ArmSupervisor:
             self._failed_once(exc)
             return
         finally:
-            self._last_transaction_s = time.monotonic()
+            self._last_transaction_s = _now()
         self._note(
             "servo",
             f"bus silent for {silent_s * 1e3:.0f} ms (servo watchdog "
@@ -258,7 +268,7 @@ class ArmSupervisor:
     async def _read_gripper(self) -> None:
         """Read the gripper's state if its period is over; failures counted, a bus that
         cannot read it noted once."""
-        now = time.monotonic()
+        now = _now()
         if now - self._gripper_read_s < GRIPPER_READ_PERIOD_S:
             return
         self._gripper_read_s = now
@@ -272,7 +282,7 @@ class ArmSupervisor:
         except ArmDriverError as exc:
             self._failed_once(exc)
         finally:
-            self._last_transaction_s = time.monotonic()
+            self._last_transaction_s = _now()
 
     async def _move_gripper(self, action: GripperAction) -> None:
         """Open or close, tried :data:`GRIPPER_ATTEMPTS` times on link errors; a gripper
@@ -290,7 +300,7 @@ class ArmSupervisor:
                 self._lose(f"gripper: {exc}")
                 return
             finally:
-                self._last_transaction_s = time.monotonic()
+                self._last_transaction_s = _now()
 
     def _failed_once(self, exc: ArmDriverError) -> None:
         self._failures += 1

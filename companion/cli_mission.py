@@ -2,6 +2,7 @@
 
 Flies one mission against a vehicle (PX4, ``sitl run``, ``sitl sih``) and an arm bus given
 by URL, and writes into ``--out``: ``flight.csv`` / ``flight.events.csv`` (the flight log),
+``flight.timing.csv`` (what the wall clock measured),
 ``summary.json`` and, when matplotlib is installed, the figures of ``companion plot``.
 (``sitl demo`` runs the same mission against the simulator: :func:`run_mission`.)
 
@@ -39,6 +40,7 @@ __all__ = [
     "MISSION_FILES",
     "ControllerOpt",
     "check_mission_options",
+    "finish_mission",
     "fly_pickup",
     "mission_app",
     "parse_xyz",
@@ -46,7 +48,13 @@ __all__ = [
     "run_mission",
 ]
 
-MISSION_FILES = ("flight.csv", "flight.events.csv", "summary.json", *FIGURES)
+MISSION_FILES = (
+    "flight.csv",
+    "flight.events.csv",
+    "flight.timing.csv",
+    "summary.json",
+    *FIGURES,
+)
 """What a mission writes into its output directory."""
 
 HORIZONTAL_RANGE_M = 1000.0
@@ -108,8 +116,10 @@ async def fly_pickup(
     signing_key: Path | None = None,
     control_rate_hz: float = 250.0,
     vehicle_timeout_s: float = 10.0,
+    figures: bool = True,
 ) -> tuple[MissionReport, BaseException | None]:
-    """Open the link and the arm bus, fly, write log and summary.
+    """Open the link and the arm bus, fly, write log and summary (and, with ``figures``,
+    the figures).
 
     Returns the report and the mission's failure (MissionError / MissionAborted) or None.
     Raises :class:`UsageError` when the vehicle or the bus cannot be reached.
@@ -183,7 +193,7 @@ async def fly_pickup(
     summary = report.as_dict()
     summary["failure"] = None if failure is None else f"{type(failure).__name__}: {failure}"
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    if log_path.stat().st_size > 0:
+    if figures and log_path.stat().st_size > 0:
         _draw_figures(log_path, out_dir)
     return report, failure
 
@@ -330,6 +340,11 @@ def run_mission(scenario, connect, bus_url, plan, controller, out, signing_key, 
         )
     except UsageError as exc:
         fail(str(exc))
+    return finish_mission(report, failure, out)
+
+
+def finish_mission(report: MissionReport, failure: BaseException | None, out: Path) -> int:
+    """Print the report of a flown mission; the exit status (0 completed, 1 failed)."""
     _print_report(report, failure)
     typer.echo(f"log, summary and figures: {out}/")
     return 0 if failure is None else 1

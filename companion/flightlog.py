@@ -1,4 +1,4 @@
-"""Flight log: one CSV row per control cycle, and a CSV of events beside it.
+"""Flight log: one CSV row per control cycle, a CSV of events and a CSV of timing beside it.
 
 Format
 ------
@@ -12,7 +12,7 @@ not available that cycle (read back as NaN); flags are 0 / 1.
 =================================  =========================================================
 columns                            content
 =================================  =========================================================
-``t_vehicle_s``, ``t_wall_s``      vehicle clock (time_boot_ms / 1000) and Unix time [s]
+``t_vehicle_s``                    vehicle clock (time_boot_ms / 1000) [s]
 ``q_<i>_<u>``                      q: x y z [m], phi theta psi eta1 eta2 [rad]
 ``qdot_<i>_<u>_s``                 filtered q_dot [m/s, rad/s]
 ``qddot_<i>_<u>_s2``               filtered q_ddot [m/s^2, rad/s^2]
@@ -30,17 +30,28 @@ columns                            content
 ``servo_tau_meas_eta<j>_n_m``      [N m]
 ``servo_pos_eta<j>_rad``           joint position read from the servos [rad]
 ``loop_period_ms``                 vehicle time since the previous control cycle [ms]
+``px4_mode``, ``armed``            PX4 mode name, armed flag
+``phase``, ``faults``              mission phase; active faults, ``;``-separated
+=================================  =========================================================
+
+``LOG.timing.csv``: what the wall clock measured, one row per row of ``LOG.csv``:
+
+=================================  =========================================================
+``t_vehicle_s``, ``t_wall_s``      vehicle clock and Unix time [s]
 ``setpoint_latency_us``            pose taken from the link -> setpoint sent, this cycle [us]
 ``cycle_latency_us``               pose taken from the link -> joint torques handed to the
                                    arm task, this cycle [us] (empty: nothing was sent)
 ``setpoint_cpu_us``                the companion thread's CPU time over
                                    ``setpoint_latency_us`` [us]: the rest of that time it
                                    waited for a core
-``px4_mode``, ``armed``            PX4 mode name, armed flag
-``phase``, ``faults``              mission phase; active faults, ``;``-separated
 =================================  =========================================================
 
-``LOG.events.csv``: columns ``t_vehicle_s, t_wall_s, kind, detail``, one row per event.
+Measurements are kept apart so that ``LOG.csv`` and ``LOG.events.csv`` hold only what the
+flight did, on the vehicle's clock: a flight on simulated time (:mod:`sitl.lockstep`)
+writes them byte for byte the same at any speed and load; only ``LOG.timing.csv`` differs.
+:func:`read_flight_log` reads the three files into one set of columns.
+
+``LOG.events.csv``: columns ``t_vehicle_s, kind, detail``, one row per event.
 Kinds written by the writer itself: ``mode`` (PX4 mode changed; detail ``OLD->NEW``),
 ``phase`` (mission phase changed), ``fault`` / ``fault_cleared`` (a fault name appeared in
 / left ``faults``); the application adds its own with :meth:`FlightLogWriter.event`.
@@ -75,13 +86,16 @@ if TYPE_CHECKING:
 __all__ = [
     "COLUMNS",
     "TEXT_COLUMNS",
+    "TIMING_COLUMNS",
     "CycleRecord",
     "FlightLog",
     "FlightLogError",
     "FlightLogWriter",
     "events_path",
     "format_row",
+    "format_timing_row",
     "read_flight_log",
+    "timing_path",
 ]
 
 Q_NAMES = ("x", "y", "z", "phi", "theta", "psi", "eta1", "eta2")
@@ -104,7 +118,6 @@ TEXT_COLUMNS = ("px4_mode", "phase", "faults")
 
 COLUMNS: tuple[str, ...] = (
     "t_vehicle_s",
-    "t_wall_s",
     *(f"q_{n}_{u}" for n, u in zip(Q_NAMES, _Q_UNITS, strict=True)),
     *(f"qdot_{n}_{u}_s" for n, u in zip(Q_NAMES, _Q_UNITS, strict=True)),
     *(f"qddot_{n}_{u}_s2" for n, u in zip(Q_NAMES, _Q_UNITS, strict=True)),
@@ -121,17 +134,23 @@ COLUMNS: tuple[str, ...] = (
     *(f"servo_tau_meas_{j}_n_m" for j in _JOINTS),
     *(f"servo_pos_{j}_rad" for j in _JOINTS),
     "loop_period_ms",
-    "setpoint_latency_us",
-    "cycle_latency_us",
-    "setpoint_cpu_us",
     "px4_mode",
     "armed",
     "phase",
     "faults",
 )
-"""Every column of a flight log, in file order."""
+"""Every column of ``LOG.csv``, in file order."""
 
-EVENT_COLUMNS = ("t_vehicle_s", "t_wall_s", "kind", "detail")
+TIMING_COLUMNS: tuple[str, ...] = (
+    "t_vehicle_s",
+    "t_wall_s",
+    "setpoint_latency_us",
+    "cycle_latency_us",
+    "setpoint_cpu_us",
+)
+"""Every column of ``LOG.timing.csv``, in file order."""
+
+EVENT_COLUMNS = ("t_vehicle_s", "kind", "detail")
 
 
 class FlightLogError(Exception):
@@ -142,6 +161,12 @@ def events_path(log_path: str | Path) -> Path:
     """``flight.csv`` -> ``flight.events.csv``."""
     path = Path(log_path)
     return path.with_name(f"{path.stem}.events.csv")
+
+
+def timing_path(log_path: str | Path) -> Path:
+    """``flight.csv`` -> ``flight.timing.csv``."""
+    path = Path(log_path)
+    return path.with_name(f"{path.stem}.timing.csv")
 
 
 @dataclass(frozen=True)
@@ -170,7 +195,8 @@ class CycleRecord:
     faults : sequence of str
         Names of the active faults (no ``;`` in a name).
     t_wall_s : float, optional
-        Unix time [s]; the writer reads the clock if None.
+        Unix time [s]; the writer reads the clock if None. The timing values and this go
+        to ``LOG.timing.csv``.
     """
 
     t_vehicle_s: float
@@ -217,7 +243,7 @@ def _vec(name: str, values: ArrayLike | None, n: int) -> list[str]:
     return [repr(float(v)) for v in arr]
 
 
-def format_row(record: CycleRecord, t_wall_s: float) -> list[str]:
+def format_row(record: CycleRecord) -> list[str]:
     """The cells of one row, in :data:`COLUMNS` order (pure)."""
     r = record
     if r.theta_hat is None:
@@ -239,7 +265,6 @@ def format_row(record: CycleRecord, t_wall_s: float) -> list[str]:
     )
     return [
         _num(r.t_vehicle_s),
-        _num(t_wall_s),
         *_vec("q", r.q, 8),
         *_vec("q_dot", r.q_dot, 8),
         *_vec("q_ddot", r.q_ddot, 8),
@@ -256,9 +281,6 @@ def format_row(record: CycleRecord, t_wall_s: float) -> list[str]:
         *_vec("servo_torque_meas_n_m", r.servo_torque_meas_n_m, 2),
         *_vec("servo_position_rad", r.servo_position_rad, 2),
         _num(r.loop_period_ms),
-        _num(r.setpoint_latency_us),
-        _num(r.cycle_latency_us),
-        _num(r.setpoint_cpu_us),
         r.px4_mode,
         _flag(r.armed),
         r.phase,
@@ -266,12 +288,25 @@ def format_row(record: CycleRecord, t_wall_s: float) -> list[str]:
     ]
 
 
+def format_timing_row(record: CycleRecord, t_wall_s: float) -> list[str]:
+    """The cells of one timing row, in :data:`TIMING_COLUMNS` order (pure)."""
+    r = record
+    return [
+        _num(r.t_vehicle_s),
+        _num(t_wall_s),
+        _num(r.setpoint_latency_us),
+        _num(r.cycle_latency_us),
+        _num(r.setpoint_cpu_us),
+    ]
+
+
 class FlightLogWriter:
-    """Writes ``LOG.csv`` and ``LOG.events.csv`` (see the module docstring).
+    """Writes ``LOG.csv``, ``LOG.events.csv`` and ``LOG.timing.csv`` (see the module
+    docstring).
 
     Nothing is opened in the constructor; use ``with FlightLogWriter(path) as log`` or
     :meth:`open` / :meth:`close` (idempotent). A log is never overwritten: :meth:`open`
-    raises :class:`FlightLogError` if either file exists.
+    raises :class:`FlightLogError` if any of the files exists.
 
     Parameters
     ----------
@@ -286,11 +321,13 @@ class FlightLogWriter:
             raise ValueError("flush_every_rows must be at least 1")
         self.path = Path(path)
         self.events_path = events_path(self.path)
+        self.timing_path = timing_path(self.path)
         self.flush_every_rows = flush_every_rows
         self.rows = 0
         self._files: list[IO[str]] = []
         self._rows: Any = None
         self._events: Any = None
+        self._timing: Any = None
         self._mode = ""
         self._phase = ""
         self._faults: frozenset[str] = frozenset()
@@ -307,7 +344,7 @@ class FlightLogWriter:
         if self._files or self._closed:
             raise FlightLogError(f"{self.path}: a FlightLogWriter opens once")
         try:
-            for p in (self.path, self.events_path):
+            for p in (self.path, self.events_path, self.timing_path):
                 f = open(p, "x", newline="", encoding="utf-8", buffering=1 << 20)
                 self._files.append(f)
         except FileExistsError as exc:
@@ -320,48 +357,49 @@ class FlightLogWriter:
             raise FlightLogError(f"{exc.filename}: cannot write: {exc.strerror}") from None
         self._rows = csv.writer(self._files[0])
         self._events = csv.writer(self._files[1])
+        self._timing = csv.writer(self._files[2])
         self._rows.writerow(COLUMNS)
         self._events.writerow(EVENT_COLUMNS)
+        self._timing.writerow(TIMING_COLUMNS)
 
     def write(self, record: CycleRecord) -> None:
         """Append one cycle; writes ``mode`` / ``phase`` / ``fault`` events on changes."""
         if self._rows is None:
             raise FlightLogError(f"{self.path}: the log is not open")
         t_wall = time.time() if record.t_wall_s is None else record.t_wall_s
-        self._rows.writerow(format_row(record, t_wall))
+        self._rows.writerow(format_row(record))
+        self._timing.writerow(format_timing_row(record, t_wall))
         self.rows += 1
         t = record.t_vehicle_s
         if record.px4_mode != self._mode:
-            self.event("mode", f"{self._mode}->{record.px4_mode}", t, t_wall)
+            self.event("mode", f"{self._mode}->{record.px4_mode}", t)
             self._mode = record.px4_mode
         if record.phase != self._phase:
-            self.event("phase", f"{self._phase}->{record.phase}", t, t_wall)
+            self.event("phase", f"{self._phase}->{record.phase}", t)
             self._phase = record.phase
         faults = frozenset(record.faults)
         if faults != self._faults:
             for name in sorted(faults - self._faults):
-                self.event("fault", name, t, t_wall)
+                self.event("fault", name, t)
             for name in sorted(self._faults - faults):
-                self.event("fault_cleared", name, t, t_wall)
+                self.event("fault_cleared", name, t)
             self._faults = faults
         if self.rows % self.flush_every_rows == 0:
             self._files[0].flush()
+            self._files[2].flush()
 
-    def event(
-        self, kind: str, detail: str, t_vehicle_s: float, t_wall_s: float | None = None
-    ) -> None:
+    def event(self, kind: str, detail: str, t_vehicle_s: float) -> None:
         """Append an event (flushed at once: events are rare and matter after a crash)."""
         if self._events is None:
             raise FlightLogError(f"{self.path}: the log is not open")
-        t_wall = time.time() if t_wall_s is None else t_wall_s
-        self._events.writerow((_num(t_vehicle_s), _num(t_wall), kind, detail))
+        self._events.writerow((_num(t_vehicle_s), kind, detail))
         self._files[1].flush()
 
     def close(self) -> None:
-        """Flush, fsync and close both files (idempotent)."""
+        """Flush, fsync and close the files (idempotent)."""
         self._closed = True
         files, self._files = self._files, []
-        self._rows = self._events = None
+        self._rows = self._events = self._timing = None
         for f in files:
             f.flush()
             os.fsync(f.fileno())
@@ -374,9 +412,10 @@ class FlightLog:
 
     path: Path
     columns: dict[str, NDArray]
-    """Numeric columns as float64 (empty cells NaN); :data:`TEXT_COLUMNS` as str arrays."""
+    """Numeric columns as float64 (empty cells NaN); :data:`TEXT_COLUMNS` as str arrays;
+    the timing columns too (NaN without a timing file)."""
     events: dict[str, NDArray]
-    """Event columns (``t_vehicle_s``, ``t_wall_s`` float64; ``kind``, ``detail`` str)."""
+    """Event columns (``t_vehicle_s`` float64; ``kind``, ``detail`` str)."""
     warnings: tuple[str, ...] = ()
     """What was left out on reading: a last line cut by a crash or a power cut."""
 
@@ -459,7 +498,8 @@ def _read_csv(
 
 
 def read_flight_log(path: str | Path) -> FlightLog:
-    """Read ``LOG.csv`` and ``LOG.events.csv`` (absent events file: no events).
+    """Read ``LOG.csv``, ``LOG.events.csv`` (absent: no events) and ``LOG.timing.csv``
+    (absent: its columns NaN).
 
     A last line cut by a crash or a power cut is left out and named in
     :attr:`FlightLog.warnings`. Raises ``FlightLogError`` naming the file and line for a
@@ -468,6 +508,15 @@ def read_flight_log(path: str | Path) -> FlightLog:
     path = Path(path)
     warnings: list[str] = []
     columns = _read_csv(path, COLUMNS, TEXT_COLUMNS, warnings)
+    n = len(columns["t_vehicle_s"])
+    t_path = timing_path(path)
+    timing = _read_csv(t_path, TIMING_COLUMNS, (), warnings) if t_path.exists() else {}
+    for name in TIMING_COLUMNS[1:]:
+        values = timing.get(name, np.full(n, math.nan))
+        if len(values) != n:  # a crash cut the two files at different rows
+            kept = values[:n]
+            values = np.concatenate([kept, np.full(n - len(kept), math.nan)])
+        columns[name] = values
     ev_path = events_path(path)
     if ev_path.exists():
         events = _read_csv(ev_path, EVENT_COLUMNS, ("kind", "detail"), warnings)

@@ -371,14 +371,29 @@ def demo(
     navigation: Annotated[
         str, typer.Option(help="mocap (motion capture) or gps (with --autopilot px4: RTK).")
     ] = "mocap",
+    clock: Annotated[
+        str,
+        typer.Option(
+            help="wall (sitl run in its own process, paced at --speed, over UDP and a pty) "
+            "or virtual (vehicle and companion in one process on the simulation's clock, "
+            "in lockstep, as fast as the machine goes: the same flight log every time)."
+        ),
+    ] = "wall",
 ) -> None:
     """Start the simulated vehicle (``sitl run``), fly the pickup mission against it
     (``companion mission pickup``'s code, given only the companion's part of the scenario),
     write log, summary and figures, and compare the estimate with the truth. With
     ``--autopilot px4`` the real PX4 flies our physics; its log and ULog stay in
-    ``OUT/px4``."""
+    ``OUT/px4``. With ``--clock virtual`` the vehicle and the companion run in this
+    process on simulated time (:mod:`sitl.lockstep`)."""
     if autopilot not in ("imitation", "px4"):
         fail(f"--autopilot must be imitation or px4, got {autopilot!r}")
+    if clock not in ("wall", "virtual"):
+        fail(f"--clock must be wall or virtual, got {clock!r}")
+    if clock == "virtual" and autopilot != "imitation":
+        fail("--clock virtual flies the PX4 imitation; PX4 keeps its own lockstep clock")
+    if clock == "virtual" and speed != 1.0:
+        fail("--speed paces the wall clock; --clock virtual runs as fast as it can")
     if navigation not in ("mocap", "gps"):
         fail(f"--navigation must be mocap or gps, got {navigation!r}")
     extra = ["--navigation", navigation]
@@ -409,6 +424,10 @@ def demo(
     check_mission_options(controller, 250.0, None)
     _check_seed(seed)
     out = output_dir_or_exit(out, DEMO_FILES)
+    if clock == "virtual":
+        status = _fly_virtual(scenario, plan, controller, out, seed, navigation)
+        _print_truth(scenario, out, place_world)
+        raise typer.Exit(status)
     if autopilot == "px4":
         extra += ["--keep-log", str(out / "px4")]
     try:
@@ -431,6 +450,34 @@ def demo(
         sitl.stop()
     _print_truth(scenario, out, place_world)
     raise typer.Exit(status)
+
+
+def _fly_virtual(
+    scenario: Scenario, plan, controller: str, out: Path, seed: int, navigation: str
+) -> int:
+    """The demo on simulated time; the exit status (0 completed, 1 failed)."""
+    from companion.cli_mission import UsageError, finish_mission
+    from sitl.physics import PlantError
+    from sitl.runner import RunOptions
+    from sitl.virtual_flight import fly_virtual
+
+    options = RunOptions(seed=seed, navigation=navigation, truth_log=out / "truth.jsonl")
+    typer.echo("sitl: vehicle and companion in lockstep on simulated time (memory links)")
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        report, failure = fly_virtual(
+            scenario,
+            plan,
+            out,
+            options,
+            controller=controller,  # type: ignore[arg-type]
+        )
+    except UsageError as exc:
+        fail(str(exc))
+    except PlantError as exc:
+        typer.echo(f"error: the simulated vehicle's physics failed: {exc}", err=True)
+        return 1
+    return finish_mission(report, failure, out)
 
 
 def _print_truth(scenario: Scenario, out: Path, place_world: tuple[float, float, float]) -> None:

@@ -17,6 +17,11 @@ Time is simulation time everywhere (message rates, offboard loss, auto-disarm,
 ``time_boot_ms``); the wall clock only paces the loop at ``speed`` times real time. When
 the loop cannot keep up, it runs as fast as it can and the real-time factor it reached is
 reported. Step jitter is the lateness of each step's start behind its wall-clock slot.
+
+On simulated time (``RunOptions.memory``), nothing paces the steps: the links and the servo
+bus are in-memory channels, and :class:`~sitl.lockstep.LockstepLoop` calls
+:meth:`SitlVehicle.step` and :meth:`SitlVehicle.serve` whenever the companion in the same
+process waits.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ from typing import IO
 import numpy as np
 
 from arm_driver.joint import GripperConfig, JointConfig
+from arm_driver.memory import MemoryChannel, MemoryEnd, create_channel
 from companion.config import arm_bus_configs
 from companion.coordinates import POSITION
 from companion.frames import ned_from_enu
@@ -50,6 +56,7 @@ from sitl.px4 import (
 )
 from sitl.scenario import Scenario
 from sitl.servo import Faults, PtyServoBus, XM430Parameters, XM430Servo
+from sitl.servo.memory_bus import MemoryServoBus
 from sitl.world import World, WorldSettings
 
 __all__ = [
@@ -134,6 +141,16 @@ class RunOptions:
     servo_reply_delay_s: float = 0.0
     """Extra delay before every servo reply [s], wall clock (a USB-serial adapter's latency
     timer: an FTDI chip's default is 16 ms)."""
+    link_cut: tuple[float, float] | None = None
+    """Fault injection: (simulation time [s], duration [s]) of a silence of the onboard
+    link, both ways (a radio or cable lost for a while)."""
+    memory: str | None = None
+    """Serve the links and the servo bus on in-memory channels ``NAME-onboard``,
+    ``NAME-gcs`` and ``NAME-servos`` (:mod:`arm_driver.memory`) instead of UDP and a pty:
+    a flight on simulated time in one process (:mod:`sitl.lockstep`), stepped by its
+    caller; ``None``: UDP and a pty, paced by :meth:`SitlVehicle.run`."""
+    unix_time_at_boot_us: int | None = None
+    """The Unix time the autopilot booted at [us] (its SYSTEM_TIME); ``None``: now."""
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.speed) and self.speed > 0.0):
@@ -144,6 +161,10 @@ class RunOptions:
             raise ValueError(
                 f"servo_reply_delay_s must be 0 to 1 s, got {self.servo_reply_delay_s!r}"
             )
+        if self.link_cut is not None and not (
+            all(math.isfinite(v) for v in self.link_cut) and self.link_cut[1] > 0.0
+        ):
+            raise ValueError(f"link_cut must be (time, positive duration), got {self.link_cut!r}")
         if self.navigation not in ERROR_MODELS:
             raise ValueError(
                 f"navigation must be one of {sorted(ERROR_MODELS)}, got {self.navigation!r}"
@@ -195,9 +216,10 @@ def _local_origin(world_origin: GeoReference, navigation: Navigation, world: Wor
 
 def build_world(
     scenario: Scenario, options: RunOptions
-) -> tuple[World, PtyServoBus, list[JointConfig], GripperConfig]:
+) -> tuple[World, PtyServoBus | MemoryServoBus, list[JointConfig], GripperConfig]:
     """The world of a scenario (truth plant of ``options.physics``, ``[world]`` settings)
-    with its arm's XM430 servos on a pseudo-terminal bus (not started): the servos of the
+    with its arm's XM430 servos on a pseudo-terminal bus, or the in-memory line
+    ``MEMORY-servos`` with ``options.memory`` (not started): the servos of the
     ``[arm_bus]`` section (the joints' torque constants times
     ``plant.servo_torque_constant_mismatch``), or ids 1, 2 and gripper 3. Returns (world,
     servo bus, joint configs, gripper config); ValueError for an arm bus without two
@@ -218,7 +240,13 @@ def build_world(
         for j in joints
     }
     servos[gripper.servo_id] = XM430Servo(gripper.servo_id)
-    servo_bus = PtyServoBus(servos, faults=servo_faults(options), step_servos=False)
+    servo_bus: PtyServoBus | MemoryServoBus
+    if options.memory is not None:
+        servo_bus = MemoryServoBus(
+            servos, faults=servo_faults(options), name=f"{options.memory}-servos"
+        )
+    else:
+        servo_bus = PtyServoBus(servos, faults=servo_faults(options), step_servos=False)
     world = World(
         _plant(scenario, options),
         [(j, servos[j.servo_id]) for j in joints],
@@ -283,27 +311,60 @@ class SitlVehicle:
             system_id=int(params["MAV_SYS_ID"]),
             geo=_local_origin(GeoReference(), self.navigation, self.world),
             aiding=self.navigation.report.aiding,
-            unix_time_at_boot_us=round(time.time() * 1e6),
+            unix_time_at_boot_us=(
+                round(time.time() * 1e6)
+                if options.unix_time_at_boot_us is None
+                else options.unix_time_at_boot_us
+            ),
         )
         self._params_revision = -1
-        ports = options.ports
-        key = load_signing_key(options.signing_key) if options.signing_key else None
-        self.links = {
+        self._key = load_signing_key(options.signing_key) if options.signing_key else None
+        self._channels: list[MemoryChannel] = []
+        self.links: dict[str, MavlinkEndpoint] = {}
+        """The two MAVLink links, ``onboard`` and ``gcs`` (made when opened)."""
+        self._truth_file: IO[str] | None = None
+        self._truth_every = max(1, round(1.0 / (options.truth_rate_hz * self.world.dt_s)))
+        self._silent = options.servo_silent
+        self._console: Callable[[str], None] | None = None
+        self.steps = 0
+        """Plant steps taken."""
+        self._open = False
+
+    def _make_links(self) -> dict[str, MavlinkEndpoint]:
+        ports, key = self.options.ports, self._key
+        return {
             "onboard": MavlinkEndpoint(
-                ports.onboard_local, ports.onboard_remote, host=ports.host, signing_key=key
+                ports.onboard_local,
+                ports.onboard_remote,
+                host=ports.host,
+                signing_key=key,
+                port=self._memory_end("onboard"),
             ),
             "gcs": MavlinkEndpoint(
-                ports.gcs_local, ports.gcs_remote, host=ports.host, signing_key=key, link_id=1
+                ports.gcs_local,
+                ports.gcs_remote,
+                host=ports.host,
+                signing_key=key,
+                link_id=1,
+                port=self._memory_end("gcs"),
             ),
         }
-        self._truth_file: IO[str] | None = None
-        self._open = False
+
+    def _memory_end(self, link: str) -> MemoryEnd | None:
+        """The vehicle's end of the in-memory channel ``MEMORY-link`` (created here), or
+        None without ``options.memory``."""
+        if self.options.memory is None:
+            return None
+        channel = create_channel(f"{self.options.memory}-{link}")
+        self._channels.append(channel)
+        return channel.server
 
     # ------------------------------------------------------------------ lifecycle
 
     def __enter__(self) -> SitlVehicle:
         try:
             self.servo_bus.start()
+            self.links = self._make_links()
             for link in self.links.values():
                 link.open()
             if self.options.truth_log is not None:
@@ -322,6 +383,9 @@ class SitlVehicle:
         self.servo_bus.stop()
         for link in self.links.values():
             link.close()
+        for channel in self._channels:
+            channel.close()
+        self._channels.clear()
         if self._truth_file is not None:
             self._truth_file.close()
             self._truth_file = None
@@ -329,7 +393,14 @@ class SitlVehicle:
 
     def describe(self) -> dict[str, str]:
         """Where to connect: MAVLink links and the servo bus URL."""
-        p = self.options.ports
+        p, memory = self.options.ports, self.options.memory
+        if memory is not None:
+            return {
+                "onboard": f"memory {memory}-onboard",
+                "gcs": f"memory {memory}-gcs",
+                "connect": f"memory://{memory}-onboard",
+                "arm_bus": f"dynamixel://{self.servo_bus.device}?baud=1000000",
+            }
         return {
             "onboard": f"udp {p.host}:{p.onboard_local} -> {p.host}:{p.onboard_remote}",
             "gcs": f"udp {p.host}:{p.gcs_local} -> {p.host}:{p.gcs_remote}",
@@ -357,17 +428,16 @@ class SitlVehicle:
         # The servo bus thread must get the interpreter within a fraction of a millisecond
         # to answer like a servo, not after Python's default 5 ms switch interval.
         sys.setswitchinterval(_SWITCH_INTERVAL_S)
-        world, autopilot, links = self.world, self.autopilot, self.links
-        dt_s = world.dt_s
-        wall_dt = dt_s / self.options.speed
-        truth_every = max(1, round(1.0 / (self.options.truth_rate_hz * dt_s)))
-        silent = self.options.servo_silent
+        self._console = console
+        wall_dt = self.world.dt_s / self.options.speed
         stats = RunStats()
-        sim0 = world.time_s
+        sim0 = self.world.time_s
+        step0 = self.steps
         wall0 = time.perf_counter()
         slot = wall0
-        step = 0
-        while not stop.is_set() and (until_s is None or world.time_s < until_s - 0.5 * dt_s):
+        while not stop.is_set() and (
+            until_s is None or self.world.time_s < until_s - 0.5 * self.world.dt_s
+        ):
             now_wall = time.perf_counter()
             lateness = now_wall - slot
             if lateness > _MAX_LAG_S:
@@ -375,40 +445,70 @@ class SitlVehicle:
                 slot = now_wall
                 lateness = 0.0
             stats.lateness_us.append(lateness * 1e6)
-            now_s = world.time_s
-            for name, link in links.items():
-                for message in link.receive():
-                    for reply_link, reply in autopilot.handle(message, name, now_s):
-                        links[reply_link].send(reply)
-            if autopilot.params.revision != self._params_revision:
-                self._params_revision = autopilot.params.revision
-                world.plant.configure_autopilot(attitude_loop_params(autopilot.params))
-            measurement = self.navigation.measure(world)
-            setpoint = autopilot.control(now_s, measurement)
-            with self.servo_bus.lock:
-                world.step(setpoint)
-            for link_name, message in autopilot.telemetry(now_s, measurement):
-                links[link_name].send(message)
-            lines = autopilot.console()
-            if lines and console is not None:
-                for line in lines:
-                    console(_console_text(line.severity, line.text))
-            if silent is not None and world.time_s >= silent[1]:
-                self.servo_bus.set_faults(servo_faults(self.options, silent[0]))
-                silent = None
-            if self._truth_file is not None and step % truth_every == 0:
-                self._write_truth()
-            step += 1
+            self.step()
             slot += wall_dt
             wait = slot - time.perf_counter()
             if wait > 0.0:
                 time.sleep(wait)
-        stats.steps = step
-        stats.sim_time_s = world.time_s - sim0
+        stats.steps = self.steps - step0
+        stats.sim_time_s = self.world.time_s - sim0
         stats.wall_time_s = time.perf_counter() - wall0
+        self.flush_truth()
+        return stats
+
+    def step(self) -> None:
+        """One plant step (see the module docstring): the messages received go to the
+        autopilot, the world steps under its setpoint, the telemetry due goes out.
+
+        Raises :class:`~sitl.physics.PlantError` if the plant diverges.
+        """
+        world, autopilot, links = self.world, self.autopilot, self.links
+        now_s = world.time_s
+        cut = self.options.link_cut
+        silent = "onboard" if cut is not None and cut[0] <= now_s < cut[0] + cut[1] else None
+        for name, link in links.items():
+            for message in link.receive():
+                if name == silent:
+                    continue
+                for reply_link, reply in autopilot.handle(message, name, now_s):
+                    links[reply_link].send(reply)
+        if autopilot.params.revision != self._params_revision:
+            self._params_revision = autopilot.params.revision
+            world.plant.configure_autopilot(attitude_loop_params(autopilot.params))
+        measurement = self.navigation.measure(world)
+        setpoint = autopilot.control(now_s, measurement)
+        with self.servo_bus.lock:
+            world.step(setpoint)
+        for link_name, message in autopilot.telemetry(now_s, measurement):
+            if link_name != silent:
+                links[link_name].send(message)
+        lines = autopilot.console()
+        if lines and self._console is not None:
+            for line in lines:
+                self._console(_console_text(line.severity, line.text))
+        servo = self._silent
+        if servo is not None and world.time_s >= servo[1]:
+            self.servo_bus.set_faults(servo_faults(self.options, servo[0]))
+            self._silent = None
+        if self._truth_file is not None and self.steps % self._truth_every == 0:
+            self._write_truth()
+        self.steps += 1
+
+    @property
+    def time_s(self) -> float:
+        """Simulation time [s]."""
+        return self.world.time_s
+
+    def serve(self) -> None:
+        """Answer the servo instructions written on the in-memory bus, now (the pty bus
+        answers from its own thread)."""
+        if isinstance(self.servo_bus, MemoryServoBus):
+            self.servo_bus.serve(self.world.time_s)
+
+    def flush_truth(self) -> None:
+        """Hand the truth log's buffered lines to the operating system."""
         if self._truth_file is not None:
             self._truth_file.flush()
-        return stats
 
     def _write_truth(self) -> None:
         assert self._truth_file is not None

@@ -2,17 +2,20 @@
 
 import csv
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from companion.flightlog import (
     COLUMNS,
+    TIMING_COLUMNS,
     CycleRecord,
     FlightLogError,
     FlightLogWriter,
     events_path,
     read_flight_log,
+    timing_path,
 )
 from companion.setpoints import AttitudeThrustSetpoint
 
@@ -56,7 +59,7 @@ def test_round_trip_is_exact(tmp_path):
             log.write(r)
     out = read_flight_log(path)
     assert len(out) == 5
-    assert tuple(out.columns) == COLUMNS
+    assert tuple(out.columns) == (*COLUMNS, *TIMING_COLUMNS[1:])
     q = np.stack([out[c] for c in COLUMNS if c.startswith("q_")], axis=1)
     np.testing.assert_array_equal(q, np.stack([r.q for r in records]))
     tau = np.stack([out[c] for c in COLUMNS if c.startswith("tau_")], axis=1)
@@ -73,7 +76,30 @@ def test_round_trip_is_exact(tmp_path):
     assert math.isnan(out["setpoint_latency_us"][1]) and out["setpoint_latency_us"][2] == 902.0
     np.testing.assert_array_equal(out["cycle_latency_us"], [1100.0, 1101.0, 1102.0, 1103.0, 1104.0])
     assert math.isnan(out["setpoint_cpu_us"][1]) and out["setpoint_cpu_us"][4] == 704.0
+    assert out["t_wall_s"][4] == 1.7e9 + 0.016
     assert out["thrust_scale_hat"] == pytest.approx([0.93] * 5)
+
+
+def test_the_wall_clock_is_kept_apart_from_the_flight(tmp_path):
+    """Two logs of the same flight measured at other wall times: ``LOG.csv`` and the
+    events are the same bytes, only ``LOG.timing.csv`` differs."""
+    logs = []
+    for n, offset_s in enumerate((0.0, 3600.0)):
+        path = tmp_path / f"run{n}" / "flight.csv"
+        path.parent.mkdir()
+        with FlightLogWriter(path) as log:
+            for i in range(5):
+                r = record(i)
+                log.write(replace(r, t_wall_s=r.t_wall_s + offset_s, cycle_latency_us=1.0 + n))
+            log.event("gripper", "close", 10.02)
+        logs.append(path)
+    a, b = logs
+    assert a.read_bytes() == b.read_bytes()
+    assert events_path(a).read_bytes() == events_path(b).read_bytes()
+    assert timing_path(a).read_bytes() != timing_path(b).read_bytes()
+    assert "t_wall_s" not in a.read_text().splitlines()[0]
+    timing_path(a).unlink()  # a log without its timing reads with NaN there
+    assert np.isnan(read_flight_log(a)["cycle_latency_us"]).all()
 
 
 def test_a_log_written_before_the_thrust_scale_column_reads_with_nan(tmp_path):
@@ -88,7 +114,7 @@ def test_a_log_written_before_the_thrust_scale_column_reads_with_nan(tmp_path):
     with path.open("w", newline="") as f:
         csv.writer(f).writerows([r[:drop] + r[drop + 1 :] for r in rows])
     out = read_flight_log(path)
-    assert tuple(out.columns) == COLUMNS
+    assert tuple(out.columns) == (*COLUMNS, *TIMING_COLUMNS[1:])
     assert np.isnan(out["thrust_scale_hat"]).all() and len(out["thrust_scale_hat"]) == 3
     assert out["thrust_rel"] == pytest.approx([0.47] * 3)
 

@@ -113,7 +113,7 @@ from arm_driver.dynamixel.instructions import (
 )
 from arm_driver.dynamixel.protocol import MAX_ID, StatusPacket
 from arm_driver.dynamixel.stream import StatusParser
-from arm_driver.dynamixel.transport import SerialTransport
+from arm_driver.dynamixel.transport import open_transport
 from arm_driver.errors import (
     ArmDriverError,
     BusTimeoutError,
@@ -245,7 +245,7 @@ class DynamixelBus(ArmBus):
         self._margin_s = timeout_margin_s
         self._crc_retries = crc_retries
         self._model_number = model_number
-        self._transport = SerialTransport(device, baudrate, low_latency=low_latency)
+        self._transport = open_transport(device, baudrate, low_latency=low_latency)
         self._parser = StatusParser()
         self._servos: dict[int, _Servo] = {}
         self.stale_replies = 0

@@ -33,8 +33,15 @@ import os
 import serial
 
 from arm_driver.errors import CommunicationError
+from arm_driver.memory import MemoryEnd, attach, require_memory_loop
 
-__all__ = ["BITS_PER_BYTE", "SerialTransport"]
+__all__ = [
+    "BITS_PER_BYTE",
+    "MEMORY_PREFIX",
+    "MemorySerialTransport",
+    "SerialTransport",
+    "open_transport",
+]
 
 _LOG = logging.getLogger(__name__)
 
@@ -120,11 +127,16 @@ class SerialTransport:
     async def __aexit__(self, *exc_info: object) -> None:
         self.close()
 
-    def _port(self) -> serial.Serial:
+    def _check_open(self) -> None:
+        """Raise ``CommunicationError`` unless the port is open and not lost."""
         if self._lost is not None:
             raise CommunicationError(f"{self.device}: connection lost: {self._lost}")
         if self._serial is None:
             raise CommunicationError(f"{self.device}: the port is not open")
+
+    def _port(self) -> serial.Serial:
+        self._check_open()
+        assert self._serial is not None
         return self._serial
 
     def _on_readable(self) -> None:
@@ -151,7 +163,7 @@ class SerialTransport:
         reply that arrived while the loop was busy after its request timed out must not be
         taken for the answer to the next request.
         """
-        self._port()
+        self._check_open()
         self._drain_kernel()
         dropped = len(self._buffer)
         self._buffer.clear()
@@ -198,7 +210,7 @@ class SerialTransport:
         CommunicationError
             The port is closed or was lost.
         """
-        self._port()
+        self._check_open()
         if not self._buffer:
             try:
                 async with asyncio.timeout_at(deadline):
@@ -209,8 +221,79 @@ class SerialTransport:
                 self._drain_kernel()
                 if not self._buffer:
                     return b""
-            self._port()
+            self._check_open()
         data = bytes(self._buffer)
         self._buffer.clear()
         self._ready.clear()
         return data
+
+
+MEMORY_PREFIX = "memory:"
+"""A device named ``memory:NAME`` is the in-memory line ``NAME`` (:mod:`arm_driver.memory`)."""
+
+
+class MemorySerialTransport(SerialTransport):
+    """The serial line of a simulated servo bus in the same process (``memory:NAME``):
+    the same bytes, deadlines and buffer as :class:`SerialTransport`, on the lockstep
+    loop's clock; only the medium is memory (no kernel, no latency timer)."""
+
+    def __init__(self, device: str, baudrate: int, *, low_latency: bool = True) -> None:
+        super().__init__(device, baudrate, low_latency=low_latency)
+        self._end: MemoryEnd | None = None
+
+    @property
+    def is_open(self) -> bool:
+        return self._end is not None
+
+    async def open(self) -> None:
+        if self._end is not None:
+            return
+        name = self.device.removeprefix(MEMORY_PREFIX)
+        try:
+            loop = require_memory_loop(self.device)
+            end = attach(name)
+        except (ConnectionError, LookupError) as error:
+            raise CommunicationError(f"cannot open {self.device}: {error}") from error
+        self._loop = loop
+        loop.add_reader(end.fileno(), self._on_readable)
+        self._end = end
+        self._lost = None
+
+    def close(self) -> None:
+        end, self._end = self._end, None
+        if end is None:
+            return
+        if self._loop is not None and not self._loop.is_closed():
+            self._loop.remove_reader(end.fileno())
+        end.close()
+        self._buffer.clear()
+        self._ready.set()
+
+    def _check_open(self) -> None:
+        if self._end is None:
+            raise CommunicationError(f"{self.device}: the port is not open")
+
+    def _on_readable(self) -> None:
+        if self._end is None:
+            return
+        data = self._end.receive_all()
+        if data:
+            self._buffer += data
+            self._ready.set()
+
+    def _drain_kernel(self) -> None:
+        self._on_readable()
+
+    def write(self, data: bytes) -> None:
+        self._check_open()
+        assert self._end is not None
+        try:
+            self._end.send(data)
+        except ConnectionError as error:
+            raise CommunicationError(f"{self.device}: write failed: {error}") from error
+
+
+def open_transport(device: str, baudrate: int, *, low_latency: bool = True) -> SerialTransport:
+    """The transport of ``device``: a serial port, or ``memory:NAME`` (unopened)."""
+    kind = MemorySerialTransport if device.startswith(MEMORY_PREFIX) else SerialTransport
+    return kind(device, baudrate, low_latency=low_latency)

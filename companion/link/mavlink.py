@@ -41,7 +41,7 @@ from companion.link.setpoint import (
 )
 from companion.link.signing import SigningConfig, advance_timestamp
 from companion.link.telemetry import PoseSource, TelemetryDecoder
-from companion.link.transport import Transport, open_transport
+from companion.link.transport import MemoryTransport, Transport, open_transport
 from companion.link.url import LinkUrl, parse_link_url
 
 if TYPE_CHECKING:
@@ -141,7 +141,7 @@ class MavlinkLink(Px4Commands):
         self.heartbeat_period_s = heartbeat_period_s
         self._decoder = TelemetryDecoder(pose_from)
         self._fanout = FanOut()
-        self._transport: Transport | None = None
+        self._transport: Transport | MemoryTransport | None = None
         self._mav: mavlink2.MAVLink | None = None
         self._tasks: list[asyncio.Task[None]] = []
         self._closed = False
@@ -171,9 +171,12 @@ class MavlinkLink(Px4Commands):
         if self._transport is not None or self._closed:
             raise LinkClosedError("a MavlinkLink opens once; make a new one")
         loop = asyncio.get_running_loop()
-        transport = await asyncio.to_thread(
-            open_transport, self.url, self.system_id, self.component_id
-        )
+        if self.url.scheme == "memory":  # on the lockstep loop: no thread, nothing waits
+            transport = open_transport(self.url, self.system_id, self.component_id)
+        else:
+            transport = await asyncio.to_thread(
+                open_transport, self.url, self.system_id, self.component_id
+            )
         self._transport = transport
         self._mav = mavlink2.MAVLink(transport, self.system_id, self.component_id)
         self._mav.robust_parsing = True

@@ -24,10 +24,11 @@ from typing import Any
 
 from pymavlink import mavutil
 
+from arm_driver.memory import MemoryEnd, attach, require_memory_loop
 from companion.link.errors import LinkClosedError
 from companion.link.url import LinkUrl
 
-__all__ = ["Transport", "open_transport"]
+__all__ = ["MemoryTransport", "Transport", "open_transport"]
 
 _READ_SIZE = 65536
 
@@ -132,8 +133,48 @@ def _enable_arrival_times(sock: socket.socket) -> bool:
     return True
 
 
-def open_transport(url: LinkUrl, system_id: int, component_id: int) -> Transport:
-    """Open the port (blocking: a TCP connect waits for the peer; call it in a thread)."""
+class MemoryTransport:
+    """The in-memory link ``memory://NAME`` of a simulated vehicle in this process
+    (:mod:`arm_driver.memory`): one MAVLink datagram per chunk, the same interface as
+    :class:`Transport`; opened on the lockstep loop only."""
+
+    def __init__(self, url: LinkUrl, end: MemoryEnd) -> None:
+        self.url = url
+        self._end = end
+        self.fd: int = end.fileno()
+        self.peer: tuple[str, int] | None = None
+        self.unsent_frames = 0
+
+    def take_longest_socket_wait_s(self) -> float | None:
+        """None: nothing waits in a socket."""
+        return None
+
+    def read(self) -> bytes:
+        """One datagram, or ``b""`` if none."""
+        if self._end.closed:
+            raise LinkClosedError(f"{self.url}: the link is closed")
+        return self._end.receive()
+
+    def write(self, buf: bytes) -> None:
+        """Send one frame."""
+        try:
+            self._end.send(buf)
+        except ConnectionError as exc:
+            raise LinkClosedError(f"{self.url}: write failed: {exc}") from exc
+
+    def close(self) -> None:
+        self._end.close()
+
+
+def open_transport(url: LinkUrl, system_id: int, component_id: int) -> Transport | MemoryTransport:
+    """Open the port (blocking: a TCP connect waits for the peer; call it in a thread,
+    except ``memory://``, which must be opened on the lockstep loop's thread)."""
+    if url.scheme == "memory":
+        try:
+            require_memory_loop(str(url))
+            return MemoryTransport(url, attach(url.device))
+        except (ConnectionError, LookupError) as exc:
+            raise LinkClosedError(f"{url}: cannot open: {exc}") from exc
     try:
         conn = mavutil.mavlink_connection(
             url.pymavlink_device,

@@ -9,6 +9,9 @@ URL                                     meaning
 ``udpout://192.168.1.10:14550``         send to a UDP host and port, receive the replies
 ``tcpout://127.0.0.1:5760``             connect to a TCP server
 ``serial:///dev/ttyAMA0:921600``        a serial port and its baud rate (PX4 TELEM2)
+``memory://onboard``                    the in-memory link of a simulated vehicle in the
+                                        same process (a flight on simulated time:
+                                        ``sitl demo --clock virtual``)
 ======================================  =============================================
 
 Anything else (a missing port, an unknown scheme, IPv6, a baud rate that is not a
@@ -24,8 +27,8 @@ from companion.link.errors import LinkUrlError
 
 __all__ = ["LinkUrl", "parse_link_url"]
 
-Scheme = Literal["udpin", "udpout", "tcpout", "serial"]
-_SCHEMES: tuple[Scheme, ...] = ("udpin", "udpout", "tcpout", "serial")
+Scheme = Literal["udpin", "udpout", "tcpout", "serial", "memory"]
+_SCHEMES: tuple[Scheme, ...] = ("udpin", "udpout", "tcpout", "serial", "memory")
 _PYMAVLINK_PREFIX = {"udpin": "udpin", "udpout": "udpout", "tcpout": "tcp"}
 
 
@@ -33,7 +36,8 @@ _PYMAVLINK_PREFIX = {"udpin": "udpin", "udpout": "udpout", "tcpout": "tcp"}
 class LinkUrl:
     """A parsed connection URL.
 
-    ``host``/``port`` are set for the network schemes, ``device``/``baud`` for serial.
+    ``host``/``port`` are set for the network schemes, ``device``/``baud`` for serial,
+    ``device`` (the channel's name) for memory.
     """
 
     scheme: Scheme
@@ -58,6 +62,8 @@ class LinkUrl:
     def __str__(self) -> str:
         if self.scheme == "serial":
             return f"serial://{self.device}:{self.baud}"
+        if self.scheme == "memory":
+            return f"memory://{self.device}"
         return f"{self.scheme}://{self.host}:{self.port}"
 
 
@@ -75,8 +81,9 @@ def _positive_int(url: str, text: str, what: str, maximum: int) -> int:
 
 
 def parse_link_url(url: str) -> LinkUrl:
-    """Parse ``udpin://HOST:PORT``, ``udpout://HOST:PORT``, ``tcpout://HOST:PORT`` or
-    ``serial://DEVICE:BAUD`` (see the module docstring); raises ``LinkUrlError``."""
+    """Parse ``udpin://HOST:PORT``, ``udpout://HOST:PORT``, ``tcpout://HOST:PORT``,
+    ``serial://DEVICE:BAUD`` or ``memory://NAME`` (see the module docstring); raises
+    ``LinkUrlError``."""
     if not isinstance(url, str):
         raise LinkUrlError(f"bad connection URL {url!r}: not a string")
     scheme, sep, rest = url.strip().partition("://")
@@ -84,6 +91,10 @@ def parse_link_url(url: str) -> LinkUrl:
         raise _fail(url, "expected SCHEME://..., e.g. udpin://0.0.0.0:14540")
     if scheme not in _SCHEMES:
         raise _fail(url, f"unknown scheme {scheme!r}; use one of {', '.join(_SCHEMES)}")
+    if scheme == "memory":
+        if not rest or any(c.isspace() or c in "/:" for c in rest):
+            raise _fail(url, "expected memory://NAME")
+        return LinkUrl("memory", device=rest)
     where, colon, number = rest.rpartition(":")
     if not colon or not where:
         what = "DEVICE:BAUD" if scheme == "serial" else "HOST:PORT"

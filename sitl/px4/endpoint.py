@@ -1,4 +1,5 @@
-"""The vehicle's only I/O: one non-blocking UDP MAVLink 2 endpoint per link.
+"""The vehicle's only I/O: one non-blocking UDP MAVLink 2 endpoint per link (or, for a
+flight on simulated time, one in-memory channel end: :mod:`arm_driver.memory`).
 
 PX4 SITL opens its onboard/API link on local UDP 14580 sending to 127.0.0.1:14540 and its
 GCS link on local 18570 sending to 127.0.0.1:14550; :data:`ONBOARD_PORTS` and
@@ -33,6 +34,8 @@ from collections import Counter
 from pathlib import Path
 
 from pymavlink.dialects.v20 import common as mavlink
+
+from arm_driver.memory import MemoryEnd
 
 __all__ = [
     "GCS_PORTS",
@@ -94,6 +97,9 @@ class MavlinkEndpoint:
         32-byte secret: sign outgoing frames and require signed incoming ones.
     link_id : int
         Signing link id of outgoing frames (0..255).
+    port : MemoryEnd, optional
+        Send and receive datagrams on this in-memory channel end instead of UDP (the
+        ports are then unused).
 
     Nothing is opened in the constructor; :meth:`open` binds, :meth:`close` (idempotent)
     releases. Also a context manager.
@@ -109,6 +115,7 @@ class MavlinkEndpoint:
         component_id: int = 1,
         signing_key: bytes | None = None,
         link_id: int = 0,
+        port: MemoryEnd | None = None,
     ) -> None:
         if signing_key is not None and len(signing_key) != 32:
             raise SigningKeyError("signing_key must be 32 bytes")
@@ -122,6 +129,7 @@ class MavlinkEndpoint:
         self._sock: socket.socket | None = None
         self._mav: mavlink.MAVLink | None = None
         self._poller: select.poll | None = None
+        self._port = port
         self.counters: Counter[str] = Counter()
         """Datagrams / frames by outcome: ``received``, ``sent`` and the drop reasons."""
 
@@ -129,15 +137,17 @@ class MavlinkEndpoint:
 
     def open(self) -> None:
         """Bind the socket (non-blocking) and set up the codec; no-op when open."""
-        if self._sock is not None:
+        if self._mav is not None:
             return
-        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        try:
-            sock.setblocking(False)
-            sock.bind(self._local)
-        except OSError:
-            sock.close()
-            raise
+        sock = None
+        if self._port is None:
+            sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            try:
+                sock.setblocking(False)
+                sock.bind(self._local)
+            except OSError:
+                sock.close()
+                raise
         mav = mavlink.MAVLink(None, self._system_id, self._component_id)
         mav.robust_parsing = True
         if self._key is not None:
@@ -145,14 +155,17 @@ class MavlinkEndpoint:
             mav.signing.sign_outgoing = True
             mav.signing.link_id = self._link_id
             mav.signing.timestamp = int((time.time() - _SIGNING_EPOCH_S) * 1e5)
-        poller = select.poll()
-        poller.register(sock, select.POLLIN | select.POLLERR)
-        self._sock, self._mav, self._poller = sock, mav, poller
+        self._sock, self._mav = sock, mav
+        if sock is not None:
+            self._poller = select.poll()
+            self._poller.register(sock, select.POLLIN | select.POLLERR)
 
     def close(self) -> None:
         """Release the socket; safe to call more than once."""
         if self._sock is not None:
             self._sock.close()
+        if self._port is not None:
+            self._port.close()
         self._sock = None
         self._mav = None
         self._poller = None
@@ -166,14 +179,16 @@ class MavlinkEndpoint:
 
     @property
     def is_open(self) -> bool:
-        """Whether :meth:`open` has bound the socket."""
-        return self._sock is not None
+        """Whether :meth:`open` has bound the socket (or set up the in-memory end)."""
+        return self._mav is not None
 
     @property
     def local_address(self) -> tuple[str, int]:
         """The bound (host, port) (the free port chosen when ``local_port`` was 0)."""
-        if self._sock is None:
+        if self._mav is None:
             raise RuntimeError("endpoint is not open")
+        if self._sock is None:
+            return self._local
         return self._sock.getsockname()
 
     # ----------------------------------------------------------------- I/O
@@ -184,11 +199,15 @@ class MavlinkEndpoint:
         Send errors (e.g. ICMP port unreachable reported by the kernel while no client
         listens) are counted as ``send_error`` and dropped: the vehicle keeps flying.
         """
-        sock, mav = self._require_open()
+        mav = self._require_open()
         buf = msg.pack(mav)
         mav.seq = (mav.seq + 1) % 256
         try:
-            sock.sendto(buf, self.remote_address)
+            if self._port is not None:
+                self._port.send(buf)
+            else:
+                assert self._sock is not None
+                self._sock.sendto(buf, self.remote_address)
         except OSError:
             self.counters["send_error"] += 1
             return
@@ -196,9 +215,18 @@ class MavlinkEndpoint:
 
     def receive(self, max_datagrams: int = 256) -> list[mavlink.MAVLink_message]:
         """Every valid message of the datagrams waiting (at most ``max_datagrams``)."""
-        sock, mav = self._require_open()
+        mav = self._require_open()
         out: list[mavlink.MAVLink_message] = []
-        assert self._poller is not None  # made with the socket in open()
+        if self._port is not None:
+            for _ in range(max_datagrams):
+                data = self._port.receive()
+                if not data:
+                    break
+                self.counters["datagrams"] += 1
+                out.extend(self._parse(mav, data))
+            return out
+        sock = self._sock
+        assert sock is not None and self._poller is not None  # made in open()
         if not self._poller.poll(0):  # nothing waiting, no error pending: the usual step
             return out
         for _ in range(max_datagrams):
@@ -252,10 +280,10 @@ class MavlinkEndpoint:
                 return name
         return "malformed"
 
-    def _require_open(self) -> tuple[socket.socket, mavlink.MAVLink]:
-        if self._sock is None or self._mav is None:
+    def _require_open(self) -> mavlink.MAVLink:
+        if self._mav is None:
             raise RuntimeError("endpoint is not open; call open() first")
-        return self._sock, self._mav
+        return self._mav
 
 
 def _is_signed(frame: bytes) -> bool:

@@ -25,7 +25,7 @@ Time: before each command and each periodic Status, the actuators' loops advance
 wall time elapsed, unless ``step_actuators`` is off because a SITL steps them with its
 physics (under :attr:`DroneCanActuatorNode.lock`).
 
-Faults (:class:`~sitl.servo.pty_server.Faults`, the same as the pty Dynamixel bus;
+Faults (:class:`~sitl.servo.responder.Faults`, the same as the pty Dynamixel bus;
 changeable while running with :meth:`DroneCanActuatorNode.set_faults`): ``silent_ids``
 actuators whose Status is never published (they still take commands),
 ``crc_corruption_rate`` the probability that a published Status has its transfer CRC
@@ -53,7 +53,7 @@ from dronecan.node import Node
 from arm_driver.dronecan.can_driver import PythonCanDriver
 from arm_driver.errors import NodeHealth
 from sitl.servo.can_actuator import CanActuator
-from sitl.servo.pty_server import Faults
+from sitl.servo.responder import Faults
 
 __all__ = ["NODE_NAME", "RESTART_MAGIC", "DroneCanActuatorNode"]
 

@@ -1,0 +1,184 @@
+"""Pickups on simulated time: the companion's mission code against the simulated vehicle in
+one process, in lockstep (``sitl.lockstep``), many times faster than real time.
+
+The same flights as against ``sitl run`` on the wall clock, with the fault in the
+simulator's truth; the companion is told nothing. A flight is a function of the scenario,
+the seed and the code, so each is judged on absolute numbers and the default pickup is
+also flown twice (once beside two busy processes) for the same bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import multiprocessing
+from pathlib import Path
+
+import numpy as np
+import pytest
+from flight_checks import CARRY_RMS_BOUND_M, assert_calm_flight, carry_rms_m
+
+from companion.cli_mission import plan_for
+from companion.flightlog import read_flight_log
+from sitl.runner import RunOptions
+from sitl.scenario import PayloadSlip, Scenario, load_scenario
+from sitl.virtual_flight import fly_virtual
+
+ROOT = Path(__file__).parent.parent
+SCENARIO = load_scenario(ROOT / "configs" / "sitl_pickup.toml")
+PLACE_AT = (-1.0, 0.5, 0.05)
+TRUE_MASS_KG, TRUE_COM_M = 0.25, 0.15
+EMPTY_M2_KG = 0.12
+"""The empty link 2 (sitl_pickup's nominal m2)."""
+LOGS = ("flight.csv", "flight.events.csv", "truth.jsonl")
+
+
+def with_world(scenario: Scenario, **world) -> Scenario:
+    assert scenario.world is not None
+    return scenario.model_copy(update={"world": scenario.world.model_copy(update=world)})
+
+
+SHORT = with_world(SCENARIO, payload_position_m=(0.8, 0.0, 0.05))
+"""The object 0.8 m east of home: the fault flights are shorter."""
+
+
+def fly(
+    out: Path,
+    scenario: Scenario = SCENARIO,
+    *,
+    seed: int = 1,
+    controller: str = "passivity",
+    cruise_m: float = 1.5,
+    **options,
+):
+    assert scenario.world is not None and scenario.world.payload_position_m is not None
+    plan = plan_for(scenario.beliefs, scenario.world.payload_position_m, PLACE_AT, cruise_m)
+    run = RunOptions(seed=seed, truth_log=out / "truth.jsonl", **options)
+    _, failure = fly_virtual(
+        scenario,
+        plan,
+        out,
+        run,
+        controller=controller,
+        figures=False,  # type: ignore[arg-type]
+    )
+    summary = json.loads((out / "summary.json").read_text())
+    truth = [json.loads(line) for line in (out / "truth.jsonl").read_text().splitlines()]
+    return failure, summary, truth
+
+
+def _spin(seconds: float) -> None:
+    import time
+
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        pass
+
+
+def test_the_pickup_is_the_same_flight_at_any_load_and_meets_the_acceptance(tmp_path):
+    failure, summary, truth = fly(tmp_path / "idle")
+    context = multiprocessing.get_context("spawn")
+    busy = [context.Process(target=_spin, args=(120.0,), daemon=True) for _ in range(2)]
+    for process in busy:
+        process.start()
+    try:
+        fly(tmp_path / "busy")
+    finally:
+        for process in busy:
+            process.terminate()
+            process.join()
+    for name in LOGS:
+        assert (tmp_path / "idle" / name).read_bytes() == (tmp_path / "busy" / name).read_bytes()
+    # Placed, the payload learnt, landed: the figures the wall-clock demo meets.
+    assert failure is None and summary["completed"] and summary["landed"]
+    assert summary["faults"] == []
+    assert any(r["payload_attached"] for r in truth)
+    last = truth[-1]
+    assert not last["payload_attached"] and not last["armed"] and last["on_ground"]
+    assert math.dist(last["object_position_m"][:2], PLACE_AT[:2]) < 0.10
+    assert summary["payload_mass_kg"] == pytest.approx(TRUE_MASS_KG, rel=0.10)
+    assert summary["payload_com_along_link2_m"] == pytest.approx(TRUE_COM_M, rel=0.15)
+    c = read_flight_log(tmp_path / "idle" / "flight.csv").columns
+    assert_calm_flight(c)
+    assert carry_rms_m(c) < CARRY_RMS_BOUND_M
+    # The thrust scale is calibrated before the grasp (theta at the empty arm's values)
+    # and held while the payload is learnt.
+    before = np.isin(c["phase"], ("to_object", "descend"))
+    assert np.all(c["theta_hat_m2_kg"][before] == EMPTY_M2_KG)
+    s = c["thrust_scale_hat"][before]
+    assert np.ptp(s) > 1e-4 and np.all(np.abs(s - 1.0) < 0.06) and abs(s[-1] - 1.0) < 0.02
+    carried = np.isin(c["phase"], ("grasp", "lift"))
+    assert np.ptp(c["theta_hat_m2_kg"][carried]) > 0.15
+    assert np.ptp(c["thrust_scale_hat"][carried]) == 0.0
+
+
+def test_the_adaptive_controller_keeps_half_the_error_of_the_nonadaptive_one(tmp_path):
+    """Paired flights (same scenario and seed): over the carry the paper's controller keeps
+    at most half the baseline's error, within an absolute bound."""
+    carry = {}
+    for controller in ("passivity", "nonadaptive"):
+        failure, summary, _ = fly(tmp_path / controller, seed=2, controller=controller)
+        assert failure is None and summary["completed"], (controller, failure)
+        carry[controller] = carry_rms_m(read_flight_log(tmp_path / controller / "flight.csv"))
+    assert carry["passivity"] < CARRY_RMS_BOUND_M
+    assert carry["passivity"] <= 0.5 * carry["nonadaptive"], carry
+
+
+def landed_home(failure, summary, truth) -> None:
+    assert failure is not None and not summary["completed"]
+    assert summary["landed"] and summary["disarmed"]
+    phases = [p["phase"] for p in summary["phases"]]
+    assert "release" not in phases and phases[-3:] == ["return", "to_home", "done"]
+    last = truth[-1]
+    assert last["on_ground"] and not last["armed"]
+    assert math.dist(last["q"][:2], [0.0, 0.0]) < 0.3
+
+
+def test_a_grasp_on_nothing_is_grasp_failed_and_the_vehicle_lands_at_home(tmp_path):
+    failure, summary, truth = fly(tmp_path, with_world(SHORT, grasp_fails=True), cruise_m=1.0)
+    landed_home(failure, summary, truth)
+    assert summary["outcome"] == "grasp_failed" and "grasp_failed" in str(failure)
+    assert [f["fault"] for f in summary["faults"]] == ["grasp_failed"]
+    assert "to_place" not in [p["phase"] for p in summary["phases"]]
+    assert not any(r["payload_attached"] for r in truth)
+    np.testing.assert_allclose(truth[-1]["object_position_m"], [0.8, 0.0, 0.05], atol=1e-9)
+
+
+def test_an_object_slipping_out_is_payload_lost_within_1_s_and_the_estimate_empties(tmp_path):
+    slip = with_world(SHORT, payload_slip=PayloadSlip(after_grasp_s=2.5))
+    failure, summary, truth = fly(tmp_path, slip, cruise_m=1.0)
+    landed_home(failure, summary, truth)
+    assert summary["outcome"] == "payload_lost" and "payload_lost" in str(failure)
+    (fault,) = summary["faults"]
+    assert fault["fault"] == "payload_lost" and "reset_estimate" in fault["reactions"]
+    held = [r["t_s"] for r in truth if r["payload_attached"]]
+    assert held and held[-1] - held[0] == pytest.approx(2.5, abs=0.05)
+    assert 0.0 < fault["t_s"] - held[-1] < 1.0, (fault["t_s"], held[-1])
+    c = read_flight_log(tmp_path / "flight.csv").columns
+    home = np.isin(c["phase"], ["return", "to_home"])
+    assert home.any()
+    np.testing.assert_allclose(c["theta_hat_m2_kg"][home], EMPTY_M2_KG, rtol=1e-9)
+
+
+def test_a_link_cut_mid_flight_is_detected_and_the_vehicle_lands(tmp_path):
+    """The onboard link silent both ways for 2 s in OFFBOARD (from t = 20 s): the companion
+    raises link_lost, PX4's imitation fails safe on the lost setpoint stream, and the
+    vehicle ends down and disarmed."""
+    failure, summary, truth = fly(tmp_path, SHORT, cruise_m=1.0, link_cut=(20.0, 2.0))
+    assert failure is not None and not summary["completed"]
+    assert [f["fault"] for f in summary["faults"]][:1] == ["link_lost"]
+    assert 19.9 < summary["faults"][0]["t_s"] < 21.0  # stamped with the last pose's time
+    at_cut = next(r for r in truth if r["t_s"] >= 20.0)
+    assert at_cut["armed"] and not at_cut["on_ground"] and at_cut["mode"] == "OFFBOARD"
+    assert {r["mode"] for r in truth} & {"AUTO_LOITER", "POSCTL", "AUTO_LAND"}
+    assert truth[-1]["on_ground"] and not truth[-1]["armed"]
+
+
+def test_a_servo_that_stops_answering_makes_the_app_land(tmp_path):
+    failure, summary, truth = fly(tmp_path, SHORT, cruise_m=1.0, servo_silent=(2, 20.0))
+    silenced = next(r for r in truth if r["t_s"] >= 20.0)
+    assert silenced["armed"] and not silenced["on_ground"]
+    assert failure is not None and not summary["completed"]
+    assert [f["fault"] for f in summary["faults"]][:1] == ["servo_bus"]
+    assert summary["landed"] and summary["disarmed"]
+    assert truth[-1]["on_ground"] and not truth[-1]["armed"]
