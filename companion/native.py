@@ -14,7 +14,7 @@ import logging
 import os
 from types import ModuleType
 
-__all__ = ["native_module"]
+__all__ = ["native_module", "python_reason"]
 
 _log = logging.getLogger(__name__)
 
@@ -28,6 +28,16 @@ except ImportError as error:  # not built: the Python reference runs
     _MISSING = str(error)
 
 _warned = False
+
+
+def python_reason() -> str | None:
+    """Why the control step runs in Python by default here (the environment variable, or
+    the extension not built), or None when it runs compiled."""
+    if os.environ.get("COMPANION_STEP") == "python":
+        return "COMPANION_STEP=python selects the Python reference"
+    if _step is None:
+        return f"companion._step is not built ({_MISSING}; `pip install .` builds it)"
+    return None
 
 
 def native_module(compiled: bool | None = None) -> ModuleType | None:

@@ -139,8 +139,8 @@ class RunOptions:
     """Fault injection: (servo id, simulation time [s]) from which that servo carries out
     instructions but never answers again (a broken TX line)."""
     servo_reply_delay_s: float = 0.0
-    """Extra delay before every servo reply [s], wall clock (a USB-serial adapter's latency
-    timer: an FTDI chip's default is 16 ms)."""
+    """Extra delay before every servo reply [s] (a USB-serial adapter's latency timer: an
+    FTDI chip's default is 16 ms): wall time on the pty bus, simulated time in memory."""
     link_cut: tuple[float, float] | None = None
     """Fault injection: (simulation time [s], duration [s]) of a silence of the onboard
     link, both ways (a radio or cable lost for a while)."""

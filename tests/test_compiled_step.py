@@ -31,7 +31,7 @@ from sitl.offline import COLUMNS, SimOptions, simulate
 from sitl.scenario import load_scenario, parse_scenario
 
 pytestmark = pytest.mark.skipif(
-    native.native_module() is None, reason="companion._step is not built"
+    native.python_reason() is not None, reason=f"compiled step not used: {native.python_reason()}"
 )
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"

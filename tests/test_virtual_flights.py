@@ -182,3 +182,25 @@ def test_a_servo_that_stops_answering_makes_the_app_land(tmp_path):
     assert [f["fault"] for f in summary["faults"]][:1] == ["servo_bus"]
     assert summary["landed"] and summary["disarmed"]
     assert truth[-1]["on_ground"] and not truth[-1]["armed"]
+
+
+def test_sitl_demo_on_virtual_time_places_the_object_and_says_how_well(run_sitl, tmp_path):
+    """The command a user runs: the default pickup on simulated time, its log, figures and
+    the estimate against the truth; the option's mistakes are one line each."""
+    out = tmp_path / "demo"
+    done = run_sitl("demo", "--clock", "virtual", "--seed", "4", "--out", str(out))
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "lockstep" in done.stdout and "mission completed" in done.stdout
+    assert "truth: object ended" in done.stdout and "estimate error" in done.stdout
+    for name in (*LOGS, "flight.timing.csv", "summary.json", "tracking.png", "estimation.png"):
+        assert (out / name).stat().st_size > 0, name
+    for options, words in (
+        (("--clock", "lunar"), "--clock must be wall or virtual"),
+        (("--clock", "virtual", "--autopilot", "px4"), "flies the PX4 imitation"),
+        (("--clock", "virtual", "--speed", "4"), "runs as fast as it can"),
+    ):
+        bad = run_sitl("demo", *options, "--out", str(tmp_path / "bad"))
+        lines = bad.stderr.strip().splitlines()
+        assert bad.returncode == 2 and len(lines) == 1, bad.stderr
+        assert lines[0].startswith("error: ") and words in lines[0], lines
+    assert not (tmp_path / "bad").exists()

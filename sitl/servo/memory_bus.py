@@ -101,6 +101,8 @@ class MemoryServoBus:
         if self._channel is None:
             return
         end = self._channel.server
+        if not end.readable and not self._pending:  # the usual step: nothing to do
+            return
         data = end.receive_all()
         if data:
             self._parser.feed(data)
