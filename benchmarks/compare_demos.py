@@ -69,6 +69,8 @@ def fly(options: tuple[str, ...], seed: int, out: Path) -> dict[str, float]:
     )  # fmt: skip
     wall_s = time.perf_counter() - t0
     if done.returncode != 0:
+        lines = (done.stderr or done.stdout).strip().splitlines()
+        print(f"failed (exit {done.returncode}): {lines[-1] if lines else ''}", flush=True)
         return {"failed": 1.0, "wall_s": wall_s}
     summary = json.loads((out / "summary.json").read_text())
     last = json.loads((out / "truth.jsonl").read_text().splitlines()[-1])

@@ -348,7 +348,13 @@ def demo(
         Path, typer.Option(help="Scenario with [world] and [arm_bus].")
     ] = DEFAULT_SCENARIO,
     controller: ControllerOpt = "passivity",
-    speed: Annotated[float, typer.Option(help="SITL speed (simulated s per wall s).")] = 1.0,
+    speed: Annotated[
+        str,
+        typer.Option(
+            help="SITL speed (simulated s per wall s), or 'validated': with --autopilot px4 "
+            "the highest speed whose results stay within speed 1's (docs/px4_speed.md)."
+        ),
+    ] = "1",
     seed: Annotated[int, typer.Option(help="Seed of the SITL's sensor noise.")] = 0,
     place_at: Annotated[
         str, typer.Option(help="Where to put the object, X,Y,Z [m, ENU].")
@@ -392,7 +398,8 @@ def demo(
         fail(f"--clock must be wall or virtual, got {clock!r}")
     if clock == "virtual" and autopilot != "imitation":
         fail("--clock virtual flies the PX4 imitation; PX4 keeps its own lockstep clock")
-    if clock == "virtual" and speed != 1.0:
+    factor = _speed(speed, autopilot)
+    if clock == "virtual" and factor != 1.0:
         fail("--speed paces the wall clock; --clock virtual runs as fast as it can")
     if navigation not in ("mocap", "gps"):
         fail(f"--navigation must be mocap or gps, got {navigation!r}")
@@ -436,7 +443,7 @@ def demo(
             "--seed",
             str(seed),
             *extra,
-            speed=speed,
+            speed=factor,
             truth_log=out / "truth.jsonl",
             timeout_s=180.0 if autopilot == "px4" else 60.0,
         )
@@ -450,6 +457,23 @@ def demo(
         sitl.stop()
     _print_truth(scenario, out, place_world)
     raise typer.Exit(status)
+
+
+def _speed(text: str, autopilot: str) -> float:
+    """``--speed``: a positive factor, or ``validated`` (PX4 in the loop's validated speed)."""
+    if text == "validated":
+        if autopilot != "px4":
+            fail("--speed validated is PX4 in the loop's (--autopilot px4)")
+        from sitl.hil.vehicle import VALIDATED_SPEED
+
+        return VALIDATED_SPEED
+    try:
+        factor = float(text)
+    except ValueError:
+        fail(f"--speed must be a positive number or 'validated', got {text!r}")
+    if not (math.isfinite(factor) and factor > 0.0):
+        fail(f"--speed must be a positive number or 'validated', got {text!r}")
+    return factor
 
 
 def _fly_virtual(

@@ -3,13 +3,9 @@
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 
-ALL_FLIGHTS = os.environ.get("PX4_ALL_FLIGHTS") == "1"
-"""``PX4_ALL_FLIGHTS=1``: also fly the flights beyond the suite's time budget (the SIH and
-JSBSim-in-wind pickups, the imitation's twins of flights judged against PX4, ...)."""
 MISSION_PHASES = [
     "to_object", "descend", "grasp", "lift", "excite", "to_place",
     "lower", "release", "climb", "to_home", "done",

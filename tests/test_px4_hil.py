@@ -1,4 +1,4 @@
-"""The pickup mission with the real PX4 in the loop of our physics (issue 13).
+"""The pickup mission with the real PX4 in the loop of our physics.
 
 ``sitl run --autopilot px4`` starts the PX4 SITL build (``PX4_SITL_DIR``) on a free
 instance (its simulator TCP port and MAVLink ports are free loopback ports), serves its
@@ -27,7 +27,6 @@ from pathlib import Path
 
 import pytest
 from flight_checks import (
-    ALL_FLIGHTS,
     CARRY_RMS_BOUND_M,
     MISSION_PHASES,
     assert_calm_flight,
@@ -36,6 +35,7 @@ from flight_checks import (
 from test_mission_e2e import LinkCutter
 
 from companion.flightlog import read_flight_log
+from sitl.hil.vehicle import VALIDATED_SPEED
 from sitl.launch import start_sitl
 
 ROOT = Path(__file__).parent.parent
@@ -97,17 +97,19 @@ def fly_pickup(
     controller="passivity",
     relay=None,
     python=sys.executable,
+    speed=VALIDATED_SPEED,
 ):
-    """The pickup as a user flies it: ``sitl run --autopilot px4`` and the mission command
-    (through ``relay``, a :class:`LinkCutter`, when given; run by ``python``, e.g. the
-    flight install's)."""
+    """The pickup as a user flies it: ``sitl run --autopilot px4`` at ``speed`` (PX4's
+    validated speed: its results are speed 1's) and the mission command (through
+    ``relay``, a :class:`LinkCutter`, when given; run by ``python``, e.g. the flight
+    install's)."""
     truth_log = tmp / "truth.jsonl"
     px4_dir = tmp / "px4"
     payload_at, place_at = mission_points(navigation)
     sitl = start_sitl(
         CONFIG, "--seed", "1", "--autopilot", "px4", "--px4-dir", str(px4_root),
         "--keep-log", str(px4_dir), *sitl_args,
-        truth_log=truth_log, timeout_s=180.0,
+        speed=speed, truth_log=truth_log, timeout_s=180.0,
     )  # fmt: skip
     out = tmp / controller
     port = sitl.onboard_port
@@ -201,10 +203,6 @@ def assert_pickup_completed(flight: Flight) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(
-    not ALL_FLIGHTS,
-    reason="a PX4 flight beyond the suite's time budget: set PX4_ALL_FLIGHTS=1 to fly it",
-)
 def test_pickup_under_px4_on_jsbsim_in_wind(px4_build, tmp_path):
     """The same pickup with JSBSim as the truth physics and a steady 1.1 m/s wind (the
     plant's ``step_motors`` in the JSBSim backend): PX4 in the loop as with Pinocchio."""
@@ -289,8 +287,8 @@ def test_a_2_s_link_cut_under_px4_ends_in_a_landing(px4_build, tmp_path):
     """The companion's link to PX4 goes silent for 2 s once the vehicle has flown 3 s above
     1.2 m: the app raises link_lost, PX4 lands, and the vehicle ends on the ground,
     disarmed."""
-    relay = LinkCutter(tmp_path / "truth.jsonl")
-    flight = fly_pickup(px4_build.root, tmp_path, "linkcut", relay=relay)
+    relay = LinkCutter(tmp_path / "truth.jsonl")  # its cut lasts 2 s of wall time: speed 1
+    flight = fly_pickup(px4_build.root, tmp_path, "linkcut", relay=relay, speed=1.0)
     assert relay.cut_at is not None and relay.dropped > 0, flight.context()
     assert flight.result.returncode == 1, flight.context()
     assert "Traceback" not in flight.result.stderr, flight.context()

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from flight_checks import ALL_FLIGHTS, MISSION_PHASES
+from flight_checks import MISSION_PHASES
 
 from companion.flightlog import read_flight_log
 from sitl.launch import start_sih
@@ -60,15 +60,12 @@ def fly(px4_build, tmp: Path, controller: str):
 
 @pytest.fixture(scope="module", params=["passivity"])
 def flight(request, px4_build, tmp_path_factory):
-    """The pickup on SIH, beyond the suite's time budget (``PX4_ALL_FLIGHTS=1``): the same
-    mission against real PX4 flies in tests/test_px4_hil.py with our physics (the arm's
-    reaction, the payload) instead of SIH's armless body. The adaptive controller: with
+    """The pickup on SIH (the same mission against real PX4 flies in tests/test_px4_hil.py
+    with our physics: the arm's reaction, the payload) instead of SIH's armless body. The adaptive controller: with
     the non-adaptive one the unmodelled payload against the paper's soft joint gains
     (k Lambda = 0.28 N m/rad) can tip the arm over during the excitation, and on SIH's
     held base nothing stops it spinning (seen once: estimate_bound and a saturated tilt
     from the spinning arm's terms in the controller)."""
-    if not ALL_FLIGHTS:
-        pytest.skip("a PX4 flight beyond the suite's time budget: set PX4_ALL_FLIGHTS=1")
     tmp = tmp_path_factory.mktemp(f"px4-{request.param}")
     return (request.param, *fly(px4_build, tmp, request.param))
 

@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from flight_checks import ALL_FLIGHTS
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -296,12 +295,6 @@ def test_without_a_global_origin_px4_arms_only_in_takeoff_and_stays_there(mocap_
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(
-    not ALL_FLIGHTS,
-    reason="flown in every suite by the motion-capture pickup under PX4 (tests/test_px4_hil.py: "
-    "origin set, armed, Hold after the take-off); the suite's time budget: "
-    "PX4_ALL_FLIGHTS=1 flies it here too",
-)
 def test_with_a_global_origin_px4_arms_in_hold_and_holds_after_takeoff(mocap_px4):
     _, link = mocap_px4
     link.heartbeat_type = mavlink.MAV_TYPE_GCS  # for PX4's STATUSTEXT

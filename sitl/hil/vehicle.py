@@ -78,7 +78,13 @@ from sitl.runner import RunOptions, RunStats, build_world, servo_faults, truth_r
 from sitl.scenario import Scenario
 from sitl.sensors import PoseSensor
 
-__all__ = ["HilOptions", "HilStats", "Px4Exited", "Px4InTheLoop"]
+__all__ = ["VALIDATED_SPEED", "HilOptions", "HilStats", "Px4Exited", "Px4InTheLoop"]
+
+VALIDATED_SPEED = 2.0
+"""The highest speed (simulated s per wall s) at which the pickup with PX4 in the loop and
+the companion beside it on 2 cores gave the results of speed 1, within their seed-to-seed
+spread (``docs/px4_speed.md``, ``benchmarks/compare_demos.py --preset px4-speed``; at 3x one
+flight of four ended its centre-of-mass estimate 15 % off)."""
 
 _SIMULATOR_WAITING = "Waiting for simulator to accept connection"
 _STARTUP_DONE = "Startup script returned successfully"

@@ -197,14 +197,19 @@ class MavlinkEndpoint:
         """Encode (MAVLink 2, signed when a key is set) and send one message.
 
         Send errors (e.g. ICMP port unreachable reported by the kernel while no client
-        listens) are counted as ``send_error`` and dropped: the vehicle keeps flying.
+        listens) are counted as ``send_error`` and dropped: the vehicle keeps flying. On an
+        in-memory channel nobody reads, the message is counted ``unheard`` and not encoded.
         """
         mav = self._require_open()
+        port = self._port
+        if port is not None and (port.peer is None or not port.peer.attached):
+            self.counters["unheard"] += 1  # nobody reads the channel: not even packed
+            return
         buf = msg.pack(mav)
         mav.seq = (mav.seq + 1) % 256
         try:
-            if self._port is not None:
-                self._port.send(buf)
+            if port is not None:
+                port.send(buf)
             else:
                 assert self._sock is not None
                 self._sock.sendto(buf, self.remote_address)
