@@ -60,10 +60,10 @@ def fly(px4_build, tmp: Path, controller: str):
 
 @pytest.fixture(scope="module", params=["passivity"])
 def flight(request, px4_build, tmp_path_factory):
-    """The pickup on SIH (the same mission against real PX4 flies in tests/test_px4_hil.py
-    with our physics: the arm's reaction, the payload) instead of SIH's armless body. The adaptive controller: with
-    the non-adaptive one the unmodelled payload against the paper's soft joint gains
-    (k Lambda = 0.28 N m/rad) can tip the arm over during the excitation, and on SIH's
+    """The pickup on SIH's armless body (the same mission against real PX4 flies in
+    tests/test_px4_hil.py with our physics: the arm's reaction, the payload). The adaptive
+    controller: with the non-adaptive one the unmodelled payload against the paper's soft
+    joint gains (k Lambda = 0.28 N m/rad) can tip the arm over during the excitation, and on SIH's
     held base nothing stops it spinning (seen once: estimate_bound and a saturated tilt
     from the spinning arm's terms in the controller)."""
     tmp = tmp_path_factory.mktemp(f"px4-{request.param}")
