@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import multiprocessing
+import time
 from pathlib import Path
 
 import numpy as np
@@ -68,8 +69,6 @@ def fly(
 
 
 def _spin(seconds: float) -> None:
-    import time
-
     end = time.monotonic() + seconds
     while time.monotonic() < end:
         pass
