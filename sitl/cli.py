@@ -177,6 +177,14 @@ def run(
         str,
         typer.Option(help="--autopilot px4 --navigation gps: the receiver, standard or rtk."),
     ] = "standard",
+    lockstep: Annotated[
+        bool,
+        typer.Option(
+            "--lockstep",
+            help="While the client streams SET_ATTITUDE_TARGET, step past a pose only once "
+            "its setpoint is in, as fast as the two go (the imitation; PX4 keeps its own).",
+        ),
+    ] = False,
     nice: Annotated[
         int,
         typer.Option(
@@ -192,6 +200,8 @@ def run(
         _fail(f"--autopilot must be imitation or px4, got {autopilot!r}")
     if autopilot == "px4" and px4_dir is None:
         _fail("--autopilot px4 needs a PX4 SITL build: pass --px4-dir DIR or set PX4_SITL_DIR")
+    if autopilot == "px4" and lockstep:
+        _fail("--lockstep is the imitation's: PX4 in the loop runs in its own lockstep")
     if autopilot == "px4" and signing_key is not None:
         _fail("--signing-key is the imitation's: configure PX4's own signing (MAV_SIGN_CFG)")
     if gps not in GPS_GRADES:
@@ -263,6 +273,7 @@ def run(
             servo_reply_delay_s=servo_reply_delay_ms * 1e-3,
             physics=physics,
             wind=air,
+            lockstep=lockstep,
         )
         if build is not None:
             vehicle = Px4InTheLoop(
@@ -309,6 +320,12 @@ def run(
         f"sitl: stopped at t = {stats.sim_time_s:.3f} s; real-time factor "
         f"{stats.real_time_factor:.2f}; step jitter median {median:.0f} us, p99 {p99:.0f} us; "
         f"{stats.overruns} overruns"
+        + (
+            f"; lockstep: waited for {stats.lockstep_waits} setpoints, "
+            f"{stats.lockstep_timeouts} timed out"
+            if lockstep
+            else ""
+        )
     )
 
 

@@ -73,6 +73,18 @@ _SWITCH_INTERVAL_S = 2e-4
 """Interpreter switch interval while running [s] (the servo bus thread's reply latency)."""
 _MAX_LAG_S = 0.25
 """Wall-clock lag behind schedule [s] after which the schedule is re-based (overrun)."""
+LOCKSTEP_WAIT_S = 0.1
+"""With ``RunOptions.lockstep``: wall time the vehicle waits for the setpoint of a pose
+before it goes on without it (counted; the stream counts as stopped) [s]: well inside the
+companion's telemetry timeout (0.5 s), so that a stream the client stops on purpose (after
+the landing) costs one short wait, not a lost link."""
+_STREAMING_S = 0.1
+"""With ``RunOptions.lockstep``: simulated time after a SET_ATTITUDE_TARGET during which the
+client counts as streaming (the vehicle waits for its setpoints) [s]."""
+_READ_POLL_S = 5e-5
+"""How often a lockstep wait looks whether the client's Sync Read was answered [s]."""
+_ODOMETRY = "ODOMETRY"
+_SETPOINT = "SET_ATTITUDE_TARGET"
 
 DEFAULT_JOINTS = (
     JointConfig("eta1", 1, 1.78, 4.1, position_min_rad=-2.6, position_max_rad=0.6),
@@ -151,6 +163,14 @@ class RunOptions:
     caller; ``None``: UDP and a pty, paced by :meth:`SitlVehicle.run`."""
     unix_time_at_boot_us: int | None = None
     """The Unix time the autopilot booted at [us] (its SYSTEM_TIME); ``None``: now."""
+    lockstep: bool = False
+    """Step in lockstep with a client in another process (``sitl run --lockstep``): while
+    it streams SET_ATTITUDE_TARGET on the onboard link, the vehicle does not step past an
+    ODOMETRY until a setpoint stamped with that pose's time (``time_boot_ms``) is in and
+    the client has read the joints since (a Sync Read on the servo bus: the joint state of
+    the next cycle), and runs as fast as the two go; it waits at most
+    :data:`LOCKSTEP_WAIT_S` of wall time for each, then goes on (counted). Before the
+    stream starts and after it stops: at ``speed``."""
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.speed) and self.speed > 0.0):
@@ -180,6 +200,10 @@ class RunStats:
     steps: int = 0
     overruns: int = 0
     lateness_us: list[float] = field(default_factory=list)
+    lockstep_waits: int = 0
+    """Poses after which the vehicle waited for the client's setpoint (``lockstep``)."""
+    lockstep_timeouts: int = 0
+    """Of those, the waits that ended without the setpoint after :data:`LOCKSTEP_WAIT_S`."""
 
     @property
     def real_time_factor(self) -> float:
@@ -328,6 +352,18 @@ class SitlVehicle:
         self._console: Callable[[str], None] | None = None
         self.steps = 0
         """Plant steps taken."""
+        self._held: list = []
+        """Onboard messages received while waiting for a setpoint (``lockstep``), handed to
+        the autopilot at the next step."""
+        self._pose_sent_ms: int | None = None
+        """``time_boot_ms`` of the ODOMETRY sent this step (``lockstep``), else None."""
+        self._reads_at_pose = 0
+        """The servo bus's Sync Reads when that ODOMETRY went out."""
+        self._reads_stopped_at = -1
+        """The Sync Reads when a wait for one timed out: no wait for reads until the next."""
+        self._setpoint_ms = -1
+        """``time_boot_ms`` of the latest SET_ATTITUDE_TARGET received."""
+        self._streaming_until_s = -math.inf
         self._open = False
 
     def _make_links(self) -> dict[str, MavlinkEndpoint]:
@@ -446,6 +482,13 @@ class SitlVehicle:
                 lateness = 0.0
             stats.lateness_us.append(lateness * 1e6)
             self.step()
+            if self.options.lockstep and self._streaming():
+                if self._pose_sent_ms is not None:
+                    stats.lockstep_waits += 1
+                    if not self._await_setpoint():
+                        stats.lockstep_timeouts += 1
+                slot = time.perf_counter()  # in lockstep the client paces the steps
+                continue
             slot += wall_dt
             wait = slot - time.perf_counter()
             if wait > 0.0:
@@ -466,10 +509,16 @@ class SitlVehicle:
         now_s = world.time_s
         cut = self.options.link_cut
         silent = "onboard" if cut is not None and cut[0] <= now_s < cut[0] + cut[1] else None
+        held, self._held = self._held, []
         for name, link in links.items():
-            for message in link.receive():
+            messages = link.receive()
+            if name == "onboard" and held:
+                messages = held + messages
+            for message in messages:
                 if name == silent:
                     continue
+                if name == "onboard" and message.get_type() == _SETPOINT:
+                    self._note_setpoint(message, now_s)
                 for reply_link, reply in autopilot.handle(message, name, now_s):
                     links[reply_link].send(reply)
         if autopilot.params.revision != self._params_revision:
@@ -479,9 +528,13 @@ class SitlVehicle:
         setpoint = autopilot.control(now_s, measurement)
         with self.servo_bus.lock:
             world.step(setpoint)
+        self._pose_sent_ms = None
         for link_name, message in autopilot.telemetry(now_s, measurement):
             if link_name != silent:
                 links[link_name].send(message)
+                if link_name == "onboard" and message.get_type() == _ODOMETRY:
+                    self._pose_sent_ms = message.time_usec // 1000
+                    self._reads_at_pose = self.servo_bus.sync_reads
         lines = autopilot.console()
         if lines and self._console is not None:
             for line in lines:
@@ -493,6 +546,41 @@ class SitlVehicle:
         if self._truth_file is not None and self.steps % self._truth_every == 0:
             self._write_truth()
         self.steps += 1
+
+    def _note_setpoint(self, message, now_s: float) -> None:
+        self._setpoint_ms = max(self._setpoint_ms, int(message.time_boot_ms))
+        self._streaming_until_s = now_s + _STREAMING_S
+
+    def _streaming(self) -> bool:
+        """The client streams setpoints (one came within :data:`_STREAMING_S`)."""
+        return self.world.time_s < self._streaming_until_s
+
+    def _await_setpoint(self) -> bool:
+        """Hold the onboard messages until the setpoint for the pose sent is among them,
+        then wait for the client's Sync Read of the joints; False (and the stream counted
+        as stopped) when either takes longer than :data:`LOCKSTEP_WAIT_S`."""
+        assert self._pose_sent_ms is not None
+        link = self.links["onboard"]
+        deadline = time.perf_counter() + LOCKSTEP_WAIT_S
+        while self._setpoint_ms < self._pose_sent_ms:
+            remaining = deadline - time.perf_counter()
+            if remaining <= 0.0:
+                self._streaming_until_s = -math.inf
+                return False
+            link.wait_readable(remaining)
+            for message in link.receive():
+                self._held.append(message)
+                if message.get_type() == _SETPOINT:
+                    self._setpoint_ms = max(self._setpoint_ms, int(message.time_boot_ms))
+        if self.servo_bus.sync_reads == self._reads_stopped_at:
+            return True  # the client stopped reading the joints (e.g. landed)
+        deadline = time.perf_counter() + LOCKSTEP_WAIT_S
+        while self.servo_bus.sync_reads <= self._reads_at_pose:
+            if time.perf_counter() > deadline:
+                self._reads_stopped_at = self.servo_bus.sync_reads
+                return False
+            time.sleep(_READ_POLL_S)  # the bus thread answers meanwhile
+        return True
 
     @property
     def time_s(self) -> float:

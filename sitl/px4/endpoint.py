@@ -218,6 +218,13 @@ class MavlinkEndpoint:
             return
         self.counters["sent"] += 1
 
+    def wait_readable(self, timeout_s: float) -> None:
+        """Block until a datagram waits or ``timeout_s`` [s] has passed (UDP only; an
+        in-memory end returns at once)."""
+        self._require_open()
+        if self._poller is not None:
+            self._poller.poll(max(0, round(timeout_s * 1e3)))
+
     def receive(self, max_datagrams: int = 256) -> list[mavlink.MAVLink_message]:
         """Every valid message of the datagrams waiting (at most ``max_datagrams``)."""
         mav = self._require_open()

@@ -66,6 +66,11 @@ class MemoryServoBus:
         return self._responder.corrupted_replies
 
     @property
+    def sync_reads(self) -> int:
+        """Sync Read instructions carried out."""
+        return self._responder.sync_reads
+
+    @property
     def device(self) -> str:
         """The device a client opens: ``memory:NAME``."""
         return f"memory:{self.name}"

@@ -92,6 +92,11 @@ class PtyServoBus:
         return self._responder.corrupted_replies
 
     @property
+    def sync_reads(self) -> int:
+        """Sync Read instructions carried out."""
+        return self._responder.sync_reads
+
+    @property
     def device(self) -> str:
         """Path of the pty's slave side, for clients to open."""
         if self._device is None:

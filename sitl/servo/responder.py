@@ -86,6 +86,8 @@ class ServoResponder:
         self._rng = np.random.default_rng(self.faults.seed)
         self.corrupted_replies = 0
         """Replies sent with a corrupted CRC."""
+        self.sync_reads = 0
+        """Sync Read instructions carried out (a lockstep host waits for the client's)."""
 
     def set_faults(self, faults: Faults) -> None:
         """Replace the injected faults (re-seeds the corruption generator)."""
@@ -99,6 +101,7 @@ class ServoResponder:
             self._sync_write(params)
             return []
         if instruction == Instruction.SYNC_READ:
+            self.sync_reads += 1
             if packet.servo_id != BROADCAST_ID or len(params) < 5:
                 return []
             address = int.from_bytes(params[:2], "little")
