@@ -22,10 +22,11 @@ import platform
 import pstats
 import shutil
 import statistics
-import subprocess
 import tempfile
 import time
 from pathlib import Path
+
+from checkout import this_commit
 
 from companion.cli_mission import plan_for
 from sitl.runner import RunOptions, SitlVehicle
@@ -94,23 +95,13 @@ def fly_once(seed: int, work: Path, profile: cProfile.Profile | None) -> dict[st
     }
 
 
-def _commit() -> str:
-    try:
-        return subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT,
-            check=True,
-        ).stdout.strip()  # fmt: skip
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def table(runs: list[dict[str, float]]) -> str:
     lines = [
         "# The default pickup on simulated time: speed",
         "",
         f"Written by `benchmarks/bench_virtual_flight.py` on {platform.node()} "
         f"({os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} at the end, Python "
-        f"{platform.python_version()}), commit {_commit()}. One process, one core; the "
+        f"{platform.python_version()}), commit {this_commit()}. One process, one core; the "
         "flight without figures (`sitl.virtual_flight.fly_virtual`).",
         "",
         "| seed | completed | simulated [s] | wall [s] | CPU [s] | real-time factor "

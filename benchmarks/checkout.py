@@ -15,6 +15,8 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+_ROOT = Path(__file__).resolve().parent.parent
+
 Figures = dict
 """A benchmark's figures as its ``--json`` prints them."""
 
@@ -49,3 +51,15 @@ def now_and_before(
     now = best(now, measure())
     then = best(then, measure_checkout(before, script, args))
     return now, then
+
+
+def this_commit() -> str:
+    """The short hash of this checkout's HEAD, for the tables a benchmark writes into
+    ``docs/`` ("unknown" outside a git checkout)."""
+    try:
+        return subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=_ROOT,
+            check=True,
+        ).stdout.strip()  # fmt: skip
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"

@@ -37,6 +37,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
+from checkout import this_commit  # noqa: E402
 from flight_checks import carry_rms_m  # noqa: E402
 
 from companion.flightlog import read_flight_log  # noqa: E402
@@ -86,16 +87,6 @@ def fly(options: tuple[str, ...], seed: int, out: Path) -> dict[str, float]:
     }
 
 
-def _commit() -> str:
-    try:
-        return subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT,
-            check=True,
-        ).stdout.strip()  # fmt: skip
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def _spread(values: list[float]) -> str:
     if not values:
         return "none completed"
@@ -113,7 +104,7 @@ def table(
         f"# {title} ({len(seeds)} seeds)",
         "",
         f"Written by `benchmarks/compare_demos.py` on {platform.node()} "
-        f"({os.cpu_count()} cores, Python {platform.python_version()}), commit {_commit()}.",
+        f"({os.cpu_count()} cores, Python {platform.python_version()}), commit {this_commit()}.",
         "Each seed S flown by "
         + ", ".join(f"`sitl demo {' '.join(o)} --seed S`" for o in ways.values())
         + ", one after the other; errors against the simulator's truth.",

@@ -20,13 +20,13 @@ from collections.abc import Mapping
 from arm_driver.dynamixel.stream import InstructionParser
 from arm_driver.errors import CommunicationError
 from arm_driver.memory import MemoryChannel, create_channel
-from sitl.servo.responder import Faults, ServoResponder
+from sitl.servo.responder import Faults, RespondingBus, ServoResponder
 from sitl.servo.xm430 import XM430Servo
 
 __all__ = ["MemoryServoBus"]
 
 
-class MemoryServoBus:
+class MemoryServoBus(RespondingBus):
     """Servo models behind the in-memory line ``name``; :meth:`start`, then
     :meth:`serve` on every turn of the simulation.
 
@@ -54,21 +54,6 @@ class MemoryServoBus:
         """Replies not yet on the line: (simulation time they go out [s], frame)."""
         self.dropped_instructions = 0
         """Instruction frames dropped for a bad CRC or bad framing."""
-
-    @property
-    def servos(self) -> dict[int, XM430Servo]:
-        """The servo models by id."""
-        return self._responder.servos
-
-    @property
-    def corrupted_replies(self) -> int:
-        """Replies sent with a corrupted CRC."""
-        return self._responder.corrupted_replies
-
-    @property
-    def sync_reads(self) -> int:
-        """Sync Read instructions carried out."""
-        return self._responder.sync_reads
 
     @property
     def device(self) -> str:

@@ -37,7 +37,7 @@ from collections.abc import Mapping
 
 from arm_driver.dynamixel.stream import InstructionParser
 from arm_driver.errors import CommunicationError
-from sitl.servo.responder import Faults, ServoResponder
+from sitl.servo.responder import Faults, RespondingBus, ServoResponder
 from sitl.servo.xm430 import XM430Servo
 
 __all__ = ["Faults", "PtyServoBus"]
@@ -49,7 +49,7 @@ _IDLE_STEP_S = 0.005
 Watchdog(98) trips on time on a silent bus (its unit is 20 ms)."""
 
 
-class PtyServoBus:
+class PtyServoBus(RespondingBus):
     """Servo models behind a pseudo-terminal, served by a background thread.
 
     Parameters
@@ -80,21 +80,6 @@ class PtyServoBus:
         self._device: str | None = None
         self.dropped_instructions = 0
         """Instruction frames dropped for a bad CRC or bad framing."""
-
-    @property
-    def servos(self) -> dict[int, XM430Servo]:
-        """The servo models by id."""
-        return self._responder.servos
-
-    @property
-    def corrupted_replies(self) -> int:
-        """Replies sent with a corrupted CRC."""
-        return self._responder.corrupted_replies
-
-    @property
-    def sync_reads(self) -> int:
-        """Sync Read instructions carried out."""
-        return self._responder.sync_reads
 
     @property
     def device(self) -> str:

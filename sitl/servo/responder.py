@@ -34,7 +34,7 @@ from arm_driver.dynamixel.protocol import (
 )
 from sitl.servo.xm430 import ServoReply, XM430Servo
 
-__all__ = ["Faults", "ServoResponder"]
+__all__ = ["Faults", "RespondingBus", "ServoResponder"]
 
 
 @dataclass(frozen=True)
@@ -153,3 +153,25 @@ class ServoResponder:
             frame[-1] ^= 0xFF
             self.corrupted_replies += 1
         return (servo.return_delay_s + faults.reply_delay_s, bytes(frame))
+
+
+class RespondingBus:
+    """What a simulated Dynamixel bus answering through a :class:`ServoResponder` shows of
+    it (the pty bus and the in-memory bus)."""
+
+    _responder: ServoResponder
+
+    @property
+    def servos(self) -> dict[int, XM430Servo]:
+        """The servo models by id."""
+        return self._responder.servos
+
+    @property
+    def corrupted_replies(self) -> int:
+        """Replies sent with a corrupted CRC."""
+        return self._responder.corrupted_replies
+
+    @property
+    def sync_reads(self) -> int:
+        """Sync Read instructions carried out."""
+        return self._responder.sync_reads
