@@ -15,7 +15,7 @@ control loop (the time between cycles is not counted):
   published *after* it (``max_status_age_ms=0.01``): command -> emulator -> feedback,
   through python-can's virtual bus and two threads.
 
-Target (issue 4): p99 <= 1 ms in software, so a 1 kHz loop is limited by the wire.
+Target: p99 <= 1 ms in software, so a 1 kHz loop is limited by the wire.
 Run: ``python benchmarks/bench_arm_bus.py [--cycles N]``.
 """
 

@@ -28,7 +28,7 @@ prints every figure multiplied by F, labelled as scaled, for a slower computer (
 Raspberry Pi 4 runs this Python 3-5 times slower than the development machine; nothing
 here changes the clock). The CPU frequency is read from
 ``/sys/devices/system/cpu/cpu<N>/cpufreq`` when the machine exposes it and printed.
-Targets (issue 14): <= 20 us median per control step, <= 0.5 s wall for the 10 s run.
+Targets: <= 20 us median per control step, <= 0.5 s wall for the 10 s run.
 
 Usage: ``python benchmarks/bench_control_step.py [--config configs/paper_sim.toml]
 [--repeat 3] [--cpu 1] [--scale 4]``

@@ -7,7 +7,7 @@ Prints median and p99 microseconds of
     then regressor(qr_dot, qr_ddot) -> Y
   - Pinocchio (same model, Translation -> RZ -> RY -> RX base): crba + computeCoriolisMatrix
     + computeGeneralizedGravity, in the same run
-Targets: issue 2, <= 20 us median for companion.model; issue 14, <= 10 us (one call).
+Targets: <= 20 us median for companion.model, <= 10 us for one call.
 
 Usage: python benchmarks/bench_model.py [--config configs/paper_sim.toml] [--n 20000]
 """

@@ -1,4 +1,4 @@
-/* The companion's control step after the state filter, in one call (issue 14).
+/* The companion's control step after the state filter, in one call.
  *
  * step(params, state, dt, skip, q, q_dot, q_ddot, qd, qd_dot, qd_ddot, tau_applied, out
  *      [, est_q, est_q_dot, est_q_ddot, est_tau, est_skip])

@@ -16,7 +16,7 @@ CARRY_PHASES = ("lift", "to_place", "lower")
 CARRY_JOINT_RATE_RMS_BOUND_RAD_S = 0.3
 """Joint rate RMS over :data:`CARRY_PHASES` the arm must keep, each joint: it holds still
 while carrying (0.01-0.05 rad/s measured under the imitation and PX4 in the loop); the
-elbow mode oscillating against a stale joint state (CI, stop 20) gave 2-5 rad/s."""
+elbow mode oscillating against a stale joint state (in CI) gave 2-5 rad/s."""
 CARRY_RMS_BOUND_M = 0.04
 """Carry RMS the adaptive controller must keep: 1.5-2.7 cm measured under the imitation and
 PX4 in the loop; the non-adaptive one carries the object about 6.5 cm low (6.6 cm RMS)."""

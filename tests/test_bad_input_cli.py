@@ -1,4 +1,4 @@
-"""Every bad input of the command lines is one ``error:`` line and exit status 2 (issue 15).
+"""Every bad input of the command lines is one ``error:`` line and exit status 2.
 
 Each case names the input and what is wrong, never prints a traceback, loses nothing and
 is found before any work is done. The commands run in this process (typer's runner):

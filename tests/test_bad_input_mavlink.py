@@ -1,4 +1,4 @@
-"""The companion's MAVLink link fed random bytes and damaged frames (issue 15).
+"""The companion's MAVLink link fed random bytes and damaged frames.
 
 The Dynamixel parser has its own property tests (``test_dynamixel_stream.py``: any
 chunking of packets and noise, any flipped bit); the link's were deterministic garbage

@@ -1,4 +1,4 @@
-"""Every command that reads a file, fed random bytes and random TOML (issue 15).
+"""Every command that reads a file, fed random bytes and random TOML.
 
 Configurations (``--config``, ``--scenario``, ``check FILE``), flight logs (``companion
 plot``) and signing keys (``--signing-key``) get random bytes, random TOML documents and

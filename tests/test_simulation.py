@@ -81,7 +81,7 @@ def flight_runs():
 
 
 def test_flight_scenario_beats_the_nonadaptive_baseline_by_half(flight_runs) -> None:
-    """Issue 16: carry RMS of the adaptive law at most half the non-adaptive one's on the
+    """carry RMS of the adaptive law at most half the non-adaptive one's on the
     underactuated plant with noise (measured 2.4 against 17.7 cm)."""
     adaptive, baseline = flight_runs["passivity"], flight_runs["nonadaptive"]
     assert adaptive["rms_position_error_m"] < 0.5 * baseline["rms_position_error_m"]

@@ -1,4 +1,4 @@
-"""Cross-validation: the JSBSim backend against the Pinocchio plant, wind off (issue 7).
+"""Cross-validation: the JSBSim backend against the Pinocchio plant, wind off.
 
 Same scenario (configs/paper_sim_flight.toml, payload grasped), same inputs through the
 same PX4-like loop and rotors; the backends differ in the rigid-body integration (JSBSim's

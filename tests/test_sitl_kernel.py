@@ -1,4 +1,4 @@
-"""sitl.physics._kernel: the compiled step against the Python it mirrors (issue 14).
+"""sitl.physics._kernel: the compiled step against the Python it mirrors.
 
 The kernel computes the same floating-point operations in the same order as the Python
 reference (``ArticulatedIntegrator.step``, the frames functions, the attitude loop's parts),

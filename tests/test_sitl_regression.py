@@ -1,6 +1,6 @@
 """sitl: fixed-seed trajectories of the truth plant and of the SITL vehicle against a record.
 
-The SITL's step was made faster (issue 14: the plant's float arithmetic in a compiled
+The SITL's step was made faster (the plant's float arithmetic in a compiled
 kernel, fewer per-step allocations); these runs pin what it computes. The record,
 ``tests/data/sitl_regression.npz``, was written by the code before that work (``python
 tests/test_sitl_regression.py`` rewrites it, for a deliberate change of the physics).

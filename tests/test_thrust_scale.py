@@ -322,7 +322,7 @@ def test_sih_refuses_a_battery_sag() -> None:
         sih_parameters(parse_scenario(data))
 
 
-# --------------------------------------------------------- acceptance (issue 16)
+# --------------------------------------------------------- acceptance
 
 ACCEPT_SCALE = {"drift_std_per_sqrt_s": 0.01}
 """The thrust scale for the acceptance runs: a random walk for the sag (with a memory of
@@ -350,7 +350,7 @@ def _errors(result, t_s: float) -> tuple[float, float]:
 
 @pytest.mark.parametrize("mismatch", [0.9, 1.0, 1.1])
 def test_estimate_survives_thrust_mismatch_and_battery_sag(mismatch: float) -> None:
-    """Issue 16: paper_sim_flight, noise, RLS with the thrust scale, thrust mismatch at
+    """paper_sim_flight, noise, RLS with the thrust scale, thrust mismatch at
     the ends and middle of [0.9, 1.1] plus 10 % sag over 20 s: m2 within 3 % and lc
     within 5 % at 10 s and at the end."""
     r = _accept_run(mismatch, 0.1, ACCEPT_SCALE)

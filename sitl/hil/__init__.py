@@ -1,6 +1,6 @@
 """PX4 in the loop: the real PX4 SITL build flies our physics through ``simulator_mavlink``.
 
-``sitl run --autopilot px4`` (issue 13). PX4's own EKF2, commander, position, attitude and
+``sitl run --autopilot px4``. PX4's own EKF2, commander, position, attitude and
 rate loops, control allocation and motor linearization fly the scenario's hexacopter with
 its arm, gripper and payload object; the arm's servos stay on the emulated Dynamixel bus
 and the companion talks to PX4 as on the real vehicle. Modules:

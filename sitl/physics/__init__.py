@@ -1,4 +1,4 @@
-"""Truth physics of the SITL vehicle: hexacopter + 2-DOF arm + payload (issue 3).
+"""Truth physics of the SITL vehicle: hexacopter + 2-DOF arm + payload.
 
 Independent of :mod:`companion.model` by design (DESIGN.md section 6): model errors there
 must show up against this plant, not be copied into it. Entry point::

@@ -1,4 +1,4 @@
-/* Compiled per-step arithmetic of the SITL truth plant (sitl.physics), issue 14.
+/* Compiled per-step arithmetic of the SITL truth plant (sitl.physics).
  *
  * The same operations, in the same order, as the Python they replace or mirror, so that the
  * results agree to the last bit or close to it (built without floating-point contraction):

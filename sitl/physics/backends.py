@@ -1,4 +1,4 @@
-"""Choose the physics backend of the truth plant: Pinocchio (ours) or JSBSim (issue 7).
+"""Choose the physics backend of the truth plant: Pinocchio (ours) or JSBSim.
 
 Both plants are a :class:`~sitl.physics.protocols.Plant` in underactuated mode
 (``reset``, ``step``, ``state``, ``time_s``, ``actuators``, payload handling,

@@ -1,4 +1,4 @@
-"""The simulated vehicle's PX4 personality over MAVLink 2 (issue 5).
+"""The simulated vehicle's PX4 personality over MAVLink 2.
 
 Pure logic driven by simulation time, plus a thin UDP endpoint::
 

@@ -1,4 +1,4 @@
-/* Compiled per-step physics of the simulated XM430 servo (sitl.servo.xm430), issue 14.
+/* Compiled per-step physics of the simulated XM430 servo (sitl.servo.xm430).
  *
  * set_state(table, loop, constants, angle_rad, rate_rad_s) -> bool
  *     XM430Servo.set_state: the shaft's angle and rate into the loop state and into Present

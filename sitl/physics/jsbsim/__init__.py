@@ -1,4 +1,4 @@
-"""JSBSim physics backend of the SITL (issue 7): the same vehicle as ``sitl.physics.TruthPlant``
+"""JSBSim physics backend of the SITL: the same vehicle as ``sitl.physics.TruthPlant``
 in underactuated mode, integrated by JSBSim, with atmosphere, wind, turbulence and ground.
 
 Entry point::
