@@ -597,9 +597,15 @@ class CompanionConfig(_Section):
 
 
 def _dotted(loc: tuple[int | str, ...]) -> str:
+    """The dotted key of a location; a key with characters that would break the one-line
+    message (a newline, a carriage return, ...) is quoted with escapes."""
     key = ""
     for part in loc:
-        key += f"[{part}]" if isinstance(part, int) else (f".{part}" if key else str(part))
+        if isinstance(part, int):
+            key += f"[{part}]"
+            continue
+        name = part if part.isprintable() else repr(part)
+        key += f".{name}" if key else name
     return key
 
 

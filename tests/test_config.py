@@ -202,3 +202,17 @@ def test_cli_missing_file_exits_2(run_cli, tmp_path: Path) -> None:
     assert result.returncode == 2
     assert "Traceback" not in result.stderr
     assert "cannot read file" in result.stderr
+
+
+def test_a_key_with_a_line_break_is_named_on_one_line():
+    """An unknown key holding a newline or a carriage return is quoted with escapes, so
+    that each problem stays one line."""
+    data = tomllib.loads((CONFIGS / "sitl_pickup.toml").read_text())
+    data["\r"] = 0.0
+    data["flight"]["a\nb"] = 1
+    with pytest.raises(ConfigError) as caught:
+        parse_config(data, "x.toml")
+    assert str(caught.value).splitlines() == [
+        "x.toml: flight.'a\\nb': unknown key",
+        "x.toml: '\\r': unknown key",
+    ]
