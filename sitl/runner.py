@@ -509,6 +509,7 @@ class SitlVehicle:
         now_s = world.time_s
         cut = self.options.link_cut
         silent = "onboard" if cut is not None and cut[0] <= now_s < cut[0] + cut[1] else None
+        lockstep = self.options.lockstep
         held, self._held = self._held, []
         for name, link in links.items():
             messages = link.receive()
@@ -517,7 +518,7 @@ class SitlVehicle:
             for message in messages:
                 if name == silent:
                     continue
-                if name == "onboard" and message.get_type() == _SETPOINT:
+                if lockstep and name == "onboard" and message.get_type() == _SETPOINT:
                     self._note_setpoint(message, now_s)
                 for reply_link, reply in autopilot.handle(message, name, now_s):
                     links[reply_link].send(reply)
@@ -532,7 +533,7 @@ class SitlVehicle:
         for link_name, message in autopilot.telemetry(now_s, measurement):
             if link_name != silent:
                 links[link_name].send(message)
-                if link_name == "onboard" and message.get_type() == _ODOMETRY:
+                if lockstep and link_name == "onboard" and message.get_type() == _ODOMETRY:
                     self._pose_sent_ms = message.time_usec // 1000
                     self._reads_at_pose = self.servo_bus.sync_reads
         lines = autopilot.console()
@@ -571,7 +572,7 @@ class SitlVehicle:
             for message in link.receive():
                 self._held.append(message)
                 if message.get_type() == _SETPOINT:
-                    self._setpoint_ms = max(self._setpoint_ms, int(message.time_boot_ms))
+                    self._note_setpoint(message, self.world.time_s)
         if self.servo_bus.sync_reads == self._reads_stopped_at:
             return True  # the client stopped reading the joints (e.g. landed)
         deadline = time.perf_counter() + LOCKSTEP_WAIT_S
