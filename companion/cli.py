@@ -3,7 +3,9 @@
 ``check`` (a configuration), ``mission pickup``, ``arm`` (servo bus bring-up) and ``plot``
 (figures of a flight log). The simulator's commands (``sim``, ``compare``, ``demo``) are
 ``sitl``'s. User mistakes print one line naming the file, the key and the reason and exit
-with status 2 (:mod:`companion.usage`); they never print a traceback.
+with status 2 (:mod:`companion.usage`); they never print a traceback. A usage error (an
+unknown option, a missing argument) is one line too, and ``companion --version`` prints the
+installed version (:mod:`companion.cli_entry`).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from companion.cli_arm import app as arm_app
+from companion.cli_entry import VersionOption, run
 from companion.cli_mission import mission_app
 from companion.cli_plot import plot as plot_command
 from companion.usage import config_or_exit
@@ -34,7 +37,7 @@ app = typer.Typer(
 
 
 @app.callback()
-def _root() -> None:
+def _root(version: VersionOption = False) -> None:
     """Aerial-manipulator companion: payload estimation and control for a PX4 hexacopter."""
 
 
@@ -66,5 +69,6 @@ app.add_typer(mission_app, name="mission")
 
 
 def main() -> None:
-    """Console-script entry point."""
-    app()
+    """Console-script entry point: ``--version``, usage errors in one line
+    (:mod:`companion.cli_entry`)."""
+    run(app, "companion")

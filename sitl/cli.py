@@ -19,6 +19,8 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from companion.cli_entry import VersionOption
+from companion.cli_entry import run as run_app
 from companion.usage import fail as _fail
 from companion.usage import load_or_exit as _load_or_exit
 from sitl.authority import Authority, hover_authority
@@ -44,7 +46,7 @@ app = typer.Typer(
 
 
 @app.callback()
-def _root() -> None:
+def _root(version: VersionOption = False) -> None:
     """Simulated PX4-like vehicle with a 2-DOF arm (truth plant tools)."""
 
 
@@ -376,8 +378,9 @@ app.add_typer(sim_app)
 
 
 def main() -> None:
-    """Console-script entry point."""
-    app()
+    """Console-script entry point: ``--version``, usage errors in one line
+    (:mod:`companion.cli_entry`)."""
+    run_app(app, "sitl")  # not `run`: that name is the `sitl run` command
 
 
 @app.command()
