@@ -25,7 +25,6 @@ import pytest
 from flight_checks import MISSION_PHASES
 
 from companion.flightlog import read_flight_log
-from sitl.hil.vehicle import VALIDATED_SPEED
 from sitl.launch import start_sih
 
 ROOT = Path(__file__).parent.parent
@@ -47,11 +46,17 @@ def mission(connect: str, arm_bus: str, out: Path, *extra: str, config: Path = C
     )  # fmt: skip
 
 
+SIH_SPEED = 1.0
+"""PX4_SIM_SPEED_FACTOR of this flight: real time. At PX4 in the loop's validated speed (2)
+the flight passed on an idle machine and under one busy core (handover transient 1.1-2.6
+deg), but once on the CI machine the handover transient reached 6.8 deg: the assertions
+below are held at the speed PX4 was validated at under any load."""
+
+
 def fly(px4_build, tmp: Path, controller: str):
-    """The SIH pickup at PX4 in the loop's validated speed (PX4_SIM_SPEED_FACTOR 2: 75 s
-    against 153 s at 1x, every assertion below met at both)."""
+    """The SIH pickup at ``SIH_SPEED`` (153 s)."""
     sih = start_sih(CONFIG, "--navigation", "mocap", "--keep-log", str(tmp / "px4"),
-                    "--speed-factor", f"{VALIDATED_SPEED:g}", px4_dir=px4_build.root)  # fmt: skip
+                    "--speed-factor", f"{SIH_SPEED:g}", px4_dir=px4_build.root)  # fmt: skip
     try:
         result = mission(sih.connect, sih.arm_bus, tmp / controller, "--controller", controller)
     finally:
