@@ -122,7 +122,13 @@ def test_sync_read_replies_from_the_emanual_in_any_order() -> None:
 
 
 def test_write_reply_from_the_emanual() -> None:
-    parse_write_reply(decode_status(h("FF FF FD 00 01 04 00 55 00 A1 0C")), 1)
+    status = decode_status(h("FF FF FD 00 01 04 00 55 00 A1 0C"))
+    assert status == StatusPacket(1, error=0, alert=False, params=b"")
+    assert parse_write_reply(status, 1) is None
+    with pytest.raises(CommunicationError, match="servo 2: Write reply came from servo 1"):
+        parse_write_reply(status, 2)
+    with pytest.raises(CommunicationError, match="Write reply carries 1"):
+        parse_write_reply(StatusPacket(1, params=b"\x00"), 1)
 
 
 def test_reply_from_the_wrong_servo_or_of_the_wrong_size() -> None:
