@@ -77,7 +77,24 @@ def _param_default(param: Parameter) -> str:
         return "on" if default else "off"
     if isinstance(default, list | tuple):
         return ", ".join(f"`{item}`" for item in default) if default else ""
-    return f"`{default}`"
+    return f"`{_portable(default)}`"
+
+
+def _portable(default: object) -> object:
+    """An absolute path inside the packages (a config shipped as package data) relative to
+    the directory that holds them, so that the page reads the same in every checkout and
+    install."""
+    if not isinstance(default, str | Path) or not Path(default).is_absolute():
+        return default
+    import companion
+    import sitl
+
+    path = Path(default)
+    for package in (companion, sitl):
+        base = Path(package.__file__).parent.parent  # type: ignore[arg-type]
+        if path.is_relative_to(base):
+            return path.relative_to(base).as_posix()
+    return default
 
 
 def _param_help(param: Parameter) -> str:
