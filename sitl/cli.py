@@ -24,6 +24,7 @@ from companion.cli_entry import run as run_app
 from companion.usage import fail as _fail
 from companion.usage import load_or_exit as _load_or_exit
 from sitl.authority import Authority, hover_authority
+from sitl.campaign.cli import campaign
 from sitl.cli_sim import sim_app
 from sitl.hil import HilOptions, Px4Exited, Px4InTheLoop
 from sitl.hil.link import SimulatorLinkError
@@ -375,6 +376,7 @@ def load_or_exit(path: Path) -> Scenario:
 
 
 app.add_typer(sim_app)
+app.command()(campaign)
 
 
 def main() -> None:

@@ -1,0 +1,198 @@
+"""``sitl campaign SPEC --out DIR``: fly a campaign's missing flights on the local engine,
+record each in ``DIR/results.sqlite`` and write ``DIR/report.html``.
+
+The spec's mistakes are one ``error:`` line each (exit status 2) before anything flies.
+The same command again flies only the flights not in the table yet; ``--replay ID`` flies
+one flight alone, with its log and figures, into ``DIR/replay/ID``.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from companion.usage import fail, load_or_exit, output_dir_or_exit
+from sitl.campaign.flights import Flight, expand, replay_command, replay_toml, scenario_document
+from sitl.campaign.spec import CampaignSpec, load_spec
+
+__all__ = ["RESULTS_FILE", "campaign"]
+
+RESULTS_FILE = "results.sqlite"
+"""The results table's file in ``--out``."""
+
+
+class _Progress:
+    """One line on stderr: flights done of all, how many did not complete, errors, ETA;
+    redrawn in place on a terminal, a line per flight otherwise."""
+
+    def __init__(self, total: int, done: int) -> None:
+        self.total, self.done, self.start_done = total, done, done
+        self.failed = self.errors = 0
+        self.t0 = time.monotonic()
+        self.tty = sys.stderr.isatty()
+
+    def add(self, row: dict[str, Any]) -> None:
+        self.done += 1
+        if row["status"] == "error":
+            self.errors += 1
+        elif not row.get("completed"):
+            self.failed += 1
+        flown = self.done - self.start_done
+        rate = (time.monotonic() - self.t0) / flown
+        eta = rate * (self.total - self.done)
+        line = (
+            f"campaign: {self.done}/{self.total} done, {self.failed} not completed, "
+            f"{self.errors} errors, ETA {eta / 60:.1f} min"
+        )
+        if self.tty:
+            sys.stderr.write("\r" + line.ljust(78))
+            if self.done == self.total:
+                sys.stderr.write("\n")
+        else:
+            sys.stderr.write(line + "\n")
+        sys.stderr.flush()
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _load(path: Path) -> tuple[CampaignSpec, list[Flight]]:
+    spec = load_spec(path)
+    return spec, expand(spec, path)
+
+
+def campaign(
+    spec_path: Annotated[Path, typer.Argument(metavar="SPEC", help="Campaign spec TOML.")],
+    out: Annotated[
+        Path,
+        typer.Option(
+            "--out",
+            help="Results directory: results.sqlite, report.html, figures, replay/. The same "
+            "command with the same --out flies only the missing flights.",
+            show_default=False,
+        ),
+    ],
+    workers: Annotated[
+        int, typer.Option(help="Worker processes [default: the machine's cores].")
+    ] = 0,
+    limit: Annotated[int | None, typer.Option(help="Only the first N flights of the spec.")] = None,
+    replay: Annotated[
+        str | None,
+        typer.Option(help="Fly the flight of this id alone into OUT/replay/ID (log, figures)."),
+    ] = None,
+) -> None:
+    """Fly a campaign (a spec's flights over a scenario's keys) on this machine's cores,
+    one SQLite row per flight, and write report.html."""
+    spec, flights = load_or_exit(spec_path, _load)
+    if workers < 0:
+        fail(f"--workers must be 1 or more (0: the machine's cores), got {workers}")
+    if limit is not None:
+        if limit < 1:
+            fail(f"--limit must be 1 or more, got {limit}")
+        flights = flights[:limit]
+    if replay is not None:
+        _replay(flights, replay, out, spec_path)
+        return
+    if out.exists() and not out.is_dir():
+        fail(f"--out {out}: is a file, not a directory")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        fail(f"--out {out}: cannot create ({exc.strerror or exc})")
+    _run(spec, flights, out, spec_path, workers or os.cpu_count() or 1)
+
+
+def _run(
+    spec: CampaignSpec, flights: list[Flight], out: Path, spec_path: Path, workers: int
+) -> None:
+    from sitl.campaign.engine import run_local
+    from sitl.campaign.report import write_report
+    from sitl.campaign.store import CampaignMismatchError, ResultsStore, identity_columns
+
+    store = ResultsStore(out / RESULTS_FILE)
+    try:
+        store.open(spec.name, spec.axes)
+    except CampaignMismatchError as exc:
+        fail(str(exc))
+    base_docs: dict[str, dict[str, Any]] = {}
+    with store:
+        done = store.done()
+        missing = [f for f in flights if f.flight_id not in done]
+        typer.echo(
+            f"campaign {spec.name}: {len(flights)} flights, {len(flights) - len(missing)} in "
+            f"{out / RESULTS_FILE}, {len(missing)} to fly on {min(workers, max(len(missing), 1))} "
+            "workers"
+        )
+        from companion.config import read_toml
+
+        tasks = []
+        for f in missing:
+            if f.base not in base_docs:
+                base_docs[f.base] = read_toml(f.base)
+            tasks.append((f, scenario_document(f, base_docs[f.base])))
+        progress = _Progress(len(flights), len(flights) - len(missing))
+
+        def record(flight: Flight, row: dict[str, Any]) -> None:
+            row = {**identity_columns(flight), **row, "finished_unix_s": time.time()}
+            if row["status"] == "error" or not row.get("completed"):
+                row["replay"] = replay_command(flight, out, spec_path)
+                replay_dir = out / "replay"
+                replay_dir.mkdir(exist_ok=True)
+                (replay_dir / f"{flight.flight_id}.toml").write_text(replay_toml(flight))
+            store.add(row)
+            progress.add(row)
+
+        # A SIGTERM (a job scheduler's stop) ends the campaign as Ctrl-C does.
+        previous = signal.signal(signal.SIGTERM, _interrupt)
+        try:
+            run_local(tasks, workers, record)
+        except KeyboardInterrupt:
+            have = len(store.done())
+            typer.echo(
+                f"\ncampaign {spec.name}: stopped; {have} flights are in "
+                f"{out / RESULTS_FILE}; the same command flies the other "
+                f"{len(flights) - have}",
+                err=True,
+            )
+            raise typer.Exit(130) from None
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+        ids = {f.flight_id for f in flights}
+        rows = [r for r in store.rows() if r["flight_id"] in ids]
+    report = write_report(rows, list(spec.axes), out, spec.name, spec.description)
+    failed = sum(1 for r in rows if r["status"] == "error" or not r["completed"])
+    typer.echo(
+        f"campaign {spec.name}: {len(rows)} flights in {out / RESULTS_FILE}, {failed} did not "
+        f"complete; report {report}"
+    )
+
+
+def _replay(flights: list[Flight], flight_id: str, out: Path, spec_path: Path) -> None:
+    from companion.config import read_toml
+    from sitl.campaign.fly import fly_flight
+
+    chosen = [f for f in flights if f.flight_id == flight_id]
+    if not chosen:
+        fail(f"--replay {flight_id}: no flight of {spec_path} has this id")
+    flight = chosen[0]
+    where = output_dir_or_exit(out / "replay" / flight.flight_id, ("summary.json",), "--out")
+    typer.echo(
+        f"replaying flight {flight.flight_id}: {flight.controller}, seed {flight.seed}, "
+        f"fault {flight.fault.label()}, {dict(flight.settings)}"
+    )
+    row = fly_flight(flight, scenario_document(flight, read_toml(flight.base)), keep=where)
+    if row["status"] == "error":
+        typer.echo(row["error"], err=True)
+        raise typer.Exit(1)
+    typer.echo(
+        f"{row['outcome']}: mass error {row['mass_error_pct']}, carry RMS "
+        f"{row['carry_rms_m']} m; log and figures in {where}"
+    )
+    raise typer.Exit(0 if row["completed"] else 1)

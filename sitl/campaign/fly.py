@@ -1,0 +1,161 @@
+"""One flight of a campaign, flown and measured: what a worker does with a :class:`Flight`.
+
+The flight is ``sitl demo --clock virtual``'s (:func:`sitl.virtual_flight.fly_virtual`: the
+companion's mission code against the simulated vehicle, in lockstep on simulated time), in a
+fresh temporary directory that is removed afterwards; what stays is one row of figures
+(:func:`flight_row`). A flight that raises becomes a row with ``status`` ``error`` and its
+traceback, never an exception out of the worker.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import tempfile
+import time
+import traceback
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from companion.cli_mission import plan_for
+from companion.flightlog import read_flight_log
+from companion.mission import Phase
+from companion.mission_report import MissionReport
+from sitl.campaign.flights import CRUISE_ALTITUDE_M, Flight, scenario_of
+from sitl.runner import RunOptions
+from sitl.scenario import Scenario
+from sitl.virtual_flight import fly_virtual
+
+__all__ = ["CARRY_PHASES", "flight_row", "fly_flight", "package_version"]
+
+CARRY_PHASES = (Phase.LIFT.value, Phase.TO_PLACE.value, Phase.LOWER.value)
+"""The carry from lift to place, the excitation left out: where carry RMS and maximum
+error are taken."""
+
+
+def package_version() -> str:
+    """The installed version of this project (``unknown`` outside an install)."""
+    try:
+        return version("aerial-manipulator-companion")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _percent(estimate: float | None, truth: float) -> float | None:
+    if estimate is None or truth == 0.0:
+        return None
+    return 100.0 * (estimate - truth) / truth
+
+
+def _carry_errors(flight_csv: Path) -> tuple[float | None, float | None]:
+    """(RMS, max) of the position error against the plan over the carry [m]."""
+    if not flight_csv.exists() or flight_csv.stat().st_size == 0:
+        return None, None
+    c = read_flight_log(flight_csv).columns
+    rows = np.isin(c["phase"], CARRY_PHASES)
+    if not rows.any():
+        return None, None
+    error = np.stack([c[f"q_{a}_m"][rows] - c[f"qd_{a}_m"][rows] for a in "xyz"])
+    norm = np.sqrt(np.sum(error**2, axis=0))
+    norm = norm[np.isfinite(norm)]
+    if norm.size == 0:
+        return None, None
+    return math.sqrt(float(np.mean(norm**2))), float(np.max(norm))
+
+
+def flight_row(
+    flight: Flight,
+    scenario: Scenario,
+    report: MissionReport,
+    failure: BaseException | None,
+    out_dir: Path,
+) -> dict[str, Any]:
+    """The figures of a flown flight: outcome, estimate against the truth, placement, carry
+    errors, tilt, loop statistics (the timing columns are the caller's)."""
+    truth_lines = (out_dir / "truth.jsonl").read_text().splitlines()
+    last = json.loads(truth_lines[-1]) if truth_lines else {}
+    obj = last.get("object_position_m")
+    place = flight.place_at_m
+    carry_rms, carry_max = _carry_errors(out_dir / "flight.csv")
+    latency = report.as_dict()["cycle_latency_us"] or {}
+    return {
+        "status": "ok",
+        "outcome": report.outcome,
+        "completed": int(failure is None and report.completed),
+        "faults": json.dumps([f.get("fault") for f in report.faults]),
+        "failure": None if failure is None else f"{type(failure).__name__}: {failure}",
+        "true_mass_kg": scenario.payload.mass_kg,
+        "mass_kg": report.payload_mass_kg,
+        "mass_error_pct": _percent(report.payload_mass_kg, scenario.payload.mass_kg),
+        "true_com_m": scenario.payload.position_m,
+        "com_m": report.payload_com_m,
+        "com_error_pct": _percent(report.payload_com_m, scenario.payload.position_m),
+        "estimate_confident": int(report.confident),
+        "placement_error_m": None if obj is None else math.dist(obj[:2], place[:2]),
+        "carry_rms_m": carry_rms,
+        "carry_max_error_m": carry_max,
+        "position_rms_m": report.position_rms_m,
+        "max_tilt_deg": report.max_tilt_deg,
+        "handover_tilt_deg": report.handover_tilt_deg,
+        "landed": int(report.landed),
+        "sim_s": last.get("t_s"),
+        "control_cycles": report.control_cycles,
+        "late_cycles": report.late_cycles,
+        "poses_dropped": report.poses_dropped,
+        "longest_period_ms": report.longest_period_ms,
+        "estimator_skipped_steps": report.estimator_skipped_steps,
+        "cycle_latency_median_us": latency.get("median"),
+        "cycle_latency_p99_us": latency.get("p99"),
+    }
+
+
+def fly_flight(
+    flight: Flight, document: dict[str, Any], keep: Path | None = None
+) -> dict[str, Any]:
+    """Fly ``flight`` (its scenario ``document``) and return its row: the figures of
+    :func:`flight_row`, or ``status`` ``error`` with the traceback; wall and CPU time and
+    the version in both. The logs go to a temporary directory, removed afterwards, or to
+    ``keep`` (with figures)."""
+    work = keep if keep is not None else Path(tempfile.mkdtemp(prefix="campaign-flight-"))
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+    try:
+        scenario = scenario_of(flight, document)
+        assert scenario.world is not None and scenario.world.payload_position_m is not None
+        plan = plan_for(
+            scenario.beliefs, scenario.world.payload_position_m, flight.place_at_m,
+            CRUISE_ALTITUDE_M,
+        )  # fmt: skip
+        fault = flight.fault
+        options = RunOptions(
+            seed=flight.seed,
+            navigation="mocap",
+            truth_log=work / "truth.jsonl",
+            link_cut=(fault.at_s, fault.duration_s)  # type: ignore[arg-type]
+            if fault.kind == "link_cut"
+            else None,
+            servo_silent=(fault.servo_id, fault.at_s)  # type: ignore[arg-type]
+            if fault.kind == "servo_silent"
+            else None,
+        )
+        report, failure = fly_virtual(
+            scenario,
+            plan,
+            work,
+            options,
+            controller=flight.controller,  # type: ignore[arg-type]
+            figures=keep is not None,
+        )
+        row = flight_row(flight, scenario, report, failure, work)
+    except Exception:  # a crashed flight is a row, not a crashed worker
+        row = {"status": "error", "error": traceback.format_exc()}
+    finally:
+        if keep is None:
+            shutil.rmtree(work, ignore_errors=True)
+    row["wall_s"] = time.perf_counter() - wall0
+    row["cpu_s"] = time.process_time() - cpu0
+    row["version"] = package_version()
+    return row

@@ -1,0 +1,295 @@
+"""A campaign's report, computed from its results table alone: ``report.html``, one file
+that opens offline (its figures embedded as base64 PNGs), and the PNGs beside it.
+
+It shows the envelope maps (the mass and centre-of-mass errors of the payload estimate
+over the payload's mass and its point on link 2), the outcome over the thrust scale and
+the battery sag, a percentile table (p50, p95, max of each figure, per controller), the
+paired comparison of the adaptive controller against the non-adaptive one (the same
+draws, seeds and faults), and every flight that did not complete with the command that
+replays it alone.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["METRICS", "REPORT_FILES", "percentile_rows", "write_report"]
+
+Row = dict[str, Any]
+
+REPORT_FILES = ("report.html",)
+METRICS: tuple[tuple[str, str, Callable[[float], float]], ...] = (
+    ("mass_error_pct", "|mass error| [%]", abs),
+    ("com_error_pct", "|CoM error| [%]", abs),
+    ("placement_error_m", "placement error [cm]", lambda v: 100.0 * v),
+    ("carry_rms_m", "carry RMS [cm]", lambda v: 100.0 * v),
+    ("carry_max_error_m", "carry max error [cm]", lambda v: 100.0 * v),
+    ("max_tilt_deg", "max tilt [deg]", lambda v: v),
+    ("late_cycles", "late cycles", lambda v: v),
+    ("cpu_s", "CPU per flight [s]", lambda v: v),
+)
+"""Figures of the percentile table: column, label, conversion."""
+
+MASS, COM = "payload.mass_kg", "payload.position_m"
+THRUST, SAG = "plant.thrust_mismatch", "plant.battery_sag.thrust_loss"
+
+
+def _values(rows: Sequence[Row], column: str, convert: Callable[[float], float]) -> np.ndarray:
+    return np.array(
+        [convert(float(r[column])) for r in rows if r.get(column) is not None], dtype=np.float64
+    )
+
+
+def percentile_rows(rows: Sequence[Row]) -> list[tuple[str, str, int, float, float, float]]:
+    """(controller, metric label, n, p50, p95, max) for each controller and metric, over the
+    flights that completed (the estimate and carry of a flight that did not are not the
+    controller's)."""
+    table = []
+    for controller in sorted({r["controller"] for r in rows}):
+        done = [r for r in rows if r["controller"] == controller and r.get("completed")]
+        for column, label, convert in METRICS:
+            v = _values(done, column, convert)
+            if v.size:
+                p50, p95 = np.percentile(v, [50, 95])
+                table.append(
+                    (controller, label, int(v.size), float(p50), float(p95), float(v.max()))
+                )
+    return table
+
+
+def _png(fig: Any, out_dir: Path, name: str) -> str:
+    """Save ``fig`` as OUT/NAME.png and return it as a data URI."""
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
+    data = buffer.getvalue()
+    (out_dir / f"{name}.png").write_bytes(data)
+    return "data:image/png;base64," + base64.b64encode(data).decode()
+
+
+def _envelope(rows: Sequence[Row], axes: Sequence[str], out_dir: Path, plt: Any) -> str | None:
+    if MASS not in axes:
+        return None
+    adaptive = [r for r in rows if r["controller"] == "passivity" and r["status"] == "ok"]
+    fig, panels = plt.subplots(1, 2, figsize=(11, 4.2))
+    for ax, column, label in (
+        (panels[0], "mass_error_pct", "mass error [%]"),
+        (panels[1], "com_error_pct", "CoM error [%]"),
+    ):
+        have = [r for r in adaptive if r.get(column) is not None]
+        x = [r[MASS] for r in have]
+        c = np.array([r[column] for r in have], dtype=np.float64)
+        if COM in axes:
+            limit = max(5.0, float(np.max(np.abs(c)))) if c.size else 5.0
+            y = [r[COM] for r in have]
+            points = ax.scatter(x, y, c=c, cmap="coolwarm", vmin=-limit, vmax=limit, s=28)
+            fig.colorbar(points, ax=ax, label=label)
+        else:
+            ax.scatter(x, c, s=28)
+            ax.axhline(0.0, color="k", lw=0.8)
+        ax.set_xlabel("payload mass [kg]")
+        ax.set_ylabel("payload point along link 2 [m]" if COM in axes else label)
+        ax.set_title(f"passivity: {label} of the estimate")
+        ax.grid(alpha=0.3)
+    uri = _png(fig, out_dir, "envelope")
+    plt.close(fig)
+    return uri
+
+
+def _outcomes(rows: Sequence[Row], axes: Sequence[str], out_dir: Path, plt: Any) -> str | None:
+    present = [a for a in (THRUST, SAG) if a in axes]
+    if not present:
+        return None
+    controllers = sorted({r["controller"] for r in rows})
+    fig, panels = plt.subplots(1, len(controllers), figsize=(5.5 * len(controllers), 4.2))
+    panels = np.atleast_1d(panels)
+    for ax, controller in zip(panels, controllers, strict=True):
+        for ok, style, label in ((True, "o", "completed"), (False, "x", "did not complete")):
+            chosen = [
+                r for r in rows if r["controller"] == controller and bool(r.get("completed")) == ok
+            ]
+            x = [r[present[0]] for r in chosen]
+            y = [r[present[1]] if len(present) > 1 else r.get("carry_rms_m") for r in chosen]
+            ax.scatter(x, y, marker=style, c="tab:green" if ok else "tab:red", label=label, s=30)
+        ax.set_xlabel("thrust scale (true / believed)" if present[0] == THRUST else "battery sag")
+        ax.set_ylabel("battery sag (thrust lost)" if len(present) > 1 else "carry RMS [m]")
+        ax.set_title(f"{controller}: outcome")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="best", fontsize=8)
+    uri = _png(fig, out_dir, "outcomes")
+    plt.close(fig)
+    return uri
+
+
+def _pairs(rows: Sequence[Row]) -> list[tuple[Row, Row]]:
+    by_pair: dict[str, dict[str, Row]] = {}
+    for r in rows:
+        by_pair.setdefault(r["pair_id"], {})[r["controller"]] = r
+    return [
+        (p["passivity"], p["nonadaptive"])
+        for p in by_pair.values()
+        if "passivity" in p and "nonadaptive" in p
+    ]
+
+
+def _paired(pairs: list[tuple[Row, Row]], out_dir: Path, plt: Any) -> tuple[str | None, str]:
+    if not pairs:
+        return None, "<p>No paired flights (the spec flies one controller).</p>"
+    lines = ["<table><tr><th>figure</th><th>pairs</th><th>passivity median</th>"
+             "<th>non-adaptive median</th><th>passivity lower in</th></tr>"]  # fmt: skip
+    completed = [(int(bool(a.get("completed"))), int(bool(b.get("completed")))) for a, b in pairs]
+    lines.append(
+        f"<tr><td>completed</td><td>{len(pairs)}</td>"
+        f"<td>{sum(a for a, _ in completed)}</td><td>{sum(b for _, b in completed)}</td>"
+        "<td></td></tr>"
+    )
+    for column, label, convert in METRICS[2:5]:
+        both = [
+            (convert(float(a[column])), convert(float(b[column])))
+            for a, b in pairs
+            if a.get(column) is not None and b.get(column) is not None
+        ]
+        if not both:
+            continue
+        arr = np.array(both)
+        lower = float(np.mean(arr[:, 0] < arr[:, 1]))
+        lines.append(
+            f"<tr><td>{html.escape(label)}</td><td>{len(both)}</td>"
+            f"<td>{np.median(arr[:, 0]):.2f}</td><td>{np.median(arr[:, 1]):.2f}</td>"
+            f"<td>{100 * lower:.0f} %</td></tr>"
+        )
+    lines.append("</table>")
+    both = [
+        (100 * a["carry_rms_m"], 100 * b["carry_rms_m"])
+        for a, b in pairs
+        if a.get("carry_rms_m") is not None and b.get("carry_rms_m") is not None
+    ]
+    if not both:
+        return None, "\n".join(lines)
+    arr = np.array(both)
+    fig, ax = plt.subplots(figsize=(5, 4.5))
+    ax.scatter(arr[:, 1], arr[:, 0], s=25)
+    top = float(arr.max()) * 1.1
+    ax.plot([0, top], [0, top], "k--", lw=1, label="equal")
+    ax.plot([0, top], [0, top / 2], "k:", lw=1, label="half")
+    ax.set_xlabel("non-adaptive carry RMS [cm]")
+    ax.set_ylabel("passivity (adaptive) carry RMS [cm]")
+    ax.set_title("paired flights: same draw, seed and fault")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    uri = _png(fig, out_dir, "paired")
+    plt.close(fig)
+    return uri, "\n".join(lines)
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return html.escape(str(value))
+
+
+def _failed(rows: Sequence[Row], axes: Sequence[str]) -> str:
+    failed = [r for r in rows if r["status"] == "error" or not r.get("completed")]
+    if not failed:
+        return "<p>Every flight completed.</p>"
+    lines = [
+        f"<p>{len(failed)} of {len(rows)} flights did not complete (faults injected on "
+        "purpose included). Each command flies the flight alone, with its log and figures.</p>",
+        "<table><tr><th>flight</th><th>controller</th><th>fault</th><th>seed</th>"
+        + "".join(f"<th>{html.escape(a)}</th>" for a in axes)
+        + "<th>outcome</th><th>replay</th></tr>",
+    ]
+    for r in failed:
+        if r["status"] == "error":
+            last = (r.get("error") or "").strip().splitlines()
+            what = "error: " + (last[-1] if last else "")
+            trace = html.escape(r.get("error") or "")
+            detail = f"<details><summary>{html.escape(what)}</summary><pre>{trace}</pre></details>"
+        else:
+            detail = html.escape(f"{r.get('outcome')}: {r.get('failure') or ''}")
+        lines.append(
+            f"<tr><td><code>{r['flight_id']}</code></td><td>{_fmt(r['controller'])}</td>"
+            f"<td>{_fmt(r['fault'])}</td><td>{r['seed']}</td>"
+            + "".join(f"<td>{_fmt(r.get(a))}</td>" for a in axes)
+            + f"<td>{detail}</td><td><code>{html.escape(r.get('replay') or '')}</code></td></tr>"
+        )
+    lines.append("</table>")
+    return "\n".join(lines)
+
+
+_STYLE = """
+body { font-family: sans-serif; margin: 2em; max-width: 1200px; }
+table { border-collapse: collapse; margin: 1em 0; font-size: 0.9em; }
+th, td { border: 1px solid #bbb; padding: 3px 8px; text-align: right; vertical-align: top; }
+th { background: #eee; }
+code { font-size: 0.85em; word-break: break-all; }
+td:last-child { text-align: left; }
+img { max-width: 100%; }
+"""
+
+
+def write_report(
+    rows: Sequence[Row], axes: Sequence[str], out_dir: Path, title: str, description: str = ""
+) -> Path:
+    """Write ``OUT/report.html`` and its PNGs from the results ``rows``; returns its path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = [r for r in rows if r["status"] == "ok"]
+    errors = len(rows) - len(ok)
+    done = sum(1 for r in ok if r.get("completed"))
+    parts = [
+        "<!DOCTYPE html><html><head><meta charset='utf-8'>",
+        f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>",
+        f"<h1>Campaign {html.escape(title)}</h1>",
+        f"<p>{html.escape(description)}</p>" if description else "",
+        f"<p>{len(rows)} flights: {done} completed, {len(ok) - done} flown without completing, "
+        f"{errors} crashed (errors). Versions: "
+        f"{html.escape(', '.join(sorted({str(r.get('version')) for r in rows})))}.</p>",
+    ]
+    by_controller = sorted({r["controller"] for r in rows})
+    parts.append(
+        "<table><tr><th>controller</th><th>flights</th><th>completed</th><th>rate</th></tr>"
+    )
+    for c in by_controller:
+        mine = [r for r in rows if r["controller"] == c]
+        n_done = sum(1 for r in mine if r.get("completed"))
+        rate = n_done / len(mine) if mine else math.nan
+        parts.append(
+            f"<tr><td>{c}</td><td>{len(mine)}</td><td>{n_done}</td><td>{100 * rate:.1f} %</td></tr>"
+        )
+    parts.append("</table>")
+    envelope = _envelope(rows, axes, out_dir, plt)
+    if envelope:
+        parts += ["<h2>Envelope: the payload estimate</h2>", f"<img src='{envelope}'>"]
+    outcomes = _outcomes(rows, axes, out_dir, plt)
+    if outcomes:
+        parts += ["<h2>Outcome over thrust scale and battery sag</h2>", f"<img src='{outcomes}'>"]
+    parts.append("<h2>Percentiles (completed flights)</h2>")
+    parts.append(
+        "<table><tr><th>controller</th><th>figure</th><th>n</th><th>p50</th><th>p95</th><th>max</th></tr>"
+    )
+    for controller, label, n, p50, p95, top in percentile_rows(rows):
+        parts.append(
+            f"<tr><td>{controller}</td><td>{html.escape(label)}</td><td>{n}</td>"
+            f"<td>{p50:.3g}</td><td>{p95:.3g}</td><td>{top:.3g}</td></tr>"
+        )
+    parts.append("</table>")
+    parts.append("<h2>Adaptive (passivity) against non-adaptive, paired</h2>")
+    paired_png, paired_table = _paired(_pairs(ok), out_dir, plt)
+    parts.append(paired_table)
+    if paired_png:
+        parts.append(f"<img src='{paired_png}'>")
+    parts += ["<h2>Flights that did not complete</h2>", _failed(rows, axes), "</body></html>"]
+    path = out_dir / "report.html"
+    path.write_text("\n".join(parts), encoding="utf-8")
+    return path
