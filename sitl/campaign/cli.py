@@ -125,10 +125,10 @@ def _run(
     with store:
         done = store.done()
         missing = [f for f in flights if f.flight_id not in done]
+        n = min(workers, max(len(missing), 1))
         typer.echo(
             f"campaign {spec.name}: {len(flights)} flights, {len(flights) - len(missing)} in "
-            f"{out / RESULTS_FILE}, {len(missing)} to fly on {min(workers, max(len(missing), 1))} "
-            "workers"
+            f"{out / RESULTS_FILE}, {len(missing)} to fly on {n} worker{'s' if n > 1 else ''}"
         )
         from companion.config import read_toml
 

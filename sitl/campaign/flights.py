@@ -123,7 +123,7 @@ def _put(doc: Any, parts: tuple[str | int, ...], value: Any) -> None:
         if part not in node:
             node[part] = {}
         node = node[part]
-    node[parts[-1]] = value
+    node[parts[-1]] = list(value) if isinstance(value, tuple) else value
 
 
 def _apply(doc: Any, flight: Flight) -> None:
@@ -206,6 +206,8 @@ def _round(value: float) -> float:
 
 
 def _coerce(path: KeyPath, value: Any) -> Any:
+    if isinstance(value, list):  # a vector: kept as a tuple, so that a flight is hashable
+        return tuple(_coerce(path, v) for v in value)
     if path.float_leaf and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
     return value

@@ -271,7 +271,8 @@ def parse_key(key: str, where: str, path: str) -> KeyPath:
         done += f".{part}" if done else part
         if i == len(parts) - 1 and model is not None:
             raise ConfigError(path, where, f"{done} is a table; name one of its keys")
-    return KeyPath(key, tuple(parts), _is_float(annotation))
+    element = _element(annotation)
+    return KeyPath(key, tuple(parts), _is_float(element if element is not None else annotation))
 
 
 def load_spec(path: str | Path) -> CampaignSpec:

@@ -1,0 +1,204 @@
+"""Campaigns: a spec's mistakes are one line each before anything flies; the designs are
+seeded and stratified; the shipped specs expand to the flights they promise; and a tiny
+campaign on two worker processes records every flight once, with figures within absolute
+bounds, a crashed flight as an error with a replay command that reproduces it, a report,
+and a rerun that flies exactly the flights missing from the table.
+
+The tiny campaign flies three pickups in all (two, then one again after its row is
+removed); its other two flights crash at once (a joint gain too high for the control
+rate), before the vehicle takes off.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import sqlite3
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner, Result
+
+from sitl.campaign.design import sample_ranges, unit_design
+from sitl.campaign.flights import expand
+from sitl.campaign.spec import load_spec
+from sitl.campaign.store import TIMING_COLUMNS
+from sitl.cli import app as sitl_app
+
+ROOT = Path(__file__).resolve().parents[1]
+CAMPAIGNS = ROOT / "configs" / "campaigns"
+PICKUP = ROOT / "configs" / "sitl_pickup.toml"
+
+
+def sitl(*args: str | Path) -> Result:
+    return CliRunner().invoke(sitl_app, [str(a) for a in args])
+
+
+def write_spec(tmp_path: Path, body: str, name: str = "spec.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(f'name = "tiny"\nscenario = "{PICKUP}"\n' + body)
+    return path
+
+
+# --- the spec's mistakes ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("body", "words"),
+    [
+        ('controlers = ["passivity"]\n', ("controlers", "unknown key", "'controllers'")),
+        (
+            '[axes]\n"payload.mas_kg" = { values = [0.2] }\n',
+            (
+                'axes."payload.mas_kg"',
+                "no scenario key 'mas_kg' in [payload]",
+                "did you mean 'payload.mass_kg'",
+            ),
+        ),
+        (
+            '[set]\n"plant.battery_sag.thrust_los" = 0.1\n',
+            ("did you mean 'plant.battery_sag.thrust_loss'",),
+        ),
+        (
+            '[axes]\n"world.payload_position_m[0].x" = { values = [1.0] }\n',
+            ("holds a value, not a table",),
+        ),
+        ('[axes]\n"payload.mass_kg" = { range = [0.4, 0.1] }\n', ("low must be below high",)),
+        (
+            '[design]\nsamples = 4\n[axes]\n"payload.position_m" = { range = [0.1, 0.3] }\n',
+            ("payload.position_m", "beyond link 2"),
+        ),
+        ('[[faults]]\nkind = "link_cut"\nat_s = 20.0\n', ("link_cut needs duration_s",)),
+        ('controllers = ["passivity", "pid"]\n', ("controllers",)),
+    ],
+)
+def test_a_spec_mistake_is_one_line_naming_the_key_and_nothing_flies(tmp_path, body, words):
+    result = sitl("campaign", write_spec(tmp_path, body), "--out", tmp_path / "out")
+    assert isinstance(result.exception, SystemExit), result.exception
+    assert result.exit_code == 2, (result.stdout, result.stderr)
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
+    assert "Traceback" not in result.stderr + result.stdout
+    for word in words:
+        assert word in lines[0], lines[0]
+    assert not (tmp_path / "out").exists()
+
+
+# --- designs and expansion ----------------------------------------------------------------
+
+
+def test_the_latin_hypercube_puts_one_draw_in_each_slice_of_every_axis_from_its_seed():
+    u = unit_design("latin_hypercube", 40, 3, seed=5)
+    assert u.shape == (40, 3) and np.all((u >= 0.0) & (u < 1.0))
+    for axis in range(3):
+        assert sorted(np.floor(u[:, axis] * 40).astype(int)) == list(range(40))
+    np.testing.assert_array_equal(u, unit_design("latin_hypercube", 40, 3, seed=5))
+    assert not np.array_equal(u, unit_design("latin_hypercube", 40, 3, seed=6))
+    x = sample_ranges("random", 200, [(0.1, 0.45), (-2.0, -1.0)], seed=1)
+    assert np.all((x[:, 0] >= 0.1) & (x[:, 0] < 0.45) & (x[:, 1] >= -2.0) & (x[:, 1] < -1.0))
+
+
+def test_the_shipped_specs_expand_to_their_flights_in_pairs_with_stable_ids():
+    for name, low, high in (("smoke", 1, 6), ("envelope", 300, 10_000)):
+        path = CAMPAIGNS / f"{name}.toml"
+        flights = expand(load_spec(path), path)
+        assert low <= len(flights) <= high, (name, len(flights))
+        ids = [f.flight_id for f in flights]
+        assert len(set(ids)) == len(ids)
+        assert ids == [f.flight_id for f in expand(load_spec(path), path)]
+        pairs: dict[str, list] = {}
+        for f in flights:
+            pairs.setdefault(f.pair_id, []).append(f)
+        for pair in pairs.values():
+            assert sorted(f.controller for f in pair) == ["nonadaptive", "passivity"]
+            assert len({(f.seed, f.settings, f.place_at_m) for f in pair}) == 1
+    envelope = expand(load_spec(CAMPAIGNS / "envelope.toml"), CAMPAIGNS / "envelope.toml")
+    masses = [dict(f.settings)["payload.mass_kg"] for f in envelope]
+    assert 0.10 <= min(masses) < 0.11 and 0.44 < max(masses) <= 0.45
+
+
+# --- a tiny campaign on two workers ---------------------------------------------------------
+
+TINY = """
+controllers = ["passivity", "nonadaptive"]
+[set]
+"world.payload_position_m" = [0.8, 0.0, 0.05]
+[axes]
+"controller.k[6]" = { values = [0.15, 500.0] }
+"""
+"""Two draws, each flown by both controllers: the shoulder's gain of the scenario (0.15)
+flies; 500 is far too high for the 250 Hz loop and the flight refuses to start."""
+
+
+def table(out: Path) -> dict[str, dict]:
+    with sqlite3.connect(out / "results.sqlite") as db:
+        cursor = db.execute("SELECT * FROM flights")
+        names = [d[0] for d in cursor.description]
+        rows = [dict(zip(names, r, strict=True)) for r in cursor]
+    by_id = {r["flight_id"]: r for r in rows}
+    assert len(by_id) == len(rows), "a flight recorded twice"
+    return by_id
+
+
+def test_a_tiny_campaign_records_every_flight_once_and_a_rerun_flies_only_the_missing(
+    run_sitl, tmp_path
+):
+    spec = write_spec(tmp_path, TINY)
+    out = tmp_path / "out"
+    done = run_sitl("campaign", str(spec), "--out", str(out), "--workers", "2")
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "4 to fly on 2 workers" in done.stdout
+    assert "campaign: 4/4 done" in done.stderr
+    flights = {f.flight_id: f for f in expand(load_spec(spec), spec)}
+    rows = table(out)
+    assert rows.keys() == flights.keys()
+    flown = {r["controller"]: r for r in rows.values() if r["controller.k[6]"] == 0.15}
+    crashed = [r for r in rows.values() if r["controller.k[6]"] == 500.0]
+
+    # The adaptive controller's flight: placed, the payload learnt, within absolute bounds.
+    good = flown["passivity"]
+    assert good["status"] == "ok" and good["completed"] == 1 and good["outcome"] == "completed"
+    assert abs(good["mass_error_pct"]) < 10.0 and abs(good["com_error_pct"]) < 15.0
+    assert good["true_mass_kg"] == 0.25 and good["placement_error_m"] < 0.10
+    assert 0.0 < good["carry_rms_m"] < 0.04 and good["carry_rms_m"] <= good["carry_max_error_m"]
+    assert 0.0 < good["max_tilt_deg"] < 15.0 and good["control_cycles"] > 1000
+    assert 30.0 < good["sim_s"] < 300.0 and good["wall_s"] > 0.0 and good["cpu_s"] > 0.0
+    assert good["version"] and json.loads(good["faults"]) == [] and good["replay"] is None
+    # Its pair: the same draw and seed, the non-adaptive controller carrying worse.
+    base = flown["nonadaptive"]
+    assert base["status"] == "ok" and base["pair_id"] == good["pair_id"]
+    assert base["seed"] == good["seed"]
+    if base["carry_rms_m"] is not None:
+        assert good["carry_rms_m"] < base["carry_rms_m"]
+
+    # The crashed flights: errors with their traceback and a replay command that fails alike.
+    assert len(crashed) == 2
+    for row in crashed:
+        assert row["status"] == "error" and "Traceback" in row["error"]
+        assert "UsageError" in row["error"] and row["completed"] is None
+        assert row["replay"].startswith("sitl demo --clock virtual --config ")
+    replay = shlex.split(crashed[0]["replay"])
+    assert Path(replay[replay.index("--config") + 1]).is_file()
+    again = run_sitl(*replay[1:])
+    assert again.returncode == 2, again.stdout + again.stderr
+    reason = crashed[0]["error"].strip().splitlines()[-1].split(": ", 1)[1]
+    assert f"error: {reason}" in again.stderr, (reason, again.stderr)
+
+    # The report: one file, figures embedded, every failed flight with its command.
+    report = (out / "report.html").read_text()
+    assert "data:image/png;base64," in report and (out / "paired.png").stat().st_size > 0
+    for row in crashed:
+        assert row["flight_id"] in report and row["replay"] in report
+
+    # A rerun flies exactly the flight whose row is gone, to the same figures.
+    with sqlite3.connect(out / "results.sqlite") as db:
+        db.execute("DELETE FROM flights WHERE flight_id = ?", (good["flight_id"],))
+    rerun = run_sitl("campaign", str(spec), "--out", str(out), "--workers", "2")
+    assert rerun.returncode == 0, rerun.stdout + rerun.stderr
+    assert "3 in" in rerun.stdout and "1 to fly on 1 worker" in rerun.stdout
+    after = table(out)
+    assert after.keys() == rows.keys()
+    for flight_id, row in rows.items():
+        changed = {k for k in row if k not in TIMING_COLUMNS and row[k] != after[flight_id][k]}
+        assert not changed, (flight_id, changed)
