@@ -16,8 +16,11 @@ Tasks (asyncio, one event loop):
   writes that cycle's joint torques (and a gripper action), then reads the joints (one
   Sync Read): the setpoint never waits for the bus;
 - the **mission sequence**: preflight (streams, the vehicle's parameters against the
-  config, the pose rate against the gains, a global origin, the arm), arm, PX4 take-off,
-  the OFFBOARD handover, the pickup (:mod:`companion.mission`), PX4 landing and disarm.
+  config, the pose rate against the gains, a global origin, the arm), then the flight as
+  the pure state machine :mod:`companion.flight_sequence` decides it (arm, PX4 take-off,
+  the OFFBOARD handover, the pickup of :mod:`companion.mission`, PX4 landing and disarm,
+  and each aborting fault's reactions): the app observes after every control cycle and
+  carries out its commands.
 
 The app is the composition of parts with one job each:
 
@@ -31,8 +34,8 @@ The app is the composition of parts with one job each:
 - :mod:`companion.flight_control`: the control step the offline simulator runs too;
 - :mod:`companion.mission_report`: the report and the flight figures.
 
-Faults (:mod:`companion.failsafe`) are raised by the control loop and carried out by the
-sequence. Whether the object is carried (:mod:`companion.carry_check`: the gripper servo's
+Faults (:mod:`companion.failsafe`: each fault's reactions in one table) are raised by the
+control loop and carried out by the sequence. Whether the object is carried (:mod:`companion.carry_check`: the gripper servo's
 position and current, read from the grasp to the release, and the confident estimate) is
 checked every cycle from the end of the grasp to the release; an object not carried
 (``grasp_failed``, ``payload_lost``) ends the pickup where it is
@@ -70,6 +73,23 @@ from companion.coordinates import HORIZONTAL, JOINTS, N_Q, PHI, PSI, THETA, TILT
 from companion.estimation import Skip
 from companion.failsafe import FailsafeMonitor, Fault, FaultEvent, Reaction
 from companion.flight_control import ControlOutput, FlightControl, FlightControllerName
+from companion.flight_sequence import (
+    WAIT,
+    AwaitLink,
+    Command,
+    FlightSequence,
+    Landed,
+    Note,
+    Observation,
+    OffboardLost,
+    Px4Request,
+    Request,
+    SequenceFailed,
+    SequenceTimes,
+    Stage,
+    StartMission,
+    StreamTo,
+)
 from companion.flightlog import CycleRecord
 from companion.link import LinkLost, LinkRegained, MavlinkLink
 from companion.link.errors import CommandError, ParamError
@@ -222,8 +242,21 @@ class PickupApp:
         self._event = event or (lambda kind, detail, t_s: None)
         self.takeoff_timeout_s = takeoff_timeout_s
         self.land_timeout_s = land_timeout_s
-        self._ground_z = math.nan
-        """Height of the vehicle standing on the ground, taken at arming [m]."""
+        self.sequence = FlightSequence(
+            SequenceTimes(
+                plan.cruise_altitude_m,
+                flight.settle_climb_rate_m_s,
+                flight.settle_s,
+                flight.handover_stream_s,
+                takeoff_timeout_s,
+                land_timeout_s,
+            ),
+            lambda ground_z_m: self.mission.unreachable(ground_z_m, flight.ground_margin_m),
+        )
+        """Arming, take-off, handover, landing and fault reactions (pure)."""
+        self._mission_clock: tuple[float, float] | None = None
+        """(process_time, perf_counter) [s] at the handover, for the CPU share of the
+        mission."""
         self._t_us = -1
         self.t_s = math.nan
         """Vehicle time of the last control cycle [s]."""
@@ -408,64 +441,99 @@ class PickupApp:
     # -------------------------------------------------------------- sequence
 
     async def _sequence(self) -> None:
-        link, plan, flight = self.link, self.plan, self.config.flight
-        await self._wait_for(lambda: self.assembler.ready, 2.0, "no state estimate")
-        self._ground_z = self._altitude()
-        if plan.cruise_altitude_m - self._ground_z < 0.5:
-            raise MissionError(
-                f"the cruise altitude {plan.cruise_altitude_m:g} m is less than 0.5 m above "
-                f"where the vehicle stands (z = {self._ground_z:.2f} m in PX4's local frame)"
-            )
-        unreachable = self.mission.unreachable(self._ground_z, flight.ground_margin_m)
-        if unreachable is not None:
-            raise MissionError(unreachable)
-        self._note("mode", f"arming (standing at z = {self._ground_z:.2f} m)")
-        gc.freeze()  # collections in flight skip everything built before it
-        try:
-            await link.arm()
-            self._status_at_arm = link.latest(VehicleStatus)
-            # MIS_TAKEOFF_ALT is above home (where PX4 armed): the cruise altitude is in the
-            # local frame, whose origin need not be on the ground.
-            await link.param_set("MIS_TAKEOFF_ALT", plan.cruise_altitude_m - self._ground_z)
-            await link.command_long(mavlink2.MAV_CMD_NAV_TAKEOFF, [0, 0, 0] + [math.nan] * 4)
-        except (CommandError, ParamError) as exc:
-            raise MissionError(f"take-off refused: {exc}") from None
-        self._note("mode", "take-off")
-        climb_m = plan.cruise_altitude_m - self._ground_z
-        await self._wait_for(
-            lambda: self._altitude() - self._ground_z >= 0.9 * climb_m and self._mode() == "LOITER",
-            self.takeoff_timeout_s,
-            "take-off did not reach the cruise altitude",
-        )
-        settled = self._holding(
-            lambda: abs(self._climb_rate()) < flight.settle_climb_rate_m_s, flight.settle_s
-        )
-        await self._wait_for(settled, 20.0, "the vehicle did not stop climbing after take-off")
-        await self._enter_offboard()
-        cpu0, wall0 = time.process_time(), time.perf_counter()
-        async with self._tick:
-            await self._tick.wait_for(
-                lambda: (
-                    self.mission.phase == Phase.DONE
-                    or self.offboard.left(self.link.latest(VehicleStatus))
-                )
-            )
-        self.report.cpu_share = (time.process_time() - cpu0) / (time.perf_counter() - wall0)
-        if self.mission.phase != Phase.DONE:
-            self._fault(Fault.OFFBOARD_LOST, f"PX4 left OFFBOARD (now {self._mode()})")
-            return
-        await self._land(Stream.LEVEL)
+        """The pickup from the ground to the landing (:mod:`companion.flight_sequence`)."""
+        self.sequence.begin()
+        await self._drive()
 
-    async def _enter_offboard(self) -> None:
-        """The handover: stream the hold setpoint, ask for OFFBOARD, close the loop on the
-        acknowledgement (PX4 flies the streamed setpoint from that moment)."""
-        self.offboard.to(Stream.HOLD)
-        await self._wait_vehicle_time(self.config.flight.handover_stream_s)
+    async def _land(self, stream: Stream) -> None:
+        """Land, streaming ``stream`` until PX4 acknowledges; until disarmed."""
+        self.sequence.land(stream, self.t_s)
+        await self._drive()
+
+    async def _react(self, event: FaultEvent) -> None:
+        """Carry out an aborting fault's reactions (the pickup has stopped)."""
+        self.sequence.react(event, event.fault == Fault.LINK_LOST, self.t_s)
+        await self._drive()
+
+    async def _drive(self) -> None:
+        """Carry out the sequence's commands, observing after every control cycle, until
+        it is finished; its failure is a MissionError."""
+        sequence = self.sequence
+        while not sequence.finished:
+            try:
+                command = sequence.next(self._observe())
+            except SequenceFailed as exc:
+                raise MissionError(str(exc)) from None
+            if command is WAIT:
+                async with self._tick:
+                    await self._tick.wait()
+            elif isinstance(command, Px4Request):
+                error = await self._ask_px4(command)
+                sequence.done(self._observe(), error)
+            elif isinstance(command, AwaitLink):
+                sequence.done(self._observe(), await self._await_link(command.timeout_s))
+            else:
+                self._carry_out(command)
+            if self._mission_clock is not None and sequence.stage != Stage.MISSION:
+                cpu0, wall0 = self._mission_clock
+                self.report.cpu_share = (time.process_time() - cpu0) / (time.perf_counter() - wall0)
+                self._mission_clock = None
+
+    def _carry_out(self, command: Command) -> None:
+        """A command of the sequence that takes no time."""
+        if isinstance(command, Note):
+            self._note(command.kind, command.text)
+        elif isinstance(command, StreamTo):
+            self.offboard.to(command.stream)
+        elif isinstance(command, StartMission):
+            self._start_mission()
+        elif isinstance(command, Landed):
+            self.report.landed = self.report.disarmed = True
+        elif isinstance(command, OffboardLost):
+            self._fault(Fault.OFFBOARD_LOST, command.detail)
+
+    async def _ask_px4(self, command: Px4Request) -> str | None:
+        """Ask PX4 and wait for its acknowledgement, streaming ``command.stream`` meanwhile
+        (OFF after it); returns PX4's refusal, None when accepted."""
+        link, request = self.link, command.request
+        unset = [0, 0, 0] + [math.nan] * 4  # params of NAV_TAKEOFF, NAV_LAND: PX4's own
+        asks: dict[Request, Callable[[], Awaitable[Any]]] = {
+            Request.ARM: link.arm,
+            Request.TAKEOFF_ALTITUDE: lambda: link.param_set("MIS_TAKEOFF_ALT", command.value),
+            Request.TAKEOFF: lambda: link.command_long(mavlink2.MAV_CMD_NAV_TAKEOFF, unset),
+            Request.OFFBOARD: lambda: link.set_mode_px4(*px4_mode("OFFBOARD")),
+            Request.HOLD: lambda: link.set_mode_px4(*px4_mode("LOITER")),
+            Request.LAND: lambda: link.command_long(mavlink2.MAV_CMD_NAV_LAND, unset),
+        }
+        if request == Request.ARM:
+            gc.freeze()  # collections in flight skip everything built before it
+        if command.stream is not None:
+            self.offboard.to(command.stream)
+            self.control.trim_active = False
         try:
-            await self.link.set_mode_px4(*px4_mode("OFFBOARD"))
-        except CommandError as exc:
-            self.offboard.to(Stream.OFF)
-            raise MissionError(f"PX4 refused OFFBOARD: {exc}") from None
+            await asks[request]()
+        except (CommandError, ParamError) as exc:
+            return str(exc)
+        finally:
+            if command.stream is not None:
+                self.offboard.to(Stream.OFF)
+        if request == Request.ARM:
+            self._status_at_arm = link.latest(VehicleStatus)
+        return None
+
+    async def _await_link(self, timeout_s: float) -> str | None:
+        """Wait until the link returns (None), at most ``timeout_s`` (why not)."""
+        try:
+            async with asyncio.timeout(timeout_s):
+                with self.link.subscribe(LinkRegained) as regained:
+                    await regained.get()
+        except TimeoutError:
+            return "timed out"
+        return None
+
+    def _start_mission(self) -> None:
+        """PX4 acknowledged OFFBOARD (it flies the streamed setpoint from that moment):
+        the mission starts from the state the vehicle has, the trim from PX4's hold."""
         state = self.assembler.estimate
         q = state.q
         self.control.tilt.reset(float(q[PHI]), float(q[THETA]))
@@ -475,67 +543,23 @@ class PickupApp:
         self.control.trim_active = True
         self.figures.handover(self.t_s, q)
         self.offboard.accept(self.t_s)
-        self._note("mode", "OFFBOARD accepted: the control loop flies the vehicle")
+        self._mission_clock = (time.process_time(), time.perf_counter())
 
-    async def _land(self, stream: Stream) -> None:
-        """Hand the vehicle to PX4's AUTO.LAND, streaming ``stream`` until it acknowledges;
-        wait until a HEARTBEAT sent after the acknowledgement says it has disarmed (PX4
-        sends them at 1 Hz: a land soon after arming finds the latest one still from
-        before the arming, disarmed)."""
-        await self._release(
-            stream,
-            lambda: self.link.command_long(mavlink2.MAV_CMD_NAV_LAND, [0, 0, 0] + [math.nan] * 4),
-            "land",
+    def _observe(self) -> Observation:
+        """What the sequence decides on, after the last control cycle."""
+        status = self.link.latest(VehicleStatus)
+        ready = self.assembler.ready
+        state = self.assembler.estimate if ready else None
+        return Observation(
+            t_s=self.t_s,
+            ready=ready,
+            altitude_m=-math.inf if state is None else float(state.q[Z]),
+            climb_rate_m_s=math.inf if state is None else float(state.q_dot[Z]),
+            heartbeat=status,
+            mission_done=self.mission.phase == Phase.DONE,
+            left_offboard=self.offboard.left(status),
+            link_lost=self.link.lost is not None,
         )
-        self._note("mode", "landing")
-        acknowledged = self.link.latest(VehicleStatus)
-        await self._wait_for(
-            lambda: self._disarmed_since(acknowledged),
-            self.land_timeout_s,
-            "the vehicle did not land and disarm",
-        )
-        self.report.landed = True
-        self.report.disarmed = True
-        self._note("mode", "disarmed")
-
-    async def _release(
-        self, stream: Stream, command: Callable[[], Awaitable[Any]], what: str
-    ) -> None:
-        """The way out of OFFBOARD: stream the safe setpoint ``stream`` while ``command``
-        waits for its acknowledgement, then stop streaming."""
-        self.offboard.to(stream)
-        self.control.trim_active = False
-        try:
-            await command()
-        except CommandError as exc:
-            raise MissionError(f"PX4 refused to {what}: {exc}") from None
-        finally:
-            self.offboard.to(Stream.OFF)
-
-    async def _react(self, event: FaultEvent) -> None:
-        """Carry out an aborting fault's reactions (the mission is already stopped)."""
-        if Reaction.RELEASE_TO_PX4 in event.reactions:
-            self.offboard.to(Stream.OFF)
-            return
-        safe = Stream.GROUND if Reaction.LEVEL_ON_GROUND in event.reactions else Stream.LEVEL
-        if Reaction.HOLD_THEN_LAND in event.reactions:
-            try:
-                await self._release(
-                    safe, lambda: self.link.set_mode_px4(*px4_mode("LOITER")), "hold"
-                )
-                await self._wait_vehicle_time(2.0)
-            except MissionError as exc:
-                self._note("fault", str(exc))
-        if event.fault == Fault.LINK_LOST and self.link.lost is not None:
-            self.offboard.to(Stream.OFF)
-            try:
-                async with asyncio.timeout(60.0):
-                    with self.link.subscribe(LinkRegained) as regained:
-                        await regained.get()
-            except TimeoutError:
-                raise MissionError("the MAVLink link did not return within 60 s") from None
-            self._note("link", "regained")
-        await self._land(safe)
 
     # ---------------------------------------------------------------- helpers
 
@@ -549,57 +573,9 @@ class PickupApp:
         status = self.link.latest(VehicleStatus)
         return status is self._status_at_arm or bool(status and status.armed)
 
-    def _disarmed_since(self, seen: VehicleStatus | None) -> bool:
-        """A HEARTBEAT newer than ``seen`` (each is a new object) says disarmed."""
-        status = self.link.latest(VehicleStatus)
-        return status is not None and status is not seen and not status.armed
-
-    def _altitude(self) -> float:
-        return float(self.assembler.estimate.q[Z]) if self.assembler.ready else -math.inf
-
-    def _climb_rate(self) -> float:
-        return float(self.assembler.estimate.q_dot[Z]) if self.assembler.ready else math.inf
-
     def _mass_kg(self) -> float:
         """Mass of vehicle + arm the model believes [kg]."""
         return self.control.weight_n() / self.config.environment.gravity_m_s2
-
-    def _holding(self, condition: Callable[[], bool], hold_s: float) -> Callable[[], bool]:
-        """A condition that holds once ``condition()`` has held for ``hold_s`` of vehicle
-        time (checked every control cycle)."""
-        since = math.nan
-
-        def held() -> bool:
-            nonlocal since
-            if not condition():
-                since = math.nan
-                return False
-            if math.isnan(since):
-                since = self.t_s
-            return self.t_s - since >= hold_s
-
-        return held
-
-    async def _wait_for(self, condition: Callable[[], bool], vehicle_s: float, what: str) -> None:
-        """Wait until ``condition()`` holds, checked every control cycle, at most
-        ``vehicle_s`` of vehicle time; raises MissionError on the time limit."""
-        start = self.t_s
-
-        def settled() -> bool:
-            nonlocal start
-            if not math.isfinite(start):
-                start = self.t_s
-            return condition() or self.t_s - start > vehicle_s
-
-        async with self._tick:
-            await self._tick.wait_for(settled)
-        if not condition():
-            raise MissionError(f"{what} within {vehicle_s:g} s")
-
-    async def _wait_vehicle_time(self, seconds: float) -> None:
-        start = self.t_s
-        async with self._tick:
-            await self._tick.wait_for(lambda: self.t_s - start >= seconds)
 
     async def _watch_link(self) -> None:
         """Raise link_lost when the link's watchdog reports a loss."""
@@ -804,7 +780,7 @@ class PickupApp:
                 f"(this one {this_ms:.0f} ms)",
             )
         landed = self.link.latest(LandedState)
-        ground = self._ground_z + self.config.flight.ground_margin_m
+        ground = self.sequence.ground_z_m + self.config.flight.ground_margin_m
         if landed is not None and landed.on_ground:
             self._fault(Fault.GROUND_CONTACT, "PX4's land detector reports the vehicle landed")
         elif float(q[Z]) < ground:

@@ -47,6 +47,9 @@ class ScriptedPoses:
 
 
 class PoseLink:
+    lost = None
+    """The link's watchdog: never lost."""
+
     def __init__(self, poses: ScriptedPoses) -> None:
         self.poses = poses
 
@@ -156,7 +159,7 @@ def test_touching_the_ground_in_offboard_is_a_fault_flown_level_at_the_thrust_fl
     link = PoseLink(ScriptedPoses(8000))
     app = PickupApp(SCENARIO, link, TwoJoints(), PLAN)
     app.control.thrust = ThrustModel(app.control.thrust.max_thrust_n, 0.12)
-    app._ground_z = 0.25
+    app.sequence.ground_z_m = 0.25
     app.offboard.to(Stream.HOLD)
     app.offboard.accept(0.5)
     q = np.array([0.5, 0.0, 0.27, 0.0, 0.0, 0.3, 0.0, -1.5])  # 2 cm above the take-off height
