@@ -166,7 +166,7 @@ def test_touching_the_ground_in_offboard_is_a_fault_flown_level_at_the_thrust_fl
     zero = np.zeros(8)
     desired = DesiredState(q + np.array([0.4, 0, 0.5, 0, 0, 0, 0, 0]), zero, zero)
     out = app.control.step(0.008, FilteredState(q, zero, zero), desired, np.full(8, np.nan))
-    app._watch_flight(1.0, q, out, None, None)
+    app.cycle.watch_flight(1.0, q, out, None, None)
     (event,) = app.failsafe.raised
     assert event.fault == Fault.GROUND_CONTACT and "take-off height" in event.detail
     assert Reaction.LEVEL_ON_GROUND in event.reactions and event.aborts
@@ -207,8 +207,8 @@ def test_a_land_right_after_arming_waits_for_a_newer_heartbeat_that_says_disarme
 
     async def fly() -> tuple[float, float]:
         await link.arm()
-        app._status_at_arm = link.latest(VehicleStatus)
-        assert app._armed()  # the stale heartbeat says disarmed
+        app.cycle.status_at_arm = link.latest(VehicleStatus)
+        assert app.cycle.armed()  # the stale heartbeat says disarmed
         landing = asyncio.create_task(app._land(Stream.LEVEL))
         newer_s = math.nan
         for cycle in range(1, 1000):
@@ -228,7 +228,7 @@ def test_a_land_right_after_arming_waits_for_a_newer_heartbeat_that_says_disarme
     newer_s, landed_s = asyncio.run(fly())
     assert newer_s <= landed_s <= newer_s + 0.0041  # the next control cycle
     assert app.report.landed and app.report.disarmed
-    assert not app._armed()
+    assert not app.cycle.armed()
 
 
 def test_a_land_without_a_newer_heartbeat_is_a_mission_error_not_a_disarm():
