@@ -46,7 +46,6 @@ from arm_driver.bus import ArmBus
 from arm_driver.errors import ArmDriverError, BusTimeoutError
 from companion.arm_supervisor import BUS_FAILURES, SERVO_FAILURE_S, ArmSupervisor
 from companion.config import CompanionConfig
-from companion.control import ControlRateError
 from companion.control_cycle import ControlCycle, LogSink
 from companion.coordinates import Z
 from companion.failsafe import FailsafeMonitor, Fault, FaultEvent, Reaction
@@ -71,7 +70,7 @@ from companion.flight_sequence import (
 from companion.link import LinkLost, LinkRegained, MavlinkLink
 from companion.link.errors import CommandError, ParamError
 from companion.link.px4_modes import px4_mode
-from companion.link.telemetry import LandedState, VehiclePose, VehicleStatus
+from companion.link.telemetry import VehiclePose, VehicleStatus
 from companion.loop_period import CycleWindow, LoopPeriodMonitor
 from companion.mission import (
     Outcome,
@@ -81,17 +80,8 @@ from companion.mission import (
 )
 from companion.mission_report import MissionReport
 from companion.offboard import Offboard, Stream
-from companion.px4_preflight import (
-    PreflightError,
-    ensure_global_origin,
-    ensure_hold,
-    measure_pose_period,
-    read_vehicle_params,
-    wait_ready_to_arm,
-)
+from companion.px4_preflight import PreflightError, check_vehicle
 from companion.scheduling import ThreadTimes, enter_real_time
-from companion.setpoints import ThrustModel
-from companion.vehicle_params import contradictions
 
 __all__ = [
     "BUS_FAILURES",
@@ -323,25 +313,19 @@ class PickupApp:
     # ------------------------------------------------------------- preflight
 
     async def _preflight(self) -> None:
-        """Checks before arming (:mod:`companion.px4_preflight`): the vehicle's parameters
-        fit the config, the pose stream comes fast enough for the gains, the vehicle is on
-        the ground, disarmed, has a global origin and is ready to arm in Hold, the joints
-        answer."""
-        link = self.link
+        """Checks before arming: the vehicle's (:func:`~companion.px4_preflight.check_vehicle`),
+        then the joints answer."""
         try:
-            await link.set_message_interval(_ODOMETRY_ID, self.control_rate_hz)
-            await link.set_message_interval(mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, 5.0)
-            await self._check_vehicle_params()
-            await self._check_pose_rate()
-            landed = link.latest(LandedState)
-            if landed is not None and not landed.on_ground:
-                raise PreflightError(f"the vehicle is not on the ground ({landed.name})")
-            status = link.latest(VehicleStatus)
-            if status is not None and status.armed:
-                raise PreflightError("the vehicle is already armed")
-            await ensure_global_origin(link, self.config.flight.global_origin_deg_m, self._note)
-            await ensure_hold(link, self._note)
-            await wait_ready_to_arm(link)
+            self.cycle.loop_period = await check_vehicle(
+                self.link,
+                self.config,
+                self.control,
+                self.report,
+                self._note,
+                rate_hz=self.control_rate_hz,
+                q_stow=self.cycle.q_stow,
+                loop_period=self.cycle.loop_period,
+            )
         except PreflightError as exc:
             raise MissionError(f"preflight: {exc}") from None
         try:
@@ -353,48 +337,6 @@ class PickupApp:
         missing = set(self.arm.names) - set(states)
         if missing:
             raise MissionError(f"preflight: joints {sorted(missing)} did not answer")
-
-    async def _check_vehicle_params(self) -> None:
-        """Refuse a vehicle whose PX4 parameters contradict the config; take PX4's
-        MPC_THR_MIN as the thrust floor."""
-        params = await read_vehicle_params(self.link)
-        problems = contradictions(params, self.config)
-        for problem in problems[1:]:
-            self._note("preflight", problem)
-        if problems:
-            raise PreflightError(problems[0])
-        self.control.thrust = ThrustModel(
-            self.control.thrust.max_thrust_n, params.thrust_min_relative
-        )
-        self.report.vehicle_params = params.describe()
-        self._note("preflight", f"vehicle parameters: {self.report.vehicle_params}")
-
-    async def _check_pose_rate(self) -> None:
-        """The loop runs at the rate the pose stream arrives (PX4 publishes no faster than
-        its estimator, whatever was asked): its mean period becomes the nominal period,
-        and the gains are checked for it."""
-        limit = self.loop_period
-        try:
-            period_s = await measure_pose_period(self.link)
-        except PreflightError as exc:
-            raise MissionError(f"preflight: {exc}") from None
-        rate_hz = 1.0 / period_s
-        self.report.control_rate_hz = rate_hz
-        try:
-            self.control.check_rate(rate_hz, self.cycle.q_stow)
-        except ControlRateError as exc:
-            raise MissionError(
-                f"preflight: ODOMETRY arrives at {rate_hz:.0f} Hz (vehicle time): {exc}; "
-                "raise the link's data rate (MAV_1_RATE, SER_TEL2_BAUD) or lower the gains k"
-            ) from None
-        if period_s > 1.2 * limit.period_s:
-            self._note(
-                "loop",
-                f"ODOMETRY arrives at {rate_hz:.0f} Hz, not the {self.control_rate_hz:g} Hz "
-                "asked (PX4 sends it at its estimator's rate): the loop runs at that rate",
-            )
-        self.cycle.loop_period = LoopPeriodMonitor(period_s, max(limit.max_period_s, period_s))
-        self.report.late_cycles_by_cause.clear()  # the new monitor counts from zero
 
     # -------------------------------------------------------------- sequence
 

@@ -11,7 +11,8 @@
 - :func:`wait_ready_to_arm`: PX4's HEARTBEAT says MAV_STATE_STANDBY once its arming
   checks pass (UNINIT while they fail: the estimator converging, a new origin settling).
 
-Each raises :class:`PreflightError` with one line for the user, or returns what it found.
+Each raises :class:`PreflightError` with one line for the user, or returns what it found;
+:func:`check_vehicle` runs them in order for the pickup app.
 """
 
 from __future__ import annotations
@@ -20,17 +21,26 @@ import asyncio
 import math
 from collections.abc import Callable
 
+import numpy as np
+from numpy.typing import NDArray
 from pymavlink.dialects.v20 import common as mavlink2
 
+from companion.config import CompanionConfig
+from companion.control import ControlRateError
+from companion.flight_control import FlightControl
 from companion.link import MavlinkLink
 from companion.link.errors import CommandError, ParamError
 from companion.link.px4_modes import px4_mode
-from companion.link.telemetry import VehiclePose, VehicleStatus
+from companion.link.telemetry import LandedState, VehiclePose, VehicleStatus
 from companion.loop_period import LoopPeriodMonitor
-from companion.vehicle_params import OPTIONAL, REQUIRED, VehicleParams
+from companion.mission_report import MissionReport
+from companion.setpoints import ThrustModel
+from companion.vehicle_params import OPTIONAL, REQUIRED, VehicleParams, contradictions
 
 __all__ = [
     "PreflightError",
+    "check_pose_rate",
+    "check_vehicle",
     "ensure_global_origin",
     "ensure_hold",
     "measure_pose_period",
@@ -43,6 +53,82 @@ Note = Callable[[str, str], None]
 
 class PreflightError(RuntimeError):
     """The vehicle is not ready to fly the mission; the message is one line."""
+
+
+async def check_vehicle(
+    link: MavlinkLink,
+    config: CompanionConfig,
+    control: FlightControl,
+    report: MissionReport,
+    note: Note,
+    *,
+    rate_hz: float,
+    q_stow: NDArray[np.float64],
+    loop_period: LoopPeriodMonitor,
+) -> LoopPeriodMonitor:
+    """The vehicle's checks before arming, in order: the streams asked (ODOMETRY at
+    ``rate_hz``), PX4's parameters against the config (its MPC_THR_MIN becomes
+    ``control``'s thrust floor), the pose rate against the gains, on the ground, disarmed,
+    a global origin, Hold, ready to arm. Returns the loop's period watch for the measured
+    pose rate (the loop runs at the rate the stream arrives: PX4 publishes no faster than
+    its estimator, whatever was asked)."""
+    await link.set_message_interval(mavlink2.MAVLINK_MSG_ID_ODOMETRY, rate_hz)
+    await link.set_message_interval(mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, 5.0)
+    params = await read_vehicle_params(link)
+    problems = contradictions(params, config)
+    for problem in problems[1:]:
+        note("preflight", problem)
+    if problems:
+        raise PreflightError(problems[0])
+    control.thrust = ThrustModel(control.thrust.max_thrust_n, params.thrust_min_relative)
+    report.vehicle_params = params.describe()
+    note("preflight", f"vehicle parameters: {report.vehicle_params}")
+    watch = await check_pose_rate(
+        link, control, report, note, rate_hz=rate_hz, q_stow=q_stow, loop_period=loop_period
+    )
+    landed = link.latest(LandedState)
+    if landed is not None and not landed.on_ground:
+        raise PreflightError(f"the vehicle is not on the ground ({landed.name})")
+    status = link.latest(VehicleStatus)
+    if status is not None and status.armed:
+        raise PreflightError("the vehicle is already armed")
+    await ensure_global_origin(link, config.flight.global_origin_deg_m, note)
+    await ensure_hold(link, note)
+    await wait_ready_to_arm(link)
+    return watch
+
+
+async def check_pose_rate(
+    link: MavlinkLink,
+    control: FlightControl,
+    report: MissionReport,
+    note: Note,
+    *,
+    rate_hz: float,
+    q_stow: NDArray[np.float64],
+    loop_period: LoopPeriodMonitor,
+) -> LoopPeriodMonitor:
+    """The pose rate against the gains: the loop runs at the rate ODOMETRY arrives (asked at
+    ``rate_hz``; PX4 publishes no faster than its estimator), its mean period becomes the
+    nominal period of the returned watch."""
+    period_s = await measure_pose_period(link)
+    measured_hz = 1.0 / period_s
+    report.control_rate_hz = measured_hz
+    try:
+        control.check_rate(measured_hz, q_stow)
+    except ControlRateError as exc:
+        raise PreflightError(
+            f"ODOMETRY arrives at {measured_hz:.0f} Hz (vehicle time): {exc}; "
+            "raise the link's data rate (MAV_1_RATE, SER_TEL2_BAUD) or lower the gains k"
+        ) from None
+    if period_s > 1.2 * loop_period.period_s:
+        note(
+            "loop",
+            f"ODOMETRY arrives at {measured_hz:.0f} Hz, not the {rate_hz:g} Hz "
+            "asked (PX4 sends it at its estimator's rate): the loop runs at that rate",
+        )
+    report.late_cycles_by_cause.clear()  # the new watch counts from zero
+    return LoopPeriodMonitor(period_s, max(loop_period.max_period_s, period_s))
 
 
 async def read_vehicle_params(link: MavlinkLink) -> VehicleParams:

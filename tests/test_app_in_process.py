@@ -24,6 +24,7 @@ from companion.link.px4_modes import px4_mode
 from companion.link.telemetry import VehiclePose, VehicleStatus
 from companion.mission import PickupPlan
 from companion.offboard import Stream
+from companion.px4_preflight import PreflightError, check_pose_rate
 from sitl.servo import PtyServoBus, XM430Servo
 
 SCENARIO = load_config("configs/sitl_pickup.toml")
@@ -82,7 +83,17 @@ def check(period_us: int, repeat_each: int = 1, start_us: int = 0):
         PLAN,
         event=lambda kind, detail, t_s: notes.append((kind, detail)),
     )
-    asyncio.run(app._check_pose_rate())
+    app.cycle.loop_period = asyncio.run(
+        check_pose_rate(
+            app.link,
+            app.control,
+            app.report,
+            app._note,
+            rate_hz=app.control_rate_hz,
+            q_stow=app.cycle.q_stow,
+            loop_period=app.loop_period,
+        )
+    )
     return notes, app
 
 
@@ -108,7 +119,7 @@ def test_px4s_125_hz_becomes_the_loop_period_in_microseconds():
 def test_too_slow_for_the_gains_refuses_to_fly():
     """configs/sitl_pickup.toml's joint gains (0.15 N m s/rad) need 14.3 Hz at the stow
     pose."""
-    with pytest.raises(MissionError, match=r"arrives at 10 Hz .* raise the control rate"):
+    with pytest.raises(PreflightError, match=r"arrives at 10 Hz .* raise the control rate"):
         check(100_000)
 
 
