@@ -18,7 +18,7 @@ passivity + paper estimator, passivity + RLS, and the adaptive sliding-mode cont
 
 ``--gap-ms G`` also times the compiled step over its first 1000 calls with a sleep of G ms
 before each (the flight loop sleeps between poses, 8 ms at 125 Hz): what a step costs when
-the core has been idle. On the 2-core VM of 2 Dec 2026 the step of ``sitl_pickup.toml``
+the core has been idle. On a 2-core VM the step of ``sitl_pickup.toml``
 took 14-15 us back to back and 200-290 us after an 8 ms sleep (176 us with
 ``/dev/cpu_dma_latency`` held at 0): the wake-up, not the code, dominates the flight loop's
 pose -> setpoint latency there.

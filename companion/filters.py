@@ -44,8 +44,8 @@ control step with 100 Hz motion capture, 100 Hz encoders and 250 Hz gyro rates c
 ``companion._step`` is built, the update's product and element-wise steps run there in
 one call (``_step.fuse``, the same operations as :meth:`StateFilter._fuse`, which stays
 the reference; tests/test_compiled_step.py compares them call by call): an update of all
-rows costs 3-5 us instead of 13-16 (``benchmarks/bench_filters.py``, 2 Dec 2026, loaded
-machine: predict + update 5.5 us median); so does the predict's product (``_step.predict``,
+rows costs 3-5 us instead of 13-16 (``benchmarks/bench_filters.py`` on a loaded
+2-core machine: predict + update 5.5 us median); so does the predict's product (``_step.predict``,
 a plain loop: OpenBLAS's call for a 17 x 17 by 17 x 8 product cost 7 us inside the offline
 simulator). The common update (default variance, every row started) is one C call,
 ``_step.update``: it places the measurement and the variance row and builds G itself, bit

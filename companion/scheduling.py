@@ -2,9 +2,9 @@
 
 Under normal scheduling any other process on the computer can hold the control loop off
 its core; measured with two CPU-bound processes beside the demo on 2 cores, 3 of 9 flights
-dropped poses under normal scheduling, none of 4 under SCHED_FIFO; on 3 Dec, with this
-module, the pose -> setpoint p99 was 0.49-0.67 ms in 6 flights against 0.61-1.52 ms under
-normal scheduling (README, "The companion takes real-time scheduling itself").
+dropped poses under normal scheduling, none of 4 under SCHED_FIFO; with this module
+the pose -> setpoint p99 was 0.49-0.67 ms in 6 flights against 0.61-1.52 ms under
+normal scheduling (docs/performance.md, "The flight loop").
 
 The app asks for SCHED_FIFO at ``flight.realtime_priority`` for the thread that runs the
 mission (the asyncio loop: link, control cycle, arm) and gives the previous policy back

@@ -2,7 +2,7 @@
 
 An arm that swings a payload loads the vehicle's pitch axis with its reaction torque and
 the shift of the combined CoM; if that exceeds what the mixer can produce around hover,
-no outer-loop controller can track the trajectory (README, "Reproduce or refute"). This
+no outer-loop controller can track the trajectory (docs/validation.md). This
 module measures that limit on the truth plant's own rotor model and PX4-like mixer, which
 allocates relative thrust and linearizes it per motor with the autopilot's THR_MDL_FAC
 (here the scenario's ``vehicle.rotors.thr_mdl_fac``, a configured airframe).

@@ -367,8 +367,7 @@ class ImitationPeer(Peer):
         "step, and its Hold returns to where the failsafe struck) where PX4 SIH's is about "
         "7 m up and 10 m away (it climbs on the test's fixed thrust, and PX4's Hold brakes "
         "and stops): its Return lands at once, and the landing state shows LANDING or not "
-        "as the EXTENDED_SYS_STATE samples fall (measured 2026-12-02, the same before that "
-        "day's physics changes)",
+        "as the EXTENDED_SYS_STATE samples fall",
     }
 
     def __init__(self, navigation: str) -> None:

@@ -109,7 +109,7 @@ PERIOD_S = 0.008
 @pytest.mark.parametrize(
     ("run_s", "cpu_wait_s", "socket_wait_s", "cause"),
     [
-        # measured in demo flights with stalls injected into the companion (3 Dec):
+        # measured in demo flights with stalls injected into the companion:
         (0.0457, 0.0, 0.0344, GapCause.COMPANION),  # 40 ms of CPU in the control thread
         (0.0058, 0.0, 0.0445, GapCause.BLOCKED),  # a 50 ms sleep in it
         (0.0083, 0.1013, 0.0977, GapCause.HOST),  # a SCHED_FIFO 60 process on its CPU

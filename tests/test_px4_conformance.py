@@ -238,7 +238,7 @@ def test_flight_takeoff_offboard_thrust_failsafes_return_and_disarm(peer):
     # Home as PX4's estimate has it; on GPS that estimate wanders, most of all on the ground
     # before the disarm (0.5 -> 0.9 m there in one run). PX4 came back from 3.8-10.3 m, where
     # the open-loop OFFBOARD hover had drifted, and landed 0.09-0.94 m from home in 14 runs
-    # (mean 0.45 m; 3 Dec 2026), 1.001 m in one CI run: 1 m bounded the wander, not PX4.
+    # (mean 0.45 m), 1.001 m in one CI run: 1 m bounded the wander, not PX4.
     assert got["landed from home m"] < 2.0
 
 
