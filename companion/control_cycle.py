@@ -32,7 +32,7 @@ from companion.config import CompanionConfig
 from companion.control import DesiredState
 from companion.coordinates import HORIZONTAL, JOINTS, N_Q, PHI, PSI, THETA, TILT, Z
 from companion.estimation import Skip
-from companion.failsafe import FailsafeMonitor, Fault, FaultEvent
+from companion.failsafe import CARRY_REACTIONS, FailsafeMonitor, Fault, FaultEvent
 from companion.flight_control import ControlOutput, FlightControl
 from companion.flightlog import CycleRecord
 from companion.link import MavlinkLink
@@ -402,15 +402,12 @@ class ControlCycle:
         if verdict is None:
             return command
         arm.watch_gripper(False)
-        reactions = ["reset_estimate", "return_home", "land"]
-        if verdict.outcome == Outcome.GRASP_FAILED:
-            reactions.insert(0, "open_gripper")
         self.report.faults.append(
             {
                 "t_s": t_s,
                 "fault": verdict.outcome.value,
                 "detail": verdict.detail,
-                "reactions": reactions,
+                "reactions": [r.value for r in CARRY_REACTIONS[verdict.outcome]],
             }
         )
         self._note("fault", f"{verdict.outcome.value}: {verdict.detail}")

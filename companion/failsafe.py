@@ -32,7 +32,19 @@
     ground. Freeze the estimate and abort: level attitude at the thrust floor until PX4
     acknowledges the landing, and PX4 disarms.
 
-An abort ends the mission; the app reports it in the summary and the log and exits 1.
+An abort ends the mission; the app reports it in the summary and the log and exits 1
+(the reactions are carried out by :mod:`companion.flight_sequence`).
+
+The object not carried (:mod:`companion.carry_check`) ends the pickup, not the flight
+(:data:`CARRY_REACTIONS`, carried out by :meth:`~companion.mission.PickupMission.abandon`):
+
+``grasp_failed``
+    The gripper closed on nothing at the end of the grasp (or the object was never seen
+    in the jaws through the carry). Open the gripper (whatever it touches is let go), the
+    estimate back at the empty arm and held, climb to cruise altitude, fly home, land.
+``payload_lost``
+    The object left the gripper between the lift and the place point. The same, with the
+    gripper left as it is.
 """
 
 from __future__ import annotations
@@ -41,7 +53,9 @@ import math
 from dataclasses import dataclass, field
 from enum import StrEnum
 
-__all__ = ["REACTIONS", "FailsafeMonitor", "Fault", "FaultEvent", "Reaction"]
+from companion.mission import Outcome
+
+__all__ = ["CARRY_REACTIONS", "REACTIONS", "FailsafeMonitor", "Fault", "FaultEvent", "Reaction"]
 
 
 class Fault(StrEnum):
@@ -66,6 +80,11 @@ class Reaction(StrEnum):
     RELEASE_TO_PX4 = "release_to_px4"
     LEVEL_ON_GROUND = "level_on_ground"
     """The way out is level at the thrust floor, not hover thrust (the vehicle is down)."""
+    OPEN_GRIPPER = "open_gripper"
+    RESET_ESTIMATE = "reset_estimate"
+    """Back to the empty arm's values, held."""
+    RETURN_HOME = "return_home"
+    """Climb to cruise altitude where the vehicle is, fly home (the pickup ends)."""
 
 
 REACTIONS: dict[Fault, tuple[Reaction, ...]] = {
@@ -78,6 +97,16 @@ REACTIONS: dict[Fault, tuple[Reaction, ...]] = {
     Fault.NAVIGATION: (Reaction.FREEZE_ESTIMATE, Reaction.LAND),
     Fault.GROUND_CONTACT: (Reaction.FREEZE_ESTIMATE, Reaction.LEVEL_ON_GROUND, Reaction.LAND),
 }
+CARRY_REACTIONS: dict[Outcome, tuple[Reaction, ...]] = {
+    Outcome.GRASP_FAILED: (
+        Reaction.OPEN_GRIPPER,
+        Reaction.RESET_ESTIMATE,
+        Reaction.RETURN_HOME,
+        Reaction.LAND,
+    ),
+    Outcome.PAYLOAD_LOST: (Reaction.RESET_ESTIMATE, Reaction.RETURN_HOME, Reaction.LAND),
+}
+"""What the object not carried does (the module docstring), by the mission's outcome."""
 """The reactions of each fault, in the order they are carried out."""
 
 

@@ -16,6 +16,7 @@ from companion.carry_check import (
 )
 from companion.config import load_config
 from companion.coordinates import JOINTS, POSITION, Z
+from companion.failsafe import CARRY_REACTIONS, Reaction
 from companion.mission import (
     EstimatorAction,
     GripperAction,
@@ -126,6 +127,10 @@ def test_abandon_climbs_where_it_is_resets_the_estimate_goes_home_and_never_comp
     command = mission.abandon(t_s, outcome, "test")
     assert command.phase == Phase.RETURN and command.phase_changed
     assert command.estimator == EstimatorAction.EMPTY and command.gripper == gripper
+    # What it does is what the failsafe table says it does.
+    reactions = CARRY_REACTIONS[outcome]
+    assert (gripper == GripperAction.OPEN) == (Reaction.OPEN_GRIPPER in reactions)
+    assert {Reaction.RESET_ESTIMATE, Reaction.RETURN_HOME, Reaction.LAND} <= set(reactions)
     np.testing.assert_allclose(command.desired.q, q, atol=1e-9)  # continuous: no jump
     again = mission.abandon(t_s + 0.1, Outcome.PAYLOAD_LOST, "twice")
     assert not again.phase_changed and mission.outcome == outcome
