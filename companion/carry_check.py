@@ -126,9 +126,16 @@ class CarryWatch:
         self._empty_readings += 1
         if self._empty_readings < EMPTY_READINGS:
             return None
+        if self.seen:
+            return CarryVerdict(
+                Outcome.PAYLOAD_LOST,
+                "the object slipped out of the gripper (held before; the servo is now at its "
+                f"closed position with no current, {EMPTY_READINGS} readings in a row)",
+            )
         return CarryVerdict(
-            Outcome.PAYLOAD_LOST if self.seen else Outcome.GRASP_FAILED,
-            "the gripper closed on nothing (servo at its closed position, no current)",
+            Outcome.GRASP_FAILED,
+            "the grasp did not take: the gripper never held the object (servo at its closed "
+            "position, no current)",
         )
 
     def estimate(self, m2_kg: float, confident: bool) -> CarryVerdict | None:
@@ -140,8 +147,9 @@ class CarryWatch:
         if m2_kg >= floor:
             self.seen = True
             return None
+        what = "the object was lost" if self.seen else "the grasp did not take"
         return CarryVerdict(
             Outcome.PAYLOAD_LOST if self.seen else Outcome.GRASP_FAILED,
-            f"the confident estimate m2 = {m2_kg:.3f} kg is below the empty link 2 "
+            f"{what}: the confident estimate m2 = {m2_kg:.3f} kg is below the empty link 2 "
             f"({self.empty_m2_kg:.3f} kg) + {self.thresholds.mass_margin_kg:g} kg",
         )

@@ -82,6 +82,11 @@ def test_an_object_seen_then_gripper_empty_twice_is_lost_once_is_not():
     verdicts = [watch.gripper(False) for _ in range(EMPTY_READINGS)]
     assert verdicts[:-1] == [None] * (EMPTY_READINGS - 1)
     assert verdicts[-1] is not None and verdicts[-1].outcome == Outcome.PAYLOAD_LOST
+    assert "slipped out of the gripper" in verdicts[-1].detail  # not a grasp's words
+    never = CarryWatch(THRESHOLDS, EMPTY_M2)
+    verdict = [never.gripper(False) for _ in range(EMPTY_READINGS)][-1]
+    assert verdict is not None and verdict.outcome == Outcome.GRASP_FAILED
+    assert "grasp did not take" in verdict.detail
 
 
 def test_a_confident_estimate_of_the_empty_arm_carries_nothing():
@@ -94,6 +99,7 @@ def test_a_confident_estimate_of_the_empty_arm_carries_nothing():
     assert loaded.estimate(EMPTY_M2 + 0.25, confident=True) is None and loaded.seen
     verdict = loaded.estimate(EMPTY_M2 + 0.02, confident=True)
     assert verdict is not None and verdict.outcome == Outcome.PAYLOAD_LOST
+    assert verdict.detail.startswith("the object was lost")
 
 
 PLAN = PickupPlan(home_m=(0.0, 0.0), payload_at_m=(1.0, 0.0, 0.05), place_at_m=(-1.0, 0.0, 0.05))

@@ -150,6 +150,7 @@ def test_an_object_slipping_out_is_payload_lost_within_1_s_and_the_estimate_empt
     assert summary["outcome"] == "payload_lost" and "payload_lost" in str(failure)
     (fault,) = summary["faults"]
     assert fault["fault"] == "payload_lost" and "reset_estimate" in fault["reactions"]
+    assert "slipped out of the gripper" in fault["detail"]
     held = [r["t_s"] for r in truth if r["payload_attached"]]
     assert held and held[-1] - held[0] == pytest.approx(2.5, abs=0.05)
     assert 0.0 < fault["t_s"] - held[-1] < 1.0, (fault["t_s"], held[-1])
