@@ -202,3 +202,20 @@ def test_a_tiny_campaign_records_every_flight_once_and_a_rerun_flies_only_the_mi
     for flight_id, row in rows.items():
         changed = {k for k in row if k not in TIMING_COLUMNS and row[k] != after[flight_id][k]}
         assert not changed, (flight_id, changed)
+
+
+def test_a_flight_whose_worker_dies_is_flown_once_more_then_recorded_not_retried(
+    run_sitl, tmp_path
+):
+    """A worker stopped under its flight (here by the wall-clock timeout, as a kill -9
+    would) loses that flight alone: it is handed to a new worker once, and when that one
+    dies too the flight is an error row with its replay command."""
+    spec = write_spec(tmp_path, TINY)
+    out = tmp_path / "out"
+    args = ("--workers", "1", "--limit", "1", "--flight-timeout", "2")
+    done = run_sitl("campaign", str(spec), "--out", str(out), *args)
+    assert done.returncode == 0, done.stdout + done.stderr
+    (row,) = table(out).values()
+    assert row["status"] == "error" and row["worker"] == 2
+    assert row["error"].startswith("not flown: it flew longer than 2 s of wall time, 2 times")
+    assert row["replay"].startswith("sitl demo --clock virtual")

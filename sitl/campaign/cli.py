@@ -69,7 +69,7 @@ def _load(path: Path) -> tuple[CampaignSpec, list[Flight]]:
 
 
 def campaign(
-    spec_path: Annotated[Path, typer.Argument(metavar="SPEC", help="Campaign spec TOML.")],
+    spec: Annotated[Path, typer.Argument(help="Campaign spec TOML.", show_default=False)],
     out: Annotated[
         Path,
         typer.Option(
@@ -80,9 +80,17 @@ def campaign(
         ),
     ],
     workers: Annotated[
-        int, typer.Option(help="Worker processes [default: the machine's cores].")
+        int,
+        typer.Option(help="Worker processes [default: the machine's cores].", show_default=False),
     ] = 0,
     limit: Annotated[int | None, typer.Option(help="Only the first N flights of the spec.")] = None,
+    flight_timeout: Annotated[
+        float,
+        typer.Option(
+            help="Wall seconds after which a flight's worker is stopped (flown once more, "
+            "then recorded as an error); a pickup takes 15-40 s."
+        ),
+    ] = 900.0,
     replay: Annotated[
         str | None,
         typer.Option(help="Fly the flight of this id alone into OUT/replay/ID (log, figures)."),
@@ -90,9 +98,12 @@ def campaign(
 ) -> None:
     """Fly a campaign (a spec's flights over a scenario's keys) on this machine's cores,
     one SQLite row per flight, and write report.html."""
-    spec, flights = load_or_exit(spec_path, _load)
+    spec_path = spec
+    loaded, flights = load_or_exit(spec_path, _load)
     if workers < 0:
         fail(f"--workers must be 1 or more (0: the machine's cores), got {workers}")
+    if not flight_timeout > 0.0:
+        fail(f"--flight-timeout must be a positive number of seconds, got {flight_timeout:g}")
     if limit is not None:
         if limit < 1:
             fail(f"--limit must be 1 or more, got {limit}")
@@ -106,11 +117,16 @@ def campaign(
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         fail(f"--out {out}: cannot create ({exc.strerror or exc})")
-    _run(spec, flights, out, spec_path, workers or os.cpu_count() or 1)
+    _run(loaded, flights, out, spec_path, workers or os.cpu_count() or 1, flight_timeout)
 
 
 def _run(
-    spec: CampaignSpec, flights: list[Flight], out: Path, spec_path: Path, workers: int
+    spec: CampaignSpec,
+    flights: list[Flight],
+    out: Path,
+    spec_path: Path,
+    workers: int,
+    flight_timeout_s: float,
 ) -> None:
     from sitl.campaign.engine import run_local
     from sitl.campaign.report import write_report
@@ -152,7 +168,7 @@ def _run(
         # A SIGTERM (a job scheduler's stop) ends the campaign as Ctrl-C does.
         previous = signal.signal(signal.SIGTERM, _interrupt)
         try:
-            run_local(tasks, workers, record)
+            run_local(tasks, workers, record, flight_timeout_s=flight_timeout_s)
         except KeyboardInterrupt:
             have = len(store.done())
             typer.echo(

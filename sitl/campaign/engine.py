@@ -7,7 +7,8 @@ flight over a pipe and gets its row back on the same pipe. It alone writes the r
 (the ``on_row`` callback commits each row as it arrives), so a worker that dies loses only
 the flight it was flying. That flight is given to a new worker once more; if its worker
 dies again it is recorded as an error (a flight that kills its process is not retried
-forever). Ctrl-C in the campaign's process stops the workers and returns: the rows already
+forever). A flight that runs past a wall-clock timeout has its worker stopped, which
+counts the same. Ctrl-C in the campaign's process stops the workers and returns: the rows already
 committed stay, the rest is flown by the next run.
 """
 
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import multiprocessing
 import signal
+import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -55,6 +57,8 @@ class _Worker:
     process: BaseProcess
     conn: Connection
     task: FlightTask | None = None
+    since: float = 0.0
+    """When the worker got its flight (monotonic clock) [s]."""
 
 
 def _start(number: int) -> _Worker:
@@ -88,72 +92,102 @@ def run_local(
     tasks: Sequence[FlightTask],
     workers: int,
     on_row: Callable[[Flight, dict[str, Any]], None],
+    *,
+    flight_timeout_s: float | None = None,
 ) -> None:
     """Fly ``tasks`` on ``workers`` processes; ``on_row(flight, row)`` for each as it
     finishes (in this process, in finishing order; ``row['worker']`` says which worker).
 
-    Returns when every flight has a row; KeyboardInterrupt (Ctrl-C) stops the workers,
-    calls nothing more and propagates.
+    A flight still flying after ``flight_timeout_s`` of wall time has its worker stopped,
+    which counts as the worker dying under it. Returns when every flight has a row;
+    KeyboardInterrupt (Ctrl-C) stops the workers, calls nothing more and propagates.
     """
     if workers < 1:
         raise ValueError(f"workers must be 1 or more, got {workers}")
-    pending: deque[FlightTask] = deque(tasks)
-    deaths: dict[str, int] = {}
-    pool: list[_Worker] = []
-    started = 0
+    if flight_timeout_s is not None and not flight_timeout_s > 0.0:
+        raise ValueError(f"flight_timeout_s must be positive, got {flight_timeout_s}")
+    pool = _Pool(tasks, on_row, flight_timeout_s)
     try:
-        for _ in range(min(workers, len(pending))):
-            started += 1
-            pool.append(_start(started))
+        pool.run(workers)
+    finally:
+        _stop(pool.workers)
+
+
+class _Pool:
+    """The loop of :func:`run_local`: hand out flights, collect rows, replace dead workers."""
+
+    def __init__(
+        self,
+        tasks: Sequence[FlightTask],
+        on_row: Callable[[Flight, dict[str, Any]], None],
+        timeout_s: float | None,
+    ) -> None:
+        self.pending: deque[FlightTask] = deque(tasks)
+        self.on_row = on_row
+        self.timeout_s = timeout_s
+        self.deaths: dict[str, int] = {}
+        self.workers: list[_Worker] = []
+        self.started = 0
+
+    def _new_worker(self) -> _Worker:
+        self.started += 1
+        return _start(self.started)
+
+    def run(self, workers: int) -> None:
+        for _ in range(min(workers, len(self.pending))):
+            self.workers.append(self._new_worker())
         while True:
-            for i, w in enumerate(pool):
-                if w.task is None and pending:
+            for i, w in enumerate(self.workers):
+                if w.task is None and self.pending:
                     if not w.process.is_alive():  # it died idle: no flight lost
                         w.conn.close()
-                        started += 1
-                        pool[i] = w = _start(started)
-                    w.task = pending.popleft()
+                        self.workers[i] = w = self._new_worker()
+                    w.task = self.pending.popleft()
+                    w.since = time.monotonic()
                     w.conn.send(w.task)
-            busy = [w for w in pool if w.task is not None]
+            busy = [w for w in self.workers if w.task is not None]
             if not busy:
                 break
-            ready = wait([w.conn for w in busy] + [w.process.sentinel for w in busy])
+            timeout = None
+            if self.timeout_s is not None:
+                first = min(w.since for w in busy)
+                timeout = max(0.0, first + self.timeout_s - time.monotonic())
+            ready = wait([w.conn for w in busy] + [w.process.sentinel for w in busy], timeout)
             for w in busy:
-                if w.conn not in ready and w.process.sentinel not in ready:
-                    continue
-                flight = w.task[0] if w.task is not None else None
-                assert flight is not None
-                try:
-                    row = w.conn.recv()
-                except (EOFError, OSError):
-                    row = None
-                if row is not None:
-                    row["worker"] = w.number
-                    w.task = None
-                    on_row(flight, row)
-                    continue
-                # The worker died under this flight.
-                w.process.join()
-                code = w.process.exitcode
-                deaths[flight.flight_id] = deaths.get(flight.flight_id, 0) + 1
-                if deaths[flight.flight_id] >= WORKER_DEATHS:
-                    on_row(
-                        flight,
-                        {
-                            "status": "error",
-                            "error": f"its worker process died {WORKER_DEATHS} times while "
-                            f"flying it (last exit code {code})",
-                            "worker": w.number,
-                        },
-                    )
-                else:
-                    pending.appendleft(w.task)  # type: ignore[arg-type]
-                w.conn.close()
-                pool.remove(w)
-                if pending:
-                    started += 1
-                    pool.append(_start(started))
-        for w in pool:
+                if w.conn in ready or w.process.sentinel in ready:
+                    self._collect(w)
+                elif self.timeout_s is not None and time.monotonic() - w.since > self.timeout_s:
+                    w.process.kill()
+                    self._died(w, f"it flew longer than {self.timeout_s:g} s of wall time")
+        for w in self.workers:
             w.conn.send(None)
-    finally:
-        _stop(pool)
+
+    def _collect(self, w: _Worker) -> None:
+        assert w.task is not None
+        try:
+            row = w.conn.recv()
+        except (EOFError, OSError):
+            row = None
+        if row is None:
+            w.process.join()
+            self._died(w, f"its worker process died (exit code {w.process.exitcode})")
+            return
+        row["worker"] = w.number
+        flight, w.task = w.task[0], None
+        self.on_row(flight, row)
+
+    def _died(self, w: _Worker, why: str) -> None:
+        """The worker ``w`` is gone with its flight: fly that once more, or record it."""
+        assert w.task is not None
+        w.process.join()
+        flight = w.task[0]
+        self.deaths[flight.flight_id] = self.deaths.get(flight.flight_id, 0) + 1
+        if self.deaths[flight.flight_id] >= WORKER_DEATHS:
+            error = f"not flown: {why}, {WORKER_DEATHS} times (a flight is not retried forever)"
+            self.on_row(flight, {"status": "error", "error": error, "worker": w.number})
+        else:
+            self.pending.appendleft(w.task)
+        w.conn.close()
+        self.workers.remove(w)
+        if self.pending:
+            self.workers.append(self._new_worker())

@@ -78,7 +78,7 @@ def _envelope(rows: Sequence[Row], axes: Sequence[str], out_dir: Path, plt: Any)
     if MASS not in axes:
         return None
     adaptive = [r for r in rows if r["controller"] == "passivity" and r["status"] == "ok"]
-    fig, panels = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, panels = plt.subplots(1, 2, figsize=(11, 4.2), layout="constrained")
     for ax, column, label in (
         (panels[0], "mass_error_pct", "mass error [%]"),
         (panels[1], "com_error_pct", "CoM error [%]"),
@@ -108,7 +108,9 @@ def _outcomes(rows: Sequence[Row], axes: Sequence[str], out_dir: Path, plt: Any)
     if not present:
         return None
     controllers = sorted({r["controller"] for r in rows})
-    fig, panels = plt.subplots(1, len(controllers), figsize=(5.5 * len(controllers), 4.2))
+    fig, panels = plt.subplots(
+        1, len(controllers), figsize=(5.5 * len(controllers), 4.2), layout="constrained"
+    )
     panels = np.atleast_1d(panels)
     for ax, controller in zip(panels, controllers, strict=True):
         for ok, style, label in ((True, "o", "completed"), (False, "x", "did not complete")):
@@ -174,7 +176,7 @@ def _paired(pairs: list[tuple[Row, Row]], out_dir: Path, plt: Any) -> tuple[str 
     if not both:
         return None, "\n".join(lines)
     arr = np.array(both)
-    fig, ax = plt.subplots(figsize=(5, 4.5))
+    fig, ax = plt.subplots(figsize=(5, 4.5), layout="constrained")
     ax.scatter(arr[:, 1], arr[:, 0], s=25)
     top = float(arr.max()) * 1.1
     ax.plot([0, top], [0, top], "k--", lw=1, label="equal")
