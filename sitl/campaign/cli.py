@@ -207,8 +207,18 @@ def _replay(flights: list[Flight], flight_id: str, out: Path, spec_path: Path) -
     if row["status"] == "error":
         typer.echo(row["error"], err=True)
         raise typer.Exit(1)
+    figures = [
+        f"{label} {row[key] * scale:{form}} {unit}"
+        for key, label, scale, form, unit in (
+            ("mass_error_pct", "mass error", 1.0, "+.1f", "%"),
+            ("com_error_pct", "CoM error", 1.0, "+.1f", "%"),
+            ("carry_rms_m", "carry RMS", 100.0, ".1f", "cm"),
+        )
+        if row.get(key) is not None
+    ]
+    failure = f" ({row['failure']})" if row.get("failure") else ""
     typer.echo(
-        f"{row['outcome']}: mass error {row['mass_error_pct']}, carry RMS "
-        f"{row['carry_rms_m']} m; log and figures in {where}"
+        f"{row['outcome']}{failure}{'; ' if figures else ''}{', '.join(figures)}; log and "
+        f"figures in {where}"
     )
     raise typer.Exit(0 if row["completed"] else 1)
