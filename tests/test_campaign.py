@@ -20,11 +20,13 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner, Result
 
+from companion.config import read_toml
 from sitl.campaign.design import sample_ranges, unit_design
-from sitl.campaign.flights import expand
+from sitl.campaign.flights import expand, replay_toml, scenario_document, scenario_of
 from sitl.campaign.spec import load_spec
 from sitl.campaign.store import TIMING_COLUMNS
 from sitl.cli import app as sitl_app
+from sitl.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMPAIGNS = ROOT / "configs" / "campaigns"
@@ -116,6 +118,35 @@ def test_the_shipped_specs_expand_to_their_flights_in_pairs_with_stable_ids():
     envelope = expand(load_spec(CAMPAIGNS / "envelope.toml"), CAMPAIGNS / "envelope.toml")
     masses = [dict(f.settings)["payload.mass_kg"] for f in envelope]
     assert 0.10 <= min(masses) < 0.11 and 0.44 < max(masses) <= 0.45
+
+
+def test_the_replay_scenario_file_is_the_scenario_each_flight_flew(tmp_path):
+    spec = write_spec(
+        tmp_path,
+        """
+[design]
+samples = 3
+[set]
+"plant.battery_sag.over_s" = 80.0
+[axes]
+"payload.mass_kg" = { range = [0.10, 0.45] }
+"plant.battery_sag.thrust_loss" = { range = [0.0, 0.15] }
+"world.payload_position_m[1]" = { values = [0, 1] }
+[[faults]]
+kind = "payload_slip"
+after_grasp_s = 2.5
+""",
+    )
+    flights = expand(load_spec(spec), spec)
+    assert len(flights) == 6
+    base, text = read_toml(PICKUP), PICKUP.read_text()
+    for flight in flights:
+        path = tmp_path / f"{flight.flight_id}.toml"
+        path.write_text(replay_toml(flight, text))
+        flown = scenario_of(flight, scenario_document(flight, base))
+        assert load_scenario(path) == flown
+        assert flown.world is not None and flown.world.payload_slip is not None
+        assert flown.plant.battery_sag is not None and flown.plant.battery_sag.over_s == 80.0
 
 
 # --- a tiny campaign on two workers ---------------------------------------------------------

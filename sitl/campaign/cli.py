@@ -12,6 +12,7 @@ import os
 import signal
 import sys
 import time
+import tomllib
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -146,12 +147,13 @@ def _run(
             f"campaign {spec.name}: {len(flights)} flights, {len(flights) - len(missing)} in "
             f"{out / RESULTS_FILE}, {len(missing)} to fly on {n} worker{'s' if n > 1 else ''}"
         )
-        from companion.config import read_toml
-
         tasks = []
-        for f in missing:
+        base_texts: dict[str, str] = {}
+        for f in flights:
             if f.base not in base_docs:
-                base_docs[f.base] = read_toml(f.base)
+                base_texts[f.base] = Path(f.base).read_text(encoding="utf-8")
+                base_docs[f.base] = tomllib.loads(base_texts[f.base])
+        for f in missing:
             tasks.append((f, scenario_document(f, base_docs[f.base])))
         progress = _Progress(len(flights), len(flights) - len(missing))
 
@@ -161,7 +163,9 @@ def _run(
                 row["replay"] = replay_command(flight, out, spec_path)
                 replay_dir = out / "replay"
                 replay_dir.mkdir(exist_ok=True)
-                (replay_dir / f"{flight.flight_id}.toml").write_text(replay_toml(flight))
+                (replay_dir / f"{flight.flight_id}.toml").write_text(
+                    replay_toml(flight, base_texts[flight.base])
+                )
             store.add(row)
             progress.add(row)
 

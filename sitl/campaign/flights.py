@@ -116,11 +116,13 @@ def _put(doc: Any, parts: tuple[str | int, ...], value: Any) -> None:
     """Set ``value`` at ``parts`` in a TOML document (plain dict or tomlkit), creating the
     tables on the way."""
     node = doc
-    for part in parts[:-1]:
+    for part, after in itertools.pairwise(parts):
         if isinstance(part, int):
             node = node[part]
             continue
         if part not in node:
+            if isinstance(after, int):  # an entry of a vector the base does not have
+                raise KeyError(part)
             node[part] = {}
         node = node[part]
     node[parts[-1]] = list(value) if isinstance(value, tuple) else value
@@ -153,10 +155,11 @@ def scenario_of(flight: Flight, document: dict[str, Any]) -> Scenario:
     return parse_scenario(document, flight.base)
 
 
-def replay_toml(flight: Flight) -> str:
-    """The base scenario file's text with the flight's keys set (its comments kept): a file
-    for ``sitl demo --config``."""
-    doc = tomlkit.parse(Path(flight.base).read_text(encoding="utf-8"))
+def replay_toml(flight: Flight, base_text: str) -> str:
+    """The base scenario file's text (``base_text``, as read when the flights were
+    expanded) with the flight's keys set, its comments kept: a file for
+    ``sitl demo --config``."""
+    doc = tomlkit.parse(base_text)
     _apply(doc, flight)
     head = [
         f"# Flight {flight.flight_id} of the campaign {flight.campaign}: {flight.base}",
