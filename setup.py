@@ -13,8 +13,8 @@ setup(
         # The step must reproduce the Python reference operation for operation: no fused
         # multiply-add (aarch64 compilers contract a * b + c by default).
         Extension(
-            "companion._step",
-            sources=["companion/_step.c"],
+            "companion.control._step",
+            sources=["companion/control/_step.c"],
             depends=["companion/model/_mcg.c"],
             extra_compile_args=["-O2", "-ffp-contract=off"],
         ),

@@ -4,9 +4,9 @@ For the paper scenario (10 s, ideal plant, exact measurements) and three runs --
 passivity + paper estimator, passivity + RLS, and the adaptive sliding-mode controller
 (eq. asc1, which always runs in Python) -- prints
 
-- ``step``: :meth:`FlightControl.step <companion.flight_control.FlightControl.step>` alone
+- ``step``: :meth:`FlightControl.step <companion.control.flight.FlightControl.step>` alone
   (model terms, estimator, tilt reference, control law, trim, setpoint mapping), median
-  and 99th percentile in microseconds, for the compiled step (``companion._step``) and the
+  and 99th percentile in microseconds, for the compiled step (``companion.control._step``) and the
   Python reference. The inputs (filtered state, desired state, applied force, dt) are
   recorded from one offline run and replayed cycle by cycle through a fresh
   ``FlightControl`` of each kind, so both paths time the same sequence;
@@ -43,8 +43,8 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.estimation import Skip
-from companion.flight_control import FlightControl
+from companion.control.flight import FlightControl
+from companion.estimation.estimator import Skip
 from sitl.offline import SimOptions, SimResult, simulate
 from sitl.scenario import Scenario, load_scenario
 

@@ -3,7 +3,7 @@
 Prints median and 99th-percentile microseconds per operation (one ``perf_counter_ns``
 pair around each call, so about 0.1 us of timer overhead is included):
 
-- ``StateFilter`` (companion.filters): predict, estimate, the update variants, a full
+- ``StateFilter`` (companion.estimation.filters): predict, estimate, the update variants, a full
   predict + update + estimate cycle, and a 1 kHz control loop with 100 Hz motion capture
   (rows 0-5), 100 Hz encoders (rows 6-7) and 250 Hz gyro Euler rates (rows 3-5), where
   most steps only predict and read the estimate;
@@ -23,7 +23,7 @@ import numpy as np
 from filterpy.common import Q_continuous_white_noise
 from filterpy.kalman import KalmanFilter
 
-from companion.filters import DEFAULT_JERK_PSD, StateFilter, transition_matrix
+from companion.estimation.filters import DEFAULT_JERK_PSD, StateFilter, transition_matrix
 
 DT_S = 1e-3
 """Control period [s] (1 kHz, the paper's on-board rate)."""

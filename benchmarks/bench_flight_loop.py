@@ -15,7 +15,7 @@ directory, stops the busy processes and prints, from the demo's summary.json:
 - the companion's CPU share of one core over the OFFBOARD part;
 - estimator steps skipped because no new joint read had come back by the pose;
 - who held up the late cycles and dropped poses (the summary's ``*_by_cause``: companion,
-  host, blocked, arrival; ``companion/loop_period.py`` ``GapCause``), as late/dropped.
+  host, blocked, arrival; ``companion/mission/loop_period.py`` ``GapCause``), as late/dropped.
 
 The SITL runs on the same cores, so these are upper bounds for a dedicated onboard
 computer. Numbers only, no pass/fail. The load average before each flight is printed.

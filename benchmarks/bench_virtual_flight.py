@@ -28,7 +28,7 @@ from pathlib import Path
 
 from checkout import this_commit
 
-from companion.cli_mission import plan_for
+from companion.cli.mission import plan_for
 from sitl.runner import RunOptions, SitlVehicle
 from sitl.scenario import load_scenario
 from sitl.virtual_flight import fly_virtual

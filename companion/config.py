@@ -248,7 +248,8 @@ class Theta(_Section):
 
 
 class Confidence(_Section):
-    """When an estimate is published as confident (companion.estimation.ExcitationMonitor)."""
+    """When an estimate is published as confident
+    (companion.estimation.estimator.ExcitationMonitor)."""
 
     window_s: TimeConstant
     """Time constant of the exponential window [s]."""
@@ -259,7 +260,7 @@ class Confidence(_Section):
 
 
 class Rls(_Section):
-    """Recursive least squares with forgetting (companion.estimation.RlsEstimator)."""
+    """Recursive least squares with forgetting (companion.estimation.estimator.RlsEstimator)."""
 
     forgetting: Annotated[float, Field(strict=True, gt=0.0, le=1.0, allow_inf_nan=False)]
     """Forgetting factor per control step, in (0, 1] [-]."""
@@ -279,7 +280,7 @@ ThrustScaleValue = Annotated[Positive, _within(2.0, "", "true over believed thru
 
 class ThrustScale(_Section):
     """The vehicle's thrust scale s (true force = s x the thrust model's force) estimated
-    with theta (companion.estimation): the translational rows' commanded force becomes a
+    with theta (companion.estimation.estimator): the translational rows' commanded force becomes a
     column of the regressor, the joint rows (servo torque) anchor m2, m3, m4."""
 
     initial: ThrustScaleValue = 1.0
@@ -332,7 +333,7 @@ class Estimator(_Section):
     as exact, the paper's assumption)."""
     acceleration_delay_s: Annotated[NonNegative, _within(0.2, "s", "a few control cycles")] = 0.0
     """Run the estimator this long behind the controller [s], on q_ddot from a central
-    difference of the filtered q_dot (companion.estimator_inputs: no phase lag, where the
+    difference of the filtered q_dot (companion.estimation.inputs: no phase lag, where the
     state filter's accelerations lag 25-80 ms in flight); 0: the filter's q_ddot of the
     current cycle, as the paper. Rounded to whole control periods, at least one."""
 
@@ -359,8 +360,9 @@ NonNegativePair = Annotated[tuple[NonNegative, ...], Field(min_length=2, max_len
 
 
 class AttitudeFeedforward(_Section):
-    """PX4's roll and pitch loop as the companion inverts it (companion.attitude_feedforward):
-    the attitude offset that makes PX4 produce the torque the model needs on the tilt rows.
+    """PX4's roll and pitch loop as the companion inverts it
+    (companion.control.attitude_feedforward): the attitude offset that makes PX4 produce the
+    torque the model needs on the tilt rows.
     Each pair is (roll, pitch); the flight app checks the gains against the vehicle's."""
 
     attitude_p: Pair
@@ -395,7 +397,7 @@ class Controller(_Section):
     tilt_reference_bandwidth_rad_s: Positive
     """Natural frequency of the filter that smooths roll/pitch commands [rad/s]."""
     horizontal_trim_gain_n_per_m: NonNegative = 0.0
-    """Gain of the flight app's integral trim on x, y (``companion.control.HorizontalTrim``)
+    """Gain of the flight app's integral trim on x, y (``companion.control.laws.HorizontalTrim``)
     [N/m]; 0: none (the paper's law)."""
     horizontal_trim_limit_n: NonNegative = 1.0
     """Largest trim force per horizontal axis [N]."""
@@ -547,7 +549,7 @@ class Flight(_Section):
     gripper_margin_rad: Annotated[Positive, _within(3.2, "rad", "a gripper's travel")] = 0.1
     """The gripper holds an object when its servo stopped more than this short of
     ``arm_bus.gripper.closed_position_rad``, toward open [rad]
-    (:mod:`companion.carry_check`)."""
+    (:mod:`companion.mission.carry_check`)."""
     gripper_current_a: Annotated[NonNegative, _within(10.0, "A", "a gripper servo")] = 0.2
     """... and draws at least this current [A] (buses that report it)."""
     carry_mass_margin_kg: Annotated[Positive, _within(10.0, "kg", "a payload")] = 0.05
@@ -559,7 +561,7 @@ class Flight(_Section):
     realtime_priority: Annotated[int, Field(strict=True, ge=0, le=99)] = 50
     """SCHED_FIFO priority of the control thread for the mission, where Linux permits it
     (root, CAP_SYS_NICE, an rtprio limit); 0: normal scheduling. A process already under
-    a real-time policy keeps it (:mod:`companion.scheduling`)."""
+    a real-time policy keeps it (:mod:`companion.mission.scheduling`)."""
 
 
 SIMULATOR_SECTIONS = ("payload", "plant", "world", "simulation", "trajectory")

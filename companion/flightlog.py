@@ -81,7 +81,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 if TYPE_CHECKING:
-    from companion.setpoints import AttitudeThrustSetpoint
+    from companion.control.setpoints import AttitudeThrustSetpoint
 
 __all__ = [
     "COLUMNS",

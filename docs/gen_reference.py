@@ -142,7 +142,7 @@ def _command_section(command: Command, ctx: Context) -> list[str]:
 
 def render_cli() -> str:
     """The text of ``docs/cli.md``."""
-    from companion.cli import app as companion_app
+    from companion.cli.main import app as companion_app
     from sitl.cli import app as sitl_app
 
     lines = [

@@ -19,10 +19,10 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from companion.cli_entry import VersionOption
-from companion.cli_entry import run as run_app
-from companion.usage import fail as _fail
-from companion.usage import load_or_exit as _load_or_exit
+from companion.cli.entry import VersionOption
+from companion.cli.entry import run as run_app
+from companion.cli.usage import fail as _fail
+from companion.cli.usage import load_or_exit as _load_or_exit
 from sitl.authority import Authority, hover_authority
 from sitl.campaign.cli import campaign
 from sitl.cli_sim import sim_app
@@ -381,7 +381,7 @@ app.command()(campaign)
 
 def main() -> None:
     """Console-script entry point: ``--version``, usage errors in one line
-    (:mod:`companion.cli_entry`)."""
+    (:mod:`companion.cli.entry`)."""
     run_app(app, "sitl")  # not `run`: that name is the `sitl run` command
 
 

@@ -6,7 +6,8 @@ paper's comparison), ``sitl check`` (a whole scenario file, truth included) and
 
 Options and the output directory are checked before anything runs (one ``error:`` line,
 exit status 2); results are never overwritten: an ``--out`` that holds an earlier run's
-results gets this run's in ``OUT-2``, ``OUT-3``, ... (:func:`companion.usage.output_dir_or_exit`).
+results gets this run's in ``OUT-2``, ``OUT-3``, ...
+(:func:`companion.cli.usage.output_dir_or_exit`).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from companion.cli_mission import (
+from companion.cli.mission import (
     MISSION_FILES,
     ControllerOpt,
     check_mission_options,
@@ -32,7 +33,7 @@ from companion.cli_mission import (
     plan_for,
     run_mission,
 )
-from companion.usage import EXIT_USAGE, check_range, fail, load_or_exit, output_dir_or_exit
+from companion.cli.usage import EXIT_USAGE, check_range, fail, load_or_exit, output_dir_or_exit
 from sitl.launch import SitlNotReadyError, start_sitl
 from sitl.scenario import MAX_DURATION_S, Scenario, load_scenario
 
@@ -140,7 +141,7 @@ def _run(cfg: Scenario, options, label: str):
     """Simulate with a progress bar on a terminal; plant failures exit 1 with a message."""
     from rich.progress import Progress
 
-    from companion.control import ControlRateError
+    from companion.control.laws import ControlRateError
     from sitl.offline import simulate
     from sitl.physics import PlantError
 
@@ -480,7 +481,7 @@ def _fly_virtual(
     scenario: Scenario, plan, controller: str, out: Path, seed: int, navigation: str
 ) -> int:
     """The demo on simulated time; the exit status (0 completed, 1 failed)."""
-    from companion.cli_mission import UsageError, finish_mission
+    from companion.cli.mission import UsageError, finish_mission
     from sitl.physics import PlantError
     from sitl.runner import RunOptions
     from sitl.virtual_flight import fly_virtual

@@ -7,7 +7,7 @@ from __future__ import annotations
 import importlib.util
 import sys
 
-from companion.usage import EXIT_USAGE
+from companion.cli.usage import EXIT_USAGE
 
 __all__ = ["SIMULATOR_PACKAGES", "main"]
 

@@ -3,7 +3,7 @@
 One loop, two sides. The truth side (``sitl.physics.TruthPlant`` at ``plant.rate_hz``,
 ``sitl.sensors`` for noisy measurements) shares no code with ``companion.model``. The
 companion side sees only measurements and its own commands: it filters them
-(:class:`companion.state.StateAssembler`), estimates theta, runs the controller and maps
+(:class:`companion.estimation.state.StateAssembler`), estimates theta, runs the controller and maps
 the force to setpoints, every ``1 / simulation.control_rate_hz`` seconds.
 
 Plants: ``ideal`` applies the controller's tau on all 8 coordinates (the paper's
@@ -32,12 +32,12 @@ from typing import Literal
 
 import numpy as np
 
-from companion.control import SlidingModeController
+from companion.control.flight import FlightControl
+from companion.control.laws import SlidingModeController
+from companion.control.setpoints import attitude_thrust_setpoint
 from companion.coordinates import JOINTS, POSITION, PSI
-from companion.estimation import TRANSLATION_AND_JOINT_ROWS, PaperEstimator, Skip
-from companion.flight_control import FlightControl
-from companion.setpoints import attitude_thrust_setpoint
-from companion.state import StateAssembler
+from companion.estimation.estimator import TRANSLATION_AND_JOINT_ROWS, PaperEstimator, Skip
+from companion.estimation.state import StateAssembler
 from sitl.physics import (
     AttitudeSetpoint,
     IdealPlant,

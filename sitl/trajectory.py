@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from companion.control import DesiredState
+from companion.control.laws import DesiredState
 from sitl.scenario import Trajectory
 
 __all__ = ["PaperSinusoid"]

@@ -1,7 +1,7 @@
 """A pickup on simulated time: the simulated vehicle and the companion's mission in one
 process, in lockstep (:mod:`sitl.lockstep`).
 
-The companion's side is :func:`companion.cli_mission.fly_pickup`, the code of
+The companion's side is :func:`companion.cli.mission.fly_pickup`, the code of
 ``companion mission pickup``, given only the companion's part of the scenario; it talks to
 the vehicle over the in-memory MAVLink link ``memory://NAME-onboard`` and to the servos
 over ``dynamixel://memory:NAME-servos``. The vehicle is :class:`~sitl.runner.SitlVehicle`
@@ -20,10 +20,10 @@ import os
 from dataclasses import replace
 from pathlib import Path
 
-from companion.cli_mission import fly_pickup
-from companion.flight_control import FlightControllerName
-from companion.mission import PickupPlan
-from companion.mission_report import MissionReport
+from companion.cli.mission import fly_pickup
+from companion.control.flight import FlightControllerName
+from companion.mission.pickup import PickupPlan
+from companion.mission.report import MissionReport
 from sitl.lockstep import run_lockstep
 from sitl.runner import RunOptions, SitlVehicle
 from sitl.scenario import Scenario
@@ -51,9 +51,9 @@ def fly_virtual(
     ``out_dir`` and, with ``options.truth_log``, the truth.
 
     Returns the mission's report and its failure (None: completed), as
-    :func:`~companion.cli_mission.fly_pickup`. ``options.speed`` is not used (nothing
+    :func:`~companion.cli.mission.fly_pickup`. ``options.speed`` is not used (nothing
     paces the steps). Raises what ``fly_pickup`` raises for a scenario the companion
-    refuses (:class:`~companion.cli_mission.UsageError`), and
+    refuses (:class:`~companion.cli.mission.UsageError`), and
     :class:`~sitl.physics.PlantError` if the physics diverge.
     """
     name = f"flight-{os.getpid()}-{next(_flights)}"

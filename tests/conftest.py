@@ -34,7 +34,7 @@ def _command_line(module: str) -> Runner:
 @pytest.fixture
 def run_cli() -> Runner:
     """The ``companion`` command line."""
-    return _command_line("companion.cli")
+    return _command_line("companion.cli.main")
 
 
 @pytest.fixture

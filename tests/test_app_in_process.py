@@ -18,13 +18,13 @@ import numpy as np
 import pytest
 
 from arm_driver.bus import JointConfig, OperatingMode, open_bus
-from companion.app import MissionError, PickupApp
 from companion.config import load_config
 from companion.link.px4_modes import px4_mode
 from companion.link.telemetry import VehiclePose, VehicleStatus
-from companion.mission import PickupPlan
-from companion.offboard import Stream
-from companion.px4_preflight import PreflightError, check_pose_rate
+from companion.mission.app import MissionError, PickupApp
+from companion.mission.offboard import Stream
+from companion.mission.pickup import PickupPlan
+from companion.mission.preflight import PreflightError, check_pose_rate
 from sitl.servo import PtyServoBus, XM430Servo
 
 SCENARIO = load_config("configs/sitl_pickup.toml")
@@ -162,10 +162,10 @@ def test_touching_the_ground_in_offboard_is_a_fault_flown_level_at_the_thrust_fl
     """EKF2's height drifted up to 1 m near the ground on PX4 SIH with GPS, and the app kept
     commanding a 32 deg tilt standing on the ground: now the height at the take-off height
     is ground_contact, whose way out is level at the thrust floor until PX4 lands."""
-    from companion.control import DesiredState
-    from companion.failsafe import Fault, Reaction
-    from companion.filters import FilteredState
-    from companion.setpoints import ThrustModel
+    from companion.control.laws import DesiredState
+    from companion.control.setpoints import ThrustModel
+    from companion.estimation.filters import FilteredState
+    from companion.mission.failsafe import Fault, Reaction
 
     link = PoseLink(ScriptedPoses(8000))
     app = PickupApp(SCENARIO, link, TwoJoints(), PLAN)
@@ -301,7 +301,7 @@ def test_the_loop_blames_dropped_poses_on_who_held_them_up(monkeypatch):
     waits = [0.0005, 0.0005, 0.047, 0.0005]
     link.take_longest_socket_wait_s = lambda: waits.pop(0)
     times = [(1.0, 5.0), (1.001, 5.0), (1.002, 5.047), (1.060, 5.047)]
-    monkeypatch.setattr("companion.app.ThreadTimes", lambda: ScriptedThreadTimes(times))
+    monkeypatch.setattr("companion.mission.app.ThreadTimes", lambda: ScriptedThreadTimes(times))
     notes: list[tuple[str, str]] = []
     app = PickupApp(
         SCENARIO, link, TwoJoints(), PLAN, event=lambda kind, text, t_s: notes.append((kind, text))

@@ -184,7 +184,7 @@ def calibrate_in_background(stand: ArmStand, config: Path) -> subprocess.Popen:
     # SIGINT as in a terminal, even where the suite runs as a background job (the shell
     # then ignores SIGINT for its children, and Python keeps an ignored SIGINT ignored)
     process = subprocess.Popen(
-        [sys.executable, "-c", "from companion.cli import main; main()", "arm", "calibrate",
+        [sys.executable, "-c", "from companion.cli.main import main; main()", "arm", "calibrate",
          "--bus", url(stand), "--config", str(config)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),

@@ -1,4 +1,4 @@
-"""PX4's tilt loop inverted (companion.attitude_feedforward), judged by the SITL's PX4 loop.
+"""PX4's tilt loop inverted (companion.control.attitude_feedforward), judged by the SITL's PX4 loop.
 
 The belief the offset rests on (PX4's attitude P, rate PI and allocation hold a torque with
 a predictable attitude error) is checked against the SITL's own implementation of PX4's
@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.attitude_feedforward import AttitudeLoopInverse
 from companion.config import ConfigError, parse_config
+from companion.control.attitude_feedforward import AttitudeLoopInverse
 from sitl.physics.attitude_control import AttitudeLoopParams, AttitudeSetpoint, Px4AttitudeLoop
 from sitl.physics.rotors import (
     RotorGeometry,

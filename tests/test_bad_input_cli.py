@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner, Result
 
-from companion.cli import app as companion_app
+from companion.cli.main import app as companion_app
 from companion.flightlog import FlightLogError, FlightLogWriter
 from sitl.cli import app as sitl_app
 

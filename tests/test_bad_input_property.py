@@ -25,7 +25,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from companion.cli import app as companion_app
+from companion.cli.main import app as companion_app
 from sitl.cli import app as sitl_app
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"

@@ -8,16 +8,16 @@ import math
 import numpy as np
 import pytest
 
-from companion.carry_check import (
+from companion.config import load_config
+from companion.coordinates import JOINTS, POSITION, Z
+from companion.mission.carry_check import (
     EMPTY_READINGS,
     CarryThresholds,
     CarryWatch,
     gripper_holds,
 )
-from companion.config import load_config
-from companion.coordinates import JOINTS, POSITION, Z
-from companion.failsafe import CARRY_REACTIONS, Reaction
-from companion.mission import (
+from companion.mission.failsafe import CARRY_REACTIONS, Reaction
+from companion.mission.pickup import (
     EstimatorAction,
     GripperAction,
     Outcome,
@@ -198,7 +198,7 @@ class GripperBus:
 def test_the_arm_task_reads_the_gripper_only_while_watched_and_notes_a_bus_that_cannot():
     import asyncio
 
-    from companion.arm_supervisor import ArmSupervisor
+    from companion.mission.arm_supervisor import ArmSupervisor
 
     async def turns(supervisor: ArmSupervisor, n: int) -> None:
         for _ in range(n):
@@ -253,8 +253,8 @@ class FlakyGripperBus(GripperBus):
 def test_a_gripper_command_that_timed_out_is_sent_again_once(timeouts):
     import asyncio
 
-    from companion.arm_supervisor import GRIPPER_ATTEMPTS, ArmSupervisor
-    from companion.mission import GripperAction
+    from companion.mission.arm_supervisor import GRIPPER_ATTEMPTS, ArmSupervisor
+    from companion.mission.pickup import GripperAction
 
     async def body():
         lost: list[str] = []

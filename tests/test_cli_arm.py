@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from companion.cli import app
+from companion.cli.main import app
 from sitl.servo import CanActuator, DroneCanActuatorNode, JointRig, PtyServoBus, XM430Servo
 
 CONFIG = Path(__file__).parent.parent / "configs" / "experiment_arm.toml"

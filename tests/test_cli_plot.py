@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
+from companion.control.setpoints import AttitudeThrustSetpoint
 from companion.flightlog import CycleRecord, FlightLogWriter
-from companion.setpoints import AttitudeThrustSetpoint
 
 
 @pytest.fixture

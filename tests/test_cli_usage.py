@@ -9,9 +9,9 @@ from importlib.metadata import version
 
 import pytest
 
-from companion.cli_entry import DISTRIBUTION
+from companion.cli.entry import DISTRIBUTION
 
-MODULES = {"companion": "companion.cli", "sitl": "sitl.cli"}
+MODULES = {"companion": "companion.cli.main", "sitl": "sitl.cli"}
 
 
 def run(tool: str, *args: str) -> subprocess.CompletedProcess:

@@ -1,6 +1,6 @@
-"""The compiled control step (companion._step) against the Python reference.
+"""The compiled control step (companion.control._step) against the Python reference.
 
-Both paths of :class:`companion.flight_control.FlightControl` are run on the same inputs:
+Both paths of :class:`companion.control.flight.FlightControl` are run on the same inputs:
 whole offline runs (every logged column but the step time) and long sequences of seeded
 random cycles that drive the parts a run rarely reaches (skipped steps of every reason,
 freeze/resume/reset, the bounds of theta and of the thrust scale, the trim, tilt and
@@ -20,13 +20,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion import compiled_step, filters, native
 from companion.config import load_config
-from companion.control import DesiredState
-from companion.estimation import Skip
-from companion.filters import FilteredState, StateFilter
-from companion.flight_control import FlightControl
-from companion.setpoints import ThrustModel
+from companion.control import compiled_step, native
+from companion.control.flight import FlightControl
+from companion.control.laws import DesiredState
+from companion.control.setpoints import ThrustModel
+from companion.estimation import filters
+from companion.estimation.estimator import Skip
+from companion.estimation.filters import FilteredState, StateFilter
 from sitl.offline import COLUMNS, SimOptions, simulate
 from sitl.scenario import load_scenario, parse_scenario
 
@@ -508,7 +509,7 @@ def test_inputs_that_are_not_contiguous_float64_are_converted():
 def test_frozen_record_builds_what_the_constructor_builds():
     from dataclasses import dataclass
 
-    from companion.setpoints import AttitudeThrustSetpoint
+    from companion.control.setpoints import AttitudeThrustSetpoint
 
     fields = dict(
         roll_rad=0.1,

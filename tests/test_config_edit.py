@@ -1,4 +1,5 @@
-"""companion.config_edit: calibrated values written into a config TOML, the rest untouched."""
+"""companion.calibration.config_edit: calibrated values written into a config TOML, the rest
+untouched."""
 
 from __future__ import annotations
 
@@ -7,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from companion.calibration.config_edit import with_joint_values
 from companion.config import ConfigError, arm_bus_configs, parse_config
-from companion.config_edit import with_joint_values
 
 CONFIG = Path(__file__).parent.parent / "configs" / "sitl_pickup.toml"
 NOTE = "companion arm calibrate, 2026-12-02"

@@ -1,4 +1,4 @@
-"""companion.control, companion.setpoints and companion.trajectory."""
+"""companion.control.laws, companion.control.setpoints and companion.control.trajectory."""
 
 import math
 from pathlib import Path
@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.control import (
+from companion.control.laws import (
     ControlRateError,
     DesiredState,
     PassivityController,
@@ -14,14 +14,14 @@ from companion.control import (
     check_control_rate,
     damping_step_ratio,
 )
-from companion.model import ManipulatorModel
-from companion.setpoints import (
+from companion.control.setpoints import (
     ThrustModel,
     attitude_thrust_setpoint,
     fixed_setpoint,
     tilt_from_force,
 )
-from companion.trajectory import TiltReference
+from companion.control.trajectory import TiltReference
+from companion.model import ManipulatorModel
 from sitl.scenario import load_scenario
 from sitl.trajectory import PaperSinusoid
 
@@ -223,7 +223,7 @@ def test_horizontal_trim_learns_a_constant_force_bias_and_stays_limited() -> Non
     """A 1-D double integrator under eq. tau2's x row with a 0.45 N bias (an attitude
     estimate 2 deg off at 1.2 kg): without the trim it sits 10 cm off, with it the error
     goes to zero; the trim never exceeds its limit."""
-    from companion.control import HorizontalTrim
+    from companion.control.laws import HorizontalTrim
 
     def settle(trim):
         m, k, lam, dt = 1.22, 4.5, 1.0, 0.008

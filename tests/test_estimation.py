@@ -1,4 +1,4 @@
-"""companion.estimation on prescribed motions with exactly known generalized forces.
+"""companion.estimation.estimator on prescribed motions with exactly known generalized forces.
 
 These are algorithm tests: the motion q(t) is prescribed analytically and tau is computed
 from companion.model with the true theta, so a correct estimator must converge. The
@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from companion.estimation import (
+from companion.estimation.estimator import (
     TRANSLATION_AND_JOINT_ROWS,
     ExcitationMonitor,
     PaperEstimator,

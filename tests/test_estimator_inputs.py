@@ -1,4 +1,4 @@
-"""The estimator's delayed inputs (companion.estimator_inputs) and the law's measured
+"""The estimator's delayed inputs (companion.estimation.inputs) and the law's measured
 attitude motion (``[controller] measured_unactuated_motion``)."""
 
 import math
@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from companion.config import load_config
-from companion.control import DesiredState
-from companion.estimation import Skip
-from companion.estimator_inputs import DelayedInputs, delay_cycles
-from companion.filters import FilteredState
-from companion.flight_control import FlightControl
+from companion.control.flight import FlightControl
+from companion.control.laws import DesiredState
+from companion.estimation.estimator import Skip
+from companion.estimation.filters import FilteredState
+from companion.estimation.inputs import DelayedInputs, delay_cycles
 
 SCENARIO = load_config("configs/sitl_pickup.toml")
 

@@ -2,7 +2,7 @@
 
 import pytest
 
-from companion.failsafe import FailsafeMonitor, Fault, Reaction
+from companion.mission.failsafe import FailsafeMonitor, Fault, Reaction
 
 
 def run(monitor, seconds, dt=0.01, **flags):

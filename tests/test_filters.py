@@ -1,4 +1,4 @@
-"""Tests of companion.filters: q, q_dot, q_ddot from noisy measurements of q only.
+"""Tests of companion.estimation.filters: q, q_dot, q_ddot from noisy measurements of q only.
 
 Truth derivatives appear in these tests only to score the filter: every measurement
 passed to a filter is a noisy sample of q (or, where stated, of q_dot).
@@ -13,7 +13,7 @@ import pytest
 from filterpy.common import Q_continuous_white_noise
 from filterpy.kalman import KalmanFilter
 
-from companion.filters import (
+from companion.estimation.filters import (
     DEFAULT_JERK_PSD,
     FilteredState,
     FilterNotReadyError,

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from companion.config import load_config
-from companion.control import DesiredState
-from companion.filters import FilteredState
-from companion.flight_control import FlightControl
+from companion.control.flight import FlightControl
+from companion.control.laws import DesiredState
+from companion.estimation.filters import FilteredState
 
 SCENARIO = load_config("configs/sitl_pickup.toml")
 G = SCENARIO.environment.gravity_m_s2

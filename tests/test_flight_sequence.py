@@ -1,4 +1,4 @@
-"""companion.flight_sequence: each stage's transition, cycle by cycle, without links."""
+"""companion.mission.sequence: each stage's transition, cycle by cycle, without links."""
 
 from __future__ import annotations
 
@@ -6,8 +6,11 @@ import math
 
 import pytest
 
-from companion.failsafe import REACTIONS, Fault, FaultEvent
-from companion.flight_sequence import (
+from companion.link.px4_modes import px4_mode
+from companion.link.telemetry import VehicleStatus
+from companion.mission.failsafe import REACTIONS, Fault, FaultEvent
+from companion.mission.offboard import Stream
+from companion.mission.sequence import (
     WAIT,
     AwaitLink,
     FlightSequence,
@@ -23,9 +26,6 @@ from companion.flight_sequence import (
     StartMission,
     StreamTo,
 )
-from companion.link.px4_modes import px4_mode
-from companion.link.telemetry import VehicleStatus
-from companion.offboard import Stream
 
 TIMES = SequenceTimes(
     cruise_altitude_m=1.5,

@@ -7,6 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from companion.control.setpoints import AttitudeThrustSetpoint
 from companion.flightlog import (
     COLUMNS,
     TIMING_COLUMNS,
@@ -17,7 +18,6 @@ from companion.flightlog import (
     read_flight_log,
     timing_path,
 )
-from companion.setpoints import AttitudeThrustSetpoint
 
 
 def record(i, mode="POSCTL", phase="takeoff", faults=()):

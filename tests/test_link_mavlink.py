@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as m
 
+from companion.control.setpoints import AttitudeThrustSetpoint
 from companion.frames import enu_from_ned, rotation_from_quaternion
 from companion.link import (
     CommandDenied,
@@ -38,7 +39,6 @@ from companion.link import (
 )
 from companion.link.transport import open_transport
 from companion.link.url import parse_link_url
-from companion.setpoints import AttitudeThrustSetpoint
 
 WAIT_S = 5.0
 """Upper bound on any wait for an answer (a guard against hangs, not a measured time)."""

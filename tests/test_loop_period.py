@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from companion.config import load_config
-from companion.control import ControlRateError
-from companion.flight_control import FlightControl
-from companion.loop_period import CycleWindow, GapCause, GapTimes, LoopPeriodMonitor
+from companion.control.flight import FlightControl
+from companion.control.laws import ControlRateError
+from companion.mission.loop_period import CycleWindow, GapCause, GapTimes, LoopPeriodMonitor
 
 
 def feed(monitor, times):

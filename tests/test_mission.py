@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from companion.config import load_config
-from companion.mission import (
+from companion.mission.pickup import (
     PICKUP_ORDER,
     EstimatorAction,
     GripperAction,
@@ -238,7 +238,7 @@ def test_a_point_below_where_the_vehicle_stands_is_out_of_reach():
 def test_the_configs_swing_amplitude_reaches_the_plan():
     """``[flight] excite_eta1_rad`` (0.7 in sitl_pickup.toml, 0.5 by default) is the
     amplitude of joint 1 in the excitation the mission flies."""
-    from companion.cli_mission import plan_for
+    from companion.cli.mission import plan_for
 
     for name, amplitude in (("sitl_pickup.toml", 0.7), ("px4_sih_pickup.toml", 0.5)):
         config = load_config(f"configs/{name}")

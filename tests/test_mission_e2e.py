@@ -44,7 +44,7 @@ def run_mission(
     port = sitl.onboard_port if port is None else port
     return subprocess.run(
         [
-            str(python), "-c", "from companion.cli import main; main()",
+            str(python), "-c", "from companion.cli.main import main; main()",
             "mission", "pickup", "--config", str(CONFIG),
             "--connect", f"udpin://127.0.0.1:{port}", "--arm-bus", sitl.arm_bus,
             "--payload-at", PAYLOAD_AT, "--place-at", PLACE_AT, "--out", str(out), *extra,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from companion.link.telemetry import VehiclePose
-from companion.navigation import NavigationWatch
+from companion.mission.navigation import NavigationWatch
 
 Q = (1.0, 0.0, 0.0, 0.0)
 

@@ -1,4 +1,4 @@
-"""The OFFBOARD handover state (companion.offboard): its transitions, the setpoint of each
+"""The OFFBOARD handover state (companion.mission.offboard): its transitions, the setpoint of each
 stage, when PX4 has left OFFBOARD, and the force PX4's Hold needed before the handover."""
 
 from __future__ import annotations
@@ -6,10 +6,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from companion.control.setpoints import AttitudeThrustSetpoint, ThrustModel
 from companion.link.px4_modes import px4_mode
 from companion.link.telemetry import VehicleStatus
-from companion.offboard import TRANSITIONS, HoldBias, Offboard, Stream, StreamTransitionError
-from companion.setpoints import AttitudeThrustSetpoint, ThrustModel
+from companion.mission.offboard import (
+    TRANSITIONS,
+    HoldBias,
+    Offboard,
+    Stream,
+    StreamTransitionError,
+)
 
 THRUST = ThrustModel(36.0, 0.1)
 Q = np.array([1.0, 2.0, 3.0, 0.05, -0.04, 0.7, 0.0, -1.5])

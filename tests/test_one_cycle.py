@@ -1,7 +1,7 @@
 """One flight cycle everywhere: the offline simulator and the flight app run the same step.
 
-The offline simulator (``sitl.offline``) and the flight app (``companion.app.PickupApp``)
-both build a :class:`companion.flight_control.FlightControl` from the companion's
+The offline simulator (``sitl.offline``) and the flight app (``companion.mission.app.PickupApp``)
+both build a :class:`companion.control.flight.FlightControl` from the companion's
 configuration and call its ``step``. Recorded from an offline run (underactuated plant,
 noisy sensors), the same sequence of (dt, filtered state, desired state, applied force)
 replayed through the app's own FlightControl gives bit-identical setpoints and torques:
@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from test_app_in_process import PoseLink, ScriptedPoses, TwoJoints
 
-from companion.app import PickupApp
-from companion.estimation import Skip
-from companion.flight_control import FlightControl
-from companion.mission import PickupPlan
+from companion.control.flight import FlightControl
+from companion.estimation.estimator import Skip
+from companion.mission.app import PickupApp
+from companion.mission.pickup import PickupPlan
 from sitl.offline import SimOptions, simulate
 from sitl.scenario import load_scenario
 

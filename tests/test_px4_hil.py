@@ -119,7 +119,7 @@ def fly_pickup(
             port = relay.app_port
         result = subprocess.run(
             [
-                str(python), "-c", "from companion.cli import main; main()",
+                str(python), "-c", "from companion.cli.main import main; main()",
                 "mission", "pickup", "--config", str(CONFIG),
                 "--connect", f"udpin://127.0.0.1:{port}", "--arm-bus", sitl.arm_bus,
                 "--payload-at", payload_at, "--place-at", place_at,

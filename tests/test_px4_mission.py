@@ -36,7 +36,7 @@ PLACE_AT = "-1.0,0.5,0.05"
 def mission(connect: str, arm_bus: str, out: Path, *extra: str, config: Path = CONFIG):
     return subprocess.run(
         [
-            sys.executable, "-c", "from companion.cli import main; main()",
+            sys.executable, "-c", "from companion.cli.main import main; main()",
             "mission", "pickup", "--config", str(config), "--connect", connect,
             "--arm-bus", arm_bus, "--payload-at", PAYLOAD_AT, "--place-at", PLACE_AT,
             "--out", str(out), *extra,

@@ -39,7 +39,7 @@ def test_the_checked_in_reference_is_current(page, render):
 def test_every_command_and_option_is_in_the_cli_reference():
     import typer
 
-    from companion.cli import app as companion_app
+    from companion.cli.main import app as companion_app
     from sitl.cli import app as sitl_app
 
     text = generator().render_cli()

@@ -1,4 +1,4 @@
-"""Real-time scheduling of the control thread (:mod:`companion.scheduling`): asked for,
+"""Real-time scheduling of the control thread (:mod:`companion.mission.scheduling`): asked for,
 kept, refused, given back; the flight app notes it and restores it after the mission.
 
 The OS calls are replaced where a test needs a refusal or a policy it cannot set; one test
@@ -14,10 +14,10 @@ import time
 import pytest
 from test_app_in_process import PLAN, SCENARIO, PoseLink, ScriptedPoses, TwoJoints
 
-import companion.scheduling as scheduling
-from companion.app import MissionError, PickupApp
+import companion.mission.scheduling as scheduling
 from companion.config import ConfigError, parse_config
-from companion.scheduling import ThreadTimes, enter_real_time
+from companion.mission.app import MissionError, PickupApp
+from companion.mission.scheduling import ThreadTimes, enter_real_time
 
 pytestmark = pytest.mark.skipif(
     not hasattr(os, "sched_setscheduler"), reason="no POSIX scheduling calls on this OS"

@@ -1,4 +1,4 @@
-"""companion.servo_calibration: the plan and the least-squares fits, on synthetic readings."""
+"""companion.calibration.servo: the plan and the least-squares fits, on synthetic readings."""
 
 from __future__ import annotations
 
@@ -8,15 +8,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.config import load_config
-from companion.model import ManipulatorModel
-from companion.servo_calibration import (
+from companion.calibration.servo import (
     fit_friction,
     fit_torque_constant,
     model_torque_n_m,
     static_poses,
     sweep_corners,
 )
+from companion.config import load_config
+from companion.model import ManipulatorModel
 
 CONFIG = Path(__file__).parent.parent / "configs" / "sitl_pickup.toml"
 STEP_A = 2.69e-3

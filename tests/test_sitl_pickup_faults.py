@@ -16,8 +16,8 @@ from test_sitl_world import GRIPPER, SCENARIO, _close_gripper, _position_mode
 from arm_driver.dynamixel import control_table as ct
 from arm_driver.dynamixel import units
 from arm_driver.joint import JointConfig
-from companion.carry_check import CarryThresholds, gripper_holds
 from companion.config import ConfigError
+from companion.mission.carry_check import CarryThresholds, gripper_holds
 from sitl.physics import TruthPlant
 from sitl.runner import RunOptions, build_world, world_settings
 from sitl.scenario import load_scenario

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from companion.config import ConfigError
-from companion.estimation import (
+from companion.estimation.estimator import (
     TRANSLATION_AND_JOINT_ROWS,
     ExcitationMonitor,
     PaperEstimator,
@@ -210,13 +210,13 @@ def test_compensation_maps_the_force_over_s(compiled: bool) -> None:
     """``compensate = true``: PX4 is sent the thrust of the law's force over s (the vehicle
     then produces that force); the setpoint's thrust_n is the model's force for the
     command, which the estimator gets back as the commanded force."""
-    from companion.control import DesiredState
-    from companion.filters import FilteredState
-    from companion.flight_control import FlightControl
-    from companion.native import native_module
+    from companion.control.flight import FlightControl
+    from companion.control.laws import DesiredState
+    from companion.control.native import native_module
+    from companion.estimation.filters import FilteredState
 
     if compiled and native_module() is None:
-        pytest.skip("companion._step is not built")
+        pytest.skip("companion.control._step is not built")
     outputs = {}
     for compensate in (False, True):
         cfg = parse_scenario(_flight_data(initial=0.8, bounds=[0.7, 1.3], compensate=compensate))

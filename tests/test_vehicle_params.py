@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from companion.config import load_config
-from companion.vehicle_params import VehicleParams, contradictions
+from companion.mission.vehicle_params import VehicleParams, contradictions
 
 PICKUP = load_config("configs/sitl_pickup.toml")  # motors' curve 0.3
 SIH = load_config("configs/px4_sih_pickup.toml")  # linear motors (PX4 SIH)

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from flight_checks import CARRY_RMS_BOUND_M, assert_calm_flight, carry_rms_m
 
-from companion.cli_mission import plan_for
+from companion.cli.mission import plan_for
 from companion.flightlog import read_flight_log
 from sitl.runner import RunOptions
 from sitl.scenario import PayloadSlip, Scenario, load_scenario

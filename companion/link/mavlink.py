@@ -45,7 +45,7 @@ from companion.link.transport import MemoryTransport, Transport, open_transport
 from companion.link.url import LinkUrl, parse_link_url
 
 if TYPE_CHECKING:
-    from companion.setpoints import AttitudeThrustSetpoint
+    from companion.control.setpoints import AttitudeThrustSetpoint
 
 __all__ = ["LinkStats", "MavlinkLink"]
 
@@ -357,8 +357,9 @@ class MavlinkLink(Px4Commands):
         self.send_message(msg)
 
     def send_setpoint(self, setpoint: AttitudeThrustSetpoint, time_boot_ms: int) -> None:
-        """:meth:`send_attitude_target` of a :class:`companion.setpoints.AttitudeThrustSetpoint`
-        (its ZYX Euler angles as a quaternion, and its relative thrust)."""
+        """:meth:`send_attitude_target` of a
+        :class:`companion.control.setpoints.AttitudeThrustSetpoint` (its ZYX Euler angles as a
+        quaternion, and its relative thrust)."""
         q = quaternion_from_euler_zyx(setpoint.roll_rad, setpoint.pitch_rad, setpoint.yaw_rad)
         self.send_attitude_target(q, setpoint.thrust_relative, time_boot_ms)
 

@@ -1,6 +1,6 @@
 """SET_ATTITUDE_TARGET content from our attitude setpoints (pure; the link sends it).
 
-Our setpoints are ENU/FLU (:class:`companion.setpoints.AttitudeThrustSetpoint`: ZYX Euler
+Our setpoints are ENU/FLU (:class:`companion.control.setpoints.AttitudeThrustSetpoint`: ZYX Euler
 angles and PX4's relative thrust). PX4 wants the quaternion body FRD -> world NED, the
 collective thrust relative to the maximum, in [0, 1] (a multicopter takes it as
 ``thrust_body[2] = -thrust`` and linearizes it per motor with THR_MDL_FAC), and

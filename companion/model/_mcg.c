@@ -1564,7 +1564,7 @@ static void mcg_eval(const double *q, const double *qd, const double *p, double 
     out[534] = a2;
 }
 
-#ifndef MCG_EVAL_ONLY /* companion/_step.c includes the evaluation only */
+#ifndef MCG_EVAL_ONLY /* companion/control/_step.c includes the evaluation only */
 static void potential_eval(const double *q, const double *p, double *out)
 {
     const double x = q[0];

@@ -18,7 +18,7 @@ from typing import Annotated, Any
 
 import typer
 
-from companion.usage import fail, load_or_exit, output_dir_or_exit
+from companion.cli.usage import fail, load_or_exit, output_dir_or_exit
 from sitl.campaign.flights import Flight, expand, replay_command, replay_toml, scenario_document
 from sitl.campaign.spec import CampaignSpec, load_spec
 

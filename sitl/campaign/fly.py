@@ -21,10 +21,10 @@ from typing import Any
 
 import numpy as np
 
-from companion.cli_mission import plan_for
+from companion.cli.mission import plan_for
 from companion.flightlog import read_flight_log
-from companion.mission import Phase
-from companion.mission_report import MissionReport
+from companion.mission.pickup import Phase
+from companion.mission.report import MissionReport
 from sitl.campaign.flights import CRUISE_ALTITUDE_M, Flight, scenario_of
 from sitl.runner import RunOptions
 from sitl.scenario import Scenario

@@ -1,0 +1,74 @@
+"""The ``companion`` command line: what runs on the onboard computer.
+
+``check`` (a configuration), ``mission pickup``, ``arm`` (servo bus bring-up) and ``plot``
+(figures of a flight log). The simulator's commands (``sim``, ``compare``, ``demo``) are
+``sitl``'s. User mistakes print one line naming the file, the key and the reason and exit
+with status 2 (:mod:`companion.cli.usage`); they never print a traceback. A usage error (an
+unknown option, a missing argument) is one line too, and ``companion --version`` prints the
+installed version (:mod:`companion.cli.entry`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from companion.cli.arm import app as arm_app
+from companion.cli.entry import VersionOption, run
+from companion.cli.mission import mission_app
+from companion.cli.plot import plot as plot_command
+from companion.cli.usage import config_or_exit
+
+app = typer.Typer(
+    name="companion",
+    help="Aerial-manipulator companion: payload estimation and control for a PX4 hexacopter.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+    # Help texts are plain text: units such as [m] and section names such as [arm_bus] are
+    # not Rich markup (typer hands this mode down to every subcommand).
+    rich_markup_mode=None,
+)
+
+
+@app.callback()
+def _root(version: VersionOption = False) -> None:
+    """Aerial-manipulator companion: payload estimation and control for a PX4 hexacopter."""
+
+
+@app.command()
+def check(
+    config: Annotated[Path, typer.Argument(help="Configuration TOML file to validate.")],
+) -> None:
+    """Validate the companion's part of a configuration file and print what it believes
+    (the simulator's sections are checked by ``sitl check``)."""
+    cfg = config_or_exit(config)
+    table = Table(title=escape(f"{cfg.name}: {cfg.description}"), show_header=True)
+    table.add_column("quantity")
+    table.add_column("value", justify="right")
+    empty = cfg.vehicle.mass_kg + cfg.arm.link1.mass_kg + cfg.nominal_theta.m2_kg
+    table.add_row(escape("mass with the empty arm [kg]"), f"{empty:.4g}")
+    theta = cfg.nominal_theta
+    table.add_row(
+        escape("empty link 2: m2 [kg], m3 [kg m], m4 [kg m^2], lc [m]"),
+        f"{theta.m2_kg:.4g}, {theta.m3_kg_m:.4g}, {theta.m4_kg_m2:.4g}, {theta.lc_m:.4g}",
+    )
+    out = Console()
+    out.print(table)
+    out.print(f"{config}: OK", markup=False, highlight=False)
+
+
+app.add_typer(arm_app, name="arm")
+app.command(name="plot")(plot_command)
+app.add_typer(mission_app, name="mission")
+
+
+def main() -> None:
+    """Console-script entry point: ``--version``, usage errors in one line
+    (:mod:`companion.cli.entry`)."""
+    run(app, "companion")

@@ -1,0 +1,526 @@
+"""One control cycle of the pickup, on each new pose: what the app does between a pose and
+its setpoint, and after it.
+
+Sense (the navigation watch, the state filter, the joint state the arm task read, fused with
+its age), ask the mission for q_d (with the carry check from the grasp to the release, and
+the mission's word on the estimator), run :class:`~companion.control.flight.FlightControl`,
+stream the setpoint of the current OFFBOARD stage (:mod:`companion.mission.offboard`), hand the
+joint torques to the arm task, watch the faults of a flown cycle, log one row. The app
+(:mod:`companion.mission.app`) calls :meth:`ControlCycle.run` from its control loop and owns the
+links, the clock and the tasks.
+
+The generalized force handed to the estimator is the one applied over the last cycle: the
+thrust commanded to PX4 along the measured attitude while the stream is ``CONTROL`` (PX4
+flies it), and the servos' torque read-back; otherwise the reason it is not known
+(:class:`~companion.estimation.estimator.Skip`).
+"""
+
+from __future__ import annotations
+
+import gc
+import math
+import time
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from arm_driver.bus import JointState
+from companion.config import CompanionConfig
+from companion.control.flight import ControlOutput, FlightControl
+from companion.control.laws import DesiredState
+from companion.control.setpoints import AttitudeThrustSetpoint
+from companion.coordinates import HORIZONTAL, JOINTS, N_Q, PHI, PSI, THETA, TILT, Z
+from companion.estimation.estimator import Skip
+from companion.estimation.state import StateAssembler, thrust_force_world
+from companion.flightlog import CycleRecord
+from companion.link import MavlinkLink
+from companion.link.telemetry import BodyRates, LandedState, VehiclePose, VehicleStatus
+from companion.mission.arm_supervisor import ArmSupervisor
+from companion.mission.carry_check import CarryThresholds, CarryVerdict, CarryWatch, gripper_holds
+from companion.mission.failsafe import CARRY_REACTIONS, FailsafeMonitor, Fault, FaultEvent
+from companion.mission.loop_period import CyclePeriod, GapTimes, LoopPeriodMonitor
+from companion.mission.navigation import NavigationWatch
+from companion.mission.offboard import HoldBias, Offboard, Stream
+from companion.mission.pickup import EstimatorAction, MissionCommand, Outcome, Phase, PickupMission
+from companion.mission.report import FlightFigures, MissionReport, carrying
+
+__all__ = ["ControlCycle"]
+
+FloatArray = NDArray[np.float64]
+LogSink = Callable[[CycleRecord], None]
+"""Where each cycle's row goes."""
+_HOLD_WINDOW_S = 3.0
+"""Vehicle time of PX4's hold before the handover the horizontal bias is taken over [s]."""
+_MAX_JOINT_AGE_S = 0.05
+"""Age [s] a joint state is fused with at most (a cycle that waited on the link)."""
+NOT_ARMED = object()
+"""``ControlCycle.status_at_arm`` before the app armed the vehicle."""
+
+
+class ControlCycle:
+    """The per-pose work of one pickup (module docstring) and the state it carries from one
+    cycle to the next.
+
+    Parameters
+    ----------
+    config
+        The companion's configuration.
+    link, arm
+        The MAVLink link (setpoints out, latest telemetry) and the arm task.
+    control, mission, offboard, failsafe, report
+        The flight's parts, shared with the app.
+    q_stow
+        The state with the arm stowed (the joints' target before the mission).
+    loop_period
+        The loop's period watch (replaced once preflight has measured the pose rate).
+    ground_z, note, fault, on_fault, log
+        The ground height [m] taken before arming; where events, raised faults, raised
+        fault events and rows go.
+    """
+
+    def __init__(
+        self,
+        config: CompanionConfig,
+        link: MavlinkLink,
+        arm: ArmSupervisor,
+        control: FlightControl,
+        mission: PickupMission,
+        offboard: Offboard,
+        failsafe: FailsafeMonitor,
+        report: MissionReport,
+        *,
+        q_stow: FloatArray,
+        loop_period: LoopPeriodMonitor,
+        ground_z: Callable[[], float],
+        note: Callable[[str, str], None],
+        fault: Callable[[Fault, str], None],
+        on_fault: Callable[[FaultEvent], None],
+        log: LogSink,
+    ) -> None:
+        self.config = config
+        self.link = link
+        self.arm = arm
+        self.control = control
+        self.mission = mission
+        self.offboard = offboard
+        self.failsafe = failsafe
+        self.report = report
+        self.q_stow = q_stow
+        """The state with the arm stowed (the joints' target before the mission)."""
+        self.loop_period = loop_period
+        self._ground_z = ground_z
+        self._note = note
+        self._fault = fault
+        self._on_fault = on_fault
+        self._log = log
+        flight = config.flight
+        self.assembler = StateAssembler.from_sensors(config.sensors)
+        self.navigation = NavigationWatch(
+            flight.nav_max_position_std_m,
+            flight.nav_max_velocity_std_m_s,
+            flight.nav_invalid_hold_s,
+        )
+        self.hold_bias = HoldBias(_HOLD_WINDOW_S)
+        self.carry = CarryWatch(
+            CarryThresholds(
+                flight.gripper_margin_rad, flight.gripper_current_a, flight.carry_mass_margin_kg
+            ),
+            config.nominal_theta.m2_kg,
+        )
+        """Whether the object is in the gripper (:mod:`companion.mission.carry_check`)."""
+        self._grasp_holds: bool | None = None
+        """The gripper's last reading in the grasp phase (None: none)."""
+        self.figures = FlightFigures()
+        self._t_us = -1
+        self.t_s = math.nan
+        """Vehicle time of the last control cycle [s]."""
+        self._last_output: ControlOutput | None = None
+        self._last_desired: DesiredState | None = None
+        self._last_thrust_n = math.nan
+        """Thrust PX4 flew over the last cycle [N] (NaN: PX4 flew its own)."""
+        self._late_noted_s = -math.inf
+        self._gap_noted_s = -math.inf
+        self.collecting = True
+        """Whether automatic garbage collection was on when this cycle began: no
+        collection starts between a pose and its setpoint (young-generation collections
+        measured 0.06-1.3 ms in flight, once 18 ms); it is enabled again once the setpoint
+        is sent."""
+        self.status_at_arm: object = NOT_ARMED
+        """The latest HEARTBEAT when PX4 acknowledged the arm command."""
+
+    def mode(self) -> str | None:
+        status = self.link.latest(VehicleStatus)
+        return None if status is None else status.mode.name
+
+    def armed(self) -> bool:
+        """PX4 is armed: its latest HEARTBEAT says so, or it acknowledged the app's arm
+        command after that HEARTBEAT (at 1 Hz they lag an arming by up to 1 s)."""
+        status = self.link.latest(VehicleStatus)
+        return status is self.status_at_arm or bool(status and status.armed)
+
+    def _mass_kg(self) -> float:
+        """Mass of vehicle + arm the model believes [kg]."""
+        return self.control.weight_n() / self.config.environment.gravity_m_s2
+
+    def start_mission(self) -> None:
+        """PX4 acknowledged OFFBOARD (it flies the streamed setpoint from that moment):
+        the mission starts from the state the vehicle has, the trim from PX4's hold."""
+        state = self.assembler.estimate
+        q = state.q
+        self.control.tilt.reset(float(q[PHI]), float(q[THETA]))
+        self.mission.start(self.t_s, q, state.q_dot)
+        if self.control.trim.gain > 0.0:
+            self.control.trim.start(self.hold_bias.force_n(self._mass_kg()))
+        self.control.trim_active = True
+        self.figures.handover(self.t_s, q)
+        self.offboard.accept(self.t_s)
+
+    def attribute_gap(self, gap: GapTimes, late: int, dropped: int) -> None:
+        """Count ``late`` cycles and ``dropped`` poses under their cause (:class:`GapCause`,
+        from the control thread's last two cycles) and say why, at most once a second."""
+        cause = gap.cause(self.loop_period.period_s)
+        report = self.report
+        for counts, n in (
+            (report.late_cycles_by_cause, late),
+            (report.poses_dropped_by_cause, dropped),
+        ):
+            if n > 0:
+                counts[cause.value] = counts.get(cause.value, 0) + n
+        if self.t_s - self._gap_noted_s < 1.0:
+            return
+        self._gap_noted_s = self.t_s
+        what = " and ".join(
+            f"{n} {noun}{'s' if n > 1 else ''}"
+            for n, noun in ((late, "late cycle"), (dropped, "dropped pose"))
+            if n > 0
+        )
+
+        def ms(value_s: float | None) -> str:
+            return "?" if value_s is None else f"{value_s * 1e3:.1f} ms"
+
+        self._note(
+            "loop",
+            f"{what}: {cause.value} (over the control thread's last two cycles it ran "
+            f"{ms(gap.run_s)}, waited {ms(gap.cpu_wait_s)} for a CPU; datagrams waited up "
+            f"to {ms(gap.socket_wait_s)} in the socket)",
+        )
+
+    def run(self, pose: VehiclePose, received: float, received_cpu: float) -> None:
+        """One control cycle on a new pose (see the module docstring), taken off the link
+        at ``received`` (perf_counter) and ``received_cpu`` (thread_time) [s]."""
+        if pose.time_usec <= self._t_us:
+            return
+        self._t_us = pose.time_usec
+        t_s = self.t_s = pose.time_s
+        period = self.loop_period.update(t_s)
+        dt = period.period_s if period is not None else None
+        if period is not None and period.late and t_s - self._late_noted_s >= 1.0:
+            self._late_noted_s = t_s
+            self._note("loop", f"late cycle: {period.period_s * 1e3:.1f} ms since the last")
+        self._sense(pose, dt)
+        joints = self._fuse_joints()
+        a = self.assembler
+        if not a.ready or dt is None:
+            return
+        state = a.estimate
+        command = None
+        if self.offboard.flying:
+            command = self._check_carry(t_s, self.mission.update(t_s, state.q, self._confident()))
+            desired = command.desired
+            self._apply_estimator(command)
+        else:
+            desired = self._hold_desired(state.q)
+        out = self.control.step(dt, state, desired, self._applied_force(state.q, period, joints))
+        self._last_output = out
+        if self.offboard.flying:
+            self._last_desired = out.desired
+        sp = self.offboard.setpoint(
+            out.setpoint, state.q, self.control.weight_n(), self.control.thrust
+        )
+        if self.offboard.stream in (Stream.OFF, Stream.HOLD) and self._in_hold():
+            q = state.q
+            force = thrust_force_world(
+                float(q[PHI]), float(q[THETA]), float(q[PSI]), self.control.weight_n()
+            )
+            self.hold_bias.record(t_s, force[HORIZONTAL], state.q_dot[HORIZONTAL])
+        setpoint_us = setpoint_cpu_us = None
+        if sp is not None:
+            self.link.send_setpoint(sp, pose.time_boot_ms)
+            setpoint_us = (time.perf_counter() - received) * 1e6
+            setpoint_cpu_us = (time.thread_time() - received_cpu) * 1e6
+            self.report.setpoint_latency_us.append(setpoint_us)
+            self.report.setpoint_cpu_us.append(setpoint_cpu_us)
+        if self.collecting:
+            gc.enable()  # garbage collection may run from here on, after the setpoint
+        self._last_thrust_n = sp.thrust_n if sp is not None and self.offboard.flying else math.nan
+        tau_cmd = self.arm.command(out.tau[JOINTS])
+        if command is not None:
+            self.arm.grip(command.gripper)
+        cycle_us = (time.perf_counter() - received) * 1e6
+        self.report.cycle_latency_us.append(cycle_us)
+        self.report.control_cycles += 1
+        if self.offboard.flying:
+            self.watch_flight(t_s, state.q, out, period, command)
+        phase = command.phase.value if command else self.offboard.stream.value
+        timing = (dt * 1e3, setpoint_us, cycle_us, setpoint_cpu_us)
+        self._log_row(t_s, state, out, sp, joints, phase, tau_cmd, timing)
+
+    def _sense(self, pose: VehiclePose, dt: float | None) -> None:
+        """Feed one pose to the state filter, after the navigation watch: an estimator reset
+        restarts the position rows, a lasting invalid estimate is the navigation fault."""
+        a = self.assembler
+        if dt is not None and a.ready:
+            a.predict(dt)
+        check = self.navigation.update(pose.time_s, pose)
+        if check.reset and a.ready:
+            a.reset_position(pose.position_enu_m)
+            self.control.restart_estimator_inputs()
+            self._note(
+                "navigation",
+                f"PX4's estimate jumped (reset counter {pose.reset_counter}): "
+                "the position filter starts again from it",
+            )
+        a.pose(pose.position_enu_m, pose.euler_zyx_rad())
+        if pose.velocity_enu_m_s is not None and a.ready:
+            a.velocity(pose.velocity_enu_m_s)
+        rates = self.link.latest(BodyRates)
+        if rates is not None:
+            a.body_rates(rates.omega_flu_rad_s)
+        if check.fault is not None and self.offboard.flying:
+            self._fault(Fault.NAVIGATION, check.fault)
+
+    def _fuse_joints(self) -> dict[str, JointState] | None:
+        """Fuse the joint state the arm task read since the last cycle, with its age
+        (bounded); returns it, or None if none came."""
+        taken = self.arm.take()
+        if taken is None:
+            return None
+        joints, age_s = taken
+        age_s = min(age_s, _MAX_JOINT_AGE_S)
+        names = self.arm.names
+        self.assembler.joints([joints[n].position_rad for n in names], age_s)
+        self.assembler.joint_rates([joints[n].velocity_rad_s for n in names], age_s)
+        return joints
+
+    def _applied_force(
+        self, q: FloatArray, period: CyclePeriod | None, joints: dict[str, JointState] | None
+    ) -> FloatArray | Skip:
+        """The force applied over the last cycle for the estimator, or why it is unknown:
+        outside CONTROL PX4 flies its own thrust; a late cycle is not the period the
+        estimator's forward-Euler step is tuned for."""
+        if period is None or period.late:
+            return Skip.LATE_CYCLE
+        if not math.isfinite(self._last_thrust_n):
+            return Skip.NO_FORCE
+        if joints is None:
+            return Skip.NO_SERVO_READ
+        servo_tau = np.array([joints[n].torque_n_m for n in self.arm.names])
+        return self.control.applied_force(q, self._last_thrust_n, servo_tau)
+
+    def _in_hold(self) -> bool:
+        """PX4 holds the vehicle in the air in its own Hold (before the handover)."""
+        return self.mode() == "LOITER" and self.armed()
+
+    def watch_flight(
+        self,
+        t_s: float,
+        q: FloatArray,
+        out: ControlOutput,
+        period: CyclePeriod | None,
+        command: MissionCommand | None,
+    ) -> None:
+        """Faults and figures of one OFFBOARD cycle: loop overrun, ground contact, the
+        monitor's lasting conditions, tilt and tracking error."""
+        if self.loop_period.overrun:
+            watch = self.loop_period
+            this_ms = math.nan if period is None else period.period_s * 1e3
+            self._fault(
+                Fault.LOOP_OVERRUN,
+                f"{watch.long_cycles} control periods in {watch.window_s:g} s longer than "
+                f"the {watch.max_period_s * 1e3:.1f} ms the velocity gains tolerate "
+                f"(this one {this_ms:.0f} ms)",
+            )
+        landed = self.link.latest(LandedState)
+        ground = self._ground_z() + self.config.flight.ground_margin_m
+        if landed is not None and landed.on_ground:
+            self._fault(Fault.GROUND_CONTACT, "PX4's land detector reports the vehicle landed")
+        elif float(q[Z]) < ground:
+            self._fault(
+                Fault.GROUND_CONTACT,
+                f"height {q[Z]:.2f} m below the take-off height + margin ({ground:.2f} m)",
+            )
+        sp = out.setpoint
+        for event in self.failsafe.update(
+            t_s,
+            on_bound=self._on_bound(out),
+            tilt_saturated=sp.tilt_saturated,
+            thrust_saturated=sp.thrust_saturated,
+        ):
+            self._on_fault(event)
+        self.figures.update(t_s, q, command)
+
+    def _hold_desired(self, q: FloatArray) -> DesiredState:
+        """Outside CONTROL: the controller tracks where the vehicle is (its output is not
+        flown) and the joints where the mission last put them (stowed before)."""
+        target = np.array(q, dtype=float)
+        target[TILT] = 0.0
+        last = self._last_desired
+        target[JOINTS] = self.q_stow[JOINTS] if last is None else last.q[JOINTS]
+        zero = np.zeros(N_Q)
+        return DesiredState(target, zero, zero.copy())
+
+    def _check_carry(self, t_s: float, command: MissionCommand) -> MissionCommand:
+        """Watch the gripper from the grasp to the release and whether the object is carried
+        (:mod:`companion.mission.carry_check`); an object not carried abandons the pickup: this
+        cycle's command is the mission's way home."""
+        phase, arm = command.phase, self.arm
+        if command.phase_changed and phase in (Phase.GRASP, Phase.RELEASE):
+            arm.watch_gripper(phase == Phase.GRASP)
+        reading = arm.take_gripper()
+        gripper = self.config.arm_bus.gripper if self.config.arm_bus else None
+        holds = None
+        if reading is not None and gripper is not None:
+            holds = gripper_holds(
+                reading.position_rad,
+                reading.current_a,
+                gripper.open_position_rad,
+                gripper.closed_position_rad,
+                self.carry.thresholds,
+            )
+        verdict: CarryVerdict | None = None
+        if phase == Phase.GRASP and holds is not None:
+            self._grasp_holds = holds
+        elif command.phase_changed and phase == Phase.LIFT:
+            verdict = self.carry.grasp(self._grasp_holds)
+        if verdict is None and carrying(phase) and not command.phase_changed:
+            if holds is not None:
+                verdict = self.carry.gripper(holds)
+            out = self._last_output
+            if verdict is None and out is not None and self.config.flight.carry_check_estimate:
+                verdict = self.carry.estimate(float(out.estimate.theta[0]), self._confident())
+        if verdict is None:
+            return command
+        arm.watch_gripper(False)
+        self.report.faults.append(
+            {
+                "t_s": t_s,
+                "fault": verdict.outcome.value,
+                "detail": verdict.detail,
+                "reactions": [r.value for r in CARRY_REACTIONS[verdict.outcome]],
+            }
+        )
+        self._note("fault", f"{verdict.outcome.value}: {verdict.detail}")
+        return self.mission.abandon(t_s, verdict.outcome, verdict.detail)
+
+    def _confident(self) -> bool:
+        return bool(self._last_output is not None and self._last_output.estimate.confident)
+
+    def _on_bound(self, out: ControlOutput) -> bool:
+        low, high = self.config.estimator.m2_bounds_kg
+        m2 = float(out.estimate.theta[0])
+        return m2 <= low * (1 + 1e-6) or m2 >= high * (1 - 1e-6)
+
+    def _apply_estimator(self, command: MissionCommand) -> None:
+        """The mission's word on the estimator: restart, reset to the empty arm, hold,
+        calibrate the thrust scale or run (held while the estimate sits on its bound, never
+        resumed after an abort)."""
+        est = self.control.estimator
+        if command.phase_changed:
+            self._note("phase", command.phase.value)
+            self.report.phases.append((self.t_s, command.phase.value))
+            if command.phase == Phase.TO_PLACE and self._last_output is not None:
+                self._record_estimate(self._last_output)
+        if command.estimator == EstimatorAction.RESTART:
+            est.reset(est.theta)
+        elif command.estimator in (EstimatorAction.RESET_EMPTY, EstimatorAction.EMPTY):
+            est.reset(self.config.estimator.initial_theta.as_tuple())
+        hold = command.estimator in (
+            EstimatorAction.FREEZE,
+            EstimatorAction.EMPTY,
+        ) or self.failsafe.has(Fault.ESTIMATE_BOUND)
+        if hold:
+            if not est.frozen:
+                est.freeze()
+        elif command.estimator == EstimatorAction.CALIBRATE:
+            if not est.calibrating:
+                est.calibrate()
+        elif est.frozen and not self.failsafe.aborted:
+            est.resume()
+
+    def _record_estimate(self, out: ControlOutput) -> None:
+        theta = out.estimate.theta
+        empty = self.config.nominal_theta
+        self.report.theta_hat = [float(v) for v in theta]
+        self.report.payload_mass_kg = float(theta[0]) - empty.m2_kg
+        # Payload CoM along link 2: (m3 - m3_empty) / (m2 - m2_empty), a point mass.
+        mass = self.report.payload_mass_kg
+        self.report.payload_com_m = (
+            (float(theta[1]) - empty.m3_kg_m) / mass if mass > 1e-6 else None
+        )
+        self.report.confident = bool(out.estimate.confident)
+
+    def _log_row(
+        self,
+        t_s: float,
+        state,
+        out: ControlOutput,
+        sp: AttitudeThrustSetpoint | None,
+        joints: dict[str, JointState] | None,
+        phase: str,
+        tau_cmd: FloatArray,
+        timing: tuple[float, float | None, float, float | None],
+    ) -> None:
+        """One row of the flight log; ``timing`` is (period [ms], pose -> setpoint sent
+        [us] or None, pose -> joint torques handed over [us], CPU time up to the setpoint
+        [us] or None)."""
+        names = self.arm.names
+        nan = [math.nan] * len(names)
+        torques = nan if joints is None else [joints[n].torque_n_m for n in names]
+        positions = nan if joints is None else [joints[n].position_rad for n in names]
+        self._log(
+            CycleRecord(
+                t_vehicle_s=t_s,
+                q=state.q,
+                q_dot=state.q_dot,
+                q_ddot=state.q_ddot,
+                q_d=out.desired.q,
+                theta_hat=out.estimate.theta,
+                theta_excitation=out.estimate.excitation,
+                theta_spread=out.estimate.spread,
+                theta_confident=out.estimate.confident,
+                theta_frozen=out.estimate.frozen,
+                thrust_scale_hat=out.estimate.thrust_scale,
+                tau=out.tau,
+                setpoint=sp,
+                servo_torque_cmd_n_m=tau_cmd,
+                servo_torque_meas_n_m=torques,
+                servo_position_rad=positions,
+                loop_period_ms=timing[0],
+                setpoint_latency_us=timing[1],
+                cycle_latency_us=timing[2],
+                setpoint_cpu_us=timing[3],
+                px4_mode=self.mode() or "",
+                armed=self.armed(),
+                phase=phase,
+                faults=[e.fault.value for e in self.failsafe.raised],
+            )
+        )
+
+    def finish_report(self) -> None:
+        report = self.report
+        report.late_cycles = self.loop_period.late_cycles
+        report.longest_period_ms = self.loop_period.longest_period_s * 1e3
+        estimator = self.control.estimator
+        report.estimator_skipped_steps = estimator.skipped_steps
+        report.estimator_skipped = {reason.value: n for reason, n in estimator.skipped.items()}
+        report.navigation_resets = self.navigation.resets
+        self.figures.finish(report)
+        report.phases = [(t, p.value) for t, p in self.mission.phase_log] or report.phases
+        outcome = self.mission.outcome
+        if outcome != Outcome.COMPLETED:
+            report.outcome = outcome.value
+        elif report.completed:
+            report.outcome = Outcome.COMPLETED.value
+        else:
+            report.outcome = "aborted" if self.failsafe.aborted else "failed"
