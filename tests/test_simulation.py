@@ -240,6 +240,23 @@ def test_cli_compare_writes_table(run_sitl, tmp_path: Path) -> None:
     assert len(json.loads((tmp_path / "summaries.json").read_text())) == 4
 
 
+def test_cli_compare_leaves_the_sliding_mode_baseline_out_on_the_underactuated_plant(
+    run_sitl, tmp_path: Path
+) -> None:
+    """It diverges there (its law forces the tilt rows, which PX4's loop drives): left out,
+    and the table says why, rather than a baseline that does not fly."""
+    result = run_sitl(
+        "compare", "--scenario", str(PAPER), "--plant", "underactuated", "--duration", "1",
+        "--out", str(tmp_path),
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert "adaptive sliding mode: left out on the underactuated plant" in result.stderr
+    text = (tmp_path / "compare.md").read_text()
+    assert "left out on the underactuated plant" in text
+    assert "| adaptive sliding mode |" not in text and "| non-adaptive" in text
+    assert len(json.loads((tmp_path / "summaries.json").read_text())) == 3
+
+
 @pytest.mark.parametrize(("jerk_psd", "oscillates"), [(0.1, True), (1.0, False)])
 def test_the_vertical_loop_at_px4s_rate_is_stable_with_the_flight_filter(
     jerk_psd: float, oscillates: bool
