@@ -292,8 +292,8 @@ LEFT_OUT = {
     (PlantChoice.underactuated, ControllerChoice.asmc): (
         "adaptive sliding mode: left out on the underactuated plant. Its law (eq. asc1) asks "
         "for a force on every row of q, and the tilt rows take none directly (the attitude "
-        "comes from PX4's loop): it diverges there (docs/validation.md, tables 3 and 4: "
-        "over 100 m RMS). Run it on the ideal plant, or alone with `sitl sim --controller "
+        "comes from PX4's loop): it diverges there (over 100 m RMS on "
+        "configs/paper_sim.toml). Run it on the ideal plant, or alone with `sitl sim --controller "
         "asmc` to see it."
     ),
 }
