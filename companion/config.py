@@ -455,7 +455,8 @@ bus backend rejects ids its protocol cannot address."""
 
 
 class ArmBusJoint(_Section):
-    """One arm joint and its servo (fields of ``arm_driver.joint.JointConfig``).
+    """One arm joint and its servo (fields of ``arm_driver.joint.JointConfig``, and whether
+    its torque constant was calibrated).
 
     Angles are in the joint frame, counter-clockwise positive about the joint axis;
     ``servo angle = zero_offset_rad + direction * joint angle``, the servo angle 0 at the
@@ -466,7 +467,12 @@ class ArmBusJoint(_Section):
     """Joint name, the key of joint-space commands and states (e.g. ``"eta1"``)."""
     servo_id: ServoId
     torque_constant_n_m_per_a: Positive
-    """Calibrated output torque per motor current [N m/A]."""
+    """Output torque per motor current [N m/A]: the servo's own, measured by ``companion arm
+    calibrate``, or the datasheet's until then."""
+    torque_calibrated: Annotated[bool, Field(strict=True)] = False
+    """Whether ``torque_constant_n_m_per_a`` (and the friction) were measured on this servo
+    (``companion arm calibrate --write`` sets it): a mission flown on datasheet values says
+    so, since a constant 12 % off moves the payload's estimated centre of mass by a fifth."""
     torque_max_n_m: NonNegative
     """Largest torque magnitude a command may ask for [N m]."""
     direction: Annotated[int, Field(strict=True), AfterValidator(_sign)]
@@ -723,7 +729,9 @@ def arm_bus_configs(
         ``arm_driver.joint.JointConfig`` per joint in file order, and the
         ``GripperConfig`` or None; ready for ``arm_driver.bus.open_bus(section.url, ...)``.
     """
-    joints = tuple(JointConfig(**joint.model_dump()) for joint in section.joints)
+    joints = tuple(
+        JointConfig(**joint.model_dump(exclude={"torque_calibrated"})) for joint in section.joints
+    )
     gripper = None if section.gripper is None else GripperConfig(**section.gripper.model_dump())
     return joints, gripper
 

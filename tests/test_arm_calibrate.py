@@ -100,6 +100,8 @@ def test_calibrate_recovers_the_torque_constant_and_friction_and_writes_them(
             servo.viscous_friction_n_m_s_per_rad, rel=0.25
         )
         assert joint.coulomb_friction_n_m == 0.0  # the XM430 model has none
+    written = load_config(config).arm_bus
+    assert written is not None and all(j.torque_calibrated for j in written.joints)
     # with the rest of the config and every comment as they were
     assert load_config(config).model_dump(exclude={"arm_bus"}) == before.model_dump(
         exclude={"arm_bus"}

@@ -52,6 +52,16 @@ def test_values_change_in_place_and_every_other_line_stays() -> None:
     assert eta2 < at < gripper  # at the end of eta2's table
 
 
+def test_the_calibrated_flag_is_written_as_a_toml_boolean() -> None:
+    text = CONFIG.read_text()
+    before = parse_config(tomllib.loads(text)).arm_bus
+    assert before is not None and not any(j.torque_calibrated for j in before.joints)
+    edited = with_joint_values(text, {"eta1": {"torque_calibrated": True}}, NOTE)
+    assert f"torque_calibrated = true # {NOTE}" in " ".join(edited.split())
+    after = parse_config(tomllib.loads(edited)).arm_bus
+    assert after is not None and [j.torque_calibrated for j in after.joints] == [True, False]
+
+
 def test_an_unknown_joint_is_refused() -> None:
     with pytest.raises(ConfigError, match="no joint named 'wrist'"):
         with_joint_values(CONFIG.read_text(), {"wrist": {"coulomb_friction_n_m": 0.01}}, NOTE)

@@ -91,6 +91,10 @@ def test_the_pickup_is_the_same_flight_at_any_load_and_meets_the_acceptance(tmp_
     # Placed, the payload learnt, landed: the figures the wall-clock demo meets.
     assert failure is None and summary["completed"] and summary["landed"]
     assert summary["faults"] == []
+    # The demo's servos fly on the datasheet's torque constant, and the mission says so.
+    assert summary["servo_torque_constants"] == {"eta1": "datasheet", "eta2": "datasheet"}
+    events = (tmp_path / "idle" / "flight.events.csv").read_text()
+    assert "joints eta1, eta2 fly on the datasheet's torque constants" in events
     assert any(r["payload_attached"] for r in truth)
     last = truth[-1]
     assert not last["payload_attached"] and not last["armed"] and last["on_ground"]

@@ -21,7 +21,10 @@ __all__ = ["with_joint_values"]
 
 
 def with_joint_values(
-    text: str, values: Mapping[str, Mapping[str, float]], note: str, path: str = "<string>"
+    text: str,
+    values: Mapping[str, Mapping[str, float | bool]],
+    note: str,
+    path: str = "<string>",
 ) -> str:
     """``text`` (a config TOML) with ``values[joint][key]`` set in the
     ``[[arm_bus.joints]]`` entry named ``joint``.
@@ -64,7 +67,7 @@ def with_joint_values(
     return edited
 
 
-def _add(entry: Table, key: str, value: float, note: str) -> None:
+def _add(entry: Table, key: str, value: float | bool, note: str) -> None:
     """Append ``key = value`` to ``entry`` with ``note`` in the column of its comments."""
     item = tomlkit.item(value).comment(note)
     columns = [
@@ -78,7 +81,7 @@ def _add(entry: Table, key: str, value: float, note: str) -> None:
     entry.add(key, item)
 
 
-def _replace(entry: Table, key: str, value: float) -> None:
+def _replace(entry: Table, key: str, value: float | bool) -> None:
     """Set ``entry[key]`` keeping its comment in the same column."""
     old: Item = entry[key]
     new = tomlkit.item(value)

@@ -296,18 +296,21 @@ def calibrate(
     refused = [f"joint {r.joint.name!r}: {r.problem}" for r in results if r.problem is not None]
     if refused:
         raise _fail("; ".join(refused) + "; nothing written")
-    values = {
-        r.joint.name: dict(
-            zip(
-                _CALIBRATED_KEYS,
-                (
-                    _rounded(r.torque_constant.torque_constant_n_m_per_a),
-                    _rounded(r.friction.viscous_friction_n_m_s_per_rad),
-                    _rounded(r.friction.coulomb_friction_n_m),
-                ),
-                strict=True,
-            )
-        )
+    values: dict[str, dict[str, float | bool]] = {
+        r.joint.name: {
+            **dict(
+                zip(
+                    _CALIBRATED_KEYS,
+                    (
+                        _rounded(r.torque_constant.torque_constant_n_m_per_a),
+                        _rounded(r.friction.viscous_friction_n_m_s_per_rad),
+                        _rounded(r.friction.coulomb_friction_n_m),
+                    ),
+                    strict=True,
+                )
+            ),
+            "torque_calibrated": True,
+        }
         for r in results
     }
     if not write:

@@ -337,6 +337,24 @@ class PickupApp:
         missing = set(self.arm.names) - set(states)
         if missing:
             raise MissionError(f"preflight: joints {sorted(missing)} did not answer")
+        self._note_torque_constants()
+
+    def _note_torque_constants(self) -> None:
+        """Say which joints fly on datasheet torque constants (a Dynamixel's current reads as
+        torque through them; a DroneCAN actuator reports its own torque)."""
+        bus = self.config.arm_bus
+        if bus is None or not bus.url.startswith("dynamixel"):
+            return
+        source = {j.name: "calibrated" if j.torque_calibrated else "datasheet" for j in bus.joints}
+        self.report.servo_torque = source
+        datasheet = [name for name, where in source.items() if where == "datasheet"]
+        if datasheet:
+            self._note(
+                "preflight",
+                f"joints {', '.join(datasheet)} fly on the datasheet's torque constants, not "
+                "their servos' own: the payload's centre of mass is estimated from them "
+                "(12 % off moves it by a fifth); run `companion arm calibrate --write`",
+            )
 
     # -------------------------------------------------------------- sequence
 

@@ -51,6 +51,9 @@ class MissionReport:
     """Rate the pose stream arrived at (the loop's rate), measured at preflight [Hz]."""
     vehicle_params: str | None = None
     """The PX4 parameters the model depends on, as read at preflight."""
+    servo_torque: dict[str, str] = field(default_factory=dict)
+    """Where each joint's torque constant comes from: ``calibrated`` on this servo
+    (``companion arm calibrate``) or the ``datasheet``'s."""
     navigation_resets: int = 0
     """Jumps of PX4's estimate (its reset counter) seen in flight."""
     cycle_latency_us: list[float] = field(default_factory=list)
@@ -102,6 +105,7 @@ class MissionReport:
             "control_cycles": self.control_cycles,
             "control_rate_hz": self.control_rate_hz,
             "vehicle_params": self.vehicle_params,
+            "servo_torque_constants": self.servo_torque,
             "navigation_resets": self.navigation_resets,
             "cycle_latency_us": _percentiles(self.cycle_latency_us),
             "setpoint_latency_us": _percentiles(self.setpoint_latency_us),
