@@ -11,8 +11,9 @@
   step (C extension ``companion.control._step``) and the switch to the Python reference.
 """
 
-from importlib import import_module
 from typing import TYPE_CHECKING
+
+from companion.lazy import lazy_attributes
 
 __all__ = [
     "AttitudeThrustSetpoint",
@@ -35,16 +36,11 @@ _HOME = {
     "AttitudeThrustSetpoint": "companion.control.setpoints",
     "ThrustModel": "companion.control.setpoints",
 }
-"""Where each public name lives (imported on first use: the modules import one another's
-concrete modules, never this package, so no import cycle runs through here)."""
+"""Where each public name lives (:mod:`companion.lazy`)."""
 
 if TYPE_CHECKING:
     from companion.control.flight import ControlOutput, FlightControl, FlightControllerName
     from companion.control.laws import ControlRateError, DesiredState, PassivityController
     from companion.control.setpoints import AttitudeThrustSetpoint, ThrustModel
 
-
-def __getattr__(name: str) -> object:
-    if name in _HOME:
-        return getattr(import_module(_HOME[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_attributes(__name__, _HOME)

@@ -9,8 +9,9 @@
 - :mod:`~companion.estimation.inputs`: the estimator's inputs assembled per step.
 """
 
-from importlib import import_module
 from typing import TYPE_CHECKING
+
+from companion.lazy import lazy_attributes
 
 __all__ = [
     "FilteredState",
@@ -25,16 +26,11 @@ _HOME = {
     "StateFilter": "companion.estimation.filters",
     "StateAssembler": "companion.estimation.state",
 }
-"""Where each public name lives (imported on first use: the modules import one another's
-concrete modules, never this package, so no import cycle runs through here)."""
+"""Where each public name lives (:mod:`companion.lazy`)."""
 
 if TYPE_CHECKING:
     from companion.estimation.estimator import Skip
     from companion.estimation.filters import FilteredState, StateFilter
     from companion.estimation.state import StateAssembler
 
-
-def __getattr__(name: str) -> object:
-    if name in _HOME:
-        return getattr(import_module(_HOME[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_attributes(__name__, _HOME)

@@ -19,8 +19,9 @@ The shell over the links (asyncio): :mod:`~companion.mission.app` (:class:`Picku
 bus task), :mod:`~companion.mission.scheduling` (real-time scheduling of the loop).
 """
 
-from importlib import import_module
 from typing import TYPE_CHECKING
+
+from companion.lazy import lazy_attributes
 
 __all__ = [
     "Fault",
@@ -49,8 +50,7 @@ _HOME = {
     "MissionReport": "companion.mission.report",
     "FlightSequence": "companion.mission.sequence",
 }
-"""Where each public name lives (imported on first use: the modules import one another's
-concrete modules, never this package, so no import cycle runs through here)."""
+"""Where each public name lives (:mod:`companion.lazy`)."""
 
 if TYPE_CHECKING:
     from companion.mission.app import MissionAborted, MissionError, PickupApp
@@ -59,8 +59,4 @@ if TYPE_CHECKING:
     from companion.mission.report import MissionReport
     from companion.mission.sequence import FlightSequence
 
-
-def __getattr__(name: str) -> object:
-    if name in _HOME:
-        return getattr(import_module(_HOME[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_attributes(__name__, _HOME)
