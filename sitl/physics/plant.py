@@ -45,7 +45,6 @@ from sitl.physics import _kernel
 from sitl.physics.articulation import ETA2_JOINT, build_articulation, theta_of
 from sitl.physics.attitude_control import (
     AttitudeLoopParams,
-    AttitudeSetpoint,
     Px4AttitudeLoop,
 )
 from sitl.physics.errors import (
@@ -65,6 +64,7 @@ from sitl.physics.integration import (
     DivergedError,
     GeneralizedForce,
 )
+from sitl.physics.rotor_plant import RotorPlant
 from sitl.physics.rotors import (
     N_ROTORS,
     RotorBank,
@@ -81,7 +81,7 @@ FloatArray = NDArray[np.float64]
 PlantMode = Literal["ideal", "underactuated"]
 
 
-class TruthPlant:
+class TruthPlant(RotorPlant):
     """Truth dynamics of the aerial manipulator; see the module docstring.
 
     Pure: no I/O, no clock, no randomness. Not thread-safe (it owns Pinocchio data).
@@ -109,6 +109,22 @@ class TruthPlant:
 
     has_ground = False
     """This plant flies in free space: a SITL adds the ground (see :meth:`hold_base`)."""
+
+    @property
+    def flies_rotors(self) -> bool:
+        """The underactuated mode: the rotors move the vehicle (the ideal mode takes tau)."""
+        return self.mode == "underactuated"
+
+    def _truth(self) -> tuple:
+        return (
+            self._q_ours,
+            self._qd_ours,
+            self._qdd,
+            self._quat,
+            self._R9,
+            self._omega,
+            self._payload_attached,
+        )
 
     def __init__(
         self, scenario: Scenario, mode: PlantMode = "ideal", *, payload_attached: bool = False
@@ -272,69 +288,6 @@ class TruthPlant:
         self._update_kinematics()
         return self.state
 
-    @property
-    def time_s(self) -> float:
-        """Simulation time [s] (``reset`` time + steps * dt, no accumulated rounding)."""
-        return self._t0 + self._steps * self.dt_s
-
-    @property
-    def state(self) -> PlantState:
-        """The current truth state (frozen; built once per step, on first access)."""
-        if self._state_cache is None:
-            self._state_cache = PlantState.from_lists(
-                self.time_s,
-                self._q_ours,
-                self._qd_ours,
-                self._qdd,
-                self._quat,
-                self._R9,
-                self._omega,
-                self._payload_attached,
-            )
-        return self._state_cache
-
-    @property
-    def actuators(self) -> ActuatorState:
-        """Actuator signals of the last step (underactuated mode only).
-
-        Raises
-        ------
-        PlantModeError
-            In ideal mode, which has no actuators.
-        """
-        if self.mode != "underactuated":
-            raise PlantModeError("actuator signals exist only in underactuated mode")
-        if self._actuators is None:
-            self._actuators = ActuatorState.from_signals(self._actuator_signals)
-        return self._actuators
-
-    def configure_autopilot(self, params: AttitudeLoopParams) -> None:
-        """Give the PX4-like attitude loop new parameters (gains, THR_MDL_FAC) at once, as a
-        PARAM_SET does on PX4; its integrators carry on. The motors keep their own curve.
-
-        Raises
-        ------
-        PlantModeError
-            In ideal mode, which has no autopilot.
-        """
-        if self.mode != "underactuated":
-            raise PlantModeError("the autopilot exists only in underactuated mode")
-        self._autopilot.configure(params)
-
-    @property
-    def rotor_thrusts_n(self) -> FloatArray:
-        """Thrust each rotor produces now [N], shape (6,) (zeros in ideal mode)."""
-        if self.mode != "underactuated":
-            return np.zeros(N_ROTORS)
-        return self._rotors.thrusts_n
-
-    @property
-    def total_thrust_n(self) -> float:
-        """Sum of :attr:`rotor_thrusts_n` [N] (0 in ideal mode)."""
-        if self.mode != "underactuated":
-            return 0.0
-        return self._rotors.total_thrust_n
-
     # ---------------------------------------------------------------- payload
 
     @property
@@ -446,84 +399,6 @@ class TruthPlant:
         self._advance(GeneralizedForce(_vector(tau, "tau")))
         return self.state
 
-    def step(self, setpoint: AttitudeSetpoint, joint_torques_n_m: ArrayLike) -> PlantState:
-        """Advance one step under an attitude/thrust setpoint and joint torques (underactuated).
-
-        Parameters
-        ----------
-        setpoint : AttitudeSetpoint
-            Attitude (ENU/FLU quaternion) and relative collective thrust for the PX4-like
-            loop.
-        joint_torques_n_m : array_like, shape (2,)
-            Servo torque commands [N m], clipped to +-``plant.servo_torque_limit_n_m``.
-
-        The autopilot runs once per step on the true attitude and body rate; the rotors
-        push with the thrust their lag state has at the start of the step, which then
-        moves toward the new commands.
-
-        Raises
-        ------
-        PlantModeError
-            In ideal mode.
-        ValueError
-            On joint torques that are not 2 finite values.
-        EulerSingularityError
-            If the vehicle reaches theta = +-90 deg (q cannot be reported).
-        PlantDivergedError
-            If the state became non-finite.
-        """
-        if self.mode != "underactuated":
-            raise PlantModeError("step() needs mode='underactuated'; use step_ideal() instead")
-        joint = self._joint_torques(joint_torques_n_m)
-        out = self._autopilot.update(self._quat, self._omega, setpoint)
-        self._step_rotors(out.motor_commands, joint, out.rate_setpoint_rad_s, out.torque_normalized)
-        return self.state
-
-    def step_motors(self, motor_commands: ArrayLike, joint_torques_n_m: ArrayLike) -> PlantState:
-        """Advance one step under six motor commands and joint torques (underactuated), for
-        an autopilot outside the plant (the real PX4 through ``simulator_mavlink``).
-
-        Parameters
-        ----------
-        motor_commands : array_like, shape (6,)
-            Normalized command of each rotor (order of :mod:`sitl.physics.rotors`), clipped
-            to [0, 1]; the motors answer with their own thrust curve and lag.
-        joint_torques_n_m : array_like, shape (2,)
-            As for :meth:`step`.
-
-        The plant's own attitude loop does not run: the actuator signals' rate setpoint and
-        normalized torques are NaN (the outside autopilot's).
-
-        Raises
-        ------
-        PlantModeError
-            In ideal mode.
-        ValueError
-            On commands that are not 6 finite values or joint torques not 2.
-        EulerSingularityError, PlantDivergedError
-            As for :meth:`step`.
-        """
-        if self.mode != "underactuated":
-            raise PlantModeError("step_motors() needs mode='underactuated'")
-        joint = self._joint_torques(joint_torques_n_m)
-        self._step_rotors(_motor_commands(motor_commands), joint, _UNKNOWN3, _UNKNOWN3)
-        return self.state
-
-    def _joint_torques(self, joint_torques_n_m: ArrayLike) -> list[float]:
-        """Two finite joint torques [N m] clipped to the servo limit (ValueError otherwise)."""
-        joint_arr = np.asarray(joint_torques_n_m, dtype=np.float64)
-        if joint_arr.shape != (2,):
-            raise ValueError(
-                f"joint_torques_n_m must be 2 finite values, got {joint_torques_n_m!r}"
-            )
-        j1, j2 = joint_arr.tolist()
-        if not math.isfinite(j1 + j2):
-            raise ValueError(
-                f"joint_torques_n_m must be 2 finite values, got {joint_torques_n_m!r}"
-            )
-        lim = self._servo_limit
-        return [min(max(j1, -lim), lim), min(max(j2, -lim), lim)]
-
     def _step_rotors(
         self,
         motor_commands: list[float],
@@ -610,17 +485,6 @@ class TruthPlant:
 _DIVERGED = 1
 _SINGULAR = 2
 """Failure codes of the kernel's step and kinematics (see ``step_kinematics``)."""
-
-_UNKNOWN3 = (math.nan, math.nan, math.nan)
-"""Signals of an autopilot outside the plant (rate setpoint, normalized torques)."""
-
-
-def _motor_commands(values: ArrayLike) -> list[float]:
-    """Six finite motor commands clipped to [0, 1] (ValueError otherwise)."""
-    arr = np.asarray(values, dtype=np.float64)
-    if arr.shape != (N_ROTORS,) or not np.all(np.isfinite(arr)):
-        raise ValueError(f"motor_commands must be {N_ROTORS} finite values, got {values!r}")
-    return np.clip(arr, 0.0, 1.0).tolist()
 
 
 def _vector(values: ArrayLike, name: str) -> list[float]:

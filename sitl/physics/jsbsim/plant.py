@@ -57,8 +57,6 @@ Units and frames: SI, ENU/FLU here; English units, NED/FRD and the CG only insid
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -66,7 +64,6 @@ from companion.config import Theta
 from companion.coordinates import ATTITUDE, ETA1, ETA2, JOINTS, N_Q, POSITION
 from sitl.physics.attitude_control import (
     AttitudeLoopParams,
-    AttitudeSetpoint,
     Px4AttitudeLoop,
 )
 from sitl.physics.errors import PlantDivergedError, PlantError, PlantModeError
@@ -81,6 +78,7 @@ from sitl.physics.jsbsim.airframe import FT_M, GearGeometry
 from sitl.physics.jsbsim.arm import ArmDynamics
 from sitl.physics.jsbsim.fdm import FdmReading, HexarotorFdm, JsbsimError
 from sitl.physics.jsbsim.wind import Wind
+from sitl.physics.rotor_plant import RotorPlant
 from sitl.physics.rotors import (
     N_ROTORS,
     RotorBank,
@@ -96,7 +94,7 @@ __all__ = ["JsbsimError", "JsbsimPlant"]
 FloatArray = NDArray[np.float64]
 
 
-class JsbsimPlant:
+class JsbsimPlant(RotorPlant):
     """Underactuated truth plant on JSBSim: a :class:`~sitl.physics.Plant`, as
     ``TruthPlant``'s underactuated mode (see the module docstring for what differs); not
     an :class:`~sitl.physics.IdealPlant` (no generalized-force input).
@@ -253,47 +251,16 @@ class JsbsimPlant:
         self._euler = (phi, theta, psi)
         self._take(reading)
 
-    @property
-    def time_s(self) -> float:
-        """Simulation time [s] (``reset`` time + steps * dt)."""
-        return self._t0 + self._steps * self.dt_s
-
-    @property
-    def state(self) -> PlantState:
-        """The current truth state (frozen; built once per step, on first access)."""
-        if self._state_cache is None:
-            self._state_cache = PlantState.from_lists(
-                self.time_s,
-                self._q,
-                self._qd,
-                self._qdd,
-                self._quat,
-                self._r9,
-                self._omega,
-                self._arm.payload_attached,
-            )
-        return self._state_cache
-
-    @property
-    def actuators(self) -> ActuatorState:
-        """Actuator signals of the last step."""
-        if self._actuators is None:
-            self._actuators = ActuatorState.from_signals(self._actuator_signals)
-        return self._actuators
-
-    def configure_autopilot(self, params: AttitudeLoopParams) -> None:
-        """Give the PX4-like attitude loop new parameters at once (as ``TruthPlant``)."""
-        self._autopilot.configure(params)
-
-    @property
-    def rotor_thrusts_n(self) -> FloatArray:
-        """Thrust each rotor produces now [N], shape (6,)."""
-        return self._rotors.thrusts_n
-
-    @property
-    def total_thrust_n(self) -> float:
-        """Sum of :attr:`rotor_thrusts_n` [N]."""
-        return self._rotors.total_thrust_n
+    def _truth(self) -> tuple:
+        return (
+            self._q,
+            self._qd,
+            self._qdd,
+            self._quat,
+            self._r9,
+            self._omega,
+            self._arm.payload_attached,
+        )
 
     @property
     def height_above_ground_m(self) -> float:
@@ -348,58 +315,10 @@ class JsbsimPlant:
 
     # ------------------------------------------------------------------- step
 
-    def step(self, setpoint: AttitudeSetpoint, joint_torques_n_m: ArrayLike) -> PlantState:
-        """Advance one step under an attitude/thrust setpoint and joint torques.
-
-        Same contract as ``TruthPlant.step`` in underactuated mode.
-
-        Raises
-        ------
-        ValueError
-            On joint torques that are not 2 finite values.
-        PlantDivergedError
-            If the state became non-finite.
-        """
-        joint = self._joint_torques(joint_torques_n_m)
-        out = self._autopilot.update(self._quat, self._omega, setpoint)
-        self._step_rotors(out.motor_commands, joint, out.rate_setpoint_rad_s, out.torque_normalized)
-        return self.state
-
-    def step_motors(self, motor_commands: ArrayLike, joint_torques_n_m: ArrayLike) -> PlantState:
-        """Advance one step under six motor commands and joint torques, for an autopilot
-        outside the plant (same contract as ``TruthPlant.step_motors``).
-
-        Raises
-        ------
-        ValueError
-            On commands that are not 6 finite values or joint torques not 2.
-        PlantDivergedError
-            If the state became non-finite.
-        """
-        arr = np.asarray(motor_commands, dtype=np.float64)
-        if arr.shape != (N_ROTORS,) or not np.all(np.isfinite(arr)):
-            raise ValueError(
-                f"motor_commands must be {N_ROTORS} finite values, got {motor_commands!r}"
-            )
-        joint = self._joint_torques(joint_torques_n_m)
-        unknown = (math.nan, math.nan, math.nan)
-        self._step_rotors(np.clip(arr, 0.0, 1.0).tolist(), joint, unknown, unknown)
-        return self.state
-
-    def _joint_torques(self, joint_torques_n_m: ArrayLike) -> tuple[float, float]:
-        """Two finite joint torques [N m] clipped to the servo limit (ValueError otherwise)."""
-        joint_arr = np.asarray(joint_torques_n_m, dtype=np.float64)
-        if joint_arr.shape != (2,) or not math.isfinite(float(joint_arr.sum())):
-            raise ValueError(
-                f"joint_torques_n_m must be 2 finite values, got {joint_torques_n_m!r}"
-            )
-        lim = self._servo_limit
-        return (min(max(joint_arr[0], -lim), lim), min(max(joint_arr[1], -lim), lim))
-
     def _step_rotors(
         self,
         motor_commands: list[float],
-        joint: tuple[float, float],
+        joint: list[float],
         rate_setpoint_rad_s: tuple,
         torque_normalized: tuple,
     ) -> None:
@@ -412,7 +331,9 @@ class JsbsimPlant:
         self._rotors.advance(motor_commands)
         self._set_rotor_forces(self._rotors.thrust_list_n)
         qd_before = self._qd
-        moment = self._arm.step(joint, self._specific_force, self._omega, self._omega_dot)
+        moment = self._arm.step(
+            (joint[0], joint[1]), self._specific_force, self._omega, self._omega_dot
+        )
         self._fdm.set_coupling_moment(moment)
         self._fdm.set_point_masses(self._arm.point_masses())
         reading = self._fdm.run()
