@@ -2,8 +2,9 @@
 
 Flies one mission against a vehicle (PX4, ``sitl run``, ``sitl sih``) and an arm bus given
 by URL, and writes into ``--out``: ``flight.csv`` / ``flight.events.csv`` (the flight log),
-``flight.timing.csv`` (what the wall clock measured),
-``summary.json`` and, when matplotlib is installed, the figures of ``companion plot``.
+``flight.timing.csv`` (what the wall clock measured), ``flight.mcap`` (the same flight for
+Foxglove and PlotJuggler, :mod:`companion.mcap_log`), ``summary.json`` and, when matplotlib
+is installed, the figures of ``companion plot``.
 (``sitl demo`` runs the same mission against the simulator: :func:`run_mission`.)
 
 Exit status: 0 mission completed; 1 the mission failed or a failsafe aborted it (the log
@@ -31,8 +32,9 @@ from companion.cli.usage import check_range, config_or_exit, fail, output_dir_or
 from companion.config import CompanionConfig, arm_bus_configs
 from companion.control.flight import FlightControl, FlightControllerName
 from companion.control.laws import ControlRateError
-from companion.flightlog import FlightLogError, FlightLogWriter, read_flight_log
+from companion.flightlog import FlightLogError, read_flight_log
 from companion.link import LinkError, MavlinkLink, SigningConfig, SigningKeyError
+from companion.mcap_log import ArmGeometry, FlightLogWithMcap
 from companion.mission.app import (
     BUS_FAILURES,
     MissionAborted,
@@ -58,6 +60,7 @@ MISSION_FILES = (
     "flight.csv",
     "flight.events.csv",
     "flight.timing.csv",
+    "flight.mcap",
     "summary.json",
     *FIGURES,
 )
@@ -168,7 +171,7 @@ async def fly_pickup(
         except (ArmDriverError, OSError) as exc:
             raise UsageError(f"arm bus {arm_bus_url}: {exc}") from None
         try:
-            writer = FlightLogWriter(log_path)
+            writer = FlightLogWithMcap(log_path, ArmGeometry.from_config(scenario))
             try:
                 writer.open()
             except FlightLogError as exc:
