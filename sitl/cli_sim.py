@@ -36,6 +36,7 @@ from companion.cli.mission import (
 from companion.cli.usage import EXIT_USAGE, check_range, fail, load_or_exit, output_dir_or_exit
 from sitl.launch import SitlNotReadyError, start_sitl
 from sitl.scenario import MAX_DURATION_S, Scenario, load_scenario
+from sitl.truth_mcap import add_flight_truth
 
 __all__ = ["COMPARE_FILES", "DEFAULT_SCENARIO", "DEMO_FILES", "SIM_FILES", "sim_app"]
 
@@ -473,6 +474,7 @@ def demo(
         status = run_mission(beliefs, connect, sitl.arm_bus, plan, controller, out, None, 250.0)
     finally:
         sitl.stop()
+    add_flight_truth(out, out / "truth.jsonl")
     _print_truth(scenario, out, place_world)
     raise typer.Exit(status)
 

@@ -27,6 +27,7 @@ from companion.mission.report import MissionReport
 from sitl.lockstep import run_lockstep
 from sitl.runner import RunOptions, SitlVehicle
 from sitl.scenario import Scenario
+from sitl.truth_mcap import add_flight_truth
 
 __all__ = ["BOOT_UNIX_TIME_US", "fly_virtual"]
 
@@ -48,7 +49,7 @@ def fly_virtual(
     figures: bool = True,
 ) -> tuple[MissionReport, BaseException | None]:
     """Fly one pickup on simulated time; write the flight log, summary (and figures) into
-    ``out_dir`` and, with ``options.truth_log``, the truth.
+    ``out_dir`` and, with ``options.truth_log``, the truth (also into ``flight.mcap``).
 
     Returns the mission's report and its failure (None: completed), as
     :func:`~companion.cli.mission.fly_pickup`. ``options.speed`` is not used (nothing
@@ -68,7 +69,7 @@ def fly_virtual(
     )
     with SitlVehicle(scenario, options) as vehicle:
         where = vehicle.describe()
-        return run_lockstep(
+        result = run_lockstep(
             vehicle,
             fly_pickup(
                 beliefs,
@@ -81,3 +82,5 @@ def fly_virtual(
                 figures=figures,
             ),
         )
+    add_flight_truth(out_dir, options.truth_log)  # the truth log is closed now
+    return result
