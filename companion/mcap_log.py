@@ -762,11 +762,9 @@ def _scan(path: Path, stream: IO[bytes]) -> McapInfo:
                 channels.setdefault(record.id, record)
             elif isinstance(record, Header):
                 library = record.library
-    except (McapError, EOFError, ValueError, struct.error) as exc:
+    except (McapError, EOFError, ValueError, struct.error):
         if not channels:
-            raise FlightLogError(
-                f"{path}: not an MCAP file ({exc or type(exc).__name__})"
-            ) from None
+            raise FlightLogError(f"{path}: not an MCAP file") from None
         warnings.append(f"{path}: cut short: counted the messages before the cut")
     infos = []
     for cid, channel in sorted(channels.items()):

@@ -1,11 +1,12 @@
 """The ``companion`` command line: what runs on the onboard computer.
 
-``check`` (a configuration), ``mission pickup``, ``arm`` (servo bus bring-up) and ``plot``
-(figures of a flight log). The simulator's commands (``sim``, ``compare``, ``demo``) are
-``sitl``'s. User mistakes print one line naming the file, the key and the reason and exit
-with status 2 (:mod:`companion.cli.usage`); they never print a traceback. A usage error (an
-unknown option, a missing argument) is one line too, and ``companion --version`` prints the
-installed version (:mod:`companion.cli.entry`).
+``check`` (a configuration), ``mission pickup``, ``arm`` (servo bus bring-up), ``plot``
+(figures of a flight log) and ``log info`` (what an MCAP flight log holds). The simulator's
+commands (``sim``, ``compare``, ``demo``) are ``sitl``'s. User mistakes print one line
+naming the file, the key and the reason and exit with status 2 (:mod:`companion.cli.usage`);
+they never print a traceback. A usage error (an unknown option, a missing argument) is one
+line too, and ``companion --version`` prints the installed version
+(:mod:`companion.cli.entry`).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from companion.cli.arm import app as arm_app
 from companion.cli.entry import VersionOption, run
 from companion.cli.mission import mission_app
 from companion.cli.plot import plot as plot_command
-from companion.cli.usage import config_or_exit
+from companion.cli.usage import config_or_exit, fail
 
 app = typer.Typer(
     name="companion",
@@ -63,9 +64,32 @@ def check(
     out.print(f"{config}: OK", markup=False, highlight=False)
 
 
+log_app = typer.Typer(
+    name="log", help="Flight logs.", no_args_is_help=True, pretty_exceptions_enable=False
+)
+
+
+@log_app.command("info")
+def log_info(
+    flight: Annotated[Path, typer.Argument(help="A flight's MCAP log (flight.mcap).")],
+) -> None:
+    """Print the channels of an MCAP flight log: topic, schema, encodings, message count,
+    and the time range (vehicle time)."""
+    from companion.flightlog import FlightLogError
+    from companion.mcap_log import describe_mcap
+
+    try:
+        info = describe_mcap(flight)
+    except FlightLogError as exc:
+        fail(str(exc))
+    for line in info.lines():
+        typer.echo(line)
+
+
 app.add_typer(arm_app, name="arm")
 app.command(name="plot")(plot_command)
 app.add_typer(mission_app, name="mission")
+app.add_typer(log_app, name="log")
 
 
 def main() -> None:
