@@ -47,9 +47,11 @@ def fly_virtual(
     controller: FlightControllerName = "passivity",
     control_rate_hz: float = 250.0,
     figures: bool = True,
+    mcap: bool = True,
 ) -> tuple[MissionReport, BaseException | None]:
     """Fly one pickup on simulated time; write the flight log, summary (and figures) into
-    ``out_dir`` and, with ``options.truth_log``, the truth (also into ``flight.mcap``).
+    ``out_dir`` and, with ``options.truth_log``, the truth (also into ``flight.mcap``; with
+    ``mcap`` off no MCAP is written: a campaign's flights, about 10 % faster).
 
     Returns the mission's report and its failure (None: completed), as
     :func:`~companion.cli.mission.fly_pickup`. ``options.speed`` is not used (nothing
@@ -80,6 +82,7 @@ def fly_virtual(
                 out_dir,
                 control_rate_hz=control_rate_hz,
                 figures=figures,
+                mcap=mcap,
             ),
         )
     add_flight_truth(out_dir, options.truth_log)  # the truth log is closed now

@@ -32,7 +32,7 @@ from companion.cli.usage import check_range, config_or_exit, fail, output_dir_or
 from companion.config import CompanionConfig, arm_bus_configs
 from companion.control.flight import FlightControl, FlightControllerName
 from companion.control.laws import ControlRateError
-from companion.flightlog import FlightLogError, read_flight_log
+from companion.flightlog import FlightLogError, FlightLogWriter, read_flight_log
 from companion.link import LinkError, MavlinkLink, SigningConfig, SigningKeyError
 from companion.mcap_log import ArmGeometry, FlightLogWithMcap
 from companion.mission.app import (
@@ -126,9 +126,10 @@ async def fly_pickup(
     control_rate_hz: float = 250.0,
     vehicle_timeout_s: float = 10.0,
     figures: bool = True,
+    mcap: bool = True,
 ) -> tuple[MissionReport, BaseException | None]:
     """Open the link and the arm bus, fly, write log and summary (and, with ``figures``,
-    the figures).
+    the figures; with ``mcap``, ``flight.mcap`` beside the CSV).
 
     Returns the report and the mission's failure (MissionError / MissionAborted) or None.
     Raises :class:`UsageError` when the vehicle or the bus cannot be reached.
@@ -171,7 +172,11 @@ async def fly_pickup(
         except (ArmDriverError, OSError) as exc:
             raise UsageError(f"arm bus {arm_bus_url}: {exc}") from None
         try:
-            writer = FlightLogWithMcap(log_path, ArmGeometry.from_config(scenario))
+            writer = (
+                FlightLogWithMcap(log_path, ArmGeometry.from_config(scenario))
+                if mcap
+                else FlightLogWriter(log_path)
+            )
             try:
                 writer.open()
             except FlightLogError as exc:
