@@ -148,6 +148,7 @@ def fly_flight(
             options,
             controller=flight.controller,  # type: ignore[arg-type]
             figures=keep is not None,
+            mcap=keep is not None,  # a replay keeps its log; a campaign's row is what stays
         )
         row = flight_row(flight, scenario, report, failure, work)
     except Exception:  # a crashed flight is a row, not a crashed worker
