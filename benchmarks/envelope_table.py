@@ -1,0 +1,82 @@
+"""Write docs/envelope.md from a finished campaign of configs/campaigns/envelope.toml: how
+each controller fared over the envelope (outcomes, and p50 / p95 / max of each metric over
+the flights that completed), the numbers the envelope's acceptance is judged on.
+
+    sitl campaign configs/campaigns/envelope.toml --out OUT
+    python benchmarks/envelope_table.py OUT --commit HASH [--machine TEXT]
+
+``--commit`` is the commit the campaign flew (the results store records the package
+version, not the commit); ``--machine`` what it flew on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sqlite3
+import sys
+from collections import Counter
+from pathlib import Path
+
+from sitl.campaign.report import percentile_rows
+
+ROOT = Path(__file__).resolve().parent.parent
+PAGE = ROOT / "docs" / "envelope.md"
+
+
+def rows_of(out: Path) -> list[dict]:
+    """Every row of the campaign's results table."""
+    path = out / "results.sqlite"
+    if not path.exists():
+        sys.exit(f"{path}: no campaign results here")
+    db = sqlite3.connect(path)
+    db.row_factory = sqlite3.Row
+    try:
+        return [dict(r) for r in db.execute("SELECT * FROM flights")]
+    finally:
+        db.close()
+
+
+def page(rows: list[dict], commit: str, machine: str) -> str:
+    controllers = sorted({r["controller"] for r in rows})
+    lines = [
+        "# The flight envelope: `configs/campaigns/envelope.toml`",
+        "",
+        f"Written by `python benchmarks/envelope_table.py` from `sitl campaign "
+        f"configs/campaigns/envelope.toml` flown at commit {commit} on {machine}: "
+        f"{len(rows)} flights, each draw flown by every controller on the same seed.",
+        "",
+        "| controller | flights | outcomes |",
+        "|---|---|---|",
+    ]
+    for controller in controllers:
+        mine = [r for r in rows if r["controller"] == controller]
+        outcomes = Counter(
+            r.get("outcome") or ("error" if r.get("status") == "error" else "?") for r in mine
+        )
+        text = ", ".join(f"{name} {n}" for name, n in outcomes.most_common())
+        lines.append(f"| {controller} | {len(mine)} | {text} |")
+    lines += [
+        "",
+        "Over the flights that completed:",
+        "",
+        "| controller | metric | n | p50 | p95 | max |",
+        "|---|---|---|---|---|---|",
+    ]
+    for controller, label, n, p50, p95, high in percentile_rows(rows):
+        label = label.replace("|", "\\|")  # |x| inside a table cell
+        lines.append(f"| {controller} | {label} | {n} | {p50:.3g} | {p95:.3g} | {high:.3g} |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("out", type=Path, help="The campaign's --out directory.")
+    parser.add_argument("--commit", required=True, help="The commit the campaign flew.")
+    parser.add_argument("--machine", default="this machine", help="What it flew on.")
+    args = parser.parse_args()
+    PAGE.write_text(page(rows_of(args.out), args.commit, args.machine))
+    print(f"wrote {PAGE}")
+
+
+if __name__ == "__main__":
+    main()
