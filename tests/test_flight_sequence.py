@@ -304,3 +304,12 @@ def test_a_land_after_a_failure_replaces_it():
 def test_done_without_a_request_is_a_bug():
     with pytest.raises(RuntimeError, match="nothing was awaited"):
         new().done(sees(0.0))
+
+
+def test_the_height_is_watched_only_up_to_the_handover():
+    s = new()
+    assert not s.watches_height  # idle
+    s.begin()
+    assert s.watches_height
+    s, _ = airborne()
+    assert s.stage == Stage.MISSION and not s.watches_height

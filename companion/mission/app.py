@@ -451,11 +451,12 @@ class PickupApp:
         return None
 
     def _observe(self) -> Observation:
-        """What the sequence decides on, after the last control cycle."""
+        """What the sequence decides on, after the last control cycle (the height only
+        while a stage looks at it: the estimate is not copied every cycle of the mission)."""
         status = self.link.latest(VehicleStatus)
         assembler = self.cycle.assembler
         ready = assembler.ready
-        state = assembler.estimate if ready else None
+        state = assembler.estimate if ready and self.sequence.watches_height else None
         return Observation(
             t_s=self.t_s,
             ready=ready,

@@ -117,6 +117,10 @@ class Request(StrEnum):
     LAND = "land"
 
 
+_HEIGHT_STAGES = frozenset({Stage.ESTIMATE, Stage.TAKE_OFF, Stage.SETTLE})
+"""The stages that decide on the estimated height and climb rate."""
+
+
 @dataclass(frozen=True)
 class Observation:
     """What the app sees after a control cycle.
@@ -261,6 +265,12 @@ class FlightSequence:
         self._safe = Stream.GROUND if ground else Stream.LEVEL
         hold = Reaction.HOLD_THEN_LAND in event.reactions
         self._enter(Stage.HOLD if hold else Stage.LINK, t_s)
+
+    @property
+    def watches_height(self) -> bool:
+        """Whether the stage decides on the estimated height or climb rate (an
+        :class:`Observation` without them reads -inf and inf)."""
+        return self.stage in _HEIGHT_STAGES
 
     @property
     def finished(self) -> bool:
