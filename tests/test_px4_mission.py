@@ -6,7 +6,8 @@ arms, linear motors) in motion-capture navigation, the arm's XM430s on a pty on 
 (``sitl sih``), and ``companion mission pickup`` as a user runs it. SIH has no arm
 dynamics, so the estimate is not judged here; the flight is: every phase flown, no fault,
 no tilt saturation, tilt below 15 deg outside the excitation, the handover transient
-below 5 deg, the position error against the vehicle's own estimate below 10 cm RMS,
+(the first 0.5 s) below 5 deg, the position error against the vehicle's own estimate
+below 10 cm RMS,
 landed and disarmed. The figures are computed from the flight log, not taken from the
 app's summary.
 """
@@ -47,10 +48,9 @@ def mission(connect: str, arm_bus: str, out: Path, *extra: str, config: Path = C
 
 
 SIH_SPEED = 1.0
-"""PX4_SIM_SPEED_FACTOR of this flight: real time. At PX4 in the loop's validated speed (2)
-the flight passed on an idle machine and under one busy core (handover transient 1.1-2.6
-deg), but once on the CI machine the handover transient reached 6.8 deg: the assertions
-below are held at the speed PX4 was validated at under any load."""
+"""PX4_SIM_SPEED_FACTOR of this flight: real time. A handover check over 2 s failed once at
+2x (6.8 deg) and once at 1x (5.3 deg): both the mission's first move, not the speed (the
+check now looks at the first 0.5 s). 2x has not been run against these checks since."""
 
 
 def fly(px4_build, tmp: Path, controller: str):
@@ -111,13 +111,16 @@ def test_tilt_stays_small_and_never_saturates(flight):
 @pytest.mark.slow
 def test_the_offboard_handover_is_bumpless(flight):
     """PX4 flies the last streamed setpoint the moment it accepts OFFBOARD: the attitude
-    the vehicle had and the hover thrust; the loop closes on the acknowledgement."""
+    the vehicle had and the hover thrust; the loop closes on the acknowledgement. Judged
+    over the first 0.5 s: after that the tilt is the mission's own (the first move starts
+    from the velocity the vehicle had; one run tilted 5.3 deg at 1.8 s following a 6 deg
+    setpoint, which a 2 s window counted as the handover's)."""
     _, _, _, log = flight
     c = log.columns
     flown = np.flatnonzero(_offboard(log))
     t0 = c["t_vehicle_s"][flown[0]]
     tilt_deg = np.degrees(np.hypot(c["q_phi_rad"], c["q_theta_rad"]))
-    window = flown[c["t_vehicle_s"][flown] <= t0 + 2.0]
+    window = flown[c["t_vehicle_s"][flown] <= t0 + 0.5]
     assert np.max(np.abs(tilt_deg[window] - tilt_deg[flown[0]])) < 5.0
     # The stream before the acknowledgement was the hold setpoint, at hover thrust.
     hold = c["phase"] == "hold"
