@@ -53,7 +53,7 @@ import enum
 import importlib
 import logging
 from collections.abc import Awaitable, Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, ParamSpec, Protocol, TypeVar, cast
 
 from arm_driver.errors import ArmDriverError, BusTimeoutError, CommunicationError, LimitError
@@ -224,6 +224,20 @@ class ArmBus(abc.ABC):
     def torque_limit_n_m(self, joint: str) -> float:
         """Largest torque magnitude a command to ``joint`` may ask for [N m]."""
         return self._torque_max[joint]
+
+    def set_torque_constants(self, values_n_m_per_a: Mapping[str, float]) -> None:
+        """Read and command the named joints through these torque constants [N m/A] from
+        now on (measured ones: ``companion.mission.servo_check``). Raises ValueError for an
+        unknown joint or a constant that is not positive and finite; nothing is changed
+        then."""
+        unknown = sorted(set(values_n_m_per_a) - set(self._joints))
+        if unknown:
+            raise ValueError(f"unknown joint(s) {unknown}; joints are {list(self._joints)}")
+        joints = {
+            name: replace(self._joints[name], torque_constant_n_m_per_a=float(kt))
+            for name, kt in values_n_m_per_a.items()
+        }
+        self._joints.update(joints)
 
     @property
     def watchdog_s(self) -> float:

@@ -564,6 +564,12 @@ class Flight(_Section):
     carry_check_estimate: Annotated[bool, Field(strict=True)] = True
     """The estimate is a witness of the carry (``carry_mass_margin_kg``); false: the
     gripper alone (a simulator whose arm carries no mass, as PX4 SIH's arm stand)."""
+    servo_check: Literal["auto", "always", "off"] = "auto"
+    """Measure the joints' torque constants against the empty arm's gravity on the ground
+    before every take-off and fly on the measured values (``companion.mission.servo_check``,
+    Dynamixel buses; about 8 s): ``auto`` where a joint is not ``torque_calibrated``,
+    ``always`` also to confirm calibrated ones, ``off`` never (a mission on datasheet values
+    then says so)."""
     realtime_priority: Annotated[int, Field(strict=True, ge=0, le=99)] = 50
     """SCHED_FIFO priority of the control thread for the mission, where Linux permits it
     (root, CAP_SYS_NICE, an rtprio limit); 0: normal scheduling. A process already under

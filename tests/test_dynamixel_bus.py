@@ -203,6 +203,30 @@ def test_limits_are_enforced_before_anything_is_sent(sim: PtyServoBus) -> None:
     run(body)
 
 
+def test_measured_torque_constants_take_over_the_conversions(sim: PtyServoBus) -> None:
+    """After set_torque_constants a torque command is the current at the new constant, for
+    the named joint only; an unknown joint or a bad constant changes nothing."""
+
+    async def body() -> None:
+        async with make_bus(sim) as bus:
+            await bus.set_operating_mode(OperatingMode.CURRENT)
+            await bus.enable_torque()
+            for bad in ({"wrist": 1.5}, {"shoulder": 1.5, "elbow": -1.0}):
+                with pytest.raises(ValueError):
+                    bus.set_torque_constants(bad)
+            assert [j.torque_constant_n_m_per_a for j in bus.joints] == [KT, KT]
+            bus.set_torque_constants({"shoulder": 1.5})
+            assert [j.torque_constant_n_m_per_a for j in bus.joints] == [1.5, KT]
+            await bus.write_joint_torques({"shoulder": 0.6, "elbow": 0.6})
+            await bus.read_joint_states()
+            with sim.lock:
+                assert sim.servos[1].get(ct.GOAL_CURRENT) == units.a_to_current_units(0.6 / 1.5)
+                assert sim.servos[2].get(ct.GOAL_CURRENT) == units.a_to_current_units(-0.6 / KT)
+            await bus.disable_torque()
+
+    run(body)
+
+
 def test_positions_with_zero_offset_and_direction(sim: PtyServoBus) -> None:
     async def body() -> None:
         async with make_bus(sim) as bus:

@@ -13,6 +13,7 @@ from companion.mission.offboard import Stream
 from companion.mission.sequence import (
     WAIT,
     AwaitLink,
+    CheckServos,
     FlightSequence,
     Landed,
     Note,
@@ -74,6 +75,25 @@ def taking_off() -> FlightSequence:
     s.done(sees(0.0))
     assert commands(s, sees(0.0)) == [Note("mode", "take-off")]
     return s
+
+
+def test_the_servo_check_comes_before_arming_and_the_arming_waits_for_it():
+    s = FlightSequence(TIMES, lambda ground_z_m: None, check_servos=True)
+    s.begin()
+    assert commands(s, sees(0.0)) == [CheckServos()]
+    assert s.stage == Stage.SERVOS
+    assert commands(s, sees(5.0)) == []
+    out = commands(s, sees(9.0, servos_checked=True))
+    assert out[-1] == Px4Request(Request.ARM) and s.stage == Stage.ARM
+
+
+def test_a_servo_check_that_never_ends_fails_before_arming():
+    s = FlightSequence(TIMES, lambda ground_z_m: None, check_servos=True)
+    s.begin()
+    commands(s, sees(0.0))
+    assert commands(s, sees(30.0)) == []
+    with pytest.raises(SequenceFailed, match="servo check did not end within 30 s"):
+        s.next(sees(30.1))
 
 
 UP = dict(altitude_m=1.45, heartbeat=heartbeat("LOITER"))

@@ -267,11 +267,12 @@ def test_adaptive_carry_rms_is_at_most_half_the_nonadaptive_under_px4(flights):
 
 @pytest.mark.slow
 def test_a_silenced_servo_under_px4_makes_the_app_land(px4_build, tmp_path):
-    """Servo 2 stops answering at 20 s (the emulated bus, as with the imitation), in the
-    air (PX4 arms at about 12 s): the app raises servo_bus and PX4 lands and disarms. (At
-    12 s a loaded machine had not armed yet, and the app rightly refused to fly.)"""
-    flight = fly_pickup(px4_build.root, tmp_path, "servo", "--servo-silent", "2@20")
-    silenced = next(row for row in flight.truth if row["t_s"] >= 20.0)
+    """Servo 2 stops answering at 29 s (the emulated bus, as with the imitation), in the
+    air (PX4 arms at about 21 s, after the servo check on the ground): the app raises
+    servo_bus and PX4 lands and disarms. (A silence before the arming is the preflight's:
+    the app rightly refuses to fly.)"""
+    flight = fly_pickup(px4_build.root, tmp_path, "servo", "--servo-silent", "2@29")
+    silenced = next(row for row in flight.truth if row["t_s"] >= 29.0)
     assert silenced["armed"] and not silenced["on_ground"], flight.context()
     assert flight.result.returncode == 1, flight.context()
     assert "Traceback" not in flight.result.stderr, flight.context()

@@ -61,6 +61,19 @@ def test_model_torque_at_rest_is_the_gravity_of_the_joint_rows(arm) -> None:
     assert level[0] > 0.1 and abs(level[1]) < 1e-9
 
 
+def test_model_torque_follows_the_vehicle_attitude(arm) -> None:
+    """Pitched by 0.2 rad the arm's gravity torque is the model's at that attitude: the
+    level arm's torque at the joint angles turned by the pitch."""
+    model, theta = arm
+    eta = np.array([[0.0, -0.8]])
+    pitched = model_torque_n_m(model, theta, eta, np.zeros_like(eta), [[0.0, 0.2]])[0]
+    q = np.zeros(8)
+    q[4], q[6:8] = 0.2, eta[0]
+    np.testing.assert_allclose(pitched, model.gravity(q, theta)[6:8])
+    level = model_torque_n_m(model, theta, eta, np.zeros_like(eta))[0]
+    assert abs(pitched[1] - level[1]) > 0.01 * abs(level[1])
+
+
 @pytest.mark.parametrize("kt", [1.6, 1.96])
 def test_the_torque_constant_comes_back_from_rounded_currents(arm, kt: float) -> None:
     model, theta = arm

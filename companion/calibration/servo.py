@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from companion.coordinates import N_Q
+from companion.coordinates import JOINTS, N_Q, TILT
 from companion.model import ManipulatorModel
 
 __all__ = [
@@ -56,8 +56,6 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
-_ETA = slice(6, 8)
-"""Rows and columns of the joints (eta1, eta2) in q (DESIGN.md section 2)."""
 
 MIN_GRAVITY_CURRENT_STEPS = 10.0
 """Smallest largest-current at the static poses, in steps of the servo's current
@@ -110,19 +108,25 @@ def _inside(low: float, high: float, margin: float) -> tuple[float, float]:
 
 
 def model_torque_n_m(
-    model: ManipulatorModel, theta: ArrayLike, eta_rad: ArrayLike, eta_dot_rad_s: ArrayLike
+    model: ManipulatorModel,
+    theta: ArrayLike,
+    eta_rad: ArrayLike,
+    eta_dot_rad_s: ArrayLike,
+    tilt_rad: ArrayLike | None = None,
 ) -> FloatArray:
     """Joint torques [N m] the model needs to hold or move the arm at constant joint speed,
-    ``(G(q) + C(q, q_dot) q_dot)`` on the joint rows, the vehicle level and still at the
-    origin; ``eta_rad``, ``eta_dot_rad_s`` of shape (n, 2) give shape (n, 2)."""
+    ``(G(q) + C(q, q_dot) q_dot)`` on the joint rows, the vehicle still at the origin, level
+    or at roll and pitch ``tilt_rad`` [rad]; ``eta_rad``, ``eta_dot_rad_s`` (and
+    ``tilt_rad``) of shape (n, 2) give shape (n, 2)."""
     eta = np.atleast_2d(np.asarray(eta_rad, dtype=np.float64))
     eta_dot = np.atleast_2d(np.asarray(eta_dot_rad_s, dtype=np.float64))
+    tilt = np.zeros_like(eta) if tilt_rad is None else np.atleast_2d(np.asarray(tilt_rad, float))
     out = np.empty_like(eta)
     q, q_dot = np.zeros(N_Q), np.zeros(N_Q)
     for k in range(eta.shape[0]):
-        q[_ETA], q_dot[_ETA] = eta[k], eta_dot[k]
+        q[TILT], q[JOINTS], q_dot[JOINTS] = tilt[k], eta[k], eta_dot[k]
         terms = model.terms(q, q_dot)
-        out[k] = (terms.gravity(theta) + terms.coriolis_matrix(theta) @ q_dot)[_ETA]
+        out[k] = (terms.gravity(theta) + terms.coriolis_matrix(theta) @ q_dot)[JOINTS]
     return out
 
 

@@ -68,6 +68,7 @@ from companion.mission.scheduling import ThreadTimes, enter_real_time
 from companion.mission.sequence import (
     WAIT,
     AwaitLink,
+    CheckServos,
     Command,
     FlightSequence,
     Landed,
@@ -337,17 +338,27 @@ class PickupApp:
         missing = set(self.arm.names) - set(states)
         if missing:
             raise MissionError(f"preflight: joints {sorted(missing)} did not answer")
-        self._note_torque_constants()
+        self.sequence.check_servos = self._note_torque_constants()
 
-    def _note_torque_constants(self) -> None:
-        """Say which joints fly on datasheet torque constants (a Dynamixel's current reads as
-        torque through them; a DroneCAN actuator reports its own torque)."""
+    def _note_torque_constants(self) -> bool:
+        """Record each joint's torque constant and its source (a Dynamixel's current reads
+        as torque through it; a DroneCAN actuator reports its own torque); whether the servo
+        check is to measure them (``flight.servo_check``); if not, say which joints fly on
+        datasheet values."""
         bus = self.config.arm_bus
         if bus is None or not bus.url.startswith("dynamixel"):
-            return
-        source = {j.name: "calibrated" if j.torque_calibrated else "datasheet" for j in bus.joints}
-        self.report.servo_torque = source
-        datasheet = [name for name, where in source.items() if where == "datasheet"]
+            return False
+        self.report.servo_torque = {
+            j.name: {
+                "source": "calibrated" if j.torque_calibrated else "datasheet",
+                "n_m_per_a": j.torque_constant_n_m_per_a,
+            }
+            for j in bus.joints
+        }
+        datasheet = [j.name for j in bus.joints if not j.torque_calibrated]
+        check = self.config.flight.servo_check
+        if check == "always" or (check == "auto" and datasheet):
+            return True
         if datasheet:
             self._note(
                 "preflight",
@@ -355,6 +366,7 @@ class PickupApp:
                 "their servos' own: the payload's centre of mass is estimated from them "
                 "(12 % off moves it by a fifth); run `companion arm calibrate --write`",
             )
+        return False
 
     # -------------------------------------------------------------- sequence
 
@@ -403,6 +415,8 @@ class PickupApp:
             self._note(command.kind, command.text)
         elif isinstance(command, StreamTo):
             self.offboard.to(command.stream)
+        elif isinstance(command, CheckServos):
+            self.cycle.start_servo_check()
         elif isinstance(command, StartMission):
             self.cycle.start_mission()
             self._mission_clock = (time.process_time(), time.perf_counter())
@@ -466,6 +480,7 @@ class PickupApp:
             mission_done=self.mission.phase == Phase.DONE,
             left_offboard=self.offboard.left(status),
             link_lost=self.link.lost is not None,
+            servos_checked=self.cycle.servos_checked,
         )
 
     # ---------------------------------------------------------------- helpers

@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from arm_driver.bus import JointState
+from arm_driver.dynamixel.units import CURRENT_A_PER_UNIT
 from companion.config import CompanionConfig
 from companion.control.flight import ControlOutput, FlightControl
 from companion.control.laws import DesiredState
@@ -44,6 +45,7 @@ from companion.mission.navigation import NavigationWatch
 from companion.mission.offboard import HoldBias, Offboard, Stream
 from companion.mission.pickup import EstimatorAction, MissionCommand, Outcome, Phase, PickupMission
 from companion.mission.report import FlightFigures, MissionReport, carrying
+from companion.mission.servo_check import MIN_POSES, ServoCheck, check_poses, fit_servo_check
 
 __all__ = ["ControlCycle"]
 
@@ -148,6 +150,11 @@ class ControlCycle:
         is sent."""
         self.status_at_arm: object = NOT_ARMED
         """The latest HEARTBEAT when PX4 acknowledged the arm command."""
+        self.servo_check: ServoCheck | None = None
+        """The servos' torque-constant check on the ground, once started
+        (:mod:`companion.mission.servo_check`)."""
+        self.servos_checked = False
+        """The servo check is over (fitted, or given up with a note)."""
 
     def mode(self) -> str | None:
         status = self.link.latest(VehicleStatus)
@@ -232,6 +239,7 @@ class ControlCycle:
         else:
             desired = self._hold_desired(state.q)
         out = self.control.step(dt, state, desired, self._applied_force(state.q, period, joints))
+        self._servo_check_cycle(t_s, state.q, joints)
         self._last_output = out
         if self.offboard.flying:
             self._last_desired = out.desired
@@ -265,6 +273,81 @@ class ControlCycle:
         phase = command.phase.value if command else self.offboard.stream.value
         timing = (dt * 1e3, setpoint_us, cycle_us, setpoint_cpu_us)
         self._log_row(t_s, state, out, sp, joints, phase, tau_cmd, timing)
+
+    # ------------------------------------------------------------ servo check
+
+    def start_servo_check(self) -> None:
+        """Hold the empty arm at the servo check's poses from now on (the vehicle on the
+        ground, disarmed); too few poses within the limits end it at once, with a note."""
+        arm = self.config.arm
+        limits = [(j.position_min_rad, j.position_max_rad) for j in self.arm.bus.joints]
+        stow = (float(self.q_stow[JOINTS][0]), float(self.q_stow[JOINTS][1]))
+        poses = check_poses(limits, (arm.link1.length_m, arm.link2.length_m), stow)
+        if len(poses) < MIN_POSES:
+            self._note(
+                "preflight",
+                f"servo check skipped: {len(poses)} of its poses lie within the joint limits "
+                f"and above the stowed arm (< {MIN_POSES}); the joints fly on the config's "
+                "torque constants",
+            )
+            self.servos_checked = True
+            return
+        start = self.assembler.estimate.q[JOINTS]
+        self.servo_check = ServoCheck(poses, start, self.t_s)
+        self._note("preflight", f"servo check: the arm holds {len(poses)} poses on the ground")
+
+    def _servo_check_cycle(
+        self, t_s: float, q: FloatArray, joints: dict[str, JointState] | None
+    ) -> None:
+        check = self.servo_check
+        if check is None or check.finished or joints is None:
+            return
+        names = self.arm.names
+        check.update(
+            t_s,
+            [joints[n].position_rad for n in names],
+            [joints[n].velocity_rad_s for n in names],
+            q[TILT],
+            [joints[n].torque_n_m for n in names],
+        )
+        if check.finished:
+            self._finish_servo_check(check)
+
+    def _finish_servo_check(self, check: ServoCheck) -> None:
+        """Fit each joint's torque constant; fly on the fits that can be trusted, say which
+        do not and why (:func:`~companion.mission.servo_check.fit_servo_check`)."""
+        bus = self.arm.bus
+        joints = bus.joints
+        fits = fit_servo_check(
+            check.readings,
+            self.control.model,
+            self.config.nominal_theta.as_tuple(),
+            [j.torque_constant_n_m_per_a for j in joints],
+            CURRENT_A_PER_UNIT,
+        )
+        measured, words = {}, []
+        for joint, fit in zip(joints, fits, strict=True):
+            config_kt = joint.torque_constant_n_m_per_a
+            entry = self.report.servo_torque.setdefault(joint.name, {})
+            if fit.problem is not None:
+                words.append(f"{joint.name} not measured ({fit.problem}): config value")
+                continue
+            kt = fit.torque_constant_n_m_per_a
+            measured[joint.name] = kt
+            entry.update(
+                source="measured",
+                n_m_per_a=kt,
+                config_n_m_per_a=config_kt,
+                uncertainty=fit.relative_standard_error,
+            )
+            words.append(
+                f"{joint.name} {kt:.3f} N m/A ({100 * (kt / config_kt - 1):+.1f} % of the "
+                f"config's {config_kt:.3f}, +-{100 * fit.relative_standard_error:.1f} %)"
+            )
+        bus.set_torque_constants(measured)
+        missed = f"; poses not reached: {check.missed}" if check.missed else ""
+        self._note("preflight", f"servo check: {'; '.join(words)}{missed}")
+        self.servos_checked = True
 
     def _sense(self, pose: VehiclePose, dt: float | None) -> None:
         """Feed one pose to the state filter, after the navigation watch: an estimator reset
@@ -362,13 +445,17 @@ class ControlCycle:
 
     def _hold_desired(self, q: FloatArray) -> DesiredState:
         """Outside CONTROL: the controller tracks where the vehicle is (its output is not
-        flown) and the joints where the mission last put them (stowed before)."""
+        flown) and the joints where the mission last put them (stowed before; the servo
+        check's poses while it runs)."""
         target = np.array(q, dtype=float)
         target[TILT] = 0.0
         last = self._last_desired
         target[JOINTS] = self.q_stow[JOINTS] if last is None else last.q[JOINTS]
-        zero = np.zeros(N_Q)
-        return DesiredState(target, zero, zero.copy())
+        rate, acceleration = np.zeros(N_Q), np.zeros(N_Q)
+        check = self.servo_check
+        if check is not None and not check.finished:
+            target[JOINTS], rate[JOINTS], acceleration[JOINTS] = check.target(self.t_s)
+        return DesiredState(target, rate, acceleration)
 
     def _check_carry(self, t_s: float, command: MissionCommand) -> MissionCommand:
         """Watch the gripper from the grasp to the release and whether the object is carried

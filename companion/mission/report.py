@@ -51,9 +51,10 @@ class MissionReport:
     """Rate the pose stream arrived at (the loop's rate), measured at preflight [Hz]."""
     vehicle_params: str | None = None
     """The PX4 parameters the model depends on, as read at preflight."""
-    servo_torque: dict[str, str] = field(default_factory=dict)
-    """Where each joint's torque constant comes from: ``calibrated`` on this servo
-    (``companion arm calibrate``) or the ``datasheet``'s."""
+    servo_torque: dict[str, dict[str, str | float]] = field(default_factory=dict)
+    """Per joint, the torque constant flown: ``n_m_per_a`` [N m/A] and its ``source``:
+    ``measured`` by the servo check before take-off (with its relative ``uncertainty``),
+    ``calibrated`` on this servo (``companion arm calibrate``), or the ``datasheet``'s."""
     navigation_resets: int = 0
     """Jumps of PX4's estimate (its reset counter) seen in flight."""
     cycle_latency_us: list[float] = field(default_factory=list)

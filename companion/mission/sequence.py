@@ -15,7 +15,9 @@ stage                until                                       then
 ===================  ==========================================  ======================
 ``estimate``         a state estimate (at most 2 s)              note the ground height;
                                                                  refuse an unreachable
-                                                                 plan; ``arm``
+                                                                 plan; ``servos`` (when
+                                                                 checked) or ``arm``
+``servos``           the servo check is over (at most 30 s)      ``arm``
 ``arm``              PX4 acknowledges arming, take-off altitude  ``take_off``
                      and take-off
 ``take_off``         90 % of the climb and PX4 in Hold           ``settle``
@@ -59,6 +61,7 @@ from companion.mission.offboard import Stream
 __all__ = [
     "WAIT",
     "AwaitLink",
+    "CheckServos",
     "Command",
     "FlightSequence",
     "Landed",
@@ -74,6 +77,9 @@ __all__ = [
     "StreamTo",
 ]
 
+SERVO_CHECK_WAIT_S = 30.0
+"""Longest servo check on the ground before arming [s]
+(:mod:`companion.mission.servo_check`)."""
 HOLD_BEFORE_LAND_S = 2.0
 """Vehicle time flown in PX4's Hold before landing after a ``hold_then_land`` fault [s]."""
 LINK_RETURN_S = 60.0
@@ -92,6 +98,7 @@ class Stage(StrEnum):
 
     IDLE = "idle"
     ESTIMATE = "estimate"
+    SERVOS = "servos"
     ARM = "arm"
     TAKE_OFF = "take_off"
     SETTLE = "settle"
@@ -129,7 +136,8 @@ class Observation:
     ``altitude_m`` and ``climb_rate_m_s`` the estimated z and z rate (world ENU; -inf and
     inf without an estimate); ``heartbeat`` PX4's latest HEARTBEAT (each a new object);
     ``mission_done`` the pickup's last phase reached; ``left_offboard`` PX4 shows another
-    mode than OFFBOARD after accepting it; ``link_lost`` the link's watchdog says lost.
+    mode than OFFBOARD after accepting it; ``link_lost`` the link's watchdog says lost;
+    ``servos_checked`` the servo check on the ground is over.
     """
 
     t_s: float
@@ -140,6 +148,7 @@ class Observation:
     mission_done: bool = False
     left_offboard: bool = False
     link_lost: bool = False
+    servos_checked: bool = False
 
     @property
     def mode(self) -> str | None:
@@ -172,6 +181,11 @@ class Px4Request:
 
 
 @dataclass(frozen=True)
+class CheckServos:
+    """Hold the arm at the servo check's poses on the ground (the vehicle disarmed)."""
+
+
+@dataclass(frozen=True)
 class StartMission:
     """PX4 acknowledged OFFBOARD: close the loop (mission, trim, stream CONTROL)."""
 
@@ -201,7 +215,17 @@ class _Wait:
 
 
 WAIT = _Wait()
-Command = Note | StreamTo | Px4Request | StartMission | AwaitLink | OffboardLost | Landed | _Wait
+Command = (
+    Note
+    | StreamTo
+    | Px4Request
+    | CheckServos
+    | StartMission
+    | AwaitLink
+    | OffboardLost
+    | Landed
+    | _Wait
+)
 
 
 @dataclass(frozen=True)
@@ -222,10 +246,12 @@ class FlightSequence:
 
     ``unreachable`` tells, from the ground height [m], why the plan cannot be flown (None:
     it can): :meth:`~companion.mission.pickup.PickupMission.unreachable` with the ground margin.
+    ``check_servos``: measure the servos' torque constants on the ground before arming.
     """
 
     times: SequenceTimes
     unreachable: Callable[[float], str | None]
+    check_servos: bool = False
     stage: Stage = Stage.IDLE
     ground_z_m: float = math.nan
     """Height of the vehicle standing on the ground, taken before arming [m]."""
@@ -346,6 +372,10 @@ class FlightSequence:
             if not obs.ready:
                 return self._limit(obs, ESTIMATE_WAIT_S, "no state estimate")
             self._leave_ground(obs)
+        elif stage == Stage.SERVOS:
+            if not obs.servos_checked:
+                return self._limit(obs, SERVO_CHECK_WAIT_S, "the servo check did not end")
+            self._arm(obs)
         elif stage == Stage.TAKE_OFF:
             climbed = obs.altitude_m - self.ground_z_m >= 0.9 * self._climb_m()
             if not (climbed and obs.mode == "LOITER"):
@@ -410,6 +440,13 @@ class FlightSequence:
         if unreachable is not None:
             self._fail(unreachable)
             return
+        if self.check_servos:
+            self._pending.append(CheckServos())
+            self._enter(Stage.SERVOS, obs.t_s)
+            return
+        self._arm(obs)
+
+    def _arm(self, obs: Observation) -> None:
         self._pending.append(Note("mode", f"arming (standing at z = {self.ground_z_m:.2f} m)"))
         self._pending.append(Px4Request(Request.ARM))
         self._enter(Stage.ARM, obs.t_s)
