@@ -187,6 +187,49 @@ def test_touching_the_ground_in_offboard_is_a_fault_flown_level_at_the_thrust_fl
     assert sp.thrust_relative == pytest.approx(0.12)
 
 
+def _with_servos(check: str, calibrated: bool):
+    """SCENARIO with ``flight.servo_check`` = ``check`` and every joint ``torque_calibrated``
+    as given."""
+    assert SCENARIO.arm_bus is not None
+    joints = tuple(
+        j.model_copy(update={"torque_calibrated": calibrated}) for j in SCENARIO.arm_bus.joints
+    )
+    return SCENARIO.model_copy(
+        update={
+            "flight": SCENARIO.flight.model_copy(update={"servo_check": check}),
+            "arm_bus": SCENARIO.arm_bus.model_copy(update={"joints": joints}),
+        }
+    )
+
+
+@pytest.mark.parametrize(
+    ("check", "calibrated", "measures"),
+    [
+        ("auto", False, True),
+        ("auto", True, False),
+        ("always", True, True),
+        ("off", False, False),
+        ("off", True, False),
+    ],
+)
+def test_the_servo_check_runs_where_the_torque_constants_are_not_known(check, calibrated, measures):
+    """``auto`` measures uncalibrated joints, ``always`` any; a mission that flies on the
+    datasheet's constants unmeasured says so at preflight."""
+    notes: list[tuple[str, str]] = []
+    app = PickupApp(
+        _with_servos(check, calibrated),
+        PoseLink(ScriptedPoses(8000)),
+        TwoJoints(),
+        PLAN,
+        event=lambda kind, detail, t_s: notes.append((kind, detail)),
+    )
+    assert app._note_torque_constants() is measures
+    source = "calibrated" if calibrated else "datasheet"
+    assert {j["source"] for j in app.report.servo_torque.values()} == {source}
+    datasheet_note = any("datasheet's torque constants" in text for _, text in notes)
+    assert datasheet_note is (not measures and not calibrated)
+
+
 class StatusLink(PoseLink):
     """A link whose HEARTBEAT the test sets; every command is acknowledged."""
 
