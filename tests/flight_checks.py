@@ -23,7 +23,7 @@ PX4 in the loop; the non-adaptive one carries the object about 6.5 cm low (6.6 c
 
 
 def assert_calm_flight(c: dict[str, np.ndarray]) -> None:
-    """The issue-11 acceptance figures of a flight log's columns ``c``: no tilt saturation
+    """The flight-acceptance figures of a flight log's columns ``c``: no tilt saturation
     in OFFBOARD, tilt below 15 deg outside the excitation, the handover's tilt change below
     5 deg over its first 2 s, position RMS outside the excitation below 10 cm against the
     vehicle's own estimate; and the arm still over the carry, if there was one

@@ -11,7 +11,7 @@ import pytest
 
 ROOT = Path(__file__).parent.parent
 PROCESS_WORDS = re.compile(
-    r"\b(stop|issue|session) [0-9]+"
+    r"\b(stop|issue|session)(?: #?|-|#)?[0-9]+"
     r"|\b[0-9]{1,2} (Jan|Feb|Mar|Apr|May|Jun|Jul|Aug|Sep|Oct|Nov|Dec)[a-z]*\.? 20[0-9]{2}\b"
     r"|\([0-9]{1,2} (Jan|Feb|Mar|Apr|May|Jun|Jul|Aug|Sep|Oct|Nov|Dec)[a-z]*\)"
     r"|\bmeasured 20[0-9]{2}-[0-9]{2}-[0-9]{2}\b"
@@ -50,6 +50,8 @@ def test_the_check_finds_what_it_looks_for():
     assert PROCESS_WORDS.search(f"as seen in CI at stop {number}")
     assert PROCESS_WORDS.search(f"(Issue {number})")
     assert not PROCESS_WORDS.search("stops at 20 s; the issue is the wind")
+    assert PROCESS_WORDS.search(f"the issue-{number} acceptance")
+    assert PROCESS_WORDS.search(f"fixed at stop #{number}")
     year = "20" + "26"
     assert PROCESS_WORDS.search(f"on the 2-core VM of 2 Dec {year} the step")
     assert PROCESS_WORDS.search("stalls injected into the companion (" + "3 Dec):")

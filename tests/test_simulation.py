@@ -71,7 +71,7 @@ def test_paper_scenario_tracks_within_absolute_bounds(paper_runs) -> None:
 @pytest.fixture(scope="module")
 def flight_runs():
     """paper_sim_flight on the underactuated plant (PX4's attitude loop, rotors, servos)
-    with noisy sensors: the issue-16 part-4 scenario, the payload carried throughout."""
+    with noisy sensors, the payload carried throughout."""
     cfg = load_scenario(FLIGHT)
     options = {"plant": "underactuated", "noise": True, "seed": 0}
     return {

@@ -2,7 +2,7 @@
 
 Algorithm tests (prescribed motion, exact forces from companion.model, the translational
 force handed over as the *commanded* one, 1/s of the true), then the truth model of battery
-sag (sitl, never companion), then the issue-16 acceptance offline: paper_sim_flight-like,
+sag (sitl, never companion), then the acceptance offline: paper_sim_flight-like,
 noise, thrust mismatch across [0.9, 1.1] plus 10 % sag over 20 s, against the independent
 truth plant.
 """

@@ -34,10 +34,10 @@ only, as in the Pinocchio plant.
 Coupling moment. JSBSim integrates the vehicle as a rigid body frozen in the current arm
 pose: its state is the location and velocity of the CG (of vehicle + arm) and the body
 rate, with M dv/dt = F + M g and J omega_dot + omega x J omega = M_c. When the arm moves,
-JSBSim keeps the CG where it is (no external force moves a CoM: JSBSim issue #230) and
-the structure around it moves instead. So the translational equation is already exact; the
-rotational one misses the terms of the moving mass distribution, which the plant adds as
-an external moment about the CG (body axes):
+JSBSim keeps the CG where it is (no external force moves a CoM; JSBSim's GitHub
+issues/230) and the structure around it moves instead. So the translational equation is
+already exact; the rotational one misses the terms of the moving mass distribution, which
+the plant adds as an external moment about the CG (body axes):
 
     M_corr = -(J_dot omega + sum_k m_k rho_k x s_ddot_k + omega x sum_k m_k rho_k x s_dot_k),
 
