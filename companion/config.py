@@ -297,6 +297,11 @@ class ThrustScale(_Section):
     (battery sag; 0: s is held constant apart from the forgetting)."""
     gamma: Gain = 1.0
     """Paper estimator: learning rate of s [-]."""
+    rate_window_s: Annotated[NonNegative, _within(120.0, "s", "a hover calibration")] = 0.0
+    """Learn how fast s drifts (a sagging battery) as well as its value: the slope of s
+    over the last this many seconds of the hover calibration before the grasp, by least
+    squares; from the grasp on s moves along that slope (while it is held and after), and
+    so does the compensated force [s] (0: s is held constant from the grasp)."""
     compensate: bool = False
     """Divide the commanded force by the estimated s before the thrust model maps it to
     PX4's relative thrust, so that the vehicle produces the force the law asks for (as

@@ -66,6 +66,7 @@ from companion.coordinates import HORIZONTAL, JOINTS, N_Q, PHI, POSITION, PSI, T
 from companion.estimation.estimator import (
     TRANSLATION_AND_JOINT_ROWS,
     Estimate,
+    ScaleDrift,
     Skip,
     estimator_from_config,
 )
@@ -166,6 +167,13 @@ class FlightControl:
         scale = config.estimator.thrust_scale
         self.compensate_thrust = scale is not None and scale.compensate
         """Map the law's force divided by the calibrated thrust scale (``compensate``)."""
+        self.scale_drift = (
+            ScaleDrift(scale.rate_window_s)
+            if scale is not None and scale.rate_window_s > 0.0 and self.estimator.scale is not None
+            else None
+        )
+        """The thrust scale's drift rate, learnt over the hover calibration
+        (``rate_window_s``), or None."""
         unactuated = [r for r in range(N_Q) if r not in actuated_rows]
         self._unactuated = (
             np.array(unactuated) if unactuated and ctl.measured_unactuated_motion else None
@@ -268,7 +276,23 @@ class FlightControl:
         ``applied_tau`` is the generalized force applied over the last cycle (see
         :meth:`applied_force`), or why it is not known: the estimator skips the step.
         Runs in C when :attr:`compiled`, with the same result (see the module docstring).
+        The thrust scale's drift (:attr:`scale_drift`) goes around the step.
         """
+        drift = self.scale_drift
+        if drift is None:
+            return self._step(dt_s, state, desired, applied_tau)
+        drift.before(dt_s, self.estimator)
+        out = self._step(dt_s, state, desired, applied_tau)
+        drift.after(dt_s, self.estimator)
+        return out
+
+    def _step(
+        self,
+        dt_s: float,
+        state: FilteredState,
+        desired: DesiredState,
+        applied_tau: FloatArray | Skip,
+    ) -> ControlOutput:
         q, q_dot, q_ddot = state.q, state.q_dot, state.q_ddot
         if self._compiled is not None:
             inputs = None
