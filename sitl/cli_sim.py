@@ -34,6 +34,7 @@ from companion.cli.mission import (
     run_mission,
 )
 from companion.cli.usage import EXIT_USAGE, check_range, fail, load_or_exit, output_dir_or_exit
+from sitl.flight_figures import draw_with_truth
 from sitl.launch import SitlNotReadyError, start_sitl
 from sitl.scenario import MAX_DURATION_S, Scenario, load_scenario
 from sitl.truth_mcap import add_flight_truth
@@ -453,6 +454,7 @@ def demo(
     if clock == "virtual":
         status = _fly_virtual(scenario, plan, controller, out, seed, navigation)
         _print_truth(scenario, out, place_world)
+        draw_with_truth(out)
         raise typer.Exit(status)
     if autopilot == "px4":
         extra += ["--keep-log", str(out / "px4")]
@@ -476,6 +478,7 @@ def demo(
         sitl.stop()
     add_flight_truth(out, out / "truth.jsonl")
     _print_truth(scenario, out, place_world)
+    draw_with_truth(out)
     raise typer.Exit(status)
 
 

@@ -6,7 +6,8 @@ matplotlib's non-interactive Agg backend (files only):
 - ``tracking.png``: x, y, z against the desired trajectory, roll and pitch against the
   attitude setpoint, and the horizontal path; PX4 mode changes as dotted lines;
 - ``estimation.png``: m2 and lc estimates (shaded where the estimator is confident), its
-  excitation and spread;
+  excitation and spread; beside the estimate the truth, where one is known (a simulator's
+  flight: :class:`TruthLines`);
 - ``arm.png``: joint angles (filtered, desired, read from the servos) and joint torques
   (commanded and measured from present current).
 
@@ -19,6 +20,7 @@ gets its figures in ``OUT-2``, ``OUT-3``, ... (:func:`companion.cli.usage.output
 from __future__ import annotations
 
 import importlib.util
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
@@ -28,10 +30,21 @@ import typer
 from companion.cli.usage import fail, output_dir_or_exit
 from companion.flightlog import FlightLog, FlightLogError, read_flight_log
 
-__all__ = ["FIGURES", "figures_available", "plot", "plot_flight_log"]
+__all__ = ["FIGURES", "TruthLines", "figures_available", "plot", "plot_flight_log"]
 
 FIGURES = ("tracking.png", "estimation.png", "arm.png")
 """The figures :func:`plot_flight_log` writes."""
+
+
+@dataclass(frozen=True)
+class TruthLines:
+    """The true m2 [kg] and lc [m] of link 2 over vehicle time ``t_s`` [s] (arrays of one
+    length), drawn beside the estimate: what a simulator knows and the companion never
+    sees."""
+
+    t_s: np.ndarray
+    m2_kg: np.ndarray
+    lc_m: np.ndarray
 
 
 def figures_available() -> bool:
@@ -57,8 +70,11 @@ def _confident_spans(ax, t, confident) -> None:
         ax.axvspan(t[start], t[stop - 1], color="g", alpha=0.12, linewidth=0)
 
 
-def plot_flight_log(flight: FlightLog, out_dir: Path) -> list[Path]:
-    """Write tracking.png, estimation.png and arm.png to ``out_dir``; returns the paths."""
+def plot_flight_log(
+    flight: FlightLog, out_dir: Path, truth: TruthLines | None = None
+) -> list[Path]:
+    """Write tracking.png, estimation.png (with ``truth`` beside the estimate, if given) and
+    arm.png to ``out_dir``; returns the paths."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -101,11 +117,18 @@ def plot_flight_log(flight: FlightLog, out_dir: Path) -> list[Path]:
     paths = [save(fig, "tracking.png")]
 
     fig, axes = plt.subplots(2, 2, figsize=(10, 7))
-    for ax, (name, label) in zip(
-        axes.flat[:2], (("theta_hat_m2_kg", "m2 [kg]"), ("theta_hat_lc_m", "lc [m]")), strict=True
+    true_values = (None, None) if truth is None else (truth.m2_kg, truth.lc_m)
+    for ax, (name, label), true in zip(
+        axes.flat[:2],
+        (("theta_hat_m2_kg", "m2 [kg]"), ("theta_hat_lc_m", "lc [m]")),
+        true_values,
+        strict=True,
     ):
         _confident_spans(ax, t, c["theta_confident"])
         ax.plot(t, c[name], "b-", label="estimate (shaded: confident)")
+        if truth is not None and true is not None:
+            span = (truth.t_s >= t0) & (truth.t_s <= t0 + t[-1])
+            ax.plot(truth.t_s[span] - t0, true[span], "k--", linewidth=1.0, label="truth")
         ax.set_xlabel("t [s]")
         ax.set_ylabel(label)
     axes.flat[0].legend(fontsize=7)
