@@ -73,6 +73,11 @@ def write_spec(tmp_path: Path, body: str, name: str = "spec.toml") -> Path:
         ),
         ('[[faults]]\nkind = "link_cut"\nat_s = 20.0\n', ("link_cut needs duration_s",)),
         ('controllers = ["passivity", "pid"]\n', ("controllers",)),
+        (
+            "[bounds.passivity]\nmass_eror_pct = 3.0\n",
+            ("bounds.passivity.mass_eror_pct", "'mass_error_pct'"),
+        ),
+        ("[bounds.passivity]\nmass_error_pct = -3.0\n", ("greater than 0",)),
     ],
 )
 def test_a_spec_mistake_is_one_line_naming_the_key_and_nothing_flies(tmp_path, body, words):
@@ -85,6 +90,36 @@ def test_a_spec_mistake_is_one_line_naming_the_key_and_nothing_flies(tmp_path, b
     for word in words:
         assert word in lines[0], lines[0]
     assert not (tmp_path / "out").exists()
+
+
+def test_a_completed_flight_beyond_its_controllers_bounds_is_named_with_the_figure():
+    spec = load_spec(CAMPAIGNS / "envelope.toml")
+    row = {"controller": "passivity", "completed": 1, "mass_error_pct": -42.06}
+    row |= {"com_error_pct": 4.9, "placement_error_m": 0.01}
+    assert spec.outside_bounds(row) == ["mass_error_pct -42.06 (bound 3)"]
+    assert spec.outside_bounds(row | {"mass_error_pct": 2.9}) == []
+    assert spec.outside_bounds(row | {"completed": 0}) == []  # a failure of its own
+    assert spec.outside_bounds(row | {"controller": "nonadaptive"}) == []  # no bounds
+    assert spec.outside_bounds(row | {"mass_error_pct": None}) == []  # not measured
+
+
+def test_a_broken_estimator_is_caught_and_its_replay_fails_the_same_way(run_sitl, tmp_path):
+    """The shipped broken spec (the estimate frozen at the empty arm): the flight fails, the
+    report lists it with its command, and that command alone fails the same way."""
+    out = tmp_path / "broken"
+    spec = CAMPAIGNS / "broken_estimator.toml"
+    done = run_sitl("campaign", str(spec), "--out", str(out), "--limit", "1")
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "1 did not complete" in done.stdout, done.stdout
+    (row,) = table(out).values()
+    assert row["status"] == "ok" and row["completed"] == 0
+    assert row["replay"].startswith("sitl demo --clock virtual --config ")
+    report = (out / "report.html").read_text()
+    assert row["flight_id"] in report and row["replay"] in report
+    again = run_sitl(*shlex.split(row["replay"])[1:])
+    cause = row["failure"].split(": ", 1)[1].split(";")[0]
+    assert again.returncode == 1, again.stdout + again.stderr
+    assert f"mission failed: {cause}" in again.stderr, (cause, again.stderr)
 
 
 # --- designs and expansion ----------------------------------------------------------------
@@ -250,3 +285,26 @@ def test_a_flight_whose_worker_dies_is_flown_once_more_then_recorded_not_retried
     assert row["status"] == "error" and row["worker"] == 2
     assert row["error"].startswith("not flown: it flew longer than 2 s of wall time, 2 times")
     assert row["replay"].startswith("sitl demo --clock virtual")
+
+
+def test_the_report_lists_the_flights_outside_the_bounds_with_their_replay(tmp_path):
+    """From rows alone: the completed flight beyond the mass bound is in the report's bounds
+    section with what it broke and its command; the one within them is not."""
+    from sitl.campaign.report import write_report
+
+    spec = load_spec(CAMPAIGNS / "envelope.toml")
+    base = {
+        "status": "ok", "completed": 1, "outcome": "completed", "controller": "passivity",
+        "fault": "none", "seed": 0, "pair_id": "p", "version": "1", "com_error_pct": 1.0,
+        "placement_error_m": 0.01, "carry_rms_m": 0.01, "carry_max_error_m": 0.02,
+        "max_tilt_deg": 3.0, "late_cycles": 0, "cpu_s": 10.0,
+    }  # fmt: skip
+    rows = [
+        base | {"flight_id": "within", "mass_error_pct": 1.0, "replay": None},
+        base | {"flight_id": "beyond", "mass_error_pct": -40.0, "replay": "sitl demo X"},
+    ]
+    report = write_report(rows, [], tmp_path, "t", "", spec).read_text()
+    section = report.split("<h2>Flights outside the bounds</h2>")[1]
+    assert "1 of 2 flights completed outside the bounds" in section
+    assert "beyond" in section and "mass_error_pct -40 (bound 3)" in section
+    assert "sitl demo X" in section and "within" not in section

@@ -159,7 +159,8 @@ def _run(
 
         def record(flight: Flight, row: dict[str, Any]) -> None:
             row = {**identity_columns(flight), **row, "finished_unix_s": time.time()}
-            if row["status"] == "error" or not row.get("completed"):
+            failed = row["status"] == "error" or not row.get("completed")
+            if failed or spec.outside_bounds(row):
                 row["replay"] = replay_command(flight, out, spec_path)
                 replay_dir = out / "replay"
                 replay_dir.mkdir(exist_ok=True)
@@ -186,11 +187,13 @@ def _run(
             signal.signal(signal.SIGTERM, previous)
         ids = {f.flight_id for f in flights}
         rows = [r for r in store.rows() if r["flight_id"] in ids]
-    report = write_report(rows, list(spec.axes), out, spec.name, spec.description)
+    report = write_report(rows, list(spec.axes), out, spec.name, spec.description, spec)
     failed = sum(1 for r in rows if r["status"] == "error" or not r["completed"])
+    outside = sum(1 for r in rows if spec.outside_bounds(r))
+    bounds = f", {outside} outside the spec's bounds" if spec.bounds else ""
     typer.echo(
         f"campaign {spec.name}: {len(rows)} flights in {out / RESULTS_FILE}, {failed} did not "
-        f"complete; report {report}"
+        f"complete{bounds}; report {report}"
     )
 
 

@@ -6,7 +6,8 @@ over the payload's mass and its point on link 2), the outcome over the thrust sc
 the battery sag, a percentile table (p50, p95, max of each figure, per controller), the
 paired comparison of the adaptive controller against the non-adaptive one (the same
 draws, seeds and faults), and every flight that did not complete with the command that
-replays it alone.
+replays it alone; with the spec's bounds, every completed flight outside them, with its
+replay command too.
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from sitl.campaign.spec import CampaignSpec
 
 __all__ = ["METRICS", "REPORT_FILES", "percentile_rows", "write_report"]
 
@@ -237,10 +240,44 @@ img { max-width: 100%; }
 """
 
 
+def _outside(rows: Sequence[Row], axes: Sequence[str], spec: CampaignSpec) -> str:
+    broken = [(r, spec.outside_bounds(r)) for r in rows]
+    broken = [(r, what) for r, what in broken if what]
+    limits = "; ".join(
+        f"{c}: " + ", ".join(f"|{k}| <= {v:g}" for k, v in b.items())
+        for c, b in spec.bounds.items()
+    )
+    if not broken:
+        return f"<p>Every completed flight lies within the bounds ({html.escape(limits)}).</p>"
+    lines = [
+        f"<p>{len(broken)} of {len(rows)} flights completed outside the bounds "
+        f"({html.escape(limits)}). Each command flies the flight alone.</p>",
+        "<table><tr><th>flight</th><th>controller</th><th>fault</th><th>seed</th>"
+        + "".join(f"<th>{html.escape(a)}</th>" for a in axes)
+        + "<th>outside</th><th>replay</th></tr>",
+    ]
+    for r, what in broken:
+        lines.append(
+            f"<tr><td><code>{r['flight_id']}</code></td><td>{_fmt(r['controller'])}</td>"
+            f"<td>{_fmt(r['fault'])}</td><td>{r['seed']}</td>"
+            + "".join(f"<td>{_fmt(r.get(a))}</td>" for a in axes)
+            + f"<td>{html.escape('; '.join(what))}</td>"
+            + f"<td><code>{html.escape(r.get('replay') or '')}</code></td></tr>"
+        )
+    lines.append("</table>")
+    return "\n".join(lines)
+
+
 def write_report(
-    rows: Sequence[Row], axes: Sequence[str], out_dir: Path, title: str, description: str = ""
+    rows: Sequence[Row],
+    axes: Sequence[str],
+    out_dir: Path,
+    title: str,
+    description: str = "",
+    spec: CampaignSpec | None = None,
 ) -> Path:
-    """Write ``OUT/report.html`` and its PNGs from the results ``rows``; returns its path."""
+    """Write ``OUT/report.html`` and its PNGs from the results ``rows`` (with ``spec``'s
+    bounds, the flights outside them); returns its path."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -291,7 +328,10 @@ def write_report(
     parts.append(paired_table)
     if paired_png:
         parts.append(f"<img src='{paired_png}'>")
-    parts += ["<h2>Flights that did not complete</h2>", _failed(rows, axes), "</body></html>"]
+    parts += ["<h2>Flights that did not complete</h2>", _failed(rows, axes)]
+    if spec is not None and spec.bounds:
+        parts += ["<h2>Flights outside the bounds</h2>", _outside(rows, axes, spec)]
+    parts.append("</body></html>")
     path = out_dir / "report.html"
     path.write_text("\n".join(parts), encoding="utf-8")
     return path

@@ -31,6 +31,11 @@ Format (every key but ``name`` and ``scenario`` optional)::
     kind = "payload_slip"                    # grasp_fails; link_cut (at_s, duration_s);
     after_grasp_s = 2.5                      # servo_silent (servo_id, at_s)
 
+    [bounds.passivity]                       # per controller: a completed flight whose
+    mass_error_pct = 3.0                     # |figure| exceeds one of these is outside the
+    com_error_pct = 5.0                      # bounds (reported with its replay command)
+    placement_error_m = 0.05
+
 A key of ``[set]`` and ``[axes]`` is a scenario key as the scenario file spells it
 (``plant.thrust_mismatch``), with ``[i]`` for an entry of a vector or of an array of tables
 (``arm_bus.joints[0].torque_constant_n_m_per_a``), or ``place_at_m[i]``. An unknown key is
@@ -55,6 +60,7 @@ from companion.config import ConfigError, read_toml, validate
 from sitl.scenario import Scenario
 
 __all__ = [
+    "BOUND_FIGURES",
     "FAULT_KINDS",
     "PLACE_KEY",
     "Axis",
@@ -69,6 +75,16 @@ __all__ = [
 FAULT_KINDS = ("none", "payload_slip", "grasp_fails", "link_cut", "servo_silent")
 """Faults a flight can be given: in the truth (``payload_slip``, ``grasp_fails``: the
 scenario's ``[world]``) or in the links (``link_cut``, ``servo_silent``: the run options)."""
+BoundFigure = Literal[
+    "mass_error_pct",
+    "com_error_pct",
+    "placement_error_m",
+    "carry_rms_m",
+    "carry_max_error_m",
+    "max_tilt_deg",
+]
+BOUND_FIGURES: tuple[str, ...] = typing.get_args(BoundFigure)
+"""The figures of a flight's row ``[bounds]`` may limit (their magnitude)."""
 PLACE_KEY = "place_at_m"
 """The key of the place point (not a scenario key: the mission's ``--place-at``)."""
 
@@ -165,12 +181,33 @@ class CampaignSpec(_Table):
     set: dict[str, SetValue] = Field(default_factory=dict)
     axes: dict[str, Axis] = Field(default_factory=dict)
     faults: Annotated[tuple[Fault, ...], Field(min_length=1)] = (Fault(kind="none"),)
+    bounds: dict[
+        Literal["passivity", "nonadaptive", "asmc"],
+        dict[BoundFigure, Annotated[float, Field(gt=0.0, allow_inf_nan=False)]],
+    ] = Field(default_factory=dict)
+    """Per controller, the largest magnitude of each figure a completed flight may have
+    (:data:`BOUND_FIGURES`); :meth:`outside_bounds`."""
 
     @model_validator(mode="after")
     def _distinct(self) -> CampaignSpec:
         if len(set(self.controllers)) != len(self.controllers):
             raise ValueError(f"controllers listed twice: {list(self.controllers)}")
         return self
+
+    def outside_bounds(self, row: dict[str, object]) -> list[str]:
+        """What of a completed flight's ``row`` lies outside its controller's bounds, one
+        text each (e.g. ``mass_error_pct -42.1 (bound 3)``); empty when within them or
+        when the flight did not complete (that is a failure of its own)."""
+        if not row.get("completed"):
+            return []
+        controller = row.get("controller")
+        limits = next((b for c, b in self.bounds.items() if c == controller), {})
+        broken = []
+        for figure, limit in limits.items():
+            value = row.get(figure)
+            if isinstance(value, int | float) and not abs(value) <= limit:
+                broken.append(f"{figure} {value:.4g} (bound {limit:g})")
+        return broken
 
 
 @dataclass(frozen=True)
