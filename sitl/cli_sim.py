@@ -25,6 +25,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from companion.cli.flight_page import write_flight_page
 from companion.cli.mission import (
     MISSION_FILES,
     ControllerOpt,
@@ -455,6 +456,7 @@ def demo(
         status = _fly_virtual(scenario, plan, controller, out, seed, navigation)
         _print_truth(scenario, out, place_world)
         draw_with_truth(out)
+        write_flight_page(out)
         raise typer.Exit(status)
     if autopilot == "px4":
         extra += ["--keep-log", str(out / "px4")]
@@ -479,6 +481,7 @@ def demo(
     add_flight_truth(out, out / "truth.jsonl")
     _print_truth(scenario, out, place_world)
     draw_with_truth(out)
+    write_flight_page(out)
     raise typer.Exit(status)
 
 

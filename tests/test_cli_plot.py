@@ -110,3 +110,21 @@ def test_a_simulated_flight_is_drawn_with_its_truth_beside_the_estimate(flight_l
     assert len(drawn) == 2  # the truth within the log's time (100.0 to 100.796 s): 50 rows
     np.testing.assert_array_equal(drawn[0], lines.m2_kg[:50])
     np.testing.assert_array_equal(drawn[1], lines.lc_m[:50])
+
+
+def test_the_flight_page_holds_the_outcome_figures_summary_and_events_in_one_file(tmp_path):
+    """flight.html opens offline: no link to any other file or host; the figures are in it."""
+    import json
+
+    from companion.cli.flight_page import write_flight_page
+
+    assert write_flight_page(tmp_path) is None  # no summary: no page
+    summary = {"completed": False, "failure": "MissionError: payload_lost: slipped", "x": 1.5}
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    (tmp_path / "estimation.png").write_bytes(b"\x89PNG\r\n\x1a\nfake")
+    (tmp_path / "flight.events.csv").write_text("t_vehicle_s,kind,detail\n12.5,fault,<slip>\n")
+    page = write_flight_page(tmp_path).read_text()
+    assert "did not complete" in page and "payload_lost: slipped" in page
+    assert "data:image/png;base64,iVBORw0KGgpmYWtl" in page
+    assert "<th>x</th><td>1.5</td>" in page and "&lt;slip&gt;" in page
+    assert "src='http" not in page and "href=" not in page

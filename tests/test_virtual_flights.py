@@ -243,6 +243,8 @@ def test_sitl_demo_on_virtual_time_places_the_object_and_says_how_well(run_sitl,
     assert "truth: object ended" in done.stdout and "estimate error" in done.stdout
     for name in (*LOGS, "flight.timing.csv", "summary.json", "tracking.png", "estimation.png"):
         assert (out / name).stat().st_size > 0, name
+    page = (out / "flight.html").read_text()
+    assert "The mission completed." in page and page.count("data:image/png;base64,") == 3
     for options, words in (
         (("--clock", "lunar"), "--clock must be wall or virtual"),
         (("--clock", "virtual", "--autopilot", "px4"), "flies the PX4 imitation"),

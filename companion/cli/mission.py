@@ -27,6 +27,7 @@ import typer
 
 from arm_driver.bus import open_bus
 from arm_driver.errors import ArmDriverError
+from companion.cli.flight_page import FLIGHT_PAGE, write_flight_page
 from companion.cli.plot import FIGURES, figures_available, plot_flight_log
 from companion.cli.usage import check_range, config_or_exit, fail, output_dir_or_exit
 from companion.config import CompanionConfig, arm_bus_configs
@@ -62,6 +63,7 @@ MISSION_FILES = (
     "flight.timing.csv",
     "flight.mcap",
     "summary.json",
+    FLIGHT_PAGE,
     *FIGURES,
 )
 """What a mission writes into its output directory."""
@@ -209,6 +211,8 @@ async def fly_pickup(
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     if figures and log_path.stat().st_size > 0:
         _draw_figures(log_path, out_dir)
+    if figures:
+        write_flight_page(out_dir)
     return report, failure
 
 
