@@ -13,14 +13,17 @@ from __future__ import annotations
 
 import argparse
 import sqlite3
+import statistics
 import sys
 from collections import Counter
 from pathlib import Path
 
 from sitl.campaign.report import percentile_rows
+from sitl.campaign.spec import load_spec
 
 ROOT = Path(__file__).resolve().parent.parent
 PAGE = ROOT / "docs" / "envelope.md"
+SPEC = ROOT / "configs" / "campaigns" / "envelope.toml"
 
 
 def rows_of(out: Path) -> list[dict]:
@@ -65,6 +68,35 @@ def page(rows: list[dict], commit: str, machine: str) -> str:
     for controller, label, n, p50, p95, high in percentile_rows(rows):
         label = label.replace("|", "\\|")  # |x| inside a table cell
         lines.append(f"| {controller} | {label} | {n} | {p50:.3g} | {p95:.3g} | {high:.3g} |")
+    spec = load_spec(SPEC)
+    outside = [r for r in rows if spec.outside_bounds(r)]
+    bounds = "; ".join(
+        f"{c}: " + ", ".join(f"|{k}| <= {v:g}" for k, v in b.items())
+        for c, b in spec.bounds.items()
+    )
+    lines += ["", f"Completed flights outside the spec's bounds ({bounds}): {len(outside)}."]
+    by_pair: dict[str, dict[str, dict]] = {}
+    for r in rows:
+        by_pair.setdefault(r["pair_id"], {})[r["controller"]] = r
+    ratios = [
+        p["passivity"]["carry_rms_m"] / p["nonadaptive"]["carry_rms_m"]
+        for p in by_pair.values()
+        if all(
+            c in p and p[c].get("completed") and p[c].get("carry_rms_m")
+            for c in ("passivity", "nonadaptive")
+        )
+    ]
+    if ratios:
+        half = sum(1 for x in ratios if x <= 0.5)
+        lines.append(
+            f"Paired carry RMS, adaptive over non-adaptive, where both completed: {half} of "
+            f"{len(ratios)} pairs at most 0.5 (median {statistics.median(ratios):.2f})."
+        )
+    starts = [r["finished_unix_s"] - r["wall_s"] for r in rows if r.get("wall_s") is not None]
+    ends = [r["finished_unix_s"] for r in rows if r.get("finished_unix_s") is not None]
+    if starts and ends:
+        minutes = (max(ends) - min(starts)) / 60.0
+        lines.append(f"Wall time, first flight's start to last flight's end: {minutes:.1f} min.")
     return "\n".join(lines) + "\n"
 
 
