@@ -211,9 +211,10 @@ def sagging(t: float) -> float:
     return 0.92 * (1.0 - 0.15 * t / 80.0)
 
 
-def calibrated_with_drift(window_s: float, duration_s: float):
+def calibrated_with_drift(window_s: float, duration_s: float, speed_m_s=lambda t: 0.0):
     """An RLS estimator calibrated (theta held, s learnt) over ``duration_s`` of a sagging
-    battery with the empty arm, a :class:`ScaleDrift` of ``window_s`` around each step."""
+    battery with the empty arm, a :class:`ScaleDrift` of ``window_s`` around each step,
+    the vehicle moving at ``speed_m_s(t)``."""
     estimator = rls(ThrustScaleModel(initial_std=0.2, drift_std_per_sqrt_s=0.01))
     drift = ScaleDrift(window_s)
     estimator.reset(NOMINAL)
@@ -221,7 +222,7 @@ def calibrated_with_drift(window_s: float, duration_s: float):
     for i in range(int(duration_s / DT)):
         drift.before(DT, estimator)
         run(estimator, DT, sagging, theta=NOMINAL, t0=i * DT)
-        drift.after(DT, estimator)
+        drift.after(DT, estimator, speed_m_s(i * DT))
     return estimator, drift
 
 
@@ -242,6 +243,21 @@ def test_the_drift_of_a_sagging_battery_carries_s_on_after_the_calibration() -> 
     assert estimator.thrust_scale == pytest.approx(sagging(34.0 + DT), rel=5e-3)
     assert abs(held_from / sagging(34.0) - 1.0) > 0.03
     assert estimator.compensation_scale == pytest.approx(estimator.thrust_scale, rel=1e-12)
+
+
+def test_only_the_still_moments_of_the_calibration_make_the_line() -> None:
+    """Moving (the drag the model lacks biases s), the samples are left out: still only at
+    the calibration's start and end, the line still spans them; still for less than half
+    the window, no line."""
+    estimator, drift = calibrated_with_drift(10.0, 14.0, lambda t: 0.0 if t < 5 or t > 12 else 0.5)
+    estimator.reset(estimator.theta)
+    drift.before(DT, estimator)
+    assert drift.rate_per_s == pytest.approx(-0.92 * 0.15 / 80.0, rel=0.1)
+    estimator, drift = calibrated_with_drift(10.0, 14.0, lambda t: 0.0 if t > 11 else 0.5)
+    s_end = estimator.thrust_scale
+    estimator.reset(estimator.theta)
+    drift.before(DT, estimator)
+    assert drift.rate_per_s == 0.0 and estimator.thrust_scale == s_end
 
 
 def test_a_calibration_too_short_for_its_window_leaves_s_where_it_was() -> None:

@@ -155,7 +155,7 @@ def test_a_servo_weaker_than_its_datasheet_is_measured_before_take_off(tmp_path)
 def test_a_sagging_battery_is_followed_and_the_payload_learnt_as_on_a_fresh_one(tmp_path):
     """The thrust 8 % below the model's and falling 15 % more over the 80 s of the flight
     (battery sag, truth only): the thrust scale's slope is learnt over the hover before the
-    grasp and carried on, so the estimate of s stays within 1 % of the truth's from the
+    grasp and carried on, so the estimate of s stays within 1.5 % of the truth's from the
     grasp to the place point, and the payload is learnt as without a sag (held at its grasp
     value, s ended 4.6 % high and m2 took the difference: mass +13 %, CoM -16 %)."""
     sag = BatterySag(thrust_loss=0.15, over_s=80.0)
@@ -167,7 +167,7 @@ def test_a_sagging_battery_is_followed_and_the_payload_learnt_as_on_a_fresh_one(
     c = read_flight_log(tmp_path / "flight.csv").columns
     carried = np.isin(c["phase"], ("grasp", "lift", "excite", "to_place"))
     truth_s = np.array([0.92 * sag.scale(t) for t in c["t_vehicle_s"][carried]])
-    np.testing.assert_allclose(c["thrust_scale_hat"][carried], truth_s, rtol=0.01)
+    np.testing.assert_allclose(c["thrust_scale_hat"][carried], truth_s, rtol=0.015)
     assert carry_rms_m(c) < CARRY_RMS_BOUND_M
 
 

@@ -283,7 +283,8 @@ class FlightControl:
             return self._step(dt_s, state, desired, applied_tau)
         drift.before(dt_s, self.estimator)
         out = self._step(dt_s, state, desired, applied_tau)
-        drift.after(dt_s, self.estimator)
+        q_dot = state.q_dot
+        drift.after(dt_s, self.estimator, math.sqrt(q_dot[0] ** 2 + q_dot[1] ** 2 + q_dot[2] ** 2))
         return out
 
     def _step(
