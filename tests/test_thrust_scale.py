@@ -222,7 +222,7 @@ def calibrated_with_drift(window_s: float, duration_s: float, speed_m_s=lambda t
     for i in range(int(duration_s / DT)):
         drift.before(DT, estimator)
         run(estimator, DT, sagging, theta=NOMINAL, t0=i * DT)
-        drift.after(DT, estimator, speed_m_s(i * DT))
+        drift.after(DT, estimator, np.array([speed_m_s(i * DT), 0.0, 0.0]))
     return estimator, drift
 
 

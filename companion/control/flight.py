@@ -283,8 +283,7 @@ class FlightControl:
             return self._step(dt_s, state, desired, applied_tau)
         drift.before(dt_s, self.estimator)
         out = self._step(dt_s, state, desired, applied_tau)
-        q_dot = state.q_dot
-        drift.after(dt_s, self.estimator, math.sqrt(q_dot[0] ** 2 + q_dot[1] ** 2 + q_dot[2] ** 2))
+        drift.after(dt_s, self.estimator, state.q_dot)
         return out
 
     def _step(

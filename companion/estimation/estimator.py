@@ -216,14 +216,15 @@ class ScaleDrift:
             estimator.thrust_scale = scale.clip(estimator.thrust_scale + step)
             estimator.compensation_scale = scale.clip(estimator.compensation_scale + step)
 
-    def after(self, dt: float, estimator: Estimator, speed_m_s: float) -> None:
-        """After a step of ``dt`` [s] at the vehicle's ``speed_m_s``: in a calibration,
-        record its estimate of s if the vehicle is nearly still."""
+    def after(self, dt: float, estimator: Estimator, velocity_m_s: FloatArray) -> None:
+        """After a step of ``dt`` [s] at the vehicle's ``velocity_m_s`` (x, y, z first): in a
+        calibration, record its estimate of s if the vehicle is nearly still."""
         if not estimator.calibrating:
             return
         self._t_s += dt
         samples = self._samples
-        if speed_m_s < self.still_m_s:
+        vx, vy, vz = float(velocity_m_s[0]), float(velocity_m_s[1]), float(velocity_m_s[2])
+        if math.sqrt(vx * vx + vy * vy + vz * vz) < self.still_m_s:
             samples.append((self._t_s, estimator.thrust_scale))
         while samples and samples[0][0] < self._t_s - self.window_s:
             samples.popleft()

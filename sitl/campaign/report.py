@@ -200,25 +200,15 @@ def _fmt(value: Any) -> str:
     return html.escape(str(value))
 
 
-def _failed(rows: Sequence[Row], axes: Sequence[str]) -> str:
-    failed = [r for r in rows if r["status"] == "error" or not r.get("completed")]
-    if not failed:
-        return "<p>Every flight completed.</p>"
+def _flight_table(flights: Sequence[tuple[Row, str]], axes: Sequence[str], what: str) -> str:
+    """A table of flights, each with its identity, axis values, the ``what`` column (its
+    HTML cell content, already escaped) and its replay command."""
     lines = [
-        f"<p>{len(failed)} of {len(rows)} flights did not complete (faults injected on "
-        "purpose included). Each command flies the flight alone, with its log and figures.</p>",
         "<table><tr><th>flight</th><th>controller</th><th>fault</th><th>seed</th>"
         + "".join(f"<th>{html.escape(a)}</th>" for a in axes)
-        + "<th>outcome</th><th>replay</th></tr>",
+        + f"<th>{html.escape(what)}</th><th>replay</th></tr>",
     ]
-    for r in failed:
-        if r["status"] == "error":
-            last = (r.get("error") or "").strip().splitlines()
-            what = "error: " + (last[-1] if last else "")
-            trace = html.escape(r.get("error") or "")
-            detail = f"<details><summary>{html.escape(what)}</summary><pre>{trace}</pre></details>"
-        else:
-            detail = html.escape(f"{r.get('outcome')}: {r.get('failure') or ''}")
+    for r, detail in flights:
         lines.append(
             f"<tr><td><code>{r['flight_id']}</code></td><td>{_fmt(r['controller'])}</td>"
             f"<td>{_fmt(r['fault'])}</td><td>{r['seed']}</td>"
@@ -227,6 +217,27 @@ def _failed(rows: Sequence[Row], axes: Sequence[str]) -> str:
         )
     lines.append("</table>")
     return "\n".join(lines)
+
+
+def _failed(rows: Sequence[Row], axes: Sequence[str]) -> str:
+    failed = [r for r in rows if r["status"] == "error" or not r.get("completed")]
+    if not failed:
+        return "<p>Every flight completed.</p>"
+    flights = []
+    for r in failed:
+        if r["status"] == "error":
+            last = (r.get("error") or "").strip().splitlines()
+            what = "error: " + (last[-1] if last else "")
+            trace = html.escape(r.get("error") or "")
+            detail = f"<details><summary>{html.escape(what)}</summary><pre>{trace}</pre></details>"
+        else:
+            detail = html.escape(f"{r.get('outcome')}: {r.get('failure') or ''}")
+        flights.append((r, detail))
+    return (
+        f"<p>{len(failed)} of {len(rows)} flights did not complete (faults injected on "
+        "purpose included). Each command flies the flight alone, with its log and figures.</p>\n"
+        + _flight_table(flights, axes, "outcome")
+    )
 
 
 _STYLE = """
@@ -242,30 +253,18 @@ img { max-width: 100%; }
 
 def _outside(rows: Sequence[Row], axes: Sequence[str], spec: CampaignSpec) -> str:
     broken = [(r, spec.outside_bounds(r)) for r in rows]
-    broken = [(r, what) for r, what in broken if what]
+    flights = [(r, html.escape("; ".join(what))) for r, what in broken if what]
     limits = "; ".join(
         f"{c}: " + ", ".join(f"|{k}| <= {v:g}" for k, v in b.items())
         for c, b in spec.bounds.items()
     )
-    if not broken:
+    if not flights:
         return f"<p>Every completed flight lies within the bounds ({html.escape(limits)}).</p>"
-    lines = [
-        f"<p>{len(broken)} of {len(rows)} flights completed outside the bounds "
-        f"({html.escape(limits)}). Each command flies the flight alone.</p>",
-        "<table><tr><th>flight</th><th>controller</th><th>fault</th><th>seed</th>"
-        + "".join(f"<th>{html.escape(a)}</th>" for a in axes)
-        + "<th>outside</th><th>replay</th></tr>",
-    ]
-    for r, what in broken:
-        lines.append(
-            f"<tr><td><code>{r['flight_id']}</code></td><td>{_fmt(r['controller'])}</td>"
-            f"<td>{_fmt(r['fault'])}</td><td>{r['seed']}</td>"
-            + "".join(f"<td>{_fmt(r.get(a))}</td>" for a in axes)
-            + f"<td>{html.escape('; '.join(what))}</td>"
-            + f"<td><code>{html.escape(r.get('replay') or '')}</code></td></tr>"
-        )
-    lines.append("</table>")
-    return "\n".join(lines)
+    return (
+        f"<p>{len(flights)} of {len(rows)} flights completed outside the bounds "
+        f"({html.escape(limits)}). Each command flies the flight alone.</p>\n"
+        + _flight_table(flights, axes, "outside")
+    )
 
 
 def write_report(
