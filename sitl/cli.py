@@ -26,7 +26,7 @@ from companion.cli.usage import load_or_exit as _load_or_exit
 from sitl.authority import Authority, hover_authority
 from sitl.campaign.cli import campaign
 from sitl.cli_sim import sim_app
-from sitl.hil import HilOptions, Px4Exited, Px4InTheLoop
+from sitl.hil import HilOptions, HilStats, Px4Exited, Px4InTheLoop
 from sitl.hil.link import SimulatorLinkError
 from sitl.hil.sensors import GPS_GRADES
 from sitl.physics import PlantError
@@ -188,6 +188,16 @@ def run(
             "its setpoint is in, as fast as the two go (the imitation; PX4 keeps its own).",
         ),
     ] = False,
+    companion_lockstep: Annotated[
+        bool,
+        typer.Option(
+            "--companion-lockstep/--no-companion-lockstep",
+            help="--autopilot px4: relay the onboard link and hold PX4's clock after each "
+            "frame until the companion has answered the last pose (a SET_ATTITUDE_TARGET "
+            "stamped with its time) and read the joints: its computing takes no vehicle "
+            "time, on an idle or a busy machine.",
+        ),
+    ] = True,
     nice: Annotated[
         int,
         typer.Option(
@@ -280,7 +290,15 @@ def run(
         )
         if build is not None:
             vehicle = Px4InTheLoop(
-                cfg, options, HilOptions(build, keep_dir=keep_log, gps=gps, nice=nice)
+                cfg,
+                options,
+                HilOptions(
+                    build,
+                    keep_dir=keep_log,
+                    gps=gps,
+                    companion_lockstep=companion_lockstep,
+                    nice=nice,
+                ),
             )
         else:
             vehicle = SitlVehicle(cfg, options)
@@ -327,6 +345,13 @@ def run(
             f"; lockstep: waited for {stats.lockstep_waits} setpoints, "
             f"{stats.lockstep_timeouts} timed out"
             if lockstep
+            else ""
+        )
+        + (
+            f"; companion lockstep: PX4 held for the companion in {stats.companion_holds} "
+            f"frames ({stats.companion_wait_s:.1f} s), released {stats.companion_releases} "
+            "times"
+            if isinstance(stats, HilStats)
             else ""
         )
     )

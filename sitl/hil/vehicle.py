@@ -19,14 +19,20 @@ a whole number of plant steps) the loop
    (HIL_STATE_QUATERNION, at the interval PX4 asks for);
 3. waits for PX4's HIL_ACTUATOR_CONTROLS for that time: PX4's EKF2, commander,
    position, attitude and rate loops, control allocation and motor linearization ran on
-   it. Until PX4 first answers (its start-up), the loop does not wait.
+   it. Until PX4 first answers (its start-up), the loop does not wait;
+4. with the companion relay, waits until the companion has answered the last pose PX4
+   sent it (:mod:`sitl.hil.companion_relay`).
 
 Until PX4 is ready (its start-up script done, its links on the requested ports, "Ready for
 takeoff!") the loop runs as fast as PX4 and the physics go; then it is paced at ``speed``
 times real time (as ``sitl run``), and PX4's console lines go to ``console``.
 
 Links: PX4's onboard and GCS links are moved onto the ports of ``RunOptions.ports`` (the
-companion connects where ``sitl run`` says, as with the imitation); a third PX4 link
+companion connects where ``sitl run`` says, as with the imitation); with
+``companion_lockstep`` (the default) the onboard link's ports are this process's
+:class:`~sitl.hil.companion_relay.CompanionRelay`, PX4's link moved onto an internal pair,
+and after each frame's motor commands the loop waits for the companion's answer to the last
+pose (4. above: the companion in the lockstep); a third PX4 link
 (mode ``minimal``) sends its heartbeats to this process, whose flight mode the truth log
 records (PX4's 1 Hz heartbeat: up to a second late); ``armed`` comes with every
 HIL_ACTUATOR_CONTROLS.
@@ -52,6 +58,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.hil.airframe import AUTOSTART, navigation_parameters, px4_parameters
+from sitl.hil.companion_relay import CompanionRelay
 from sitl.hil.link import SimulatorLink
 from sitl.hil.messages import (
     hil_gps,
@@ -74,7 +81,14 @@ from sitl.launch import free_udp_port
 from sitl.physics.rotors import N_ROTORS
 from sitl.px4 import GeoReference, MavlinkEndpoint, Px4Mode
 from sitl.px4_sitl import Px4Build, Px4NotReadyError, Px4Ports, Px4Sitl, free_instance
-from sitl.runner import RunOptions, RunStats, build_world, servo_faults, truth_record
+from sitl.runner import (
+    LOCKSTEP_WAIT_S,
+    RunOptions,
+    RunStats,
+    build_world,
+    servo_faults,
+    truth_record,
+)
 from sitl.scenario import Scenario
 from sitl.sensors import PoseSensor
 
@@ -127,6 +141,11 @@ class HilOptions:
         The GPS receiver with ``navigation="gps"`` (:data:`~sitl.hil.sensors.GPS_GRADES`).
     ready_timeout_s
         Longest wall time from starting PX4 until it is ready [s].
+    companion_lockstep
+        Relay PX4's onboard link through this process and hold PX4's clock after each
+        frame until the companion has answered the last pose
+        (:mod:`sitl.hil.companion_relay`): the companion's computing then takes no vehicle
+        time, on an idle or a busy machine. Off: the companion runs beside the lockstep.
     nice
         Lower this process's CPU priority by this much (``os.nice``) once PX4 has started
         (PX4 keeps the normal priority: with PX4 niced as well, one GPS flight on a loaded
@@ -142,6 +161,7 @@ class HilOptions:
     keep_dir: Path | None = None
     gps: str = "standard"
     ready_timeout_s: float = 120.0
+    companion_lockstep: bool = True
     nice: int = 5
 
     def __post_init__(self) -> None:
@@ -165,6 +185,12 @@ class HilStats(RunStats):
     """Wall time making and sending the sensor messages [s]."""
     paced_s: float = 0.0
     """Wall time slept to hold the requested speed [s]."""
+    companion_holds: int = 0
+    """Frames PX4's clock was held for the companion's answer (companion lockstep)."""
+    companion_wait_s: float = 0.0
+    """Wall time PX4's clock was held for the companion [s]."""
+    companion_releases: int = 0
+    """Holds released because the companion did not answer in time (it stopped streaming)."""
     boot_sim_s: float = 0.0
     """Simulated time until PX4 was ready [s]."""
     boot_wall_s: float = 0.0
@@ -241,6 +267,7 @@ class Px4InTheLoop:
         self.ports: Px4Ports | None = None
         self.px4: Px4Sitl | None = None
         self._link: SimulatorLink | None = None
+        self._relay: CompanionRelay | None = None
         self._mode_link: MavlinkEndpoint | None = None
         self._truth_file: IO[str] | None = None
         self._unix_time_at_boot_us = 0
@@ -268,6 +295,14 @@ class Px4InTheLoop:
             self.ports = ports = free_instance()
             self._link = SimulatorLink(ports.simulator_tcp)
             self._link.open()
+            if self.hil.companion_lockstep:
+                p = self.options.ports
+                self._relay = CompanionRelay(
+                    (p.onboard_local, p.onboard_remote),
+                    lambda: self.servo_bus.sync_reads,
+                    answer_timeout_s=LOCKSTEP_WAIT_S,
+                )
+                self._relay.open()
             self._mode_link = MavlinkEndpoint(0, 0, system_id=255, component_id=190)
             self._mode_link.open()
             speed = self.options.speed
@@ -305,7 +340,7 @@ class Px4InTheLoop:
         if self.px4 is not None:
             kept = self.px4.stop(keep=self.hil.keep_dir is not None or self._failed)
             self.kept_dir = kept or self.kept_dir
-        for closable in (self._link, self._mode_link):
+        for closable in (self._link, self._relay, self._mode_link):
             if closable is not None:
                 closable.close()
         self.servo_bus.stop()
@@ -362,7 +397,13 @@ class Px4InTheLoop:
         sys.setswitchinterval(_SWITCH_INTERVAL_S)
         world, link = self.world, self._link
         self.stats = stats = HilStats()
-        boot = _Boot(self.px4, self.options, self._mode_link_port())
+        relay = self._relay
+        onboard = (
+            relay.px4_ports
+            if relay is not None
+            else (self.options.ports.onboard_local, self.options.ports.onboard_remote)
+        )
+        boot = _Boot(self.px4, self.options, onboard, self._mode_link_port())
         wall_step = world.dt_s / self.options.speed
         truth_every = max(1, round(1.0 / (self.options.truth_rate_hz * world.dt_s)))
         silent = self.options.servo_silent
@@ -408,6 +449,11 @@ class Px4InTheLoop:
             link.send(*self._sensor_messages(stats.frames, time_us, force / n, omega / n))
             t2 = perf()
             self._await_px4(time_us, stop)
+            if relay is not None:
+                if ready:
+                    relay.hold(stop)
+                else:
+                    relay.pump()
             t3 = perf()
             stats.frames += 1
             stats.sensors_s += t2 - t1
@@ -433,6 +479,10 @@ class Px4InTheLoop:
                         )
                 elif console is not None:
                     log_offset = _forward_log(self.px4.log_path, log_offset, console)
+        if relay is not None:
+            stats.companion_holds = relay.holds
+            stats.companion_wait_s = relay.held_s
+            stats.companion_releases = relay.releases
         stats.steps = step
         stats.sim_time_s = world.time_s - sim0
         stats.wall_time_s = time.perf_counter() - wall0
@@ -512,9 +562,12 @@ class _Boot:
     moved onto the requested ports and the heartbeat link started (PX4 commands, in a
     thread: they need PX4's lockstep clock to move), then "Ready for takeoff!"."""
 
-    def __init__(self, px4: Px4Sitl, options: RunOptions, mode_port: int) -> None:
+    def __init__(
+        self, px4: Px4Sitl, options: RunOptions, onboard: tuple[int, int], mode_port: int
+    ) -> None:
         self._px4 = px4
         self._options = options
+        self._onboard = onboard
         self._mode_port = mode_port
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
@@ -538,24 +591,30 @@ class _Boot:
 
     def _links(self) -> None:
         try:
-            for args in _link_commands(self._px4.ports, self._options, self._mode_port):
+            for args in _link_commands(
+                self._px4.ports, self._options, self._onboard, self._mode_port
+            ):
                 self._px4.command("mavlink", *args, timeout_s=30.0)
         except (subprocess.CalledProcessError, subprocess.TimeoutExpired) as exc:
             self._error = exc
 
 
-def _link_commands(ports: Px4Ports | None, options: RunOptions, mode_port: int) -> list[list[str]]:
-    """PX4 ``mavlink`` commands that move the onboard and GCS links of PX4 instance
-    ``ports`` onto ``options.ports`` (when they differ) and start the heartbeat link to
-    ``mode_port``, with the flags of PX4's own ``px4-rc.mavlink``."""
+def _link_commands(
+    ports: Px4Ports | None, options: RunOptions, onboard: tuple[int, int], mode_port: int
+) -> list[list[str]]:
+    """PX4 ``mavlink`` commands that move the onboard link of PX4 instance ``ports`` onto
+    ``onboard`` (local, remote: the companion's ports of ``options.ports``, or the
+    companion relay's) and the GCS link onto ``options.ports`` (when they differ), and
+    start the heartbeat link to ``mode_port``, with the flags of PX4's own
+    ``px4-rc.mavlink``."""
     assert ports is not None
     want = options.ports
     commands: list[list[str]] = []
-    if (want.onboard_local, want.onboard_remote) != (ports.onboard_local, ports.onboard_remote):
+    if onboard != (ports.onboard_local, ports.onboard_remote):
         commands.append(["stop", "-u", str(ports.onboard_local)])
         commands.append(
-            ["start", "-x", "-u", str(want.onboard_local), "-r", str(_ONBOARD_RATE_B_S), "-f",
-             "-m", "onboard", "-o", str(want.onboard_remote)]
+            ["start", "-x", "-u", str(onboard[0]), "-r", str(_ONBOARD_RATE_B_S), "-f",
+             "-m", "onboard", "-o", str(onboard[1])]
         )  # fmt: skip
     if (want.gcs_local, want.gcs_remote) != (ports.gcs_local, 14550):
         commands.append(["stop", "-u", str(ports.gcs_local)])
