@@ -25,6 +25,7 @@ from companion.mission.app import MissionError, PickupApp
 from companion.mission.offboard import Stream
 from companion.mission.pickup import PickupPlan
 from companion.mission.preflight import PreflightError, check_pose_rate
+from companion.mission.servo_check import torque_constant_sources
 from sitl.servo import PtyServoBus, XM430Servo
 
 SCENARIO = load_config("configs/sitl_pickup.toml")
@@ -215,18 +216,12 @@ def _with_servos(check: str, calibrated: bool):
 def test_the_servo_check_runs_where_the_torque_constants_are_not_known(check, calibrated, measures):
     """``auto`` measures uncalibrated joints, ``always`` any; a mission that flies on the
     datasheet's constants unmeasured says so at preflight."""
-    notes: list[tuple[str, str]] = []
-    app = PickupApp(
-        _with_servos(check, calibrated),
-        PoseLink(ScriptedPoses(8000)),
-        TwoJoints(),
-        PLAN,
-        event=lambda kind, detail, t_s: notes.append((kind, detail)),
-    )
-    assert app._note_torque_constants() is measures
+    sources = torque_constant_sources(_with_servos(check, calibrated))
+    assert sources.check is measures
     source = "calibrated" if calibrated else "datasheet"
-    assert {j["source"] for j in app.report.servo_torque.values()} == {source}
-    datasheet_note = any("datasheet's torque constants" in text for _, text in notes)
+    assert {j["source"] for j in sources.per_joint.values()} == {source}
+    assert set(sources.per_joint) == {"eta1", "eta2"}
+    datasheet_note = sources.note is not None and "datasheet's torque constants" in sources.note
     assert datasheet_note is (not measures and not calibrated)
 
 

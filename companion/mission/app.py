@@ -33,23 +33,17 @@ from __future__ import annotations
 
 import asyncio
 import gc
-import math
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable
 from contextlib import closing
-from typing import Any
 
 import numpy as np
-from pymavlink.dialects.v20 import common as mavlink2
 
 from arm_driver.bus import ArmBus
-from arm_driver.errors import ArmDriverError, BusTimeoutError
 from companion.config import CompanionConfig
 from companion.control.flight import FlightControl, FlightControllerName
-from companion.coordinates import Z
 from companion.link import LinkLost, LinkRegained, MavlinkLink
 from companion.link.errors import CommandError, ParamError
-from companion.link.px4_modes import px4_mode
 from companion.link.telemetry import VehiclePose, VehicleStatus
 from companion.mission.arm_supervisor import BUS_FAILURES, SERVO_FAILURE_S, ArmSupervisor
 from companion.mission.cycle import ControlCycle, LogSink
@@ -58,11 +52,11 @@ from companion.mission.loop_period import CycleWindow, LoopPeriodMonitor
 from companion.mission.offboard import Offboard, Stream
 from companion.mission.pickup import (
     Outcome,
-    Phase,
     PickupMission,
     PickupPlan,
 )
-from companion.mission.preflight import PreflightError, check_vehicle
+from companion.mission.preflight import PreflightError, check_arm, check_vehicle
+from companion.mission.px4_requests import ask_px4
 from companion.mission.report import MissionReport
 from companion.mission.scheduling import ThreadTimes, enter_real_time
 from companion.mission.sequence import (
@@ -83,6 +77,7 @@ from companion.mission.sequence import (
     StartMission,
     StreamTo,
 )
+from companion.mission.servo_check import torque_constant_sources
 
 __all__ = [
     "BUS_FAILURES",
@@ -93,14 +88,6 @@ __all__ = [
     "PickupApp",
     "Stream",
 ]
-
-_ODOMETRY_ID = mavlink2.MAVLINK_MSG_ID_ODOMETRY
-_NO_REPLY_HINT = (
-    "check the servos' power, ids and baud rate, and the USB adapter's latency timer "
-    "(1 ms: README, 'Deploying on an onboard computer')"
-)
-"""Added to a preflight servo timeout: replies held by an FTDI adapter's default 16 ms
-latency timer come after the bus's deadline as surely as none at all."""
 
 
 class MissionError(RuntimeError):
@@ -327,46 +314,14 @@ class PickupApp:
                 q_stow=self.cycle.q_stow,
                 loop_period=self.cycle.loop_period,
             )
+            await check_arm(self.arm)
         except PreflightError as exc:
             raise MissionError(f"preflight: {exc}") from None
-        try:
-            states = await self.arm.prepare()
-        except BusTimeoutError as exc:
-            raise MissionError(f"preflight: arm bus: {exc}; {_NO_REPLY_HINT}") from None
-        except ArmDriverError as exc:
-            raise MissionError(f"preflight: arm bus: {exc}") from None
-        missing = set(self.arm.names) - set(states)
-        if missing:
-            raise MissionError(f"preflight: joints {sorted(missing)} did not answer")
-        self.sequence.check_servos = self._note_torque_constants()
-
-    def _note_torque_constants(self) -> bool:
-        """Record each joint's torque constant and its source (a Dynamixel's current reads
-        as torque through it; a DroneCAN actuator reports its own torque); whether the servo
-        check is to measure them (``flight.servo_check``); if not, say which joints fly on
-        datasheet values."""
-        bus = self.config.arm_bus
-        if bus is None or not bus.url.startswith("dynamixel"):
-            return False
-        self.report.servo_torque = {
-            j.name: {
-                "source": "calibrated" if j.torque_calibrated else "datasheet",
-                "n_m_per_a": j.torque_constant_n_m_per_a,
-            }
-            for j in bus.joints
-        }
-        datasheet = [j.name for j in bus.joints if not j.torque_calibrated]
-        check = self.config.flight.servo_check
-        if check == "always" or (check == "auto" and datasheet):
-            return True
-        if datasheet:
-            self._note(
-                "preflight",
-                f"joints {', '.join(datasheet)} fly on the datasheet's torque constants, not "
-                "their servos' own: the payload's centre of mass is estimated from them "
-                "(12 % off moves it by a fifth); run `companion arm calibrate --write`",
-            )
-        return False
+        sources = torque_constant_sources(self.config)
+        self.report.servo_torque = sources.per_joint
+        if sources.note is not None:
+            self._note("preflight", sources.note)
+        self.sequence.check_servos = sources.check
 
     # -------------------------------------------------------------- sequence
 
@@ -428,30 +383,21 @@ class PickupApp:
     async def _ask_px4(self, command: Px4Request) -> str | None:
         """Ask PX4 and wait for its acknowledgement, streaming ``command.stream`` meanwhile
         (OFF after it); returns PX4's refusal, None when accepted."""
-        link, request = self.link, command.request
-        unset = [0, 0, 0] + [math.nan] * 4  # params of NAV_TAKEOFF, NAV_LAND: PX4's own
-        asks: dict[Request, Callable[[], Awaitable[Any]]] = {
-            Request.ARM: link.arm,
-            Request.TAKEOFF_ALTITUDE: lambda: link.param_set("MIS_TAKEOFF_ALT", command.value),
-            Request.TAKEOFF: lambda: link.command_long(mavlink2.MAV_CMD_NAV_TAKEOFF, unset),
-            Request.OFFBOARD: lambda: link.set_mode_px4(*px4_mode("OFFBOARD")),
-            Request.HOLD: lambda: link.set_mode_px4(*px4_mode("LOITER")),
-            Request.LAND: lambda: link.command_long(mavlink2.MAV_CMD_NAV_LAND, unset),
-        }
+        request = command.request
         if request == Request.ARM:
             gc.freeze()  # collections in flight skip everything built before it
         if command.stream is not None:
             self.offboard.to(command.stream)
             self.control.trim_active = False
         try:
-            await asks[request]()
+            await ask_px4(self.link, command)
         except (CommandError, ParamError) as exc:
             return str(exc)
         finally:
             if command.stream is not None:
                 self.offboard.to(Stream.OFF)
         if request == Request.ARM:
-            self.cycle.status_at_arm = link.latest(VehicleStatus)
+            self.cycle.status_at_arm = self.link.latest(VehicleStatus)
         return None
 
     async def _await_link(self, timeout_s: float) -> str | None:
@@ -465,23 +411,8 @@ class PickupApp:
         return None
 
     def _observe(self) -> Observation:
-        """What the sequence decides on, after the last control cycle (the height only
-        while a stage looks at it: the estimate is not copied every cycle of the mission)."""
-        status = self.link.latest(VehicleStatus)
-        assembler = self.cycle.assembler
-        ready = assembler.ready
-        state = assembler.estimate if ready and self.sequence.watches_height else None
-        return Observation(
-            t_s=self.t_s,
-            ready=ready,
-            altitude_m=-math.inf if state is None else float(state.q[Z]),
-            climb_rate_m_s=math.inf if state is None else float(state.q_dot[Z]),
-            heartbeat=status,
-            mission_done=self.mission.phase == Phase.DONE,
-            left_offboard=self.offboard.left(status),
-            link_lost=self.link.lost is not None,
-            servos_checked=self.cycle.servos_checked,
-        )
+        """What the sequence decides on, after the last control cycle."""
+        return self.cycle.observe(self.sequence.watches_height)
 
     # ---------------------------------------------------------------- helpers
 

@@ -45,6 +45,7 @@ from companion.mission.navigation import NavigationWatch
 from companion.mission.offboard import HoldBias, Offboard, Stream
 from companion.mission.pickup import EstimatorAction, MissionCommand, Outcome, Phase, PickupMission
 from companion.mission.report import FlightFigures, MissionReport, carrying
+from companion.mission.sequence import Observation
 from companion.mission.servo_check import MIN_POSES, ServoCheck, check_poses, fit_servo_check
 
 __all__ = ["ControlCycle"]
@@ -165,6 +166,24 @@ class ControlCycle:
         command after that HEARTBEAT (at 1 Hz they lag an arming by up to 1 s)."""
         status = self.link.latest(VehicleStatus)
         return status is self.status_at_arm or bool(status and status.armed)
+
+    def observe(self, watches_height: bool) -> Observation:
+        """What the flight sequence decides on, after the last cycle (the height only
+        while ``watches_height``: the estimate is not copied every cycle of the mission)."""
+        status = self.link.latest(VehicleStatus)
+        ready = self.assembler.ready
+        state = self.assembler.estimate if ready and watches_height else None
+        return Observation(
+            t_s=self.t_s,
+            ready=ready,
+            altitude_m=-math.inf if state is None else float(state.q[Z]),
+            climb_rate_m_s=math.inf if state is None else float(state.q_dot[Z]),
+            heartbeat=status,
+            mission_done=self.mission.phase == Phase.DONE,
+            left_offboard=self.offboard.left(status),
+            link_lost=self.link.lost is not None,
+            servos_checked=self.servos_checked,
+        )
 
     def _mass_kg(self) -> float:
         """Mass of vehicle + arm the model believes [kg]."""

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pymavlink.dialects.v20 import common as mavlink2
 
+from arm_driver.errors import ArmDriverError, BusTimeoutError
 from companion.config import CompanionConfig
 from companion.control.flight import FlightControl
 from companion.control.laws import ControlRateError
@@ -33,6 +34,7 @@ from companion.link import MavlinkLink
 from companion.link.errors import CommandError, ParamError
 from companion.link.px4_modes import px4_mode
 from companion.link.telemetry import LandedState, VehiclePose, VehicleStatus
+from companion.mission.arm_supervisor import ArmSupervisor
 from companion.mission.loop_period import LoopPeriodMonitor
 from companion.mission.report import MissionReport
 from companion.mission.vehicle_params import OPTIONAL, REQUIRED, VehicleParams, contradictions
@@ -53,6 +55,29 @@ Note = Callable[[str, str], None]
 
 class PreflightError(RuntimeError):
     """The vehicle is not ready to fly the mission; the message is one line."""
+
+
+NO_REPLY_HINT = (
+    "check the servos' power, ids and baud rate, and the USB adapter's latency timer "
+    "(1 ms: README, 'Deploying on an onboard computer')"
+)
+"""Added to a preflight servo timeout: replies held by an FTDI adapter's default 16 ms
+latency timer come after the bus's deadline as surely as none at all."""
+
+
+async def check_arm(arm: ArmSupervisor) -> None:
+    """The arm's check before arming: every joint answers
+    (:meth:`~companion.mission.arm_supervisor.ArmSupervisor.prepare`); PreflightError
+    with what to check when one does not."""
+    try:
+        states = await arm.prepare()
+    except BusTimeoutError as exc:
+        raise PreflightError(f"arm bus: {exc}; {NO_REPLY_HINT}") from None
+    except ArmDriverError as exc:
+        raise PreflightError(f"arm bus: {exc}") from None
+    missing = set(arm.names) - set(states)
+    if missing:
+        raise PreflightError(f"joints {sorted(missing)} did not answer")
 
 
 async def check_vehicle(

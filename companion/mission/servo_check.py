@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from companion.calibration.servo import TorqueConstantFit, fit_torque_constant, model_torque_n_m
+from companion.config import CompanionConfig
 from companion.mission.pickup import min_jerk
 from companion.model import ManipulatorModel
 
@@ -38,8 +39,10 @@ __all__ = [
     "MIN_POSES",
     "ServoCheck",
     "ServoCheckTimes",
+    "TorqueConstantSources",
     "check_poses",
     "fit_servo_check",
+    "torque_constant_sources",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -226,3 +229,44 @@ def fit_servo_check(
         fit_torque_constant(tau[:, j], read[:, j] / kt, current_resolution_a)
         for j, kt in enumerate(believed_kt_n_m_per_a)
     ]
+
+
+@dataclass(frozen=True)
+class TorqueConstantSources:
+    """Where each joint's torque constant comes from before the flight."""
+
+    per_joint: dict[str, dict[str, str | float]]
+    """Joint name -> {"source": "calibrated" | "datasheet", "n_m_per_a": Kt [N m/A]}."""
+    check: bool
+    """The servo check is to measure them (``flight.servo_check``)."""
+    note: str | None
+    """Which joints fly on datasheet values, when they are not checked."""
+
+
+def torque_constant_sources(config: CompanionConfig) -> TorqueConstantSources:
+    """Each joint's torque constant and its source (a Dynamixel's current reads as torque
+    through it; a DroneCAN actuator reports its own torque: nothing to check), and whether
+    the servo check is to measure them: ``flight.servo_check`` "always", or "auto" with a
+    joint not ``torque_calibrated``."""
+    bus = config.arm_bus
+    if bus is None or not bus.url.startswith("dynamixel"):
+        return TorqueConstantSources({}, False, None)
+    per_joint: dict[str, dict[str, str | float]] = {
+        j.name: {
+            "source": "calibrated" if j.torque_calibrated else "datasheet",
+            "n_m_per_a": j.torque_constant_n_m_per_a,
+        }
+        for j in bus.joints
+    }
+    datasheet = [j.name for j in bus.joints if not j.torque_calibrated]
+    check = config.flight.servo_check
+    if check == "always" or (check == "auto" and datasheet):
+        return TorqueConstantSources(per_joint, True, None)
+    note = None
+    if datasheet:
+        note = (
+            f"joints {', '.join(datasheet)} fly on the datasheet's torque constants, not "
+            "their servos' own: the payload's centre of mass is estimated from them "
+            "(12 % off moves it by a fifth); run `companion arm calibrate --write`"
+        )
+    return TorqueConstantSources(per_joint, False, note)
