@@ -485,6 +485,44 @@ def test_telemetry_loss_is_reported_and_regained():
     assert regained.reason == "telemetry"
 
 
+def test_heartbeat_silence_counts_on_the_vehicles_clock_while_its_telemetry_comes():
+    """A vehicle whose clock runs slower than the companion's (a simulator held in lockstep)
+    sends its 1 Hz heartbeat less often in wall time: no loss while its own time has not
+    moved on by the timeout; a loss once it has, or when it sends no timed telemetry."""
+
+    async def scenario():
+        peer = Peer()
+        link = await _connected(peer, heartbeat_timeout_s=0.3, telemetry_timeout_s=5.0)
+        events = link.subscribe(LinkLost)
+        peer.odometry(1000)
+        peer.heartbeat()
+        for k in range(1, 13):  # 0.6 s of wall time, 0.12 s of the vehicle's
+            await asyncio.sleep(0.05)
+            peer.odometry(1000 + 10 * k)
+        quiet = link.lost is None
+        peer.odometry(1000 + 400)  # the vehicle's clock 0.4 s past its heartbeat
+        (lost,) = await _events(events, LinkLost)
+        await link.close()
+        peer.close()
+        return quiet, lost
+
+    quiet, lost = run(scenario())
+    assert quiet
+    assert lost.reason == "heartbeat" and lost.silent_s >= 0.3
+
+    async def without_telemetry():
+        peer = Peer()
+        link = await _connected(peer, heartbeat_timeout_s=0.3, telemetry_timeout_s=5.0)
+        events = link.subscribe(LinkLost)
+        (lost,) = await _events(events, LinkLost)
+        await link.close()
+        peer.close()
+        return lost
+
+    lost = run(without_telemetry())
+    assert lost.reason == "heartbeat" and 0.3 <= lost.silent_s < 1.0
+
+
 def test_signed_frames_accepted_unsigned_rejected():
     async def scenario():
         peer = Peer(key=KEY)

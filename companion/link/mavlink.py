@@ -98,7 +98,10 @@ class MavlinkLink(Px4Commands):
     vehicle_system_id : int, optional
         Accept only this autopilot system id as the vehicle [default: the first PX4].
     heartbeat_timeout_s : float
-        Vehicle heartbeat silence that counts as a lost link [s] (PX4 sends 1 Hz).
+        Vehicle heartbeat silence that counts as a lost link [s] (PX4 sends 1 Hz): on the
+        companion's clock and, while timed telemetry comes, on the vehicle's as well (a
+        simulator in lockstep may run slower than real time; its heartbeat comes at 1 Hz
+        of its own time).
     telemetry_timeout_s : float
         Telemetry silence (poses, rates, IMU) that counts as a lost link [s]; watched
         from the first telemetry sample on.
@@ -149,6 +152,8 @@ class MavlinkLink(Px4Commands):
         self._vehicle_found: asyncio.Event | None = None
         self._readable: asyncio.Event | None = None
         self._last_heartbeat: float | None = None
+        self._heartbeat_vehicle_ms: int | None = None
+        """Vehicle time when the last heartbeat came (the latest telemetry's) [ms]."""
         self._last_telemetry: float | None = None
         self._lost: LinkLost | None = None
         self._lost_at = 0.0
@@ -411,6 +416,7 @@ class MavlinkLink(Px4Commands):
             if not self._is_vehicle_heartbeat(msg, src):
                 return
             self._last_heartbeat = now
+            self._heartbeat_vehicle_ms = self._decoder.time_boot_ms
         elif self._vehicle is None or src[0] != self._vehicle.system_id:
             return
         try:
@@ -445,6 +451,14 @@ class MavlinkLink(Px4Commands):
             out.append(("telemetry", self._last_telemetry + self.telemetry_timeout_s))
         return out
 
+    def _heartbeat_silent_in_vehicle_time(self) -> bool:
+        """The vehicle's own clock (its telemetry's time) has also moved on by the heartbeat
+        timeout since the last heartbeat (True when it has sent no timed telemetry)."""
+        latest, at_heartbeat = self._decoder.time_boot_ms, self._heartbeat_vehicle_ms
+        if latest is None or at_heartbeat is None:
+            return True
+        return latest - at_heartbeat >= self.heartbeat_timeout_s * 1e3
+
     def _check_regained(self, now: float) -> None:
         if all(deadline > now for _, deadline in self._deadlines()):
             assert self._lost is not None
@@ -458,7 +472,11 @@ class MavlinkLink(Px4Commands):
         while True:
             now = loop.time()
             deadlines = self._deadlines()
-            expired = [(reason, d) for reason, d in deadlines if d <= now]
+            expired = [
+                (reason, d)
+                for reason, d in deadlines
+                if d <= now and (reason != "heartbeat" or self._heartbeat_silent_in_vehicle_time())
+            ]
             if self._lost is None and expired:
                 reason, deadline = expired[0]
                 timeout = (
