@@ -1,15 +1,17 @@
-"""Campaigns on the local engine: pickups per hour on this machine and the engine's cost.
+"""Campaigns on the local and the Ray engine: pickups per hour on this machine and each
+engine's cost.
 
-Runs ``sitl campaign SPEC --out TMP --workers W --limit N`` (the command a user runs, in a
-subprocess) and reads its results table: the pickups per hour the campaign reached (flights
-over its wall time), the per-flight overhead of the engine (the worker slots' time not spent
-inside a flight: starting the worker processes, handing flights over, committing rows,
-writing the report; ``(wall x workers - sum of the flights' wall time) / flights``), and the
-pickups per hour per core the flights themselves need (3600 / CPU seconds per flight). From
-those it estimates the whole spec's duration here. ``--write`` puts the table in
+Runs ``sitl campaign SPEC --out TMP --workers W --limit N --engine E`` (the command a user
+runs, in a subprocess; Ray on a local runtime of W CPUs) and reads its results table: the
+pickups per hour the campaign reached (flights over its wall time), the per-flight overhead
+of the engine (the worker slots' time not spent inside a flight: starting the workers,
+handing flights over, committing rows, writing the report; ``(wall x workers - sum of the
+flights' wall time) / flights``), and the pickups per hour per core the flights themselves
+need (3600 / CPU seconds per flight). From those it estimates the whole spec's duration
+here, and on paper on a 1,000-core Ray cluster. ``--write`` puts the table in
 ``docs/campaign.md`` with the machine and the commit::
 
-    python benchmarks/bench_campaign.py --limit 4 --workers 2 --write
+    python benchmarks/bench_campaign.py --limit 8 --workers 2 --engines local,ray --write
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from checkout import this_commit
 
@@ -35,12 +38,16 @@ ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_SPEC = ROOT / "configs" / "campaigns" / "envelope.toml"
 
 
-def run_campaign(spec: Path, workers: int, limit: int, out: Path) -> dict[str, float]:
-    """Fly the first ``limit`` flights of ``spec`` on ``workers`` processes; the figures."""
+def run_campaign(
+    spec: Path, workers: int, limit: int, out: Path, engine: str
+) -> dict[str, float | str]:
+    """Fly the first ``limit`` flights of ``spec`` on ``workers`` processes (or a local Ray
+    runtime of ``workers`` CPUs); the figures."""
     t0 = time.perf_counter()
     subprocess.run(
         [sys.executable, "-c", "from sitl.cli import main; main()", "campaign", str(spec),
-         "--out", str(out), "--workers", str(workers), "--limit", str(limit)],
+         "--out", str(out), "--workers", str(workers), "--limit", str(limit),
+         "--engine", engine],
         check=True, capture_output=True, text=True,
     )  # fmt: skip
     wall = time.perf_counter() - t0
@@ -51,6 +58,7 @@ def run_campaign(spec: Path, workers: int, limit: int, out: Path) -> dict[str, f
     cpu = [r[1] for r in rows]
     slots = min(workers, flights)
     return {
+        "engine": engine,
         "flights": flights,
         "workers": slots,
         "completed": sum(1 for r in rows if r[2]),
@@ -96,49 +104,85 @@ def store_commit_ms(rows: int = 200) -> float:
     return 1e3 * elapsed / rows
 
 
+CLUSTER_CORES = 1000
+"""The Ray cluster of the estimate on paper."""
+
+
 def table(
-    spec: Path, r: dict[str, float], expand_ms: float, commit_ms: float, start_s: float
+    spec: Path,
+    runs: list[dict[str, Any]],
+    expand_ms: float,
+    commit_ms: float,
+    start_s: float,
 ) -> str:
     total = len(expand(load_spec(spec), spec))
-    estimate_min = total / r["per_hour"] * 60.0
     name = spec.relative_to(ROOT) if spec.is_relative_to(ROOT) else spec
+    first = runs[0]
+    rows = [
+        f"| {r['engine']} | {r['flights']:.0f} | {r['completed']:.0f} | {r['workers']:.0f} | "
+        f"{r['wall_s']:.1f} | {r['per_hour']:.0f} | {r['overhead_s']:.1f} | "
+        f"{r['flight_wall_s']:.1f} | {r['flight_cpu_s']:.1f} | "
+        f"{r['per_hour_per_core']:.0f} | {r['sim_s']:.0f} |"
+        for r in runs
+    ]
+    estimates = [
+        f"At {r['per_hour']:.0f} pickups per hour ({r['engine']}), the whole spec's {total} "
+        f"flights take about {total / r['per_hour'] * 60.0:.0f} minutes here at this load."
+        for r in runs
+    ]
+    ray = [r for r in runs if r["engine"] == "ray"]
+    cluster = []
+    if ray:
+        r = ray[0]
+        per_flight_s = r["flight_cpu_s"] + r["overhead_s"]
+        cluster = [
+            "",
+            f"On paper, a {CLUSTER_CORES:,}-core Ray cluster: each of the spec's {total} "
+            f"flights on a core of its own, the spec ends with its longest flight (about "
+            f"{per_flight_s:.0f} s: a flight's CPU time here and the Ray engine's overhead per "
+            f"flight, on cores as fast as these); a study of 30,000 pickups takes about "
+            f"{30000 * per_flight_s / CLUSTER_CORES / 60.0:.0f} minutes "
+            f"({CLUSTER_CORES * 3600.0 / per_flight_s:,.0f} pickups per hour), if the "
+            "campaign's one writing process keeps up (it commits a row in about "
+            f"{commit_ms:.1f} ms: {3600e3 / commit_ms:,.0f} rows per hour).",
+        ]
     return "\n".join(
         [
-            "# Campaigns on the local engine: speed",
+            "# Campaigns on the local and the Ray engine: speed",
             "",
             f"Written by `benchmarks/bench_campaign.py` on {platform.node()} "
             f"({os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} at the end, "
             f"Python {platform.python_version()}), commit {this_commit()}: `sitl campaign "
-            f"{name} --workers {r['workers']:.0f} --limit {r['flights']:.0f}` (the first "
-            f"{r['flights']:.0f} of its {total} flights), in a subprocess, timed from start "
-            "to exit (the report included).",
+            f"{name} --workers {first['workers']:.0f} --limit {first['flights']:.0f} "
+            f"--engine ENGINE` (the first {first['flights']:.0f} of its {total} flights; Ray "
+            "on a local runtime of as many CPUs), in a subprocess, timed from start to exit "
+            "(the report included).",
             "",
-            "| flights | completed | workers | wall [s] | pickups / hour | engine overhead "
-            "per flight [s] | flight wall [s] | flight CPU [s] | pickups / hour / core "
-            "(CPU) | simulated per flight [s] |",
-            "|---|---|---|---|---|---|---|---|---|---|",
-            f"| {r['flights']:.0f} | {r['completed']:.0f} | {r['workers']:.0f} | "
-            f"{r['wall_s']:.1f} | {r['per_hour']:.0f} | {r['overhead_s']:.1f} | "
-            f"{r['flight_wall_s']:.1f} | {r['flight_cpu_s']:.1f} | "
-            f"{r['per_hour_per_core']:.0f} | {r['sim_s']:.0f} |",
+            "| engine | flights | completed | workers | wall [s] | pickups / hour | engine "
+            "overhead per flight [s] | flight wall [s] | flight CPU [s] | pickups / hour / "
+            "core (CPU) | simulated per flight [s] |",
+            "|---|---|---|---|---|---|---|---|---|---|---|",
+            *rows,
             "",
             "The engine overhead per flight is the worker slots' time outside a flight: "
             "(wall x workers - the flights' wall time) / flights. It holds the workers' start "
             "(a fresh interpreter importing the simulator), handing each flight over a pipe, "
             "committing its row, writing the report, and a slot idle at the end while the "
             "other worker finishes the last flight; a larger campaign spreads the start, the "
-            "report and that tail over more flights. A flight's wall time above its CPU time "
-            "is time it waited for a core.",
+            "report and that tail over more flights. On Ray it holds starting the local "
+            "runtime (its processes and workers) as well. A flight's wall time above its CPU "
+            "time is time it waited for a core.",
             "",
             f"Parts of it measured alone: starting a worker (spawn, importing the simulator) "
             f"{start_s:.1f} s, once per worker; expanding the spec {expand_ms:.1f} ms per "
             f"flight (each draw's scenario validated); committing one row {commit_ms:.2f} ms.",
             "",
-            f"At {r['per_hour']:.0f} pickups per hour, the whole spec's {total} flights take "
-            f"about {estimate_min:.0f} minutes here at this load. The flights' CPU time "
-            f"bounds an otherwise idle machine at {r['workers'] * r['per_hour_per_core']:.0f} "
-            f"pickups per hour on {r['workers']:.0f} cores: the spec in about "
-            f"{total / (r['workers'] * r['per_hour_per_core']) * 60.0:.0f} minutes.",
+            *estimates,
+            f"The flights' CPU time bounds an otherwise idle machine at "
+            f"{first['workers'] * first['per_hour_per_core']:.0f} pickups per hour on "
+            f"{first['workers']:.0f} cores: the spec in about "
+            f"{total / (first['workers'] * first['per_hour_per_core']) * 60.0:.0f} minutes.",
+            *cluster,
             "",
         ]
     )
@@ -148,16 +192,21 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--spec", type=Path, default=DEFAULT_SPEC, help="campaign spec")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
-    parser.add_argument("--limit", type=int, default=4, help="flights of the spec to fly")
+    parser.add_argument("--limit", type=int, default=8, help="flights of the spec to fly")
+    parser.add_argument(
+        "--engines", default="local,ray", help="engines to run, comma-separated (local, ray)"
+    )
     parser.add_argument("--write", action="store_true", help="write docs/campaign.md")
     args = parser.parse_args()
     spec = args.spec.resolve()
     t0 = time.perf_counter()
     n = len(expand(load_spec(spec), spec))
     expand_ms = 1e3 * (time.perf_counter() - t0) / n
-    with tempfile.TemporaryDirectory(prefix="bench-campaign-") as tmp:
-        r = run_campaign(spec, args.workers, args.limit, Path(tmp) / "out")
-    text = table(spec, r, expand_ms, store_commit_ms(), worker_start_s())
+    runs = []
+    for engine in args.engines.split(","):
+        with tempfile.TemporaryDirectory(prefix="bench-campaign-") as tmp:
+            runs.append(run_campaign(spec, args.workers, args.limit, Path(tmp) / "out", engine))
+    text = table(spec, runs, expand_ms, store_commit_ms(), worker_start_s())
     print(text)
     if args.write:
         (ROOT / "docs" / "campaign.md").write_text(text)

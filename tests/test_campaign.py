@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import shlex
 import sqlite3
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -207,9 +208,12 @@ def table(out: Path) -> dict[str, dict]:
     return by_id
 
 
-def test_a_tiny_campaign_records_every_flight_once_and_a_rerun_flies_only_the_missing(
+def test_a_tiny_campaign_records_every_flight_once_a_rerun_flies_only_the_missing_and_ray_agrees(
     run_sitl, tmp_path
 ):
+    """On the local engine: every flight once, within absolute figures, errors with their
+    replay; a rerun flies only the missing. On the Ray engine (a local runtime of 2 CPUs):
+    the same table but for the timing columns."""
     spec = write_spec(tmp_path, TINY)
     out = tmp_path / "out"
     done = run_sitl("campaign", str(spec), "--out", str(out), "--workers", "2")
@@ -269,6 +273,23 @@ def test_a_tiny_campaign_records_every_flight_once_and_a_rerun_flies_only_the_mi
         changed = {k for k in row if k not in TIMING_COLUMNS and row[k] != after[flight_id][k]}
         assert not changed, (flight_id, changed)
 
+    # The same spec on the Ray engine: the same rows (the replay commands name their --out).
+    ray_out = tmp_path / "ray"
+    on_ray = run_sitl(
+        "campaign", str(spec), "--out", str(ray_out), "--engine", "ray", "--workers", "2"
+    )
+    assert on_ray.returncode == 0, on_ray.stdout + on_ray.stderr
+    assert "4 to fly on Ray (a local runtime of 2 CPUs)" in on_ray.stdout
+    ray_rows = table(ray_out)
+    assert ray_rows.keys() == rows.keys()
+    for flight_id, row in after.items():
+        theirs = ray_rows[flight_id]
+        if row["replay"] is not None:
+            assert theirs["replay"] == row["replay"].replace(str(out), str(ray_out))
+        changed = {k for k in row if k not in (*TIMING_COLUMNS, "replay") and row[k] != theirs[k]}
+        assert not changed, (flight_id, changed)
+    assert {r["worker"] for r in ray_rows.values()} <= {1, 2}
+
 
 def test_a_flight_whose_worker_dies_is_flown_once_more_then_recorded_not_retried(
     run_sitl, tmp_path
@@ -308,3 +329,22 @@ def test_the_report_lists_the_flights_outside_the_bounds_with_their_replay(tmp_p
     assert "1 of 2 flights completed outside the bounds" in section
     assert "beyond" in section and "mass_error_pct -40 (bound 3)" in section
     assert "sitl demo X" in section and "within" not in section
+
+
+def test_the_ray_engine_without_ray_or_with_bad_options_is_one_line(
+    run_sitl, tmp_path, monkeypatch
+):
+    from sitl.campaign.ray_engine import RayUnavailableError, run_ray
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # as where the campaign extra is missing
+    with pytest.raises(RayUnavailableError, match=r"pip install -e \"\.\[campaign\]\""):
+        run_ray([], lambda flight, row: None)
+    spec = write_spec(tmp_path, TINY)
+    for extra, says in (
+        (("--engine", "spark"), "--engine must be local or ray"),
+        (("--address", "auto"), "--address names a Ray cluster: it needs --engine ray"),
+    ):
+        done = run_sitl("campaign", str(spec), "--out", str(tmp_path / "out"), *extra)
+        assert done.returncode == 2, done.stdout + done.stderr
+        lines = [line for line in done.stderr.splitlines() if line.strip()]
+        assert lines == [f"error: {says}"] or (len(lines) == 1 and says in lines[0]), lines

@@ -1,5 +1,7 @@
-"""``sitl campaign SPEC --out DIR``: fly a campaign's missing flights on the local engine,
-record each in ``DIR/results.sqlite`` and write ``DIR/report.html``.
+"""``sitl campaign SPEC --out DIR``: fly a campaign's missing flights on the local engine
+(a process pool, :mod:`sitl.campaign.engine`) or on Ray (``--engine ray``,
+:mod:`sitl.campaign.ray_engine`), record each in ``DIR/results.sqlite`` and write
+``DIR/report.html``.
 
 The spec's mistakes are one ``error:`` line each (exit status 2) before anything flies.
 The same command again flies only the flights not in the table yet; ``--replay ID`` flies
@@ -13,14 +15,18 @@ import signal
 import sys
 import time
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from companion.cli.usage import fail, load_or_exit, output_dir_or_exit
 from sitl.campaign.flights import Flight, expand, replay_command, replay_toml, scenario_document
 from sitl.campaign.spec import CampaignSpec, load_spec
+
+if TYPE_CHECKING:
+    from sitl.campaign.engine import FlightTask
 
 __all__ = ["RESULTS_FILE", "campaign"]
 
@@ -82,8 +88,27 @@ def campaign(
     ],
     workers: Annotated[
         int,
-        typer.Option(help="Worker processes [default: the machine's cores].", show_default=False),
+        typer.Option(
+            help="Worker processes, or the CPUs of the local Ray runtime [default: the "
+            "machine's cores].",
+            show_default=False,
+        ),
     ] = 0,
+    engine: Annotated[
+        str,
+        typer.Option(
+            help="local (a process pool on this machine) or ray (Ray tasks: needs the "
+            "campaign extra, pip install -e '.[campaign]')."
+        ),
+    ] = "local",
+    address: Annotated[
+        str | None,
+        typer.Option(
+            help="--engine ray: a running Ray cluster (auto, ray://HOST:PORT or HOST:PORT) "
+            "[default: a local Ray runtime of --workers CPUs, started for the campaign].",
+            show_default=False,
+        ),
+    ] = None,
     limit: Annotated[int | None, typer.Option(help="Only the first N flights of the spec.")] = None,
     flight_timeout: Annotated[
         float,
@@ -103,6 +128,10 @@ def campaign(
     loaded, flights = load_or_exit(spec_path, _load)
     if workers < 0:
         fail(f"--workers must be 1 or more (0: the machine's cores), got {workers}")
+    if engine not in ("local", "ray"):
+        fail(f"--engine must be local or ray, got {engine!r}")
+    if address is not None and engine != "ray":
+        fail("--address names a Ray cluster: it needs --engine ray")
     if not flight_timeout > 0.0:
         fail(f"--flight-timeout must be a positive number of seconds, got {flight_timeout:g}")
     if limit is not None:
@@ -118,7 +147,47 @@ def campaign(
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         fail(f"--out {out}: cannot create ({exc.strerror or exc})")
-    _run(loaded, flights, out, spec_path, workers or os.cpu_count() or 1, flight_timeout)
+    cpus = workers or os.cpu_count() or 1
+    _run(loaded, flights, out, spec_path, _Engine(engine, address, cpus), flight_timeout)
+
+
+class _Engine:
+    """Where the flights fly: ``local`` on ``workers`` processes, or ``ray`` (at
+    ``address``, or a local runtime of ``workers`` CPUs)."""
+
+    def __init__(self, name: str, address: str | None, workers: int) -> None:
+        self.name, self.address, self.workers = name, address, workers
+
+    def describe(self, missing: int) -> str:
+        if self.name == "ray":
+            where = self.address or f"a local runtime of {self.workers} CPUs"
+            return f"on Ray ({where})"
+        n = min(self.workers, max(missing, 1))
+        return f"on {n} worker{'s' if n > 1 else ''}"
+
+    def run(
+        self,
+        tasks: list[FlightTask],
+        record: Callable[[Flight, dict[str, Any]], None],
+        flight_timeout_s: float,
+    ) -> None:
+        if self.name == "ray":
+            from sitl.campaign.ray_engine import RayUnavailableError, run_ray
+
+            try:
+                run_ray(
+                    tasks,
+                    record,
+                    address=self.address,
+                    cpus=self.workers,
+                    flight_timeout_s=flight_timeout_s,
+                )
+            except RayUnavailableError as exc:
+                fail(str(exc))
+            return
+        from sitl.campaign.engine import run_local
+
+        run_local(tasks, self.workers, record, flight_timeout_s=flight_timeout_s)
 
 
 def _run(
@@ -126,10 +195,9 @@ def _run(
     flights: list[Flight],
     out: Path,
     spec_path: Path,
-    workers: int,
+    engine: _Engine,
     flight_timeout_s: float,
 ) -> None:
-    from sitl.campaign.engine import run_local
     from sitl.campaign.report import write_report
     from sitl.campaign.store import CampaignMismatchError, ResultsStore, identity_columns
 
@@ -142,10 +210,9 @@ def _run(
     with store:
         done = store.done()
         missing = [f for f in flights if f.flight_id not in done]
-        n = min(workers, max(len(missing), 1))
         typer.echo(
             f"campaign {spec.name}: {len(flights)} flights, {len(flights) - len(missing)} in "
-            f"{out / RESULTS_FILE}, {len(missing)} to fly on {n} worker{'s' if n > 1 else ''}"
+            f"{out / RESULTS_FILE}, {len(missing)} to fly {engine.describe(len(missing))}"
         )
         tasks = []
         base_texts: dict[str, str] = {}
@@ -173,7 +240,8 @@ def _run(
         # A SIGTERM (a job scheduler's stop) ends the campaign as Ctrl-C does.
         previous = signal.signal(signal.SIGTERM, _interrupt)
         try:
-            run_local(tasks, workers, record, flight_timeout_s=flight_timeout_s)
+            if tasks:
+                engine.run(tasks, record, flight_timeout_s)
         except KeyboardInterrupt:
             have = len(store.done())
             typer.echo(
