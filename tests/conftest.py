@@ -75,18 +75,6 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if "px4_build" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.slow)
-        if _uses_a_module_fixture(item):
-            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
-
-
-def _uses_a_module_fixture(item: pytest.Item) -> bool:
-    """The test shares a module-scoped fixture (a flight, a vehicle, PX4): with the test
-    command's ``--dist loadgroup`` the tests of one module that share such fixtures run on
-    one worker, so that each is set up once; the module's other tests go to any worker."""
-    info = getattr(item, "_fixtureinfo", None)
-    if info is None:
-        return False
-    return any(defs and defs[-1].scope == "module" for defs in info.name2fixturedefs.values())
 
 
 @pytest.hookimpl(wrapper=True, tryfirst=True)
