@@ -25,7 +25,8 @@ from sitl.scenario import Scenario, load_scenario
 from sitl.servo import Faults
 from sitl.servo.arm_stand import ArmStand
 
-pytestmark = pytest.mark.slow  # the stand steps in real time; the calibration waits on it
+# The stand steps in real time and the calibration waits on it: run alone.
+pytestmark = [pytest.mark.slow, pytest.mark.alone]
 
 CONFIG = Path(__file__).parent.parent / "configs" / "px4_sih_pickup.toml"
 

@@ -94,6 +94,7 @@ def adaptive(tmp_path_factory):
 
 
 @pytest.mark.slow
+@pytest.mark.alone
 def test_pickup_learns_the_payload_places_it_and_lands(adaptive):
     tmp, result, summary, log = adaptive
     assert result.returncode == 0, result.stdout + result.stderr
@@ -119,6 +120,7 @@ def test_pickup_learns_the_payload_places_it_and_lands(adaptive):
 
 
 @pytest.mark.slow
+@pytest.mark.alone
 def test_servos_answering_too_late_are_refused_on_the_ground(tmp_path):
     """Servo replies 12 ms late (a USB adapter's latency timer): every Sync Read of the two
     joints misses its deadline; the mission says so in one line, with what to check, and
@@ -133,6 +135,7 @@ def test_servos_answering_too_late_are_refused_on_the_ground(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.alone
 def test_the_flight_meets_the_px4_acceptance_against_the_imitation(adaptive):
     """The same flight figures as against real PX4 (tests/test_px4_mission.py): no fault, no
     tilt saturation, tilt < 15 deg outside the excitation, handover < 5 deg, position RMS
@@ -148,6 +151,7 @@ def test_the_flight_meets_the_px4_acceptance_against_the_imitation(adaptive):
 
 
 @pytest.mark.slow
+@pytest.mark.alone
 def test_an_external_client_flies_the_pickup_in_lockstep_with_sitl_run(tmp_path):
     """``sitl run --lockstep``: once the companion streams its setpoints, the vehicle steps
     past a pose only when the setpoint for it and the next joint read are in, so the
