@@ -26,13 +26,23 @@ from typing import Any
 
 from sitl.campaign.flights import Flight
 
-__all__ = ["WORKER_DEATHS", "FlightTask", "run_local"]
+__all__ = ["WORKER_DEATHS", "FlightTask", "death_row", "run_local"]
 
 WORKER_DEATHS = 2
 """Times a flight's worker may die under it before the flight is recorded as an error."""
 
 FlightTask = tuple[Flight, dict[str, Any]]
 """A flight and its scenario document."""
+
+
+def death_row(deaths: dict[str, int], flight: Flight, why: str) -> dict[str, Any] | None:
+    """Count one more worker death under ``flight`` in ``deaths`` (flight id -> deaths);
+    None: fly it once more; else, at :data:`WORKER_DEATHS`, its error row."""
+    deaths[flight.flight_id] = deaths.get(flight.flight_id, 0) + 1
+    if deaths[flight.flight_id] < WORKER_DEATHS:
+        return None
+    error = f"not flown: {why}, {WORKER_DEATHS} times (a flight is not retried forever)"
+    return {"status": "error", "error": error}
 
 
 def _worker(conn: Connection) -> None:
@@ -181,10 +191,9 @@ class _Pool:
         assert w.task is not None
         w.process.join()
         flight = w.task[0]
-        self.deaths[flight.flight_id] = self.deaths.get(flight.flight_id, 0) + 1
-        if self.deaths[flight.flight_id] >= WORKER_DEATHS:
-            error = f"not flown: {why}, {WORKER_DEATHS} times (a flight is not retried forever)"
-            self.on_row(flight, {"status": "error", "error": error, "worker": w.number})
+        error = death_row(self.deaths, flight, why)
+        if error is not None:
+            self.on_row(flight, {**error, "worker": w.number})
         else:
             self.pending.appendleft(w.task)
         w.conn.close()

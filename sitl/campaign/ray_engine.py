@@ -25,7 +25,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
-from sitl.campaign.engine import WORKER_DEATHS, FlightTask
+from sitl.campaign.engine import FlightTask, death_row
 from sitl.campaign.flights import Flight
 
 __all__ = ["RayUnavailableError", "fly_task", "run_ray"]
@@ -192,9 +192,8 @@ class _Window:
     def _died(self, running: _Running, why: str) -> None:
         """Fly the flight of a task that is gone once more, or record it as an error."""
         flight = running.task[0]
-        self.deaths[flight.flight_id] = self.deaths.get(flight.flight_id, 0) + 1
-        if self.deaths[flight.flight_id] >= WORKER_DEATHS:
-            error = f"not flown: {why}, {WORKER_DEATHS} times (a flight is not retried forever)"
-            self.on_row(flight, {"status": "error", "error": error, "worker": running.slot})
+        error = death_row(self.deaths, flight, why)
+        if error is not None:
+            self.on_row(flight, {**error, "worker": running.slot})
         else:
             self.pending.append(running.task)
