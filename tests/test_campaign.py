@@ -308,6 +308,20 @@ def test_a_flight_whose_worker_dies_is_flown_once_more_then_recorded_not_retried
     assert row["replay"].startswith("sitl demo --clock virtual")
 
 
+def test_a_ray_task_past_the_timeout_is_cancelled_flown_once_more_then_recorded(run_sitl, tmp_path):
+    """On Ray as on the local engine: a flight past the wall-clock timeout has its task
+    cancelled (its worker killed), is flown once more, then becomes an error row."""
+    spec = write_spec(tmp_path, TINY)
+    out = tmp_path / "out"
+    args = ("--engine", "ray", "--workers", "1", "--limit", "1", "--flight-timeout", "2")
+    done = run_sitl("campaign", str(spec), "--out", str(out), *args)
+    assert done.returncode == 0, done.stdout + done.stderr
+    (row,) = table(out).values()
+    assert row["status"] == "error" and row["worker"] == 1
+    assert row["error"].startswith("not flown: it flew longer than 2 s of wall time, 2 times")
+    assert row["replay"].startswith("sitl demo --clock virtual")
+
+
 def test_the_report_lists_the_flights_outside_the_bounds_with_their_replay(tmp_path):
     """From rows alone: the completed flight beyond the mass bound is in the report's bounds
     section with what it broke and its command; the one within them is not."""
