@@ -48,6 +48,7 @@ summary; :func:`describe_mcap` still reads the chunks written before it.
 
 from __future__ import annotations
 
+import heapq
 import json
 import math
 import os
@@ -536,6 +537,72 @@ def register_channel(
         schema_id = writer.register_schema(name=schema_name, encoding="jsonschema", data=data)
         schema_ids[schema_name] = schema_id
     return writer.register_channel(topic=topic, message_encoding="json", schema_id=schema_id)
+
+
+def merge_messages(
+    mcap_path: str | Path,
+    channels: dict[str, tuple[str, dict[str, Any]]],
+    messages: Iterable[tuple[int, str, bytes]],
+) -> int:
+    """Rewrite the closed log ``mcap_path`` with new ``channels`` (topic -> (schema name,
+    JSON schema)) and their ``messages`` ((log time [ns], topic, JSON bytes), in time
+    order) merged in time order with what it holds; the number of messages added. The
+    file is replaced in one step (a crash leaves the old one).
+
+    Raises ``ValueError`` if the log has no summary or already has one of the channels.
+    """
+    mcap_path = Path(mcap_path)
+    tmp = mcap_path.with_name(mcap_path.name + ".tmp")
+    added = 0
+    with open(mcap_path, "rb") as src:
+        try:
+            reader = make_reader(src)
+            summary = reader.get_summary()
+        except McapError as exc:
+            raise ValueError(f"{mcap_path}: not a readable MCAP log ({exc})") from None
+        if summary is None:
+            raise ValueError(f"{mcap_path}: no summary (the flight's log was not closed)")
+        present = sorted(c.topic for c in summary.channels.values() if c.topic in channels)
+        if present:
+            raise ValueError(f"{mcap_path}: holds {', '.join(present)} already")
+        with open(tmp, "xb") as dst:
+            try:
+                writer = start_writer(dst)
+                schema_ids: dict[str, int] = {}
+                ids: dict[int, int] = {}
+                for cid, channel in sorted(summary.channels.items()):
+                    schema = summary.schemas[channel.schema_id]
+                    ids[cid] = register_channel(
+                        writer, channel.topic, schema.name, json.loads(schema.data), schema_ids
+                    )
+                new_ids = {
+                    topic: register_channel(writer, topic, name, schema, schema_ids)
+                    for topic, (name, schema) in channels.items()
+                }
+                old = (
+                    (m.log_time, 0, ids[m.channel_id], m.data, m.publish_time, m.sequence)
+                    for _, _, m in reader.iter_messages(log_time_order=False)
+                )
+                sequence = dict.fromkeys(new_ids, 0)
+
+                def new() -> Iterable[tuple[int, int, int, bytes, int, int]]:
+                    for ns, topic, data in messages:
+                        yield ns, 1, new_ids[topic], data, ns, sequence[topic]
+                        sequence[topic] += 1
+
+                for log_time, source, cid, data, publish_time, seq in heapq.merge(
+                    old, new(), key=lambda m: (m[0], m[1])
+                ):
+                    writer.add_message(cid, log_time, data, publish_time, seq)
+                    added += source
+                writer.finish()
+                dst.flush()
+                os.fsync(dst.fileno())
+            except BaseException:
+                tmp.unlink(missing_ok=True)
+                raise
+    os.replace(tmp, mcap_path)
+    return added
 
 
 class McapLogWriter:

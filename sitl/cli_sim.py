@@ -479,6 +479,8 @@ def demo(
     finally:
         sitl.stop()
     add_flight_truth(out, out / "truth.jsonl")
+    if autopilot == "px4":
+        _add_px4_log(out)
     _print_truth(scenario, out, place_world)
     draw_with_truth(out)
     write_flight_page(out)
@@ -528,6 +530,22 @@ def _fly_virtual(
         typer.echo(f"error: the simulated vehicle's physics failed: {exc}", err=True)
         return 1
     return finish_mission(report, failure, out)
+
+
+def _add_px4_log(out: Path) -> None:
+    """PX4's ULog of the flight (the newest in ``OUT/px4``) into ``OUT/flight.mcap``."""
+    from companion.ulog_mcap import UlogError, add_ulog
+
+    ulogs = sorted((out / "px4").rglob("*.ulg"), key=lambda p: p.stat().st_mtime)
+    flight = out / "flight.mcap"
+    if not ulogs or not flight.exists():
+        return
+    try:
+        added = add_ulog(flight, ulogs[-1])
+    except (UlogError, ValueError) as exc:
+        typer.echo(f"PX4's log not merged into {flight}: {exc}", err=True)
+        return
+    typer.echo(f"PX4's log: {added} messages of {ulogs[-1].name} in {flight}")
 
 
 def _print_truth(scenario: Scenario, out: Path, place_world: tuple[float, float, float]) -> None:

@@ -23,24 +23,19 @@ never sees any of it: the truth goes in after the flight, from the file.
 
 from __future__ import annotations
 
-import heapq
 import json
 import math
-import os
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
-
-from mcap.reader import make_reader
 
 from companion.mcap_log import (
     Q_KEYS,
     SCHEMAS,
     THETA_KEYS,
     encode,
+    merge_messages,
     pose_in_frame,
-    register_channel,
-    start_writer,
     time_ns,
 )
 
@@ -118,64 +113,16 @@ def _truth_lines(truth_path: Path) -> Iterator[tuple[int, str, bytes]]:
 
 def add_truth(mcap_path: str | Path, truth_path: str | Path) -> int:
     """Rewrite ``mcap_path`` with the truth of ``truth_path`` merged in; the number of
-    truth messages added. The file is replaced in one step (a crash leaves the old one).
+    truth messages added (:func:`companion.mcap_log.merge_messages`: the file is replaced
+    in one step).
 
     Raises ``ValueError`` if the MCAP already has a truth channel.
     """
-    mcap_path, truth_path = Path(mcap_path), Path(truth_path)
-    tmp = mcap_path.with_name(mcap_path.name + ".tmp")
-    added = 0
-    with open(mcap_path, "rb") as src:
-        reader = make_reader(src)
-        summary = reader.get_summary()
-        if summary is None:
-            raise ValueError(f"{mcap_path}: no summary (the flight's log was not closed)")
-        if any(c.topic in TRUTH_CHANNELS for c in summary.channels.values()):
-            raise ValueError(f"{mcap_path}: holds the truth already")
-        with open(tmp, "xb") as dst:
-            try:
-                writer = start_writer(dst)
-                schema_ids: dict[str, int] = {}
-                ids: dict[int, int] = {}
-                for cid, channel in sorted(summary.channels.items()):
-                    schema = summary.schemas[channel.schema_id]
-                    ids[cid] = register_channel(
-                        writer, channel.topic, schema.name, json.loads(schema.data), schema_ids
-                    )
-                truth_ids = {
-                    topic: register_channel(
-                        writer,
-                        topic,
-                        name,
-                        TRUTH_SCHEMA if name == "sitl.Truth" else SCHEMAS[name],
-                        schema_ids,
-                    )
-                    for topic, name in TRUTH_CHANNELS.items()
-                }
-                flight = (
-                    (m.log_time, 0, ids[m.channel_id], m.data, m.publish_time, m.sequence)
-                    for _, _, m in reader.iter_messages(log_time_order=False)
-                )
-                sequence = dict.fromkeys(truth_ids, 0)
-
-                def truth() -> Iterator[tuple[int, int, int, bytes, int, int]]:
-                    for ns, topic, data in _truth_lines(truth_path):
-                        yield ns, 1, truth_ids[topic], data, ns, sequence[topic]
-                        sequence[topic] += 1
-
-                for log_time, source, cid, data, publish_time, seq in heapq.merge(
-                    flight, truth(), key=lambda m: (m[0], m[1])
-                ):
-                    writer.add_message(cid, log_time, data, publish_time, seq)
-                    added += source
-                writer.finish()
-                dst.flush()
-                os.fsync(dst.fileno())
-            except BaseException:
-                tmp.unlink(missing_ok=True)
-                raise
-    os.replace(tmp, mcap_path)
-    return added
+    channels = {
+        topic: (name, TRUTH_SCHEMA if name == "sitl.Truth" else SCHEMAS[name])
+        for topic, name in TRUTH_CHANNELS.items()
+    }
+    return merge_messages(mcap_path, channels, _truth_lines(Path(truth_path)))
 
 
 def add_flight_truth(out_dir: Path, truth_log: Path | None) -> int:

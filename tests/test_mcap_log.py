@@ -392,6 +392,30 @@ def test_the_truth_merges_in_time_order_once(tmp_path):
     with open(path, "rb") as f:
         times = [m.log_time for _, _, m in make_reader(f).iter_messages(log_time_order=False)]
     assert times == sorted(times)
-    with pytest.raises(ValueError, match="truth already"):
+    with pytest.raises(ValueError, match="holds /truth, /truth/pose already"):
         add_truth(path, truth)
     assert not (tmp_path / "flight.mcap.tmp").exists()
+
+
+def test_a_ulog_that_cannot_be_read_is_one_line(tmp_path, run_cli):
+    """``companion log add-ulog``: a missing or corrupt ULog is one ``error:`` line and
+    status 2, and the flight log is left as it was."""
+    from companion.ulog_mcap import UlogError, add_ulog
+
+    mcap = tmp_path / "flight.mcap"
+    mcap.write_bytes(b"not read before the ULog")
+    garbage = tmp_path / "bad.ulg"
+    garbage.write_bytes(b"ULog\x01\x12\x35" + bytes(range(256)) * 4)
+    for ulog, says in ((tmp_path / "none.ulg", "no such file"), (garbage, "not a readable ULog")):
+        with pytest.raises(UlogError, match=says):
+            add_ulog(mcap, ulog)
+        done = run_cli("log", "add-ulog", str(mcap), str(ulog))
+        assert done.returncode == 2, done.stdout + done.stderr
+        lines = [line for line in done.stderr.splitlines() if line.strip()]
+        assert len(lines) == 1 and lines[0].startswith("error:") and says in lines[0], lines
+    assert mcap.read_bytes() == b"not read before the ULog"
+    # A flight log that is no MCAP: one line too.
+    from companion.mcap_log import merge_messages
+
+    with pytest.raises(ValueError, match="not a readable MCAP log"):
+        merge_messages(mcap, {}, [])

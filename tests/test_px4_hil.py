@@ -237,6 +237,51 @@ def test_px4s_own_modes_flew_the_mission_and_its_log_is_kept(pickup):
 
 
 @pytest.mark.slow
+def test_px4s_ulog_joins_the_flight_log_on_one_time_axis(pickup, tmp_path):
+    """``companion log add-ulog`` merges PX4's topics from its ULog into the flight's MCAP;
+    PX4's local position (NED) lies on the companion's logged state (ENU, from PX4's
+    ODOMETRY) at the same time stamps: the two logs share the vehicle's clock with no
+    offset (a 0.2 s offset would part them by several centimetres in the carry)."""
+    import shutil
+
+    import numpy as np
+    from mcap.reader import make_reader
+
+    flight = pickup
+    mcap = tmp_path / "flight.mcap"
+    shutil.copy(flight.out / "flight.mcap", mcap)
+    ulog = max(flight.px4_dir.rglob("*.ulg"), key=lambda u: u.stat().st_size)
+    done = subprocess.run(
+        [sys.executable, "-c", "from companion.cli.main import main; main()",
+         "log", "add-ulog", str(mcap), str(ulog)],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    ours, px4 = [], []
+    with open(mcap, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(
+            topics=["/state", "/px4/vehicle_local_position", "/px4/vehicle_attitude_setpoint"]
+        ):
+            data = json.loads(message.data)
+            if channel.topic == "/state":
+                q = data["q"]
+                ours.append((message.log_time, q["x_m"], q["y_m"], q["z_m"]))
+            elif channel.topic == "/px4/vehicle_local_position":
+                px4.append((message.log_time, data["y"], data["x"], -data["z"]))
+    assert len(ours) > 5000 and len(px4) > 5000, (len(ours), len(px4))
+    t_px4 = np.array([p[0] for p in px4])
+    xyz_px4 = np.array([p[1:] for p in px4])
+    t_ours = np.array([o[0] for o in ours])
+    nearest = np.clip(np.searchsorted(t_px4, t_ours), 0, len(t_px4) - 1)
+    gap = np.linalg.norm(np.array([o[1:] for o in ours]) - xyz_px4[nearest], axis=1)
+    assert np.median(gap) < 0.01 and np.percentile(gap, 99) < 0.05, (
+        np.median(gap),
+        np.percentile(gap, 99),
+    )
+    assert np.abs(t_px4[nearest] - t_ours).max() < 0.05e9  # PX4 logs it at 50 Hz or faster
+
+
+@pytest.mark.slow
 def test_attitude_stays_calm_and_the_handover_is_bumpless_under_px4(pickup):
     """The imitation's flight figures (tests/test_mission_e2e.py) under PX4's own attitude
     loop with the arm's reaction on it: no tilt saturation, tilt below 15 deg outside the

@@ -86,6 +86,23 @@ def log_info(
         typer.echo(line)
 
 
+@log_app.command("add-ulog")
+def log_add_ulog(
+    flight: Annotated[Path, typer.Argument(help="A flight's MCAP log (flight.mcap).")],
+    ulog: Annotated[Path, typer.Argument(help="PX4's ULog of the same flight (.ulg).")],
+) -> None:
+    """Merge PX4's attitude setpoint, attitude, local position, motor commands, status and
+    battery from its ULog into the flight's MCAP log, on the same time axis (time since
+    PX4 booted): one view shows PX4 and the companion together."""
+    from companion.ulog_mcap import UlogError, add_ulog
+
+    try:
+        added = add_ulog(flight, ulog)
+    except (UlogError, ValueError, OSError) as exc:
+        fail(str(exc))
+    typer.echo(f"{flight}: {added} PX4 messages added from {ulog}")
+
+
 app.add_typer(arm_app, name="arm")
 app.command(name="plot")(plot_command)
 app.add_typer(mission_app, name="mission")
