@@ -97,8 +97,10 @@ __all__ = ["VALIDATED_SPEED", "HilOptions", "HilStats", "Px4Exited", "Px4InTheLo
 VALIDATED_SPEED = 2.0
 """The highest speed (simulated s per wall s) at which the pickup with PX4 in the loop and
 the companion beside it on 2 cores gave the results of speed 1, within their seed-to-seed
-spread (``docs/px4_speed.md``, ``benchmarks/compare_demos.py --preset px4-speed``; at 3x one
-flight of four ended its centre-of-mass estimate 15 % off)."""
+spread (``docs/px4_speed.md``, ``benchmarks/compare_demos.py --preset px4-speed``). With
+the companion held in the lockstep, 3x completed all four flights but moved the mean
+centre-of-mass error by 2.5 of speed 1's standard deviations, and 2 cores reach only about
+2.3x anyway (the whole command 1.7x against 2x's 1.6x)."""
 
 _SIMULATOR_WAITING = "Waiting for simulator to accept connection"
 _STARTUP_DONE = "Startup script returned successfully"
