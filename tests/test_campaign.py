@@ -291,33 +291,24 @@ def test_a_tiny_campaign_records_every_flight_once_a_rerun_flies_only_the_missin
     assert {r["worker"] for r in ray_rows.values()} <= {1, 2}
 
 
+@pytest.mark.parametrize(
+    ("engine", "worker"),
+    [("local", 2), ("ray", 1)],
+)
 def test_a_flight_whose_worker_dies_is_flown_once_more_then_recorded_not_retried(
-    run_sitl, tmp_path
+    run_sitl, tmp_path, engine, worker
 ):
     """A worker stopped under its flight (here by the wall-clock timeout, as a kill -9
-    would) loses that flight alone: it is handed to a new worker once, and when that one
-    dies too the flight is an error row with its replay command."""
+    would) loses that flight alone: it is handed to a new worker once (local: a second
+    process; Ray: the task cancelled, its worker killed, the flight resubmitted to slot 1),
+    and when that one dies too the flight is an error row with its replay command."""
     spec = write_spec(tmp_path, TINY)
     out = tmp_path / "out"
-    args = ("--workers", "1", "--limit", "1", "--flight-timeout", "2")
+    args = ("--engine", engine, "--workers", "1", "--limit", "1", "--flight-timeout", "2")
     done = run_sitl("campaign", str(spec), "--out", str(out), *args)
     assert done.returncode == 0, done.stdout + done.stderr
     (row,) = table(out).values()
-    assert row["status"] == "error" and row["worker"] == 2
-    assert row["error"].startswith("not flown: it flew longer than 2 s of wall time, 2 times")
-    assert row["replay"].startswith("sitl demo --clock virtual")
-
-
-def test_a_ray_task_past_the_timeout_is_cancelled_flown_once_more_then_recorded(run_sitl, tmp_path):
-    """On Ray as on the local engine: a flight past the wall-clock timeout has its task
-    cancelled (its worker killed), is flown once more, then becomes an error row."""
-    spec = write_spec(tmp_path, TINY)
-    out = tmp_path / "out"
-    args = ("--engine", "ray", "--workers", "1", "--limit", "1", "--flight-timeout", "2")
-    done = run_sitl("campaign", str(spec), "--out", str(out), *args)
-    assert done.returncode == 0, done.stdout + done.stderr
-    (row,) = table(out).values()
-    assert row["status"] == "error" and row["worker"] == 1
+    assert row["status"] == "error" and row["worker"] == worker
     assert row["error"].startswith("not flown: it flew longer than 2 s of wall time, 2 times")
     assert row["replay"].startswith("sitl demo --clock virtual")
 

@@ -35,11 +35,13 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 
+from pymavlink.dialects.v20 import common as mavlink
+
 __all__ = ["CompanionRelay", "mavlink_frames"]
 
 _HOST = "127.0.0.1"
-_ODOMETRY = 331
-_SET_ATTITUDE_TARGET = 82
+_ODOMETRY = mavlink.MAVLINK_MSG_ID_ODOMETRY
+_SET_ATTITUDE_TARGET = mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET
 _MAX_DATAGRAM = 65536
 _READ_POLL_S = 5e-5
 """How often a hold looks whether the companion's Sync Read was answered [s]."""
