@@ -11,7 +11,10 @@ PX4 SITL build the way its start-up script expects, once per test or run:
   ``bin/`` of symbolic links in a fresh working directory;
 - an instance number whose ports are all free is chosen (PX4 derives every port from it:
   onboard link UDP 14580 + N -> 14540 + N, GCS link 18570 + N -> 14550, camera and gimbal
-  links, SIH display 19450 + N -> 19410 + N, simulator TCP 4560 + N);
+  links, SIH display 19450 + N -> 19410 + N, simulator TCP 4560 + N) and claimed with a
+  lock file until PX4 stops, so that processes starting PX4 at the same time (parallel
+  tests, two ``sitl`` commands) never pick the same instance in the window between the
+  choice and the binding of its ports;
 - parameters go in as ``PX4_PARAM_<NAME>`` (set after the airframe file);
 - the process's output is written to ``px4.log`` in the working directory, which is kept
   when asked (a failed test) and removed otherwise.
@@ -23,6 +26,7 @@ Instances above 9 send their onboard link to 14549 whatever their number (PX4's
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
 import shutil
 import signal
@@ -43,11 +47,14 @@ __all__ = [
     "Px4Ports",
     "Px4Sitl",
     "free_instance",
+    "release_instance",
 ]
 
 PX4_SITL_DIR_ENV = "PX4_SITL_DIR"
 """Environment variable naming the PX4 SITL build directory."""
 _INSTANCES = range(10)
+_CLAIMS: dict[int, IO[bytes]] = {}
+"""Instance -> the open lock file holding this process's claim on it."""
 _READY_LINES = ("Ready for takeoff!",)
 _FAILED_LINES = ("Startup script returned with return value", "ERROR [init]")
 
@@ -177,15 +184,40 @@ def _tcp_free(port: int) -> bool:
     return True
 
 
+def _claim(instance: int) -> bool:
+    """Take the instance's lock file (released by :func:`release_instance` or when this
+    process ends); False when another process or an earlier claim here holds it."""
+    path = Path(tempfile.gettempdir()) / f"px4-sitl-instance-{instance}.lock"
+    lock = open(path, "ab")  # closed by release_instance()
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        lock.close()
+        return False
+    _CLAIMS[instance] = lock
+    return True
+
+
 def free_instance() -> Px4Ports:
-    """The ports of the lowest instance 0-9 whose ports are all free; Px4NotReadyError
-    when every instance is taken."""
+    """The ports of the lowest instance 0-9 that no one has claimed and whose ports are
+    all free, claimed for this process until :func:`release_instance`;
+    Px4NotReadyError when every instance is taken."""
     for n in _INSTANCES:
+        if n in _CLAIMS or not _claim(n):
+            continue
         ports = Px4Ports(n)
         udp = [*ports.bound_by_px4(), ports.onboard_remote, ports.sih_display_remote]
         if all(_udp_free(p) for p in udp) and _tcp_free(ports.simulator_tcp):
             return ports
+        release_instance(ports)
     raise Px4NotReadyError("no PX4 instance 0-9 has all its ports free")
+
+
+def release_instance(ports: Px4Ports) -> None:
+    """Give up this process's claim on ``ports``' instance (none held: nothing to do)."""
+    lock = _CLAIMS.pop(ports.instance, None)
+    if lock is not None:
+        lock.close()
 
 
 class Px4Sitl:
@@ -378,6 +410,8 @@ class Px4Sitl:
         if self._log_file is not None:
             self._log_file.close()
             self._log_file = None
+        if self.ports is not None:
+            release_instance(self.ports)
         workdir = self.workdir
         if workdir is None or not workdir.exists():
             return None

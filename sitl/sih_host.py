@@ -28,7 +28,14 @@ import numpy as np
 
 from sitl.launch import free_udp_port
 from sitl.mocap import DEFAULT_ORIGIN, MocapFeeder, mocap_parameters, sih_origin
-from sitl.px4_sitl import Px4Build, Px4NotReadyError, Px4Ports, Px4Sitl, free_instance
+from sitl.px4_sitl import (
+    Px4Build,
+    Px4NotReadyError,
+    Px4Ports,
+    Px4Sitl,
+    free_instance,
+    release_instance,
+)
 from sitl.scenario import Scenario
 from sitl.servo.arm_stand import ArmStand
 from sitl.sih import sih_parameters
@@ -185,4 +192,7 @@ class SihHost:
         self.stand.stop()
         if self.feeder is not None:
             self.feeder.close()
-        return self.px4.stop(keep=keep) if self.px4 is not None else None
+        kept = self.px4.stop(keep=keep) if self.px4 is not None else None
+        if self.ports is not None:
+            release_instance(self.ports)
+        return kept

@@ -3,12 +3,22 @@
 from __future__ import annotations
 
 import socket
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 from pymavlink import mavutil
 
-from sitl.px4_sitl import Px4Build, Px4BuildError, Px4NotReadyError, Px4Ports, Px4Sitl
+from sitl.px4_sitl import (
+    Px4Build,
+    Px4BuildError,
+    Px4NotReadyError,
+    Px4Ports,
+    Px4Sitl,
+    free_instance,
+    release_instance,
+)
 from sitl.scenario import load_scenario
 from sitl.sih import SihMismatchError, sih_parameters
 
@@ -43,15 +53,45 @@ def test_ports_follow_the_instance():
     assert ports.connect_url == "udpin://127.0.0.1:14543"
 
 
+def test_an_instance_claimed_by_another_process_is_not_chosen():
+    """Two processes starting PX4 at once: the instance one chose is not the other's, even
+    before PX4 binds its ports."""
+    claimer = subprocess.Popen(
+        [sys.executable, "-c", CLAIM_AND_WAIT], stdin=subprocess.PIPE, stdout=subprocess.PIPE
+    )
+    try:
+        assert claimer.stdout is not None and claimer.stdin is not None
+        theirs = int(claimer.stdout.readline())
+        ours = free_instance()
+        try:
+            assert ours.instance != theirs
+        finally:
+            release_instance(ours)
+        claimer.stdin.close()  # they release on exit
+        assert claimer.wait(timeout=10) == 0
+    finally:
+        claimer.kill()
+
+
+CLAIM_AND_WAIT = """
+import sys
+from sitl.px4_sitl import free_instance
+print(free_instance().instance, flush=True)
+sys.stdin.read()
+"""
+
+
 def test_px4_starts_on_free_ports_answers_and_cleans_up(px4_build):
     scenario = load_scenario(ROOT / "configs" / "px4_sih_pickup.toml")
-    # take instance 0's onboard port: the launcher must pick another instance
+    # take the first free instance's onboard port: the launcher must pick another one
+    taken = free_instance()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as busy:
-        busy.bind(("127.0.0.1", 14540))
+        busy.bind(("127.0.0.1", taken.onboard_remote))
+        release_instance(taken)
         px4 = Px4Sitl(px4_build, params=sih_parameters(scenario))
         px4.start()
     try:
-        assert px4.ports.instance != 0
+        assert px4.ports.instance != taken.instance
         link = mavutil.mavlink_connection(f"udpin:127.0.0.1:{px4.ports.onboard_remote}")
         try:
             heartbeat = link.wait_heartbeat(timeout=10)

@@ -29,7 +29,7 @@ from sitl.mocap import (
     truth_pose,
 )
 from sitl.px4.endpoint import MavlinkEndpoint
-from sitl.px4_sitl import free_instance
+from sitl.px4_sitl import free_instance, release_instance
 from sitl.scenario import load_scenario
 from sitl.sih_host import SihHost
 
@@ -123,31 +123,34 @@ def test_mocap_parameters_turn_gps_off_and_vision_on():
 
 def test_the_feeder_asks_for_the_rate_and_forwards_noisy_poses():
     ports = free_instance()
-    sih = MavlinkEndpoint(ports.sih_display_local, ports.sih_display_remote, system_id=2)
-    px4 = MavlinkEndpoint(0, 0, system_id=2)
-    feeder = MocapFeeder(ports, ORIGIN, np.random.default_rng(0), rate_hz=50.0)
-    with sih, px4, feeder:
-        feeder.connect(px4.local_address[1])
-        feeder.start()
-        asked, odometry = [], []
-        deadline = time.monotonic() + 1.0
-        while time.monotonic() < deadline:
-            for msg in sih.receive():
-                if msg.get_type() == "COMMAND_LONG":
-                    asked.append(msg)
-                    sih.send(mavlink.MAVLink_command_ack_message(msg.command, 0))
-            sih.send(_hil_state(1.0, 2.0, -3.0, (1.0, 0.0, 0.0, 0.0)))
-            odometry += [m for m in px4.receive() if m.get_type() == "ODOMETRY"]
-            time.sleep(0.005)  # truth at ~150 Hz, faster than asked
-        truth = feeder.truth()
-    assert asked and asked[0].command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL
-    assert (asked[0].param1, asked[0].param2) == (115, pytest.approx(20_000))  # 50 Hz
-    assert feeder.interval_accepted and len(asked) == 1
-    assert 30 <= len(odometry) <= 70  # about 50 per second, not every truth sample
-    positions = np.array([(m.x, m.y, m.z) for m in odometry])
-    np.testing.assert_allclose(positions.mean(axis=0), (1.0, 2.0, -3.0), atol=6e-3)
-    assert positions.std(axis=0).min() > 2e-4  # noisy
-    np.testing.assert_allclose(truth[1].position_ned_m, (1.0, 2.0, -3.0), atol=6e-3)
+    try:
+        sih = MavlinkEndpoint(ports.sih_display_local, ports.sih_display_remote, system_id=2)
+        px4 = MavlinkEndpoint(0, 0, system_id=2)
+        feeder = MocapFeeder(ports, ORIGIN, np.random.default_rng(0), rate_hz=50.0)
+        with sih, px4, feeder:
+            feeder.connect(px4.local_address[1])
+            feeder.start()
+            asked, odometry = [], []
+            deadline = time.monotonic() + 1.0
+            while time.monotonic() < deadline:
+                for msg in sih.receive():
+                    if msg.get_type() == "COMMAND_LONG":
+                        asked.append(msg)
+                        sih.send(mavlink.MAVLink_command_ack_message(msg.command, 0))
+                sih.send(_hil_state(1.0, 2.0, -3.0, (1.0, 0.0, 0.0, 0.0)))
+                odometry += [m for m in px4.receive() if m.get_type() == "ODOMETRY"]
+                time.sleep(0.005)  # truth at ~150 Hz, faster than asked
+            truth = feeder.truth()
+        assert asked and asked[0].command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL
+        assert (asked[0].param1, asked[0].param2) == (115, pytest.approx(20_000))  # 50 Hz
+        assert feeder.interval_accepted and len(asked) == 1
+        assert 30 <= len(odometry) <= 70  # about 50 per second, not every truth sample
+        positions = np.array([(m.x, m.y, m.z) for m in odometry])
+        np.testing.assert_allclose(positions.mean(axis=0), (1.0, 2.0, -3.0), atol=6e-3)
+        assert positions.std(axis=0).min() > 2e-4  # noisy
+        np.testing.assert_allclose(truth[1].position_ned_m, (1.0, 2.0, -3.0), atol=6e-3)
+    finally:
+        release_instance(ports)
 
 
 # ---------------------------------------------------------------------- real PX4

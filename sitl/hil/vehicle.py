@@ -80,7 +80,14 @@ from sitl.hil.sensors import (
 from sitl.launch import free_udp_port
 from sitl.physics.rotors import N_ROTORS
 from sitl.px4 import GeoReference, MavlinkEndpoint, Px4Mode
-from sitl.px4_sitl import Px4Build, Px4NotReadyError, Px4Ports, Px4Sitl, free_instance
+from sitl.px4_sitl import (
+    Px4Build,
+    Px4NotReadyError,
+    Px4Ports,
+    Px4Sitl,
+    free_instance,
+    release_instance,
+)
 from sitl.runner import (
     LOCKSTEP_WAIT_S,
     RunOptions,
@@ -342,6 +349,8 @@ class Px4InTheLoop:
         if self.px4 is not None:
             kept = self.px4.stop(keep=self.hil.keep_dir is not None or self._failed)
             self.kept_dir = kept or self.kept_dir
+        if self.ports is not None:
+            release_instance(self.ports)
         for closable in (self._link, self._relay, self._mode_link):
             if closable is not None:
                 closable.close()
