@@ -29,6 +29,7 @@ from companion.cli.flight_page import write_flight_page
 from companion.cli.mission import (
     MISSION_FILES,
     ControllerOpt,
+    LiveOpt,
     check_mission_options,
     parse_xyz,
     plan_for,
@@ -406,6 +407,7 @@ def demo(
             "in lockstep, as fast as the machine goes: the same flight log every time)."
         ),
     ] = "wall",
+    live: LiveOpt = None,
 ) -> None:
     """Start the simulated vehicle (``sitl run``), fly the pickup mission against it
     (``companion mission pickup``'s code, given only the companion's part of the scenario),
@@ -449,11 +451,11 @@ def demo(
             f"GPS: PX4's local frame starts at the standing vehicle ({east}, {north}, {up}) m"
         )
     plan = plan_for(beliefs, payload_at, place, 1.5)
-    check_mission_options(controller, 250.0, None)
+    check_mission_options(controller, 250.0, None, live)
     _check_seed(seed)
     out = output_dir_or_exit(out, DEMO_FILES)
     if clock == "virtual":
-        status = _fly_virtual(scenario, plan, controller, out, seed, navigation)
+        status = _fly_virtual(scenario, plan, controller, out, seed, navigation, live)
         _print_truth(scenario, out, place_world)
         draw_with_truth(out)
         write_flight_page(out)
@@ -475,7 +477,9 @@ def demo(
     connect = f"udpin://127.0.0.1:{sitl.onboard_port}"
     typer.echo(f"sitl: running ({sitl.arm_bus}, MAVLink {connect})")
     try:
-        status = run_mission(beliefs, connect, sitl.arm_bus, plan, controller, out, None, 250.0)
+        status = run_mission(
+            beliefs, connect, sitl.arm_bus, plan, controller, out, None, 250.0, live_port=live
+        )
     finally:
         sitl.stop()
     add_flight_truth(out, out / "truth.jsonl")
@@ -505,7 +509,13 @@ def _speed(text: str, autopilot: str) -> float:
 
 
 def _fly_virtual(
-    scenario: Scenario, plan, controller: str, out: Path, seed: int, navigation: str
+    scenario: Scenario,
+    plan,
+    controller: str,
+    out: Path,
+    seed: int,
+    navigation: str,
+    live_port: int | None,
 ) -> int:
     """The demo on simulated time; the exit status (0 completed, 1 failed)."""
     from companion.cli.mission import UsageError, finish_mission
@@ -523,6 +533,7 @@ def _fly_virtual(
             out,
             options,
             controller=controller,  # type: ignore[arg-type]
+            live_port=live_port,
         )
     except UsageError as exc:
         fail(str(exc))

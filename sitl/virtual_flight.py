@@ -48,10 +48,12 @@ def fly_virtual(
     control_rate_hz: float = 250.0,
     figures: bool = True,
     mcap: bool = True,
+    live_port: int | None = None,
 ) -> tuple[MissionReport, BaseException | None]:
     """Fly one pickup on simulated time; write the flight log, summary (and figures) into
     ``out_dir`` and, with ``options.truth_log``, the truth (also into ``flight.mcap``; with
-    ``mcap`` off no MCAP is written: a campaign's flights, about 10 % faster).
+    ``mcap`` off no MCAP is written: a campaign's flights, about 10 % faster; ``live_port``:
+    the live view, as ``fly_pickup``'s).
 
     Returns the mission's report and its failure (None: completed), as
     :func:`~companion.cli.mission.fly_pickup`. ``options.speed`` is not used (nothing
@@ -83,6 +85,7 @@ def fly_virtual(
                 control_rate_hz=control_rate_hz,
                 figures=figures,
                 mcap=mcap,
+                live_port=live_port,
             ),
         )
     add_flight_truth(out_dir, options.truth_log)  # the truth log is closed now

@@ -19,8 +19,9 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import numpy as np
 import typer
@@ -35,6 +36,7 @@ from companion.control.flight import FlightControl, FlightControllerName
 from companion.control.laws import ControlRateError
 from companion.flightlog import FlightLogError, FlightLogWriter, read_flight_log
 from companion.link import LinkError, MavlinkLink, SigningConfig, SigningKeyError
+from companion.live_view import LiveView, LiveViewError
 from companion.mcap_log import ArmGeometry, FlightLogWithMcap
 from companion.mission.app import (
     BUS_FAILURES,
@@ -129,9 +131,11 @@ async def fly_pickup(
     vehicle_timeout_s: float = 10.0,
     figures: bool = True,
     mcap: bool = True,
+    live_port: int | None = None,
 ) -> tuple[MissionReport, BaseException | None]:
     """Open the link and the arm bus, fly, write log and summary (and, with ``figures``,
-    the figures; with ``mcap``, ``flight.mcap`` beside the CSV).
+    the figures; with ``mcap``, ``flight.mcap`` beside the CSV; with ``live_port``, the
+    log's channels on a Foxglove WebSocket server there, 0: a free port).
 
     Returns the report and the mission's failure (MissionError / MissionAborted) or None.
     Raises :class:`UsageError` when the vehicle or the bus cannot be reached.
@@ -183,6 +187,10 @@ async def fly_pickup(
                 writer.open()
             except FlightLogError as exc:
                 raise UsageError(str(exc)) from None
+            live = _open_live_view(live_port, scenario)
+            log, event = writer.write, writer.event
+            if live is not None:
+                log, event = _tee(writer.write, live.write), _tee(writer.event, live.event)
             try:
                 app = PickupApp(
                     scenario,
@@ -191,17 +199,19 @@ async def fly_pickup(
                     plan,
                     controller=controller,
                     control_rate_hz=control_rate_hz,
-                    log=writer.write,
-                    event=writer.event,
+                    log=log,
+                    event=event,
                 )
                 try:
                     report = await app.run()
                 except (MissionError, MissionAborted, ArmDriverError, LinkError) as exc:
                     failure = exc
                     report = app.report
-                    writer.event("failure", str(exc), app.t_s)
+                    event("failure", str(exc), app.t_s)
             finally:
                 writer.close()
+                if live is not None:
+                    live.close()
         finally:
             await bus.close()
     finally:
@@ -214,6 +224,30 @@ async def fly_pickup(
     if figures:
         write_flight_page(out_dir)
     return report, failure
+
+
+def _open_live_view(port: int | None, scenario: CompanionConfig) -> LiveView | None:
+    """The live view on ``port`` (None: none), open and announced; UsageError when it
+    cannot start."""
+    if port is None:
+        return None
+    live = LiveView(port, ArmGeometry.from_config(scenario))
+    try:
+        live.open()
+    except LiveViewError as exc:
+        raise UsageError(f"--live: {exc}") from None
+    typer.echo(f"live view: {live.url} (Foxglove: Open connection)")
+    return live
+
+
+def _tee(*sinks: Callable[..., None]) -> Callable[..., None]:
+    """One callable that calls each of ``sinks`` with the same arguments, in order."""
+
+    def call(*args: Any) -> None:
+        for sink in sinks:
+            sink(*args)
+
+    return call
 
 
 def _draw_figures(log_path: Path, out_dir: Path) -> None:
@@ -251,6 +285,16 @@ def _print_report(report: MissionReport, failure: BaseException | None) -> None:
         typer.echo("mission completed: landed and disarmed")
 
 
+LiveOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--live",
+        metavar="PORT",
+        help="Serve the flight log's channels live to Foxglove on ws://127.0.0.1:PORT "
+        "(8765 is Foxglove's default; 0: any free port), at most 30 Hz.",
+    ),
+]
+
 ControllerOpt = Annotated[
     str, typer.Option(help="passivity (adaptive, the paper's) or nonadaptive (empty-arm values).")
 ]
@@ -287,6 +331,7 @@ def pickup(
     cruise_altitude: Annotated[
         float, typer.Option(help="Transit altitude [m], above 0.5 and at most 120.")
     ] = 1.5,
+    live: LiveOpt = None,
 ) -> None:
     """Fly a payload pickup: take off, grasp, learn the payload, carry, place, land."""
     scenario = config_or_exit(config)
@@ -295,18 +340,20 @@ def pickup(
     bus_url = arm_bus or (scenario.arm_bus.url if scenario.arm_bus else None)
     if bus_url is None:
         fail(f"{config}: no --arm-bus and no [arm_bus] url in the config")
-    check_mission_options(controller, control_rate, signing_key)
+    check_mission_options(controller, control_rate, signing_key, live)
     out = output_dir_or_exit(out, MISSION_FILES)
     status = run_mission(scenario, connect, bus_url, plan, controller, out, signing_key,
-                          control_rate)  # fmt: skip
+                          control_rate, live_port=live)  # fmt: skip
     raise typer.Exit(status)
 
 
 def check_mission_options(
-    controller: str, control_rate_hz: float, signing_key: Path | None
+    controller: str, control_rate_hz: float, signing_key: Path | None, live_port: int | None = None
 ) -> None:
     """The options every mission command shares; one ``error:`` line and exit 2 for a bad
     one, before anything is opened."""
+    if live_port is not None and not 0 <= live_port <= 65535:
+        fail(f"--live must be a TCP port, 0-65535 (0: any free port), got {live_port}")
     if controller not in ("passivity", "nonadaptive"):
         fail(f"--controller must be passivity or nonadaptive, got {controller!r}")
     low, high = CONTROL_RATE_RANGE_HZ
@@ -338,10 +385,13 @@ def plan_for(scenario: CompanionConfig, payload_at, place_at, cruise_altitude: f
     )
 
 
-def run_mission(scenario, connect, bus_url, plan, controller, out, signing_key, rate) -> int:
+def run_mission(
+    scenario, connect, bus_url, plan, controller, out, signing_key, rate, live_port=None
+) -> int:
     """Fly, print the report; the exit status (0 completed, 1 failed). ``out`` is the
-    directory :func:`companion.cli.usage.output_dir_or_exit` chose (created if missing)."""
-    check_mission_options(controller, rate, signing_key)
+    directory :func:`companion.cli.usage.output_dir_or_exit` chose (created if missing);
+    ``live_port``: see :func:`fly_pickup`."""
+    check_mission_options(controller, rate, signing_key, live_port)
     out.mkdir(parents=True, exist_ok=True)
     try:
         report, failure = asyncio.run(
@@ -354,6 +404,7 @@ def run_mission(scenario, connect, bus_url, plan, controller, out, signing_key, 
                 out,
                 signing_key=signing_key,
                 control_rate_hz=rate,
+                live_port=live_port,
             )
         )
     except UsageError as exc:
