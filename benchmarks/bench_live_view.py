@@ -3,10 +3,11 @@ without ``--live`` and with ``--live 0`` and a Foxglove client subscribed to eve
 alternately, ``--pairs`` times.
 
 Prints, and with ``--write`` puts in ``docs/live_view.md`` (machine and commit stated), per
-flight: completed, late cycles, the pose -> setpoint latency (median, p99 [us]), the pose ->
-joint torques latency (median, p99 [us]), and for the watched flights the messages the
-client received and their rate. The two sets of flights differ by the live view only; the
-spread between flights of the same kind is the noise to judge the difference against::
+flight: completed (or why not), faults, late cycles, the pose -> setpoint latency (median,
+p99 [us]), the pose -> joint torques latency (median, p99 [us]), and for the watched
+flights the messages the client received and their rate. The two sets of flights differ by
+the live view only; the spread between flights of the same kind is the noise to judge the
+difference against::
 
     python benchmarks/bench_live_view.py --pairs 2 --write
 """
@@ -89,9 +90,11 @@ def row(live: bool, s: dict) -> list[str]:
         return f"{(s.get(key) or {}).get(which, float('nan')):.0f}"
 
     received = "-" if not live else f"{s['client_messages']} ({s['client_pose_hz']:.1f} Hz)"
+    faults = ", ".join(f["fault"] for f in s["faults"]) or "-"
     return [
         "with" if live else "without",
-        "yes" if s["completed"] else "NO",
+        "yes" if s["completed"] else f"NO ({s.get('failure') or faults})",
+        faults,
         str(s["late_cycles"]),
         pct("setpoint_latency_us", "median"),
         pct("setpoint_latency_us", "p99"),
@@ -104,6 +107,7 @@ def row(live: bool, s: dict) -> list[str]:
 HEADER = [
     "live view",
     "completed",
+    "faults",
     "late cycles",
     "pose -> setpoint p50 [us]",
     "p99 [us]",

@@ -4,9 +4,10 @@
 Two processes on loopback, as a user runs them: the simulated vehicle (free UDP ports, its
 servos on a pty) and the companion's mission command. The companion never reads the
 payload: it learns it in flight; the test compares with the SITL's truth. These are the
-flights whose subject is timing (late servo replies, the loop's latency); the pickup's
-other flights (faults, the controller comparison) fly on simulated time in
-tests/test_virtual_flights.py. :class:`LinkCutter` serves the link cut against PX4.
+flights whose subject is timing (late servo replies, the loop's latency, the lockstep
+through MAVProxy, the router users deploy); the pickup's other flights (faults, the
+controller comparison) fly on simulated time in tests/test_virtual_flights.py.
+:class:`LinkCutter` serves the link cut against PX4.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from pathlib import Path
 
 import pytest
 from flight_checks import assert_calm_flight
+from pymavlink.dialects.v20 import common as mavlink
 
 from companion.flightlog import read_flight_log
 from sitl.launch import free_udp_port, start_sitl
@@ -152,29 +154,90 @@ def test_the_flight_meets_the_px4_acceptance_against_the_imitation(adaptive):
 
 @pytest.mark.slow
 @pytest.mark.alone
-def test_an_external_client_flies_the_pickup_in_lockstep_with_sitl_run(tmp_path):
-    """``sitl run --lockstep``: once the companion streams its setpoints, the vehicle steps
+def test_the_pickup_flies_in_lockstep_with_sitl_run_through_mavproxy(tmp_path):
+    """As deployed: MAVProxy, the router users put between the autopilot, a ground station
+    and the companion, takes the vehicle's onboard link as its master and sends it on to
+    the companion and to a ground station (two ``--out`` UDP links), and routes the
+    companion's setpoints and commands back; it adds its own traffic (its heartbeat as
+    system 255, parameter and mission requests) that the companion must ignore.
+
+    ``sitl run --lockstep``: once the companion streams its setpoints, the vehicle steps
     past a pose only when the setpoint for it and the next joint read are in, so the
-    companion, in its own process over UDP, never misses a pose however long it takes.
-    Some waits time out (8-65 in three flights, from about 67 s on: on the way home the arm
-    task reads the joints less regularly; one where the stream stops at the landing),
-    each costing at most 0.1 s of wall time."""
+    companion, in its own process behind the router, never misses a pose however long it
+    takes. Some waits time out (8-65 in three flights without the router, from about 67 s
+    on: on the way home the arm task reads the joints less regularly; one where the stream
+    stops at the landing), each costing at most 0.1 s of wall time: at speed 3 that is
+    0.3 s of vehicle time, more than the loop may lag (loop_overrun), so speed 1."""
     truth_log = tmp_path / "lockstep.truth.jsonl"
     sitl = start_sitl(CONFIG, "--seed", "1", "--lockstep", speed=SPEED, truth_log=truth_log)
+    gcs = GroundStation()
+    router_port = free_udp_port()
+    router = subprocess.Popen(
+        [sys.executable, "-m", "MAVProxy.mavproxy",
+         f"--master=udpin:127.0.0.1:{sitl.onboard_port}",
+         f"--out=udpout:127.0.0.1:{router_port}", f"--out=udpout:127.0.0.1:{gcs.port}",
+         "--daemon", "--non-interactive", "--streamrate=-1", f"--state-basedir={tmp_path}"],
+        cwd=tmp_path, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        text=True,
+    )  # fmt: skip
     try:
-        result = run_mission(sitl, tmp_path / "lockstep")
+        result = run_mission(sitl, tmp_path / "lockstep", port=router_port)
     finally:
+        router.terminate()
+        try:
+            routed, _ = router.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            router.kill()
+            routed, _ = router.communicate()
+        gcs.close()
         output = sitl.stop()
-    assert result.returncode == 0, result.stdout + result.stderr
+    assert result.returncode == 0, result.stdout + result.stderr + routed[-2000:]
+    assert "Traceback" not in result.stderr
     summary = json.loads((tmp_path / "lockstep" / "summary.json").read_text())
     assert summary["completed"] and summary["faults"] == []
     assert summary["poses_dropped"] == 0 and summary["late_cycles"] == 0
     assert summary["payload_mass_kg"] == pytest.approx(TRUE_MASS_KG, rel=0.10)
+    assert summary["payload_com_along_link2_m"] == pytest.approx(TRUE_COM_M, rel=0.15)
+    placed = truth(truth_log)[-1]["object_position_m"]
+    assert math.dist(placed[:2], [-1.0, 0.5]) < 0.10
     waits, timeouts = (
         int(n) for n in re.search(r"waited for (\d+) setpoints, (\d+) timed out", output).groups()
     )
     # OFFBOARD from about 12 s to the landing at about 77 s: a wait per 8 ms pose
     assert waits > 7000 and timeouts < 0.03 * waits, output[-500:]
+    # The ground station saw the flight on MAVProxy's other output.
+    assert gcs.kinds.get("HEARTBEAT", 0) >= 30 and gcs.kinds.get("ODOMETRY", 0) > 1000
+
+
+class GroundStation:
+    """A UDP socket where a router's ground-station output goes: counts each kind of
+    MAVLink message received, as a ground station would see them."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.2)
+        self.port = self.sock.getsockname()[1]
+        self.kinds: dict[str, int] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        parser = mavlink.MAVLink(None)
+        while not self._stop.is_set():
+            try:
+                data = self.sock.recv(65536)
+            except TimeoutError:
+                continue
+            for message in parser.parse_buffer(data) or []:
+                kind = message.get_type()
+                self.kinds[kind] = self.kinds.get(kind, 0) + 1
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self.sock.close()
 
 
 class LinkCutter:
