@@ -10,7 +10,7 @@ only the medium is memory.
 
 Each end has a *virtual* file descriptor (:meth:`MemoryEnd.fileno`), a number no open file
 of the process can have. An event loop that serves memory ends
-(:class:`sitl.lockstep.LockstepLoop`, which sets ``serves_memory_ports``) resolves it with
+(:class:`sitl.vehicle.lockstep.LockstepLoop`, which sets ``serves_memory_ports``) resolves it with
 :func:`end_for_fd`; the operating system's selectors cannot, so a client refuses to open a
 memory end on any other loop (:func:`require_memory_loop`).
 

@@ -45,7 +45,7 @@ import numpy as np
 
 from companion.control.flight import FlightControl
 from companion.estimation.estimator import Skip
-from sitl.offline import SimOptions, SimResult, simulate
+from sitl.offline.simulation import SimOptions, SimResult, simulate
 from sitl.scenario import Scenario, load_scenario
 
 DEFAULT = Path(__file__).resolve().parent.parent / "configs" / "paper_sim.toml"

@@ -4,9 +4,9 @@ Writes the same records (a seeded random walk of every field, as a flight's valu
 three ways and prints per-cycle microseconds (median, 99th percentile, maximum) of the
 log call the control cycle makes, and the files' sizes:
 
-- ``csv``: :class:`companion.flightlog.FlightLogWriter` alone (the CSV log);
-- ``mcap``: :class:`companion.mcap_log.McapLogWriter` alone;
-- ``csv + mcap``: :class:`companion.mcap_log.FlightLogWithMcap`, what the app runs.
+- ``csv``: :class:`companion.logs.flightlog.FlightLogWriter` alone (the CSV log);
+- ``mcap``: :class:`companion.logs.mcap_log.McapLogWriter` alone;
+- ``csv + mcap``: :class:`companion.logs.mcap_log.FlightLogWithMcap`, what the app runs.
 
 The maximum is a cycle that hands a buffer to the operating system: the CSV's every
 ``flush_every_rows`` rows, the MCAP's when a chunk is full (compressed then). The log call
@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from companion.control.setpoints import AttitudeThrustSetpoint
-from companion.flightlog import CycleRecord, FlightLogWriter
-from companion.mcap_log import ArmGeometry, FlightLogWithMcap, McapLogWriter
+from companion.logs.flightlog import CycleRecord, FlightLogWriter
+from companion.logs.mcap_log import ArmGeometry, FlightLogWithMcap, McapLogWriter
 
 GEOMETRY = ArmGeometry((0.0, 0.0, -0.08), 0.2, 0.2)
 PERIOD_S = 0.004

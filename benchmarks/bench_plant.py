@@ -97,7 +97,7 @@ def _figures(samples_ns: list[int], wall_s: float, cpu_s: float) -> dict[str, fl
 
 
 def offline_run(scenario) -> dict[str, float]:
-    from sitl.offline import SimOptions, simulate
+    from sitl.offline.simulation import SimOptions, simulate
 
     options = SimOptions(controller="passivity", estimator="paper")
     start, cpu0 = time.perf_counter(), time.process_time()

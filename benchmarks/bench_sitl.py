@@ -124,8 +124,8 @@ def _free_port() -> int:
 
 
 def _vehicle(speed: float):
-    from sitl.runner import LinkPorts, RunOptions, SitlVehicle
     from sitl.scenario import load_scenario
+    from sitl.vehicle.runner import LinkPorts, RunOptions, SitlVehicle
 
     ports = LinkPorts(
         onboard_local=_free_port(),

@@ -1,6 +1,6 @@
 """The default pickup on simulated time: how fast, and where the time goes.
 
-Flies ``sitl demo --clock virtual``'s flight (``sitl.virtual_flight.fly_virtual``, no
+Flies ``sitl demo --clock virtual``'s flight (``sitl.vehicle.virtual_flight.fly_virtual``, no
 figures) ``--flights`` times in this process, one core, and prints per flight the
 simulated duration, the wall and CPU time, the real-time factor (simulated / wall) and the
 pickups per hour per core (3600 / CPU seconds per pickup); then the split of the wall time
@@ -29,9 +29,9 @@ from pathlib import Path
 from checkout import this_commit
 
 from companion.cli.mission import plan_for
-from sitl.runner import RunOptions, SitlVehicle
 from sitl.scenario import load_scenario
-from sitl.virtual_flight import fly_virtual
+from sitl.vehicle.runner import RunOptions, SitlVehicle
+from sitl.vehicle.virtual_flight import fly_virtual
 
 ROOT = Path(__file__).resolve().parent.parent
 PLACE_AT = (-1.0, 0.5, 0.05)
@@ -102,7 +102,7 @@ def table(runs: list[dict[str, float]]) -> str:
         f"Written by `benchmarks/bench_virtual_flight.py` on {platform.node()} "
         f"({os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} at the end, Python "
         f"{platform.python_version()}), commit {this_commit()}. One process, one core; the "
-        "flight without figures (`sitl.virtual_flight.fly_virtual`).",
+        "flight without figures (`sitl.vehicle.virtual_flight.fly_virtual`).",
         "",
         "| seed | completed | simulated [s] | wall [s] | CPU [s] | real-time factor "
         "| pickups / hour / core | vehicle steps [% wall] | step [us] | servo bus [% wall] "

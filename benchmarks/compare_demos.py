@@ -40,7 +40,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from checkout import this_commit  # noqa: E402
 from flight_checks import carry_rms_m  # noqa: E402
 
-from companion.flightlog import read_flight_log  # noqa: E402
+from companion.logs.flightlog import read_flight_log  # noqa: E402
 
 PLACE_AT = (-1.0, 0.5)
 TRUE_MASS_KG, TRUE_COM_M = 0.25, 0.15

@@ -21,11 +21,11 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from companion.cli.mission import plan_for
-from companion.flightlog import read_flight_log
+from companion.logs.flightlog import read_flight_log
 from sitl.flight_figures import truth_lines
-from sitl.runner import RunOptions
 from sitl.scenario import load_scenario
-from sitl.virtual_flight import fly_virtual
+from sitl.vehicle.runner import RunOptions
+from sitl.vehicle.virtual_flight import fly_virtual
 
 ROOT = Path(__file__).resolve().parent.parent
 FIGURE = ROOT / "docs" / "pickup.png"

@@ -23,18 +23,18 @@ from companion.cli.entry import VersionOption
 from companion.cli.entry import run as run_app
 from companion.cli.usage import fail as _fail
 from companion.cli.usage import load_or_exit as _load_or_exit
-from sitl.authority import Authority, hover_authority
 from sitl.campaign.cli import campaign
 from sitl.cli_sim import sim_app
 from sitl.hil import HilOptions, HilStats, Px4Exited, Px4InTheLoop
 from sitl.hil.link import SimulatorLinkError
 from sitl.hil.sensors import GPS_GRADES
+from sitl.offline.authority import Authority, hover_authority
 from sitl.physics import PlantError
 from sitl.physics.jsbsim import Wind
 from sitl.px4 import ParamError, SigningKeyError, load_signing_key
-from sitl.px4_sitl import Px4Build, Px4BuildError, Px4NotReadyError
-from sitl.runner import LinkPorts, RunOptions, RunStats, SitlVehicle
+from sitl.px4_sitl.launcher import Px4Build, Px4BuildError, Px4NotReadyError
 from sitl.scenario import MAX_DURATION_S, PayloadSlip, Scenario, load_scenario
+from sitl.vehicle.runner import LinkPorts, RunOptions, RunStats, SitlVehicle
 
 app = typer.Typer(
     name="sitl",
@@ -431,9 +431,9 @@ def sih(
     ] = None,
 ) -> None:
     """Fly the real PX4 with its SIH vehicle, the arm's servos on a pty, until interrupted."""
-    from sitl.px4_sitl import Px4Build, Px4BuildError, Px4NotReadyError, free_instance
-    from sitl.sih import SihMismatchError
-    from sitl.sih_host import SihHost
+    from sitl.px4_sitl.launcher import Px4Build, Px4BuildError, Px4NotReadyError, free_instance
+    from sitl.px4_sitl.sih import SihMismatchError
+    from sitl.px4_sitl.sih_host import SihHost
 
     cfg = load_or_exit(config)
     if px4_dir is None:

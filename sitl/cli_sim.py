@@ -1,6 +1,6 @@
 """The ``sitl`` commands that run the companion's math or app against the simulator.
 
-``sitl sim`` and ``sitl compare`` (the offline closed loop, :mod:`sitl.offline`, and the
+``sitl sim`` and ``sitl compare`` (the offline closed loop, :mod:`sitl.offline.simulation`, and the
 paper's comparison), ``sitl check`` (a whole scenario file, truth included) and
 ``sitl demo`` (``sitl run`` plus the pickup mission, compared with the truth).
 
@@ -37,9 +37,9 @@ from companion.cli.mission import (
 )
 from companion.cli.usage import EXIT_USAGE, check_range, fail, load_or_exit, output_dir_or_exit
 from sitl.flight_figures import draw_with_truth
-from sitl.launch import SitlNotReadyError, start_sitl
 from sitl.scenario import MAX_DURATION_S, Scenario, load_scenario
 from sitl.truth_mcap import add_flight_truth
+from sitl.vehicle.launch import SitlNotReadyError, start_sitl
 
 __all__ = ["COMPARE_FILES", "DEFAULT_SCENARIO", "DEMO_FILES", "SIM_FILES", "sim_app"]
 
@@ -146,7 +146,7 @@ def _run(cfg: Scenario, options, label: str):
     from rich.progress import Progress
 
     from companion.control.laws import ControlRateError
-    from sitl.offline import simulate
+    from sitl.offline.simulation import simulate
     from sitl.physics import PlantError
 
     duration = options.duration_s or cfg.simulation.duration_s
@@ -246,9 +246,9 @@ def sim(
     ] = None,
 ) -> None:
     """Simulate the aerial manipulator offline; writes summary.json, timeseries.csv, figures."""
-    from sitl.offline import SimOptions
-    from sitl.plots import plot_run
-    from sitl.results import write_summary, write_timeseries
+    from sitl.offline.plots import plot_run
+    from sitl.offline.results import write_summary, write_timeseries
+    from sitl.offline.simulation import SimOptions
 
     cfg = load_or_exit(scenario, load_scenario)
     _check_times(cfg, duration, pickup_at, release_at)
@@ -317,9 +317,9 @@ def compare(
     noise: NoiseOpt = False,
 ) -> None:
     """Run every controller and estimator on one scenario; writes compare.md and overlays."""
-    from sitl.offline import SimOptions
-    from sitl.plots import plot_comparison
-    from sitl.results import comparison_markdown, write_summary
+    from sitl.offline.plots import plot_comparison
+    from sitl.offline.results import comparison_markdown, write_summary
+    from sitl.offline.simulation import SimOptions
 
     cfg = load_or_exit(scenario, load_scenario)
     _check_times(cfg, duration)
@@ -414,7 +414,7 @@ def demo(
     write log, summary and figures, and compare the estimate with the truth. With
     ``--autopilot px4`` the real PX4 flies our physics; its log and ULog stay in
     ``OUT/px4``. With ``--clock virtual`` the vehicle and the companion run in this
-    process on simulated time (:mod:`sitl.lockstep`)."""
+    process on simulated time (:mod:`sitl.vehicle.lockstep`)."""
     if autopilot not in ("imitation", "px4"):
         fail(f"--autopilot must be imitation or px4, got {autopilot!r}")
     if clock not in ("wall", "virtual"):
@@ -520,8 +520,8 @@ def _fly_virtual(
     """The demo on simulated time; the exit status (0 completed, 1 failed)."""
     from companion.cli.mission import UsageError, finish_mission
     from sitl.physics import PlantError
-    from sitl.runner import RunOptions
-    from sitl.virtual_flight import fly_virtual
+    from sitl.vehicle.runner import RunOptions
+    from sitl.vehicle.virtual_flight import fly_virtual
 
     options = RunOptions(seed=seed, navigation=navigation, truth_log=out / "truth.jsonl")
     typer.echo("sitl: vehicle and companion in lockstep on simulated time (memory links)")
@@ -545,7 +545,7 @@ def _fly_virtual(
 
 def _add_px4_log(out: Path) -> None:
     """PX4's ULog of the flight (the newest in ``OUT/px4``) into ``OUT/flight.mcap``."""
-    from companion.ulog_mcap import UlogError, add_ulog
+    from companion.logs.ulog_mcap import UlogError, add_ulog
 
     ulogs = sorted((out / "px4").rglob("*.ulg"), key=lambda p: p.stat().st_mtime)
     flight = out / "flight.mcap"

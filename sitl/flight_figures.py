@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from companion.cli.plot import TruthLines, figures_available, plot_flight_log
-from companion.flightlog import FlightLogError, read_flight_log
+from companion.logs.flightlog import FlightLogError, read_flight_log
 
 __all__ = ["draw_with_truth", "truth_lines"]
 

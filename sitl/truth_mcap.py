@@ -1,8 +1,8 @@
 """The simulator's truth in a flight's MCAP, beside the companion's estimate.
 
 After a simulator flight, :func:`add_truth` writes the truth log (``truth.jsonl``, one
-line per truth step, :func:`sitl.runner.truth_record`) into the flight's ``flight.mcap``
-(:mod:`companion.mcap_log`), merged with the companion's messages in time order:
+line per truth step, :func:`sitl.vehicle.runner.truth_record`) into the flight's ``flight.mcap``
+(:mod:`companion.logs.mcap_log`), merged with the companion's messages in time order:
 
 =================  ===========================  ==============================================
 channel            schema                       content (one message per truth line)
@@ -29,7 +29,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from companion.mcap_log import (
+from companion.logs.mcap_log import (
     Q_KEYS,
     SCHEMAS,
     THETA_KEYS,
@@ -113,7 +113,7 @@ def _truth_lines(truth_path: Path) -> Iterator[tuple[int, str, bytes]]:
 
 def add_truth(mcap_path: str | Path, truth_path: str | Path) -> int:
     """Rewrite ``mcap_path`` with the truth of ``truth_path`` merged in; the number of
-    truth messages added (:func:`companion.mcap_log.merge_messages`: the file is replaced
+    truth messages added (:func:`companion.logs.mcap_log.merge_messages`: the file is replaced
     in one step).
 
     Raises ``ValueError`` if the MCAP already has a truth channel.

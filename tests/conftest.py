@@ -59,7 +59,7 @@ def no_leaked_bus() -> Iterator[None]:
 def px4_build():
     """The PX4 SITL build named by ``PX4_SITL_DIR``; the test is skipped where there is
     none (a user without a PX4 build; CI points it at ``../shared/px4-sitl``)."""
-    from sitl.px4_sitl import PX4_SITL_DIR_ENV, Px4Build
+    from sitl.px4_sitl.launcher import PX4_SITL_DIR_ENV, Px4Build
 
     build = Px4Build.from_env()
     if build is None:

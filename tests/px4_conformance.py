@@ -3,11 +3,11 @@
 One set of scenarios, two peers (``tests/test_px4_conformance.py`` runs every scenario on
 both), so that the imitation cannot drift from PX4 again:
 
-- :class:`ImitationPeer`: ``sitl run`` (:func:`sitl.launch.start_sitl`) with
+- :class:`ImitationPeer`: ``sitl run`` (:func:`sitl.vehicle.launch.start_sitl`) with
   ``configs/sitl_pickup.toml``;
 - :class:`Px4Peer`: PX4 main's SIH hexacopter (:class:`sitl.px4_sitl.Px4Sitl`) with the
-  vehicle of ``configs/px4_sih_pickup.toml`` (:func:`sitl.sih.sih_parameters`); on motion
-  capture with SIH's GPS off, EKF2 on vision and a :class:`sitl.mocap.MocapFeeder`
+  vehicle of ``configs/px4_sih_pickup.toml`` (:func:`sitl.px4_sitl.sih.sih_parameters`); on motion
+  capture with SIH's GPS off, EKF2 on vision and a :class:`sitl.px4_sitl.mocap.MocapFeeder`
   sending it SIH's ground truth as the motion-capture pose.
 
 A peer is started in one aiding mode (``gps`` or ``mocap``) and offers a
@@ -41,11 +41,11 @@ import numpy as np
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as M
 
-from sitl.launch import SitlProcess, free_udp_port, start_sitl
-from sitl.mocap import DEFAULT_ORIGIN, MocapFeeder, mocap_parameters, sih_origin
-from sitl.px4_sitl import Px4Build, Px4Sitl, free_instance
+from sitl.px4_sitl.launcher import Px4Build, Px4Sitl, free_instance
+from sitl.px4_sitl.mocap import DEFAULT_ORIGIN, MocapFeeder, mocap_parameters, sih_origin
+from sitl.px4_sitl.sih import sih_parameters
 from sitl.scenario import load_scenario
-from sitl.sih import sih_parameters
+from sitl.vehicle.launch import SitlProcess, free_udp_port, start_sitl
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 IMITATION_CONFIG = CONFIGS / "sitl_pickup.toml"

@@ -14,7 +14,7 @@ import pytest
 from typer.testing import CliRunner, Result
 
 from companion.cli.main import app as companion_app
-from companion.flightlog import FlightLogError, FlightLogWriter
+from companion.logs.flightlog import FlightLogError, FlightLogWriter
 from sitl.cli import app as sitl_app
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -62,12 +62,12 @@ def changed(tmp_path: Path, source: Path, old: str, new: str) -> Path:
 @pytest.fixture
 def no_simulation(monkeypatch: pytest.MonkeyPatch) -> None:
     """Fail the test if a simulation starts: the error must come before any work."""
-    import sitl.offline
+    import sitl.offline.simulation
 
     def refuse(*args, **kwargs):
         raise AssertionError("the simulation ran before the bad input was found")
 
-    monkeypatch.setattr(sitl.offline, "simulate", refuse)
+    monkeypatch.setattr(sitl.offline.simulation, "simulate", refuse)
 
 
 # --- configuration files --------------------------------------------------------------
@@ -277,7 +277,7 @@ def test_the_flight_log_writer_never_overwrites(tmp_path):
 def flight_log(tmp_path) -> Path:
     import numpy as np
 
-    from companion.flightlog import CycleRecord
+    from companion.logs.flightlog import CycleRecord
 
     path = tmp_path / "flight.csv"
     with FlightLogWriter(path) as log:

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from companion.control.setpoints import AttitudeThrustSetpoint
-from companion.flightlog import CycleRecord, FlightLogWriter
+from companion.logs.flightlog import CycleRecord, FlightLogWriter
 
 
 @pytest.fixture

@@ -12,7 +12,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.hil.companion_relay import CompanionRelay, mavlink_frames
-from sitl.launch import free_udp_port
+from sitl.vehicle.launch import free_udp_port
 
 PX4 = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
 APP = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)

@@ -28,7 +28,7 @@ from companion.control.setpoints import ThrustModel
 from companion.estimation import filters
 from companion.estimation.estimator import Skip
 from companion.estimation.filters import FilteredState, StateFilter
-from sitl.offline import COLUMNS, SimOptions, simulate
+from sitl.offline.simulation import COLUMNS, SimOptions, simulate
 from sitl.scenario import load_scenario, parse_scenario
 
 pytestmark = pytest.mark.skipif(

@@ -22,8 +22,8 @@ from companion.control.setpoints import (
 )
 from companion.control.trajectory import TiltReference
 from companion.model import ManipulatorModel
+from sitl.offline.trajectory import PaperSinusoid
 from sitl.scenario import load_scenario
-from sitl.trajectory import PaperSinusoid
 
 CFG = load_scenario(Path(__file__).parent.parent / "configs" / "paper_sim.toml")
 MODEL = ManipulatorModel.from_config(CFG)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from companion.control.setpoints import AttitudeThrustSetpoint
-from companion.flightlog import (
+from companion.logs.flightlog import (
     COLUMNS,
     TIMING_COLUMNS,
     CycleRecord,

@@ -23,9 +23,9 @@ from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed
 
 from companion.control.setpoints import AttitudeThrustSetpoint
-from companion.flightlog import CycleRecord
-from companion.live_view import LiveView, LiveViewError
-from companion.mcap_log import CHANNELS, SCHEMAS, ArmGeometry, time_ns
+from companion.logs.flightlog import CycleRecord
+from companion.logs.live_view import LiveView, LiveViewError
+from companion.logs.mcap_log import CHANNELS, SCHEMAS, ArmGeometry, time_ns
 
 ROOT = Path(__file__).parent.parent
 GEOMETRY = ArmGeometry((0.05, 0.0, -0.08), 0.2, 0.15)

@@ -1,4 +1,4 @@
-"""The lockstep loop and the in-memory channels it serves (``sitl.lockstep``,
+"""The lockstep loop and the in-memory channels it serves (``sitl.vehicle.lockstep``,
 ``arm_driver.memory``), with a counting simulation instead of the vehicle."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from arm_driver.memory import attach, create_channel
 from companion.link.errors import LinkClosedError
 from companion.link.transport import open_transport
 from companion.link.url import parse_link_url
-from sitl.lockstep import LockstepLoop, LockstepStall, run_lockstep
+from sitl.vehicle.lockstep import LockstepLoop, LockstepStall, run_lockstep
 
 
 class Counter:

@@ -1,4 +1,4 @@
-"""``flight.mcap`` (companion.mcap_log, sitl.truth_mcap): one virtual pickup read back with
+"""``flight.mcap`` (companion.logs.mcap_log, sitl.truth_mcap): one virtual pickup read back with
 the ``mcap`` reader against its own CSV log and truth, and the writer on hand-made records."""
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ from typer.testing import CliRunner
 
 from companion.cli.main import app
 from companion.control.setpoints import AttitudeThrustSetpoint
-from companion.flightlog import CycleRecord, FlightLogError, read_flight_log
 from companion.frames import rotation_from_quaternion
-from companion.mcap_log import (
+from companion.logs.flightlog import CycleRecord, FlightLogError, read_flight_log
+from companion.logs.mcap_log import (
     CHANNELS,
     SCHEMAS,
     ArmGeometry,
@@ -314,7 +314,7 @@ def test_the_writer_writes_what_it_is_given_and_null_for_what_is_missing(tmp_pat
 
 
 def test_the_arm_points_where_its_angles_say():
-    from companion.mcap_log import frame_transforms
+    from companion.logs.mcap_log import frame_transforms
 
     q = [0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -math.pi / 2, 0.0]  # straight down
     down = chain(frame_transforms(q, GEOMETRY, 0)["transforms"], "gripper")
@@ -400,7 +400,7 @@ def test_the_truth_merges_in_time_order_once(tmp_path):
 def test_a_ulog_that_cannot_be_read_is_one_line(tmp_path, run_cli):
     """``companion log add-ulog``: a missing or corrupt ULog is one ``error:`` line and
     status 2, and the flight log is left as it was."""
-    from companion.ulog_mcap import UlogError, add_ulog
+    from companion.logs.ulog_mcap import UlogError, add_ulog
 
     mcap = tmp_path / "flight.mcap"
     mcap.write_bytes(b"not read before the ULog")
@@ -415,7 +415,7 @@ def test_a_ulog_that_cannot_be_read_is_one_line(tmp_path, run_cli):
         assert len(lines) == 1 and lines[0].startswith("error:") and says in lines[0], lines
     assert mcap.read_bytes() == b"not read before the ULog"
     # A flight log that is no MCAP: one line too.
-    from companion.mcap_log import merge_messages
+    from companion.logs.mcap_log import merge_messages
 
     with pytest.raises(ValueError, match="not a readable MCAP log"):
         merge_messages(mcap, {}, [])

@@ -28,8 +28,8 @@ import pytest
 from flight_checks import assert_calm_flight
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.flightlog import read_flight_log
-from sitl.launch import free_udp_port, start_sitl
+from companion.logs.flightlog import read_flight_log
+from sitl.vehicle.launch import free_udp_port, start_sitl
 
 ROOT = Path(__file__).parent.parent
 CONFIG = ROOT / "configs" / "sitl_pickup.toml"

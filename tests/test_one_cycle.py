@@ -1,8 +1,9 @@
 """One flight cycle everywhere: the offline simulator and the flight app run the same step.
 
-The offline simulator (``sitl.offline``) and the flight app (``companion.mission.app.PickupApp``)
-both build a :class:`companion.control.flight.FlightControl` from the companion's
-configuration and call its ``step``. Recorded from an offline run (underactuated plant,
+The offline simulator (``sitl.offline.simulation``) and the flight app
+(``companion.mission.app.PickupApp``) both build a
+:class:`companion.control.flight.FlightControl` from the companion's configuration and call
+its ``step``. Recorded from an offline run (underactuated plant,
 noisy sensors), the same sequence of (dt, filtered state, desired state, applied force)
 replayed through the app's own FlightControl gives bit-identical setpoints and torques:
 there is no second copy of the cycle to drift apart.
@@ -18,7 +19,7 @@ from companion.control.flight import FlightControl
 from companion.estimation.estimator import Skip
 from companion.mission.app import PickupApp
 from companion.mission.pickup import PickupPlan
-from sitl.offline import SimOptions, simulate
+from sitl.offline.simulation import SimOptions, simulate
 from sitl.scenario import load_scenario
 
 SCENARIO = load_scenario("configs/sitl_pickup.toml")

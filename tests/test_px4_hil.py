@@ -34,9 +34,9 @@ from flight_checks import (
 )
 from test_mission_e2e import LinkCutter
 
-from companion.flightlog import read_flight_log
+from companion.logs.flightlog import read_flight_log
 from sitl.hil.vehicle import VALIDATED_SPEED
-from sitl.launch import start_sitl
+from sitl.vehicle.launch import start_sitl
 
 ROOT = Path(__file__).parent.parent
 CONFIG = ROOT / "configs" / "sitl_pickup.toml"

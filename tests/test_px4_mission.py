@@ -25,8 +25,8 @@ import numpy as np
 import pytest
 from flight_checks import MISSION_PHASES
 
-from companion.flightlog import read_flight_log
-from sitl.launch import start_sih
+from companion.logs.flightlog import read_flight_log
+from sitl.vehicle.launch import start_sih
 
 ROOT = Path(__file__).parent.parent
 CONFIG = ROOT / "configs" / "px4_sih_pickup.toml"

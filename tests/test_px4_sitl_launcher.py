@@ -1,4 +1,4 @@
-"""The PX4 SITL launcher (``sitl.px4_sitl``) and the SIH vehicle of a scenario."""
+"""The PX4 SITL launcher (``sitl.px4_sitl.launcher``) and the SIH vehicle of a scenario."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from pymavlink import mavutil
 
-from sitl.px4_sitl import (
+from sitl.px4_sitl.launcher import (
     Px4Build,
     Px4BuildError,
     Px4NotReadyError,
@@ -19,8 +19,8 @@ from sitl.px4_sitl import (
     free_instance,
     release_instance,
 )
+from sitl.px4_sitl.sih import SihMismatchError, sih_parameters
 from sitl.scenario import load_scenario
-from sitl.sih import SihMismatchError, sih_parameters
 
 ROOT = Path(__file__).parent.parent
 
@@ -75,7 +75,7 @@ def test_an_instance_claimed_by_another_process_is_not_chosen():
 
 CLAIM_AND_WAIT = """
 import sys
-from sitl.px4_sitl import free_instance
+from sitl.px4_sitl.launcher import free_instance
 print(free_instance().instance, flush=True)
 sys.stdin.read()
 """

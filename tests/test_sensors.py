@@ -1,4 +1,4 @@
-"""Tests of sitl.sensors: noise statistics, rates, latency, reproducibility, angles."""
+"""Tests of sitl.vehicle.sensors: noise statistics, rates, latency, reproducibility, angles."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from sitl.sensors import (
+from sitl.vehicle.sensors import (
     GyroSensor,
     JointEncoders,
     PoseSensor,

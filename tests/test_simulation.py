@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sitl.offline import SimOptions, simulate
+from sitl.offline.simulation import SimOptions, simulate
 from sitl.scenario import load_scenario, parse_scenario
 
 CONFIGS = Path(__file__).parent.parent / "configs"

@@ -1,10 +1,10 @@
-"""sitl.authority and the sitl command line."""
+"""sitl.offline.authority and the sitl command line."""
 
 from pathlib import Path
 
 import pytest
 
-from sitl.authority import hover_authority
+from sitl.offline.authority import hover_authority
 from sitl.physics.rotors import thrust_curve
 from sitl.scenario import load_scenario
 

@@ -1,8 +1,8 @@
-"""Motion capture for PX4 SIH (``sitl.mocap``): the pose math, the feeder against a fake
+"""Motion capture for PX4 SIH (``sitl.px4_sitl.mocap``): the pose math, the feeder against a fake
 SIH link, and what the real PX4 does on motion capture without and with a global origin.
 
 The PX4 tests need ``PX4_SITL_DIR`` (skipped otherwise) and fly SIH's vehicle of
-``configs/px4_sih_pickup.toml`` through :class:`sitl.sih_host.SihHost`; they talk to PX4
+``configs/px4_sih_pickup.toml`` through :class:`sitl.px4_sitl.sih_host.SihHost`; they talk to PX4
 as the companion does, on the onboard link, with a 1 Hz onboard-controller heartbeat.
 """
 
@@ -18,7 +18,9 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.mocap import (
+from sitl.px4.endpoint import MavlinkEndpoint
+from sitl.px4_sitl.launcher import free_instance, release_instance
+from sitl.px4_sitl.mocap import (
     DEFAULT_ORIGIN,
     MocapFeeder,
     MocapPose,
@@ -28,10 +30,8 @@ from sitl.mocap import (
     sih_origin,
     truth_pose,
 )
-from sitl.px4.endpoint import MavlinkEndpoint
-from sitl.px4_sitl import free_instance, release_instance
+from sitl.px4_sitl.sih_host import SihHost
 from sitl.scenario import load_scenario
-from sitl.sih_host import SihHost
 
 CONFIG = Path(__file__).parent.parent / "configs" / "px4_sih_pickup.toml"
 ORIGIN = sih_origin(DEFAULT_ORIGIN)

@@ -1,14 +1,14 @@
-"""sitl.navigation: the EKF2-like estimate on PX4's 125 Hz output grid, per aiding mode."""
+"""sitl.vehicle.navigation: the EKF2-like estimate on PX4's 125 Hz output grid, per aiding mode."""
 
 import numpy as np
 import pytest
 
 from arm_driver.joint import GripperConfig, JointConfig
-from sitl.navigation import ERROR_MODELS, Navigation
 from sitl.physics import AttitudeSetpoint, TruthPlant
 from sitl.scenario import load_scenario
 from sitl.servo import XM430Servo
-from sitl.world import World, WorldSettings
+from sitl.vehicle.navigation import ERROR_MODELS, Navigation
+from sitl.vehicle.world import World, WorldSettings
 
 SCENARIO = load_scenario("configs/sitl_pickup.toml")
 

@@ -19,10 +19,10 @@ from arm_driver.joint import JointConfig
 from companion.config import ConfigError
 from companion.mission.carry_check import CarryThresholds, gripper_holds
 from sitl.physics import TruthPlant
-from sitl.runner import RunOptions, build_world, world_settings
 from sitl.scenario import load_scenario
 from sitl.servo import XM430Servo
-from sitl.world import World, WorldSettings
+from sitl.vehicle.runner import RunOptions, build_world, world_settings
+from sitl.vehicle.world import World, WorldSettings
 
 PICKUP = Path(__file__).resolve().parents[1] / "configs" / "sitl_pickup.toml"
 OBJECT_STOP = GRIPPER.open_position_rad + 0.8 * (

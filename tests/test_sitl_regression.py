@@ -130,9 +130,9 @@ def vehicle_run() -> tuple[np.ndarray, np.ndarray]:
     numeric fields, one flat array."""
     from pymavlink.dialects.v20 import common as mavlink
 
-    from sitl.navigation import Navigation
     from sitl.px4 import GeoReference, Px4Params, Px4Vehicle
-    from sitl.runner import RunOptions, build_world
+    from sitl.vehicle.navigation import Navigation
+    from sitl.vehicle.runner import RunOptions, build_world
 
     scenario = load_scenario(CONFIGS / "sitl_pickup.toml")
     options = RunOptions(seed=1, navigation="gps")

@@ -1,6 +1,6 @@
 """``sitl sih``: the real PX4 with its SIH vehicle, the arm's servos on a pty.
 
-The command runs in a subprocess as a user runs it (``sitl.launch.start_sih``). Tests that
+The command runs in a subprocess as a user runs it (``sitl.vehicle.launch.start_sih``). Tests that
 start PX4 need ``PX4_SITL_DIR`` (skipped otherwise, see the ``px4_build`` fixture); each
 boots PX4 once (about 5-10 s).
 """
@@ -22,10 +22,10 @@ from pymavlink import mavutil
 
 from arm_driver.bus import OperatingMode, open_bus
 from companion.config import arm_bus_configs
-from sitl.launch import start_sih
-from sitl.px4_sitl import Px4Ports
+from sitl.px4_sitl.launcher import Px4Ports
+from sitl.px4_sitl.sih import sih_parameters
 from sitl.scenario import load_scenario
-from sitl.sih import sih_parameters
+from sitl.vehicle.launch import start_sih
 
 ROOT = Path(__file__).parent.parent
 CONFIG = ROOT / "configs" / "px4_sih_pickup.toml"

@@ -18,7 +18,7 @@ os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
-from sitl.launch import start_sitl
+from sitl.vehicle.launch import start_sitl
 
 CONFIG = Path(__file__).parent.parent / "configs" / "sitl_pickup.toml"
 pytestmark = pytest.mark.slow

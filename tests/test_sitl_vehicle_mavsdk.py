@@ -26,8 +26,8 @@ from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.offboard import Attitude, OffboardAsync
 from mavsdk.asyncio.plugins.telemetry import FlightMode, LandedState, TelemetryAsync
 
-from sitl.launch import start_sitl
 from sitl.scenario import load_scenario
+from sitl.vehicle.launch import start_sitl
 
 CONFIG = Path(__file__).parent.parent / "configs" / "sitl_pickup.toml"
 SPEED = 1.0

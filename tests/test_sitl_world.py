@@ -11,7 +11,7 @@ from arm_driver.joint import GripperConfig, JointConfig
 from sitl.physics import AttitudeSetpoint, TruthPlant
 from sitl.scenario import load_scenario
 from sitl.servo import XM430Servo
-from sitl.world import World, WorldSettings
+from sitl.vehicle.world import World, WorldSettings
 
 SCENARIO = load_scenario("configs/experiment_arm.toml")
 GRIPPER = GripperConfig(3, open_position_rad=0.8, closed_position_rad=-0.25)

@@ -27,7 +27,7 @@ from companion.estimation.estimator import (
     estimator_from_config,
 )
 from companion.model import ManipulatorModel
-from sitl.offline import SimOptions, simulate
+from sitl.offline.simulation import SimOptions, simulate
 from sitl.physics import AttitudeSetpoint, TruthPlant
 from sitl.physics.rotors import thrust_curve
 from sitl.scenario import BatterySag, load_scenario, parse_scenario
@@ -380,7 +380,7 @@ def test_truth_rotors_sag_with_the_plants_time() -> None:
 
 
 def test_sih_refuses_a_battery_sag() -> None:
-    from sitl.sih import SihMismatchError, sih_parameters
+    from sitl.px4_sitl.sih import SihMismatchError, sih_parameters
 
     data = tomllib.loads((CONFIGS / "px4_sih_pickup.toml").read_text())
     data["plant"]["battery_sag"] = {"thrust_loss": 0.1, "over_s": 20.0}

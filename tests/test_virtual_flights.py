@@ -1,5 +1,5 @@
 """Pickups on simulated time: the companion's mission code against the simulated vehicle in
-one process, in lockstep (``sitl.lockstep``), many times faster than real time.
+one process, in lockstep (``sitl.vehicle.lockstep``), many times faster than real time.
 
 The same flights as against ``sitl run`` on the wall clock, with the fault in the
 simulator's truth; the companion is told nothing. A flight is a function of the scenario,
@@ -20,10 +20,10 @@ import pytest
 from flight_checks import CARRY_RMS_BOUND_M, assert_calm_flight, carry_rms_m
 
 from companion.cli.mission import plan_for
-from companion.flightlog import read_flight_log
-from sitl.runner import RunOptions
+from companion.logs.flightlog import read_flight_log
 from sitl.scenario import BatterySag, PayloadSlip, Scenario, load_scenario
-from sitl.virtual_flight import fly_virtual
+from sitl.vehicle.runner import RunOptions
+from sitl.vehicle.virtual_flight import fly_virtual
 
 ROOT = Path(__file__).parent.parent
 SCENARIO = load_scenario(ROOT / "configs" / "sitl_pickup.toml")

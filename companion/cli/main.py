@@ -75,8 +75,8 @@ def log_info(
 ) -> None:
     """Print the channels of an MCAP flight log: topic, schema, encodings, message count,
     and the time range (vehicle time)."""
-    from companion.flightlog import FlightLogError
-    from companion.mcap_log import describe_mcap
+    from companion.logs.flightlog import FlightLogError
+    from companion.logs.mcap_log import describe_mcap
 
     try:
         info = describe_mcap(flight)
@@ -94,7 +94,7 @@ def log_add_ulog(
     """Merge PX4's attitude setpoint, attitude, local position, motor commands, status and
     battery from its ULog into the flight's MCAP log, on the same time axis (time since
     PX4 booted): one view shows PX4 and the companion together."""
-    from companion.ulog_mcap import UlogError, add_ulog
+    from companion.logs.ulog_mcap import UlogError, add_ulog
 
     try:
         added = add_ulog(flight, ulog)

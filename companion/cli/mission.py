@@ -3,7 +3,7 @@
 Flies one mission against a vehicle (PX4, ``sitl run``, ``sitl sih``) and an arm bus given
 by URL, and writes into ``--out``: ``flight.csv`` / ``flight.events.csv`` (the flight log),
 ``flight.timing.csv`` (what the wall clock measured), ``flight.mcap`` (the same flight for
-Foxglove and PlotJuggler, :mod:`companion.mcap_log`), ``summary.json`` and, when matplotlib
+Foxglove and PlotJuggler, :mod:`companion.logs.mcap_log`), ``summary.json`` and, when matplotlib
 is installed, the figures of ``companion plot``.
 (``sitl demo`` runs the same mission against the simulator: :func:`run_mission`.)
 
@@ -34,10 +34,10 @@ from companion.cli.usage import check_range, config_or_exit, fail, output_dir_or
 from companion.config import CompanionConfig, arm_bus_configs
 from companion.control.flight import FlightControl, FlightControllerName
 from companion.control.laws import ControlRateError
-from companion.flightlog import FlightLogError, FlightLogWriter, read_flight_log
 from companion.link import LinkError, MavlinkLink, SigningConfig, SigningKeyError
-from companion.live_view import LiveView, LiveViewError
-from companion.mcap_log import ArmGeometry, FlightLogWithMcap
+from companion.logs.flightlog import FlightLogError, FlightLogWriter, read_flight_log
+from companion.logs.live_view import LiveView, LiveViewError
+from companion.logs.mcap_log import ArmGeometry, FlightLogWithMcap
 from companion.mission.app import (
     BUS_FAILURES,
     MissionAborted,

@@ -1,6 +1,6 @@
 """``companion plot LOG --out DIR``: tracking, estimation and arm figures of a flight log.
 
-Reads a log written by :class:`companion.flightlog.FlightLogWriter` and draws, with
+Reads a log written by :class:`companion.logs.flightlog.FlightLogWriter` and draws, with
 matplotlib's non-interactive Agg backend (files only):
 
 - ``tracking.png``: x, y, z against the desired trajectory, roll and pitch against the
@@ -28,7 +28,7 @@ import numpy as np
 import typer
 
 from companion.cli.usage import fail, output_dir_or_exit
-from companion.flightlog import FlightLog, FlightLogError, read_flight_log
+from companion.logs.flightlog import FlightLog, FlightLogError, read_flight_log
 
 __all__ = ["FIGURES", "TruthLines", "figures_available", "plot", "plot_flight_log"]
 

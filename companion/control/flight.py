@@ -2,7 +2,7 @@
 
 Pure (no I/O, no clock). The same step runs everywhere: the flight application
 (:mod:`companion.mission.app`, against PX4 or the SITL) and the offline simulator
-(``sitl.offline``) call :meth:`FlightControl.step` once per control period with the
+(``sitl.offline.simulation``) call :meth:`FlightControl.step` once per control period with the
 filtered state, the desired state and the generalized force applied over the last period,
 and send the result to PX4 (or the plant) and the servos. The pieces are the paper's
 (section III):

@@ -27,7 +27,7 @@ then refuse torque without a word: the task enables them again first.
 
 Time: ages, read periods and the bus's silence are measured on the running event loop's
 clock (``loop.time()``): the monotonic clock in flight, the simulation's in a flight on
-simulated time (:mod:`sitl.lockstep`).
+simulated time (:mod:`sitl.vehicle.lockstep`).
 """
 
 from __future__ import annotations

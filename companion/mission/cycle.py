@@ -34,9 +34,9 @@ from companion.control.setpoints import AttitudeThrustSetpoint
 from companion.coordinates import HORIZONTAL, JOINTS, N_Q, PHI, PSI, THETA, TILT, Z
 from companion.estimation.estimator import Skip
 from companion.estimation.state import StateAssembler, thrust_force_world
-from companion.flightlog import CycleRecord
 from companion.link import MavlinkLink
 from companion.link.telemetry import BodyRates, LandedState, VehiclePose, VehicleStatus
+from companion.logs.flightlog import CycleRecord
 from companion.mission.arm_supervisor import ArmSupervisor
 from companion.mission.carry_check import CarryThresholds, CarryVerdict, CarryWatch, gripper_holds
 from companion.mission.failsafe import CARRY_REACTIONS, FailsafeMonitor, Fault, FaultEvent

@@ -1,6 +1,6 @@
 """One flight of a campaign, flown and measured: what a worker does with a :class:`Flight`.
 
-The flight is ``sitl demo --clock virtual``'s (:func:`sitl.virtual_flight.fly_virtual`: the
+The flight is ``sitl demo --clock virtual``'s (:func:`sitl.vehicle.virtual_flight.fly_virtual`: the
 companion's mission code against the simulated vehicle, in lockstep on simulated time), in a
 fresh temporary directory that is removed afterwards; what stays is one row of figures
 (:func:`flight_row`). A flight that raises becomes a row with ``status`` ``error`` and its
@@ -22,13 +22,13 @@ from typing import Any
 import numpy as np
 
 from companion.cli.mission import plan_for
-from companion.flightlog import read_flight_log
+from companion.logs.flightlog import read_flight_log
 from companion.mission.pickup import Phase
 from companion.mission.report import MissionReport
 from sitl.campaign.flights import CRUISE_ALTITUDE_M, Flight, scenario_of
-from sitl.runner import RunOptions
 from sitl.scenario import Scenario
-from sitl.virtual_flight import fly_virtual
+from sitl.vehicle.runner import RunOptions
+from sitl.vehicle.virtual_flight import fly_virtual
 
 __all__ = ["CARRY_PHASES", "flight_row", "fly_flight", "package_version"]
 

@@ -97,7 +97,8 @@ def navigation_parameters(
 ) -> dict[str, float]:
     """EKF2's parameters for navigating on motion capture or on GPS.
 
-    ``mocap`` (the paper's lab, as :func:`sitl.mocap.mocap_parameters` measured on PX4 SIH):
+    ``mocap`` (the paper's lab, as :func:`sitl.px4_sitl.mocap.mocap_parameters` measured on
+    PX4 SIH):
     GPS, barometer and range finder off; vision position (horizontal and vertical) and yaw
     fused, vision as the height reference, the poses' own variances bounded below by
     EKF2's minimum noises (10 mm, 0.05 rad); ``EKF2_EV_DELAY`` = ``vision_delay_s``, the

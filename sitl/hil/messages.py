@@ -25,12 +25,12 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from companion.frames import frd_from_flu, ned_from_enu, quaternion_ned_frd_from_enu_flu
 from sitl.hil.sensors import BaroReading, GpsFix, ImuReading
-from sitl.mocap import MocapPose, odometry_message
 from sitl.physics import PlantState
 from sitl.physics.frames import quaternion_from_euler
 from sitl.physics.rotors import N_ROTORS
 from sitl.px4.geo import GeoReference
-from sitl.sensors import PoseMeasurement
+from sitl.px4_sitl.mocap import MocapPose, odometry_message
+from sitl.vehicle.sensors import PoseMeasurement
 
 __all__ = [
     "FIELDS_ACCEL",
@@ -117,7 +117,7 @@ def vision_odometry(
 ) -> mavlink.MAVLink_odometry_message:
     """ODOMETRY of a motion-capture pose (world ENU position, ZYX Euler angles of body FLU)
     as external vision in local NED / body FRD with its noise as variances
-    (:func:`sitl.mocap.odometry_message`); ``time_us`` is the mocap system's clock."""
+    (:func:`sitl.px4_sitl.mocap.odometry_message`); ``time_us`` is the mocap system's clock."""
     q_ned_frd = quaternion_ned_frd_from_enu_flu(quaternion_from_euler(*pose.euler_rad.tolist()))
     ned = MocapPose(
         tuple(ned_from_enu(pose.position_m).tolist()),

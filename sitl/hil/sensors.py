@@ -3,7 +3,7 @@
 Pure: truth in (our frames: world ENU, body FLU, SI units), noisy measurements out, the
 noise drawn from the seeded :class:`numpy.random.Generator` passed in; conversion to PX4's
 NED / FRD and MAVLink units happens in :mod:`sitl.hil.messages` only. Motion capture is
-:class:`sitl.sensors.PoseSensor` with the scenario's ``[sensors]`` (rate, latency, noise),
+:class:`sitl.vehicle.sensors.PoseSensor` with the scenario's ``[sensors]`` (rate, latency, noise),
 as in the offline simulation.
 
 - **IMU** (:class:`Imu`): the specific force and body rate averaged over one IMU period

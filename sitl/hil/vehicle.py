@@ -4,7 +4,7 @@ One :class:`Px4InTheLoop` holds PX4 (:class:`~sitl.px4_sitl.Px4Sitl`, airframe
 :data:`~sitl.hil.airframe.AUTOSTART` with :func:`~sitl.hil.airframe.px4_parameters`), the
 simulator link PX4 connects to (:class:`~sitl.hil.link.SimulatorLink`, TCP 4560 + its
 instance), the world of ``sitl run`` (truth plant, arm servos on a pty, gripper, object,
-ground, :func:`sitl.runner.build_world`) and PX4's sensors (:mod:`sitl.hil.sensors`).
+ground, :func:`sitl.vehicle.runner.build_world`) and PX4's sensors (:mod:`sitl.hil.sensors`).
 
 Lockstep, one clock. Every IMU period (``1 / [sensors] gyro_rate_hz``, 4 ms at 250 Hz;
 a whole number of plant steps) the loop
@@ -77,10 +77,9 @@ from sitl.hil.sensors import (
     Imu,
     Magnetometer,
 )
-from sitl.launch import free_udp_port
 from sitl.physics.rotors import N_ROTORS
 from sitl.px4 import GeoReference, MavlinkEndpoint, Px4Mode
-from sitl.px4_sitl import (
+from sitl.px4_sitl.launcher import (
     Px4Build,
     Px4NotReadyError,
     Px4Ports,
@@ -88,7 +87,9 @@ from sitl.px4_sitl import (
     free_instance,
     release_instance,
 )
-from sitl.runner import (
+from sitl.scenario import Scenario
+from sitl.vehicle.launch import free_udp_port
+from sitl.vehicle.runner import (
     LOCKSTEP_WAIT_S,
     RunOptions,
     RunStats,
@@ -96,8 +97,7 @@ from sitl.runner import (
     servo_faults,
     truth_record,
 )
-from sitl.scenario import Scenario
-from sitl.sensors import PoseSensor
+from sitl.vehicle.sensors import PoseSensor
 
 __all__ = ["VALIDATED_SPEED", "HilOptions", "HilStats", "Px4Exited", "Px4InTheLoop"]
 
@@ -182,7 +182,7 @@ class HilOptions:
 
 @dataclass
 class HilStats(RunStats):
-    """:class:`~sitl.runner.RunStats` of a run with PX4, and where the wall time went."""
+    """:class:`~sitl.vehicle.runner.RunStats` of a run with PX4, and where the wall time went."""
 
     frames: int = 0
     """IMU periods simulated."""

@@ -20,16 +20,16 @@ the joint rows of the paper's M q_ddot + C q_dot + G = tau (eq. mcg_model) with 
 at rest. The base inertia does not enter the joint rows. Semi-implicit Euler at the
 scenario's ``plant.rate_hz``, as the SITL plants.
 
-Coupling (as :mod:`sitl.world`): each step, every joint servo gets its shaft angle
+Coupling (as :mod:`sitl.vehicle.world`): each step, every joint servo gets its shaft angle
 ``zero_offset + direction * eta`` and rate ``direction * eta_dot``; ``direction`` x its
-output torque is the joint torque. The gripper is a :class:`~sitl.world.GripperJaw` (jaw
+output torque is the joint torque. The gripper is a :class:`~sitl.vehicle.world.GripperJaw` (jaw
 shaft between hard stops) turned by its servo; closed, it holds a weightless stand-in
 object (the jaws stop on it, the servo reads short of closed and pushes, as on a real
 object), so the companion's gripper check sees a grasp. The joint servos are XM430 models
 (:mod:`sitl.servo.xm430`) with the gearbox's viscous friction (torque on or off: a limp
 arm swings down and comes to rest hanging, slowly) and the motor's voltage limit; their
 torque constant is the ``[arm_bus]`` joint's times ``plant.servo_torque_constant_mismatch``
-(as ``sitl run``'s :func:`sitl.runner.build_world`), so the stand can stand in for servos
+(as ``sitl run``'s :func:`sitl.vehicle.runner.build_world`), so the stand can stand in for servos
 the config's datasheet value does not describe (``companion arm calibrate``).
 Simplifications: no payload mass (SIH cannot carry one; a scenario flown here turns the
 estimate's carry check off, ``[flight] carry_check_estimate = false``), no Coulomb
@@ -53,7 +53,7 @@ from sitl.physics.jsbsim.arm import ArmDynamics
 from sitl.scenario import Scenario
 from sitl.servo.pty_server import PtyServoBus
 from sitl.servo.xm430 import XM430Parameters, XM430Servo
-from sitl.world import GripperJaw
+from sitl.vehicle.world import GripperJaw
 
 __all__ = ["HELD_BASE_MASS_KG", "ArmStand", "held_base_arm"]
 

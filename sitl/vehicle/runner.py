@@ -5,7 +5,7 @@ Every plant step (``1 / plant.rate_hz`` of simulation time) the runner
 1. hands each MAVLink message received on the two links to the simulated autopilot
    (:class:`~sitl.px4.Px4Vehicle`) and sends its replies; after a PARAM_SET the plant's
    attitude loop takes the new gains and THR_MDL_FAC,
-2. takes the estimate (:class:`~sitl.navigation.Navigation`, EKF2-like, motion capture
+2. takes the estimate (:class:`~sitl.vehicle.navigation.Navigation`, EKF2-like, motion capture
    or GPS aiding) and asks the autopilot for the attitude/thrust setpoint of this step
    (``None``: disarmed),
 3. steps the world under the servo bus lock (the bus thread reads and writes the same
@@ -19,7 +19,7 @@ the loop cannot keep up, it runs as fast as it can and the real-time factor it r
 reported. Step jitter is the lateness of each step's start behind its wall-clock slot.
 
 On simulated time (``RunOptions.memory``), nothing paces the steps: the links and the servo
-bus are in-memory channels, and :class:`~sitl.lockstep.LockstepLoop` calls
+bus are in-memory channels, and :class:`~sitl.vehicle.lockstep.LockstepLoop` calls
 :meth:`SitlVehicle.step` and :meth:`SitlVehicle.serve` whenever the companion in the same
 process waits.
 """
@@ -43,7 +43,6 @@ from arm_driver.memory import MemoryChannel, MemoryEnd, create_channel
 from companion.config import arm_bus_configs
 from companion.coordinates import POSITION
 from companion.frames import ned_from_enu
-from sitl.navigation import ERROR_MODELS, Navigation
 from sitl.physics import Plant, make_plant
 from sitl.physics.jsbsim import GearGeometry, JsbsimPlant, Wind
 from sitl.px4 import (
@@ -57,7 +56,8 @@ from sitl.px4 import (
 from sitl.scenario import Scenario
 from sitl.servo import Faults, PtyServoBus, XM430Parameters, XM430Servo
 from sitl.servo.memory_bus import MemoryServoBus
-from sitl.world import World, WorldSettings
+from sitl.vehicle.navigation import ERROR_MODELS, Navigation
+from sitl.vehicle.world import World, WorldSettings
 
 __all__ = [
     "LinkPorts",
@@ -121,7 +121,7 @@ class RunOptions:
     seed
         Seed of the sensor noise.
     noise
-        The estimator's errors (:mod:`sitl.navigation`) or an exact estimate.
+        The estimator's errors (:mod:`sitl.vehicle.navigation`) or an exact estimate.
     navigation
         The estimator's aiding: ``mocap`` (external vision, motion capture indoors; no
         global position until SET_GPS_GLOBAL_ORIGIN) or ``gps`` (GPS and baro).
@@ -159,7 +159,7 @@ class RunOptions:
     memory: str | None = None
     """Serve the links and the servo bus on in-memory channels ``NAME-onboard``,
     ``NAME-gcs`` and ``NAME-servos`` (:mod:`arm_driver.memory`) instead of UDP and a pty:
-    a flight on simulated time in one process (:mod:`sitl.lockstep`), stepped by its
+    a flight on simulated time in one process (:mod:`sitl.vehicle.lockstep`), stepped by its
     caller; ``None``: UDP and a pty, paced by :meth:`SitlVehicle.run`."""
     unix_time_at_boot_us: int | None = None
     """The Unix time the autopilot booted at [us] (its SYSTEM_TIME); ``None``: now."""

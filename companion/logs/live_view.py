@@ -2,7 +2,7 @@
 
 ``companion mission pickup --live PORT`` and ``sitl demo --live PORT`` start a Foxglove
 WebSocket server (foxglove-sdk, the ``live`` extra) on ``127.0.0.1:PORT`` and publish the
-channels of ``flight.mcap`` (:mod:`companion.mcap_log`: the same topics, schemas and JSON
+channels of ``flight.mcap`` (:mod:`companion.logs.mcap_log`: the same topics, schemas and JSON
 messages, stamped with the vehicle time) to whoever connects: in Foxglove, *Open
 connection* -> ``ws://127.0.0.1:PORT``.
 
@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from companion.mcap_log import (
+from companion.logs.mcap_log import (
     CHANNELS,
     SCHEMAS,
     ArmGeometry,
@@ -31,7 +31,7 @@ from companion.mcap_log import (
 )
 
 if TYPE_CHECKING:
-    from companion.flightlog import CycleRecord
+    from companion.logs.flightlog import CycleRecord
 
 __all__ = ["RATE_HZ", "LiveView", "LiveViewError"]
 

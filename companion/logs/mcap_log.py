@@ -1,6 +1,6 @@
 """Flight log as MCAP: ``LOG.mcap`` beside ``LOG.csv``, for Foxglove and PlotJuggler.
 
-The same control cycles as ``LOG.csv`` (:mod:`companion.flightlog`), as JSON messages
+The same control cycles as ``LOG.csv`` (:mod:`companion.logs.flightlog`), as JSON messages
 (message encoding ``json``) under JSON schemas (schema encoding ``jsonschema``). The vehicle
 and the arm use Foxglove's well-known schemas, so that the 3D panel shows the scene as is;
 the rest are plain schemas whose field names carry their unit, as the CSV's columns do.
@@ -67,8 +67,8 @@ from mcap.writer import CompressionType, Writer
 from numpy.typing import ArrayLike
 
 from companion.config import CompanionConfig
-from companion.flightlog import Q_NAMES, CycleRecord, FlightLogError, FlightLogWriter
 from companion.link.setpoint import quaternion_from_euler_zyx
+from companion.logs.flightlog import Q_NAMES, CycleRecord, FlightLogError, FlightLogWriter
 
 __all__ = [
     "CHANNELS",
@@ -695,7 +695,7 @@ class McapLogWriter:
 
 
 class FlightLogWithMcap(FlightLogWriter):
-    """:class:`~companion.flightlog.FlightLogWriter` that also writes ``LOG.mcap``: every
+    """:class:`~companion.logs.flightlog.FlightLogWriter` that also writes ``LOG.mcap``: every
     cycle and every event (the ones it derives from the cycles too) go to both files.
 
     Opens the MCAP after the CSV files (and closes it after them); a file of either that

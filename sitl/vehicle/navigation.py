@@ -10,10 +10,10 @@ Stands in for PX4's EKF2, as measured on the real PX4 SITL build (v1.17.0-alpha1
   through a first-order lag ``smoothing_s``, whose derivative is the velocity error (the
   EKF's velocity is smooth and consistent with its position). Attitude errors are
   Gauss-Markov angles about the body axes. The body rate is the gyro
-  (:class:`~sitl.sensors.GyroSensor`, scenario ``[sensors]``); the accelerometer reads the
+  (:class:`~sitl.vehicle.sensors.GyroSensor`, scenario ``[sensors]``); the accelerometer reads the
   truth specific force;
 - **two aiding modes** (:data:`ERROR_MODELS`): ``"mocap"``, EKF2 fusing external vision
-  alone (motion capture indoors, the paper's lab; :func:`sitl.mocap.mocap_parameters`):
+  alone (motion capture indoors, the paper's lab; :func:`sitl.px4_sitl.mocap.mocap_parameters`):
   millimetre errors, positions in the motion
   capture's frame, which is the world's; ``"gps"``, EKF2 fusing GPS and baro (SIH
   outdoors): positions from where the estimator started (the vehicle at boot, at rest on
@@ -39,8 +39,8 @@ from companion.coordinates import ATTITUDE, POSITION
 from sitl.physics.frames import quaternion_from_euler
 from sitl.px4.measurement import EstimatorReport, VehicleMeasurement
 from sitl.scenario import Scenario
-from sitl.sensors import GyroSensor
-from sitl.world import World
+from sitl.vehicle.sensors import GyroSensor
+from sitl.vehicle.world import World
 
 __all__ = ["ERROR_MODELS", "EstimateErrorModel", "Navigation", "NavigationMode"]
 
@@ -95,7 +95,8 @@ ERROR_MODELS: dict[str, EstimateErrorModel] = {
         tilt_std_rad=0.003,
         yaw_std_rad=0.003,
         attitude_tau_s=2.0,
-        # measured: EKF2 on vision alone (sitl.mocap's parameters, 100 Hz poses), SIH at rest
+        # measured: EKF2 on vision alone (sitl.px4_sitl.mocap's parameters, 100 Hz poses),
+        # SIH at rest
         report=EstimatorReport(
             aiding="vision",
             position_variance_m2=(1.2e-5, 1.1e-5),

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sitl.offline import COLUMNS, SimResult
+from sitl.offline.simulation import COLUMNS, SimResult
 
 __all__ = ["comparison_markdown", "write_summary", "write_timeseries"]
 

@@ -1,10 +1,10 @@
 """A pickup on simulated time: the simulated vehicle and the companion's mission in one
-process, in lockstep (:mod:`sitl.lockstep`).
+process, in lockstep (:mod:`sitl.vehicle.lockstep`).
 
 The companion's side is :func:`companion.cli.mission.fly_pickup`, the code of
 ``companion mission pickup``, given only the companion's part of the scenario; it talks to
 the vehicle over the in-memory MAVLink link ``memory://NAME-onboard`` and to the servos
-over ``dynamixel://memory:NAME-servos``. The vehicle is :class:`~sitl.runner.SitlVehicle`
+over ``dynamixel://memory:NAME-servos``. The vehicle is :class:`~sitl.vehicle.runner.SitlVehicle`
 on in-memory channels, stepped whenever the companion waits. Nothing reads the wall clock
 for a decision, so the flight log (``flight.csv``, ``flight.events.csv``) and the truth
 log are the same bytes for the same scenario, options and seed, at any load.
@@ -24,10 +24,10 @@ from companion.cli.mission import fly_pickup
 from companion.control.flight import FlightControllerName
 from companion.mission.pickup import PickupPlan
 from companion.mission.report import MissionReport
-from sitl.lockstep import run_lockstep
-from sitl.runner import RunOptions, SitlVehicle
 from sitl.scenario import Scenario
 from sitl.truth_mcap import add_flight_truth
+from sitl.vehicle.lockstep import run_lockstep
+from sitl.vehicle.runner import RunOptions, SitlVehicle
 
 __all__ = ["BOOT_UNIX_TIME_US", "fly_virtual"]
 

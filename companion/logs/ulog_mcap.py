@@ -1,9 +1,9 @@
 """PX4's own log (ULog) on the flight log's timeline: chosen PX4 topics merged into a
-flight's ``flight.mcap`` (:func:`companion.mcap_log.merge_messages`).
+flight's ``flight.mcap`` (:func:`companion.logs.mcap_log.merge_messages`).
 
 PX4 stamps each ULog message with its ``timestamp`` in microseconds since PX4 booted; the
 companion logs by the vehicle's clock it reads from ODOMETRY, also time since PX4 booted
-(:mod:`companion.mcap_log`). The two therefore share one time axis with no offset, and one
+(:mod:`companion.logs.mcap_log`). The two therefore share one time axis with no offset, and one
 view in Foxglove or PlotJuggler shows PX4's attitude setpoint beside the companion's. This
 holds for a flight with the real PX4 (its SD card's ``.ulg``) and for PX4 SITL (its
 ``log/`` directory; ``sitl demo --autopilot px4`` merges it itself).
@@ -31,7 +31,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from companion.mcap_log import encode, merge_messages
+from companion.logs.mcap_log import encode, merge_messages
 
 __all__ = ["PX4_TOPICS", "UlogError", "add_ulog", "ulog_channels"]
 

@@ -14,7 +14,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from sitl.offline import SimResult
+from sitl.offline.simulation import SimResult
 
 __all__ = ["plot_comparison", "plot_run"]
 

@@ -47,7 +47,7 @@ columns                            content
 =================================  =========================================================
 
 Measurements are kept apart so that ``LOG.csv`` and ``LOG.events.csv`` hold only what the
-flight did, on the vehicle's clock: a flight on simulated time (:mod:`sitl.lockstep`)
+flight did, on the vehicle's clock: a flight on simulated time (:mod:`sitl.vehicle.lockstep`)
 writes them byte for byte the same at any speed and load; only ``LOG.timing.csv`` differs.
 :func:`read_flight_log` reads the three files into one set of columns.
 

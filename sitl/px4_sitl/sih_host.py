@@ -3,10 +3,10 @@ a stand, and optionally a motion-capture system feeds PX4 instead of GPS.
 
 One :class:`SihHost` holds the three parts and starts them in order:
 
-1. in motion-capture mode, the :class:`~sitl.mocap.MocapFeeder`'s UDP ports (the SIH
+1. in motion-capture mode, the :class:`~sitl.px4_sitl.mocap.MocapFeeder`'s UDP ports (the SIH
    display link's truth port, and its own);
-2. PX4 (:class:`~sitl.px4_sitl.Px4Sitl`) with :func:`sitl.sih.sih_parameters` of the
-   scenario (plus :func:`sitl.mocap.mocap_parameters`), ``PX4_SIM_SPEED_FACTOR`` = the
+2. PX4 (:class:`~sitl.px4_sitl.Px4Sitl`) with :func:`sitl.px4_sitl.sih.sih_parameters` of the
+   scenario (plus :func:`sitl.px4_sitl.mocap.mocap_parameters`), ``PX4_SIM_SPEED_FACTOR`` = the
    speed; in motion-capture mode PX4 cannot become ready without poses, so the host waits
    for the end of its start-up script, starts a MAVLink link for the feeder in PX4
    (``mavlink start``, mode minimal, on a free port), starts the feeder, then waits for
@@ -26,9 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sitl.launch import free_udp_port
-from sitl.mocap import DEFAULT_ORIGIN, MocapFeeder, mocap_parameters, sih_origin
-from sitl.px4_sitl import (
+from sitl.px4_sitl.launcher import (
     Px4Build,
     Px4NotReadyError,
     Px4Ports,
@@ -36,9 +34,11 @@ from sitl.px4_sitl import (
     free_instance,
     release_instance,
 )
+from sitl.px4_sitl.mocap import DEFAULT_ORIGIN, MocapFeeder, mocap_parameters, sih_origin
+from sitl.px4_sitl.sih import sih_parameters
 from sitl.scenario import Scenario
 from sitl.servo.arm_stand import ArmStand
-from sitl.sih import sih_parameters
+from sitl.vehicle.launch import free_udp_port
 
 __all__ = ["NAVIGATION_MODES", "STARTUP_DONE", "SihHost"]
 
@@ -57,8 +57,8 @@ class SihHost:
     Parameters
     ----------
     scenario
-        Validated scenario: SIH's vehicle (:func:`~sitl.sih.sih_parameters` raises
-        :class:`~sitl.sih.SihMismatchError` for one SIH cannot fly) and the arm's
+        Validated scenario: SIH's vehicle (:func:`~sitl.px4_sitl.sih.sih_parameters` raises
+        :class:`~sitl.px4_sitl.sih.SihMismatchError` for one SIH cannot fly) and the arm's
         ``[arm_bus]`` servos (ValueError without).
     build
         The PX4 SITL build.

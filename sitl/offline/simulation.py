@@ -1,7 +1,7 @@
 """Offline closed-loop simulation: the companion's math against the SITL truth plant.
 
 One loop, two sides. The truth side (``sitl.physics.TruthPlant`` at ``plant.rate_hz``,
-``sitl.sensors`` for noisy measurements) shares no code with ``companion.model``. The
+``sitl.vehicle.sensors`` for noisy measurements) shares no code with ``companion.model``. The
 companion side sees only measurements and its own commands: it filters them
 (:class:`companion.estimation.state.StateAssembler`), estimates theta, runs the controller and maps
 the force to setpoints, every ``1 / simulation.control_rate_hz`` seconds.
@@ -38,6 +38,7 @@ from companion.control.setpoints import attitude_thrust_setpoint
 from companion.coordinates import JOINTS, POSITION, PSI
 from companion.estimation.estimator import TRANSLATION_AND_JOINT_ROWS, PaperEstimator, Skip
 from companion.estimation.state import StateAssembler
+from sitl.offline.trajectory import PaperSinusoid
 from sitl.physics import (
     AttitudeSetpoint,
     IdealPlant,
@@ -48,8 +49,7 @@ from sitl.physics import (
 )
 from sitl.physics.jsbsim.wind import Wind
 from sitl.scenario import Scenario
-from sitl.sensors import GyroSensor, JointEncoders, PoseSensor
-from sitl.trajectory import PaperSinusoid
+from sitl.vehicle.sensors import GyroSensor, JointEncoders, PoseSensor
 
 __all__ = ["COLUMNS", "SimOptions", "SimResult", "simulate"]
 

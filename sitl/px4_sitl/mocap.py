@@ -48,7 +48,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.px4.endpoint import MavlinkEndpoint
 from sitl.px4.geo import GeoReference
-from sitl.px4_sitl import Px4Ports
+from sitl.px4_sitl.launcher import Px4Ports
 
 __all__ = [
     "DEFAULT_ORIGIN",
