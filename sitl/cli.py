@@ -24,7 +24,7 @@ from companion.cli.entry import run as run_app
 from companion.cli.usage import fail as _fail
 from companion.cli.usage import load_or_exit as _load_or_exit
 from sitl.campaign.cli import campaign
-from sitl.cli_sim import sim_app
+from sitl.cli_sim import Px4DirOpt, sim_app
 from sitl.hil import HilOptions, HilStats, Px4Exited, Px4InTheLoop
 from sitl.hil.link import SimulatorLinkError
 from sitl.hil.sensors import GPS_GRADES
@@ -164,14 +164,7 @@ def run(
             "our physics through simulator_mavlink, in lockstep)."
         ),
     ] = "imitation",
-    px4_dir: Annotated[
-        Path | None,
-        typer.Option(
-            envvar="PX4_SITL_DIR",
-            show_envvar=False,
-            help="PX4 SITL build for --autopilot px4 (default $PX4_SITL_DIR).",
-        ),
-    ] = None,
+    px4_dir: Px4DirOpt = None,
     keep_log: Annotated[
         Path | None,
         typer.Option(help="--autopilot px4: keep PX4's working directory (log, ULog) here."),
@@ -413,12 +406,7 @@ def main() -> None:
 @app.command()
 def sih(
     config: Annotated[Path, typer.Option("--config", help="Scenario TOML file.")],
-    px4_dir: Annotated[
-        Path | None,
-        typer.Option(
-            envvar="PX4_SITL_DIR", show_envvar=False, help="PX4 SITL build (default $PX4_SITL_DIR)."
-        ),
-    ] = None,
+    px4_dir: Px4DirOpt = None,
     navigation: Annotated[
         str, typer.Option(help="gps (SIH's GPS) or mocap (motion capture, no GPS).")
     ] = "gps",

@@ -357,6 +357,18 @@ def compare(
     Console().print(table, markup=False, highlight=False)
 
 
+Px4DirOpt = Annotated[
+    Path | None,
+    typer.Option(
+        envvar="PX4_SITL_DIR",
+        show_envvar=False,
+        help="The PX4 SITL build to fly (a directory with bin/px4 and etc/; default "
+        "$PX4_SITL_DIR).",
+    ),
+]
+"""``--px4-dir``, the same in every command that starts the real PX4."""
+
+
 @sim_app.command()
 def demo(
     out: Annotated[
@@ -388,14 +400,7 @@ def demo(
             "our physics: sitl run --autopilot px4)."
         ),
     ] = "imitation",
-    px4_dir: Annotated[
-        Path | None,
-        typer.Option(
-            envvar="PX4_SITL_DIR",
-            show_envvar=False,
-            help="PX4 SITL build for --autopilot px4 (default $PX4_SITL_DIR).",
-        ),
-    ] = None,
+    px4_dir: Px4DirOpt = None,
     navigation: Annotated[
         str, typer.Option(help="mocap (motion capture) or gps (with --autopilot px4: RTK).")
     ] = "mocap",

@@ -16,6 +16,7 @@ oldest messages (the SDK's per-client backlog), never the control loop's time.
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
@@ -132,11 +133,12 @@ class LiveView:
         self.published += 1
 
     def event(self, kind: str, detail: str, t_vehicle_s: float) -> None:
-        """Publish an event on ``/events`` (a NaN time: the last cycle's)."""
+        """Publish an event on ``/events`` (a time not finite, as before the first pose: the
+        last cycle's)."""
         channel = self._channels.get("/events")
         if channel is None:
             return
-        ns = time_ns(t_vehicle_s) if t_vehicle_s == t_vehicle_s else self._last_ns
+        ns = time_ns(t_vehicle_s) if math.isfinite(t_vehicle_s) else self._last_ns
         channel.log(encode(log_message(kind, detail, ns)), log_time=ns)
 
     def close(self) -> None:
