@@ -544,6 +544,12 @@ class Flight(_Section):
     ground_margin_m: Positive = 0.05
     """Height above the take-off height below which the vehicle counts as on the ground
     [m] (PX4's land detector says it too, later)."""
+    standing_height_m: Positive | None = None
+    """Height of the base's centre of mass above the ground when the vehicle stands on its
+    landing gear [m]. Set, a mission's heights (its points' Z, the cruise altitude) are
+    above the ground the vehicle takes off from, whatever PX4's local origin (with GPS,
+    EKF2 puts it at the standing vehicle, this height above the ground); unset, they are
+    PX4's local Z."""
     stow_joints_rad: Annotated[tuple[Real, ...], Field(min_length=2, max_length=2)] = (
         0.0,
         -1.5707963267948966,

@@ -447,13 +447,20 @@ def demo(
     place = place_world
     if navigation == "gps":
         # EKF2 starts its local frame where the vehicle stands (its CoM at its first GPS
-        # fix), not on the world's ground: the mission's points move into that frame.
+        # fix), not at the world's origin: the mission's points move into that frame,
+        # horizontally; their heights too unless the companion knows its standing height
+        # ([flight] standing_height_m: heights above the ground, moved by the companion).
         east, north = scenario.world.start_position_m
-        up = scenario.world.landing_gear_height_m
+        up = (
+            0.0
+            if beliefs.flight.standing_height_m is not None
+            else scenario.world.landing_gear_height_m
+        )
         payload_at = (payload_at[0] - east, payload_at[1] - north, payload_at[2] - up)
         place = (place[0] - east, place[1] - north, place[2] - up)
         typer.echo(
-            f"GPS: PX4's local frame starts at the standing vehicle ({east}, {north}, {up}) m"
+            f"GPS: PX4's local frame starts at the standing vehicle ({east}, {north}, "
+            f"{scenario.world.landing_gear_height_m}) m"
         )
     plan = plan_for(beliefs, payload_at, place, 1.5)
     check_mission_options(controller, 250.0, None, live)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 
@@ -61,7 +62,7 @@ def commands(sequence: FlightSequence, obs: Observation) -> list[object]:
 
 
 def new(unreachable: str | None = None) -> FlightSequence:
-    return FlightSequence(TIMES, lambda ground_z_m: unreachable)
+    return FlightSequence(TIMES, lambda ground_z_m, height_offset_m: unreachable)
 
 
 def taking_off() -> FlightSequence:
@@ -78,9 +79,9 @@ def taking_off() -> FlightSequence:
 
 
 def test_the_servo_check_comes_before_arming_and_the_arming_waits_for_it():
-    s = FlightSequence(TIMES, lambda ground_z_m: None, check_servos=True)
+    s = FlightSequence(TIMES, lambda ground_z_m, height_offset_m: None, check_servos=True)
     s.begin()
-    assert commands(s, sees(0.0)) == [CheckServos()]
+    assert commands(s, sees(0.0))[-1:] == [CheckServos()]
     assert s.stage == Stage.SERVOS
     assert commands(s, sees(5.0)) == []
     out = commands(s, sees(9.0, servos_checked=True))
@@ -88,12 +89,40 @@ def test_the_servo_check_comes_before_arming_and_the_arming_waits_for_it():
 
 
 def test_a_servo_check_that_never_ends_fails_before_arming():
-    s = FlightSequence(TIMES, lambda ground_z_m: None, check_servos=True)
+    s = FlightSequence(TIMES, lambda ground_z_m, height_offset_m: None, check_servos=True)
     s.begin()
     commands(s, sees(0.0))
     assert commands(s, sees(30.0)) == []
     with pytest.raises(SequenceFailed, match="servo check did not end within 30 s"):
         s.next(sees(30.1))
+
+
+def test_heights_above_the_ground_move_by_where_the_ground_lies_in_px4s_frame():
+    """With the standing height known, the mission's heights are above the ground: on GPS
+    EKF2's origin is the standing vehicle (z = 0), the ground 0.25 m below it, so a 1.5 m
+    cruise is 1.25 m up in PX4's frame and the take-off climbs 1.25 m."""
+    asked: list[tuple[float, float]] = []
+    times = replace(TIMES, standing_height_m=0.25)
+    s = FlightSequence(times, lambda z_m, dz_m: asked.append((z_m, dz_m)))
+    s.begin()
+    out = commands(s, sees(0.6, altitude_m=0.0))
+    assert out[0] == Note(
+        "preflight",
+        "heights above the ground, which lies at z = -0.25 m in PX4's local frame (0.25 m "
+        "below the standing vehicle)",
+    )
+    assert out[-1] == Px4Request(Request.ARM) and asked == [(0.0, -0.25)]
+    assert s.height_offset_m == pytest.approx(-0.25)
+    s.done(sees(0.7, altitude_m=0.0))
+    (altitude,) = commands(s, sees(0.7, altitude_m=0.0))
+    assert altitude.value == pytest.approx(1.25)
+    # Without it the heights are PX4's own: nothing moves, and the log says so.
+    plain = new()
+    plain.begin()
+    assert commands(plain, sees(0.6, altitude_m=0.0))[0] == Note(
+        "preflight", "heights are PX4's local Z ([flight] standing_height_m is not set)"
+    )
+    assert plain.height_offset_m == 0.0
 
 
 UP = dict(altitude_m=1.45, heartbeat=heartbeat("LOITER"))
@@ -120,7 +149,11 @@ def test_the_pickup_from_the_ground_to_the_disarm():
     assert commands(s, Observation(math.nan)) == []  # before the first cycle
     assert commands(s, sees(0.5, ready=False)) == []
     arming = commands(s, sees(0.6))
-    assert arming == [Note("mode", "arming (standing at z = 0.10 m)"), Px4Request(Request.ARM)]
+    assert arming == [
+        Note("preflight", "heights are PX4's local Z ([flight] standing_height_m is not set)"),
+        Note("mode", "arming (standing at z = 0.10 m)"),
+        Px4Request(Request.ARM),
+    ]
     assert s.ground_z_m == GROUND_Z_M
     s.done(sees(0.7))
     (altitude,) = commands(s, sees(0.7))

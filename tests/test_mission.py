@@ -235,6 +235,26 @@ def test_a_point_below_where_the_vehicle_stands_is_out_of_reach():
     assert "place point" in (low_place.unreachable(gear_m, 0.03) or "")
 
 
+def test_heights_above_the_ground_become_px4_heights_before_the_mission_flies():
+    """start_from moves the object's, the place point's and the cruise's heights by where
+    the ground lies in PX4's frame (GPS: 0.25 m below EKF2's origin at the standing
+    vehicle), so an object on the ground is met there; horizontal positions stay."""
+    mission = PickupMission(PLAN, SCENARIO)
+    assert mission.start_from(0.0, -0.25, 0.03) is None
+    assert mission.plan.payload_at_m == pytest.approx(
+        (*PLAN.payload_at_m[:2], PLAN.payload_at_m[2] - 0.25)
+    )
+    assert mission.plan.place_at_m[2] == pytest.approx(PLAN.place_at_m[2] - 0.25)
+    assert mission.plan.cruise_altitude_m == pytest.approx(PLAN.cruise_altitude_m - 0.25)
+    q = np.array([0.0, 0.0, 1.25, 0.0, 0.0, 0.0, 0.0, -1.5])
+    mission.start(10.0, q, np.zeros(8))
+    with pytest.raises(RuntimeError, match="before the mission flies"):
+        mission.start_from(0.0, -0.25, 0.03)
+    # Heights the plan cannot reach from there are refused as before.
+    deep = PickupMission(replace(PLAN, payload_at_m=(*PLAN.payload_at_m[:2], -0.5)), SCENARIO)
+    assert "out of the arm's reach" in (deep.start_from(0.0, -0.25, 0.03) or "")
+
+
 def test_the_configs_swing_amplitude_reaches_the_plan():
     """``[flight] excite_eta1_rad`` (0.7 in sitl_pickup.toml, 0.5 by default) is the
     amplitude of joint 1 in the excitation the mission flies."""

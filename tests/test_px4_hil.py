@@ -50,22 +50,17 @@ NAVIGATION = {
     # A standard receiver's wander (0.7 m per axis) is far beyond the 5 cm grasp tolerance.
     "gps": ("--navigation", "gps", "--gps", "rtk"),
 }
-GEAR_HEIGHT_M = 0.25
-"""``[world] landing_gear_height_m`` of CONFIG: the standing vehicle's CoM above the ground."""
 
 
-def mission_points(navigation: str) -> tuple[str, str]:
-    """(--payload-at, --place-at) in the frame the companion's mission points are given in:
-    PX4's local frame. With motion capture it is the lab's: z = 0 on the ground. With GPS,
-    EKF2 starts it where the vehicle stands at its first fix: z = 0 at the standing
-    vehicle's CoM, the landing gear's 0.25 m above the ground, so the same objects on the
-    ground lie at z = 0.05 - 0.25 m (``sitl demo --navigation gps`` moves them the same
-    way)."""
-    down = GEAR_HEIGHT_M if navigation == "gps" else 0.0
-    return (
-        f"{PAYLOAD_AT[0]},{PAYLOAD_AT[1]},{PAYLOAD_AT[2] - down:g}",
-        f"{PLACE_AT[0]},{PLACE_AT[1]},{0.05 - down:g}",
-    )
+MISSION_POINTS = (
+    f"{PAYLOAD_AT[0]},{PAYLOAD_AT[1]},{PAYLOAD_AT[2]:g}",
+    f"{PLACE_AT[0]},{PLACE_AT[1]},0.05",
+)
+"""(--payload-at, --place-at): the objects on the ground, heights above it (CONFIG sets
+``[flight] standing_height_m``) whatever PX4's local origin: with motion capture the lab's
+(z = 0 on the ground), with GPS where EKF2 started, at the standing vehicle's CoM 0.25 m
+above the ground; the companion moves the heights into PX4's frame before take-off. The
+vehicle starts at the world's origin, so X and Y are the same in both."""
 
 
 @dataclass
@@ -105,7 +100,7 @@ def fly_pickup(
     install's)."""
     truth_log = tmp / "truth.jsonl"
     px4_dir = tmp / "px4"
-    payload_at, place_at = mission_points(navigation)
+    payload_at, place_at = MISSION_POINTS
     sitl = start_sitl(
         CONFIG, "--seed", "1", "--autopilot", "px4", "--px4-dir", str(px4_root),
         "--keep-log", str(px4_dir), *sitl_args,

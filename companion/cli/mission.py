@@ -74,12 +74,14 @@ HORIZONTAL_RANGE_M = 1000.0
 """Largest |x|, |y| of a mission point from home [m]: a battery flight of a hexacopter
 (about 15 minutes at the mission's 0.5 m/s is 450 m there and back)."""
 ALTITUDE_RANGE_M = (0.0, 120.0)
-"""Transit altitude [m, PX4's local frame]: below the 120 m ceiling of open-category drone
-flight."""
+"""Transit altitude [m; above the ground with ``[flight] standing_height_m``, else PX4's
+local Z]: below the 120 m ceiling of open-category drone flight."""
 POINT_HEIGHT_RANGE_M = (-120.0, 120.0)
-"""Z of a mission point [m, PX4's local frame]. With GPS, EKF2's origin is the standing
-vehicle's CoM, so an object on the ground lies below it (about minus the landing gear's
-height); whether the arm reaches a point is checked against where the vehicle stands, before
+"""Z of a mission point [m]: above the ground the vehicle takes off from with ``[flight]
+standing_height_m`` (the companion moves it into PX4's frame before take-off), else PX4's
+local Z (with GPS, EKF2's origin is the standing vehicle's CoM, so an object on the ground
+lies about minus the landing gear's height below it); whether the arm reaches a point is
+checked against where the vehicle stands, before
 arming (:meth:`~companion.mission.pickup.PickupMission.unreachable`)."""
 CONTROL_RATE_RANGE_HZ = (2.0, 1000.0)
 """--control-rate: PX4 leaves OFFBOARD below a 2 Hz setpoint stream, and the loop is paced
@@ -304,10 +306,14 @@ ControllerOpt = Annotated[
 def pickup(
     config: Annotated[Path, typer.Option("--config", help="Scenario TOML with [arm_bus].")],
     payload_at: Annotated[
-        str, typer.Option(help="Object's position X,Y,Z [m, ENU] in PX4's local frame.")
+        str,
+        typer.Option(
+            help="Object's centre of mass X,Y,Z [m, ENU]: X, Y in PX4's local frame, Z above "
+            "the ground (config [flight] standing_height_m; else PX4's local Z)."
+        ),
     ],
     place_at: Annotated[
-        str, typer.Option(help="Where to put it, X,Y,Z [m, ENU] in PX4's local frame.")
+        str, typer.Option(help="Where to put it, X,Y,Z [m, ENU], as --payload-at.")
     ],
     connect: Annotated[
         str,

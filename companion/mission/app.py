@@ -170,8 +170,9 @@ class PickupApp:
                 flight.handover_stream_s,
                 takeoff_timeout_s,
                 land_timeout_s,
+                flight.standing_height_m,
             ),
-            lambda ground_z_m: self.mission.unreachable(ground_z_m, flight.ground_margin_m),
+            lambda z_m, dz_m: self.mission.start_from(z_m, dz_m, flight.ground_margin_m),
         )
         """Arming, take-off, handover, landing and fault reactions (pure)."""
         self.cycle = ControlCycle(

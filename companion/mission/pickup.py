@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 
 import numpy as np
@@ -188,6 +188,17 @@ class PickupPlan:
     """Shortest ``return`` phase [s]: the vehicle holds (or climbs) while the estimator,
     back at the empty arm, settles."""
 
+    def raised(self, dz_m: float) -> PickupPlan:
+        """The plan with every height (the points' Z, the cruise altitude) ``dz_m`` [m]
+        higher: from heights above the ground to PX4's local frame."""
+        obj, place = self.payload_at_m, self.place_at_m
+        return replace(
+            self,
+            payload_at_m=(obj[0], obj[1], obj[2] + dz_m),
+            place_at_m=(place[0], place[1], place[2] + dz_m),
+            cruise_altitude_m=self.cruise_altitude_m + dz_m,
+        )
+
     def __post_init__(self) -> None:
         values = [*self.home_m, *self.payload_at_m, *self.place_at_m]
         values += [] if self.yaw_rad is None else [self.yaw_rad]
@@ -294,6 +305,16 @@ class PickupMission:
         if grasp is None:
             grasp = arm.link2.length_m - 0.02
         return -arm.mount_point_m[2] + arm.link1.length_m + grasp
+
+    def start_from(self, ground_z_m: float, height_offset_m: float, margin_m: float) -> str | None:
+        """Before take-off, from the vehicle standing at ``ground_z_m``: move the plan's
+        heights ``height_offset_m`` up into PX4's local frame (:meth:`PickupPlan.raised`;
+        0 when they are PX4's already) and tell why it cannot be flown (:meth:`unreachable`)
+        [m]. RuntimeError once the mission flies."""
+        if self._segment is not None or self.phase_log:
+            raise RuntimeError("the plan's heights are set before the mission flies")
+        self.plan = self.plan.raised(height_offset_m)
+        return self.unreachable(ground_z_m, margin_m)
 
     def unreachable(self, ground_z_m: float, margin_m: float) -> str | None:
         """Why the object or the place point cannot be reached from a vehicle standing at

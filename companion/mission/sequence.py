@@ -238,23 +238,32 @@ class SequenceTimes:
     handover_stream_s: float
     takeoff_timeout_s: float = 30.0
     land_timeout_s: float = 60.0
+    standing_height_m: float | None = None
+    """The base CoM's height above the ground when standing [m]: set, the mission's
+    heights (the cruise altitude among them) are above the ground the vehicle takes off
+    from; None: PX4's local Z."""
 
 
 @dataclass
 class FlightSequence:
     """The flight's stages (module docstring); one instance per flight.
 
-    ``unreachable`` tells, from the ground height [m], why the plan cannot be flown (None:
-    it can): :meth:`~companion.mission.pickup.PickupMission.unreachable` with the ground margin.
+    ``unreachable`` is given, before arming, the height the vehicle stands at and how far
+    up the mission's heights move into PX4's local frame (:attr:`height_offset_m`) [m];
+    it moves the plan's heights and tells why the plan cannot be flown (None: it can):
+    :meth:`~companion.mission.pickup.PickupMission.start_from` with the ground margin.
     ``check_servos``: measure the servos' torque constants on the ground before arming.
     """
 
     times: SequenceTimes
-    unreachable: Callable[[float], str | None]
+    unreachable: Callable[[float, float], str | None]
     check_servos: bool = False
     stage: Stage = Stage.IDLE
     ground_z_m: float = math.nan
     """Height of the vehicle standing on the ground, taken before arming [m]."""
+    height_offset_m: float = 0.0
+    """PX4's local Z of the mission's height 0 [m]: the ground under the standing vehicle
+    with ``times.standing_height_m``, else 0 (the mission's heights are PX4's)."""
     _since_s: float = math.nan
     _held_since_s: float = math.nan
     _pending: list[Command] = field(default_factory=list)
@@ -428,15 +437,25 @@ class FlightSequence:
 
     def _leave_ground(self, obs: Observation) -> None:
         self.ground_z_m = obs.altitude_m
-        cruise = self.times.cruise_altitude_m
+        standing = self.times.standing_height_m
+        if standing is not None:
+            self.height_offset_m = self.ground_z_m - standing
+            where = (
+                f"heights above the ground, which lies at z = {self.height_offset_m:.2f} m "
+                f"in PX4's local frame ({standing:g} m below the standing vehicle)"
+            )
+        else:
+            where = "heights are PX4's local Z ([flight] standing_height_m is not set)"
+        self._pending.append(Note("preflight", where))
+        cruise = self._cruise_m()
         if cruise - self.ground_z_m < MIN_CRUISE_CLEARANCE_M:
             self._fail(
-                f"the cruise altitude {cruise:g} m is less than {MIN_CRUISE_CLEARANCE_M:g} m "
-                f"above where the vehicle stands (z = {self.ground_z_m:.2f} m in PX4's local "
-                "frame)"
+                f"the cruise altitude {self.times.cruise_altitude_m:g} m is less than "
+                f"{MIN_CRUISE_CLEARANCE_M:g} m above where the vehicle stands (z = "
+                f"{self.ground_z_m:.2f} m in PX4's local frame, the cruise at {cruise:.2f} m)"
             )
             return
-        unreachable = self.unreachable(self.ground_z_m)
+        unreachable = self.unreachable(self.ground_z_m, self.height_offset_m)
         if unreachable is not None:
             self._fail(unreachable)
             return
@@ -463,10 +482,14 @@ class FlightSequence:
             self._pending.append(Note("mode", "take-off"))
             self._enter(Stage.TAKE_OFF, obs.t_s)
 
+    def _cruise_m(self) -> float:
+        """The cruise altitude in PX4's local frame [m]."""
+        return self.times.cruise_altitude_m + self.height_offset_m
+
     def _climb_m(self) -> float:
         """The take-off's climb: MIS_TAKEOFF_ALT is above home (where PX4 armed), the cruise
         altitude is in the local frame, whose origin need not be on the ground [m]."""
-        return self.times.cruise_altitude_m - self.ground_z_m
+        return self._cruise_m() - self.ground_z_m
 
     def _enter(self, stage: Stage, t_s: float) -> None:
         self.stage = stage
