@@ -4,8 +4,8 @@
 Two processes on loopback, as a user runs them: the simulated vehicle (free UDP ports, its
 servos on a pty) and the companion's mission command. The companion never reads the
 payload: it learns it in flight; the test compares with the SITL's truth. These are the
-flights whose subject is timing (late servo replies, the loop's latency, the lockstep
-through MAVProxy, the router users deploy); the pickup's other flights (faults, the
+flights whose subject is timing (late servo replies, the loop's latency, the lockstep, a
+flight through MAVProxy, the router users deploy); the pickup's other flights (faults, the
 controller comparison) fly on simulated time in tests/test_virtual_flights.py.
 :class:`LinkCutter` serves the link cut against PX4.
 """
@@ -154,20 +154,47 @@ def test_the_flight_meets_the_px4_acceptance_against_the_imitation(adaptive):
 
 @pytest.mark.slow
 @pytest.mark.alone
-def test_the_pickup_flies_in_lockstep_with_sitl_run_through_mavproxy(tmp_path):
+def test_an_external_client_flies_the_pickup_in_lockstep_with_sitl_run(tmp_path):
+    """``sitl run --lockstep``: once the companion streams its setpoints, the vehicle steps
+    past a pose only when the setpoint for it and the next joint read are in, so the
+    companion, in its own process over UDP, never misses a pose however long it takes.
+    Some waits time out (8-65 in three flights, from about 67 s on: on the way home the arm
+    task reads the joints less regularly; one where the stream stops at the landing),
+    each costing at most 0.1 s of wall time."""
+    truth_log = tmp_path / "lockstep.truth.jsonl"
+    sitl = start_sitl(CONFIG, "--seed", "1", "--lockstep", speed=SPEED, truth_log=truth_log)
+    try:
+        result = run_mission(sitl, tmp_path / "lockstep")
+    finally:
+        output = sitl.stop()
+    assert result.returncode == 0, result.stdout + result.stderr
+    summary = json.loads((tmp_path / "lockstep" / "summary.json").read_text())
+    assert summary["completed"] and summary["faults"] == []
+    assert summary["poses_dropped"] == 0 and summary["late_cycles"] == 0
+    assert summary["payload_mass_kg"] == pytest.approx(TRUE_MASS_KG, rel=0.10)
+    waits, timeouts = (
+        int(n) for n in re.search(r"waited for (\d+) setpoints, (\d+) timed out", output).groups()
+    )
+    # OFFBOARD from about 12 s to the landing at about 77 s: a wait per 8 ms pose
+    assert waits > 7000 and timeouts < 0.03 * waits, output[-500:]
+
+
+@pytest.mark.slow
+@pytest.mark.alone
+def test_the_pickup_flies_through_mavproxy(tmp_path):
     """As deployed: MAVProxy, the router users put between the autopilot, a ground station
     and the companion, takes the vehicle's onboard link as its master and sends it on to
     the companion and to a ground station (two ``--out`` UDP links), and routes the
     companion's setpoints and commands back; it adds its own traffic (its heartbeat as
     system 255, parameter and mission requests) that the companion must ignore.
 
-    ``sitl run --lockstep``: once the companion streams its setpoints, the vehicle steps
-    past a pose only when the setpoint for it and the next joint read are in, so the
-    companion, in its own process behind the router, never misses a pose however long it
-    takes. Some waits time out (8-65 in three flights without the router, from about 67 s
-    on: on the way home the arm task reads the joints less regularly; one where the stream
-    stops at the landing), each costing at most 0.1 s of wall time: at speed 3 that is
-    0.3 s of vehicle time, more than the loop may lag (loop_overrun), so speed 1."""
+    The vehicle is ``sitl run --lockstep`` at speed 1, so that a machine busy with three
+    processes (vehicle, router, companion) slows the flight rather than failing it. The
+    router is outside the lockstep: when MAVProxy's Python forwarding stalls past a wait
+    (0.1 s of wall time) the vehicle steps on and poses reach the companion together, a
+    few of which its loop drops (46 of about 9,000 in a CI run; 0 on an idle machine);
+    the flight must still complete within the pickup's figures. At speed 3 such a wait is
+    0.3 s of vehicle time, more than the loop may lag (loop_overrun)."""
     truth_log = tmp_path / "lockstep.truth.jsonl"
     sitl = start_sitl(CONFIG, "--seed", "1", "--lockstep", speed=SPEED, truth_log=truth_log)
     gcs = GroundStation()
@@ -195,16 +222,14 @@ def test_the_pickup_flies_in_lockstep_with_sitl_run_through_mavproxy(tmp_path):
     assert "Traceback" not in result.stderr
     summary = json.loads((tmp_path / "lockstep" / "summary.json").read_text())
     assert summary["completed"] and summary["faults"] == []
-    assert summary["poses_dropped"] == 0 and summary["late_cycles"] == 0
+    cycles = summary["control_cycles"]
+    assert summary["poses_dropped"] <= 0.02 * cycles and summary["late_cycles"] <= 0.02 * cycles
     assert summary["payload_mass_kg"] == pytest.approx(TRUE_MASS_KG, rel=0.10)
     assert summary["payload_com_along_link2_m"] == pytest.approx(TRUE_COM_M, rel=0.15)
     placed = truth(truth_log)[-1]["object_position_m"]
     assert math.dist(placed[:2], [-1.0, 0.5]) < 0.10
-    waits, timeouts = (
-        int(n) for n in re.search(r"waited for (\d+) setpoints, (\d+) timed out", output).groups()
-    )
-    # OFFBOARD from about 12 s to the landing at about 77 s: a wait per 8 ms pose
-    assert waits > 7000 and timeouts < 0.03 * waits, output[-500:]
+    waits = int(re.search(r"waited for (\d+) setpoints", output).group(1))
+    assert waits > 7000, output[-500:]  # the lockstep engaged through the router
     # The ground station saw the flight on MAVProxy's other output.
     assert gcs.kinds.get("HEARTBEAT", 0) >= 30 and gcs.kinds.get("ODOMETRY", 0) > 1000
 

@@ -86,6 +86,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from filterpy.common import Q_continuous_white_noise
 from numpy.typing import ArrayLike, NDArray
 
 from companion.control.native import native_module
@@ -463,10 +464,6 @@ class StateFilter:
         dt = float(dt_s)
         if not (math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt_s must be finite and > 0, got {dt_s!r}")
-        # filterpy pulls in scipy.stats (0.4 s here): imported when a filter first runs, not
-        # when a command starts
-        from filterpy.common import Q_continuous_white_noise
-
         F = transition_matrix(dt)
         Qu = Q_continuous_white_noise(dim=3, dt=dt, spectral_density=1.0)
         A4 = np.zeros((3, 4, 3, 4))  # [i, c, k, d] -> A[4 i + c, 4 k + d]

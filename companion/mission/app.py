@@ -163,14 +163,8 @@ class PickupApp:
         self._event = event or (lambda kind, detail, t_s: None)
         flight = config.flight
         self.sequence = FlightSequence(
-            SequenceTimes(
-                plan.cruise_altitude_m,
-                flight.settle_climb_rate_m_s,
-                flight.settle_s,
-                flight.handover_stream_s,
-                takeoff_timeout_s,
-                land_timeout_s,
-                flight.standing_height_m,
+            SequenceTimes.of_flight(
+                flight, plan.cruise_altitude_m, takeoff_timeout_s, land_timeout_s
             ),
             lambda z_m, dz_m: self.mission.start_from(z_m, dz_m, flight.ground_margin_m),
         )

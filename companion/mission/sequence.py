@@ -53,10 +53,14 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import TYPE_CHECKING
 
 from companion.link.telemetry import VehicleStatus
 from companion.mission.failsafe import FaultEvent, Reaction
 from companion.mission.offboard import Stream
+
+if TYPE_CHECKING:
+    from companion.config import Flight
 
 __all__ = [
     "WAIT",
@@ -242,6 +246,21 @@ class SequenceTimes:
     """The base CoM's height above the ground when standing [m]: set, the mission's
     heights (the cruise altitude among them) are above the ground the vehicle takes off
     from; None: PX4's local Z."""
+
+    @classmethod
+    def of_flight(
+        cls,
+        flight: Flight,
+        cruise_altitude_m: float,
+        takeoff_timeout_s: float,
+        land_timeout_s: float,
+    ) -> SequenceTimes:
+        """The limits of the config's ``[flight]`` section, the plan's cruise altitude."""
+        return cls(
+            cruise_altitude_m, flight.settle_climb_rate_m_s, flight.settle_s,
+            flight.handover_stream_s, takeoff_timeout_s, land_timeout_s,
+            flight.standing_height_m,
+        )  # fmt: skip
 
 
 @dataclass
