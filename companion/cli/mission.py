@@ -36,7 +36,7 @@ from companion.control.flight import FlightControl, FlightControllerName
 from companion.control.laws import ControlRateError
 from companion.link import LinkError, MavlinkLink, SigningConfig, SigningKeyError
 from companion.logs.flightlog import FlightLogError, FlightLogWriter, read_flight_log
-from companion.logs.live_view import LiveView, LiveViewError
+from companion.logs.live_view import LiveView, LiveViewError, check_port
 from companion.logs.mcap_log import ArmGeometry, FlightLogWithMcap
 from companion.mission.app import (
     BUS_FAILURES,
@@ -358,8 +358,11 @@ def check_mission_options(
 ) -> None:
     """The options every mission command shares; one ``error:`` line and exit 2 for a bad
     one, before anything is opened."""
-    if live_port is not None and not 0 <= live_port <= 65535:
-        fail(f"--live must be a TCP port, 0-65535 (0: any free port), got {live_port}")
+    if live_port is not None:
+        try:
+            check_port(live_port)
+        except LiveViewError as exc:
+            fail(f"--live {exc}")
     if controller not in ("passivity", "nonadaptive"):
         fail(f"--controller must be passivity or nonadaptive, got {controller!r}")
     low, high = CONTROL_RATE_RANGE_HZ

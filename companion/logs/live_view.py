@@ -15,7 +15,6 @@ oldest messages (the SDK's per-client backlog), never the control loop's time.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections.abc import Callable
@@ -28,13 +27,14 @@ from companion.logs.mcap_log import (
     cycle_messages,
     encode,
     log_message,
+    schema_data,
     time_ns,
 )
 
 if TYPE_CHECKING:
     from companion.logs.flightlog import CycleRecord
 
-__all__ = ["RATE_HZ", "LiveView", "LiveViewError"]
+__all__ = ["RATE_HZ", "LiveView", "LiveViewError", "check_port"]
 
 RATE_HZ = 30.0
 """Most cycles published per second of wall time."""
@@ -44,6 +44,12 @@ BACKLOG_MESSAGES = 1024
 
 class LiveViewError(RuntimeError):
     """The live view cannot start (foxglove-sdk missing, the port taken)."""
+
+
+def check_port(port: int) -> None:
+    """:class:`LiveViewError` unless ``port`` is a TCP port (0: any free one)."""
+    if not 0 <= port <= 65535:
+        raise LiveViewError(f"must be a TCP port, 0-65535 (0: any free port), got {port}")
 
 
 class LiveView:
@@ -62,8 +68,7 @@ class LiveView:
         rate_hz: float = RATE_HZ,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        if not 0 <= port <= 65535:
-            raise LiveViewError(f"live view port {port}: not a TCP port (0-65535)")
+        check_port(port)
         self.host = host
         self.port = port
         self.geometry = geometry
@@ -75,7 +80,7 @@ class LiveView:
         self._server: Any = None
         self._context: Any = None
         self._channels: dict[str, Any] = {}
-        self._last_ns = 0
+        self._last_t_s = 0.0
 
     def __enter__(self) -> LiveView:
         self.open()
@@ -111,7 +116,7 @@ class LiveView:
         self.port = self._server.port
         for topic, name in CHANNELS.items():
             schema = foxglove.Schema(
-                name=name, encoding="jsonschema", data=json.dumps(SCHEMAS[name]).encode()
+                name=name, encoding="jsonschema", data=schema_data(SCHEMAS[name])
             )
             self._channels[topic] = foxglove.Channel(
                 topic, schema=schema, message_encoding="json", context=context
@@ -120,14 +125,14 @@ class LiveView:
     def write(self, record: CycleRecord) -> None:
         """Publish one cycle's messages, unless one was published less than a period ago
         or no client listens."""
-        ns = time_ns(record.t_vehicle_s)
-        self._last_ns = ns
+        self._last_t_s = record.t_vehicle_s
         now_s = self._clock()
         if now_s < self._next_s or not self._channels:
             return
         if not self._channels["/tf"].has_sinks():
             return
         self._next_s = now_s + self.period_s
+        ns = time_ns(record.t_vehicle_s)
         for topic, message in cycle_messages(record, self.geometry):
             self._channels[topic].log(encode(message), log_time=ns)
         self.published += 1
@@ -138,7 +143,7 @@ class LiveView:
         channel = self._channels.get("/events")
         if channel is None:
             return
-        ns = time_ns(t_vehicle_s) if math.isfinite(t_vehicle_s) else self._last_ns
+        ns = time_ns(t_vehicle_s if math.isfinite(t_vehicle_s) else self._last_t_s)
         channel.log(encode(log_message(kind, detail, ns)), log_time=ns)
 
     def close(self) -> None:

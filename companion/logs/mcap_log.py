@@ -522,6 +522,11 @@ def start_writer(stream: IO[bytes]) -> Writer:
     return writer
 
 
+def schema_data(schema: dict[str, Any]) -> bytes:
+    """A JSON schema as the bytes a channel's schema record carries."""
+    return json.dumps(schema, indent=1).encode("utf-8")
+
+
 def register_channel(
     writer: Writer,
     topic: str,
@@ -533,7 +538,7 @@ def register_channel(
     ``schema_ids``); the channel id."""
     schema_id = schema_ids.get(schema_name)
     if schema_id is None:
-        data = json.dumps(schema, indent=1).encode("utf-8")
+        data = schema_data(schema)
         schema_id = writer.register_schema(name=schema_name, encoding="jsonschema", data=data)
         schema_ids[schema_name] = schema_id
     return writer.register_channel(topic=topic, message_encoding="json", schema_id=schema_id)

@@ -267,7 +267,7 @@ class SequenceTimes:
 class FlightSequence:
     """The flight's stages (module docstring); one instance per flight.
 
-    ``unreachable`` is given, before arming, the height the vehicle stands at and how far
+    ``start_from`` is given, before arming, the height the vehicle stands at and how far
     up the mission's heights move into PX4's local frame (:attr:`height_offset_m`) [m];
     it moves the plan's heights and tells why the plan cannot be flown (None: it can):
     :meth:`~companion.mission.pickup.PickupMission.start_from` with the ground margin.
@@ -275,7 +275,7 @@ class FlightSequence:
     """
 
     times: SequenceTimes
-    unreachable: Callable[[float, float], str | None]
+    start_from: Callable[[float, float], str | None]
     check_servos: bool = False
     stage: Stage = Stage.IDLE
     ground_z_m: float = math.nan
@@ -474,7 +474,7 @@ class FlightSequence:
                 f"{self.ground_z_m:.2f} m in PX4's local frame, the cruise at {cruise:.2f} m)"
             )
             return
-        unreachable = self.unreachable(self.ground_z_m, self.height_offset_m)
+        unreachable = self.start_from(self.ground_z_m, self.height_offset_m)
         if unreachable is not None:
             self._fail(unreachable)
             return
