@@ -584,7 +584,8 @@ static int control_step(const Params *P, State *S, double dt, int skip, const do
     tilt_step(P, S, dt, raw);
 
     /* 6. AttitudeLoopInverse.offset for (Mhat qd_ddot + Chat qd_dot + Ghat)[roll, pitch]
-     *    with roll, pitch and their rates at the reference (FlightControl._attitude_offset) */
+     *    with roll, pitch and their rates at the reference (FlightControl._attitude_offset),
+     *    over the calibrated s if compensated */
     if (P->ff_on) {
         double fq[NQ], fqd[NQ];
         for (int i = 0; i < NQ; ++i) {
@@ -597,6 +598,7 @@ static int control_step(const Params *P, State *S, double dt, int skip, const do
         for (int i = 0; i < 2; ++i) {
             double torque = 0.0;
             for (int k = 0; k < 4; ++k) torque += yt[8 * k + 3 + i] * xi[k];
+            if (P->compensate) torque = torque / S->s_comp;
             S->ff_torque_f[i] = S->ff_torque_f[i] + alpha * (torque - S->ff_torque_f[i]);
             double v = (S->ff_torque_f[i] / P->ff_torque[i] - S->ff_int[i]) / P->ff_rate_p[i];
             double e = py_min(py_max(v / P->ff_att_p[i], -P->ff_max), P->ff_max);
