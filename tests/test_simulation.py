@@ -268,7 +268,7 @@ def test_the_vertical_loop_at_px4s_rate_is_stable_with_the_flight_filter(
     thrust scale, as measured then (with it learnt beside theta the oscillation at PSD 0.1
     stays below 0.03 in this run: the filter is what the test is about)."""
     data = tomllib.loads((CONFIGS / "sitl_pickup.toml").read_text())
-    del data["estimator"]["thrust_scale"]
+    data["estimator"]["thrust_scale"] = False
     data["sensors"]["jerk_psd"][0:3] = [jerk_psd] * 3
     data["simulation"]["control_rate_hz"] = 125.0
     data["sensors"]["pose_rate_hz"] = 125.0

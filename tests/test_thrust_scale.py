@@ -326,13 +326,25 @@ def _flight_data(**estimator_section) -> dict:
     return data
 
 
-def test_config_section_absent_keeps_the_exact_thrust_model() -> None:
-    cfg = parse_scenario(_flight_data())
-    assert cfg.estimator.thrust_scale is None
-    assert estimator_from_config(cfg, "rls", ROWS).scale is None  # type: ignore[attr-defined]
+def test_thrust_scale_is_on_by_default_and_false_keeps_the_exact_thrust_model() -> None:
+    """Absent, the section takes its defaults (estimated, compensated, its drift learnt);
+    ``thrust_scale = false`` (the paper configs) takes the thrust model as exact."""
+    data = _flight_data()
+    assert data["estimator"]["thrust_scale"] is False
+    assert parse_scenario(data).estimator.thrust_scale is None
+    off = estimator_from_config(parse_scenario(data), "rls", ROWS)
+    assert off.scale is None  # type: ignore[attr-defined]
+    del data["estimator"]["thrust_scale"]
+    default = parse_scenario(data).estimator.thrust_scale
+    assert default is not None and default.compensate
+    assert default.drift_std_per_sqrt_s > 0.0 and default.rate_window_s > 0.0
+    on_by_default = estimator_from_config(parse_scenario(data), "rls", ROWS)
+    assert on_by_default.scale is not None  # type: ignore[attr-defined]
+    data["estimator"]["thrust_scale"] = True
+    assert parse_scenario(data).estimator.thrust_scale == default
     on = parse_scenario(_flight_data(initial=0.95, bounds=[0.7, 1.3]))
     scale = estimator_from_config(on, "rls", ROWS).scale  # type: ignore[attr-defined]
-    assert scale == ThrustScaleModel(initial=0.95, low=0.7, high=1.3)
+    assert scale == ThrustScaleModel(initial=0.95, low=0.7, high=1.3, drift_std_per_sqrt_s=0.01)
     # the joints alone do not see the thrust
     assert estimator_from_config(on, "rls", (6, 7)).scale is None  # type: ignore[attr-defined]
 
@@ -344,11 +356,14 @@ def test_config_section_absent_keeps_the_exact_thrust_model() -> None:
         ({"initial": 1.4, "bounds": [0.8, 1.2]}, "estimator.thrust_scale.initial"),
         ({"initial": 5.0}, "estimator.thrust_scale.initial"),
         ({"scale": 1.0}, "estimator.thrust_scale.scale"),
+        (3, "estimator.thrust_scale"),
     ],
 )
-def test_config_rejects_bad_thrust_scale(section: dict, key: str) -> None:
+def test_config_rejects_bad_thrust_scale(section: dict | int, key: str) -> None:
+    data = _flight_data()
+    data["estimator"]["thrust_scale"] = section
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
-        parse_scenario(_flight_data(**section))
+        parse_scenario(data)
 
 
 # ------------------------------------------------------------------------- truth
