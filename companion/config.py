@@ -589,6 +589,16 @@ class Flight(_Section):
     carry_mass_margin_kg: Annotated[Positive, _within(10.0, "kg", "a payload")] = 0.05
     """Once the estimator is confident in the carry, m2 below the empty link 2's plus this
     means the object is not carried [kg]."""
+    max_hover_thrust: Annotated[Positive, Field(le=1.0)] = 0.7
+    """Largest relative thrust (PX4's, 0-1: a fraction of the maximum, over the calibrated
+    thrust scale) the vehicle may need to hover with the payload; a heavier payload is
+    refused at the end of the grasp and let go where it lies
+    (:mod:`companion.mission.authority`). Assumed: PX4 keeps the rest for attitude
+    control and the climb."""
+    max_joint_torque_fraction: Annotated[Positive, Field(le=1.0)] = 0.8
+    """Largest fraction of a joint's ``torque_max_n_m`` the payload's gravity torque may
+    take at the arm poses of the mission (arm down, the excitation's extremes); beyond it
+    the payload is refused as for the thrust. Assumed: the rest for the arm's motion."""
     carry_check_estimate: Annotated[bool, Field(strict=True)] = True
     """The estimate is a witness of the carry (``carry_mass_margin_kg``); false: the
     gripper alone (a simulator whose arm carries no mass, as PX4 SIH's arm stand)."""

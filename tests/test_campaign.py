@@ -336,6 +336,35 @@ def test_the_report_lists_the_flights_outside_the_bounds_with_their_replay(tmp_p
     assert "sitl demo X" in section and "within" not in section
 
 
+def test_a_refused_payload_is_counted_as_refused_not_as_a_failure(tmp_path):
+    """A flight the companion refused at the grasp (``beyond_authority``) is a refusal: in
+    its own section of the report with its reason, not among the flights that did not
+    complete; a crashed or aborted one still is."""
+    from sitl.campaign.report import write_report
+    from sitl.campaign.store import failed, refused
+
+    spec = load_spec(CAMPAIGNS / "envelope.toml")
+    base = {
+        "status": "ok", "completed": 0, "controller": "passivity", "fault": "none",
+        "seed": 0, "pair_id": "p", "version": "1", "replay": None, "cpu_s": 10.0,
+    }  # fmt: skip
+    rows = [
+        base | {"flight_id": "heavy", "outcome": "beyond_authority",
+                "failure": "MissionFailed: beyond_authority: thrust margin exceeded"},
+        base | {"flight_id": "down", "outcome": "aborted", "failure": "ground_contact"},
+        base | {"flight_id": "crash", "status": "error", "error": "Traceback\nBoom"},
+    ]  # fmt: skip
+    assert [refused(r) for r in rows] == [True, False, False]
+    assert [failed(r) for r in rows] == [False, True, True]
+    report = write_report(rows, [], tmp_path, "t", "", spec).read_text()
+    assert "0 completed, 1 refused (beyond authority), 1 flown without completing" in report
+    did_not, refusals = report.split("<h2>Flights that did not complete</h2>")[1].split(
+        "<h2>Payloads refused (beyond authority)</h2>"
+    )
+    assert "2 of 3 flights did not complete" in did_not and "heavy" not in did_not
+    assert "1 of 3 flights were refused" in refusals and "thrust margin exceeded" in refusals
+
+
 def test_the_ray_engine_without_ray_or_with_bad_options_is_one_line(
     run_sitl, tmp_path, monkeypatch
 ):

@@ -120,6 +120,7 @@ def fly_to(mission: PickupMission, phase: Phase, t_s: float = 0.0, dt_s: float =
     [
         (Outcome.GRASP_FAILED, Phase.LIFT, GripperAction.OPEN),
         (Outcome.PAYLOAD_LOST, Phase.TO_PLACE, GripperAction.HOLD),
+        (Outcome.BEYOND_AUTHORITY, Phase.LIFT, GripperAction.OPEN),
     ],
 )
 def test_abandon_climbs_where_it_is_resets_the_estimate_goes_home_and_never_completes(

@@ -80,7 +80,8 @@ class CarryVerdict:
     """The object is not carried."""
 
     outcome: Outcome
-    """``grasp_failed`` or ``payload_lost``."""
+    """``grasp_failed``, ``payload_lost`` (or ``beyond_authority``, from
+    :mod:`companion.mission.authority`)."""
     detail: str
     """What showed it, one line."""
 

@@ -38,6 +38,12 @@ from companion.link import MavlinkLink
 from companion.link.telemetry import BodyRates, LandedState, VehiclePose, VehicleStatus
 from companion.logs.flightlog import CycleRecord
 from companion.mission.arm_supervisor import ArmSupervisor
+from companion.mission.authority import (
+    WEIGH_HEIGHT_M,
+    AuthorityLimits,
+    AuthorityWatch,
+    payload_authority,
+)
 from companion.mission.carry_check import CarryThresholds, CarryVerdict, CarryWatch, gripper_holds
 from companion.mission.failsafe import CARRY_REACTIONS, FailsafeMonitor, Fault, FaultEvent
 from companion.mission.loop_period import CyclePeriod, GapTimes, LoopPeriodMonitor
@@ -132,6 +138,12 @@ class ControlCycle:
             config.nominal_theta.m2_kg,
         )
         """Whether the object is in the gripper (:mod:`companion.mission.carry_check`)."""
+        self.authority = AuthorityLimits.from_config(config)
+        """What the payload may ask of the thrust and the servos
+        (:mod:`companion.mission.authority`)."""
+        self.authority_watch = AuthorityWatch()
+        self._lift_from_z = math.nan
+        """Height of the base when the lift began [m]."""
         self._grasp_holds: bool | None = None
         """The gripper's last reading in the grasp phase (None: none)."""
         self.figures = FlightFigures()
@@ -252,7 +264,9 @@ class ControlCycle:
         state = a.estimate
         command = None
         if self.offboard.flying:
-            command = self._check_carry(t_s, self.mission.update(t_s, state.q, self._confident()))
+            command = self._check_carry(
+                t_s, self.mission.update(t_s, state.q, self._confident()), float(state.q[Z])
+            )
             desired = command.desired
             self._apply_estimator(command)
         else:
@@ -476,10 +490,12 @@ class ControlCycle:
             target[JOINTS], rate[JOINTS], acceleration[JOINTS] = check.target(self.t_s)
         return DesiredState(target, rate, acceleration)
 
-    def _check_carry(self, t_s: float, command: MissionCommand) -> MissionCommand:
+    def _check_carry(self, t_s: float, command: MissionCommand, z_m: float) -> MissionCommand:
         """Watch the gripper from the grasp to the release and whether the object is carried
-        (:mod:`companion.mission.carry_check`); an object not carried abandons the pickup: this
-        cycle's command is the mission's way home."""
+        (:mod:`companion.mission.carry_check`), and from the end of the grasp through the
+        lift's first centimetres whether it can be (:mod:`companion.mission.authority`;
+        ``z_m``: the base's height [m]); an object not carried, or refused, abandons the
+        pickup: this cycle's command is the mission's way home."""
         phase, arm = command.phase, self.arm
         if command.phase_changed and phase in (Phase.GRASP, Phase.RELEASE):
             arm.watch_gripper(phase == Phase.GRASP)
@@ -498,7 +514,10 @@ class ControlCycle:
         if phase == Phase.GRASP and holds is not None:
             self._grasp_holds = holds
         elif command.phase_changed and phase == Phase.LIFT:
+            self._lift_from_z = z_m
             verdict = self.carry.grasp(self._grasp_holds)
+        if verdict is None and phase == Phase.LIFT and z_m - self._lift_from_z <= WEIGH_HEIGHT_M:
+            verdict = self._beyond_authority(t_s)
         if verdict is None and carrying(phase) and not command.phase_changed:
             if holds is not None:
                 verdict = self.carry.gripper(holds)
@@ -518,6 +537,26 @@ class ControlCycle:
         )
         self._note("fault", f"{verdict.outcome.value}: {verdict.detail}")
         return self.mission.abandon(t_s, verdict.outcome, verdict.detail)
+
+    def _beyond_authority(self, t_s: float) -> CarryVerdict | None:
+        """A payload whose estimated weight has needed more hover thrust or servo torque
+        than ``[flight]`` allows for a while (:mod:`companion.mission.authority`)."""
+        out = self._last_output
+        if out is None:
+            return None
+        control = self.control
+        why = payload_authority(
+            control.model,
+            control.thrust.max_thrust_n,
+            self.authority,
+            float(out.estimate.theta[0]),
+            self.config.nominal_theta.as_tuple(),
+            self.mission.grasp_point_m,
+            control.estimator.compensation_scale,
+            self.mission.loaded_poses(),
+        )
+        refused = self.authority_watch.update(t_s, why)
+        return None if refused is None else CarryVerdict(Outcome.BEYOND_AUTHORITY, refused)
 
     def _confident(self) -> bool:
         return bool(self._last_output is not None and self._last_output.estimate.confident)

@@ -45,6 +45,10 @@ The object not carried (:mod:`companion.mission.carry_check`) ends the pickup, n
 ``payload_lost``
     The object left the gripper between the lift and the place point. The same, with the
     gripper left as it is.
+``beyond_authority``
+    At the end of the grasp, the payload needs more hover thrust or servo torque than
+    ``[flight]`` allows (:mod:`companion.mission.authority`). As for ``grasp_failed``: the
+    gripper opens where the object was grasped, so it stays there.
 """
 
 from __future__ import annotations
@@ -105,6 +109,12 @@ CARRY_REACTIONS: dict[Outcome, tuple[Reaction, ...]] = {
         Reaction.LAND,
     ),
     Outcome.PAYLOAD_LOST: (Reaction.RESET_ESTIMATE, Reaction.RETURN_HOME, Reaction.LAND),
+    Outcome.BEYOND_AUTHORITY: (
+        Reaction.OPEN_GRIPPER,
+        Reaction.RESET_ESTIMATE,
+        Reaction.RETURN_HOME,
+        Reaction.LAND,
+    ),
 }
 """What the object not carried does (the module docstring), by the mission's outcome."""
 """The reactions of each fault, in the order they are carried out."""

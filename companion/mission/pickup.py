@@ -24,7 +24,10 @@ When the object is not in the gripper (:mod:`companion.mission.carry_check` deci
                 position), arm down, the estimator back at the empty arm and held;
                 then ``to_home`` and the landing, with the :class:`Outcome` the reason
                 (``grasp_failed``: the gripper is opened, whatever it touches is let go;
-                ``payload_lost``: it stays as it is). The mission never ends
+                ``payload_lost``: it stays as it is; ``beyond_authority``, a payload the
+                vehicle or the servos cannot carry (:mod:`companion.mission.authority`),
+                checked at the end of the grasp: opened, as for a failed grasp, so the
+                object stays where it lay). The mission never ends
                 ``completed`` without having carried the object to the place point.
 
 Every move is a minimum-jerk (quintic) segment, so q_d_dot and q_d_ddot are continuous and
@@ -106,6 +109,9 @@ class Outcome(StrEnum):
     """The gripper closed on nothing: nothing carried; returned home."""
     PAYLOAD_LOST = "payload_lost"
     """The object left the gripper before the place point: carry stopped; returned home."""
+    BEYOND_AUTHORITY = "beyond_authority"
+    """The payload needs more thrust or servo torque than the vehicle may give
+    (:mod:`companion.mission.authority`): let go where it was grasped; returned home."""
 
 
 _FROZEN_PHASES = frozenset({Phase.RELEASE, Phase.DONE})
@@ -298,13 +304,23 @@ class PickupMission:
     _return_xy_m: tuple[float, float] = (0.0, 0.0)
 
     @property
+    def grasp_point_m(self) -> float:
+        """Where along link 2 the closed jaws hold the object, from joint 2 [m]."""
+        grasp = self.plan.grasp_point_m
+        return self.scenario.arm.link2.length_m - 0.02 if grasp is None else grasp
+
+    @property
     def hang_m(self) -> float:
         """Height of the base CoM above the jaws' grasp point with the arm down [m]."""
         arm = self.scenario.arm
-        grasp = self.plan.grasp_point_m
-        if grasp is None:
-            grasp = arm.link2.length_m - 0.02
-        return -arm.mount_point_m[2] + arm.link1.length_m + grasp
+        return -arm.mount_point_m[2] + arm.link1.length_m + self.grasp_point_m
+
+    def loaded_poses(self) -> tuple[tuple[float, float], ...]:
+        """The (eta1, eta2) [rad] the arm takes with the payload: straight down, and the
+        excitation's two extremes (its joints swing in phase)."""
+        down1, down2 = ARM_DOWN
+        a1, a2 = self.plan.excite_eta1_rad, self.plan.excite_eta2_rad
+        return (ARM_DOWN, (down1 + a1, down2 + a2), (down1 - a1, down2 - a2))
 
     def start_from(self, ground_z_m: float, height_offset_m: float, margin_m: float) -> str | None:
         """Before take-off, from the vehicle standing at ``ground_z_m``: move the plan's
@@ -439,7 +455,8 @@ class PickupMission:
 
     def abandon(self, t_s: float, outcome: Outcome, detail: str) -> MissionCommand:
         """Stop the pickup at vehicle time ``t_s`` [s] because the object is not carried
-        (``outcome`` ``grasp_failed`` or ``payload_lost``, ``detail`` why): from where the
+        (``outcome`` ``grasp_failed``, ``payload_lost`` or ``beyond_authority``, ``detail``
+        why; the gripper opens for the first and the last): from where the
         desired state is now, climb straight up to cruise altitude (``return``), then home;
         returns this cycle's command (the estimator back at the empty arm, held there for
         the rest of the flight: :attr:`EstimatorAction.EMPTY`). Once only: a
@@ -464,7 +481,8 @@ class PickupMission:
         v_from[TILT] = 0.0
         v_from[PSI] = 0.0
         self._segment.v_from = v_from
-        gripper = GripperAction.OPEN if outcome == Outcome.GRASP_FAILED else GripperAction.HOLD
+        let_go = outcome in (Outcome.GRASP_FAILED, Outcome.BEYOND_AUTHORITY)
+        gripper = GripperAction.OPEN if let_go else GripperAction.HOLD
         return MissionCommand(self.phase, self._desired(t_s), gripper, EstimatorAction.EMPTY, True)
 
     def _finished(self, t_s: float, q: FloatArray, confident: bool) -> bool:

@@ -24,6 +24,7 @@ import typer
 from companion.cli.usage import fail, load_or_exit, output_dir_or_exit
 from sitl.campaign.flights import Flight, expand, replay_command, replay_toml, scenario_document
 from sitl.campaign.spec import CampaignSpec, load_spec
+from sitl.campaign.store import failed, refused
 
 if TYPE_CHECKING:
     from sitl.campaign.engine import FlightTask
@@ -40,7 +41,7 @@ class _Progress:
 
     def __init__(self, total: int, done: int) -> None:
         self.total, self.done, self.start_done = total, done, done
-        self.failed = self.errors = 0
+        self.failed = self.refused = self.errors = 0
         self.t0 = time.monotonic()
         self.tty = sys.stderr.isatty()
 
@@ -48,14 +49,16 @@ class _Progress:
         self.done += 1
         if row["status"] == "error":
             self.errors += 1
-        elif not row.get("completed"):
+        elif refused(row):
+            self.refused += 1
+        elif failed(row):
             self.failed += 1
         flown = self.done - self.start_done
         rate = (time.monotonic() - self.t0) / flown
         eta = rate * (self.total - self.done)
         line = (
             f"campaign: {self.done}/{self.total} done, {self.failed} not completed, "
-            f"{self.errors} errors, ETA {eta / 60:.1f} min"
+            f"{self.refused} refused, {self.errors} errors, ETA {eta / 60:.1f} min"
         )
         if self.tty:
             sys.stderr.write("\r" + line.ljust(78))
@@ -226,8 +229,7 @@ def _run(
 
         def record(flight: Flight, row: dict[str, Any]) -> None:
             row = {**identity_columns(flight), **row, "finished_unix_s": time.time()}
-            failed = row["status"] == "error" or not row.get("completed")
-            if failed or spec.outside_bounds(row):
+            if failed(row) or spec.outside_bounds(row):
                 row["replay"] = replay_command(flight, out, spec_path)
                 replay_dir = out / "replay"
                 replay_dir.mkdir(exist_ok=True)
@@ -256,12 +258,13 @@ def _run(
         ids = {f.flight_id for f in flights}
         rows = [r for r in store.rows() if r["flight_id"] in ids]
     report = write_report(rows, list(spec.axes), out, spec.name, spec.description, spec)
-    failed = sum(1 for r in rows if r["status"] == "error" or not r["completed"])
+    not_completed = sum(1 for r in rows if failed(r))
+    refusals = sum(1 for r in rows if refused(r))
     outside = sum(1 for r in rows if spec.outside_bounds(r))
     bounds = f", {outside} outside the spec's bounds" if spec.bounds else ""
     typer.echo(
-        f"campaign {spec.name}: {len(rows)} flights in {out / RESULTS_FILE}, {failed} did not "
-        f"complete{bounds}; report {report}"
+        f"campaign {spec.name}: {len(rows)} flights in {out / RESULTS_FILE}, {not_completed} "
+        f"did not complete, {refusals} refused (beyond authority){bounds}; report {report}"
     )
 
 

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from sitl.campaign.spec import CampaignSpec
+from sitl.campaign.store import failed, refused
 
 __all__ = ["METRICS", "REPORT_FILES", "percentile_rows", "write_report"]
 
@@ -219,12 +220,25 @@ def _flight_table(flights: Sequence[tuple[Row, str]], axes: Sequence[str], what:
     return "\n".join(lines)
 
 
+def _refused(rows: Sequence[Row], axes: Sequence[str]) -> str:
+    mine = [r for r in rows if refused(r)]
+    if not mine:
+        return "<p>No payload was refused.</p>"
+    flights = [(r, html.escape(str(r.get("failure") or ""))) for r in mine]
+    return (
+        f"<p>{len(mine)} of {len(rows)} flights were refused at the grasp: the payload needed "
+        "more hover thrust or servo torque than the flight config allows; the gripper let go "
+        "where the object lay and the vehicle flew home.</p>\n"
+        + _flight_table(flights, axes, "outcome")
+    )
+
+
 def _failed(rows: Sequence[Row], axes: Sequence[str]) -> str:
-    failed = [r for r in rows if r["status"] == "error" or not r.get("completed")]
-    if not failed:
-        return "<p>Every flight completed.</p>"
+    not_completed = [r for r in rows if failed(r)]
+    if not not_completed:
+        return "<p>Every flight completed or was refused.</p>"
     flights = []
-    for r in failed:
+    for r in not_completed:
         if r["status"] == "error":
             last = (r.get("error") or "").strip().splitlines()
             what = "error: " + (last[-1] if last else "")
@@ -234,7 +248,7 @@ def _failed(rows: Sequence[Row], axes: Sequence[str]) -> str:
             detail = html.escape(f"{r.get('outcome')}: {r.get('failure') or ''}")
         flights.append((r, detail))
     return (
-        f"<p>{len(failed)} of {len(rows)} flights did not complete (faults injected on "
+        f"<p>{len(not_completed)} of {len(rows)} flights did not complete (faults injected on "
         "purpose included). Each command flies the flight alone, with its log and figures.</p>\n"
         + _flight_table(flights, axes, "outcome")
     )
@@ -285,12 +299,14 @@ def write_report(
     ok = [r for r in rows if r["status"] == "ok"]
     errors = len(rows) - len(ok)
     done = sum(1 for r in ok if r.get("completed"))
+    refusals = sum(1 for r in ok if refused(r))
     parts = [
         "<!DOCTYPE html><html><head><meta charset='utf-8'>",
         f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>",
         f"<h1>Campaign {html.escape(title)}</h1>",
         f"<p>{html.escape(description)}</p>" if description else "",
-        f"<p>{len(rows)} flights: {done} completed, {len(ok) - done} flown without completing, "
+        f"<p>{len(rows)} flights: {done} completed, {refusals} refused (beyond authority), "
+        f"{len(ok) - done - refusals} flown without completing, "
         f"{errors} crashed (errors). Versions: "
         f"{html.escape(', '.join(sorted({str(r.get('version')) for r in rows})))}.</p>",
     ]
@@ -328,6 +344,7 @@ def write_report(
     if paired_png:
         parts.append(f"<img src='{paired_png}'>")
     parts += ["<h2>Flights that did not complete</h2>", _failed(rows, axes)]
+    parts += ["<h2>Payloads refused (beyond authority)</h2>", _refused(rows, axes)]
     if spec is not None and spec.bounds:
         parts += ["<h2>Flights outside the bounds</h2>", _outside(rows, axes, spec)]
     parts.append("</body></html>")

@@ -25,9 +25,18 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from companion.mission.pickup import Outcome
 from sitl.campaign.flights import Flight
 
-__all__ = ["COLUMNS", "TABLE", "TIMING_COLUMNS", "CampaignMismatchError", "ResultsStore"]
+__all__ = [
+    "COLUMNS",
+    "TABLE",
+    "TIMING_COLUMNS",
+    "CampaignMismatchError",
+    "ResultsStore",
+    "failed",
+    "refused",
+]
 
 TABLE = "flights"
 COLUMNS: tuple[tuple[str, str], ...] = (
@@ -192,3 +201,14 @@ class ResultsStore:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def refused(row: dict[str, Any]) -> bool:
+    """A flight whose payload the companion refused at the grasp as beyond the vehicle's or
+    the servos' authority (``beyond_authority``): a safe refusal, not a failure."""
+    return row.get("status") == "ok" and row.get("outcome") == Outcome.BEYOND_AUTHORITY.value
+
+
+def failed(row: dict[str, Any]) -> bool:
+    """A flight that crashed (``error``) or did not complete, refusals left out."""
+    return row.get("status") == "error" or not (row.get("completed") or refused(row))
