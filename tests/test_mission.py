@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 from companion.config import load_config
+from companion.coordinates import Z
 from companion.mission.pickup import (
+    LIFT_RESTART_M,
     PICKUP_ORDER,
     EstimatorAction,
     GripperAction,
@@ -88,7 +90,7 @@ def test_phases_run_in_order_with_gripper_and_estimator_actions():
     assert [c.phase for c in closes] == [Phase.GRASP]
     assert [c.phase for c in opens] == [Phase.RELEASE]
     actions = [cmd.estimator for _, cmd in records]
-    assert actions.count(EstimatorAction.RESTART) == 1
+    assert actions.count(EstimatorAction.RESTART) == 2  # the grasp; the lift off the ground
     assert actions.count(EstimatorAction.RESET_EMPTY) == 1
     assert mission.confident_when_done
 
@@ -155,8 +157,13 @@ def test_estimator_learns_only_from_the_grasp_on():
     assert by_phase[Phase.TO_OBJECT] == {EstimatorAction.CALIBRATE}
     assert by_phase[Phase.DESCEND] == {EstimatorAction.CALIBRATE}
     assert by_phase[Phase.GRASP] == {EstimatorAction.RESTART, EstimatorAction.RUN}
-    restart = next(cmd for _, cmd in records if cmd.estimator == EstimatorAction.RESTART)
-    assert restart.phase == Phase.GRASP and restart.phase_changed
+    restart, again = ((t, cmd) for t, cmd in records if cmd.estimator == EstimatorAction.RESTART)
+    assert restart[1].phase == Phase.GRASP and restart[1].phase_changed
+    # Once more in the lift, LIFT_RESTART_M above where it began: the object's weight
+    # comes on as it leaves the ground.
+    assert again[1].phase == Phase.LIFT and not again[1].phase_changed
+    lift_z = next(cmd.desired.q[Z] for _, cmd in records if cmd.phase == Phase.LIFT)
+    assert LIFT_RESTART_M <= again[1].desired.q[Z] - lift_z < LIFT_RESTART_M + 0.01
     assert by_phase[Phase.RELEASE] == {EstimatorAction.FREEZE}
     assert EstimatorAction.RUN in by_phase[Phase.EXCITE]
     assert EstimatorAction.RUN in by_phase[Phase.CLIMB]

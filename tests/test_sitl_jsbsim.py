@@ -250,6 +250,13 @@ def test_payload_grasp_keeps_the_vehicle_in_place() -> None:
         plant.attach_payload()
     plant.detach_payload()
     assert plant.true_theta.m2_kg == pytest.approx(0.1)
+    # On the ground JSBSim's link 2 takes none of it, then all of it at once.
+    plant.attach_payload(share=0.0)
+    assert plant.payload_attached and plant.true_theta.m2_kg == pytest.approx(0.1)
+    plant.set_payload_share(0.9)
+    assert plant.true_theta.m2_kg == pytest.approx(0.1)
+    plant.set_payload_share(1.0)
+    assert plant.true_theta.m2_kg == pytest.approx(0.5)
 
 
 # ------------------------------------------------------------------ errors

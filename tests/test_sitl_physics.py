@@ -227,6 +227,28 @@ def test_payload_attach_and_detach_change_link2() -> None:
         plant.detach_payload()
 
 
+def test_a_payload_on_the_ground_gives_its_weight_to_link_2_share_by_share() -> None:
+    """Grasped on the ground (share 0), link 2 is the empty one; each share of the payload
+    adds that share of its mass, first and second moments; back to 0 the ground holds it
+    all again. Velocities are kept. A share needs a grasped payload."""
+    plant = TruthPlant.from_scenario(PAPER)
+    with pytest.raises(PlantError):
+        plant.set_payload_share(0.5)
+    empty = np.array(PAPER.nominal_theta.as_tuple())
+    full = np.array([0.5, 0.08, 0.0128])
+    plant.attach_payload(share=0.0)
+    assert plant.payload_attached
+    assert plant.true_theta.as_tuple() == pytest.approx(tuple(empty), rel=1e-12)
+    before = plant.state.q_dot.copy()
+    for share in (0.25, 1.0, 0.0, 7.0):
+        plant.set_payload_share(share)
+        expected = empty + min(share, 1.0) * (full - empty)
+        assert plant.true_theta.as_tuple() == pytest.approx(tuple(expected), rel=1e-12)
+        np.testing.assert_array_equal(plant.state.q_dot, before)
+    plant.detach_payload()
+    assert plant.true_theta.as_tuple() == pytest.approx(tuple(empty), rel=1e-12)
+
+
 def test_payload_theta_matches_config_truth_for_experiment_arm() -> None:
     plant = TruthPlant.from_scenario(EXPERIMENT, payload_attached=True)
     assert plant.true_theta.as_tuple() == pytest.approx(EXPERIMENT.true_theta.as_tuple())

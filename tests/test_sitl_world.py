@@ -130,7 +130,8 @@ def test_gripper_grasps_an_object_within_tolerance_and_releases_it():
     truth = world.truth()
     assert world.jaw.closed
     assert truth.payload_attached
-    assert truth.true_theta[0] == pytest.approx(empty[0] + SCENARIO.payload.mass_kg)
+    # On the ground the object's weight stays on the ground: the jaws have not lifted it.
+    assert truth.true_theta[0] == pytest.approx(empty[0], abs=0.02 * SCENARIO.payload.mass_kg)
     np.testing.assert_allclose(truth.object_position_m, world.payload_point_m())
     _open_gripper(world, servos)
     truth = world.truth()

@@ -6,10 +6,11 @@ paper eq. theta) but not yet where along link 2 it sits (that takes the excitati
 check takes the payload as a point mass ``m2 - m2_empty`` at the grasp point (where the
 companion's jaws hold it) on the empty link 2, and asks:
 
-- **thrust**: hovering with it, the relative thrust (a fraction of the vehicle's maximum,
-  the thrust model's over the calibrated thrust scale s) stays at most
-  ``[flight] max_hover_thrust``: above it PX4 is left too little for attitude control and
-  the climb;
+- **thrust**: the relative thrust (PX4's, a fraction of the vehicle's maximum: the thrust
+  model's over the calibrated thrust scale s) to hover with it, and the one the lift
+  commands (an object whose weight comes on only as it leaves the ground shows there
+  first, before the estimator has learnt it), stay at most ``[flight] max_hover_thrust``:
+  above it PX4 is left too little for attitude control and the climb;
 - **servos**: at each pose the arm takes with it (arm down, the excitation's two extremes)
   each joint's gravity torque (the model's G, eq. tau2's gravity vector) stays at most
   ``[flight] max_joint_torque_fraction`` of the joint's ``torque_max_n_m``.
@@ -34,7 +35,14 @@ from companion.config import CompanionConfig
 from companion.coordinates import ETA1, ETA2, N_Q, Z
 from companion.model import ManipulatorModel
 
-__all__ = ["PERSIST_S", "WEIGH_HEIGHT_M", "AuthorityLimits", "AuthorityWatch", "payload_authority"]
+__all__ = [
+    "PERSIST_S",
+    "WEIGH_HEIGHT_M",
+    "AuthorityLimits",
+    "AuthorityWatch",
+    "lift_thrust_reason",
+    "payload_authority",
+]
 
 WEIGH_HEIGHT_M = 0.1
 """The lift's first metres in which the payload is checked [m] (and the most it can fall
@@ -120,6 +128,18 @@ def payload_authority(
                 f"({100 * limits.max_joint_torque_fraction:.0f} % of its {limit:g} N m)"
             )
     return None
+
+
+def lift_thrust_reason(thrust_relative: float, limits: AuthorityLimits) -> str | None:
+    """Why the lift's commanded relative thrust (PX4's, 0-1) is beyond the hover limit
+    (one line), or None."""
+    if not thrust_relative > limits.max_hover_thrust:
+        return None
+    return (
+        f"thrust margin exceeded: lifting the payload takes {100 * thrust_relative:.1f} % of "
+        f"the vehicle's maximum thrust, more than the {100 * limits.max_hover_thrust:.0f} % "
+        "allowed ([flight] max_hover_thrust)"
+    )
 
 
 @dataclass

@@ -42,6 +42,7 @@ from companion.mission.authority import (
     WEIGH_HEIGHT_M,
     AuthorityLimits,
     AuthorityWatch,
+    lift_thrust_reason,
     payload_authority,
 )
 from companion.mission.carry_check import CarryThresholds, CarryVerdict, CarryWatch, gripper_holds
@@ -554,7 +555,7 @@ class ControlCycle:
             self.mission.grasp_point_m,
             control.estimator.compensation_scale,
             self.mission.loaded_poses(),
-        )
+        ) or lift_thrust_reason(out.setpoint.thrust_relative, self.authority)
         refused = self.authority_watch.update(t_s, why)
         return None if refused is None else CarryVerdict(Outcome.BEYOND_AUTHORITY, refused)
 

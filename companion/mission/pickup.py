@@ -118,12 +118,22 @@ _FROZEN_PHASES = frozenset({Phase.RELEASE, Phase.DONE})
 """The estimator holds still while the gripper opens and after the mission; after an
 :meth:`PickupMission.abandon` it holds the empty arm's values to the end. It runs from
 the start of the grasp (restarted there): an object whose weight comes onto the arm
-as the jaws close (as in the SITL) is learnt at once, not after a dip of its weight over
-the height gain (10 cm for 0.4 kg, measured: the vehicle reached the ground-contact
-height); an object still on the ground only gives the empty arm's data until it lifts."""
+as the jaws close is learnt at once, not after a dip of its weight over the height gain
+(10 cm for 0.4 kg, measured when the SITL attached it at the jaws' closing: the vehicle
+reached the ground-contact height); an object still on the ground (as in the SITL now)
+only gives the empty arm's data until it lifts, so the estimator restarts again once
+the lift has gained :data:`LIFT_RESTART_M`."""
 _CALIBRATION_PHASES = frozenset({Phase.TO_OBJECT, Phase.DESCEND})
 """Until the grasp the arm is known empty: the estimator holds the empty-arm values and
 learns only the thrust scale (:attr:`EstimatorAction.CALIBRATE`)."""
+
+
+LIFT_RESTART_M = 0.05
+"""Height the lift has gained [m] when the estimator restarts once more
+(:attr:`EstimatorAction.RESTART`): an object standing on the ground gives its weight to
+the arm only as it leaves the ground, and by then it has; the empty arm's seconds of the
+grasp would otherwise have narrowed the covariance the weight is learnt with (the RLS
+then follows it with its forgetting's time constant, about 8 s)."""
 
 
 class GripperAction(StrEnum):
@@ -144,7 +154,7 @@ class EstimatorAction(StrEnum):
     calibration; the estimator holds both where it has no thrust scale)."""
     RESTART = "restart"
     """Keep theta, restart its covariance and confidence, hold the thrust scale: the
-    grasp begins."""
+    grasp begins, and again once the lift has gained :data:`LIFT_RESTART_M`."""
     RESET_EMPTY = "reset_empty"
     """Back to the empty-arm values: the payload was just released."""
     EMPTY = "empty"
@@ -300,6 +310,7 @@ class PickupMission:
     _segment: _Segment | None = None
     _excite_stop_s: float = math.nan
     _settled_since: float = math.nan
+    _lift_restarted: bool = False
     _yaw_rad: float = 0.0
     _return_xy_m: tuple[float, float] = (0.0, 0.0)
 
@@ -441,6 +452,11 @@ class PickupMission:
                 estimator = EstimatorAction.RESET_EMPTY
             if self.phase != Phase.DONE:
                 self._begin(t_s, q_end, self.phase)
+        if self.phase == Phase.LIFT and not self._lift_restarted:
+            assert self._segment is not None
+            if q[Z] - self._segment.q_from[Z] >= LIFT_RESTART_M:
+                self._lift_restarted = True
+                estimator = EstimatorAction.RESTART
         if changed and self.phase == Phase.GRASP:
             gripper = GripperAction.CLOSE
         if changed and self.phase == Phase.RELEASE:

@@ -143,6 +143,7 @@ class TruthPlant(RotorPlant):
         self._link2_empty = art.link2_empty
         self._payload = art.payload
         self._payload_attached = False
+        self._payload_share = 0.0
 
         rotors = scenario.vehicle.rotors
         self._geometry = RotorGeometry.hexa_x(rotors.arm_length_m, rotors.yaw_moment_per_thrust_m)
@@ -295,8 +296,9 @@ class TruthPlant(RotorPlant):
         """Whether link 2 currently carries the payload."""
         return self._payload_attached
 
-    def attach_payload(self) -> None:
-        """Grasp the payload: link 2's inertia becomes empty link 2 + payload.
+    def attach_payload(self, share: float = 1.0) -> None:
+        """Grasp the payload: link 2's inertia becomes empty link 2 + ``share`` (0-1) of
+        the payload, the ground holding the rest (:meth:`set_payload_share`).
 
         The payload is taken to be at rest in the world when grasped (an inelastic
         capture): the generalized momentum M(q) v is conserved, so v changes unless the
@@ -306,7 +308,7 @@ class TruthPlant(RotorPlant):
             raise PlantError("payload is already attached")
         q, v = self._integrator.pinocchio_state(self._x, self._u)
         momentum = self._mass_matrix(q) @ v
-        self._set_payload(True)
+        self._set_payload(True, min(max(share, 0.0), 1.0))
         v = np.linalg.solve(self._mass_matrix(q), momentum).tolist()
         r = self._R9
         self._u = [
@@ -316,6 +318,17 @@ class TruthPlant(RotorPlant):
             *v[3:8],
         ]
         self._update_kinematics()
+
+    def set_payload_share(self, share: float) -> None:
+        """Link 2 carries ``share`` (clipped to 0-1) of the grasped payload's inertia, the
+        ground the rest: an object still standing on the ground while the jaws lift it.
+        Velocities are kept (the share changes while the jaws barely move: the momentum
+        this adds or takes is small). Raises :class:`PlantError` if none is attached."""
+        if not self._payload_attached:
+            raise PlantError("no payload is attached")
+        share = min(max(share, 0.0), 1.0)
+        if share != self._payload_share:
+            self._set_payload(True, share)
 
     def detach_payload(self) -> None:
         """Release the payload: link 2 goes back to its empty inertia; velocities unchanged.
@@ -336,11 +349,15 @@ class TruthPlant(RotorPlant):
         """Mass of vehicle + arm (+ payload if attached) [kg]."""
         return float(sum(self._model.inertias[j].mass for j in range(1, self._model.njoints)))
 
-    def _set_payload(self, attached: bool) -> None:
-        inertia = self._link2_empty + self._payload if attached else self._link2_empty
+    def _set_payload(self, attached: bool, share: float = 1.0) -> None:
+        payload = self._payload
+        if share != 1.0:
+            payload = pin.Inertia(payload.mass * share, payload.lever, payload.inertia * share)
+        inertia = self._link2_empty + payload if attached else self._link2_empty
         self._model.inertias[ETA2_JOINT] = inertia
         self._integrator.set_model(self._model)
         self._payload_attached = attached
+        self._payload_share = share if attached else 0.0
         self._state_cache = None
 
     # ----------------------------------------------------------------- energy

@@ -80,8 +80,13 @@ class PlantCore(Protocol):
         """Whether link 2 carries the payload."""
         ...
 
-    def attach_payload(self) -> None:
-        """Grasp the payload (raises :class:`~sitl.physics.PlantError` if attached)."""
+    def attach_payload(self, share: float = 1.0) -> None:
+        """Grasp the payload, link 2 carrying ``share`` of it and the ground the rest
+        (raises :class:`~sitl.physics.PlantError` if attached)."""
+        ...
+
+    def set_payload_share(self, share: float) -> None:
+        """The share (0-1) of the grasped payload link 2 carries, the ground the rest."""
         ...
 
     def detach_payload(self) -> None:

@@ -25,7 +25,12 @@ Simplifications, all stated here:
   positions) driven by the gripper servo. It counts as closed past the middle of its
   travel toward the closed position. When it closes with the payload's centre of mass
   within ``grasp_tolerance_m`` of the object, the plant attaches the payload (an inelastic
-  capture, see :meth:`~sitl.physics.TruthPlant.attach_payload`) and the jaws stop on the
+  capture, see :meth:`~sitl.physics.TruthPlant.attach_payload`) with the ground still
+  holding its weight: link 2 takes it over as the object's point rises
+  :data:`LIFT_SPAN_M` above where the jaws closed, and gives it back to the ground if it
+  sinks there again before it has cleared :data:`CLEAR_M`
+  (:meth:`~sitl.physics.TruthPlant.set_payload_share`): a payload too heavy to lift stays
+  on the ground. The jaws stop on the
   object, ``jaw_closure_on_object`` of the way from open to closed: the servo then reads
   short of its closed position and draws its stall current (closed on nothing it reaches
   the closed stop and draws none). When it opens, the object is released where it is and
@@ -56,6 +61,13 @@ from sitl.servo import ServoJoint
 __all__ = ["Battery", "GripperJaw", "World", "WorldSettings", "WorldTruth"]
 
 _CONTACT_SLACK_M = 0.03
+LIFT_SPAN_M = 0.01
+"""How far the grasped object's point rises above where the jaws closed while its weight
+passes from the ground to link 2 [m] (assumed: the give of the jaws, the arm and the
+object's seat)."""
+CLEAR_M = 0.05
+"""Height above where the jaws closed at which the object has left the ground for good
+[m]: below it, a vehicle that sinks back sets the object down again."""
 """A plant with its own gear stands when its CoM is within this of the gear height [m]
 (the gear's spring compresses and extends by millimetres) and hardly moves vertically."""
 
@@ -302,6 +314,9 @@ class World:
         self._ground_pose: tuple[float, float, float] | None = None
         self.grasps = 0
         self._grasped_at_s = math.nan
+        self._lift_from_z: float | None = None
+        """Height of the payload point where the jaws closed on the object, while it has
+        not left the ground [m] (None: not grasped, or carried)."""
         self.slipped_at_s: float | None = None
         """Simulation time the grasped object slipped out of the gripper [s], if it did."""
         self._state = plant.reset(start_state(settings))
@@ -411,13 +426,19 @@ class World:
             if not self.plant.payload_attached and not settings.grasp_fails:
                 gap = float(np.linalg.norm(self.payload_point_m() - self._object))
                 if gap <= settings.grasp_tolerance_m:
-                    self.plant.attach_payload()
+                    self._lift_from_z = float(self.payload_point_m()[2])
+                    self.plant.attach_payload(share=0.0)  # the ground holds it still
                     self._state = self.plant.state
                     self.grasps += 1
                     self._grasped_at_s = self._state.time_s
                     jaw.hold(True)
         elif not closed and self._was_closed and self.plant.payload_attached:
             self._drop()
+        if self._lift_from_z is not None and self.plant.payload_attached:
+            rise = float(self.payload_point_m()[2]) - self._lift_from_z
+            self.plant.set_payload_share(rise / LIFT_SPAN_M)
+            if rise >= CLEAR_M:
+                self._lift_from_z = None  # off the ground: carried
         slip = settings.payload_slip_after_s
         if (
             slip is not None
@@ -434,6 +455,7 @@ class World:
         released = self.payload_point_m()
         self.plant.detach_payload()
         self._state = self.plant.state
+        self._lift_from_z = None
         assert self._object_rest_z is not None
         released[2] = min(released[2], self._object_rest_z)
         self._object = released

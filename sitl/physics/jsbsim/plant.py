@@ -172,6 +172,7 @@ class JsbsimPlant(RotorPlant):
         self._actuator_signals: tuple = ()
         self._state_cache: PlantState | None = None
         self._euler = (0.0, 0.0, 0.0)
+        self._grasped = payload_attached
         if payload_attached:
             self._arm.set_payload(True)
         self.reset(scenario.simulation.initial_q)
@@ -259,7 +260,7 @@ class JsbsimPlant(RotorPlant):
             self._quat,
             self._r9,
             self._omega,
-            self._arm.payload_attached,
+            self._grasped,
         )
 
     @property
@@ -280,20 +281,34 @@ class JsbsimPlant(RotorPlant):
 
     @property
     def payload_attached(self) -> bool:
-        """Whether link 2 currently carries the payload."""
-        return self._arm.payload_attached
+        """Whether the payload is grasped (link 2 carrying it, or the ground still)."""
+        return self._grasped
 
-    def attach_payload(self) -> None:
-        """Grasp the payload (joint momentum kept; raises :class:`PlantError` if attached)."""
-        if self._arm.payload_attached:
+    def attach_payload(self, share: float = 1.0) -> None:
+        """Grasp the payload (joint momentum kept; raises :class:`PlantError` if attached).
+        JSBSim restarts whenever link 2 changes, so a ``share`` below 1 leaves the whole
+        payload to the ground until :meth:`set_payload_share` reaches 1."""
+        if self._grasped:
             raise PlantError("payload is already attached")
-        self._regrasp(True)
+        self._grasped = True
+        self.set_payload_share(share)
+
+    def set_payload_share(self, share: float) -> None:
+        """The share of the grasped payload link 2 carries: none below 1, all of it from 1
+        on, each change a restart of JSBSim (see :meth:`attach_payload`)."""
+        if not self._grasped:
+            raise PlantError("no payload is attached")
+        carried = share >= 1.0
+        if carried != self._arm.payload_attached:
+            self._regrasp(carried)
 
     def detach_payload(self) -> None:
         """Release the payload (raises :class:`PlantError` if none is attached)."""
-        if not self._arm.payload_attached:
+        if not self._grasped:
             raise PlantError("no payload is attached")
-        self._regrasp(False)
+        self._grasped = False
+        if self._arm.payload_attached:
+            self._regrasp(False)
 
     def _regrasp(self, attached: bool) -> None:
         """Change link 2 and restart JSBSim at the same q (JSBSim would keep the CG still
