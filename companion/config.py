@@ -591,10 +591,10 @@ class Flight(_Section):
     means the object is not carried [kg]."""
     max_hover_thrust: Annotated[Positive, Field(le=1.0)] = 0.7
     """Largest relative thrust (PX4's, 0-1: a fraction of the maximum, over the calibrated
-    thrust scale) the vehicle may need to hover with the payload; a heavier payload is
-    refused at the end of the grasp and let go where it lies
-    (:mod:`companion.mission.authority`). Assumed: PX4 keeps the rest for attitude
-    control and the climb."""
+    thrust scale) the vehicle may need to hover with the payload, or the lift may command;
+    beyond it the payload is refused (from the end of the grasp through the lift's first
+    centimetres) and let go where it lies (:mod:`companion.mission.authority`). Assumed:
+    PX4 keeps the rest for attitude control and the climb."""
     max_joint_torque_fraction: Annotated[Positive, Field(le=1.0)] = 0.8
     """Largest fraction of a joint's ``torque_max_n_m`` the payload's gravity torque may
     take at the arm poses of the mission (arm down, the excitation's extremes); beyond it

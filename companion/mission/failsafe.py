@@ -46,9 +46,10 @@ The object not carried (:mod:`companion.mission.carry_check`) ends the pickup, n
     The object left the gripper between the lift and the place point. The same, with the
     gripper left as it is.
 ``beyond_authority``
-    At the end of the grasp, the payload needs more hover thrust or servo torque than
-    ``[flight]`` allows (:mod:`companion.mission.authority`). As for ``grasp_failed``: the
-    gripper opens where the object was grasped, so it stays there.
+    From the end of the grasp through the lift's first centimetres, the payload needs more
+    hover thrust or servo torque than ``[flight]`` allows (:mod:`companion.mission.authority`).
+    As for ``grasp_failed``: the gripper opens where the object was grasped, so it stays
+    there (or falls back from at most those centimetres).
 """
 
 from __future__ import annotations

@@ -26,8 +26,9 @@ When the object is not in the gripper (:mod:`companion.mission.carry_check` deci
                 (``grasp_failed``: the gripper is opened, whatever it touches is let go;
                 ``payload_lost``: it stays as it is; ``beyond_authority``, a payload the
                 vehicle or the servos cannot carry (:mod:`companion.mission.authority`),
-                checked at the end of the grasp: opened, as for a failed grasp, so the
-                object stays where it lay). The mission never ends
+                checked from the end of the grasp through the lift's first centimetres:
+                opened, as for a failed grasp, so the object stays where it lay). The
+                mission never ends
                 ``completed`` without having carried the object to the place point.
 
 Every move is a minimum-jerk (quintic) segment, so q_d_dot and q_d_ddot are continuous and

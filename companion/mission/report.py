@@ -29,8 +29,8 @@ class MissionReport:
     outcome: str | None = None
     """How the mission ended: ``completed``, ``grasp_failed`` (the gripper closed on
     nothing: nothing carried, flew home), ``payload_lost`` (the object left the gripper
-    before the place point: carry stopped, flew home), ``beyond_authority`` (refused at the
-    end of the grasp: more thrust or servo torque than allowed; let go, flew home),
+    before the place point: carry stopped, flew home), ``beyond_authority`` (refused in the
+    grasp or the lift: more thrust or servo torque than allowed; let go, flew home),
     ``aborted`` (a failsafe ended it) or
     ``failed`` (it could not start or go on)."""
     phases: list[tuple[float, str]] = field(default_factory=list)

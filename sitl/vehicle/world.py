@@ -58,9 +58,19 @@ from sitl.physics import AttitudeSetpoint, PlantState
 from sitl.physics.frames import quaternion_from_euler
 from sitl.servo import ServoJoint
 
-__all__ = ["Battery", "GripperJaw", "World", "WorldSettings", "WorldTruth"]
+__all__ = [
+    "CLEAR_M",
+    "LIFT_SPAN_M",
+    "Battery",
+    "GripperJaw",
+    "World",
+    "WorldSettings",
+    "WorldTruth",
+]
 
 _CONTACT_SLACK_M = 0.03
+"""A plant with its own gear stands when its CoM is within this of the gear height [m]
+(the gear's spring compresses and extends by millimetres) and hardly moves vertically."""
 LIFT_SPAN_M = 0.01
 """How far the grasped object's point rises above where the jaws closed while its weight
 passes from the ground to link 2 [m] (assumed: the give of the jaws, the arm and the
@@ -68,8 +78,6 @@ object's seat)."""
 CLEAR_M = 0.05
 """Height above where the jaws closed at which the object has left the ground for good
 [m]: below it, a vehicle that sinks back sets the object down again."""
-"""A plant with its own gear stands when its CoM is within this of the gear height [m]
-(the gear's spring compresses and extends by millimetres) and hardly moves vertically."""
 
 FloatArray = NDArray[np.float64]
 
