@@ -12,7 +12,8 @@ MISSION_PHASES = [
 ]  # fmt: skip
 """The pickup's phases in order (what the flight log's ``phase`` column holds in OFFBOARD)."""
 CARRY_PHASES = ("lift", "to_place", "lower")
-"""From lift to place, the excitation left out (issues 13 and 16's comparison)."""
+"""From lift to place, the excitation left out (where the carry RMS of the adaptive and the
+non-adaptive controller are compared)."""
 CARRY_JOINT_RATE_RMS_BOUND_RAD_S = 0.3
 """Joint rate RMS over :data:`CARRY_PHASES` the arm must keep, each joint: it holds still
 while carrying (0.01-0.05 rad/s measured under the imitation and PX4 in the loop); the
