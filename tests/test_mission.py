@@ -11,6 +11,7 @@ from companion.coordinates import Z
 from companion.mission.pickup import (
     LIFT_RESTART_M,
     PICKUP_ORDER,
+    WEIGH_HEIGHT_M,
     EstimatorAction,
     GripperAction,
     Phase,
@@ -271,3 +272,23 @@ def test_the_configs_swing_amplitude_reaches_the_plan():
         config = load_config(f"configs/{name}")
         plan = plan_for(config, (1.5, 1.0, 0.05), (-1.0, 0.5, 0.05), 1.5)
         assert plan.excite_eta1_rad == amplitude
+
+
+def test_the_payload_is_weighed_in_the_lifts_first_centimetres_only():
+    """``weighing``: in the lift, up to WEIGH_HEIGHT_M above where it began (the grasp's
+    height); not in the grasp, not higher up."""
+    mission = PickupMission(PLAN, SCENARIO)
+    q = np.array([0.0, 0.0, 1.5, 0.0, 0.0, 0.0, 0.0, -1.5])
+    mission.start(0.0, q)
+    t = 0.0
+    grasp_z = None
+    while mission.phase != Phase.LIFT:
+        cmd = mission.update(t, q, False)
+        q = cmd.desired.q.copy()
+        if cmd.phase == Phase.GRASP:
+            grasp_z = float(q[Z])
+            assert not mission.weighing(grasp_z)
+        t += DT
+    assert grasp_z is not None
+    assert mission.weighing(grasp_z) and mission.weighing(grasp_z + WEIGH_HEIGHT_M)
+    assert not mission.weighing(grasp_z + WEIGH_HEIGHT_M + 0.01)

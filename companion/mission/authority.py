@@ -15,9 +15,10 @@ companion's jaws hold it) on the empty link 2, and asks:
   each joint's gravity torque (the model's G, eq. tau2's gravity vector) stays at most
   ``[flight] max_joint_torque_fraction`` of the joint's ``torque_max_n_m``.
 
-:class:`AuthorityWatch` asks from the end of the grasp through the lift's first
-:data:`WEIGH_HEIGHT_M` (an object whose weight comes onto the arm only as it leaves the
-ground is weighed there) and refuses a payload found beyond either for
+The mission asks from the end of the grasp through the lift's first
+:data:`~companion.mission.pickup.WEIGH_HEIGHT_M` (an object whose weight comes onto the
+arm only as it leaves the ground is weighed there); :class:`AuthorityWatch` refuses a
+payload found beyond either for
 :data:`PERSIST_S` (``beyond_authority``): the mission opens the gripper, so the object is
 let go where it lay or from at most that height, and flies home
 (:mod:`companion.mission.failsafe`).
@@ -37,16 +38,12 @@ from companion.model import ManipulatorModel
 
 __all__ = [
     "PERSIST_S",
-    "WEIGH_HEIGHT_M",
     "AuthorityLimits",
     "AuthorityWatch",
     "lift_thrust_reason",
     "payload_authority",
 ]
 
-WEIGH_HEIGHT_M = 0.1
-"""The lift's first metres in which the payload is checked [m] (and the most it can fall
-when let go there)."""
 PERSIST_S = 0.3
 """How long the estimate must stay beyond a limit before the payload is refused [s]: a
 grasp's transient is not a payload."""
@@ -107,11 +104,7 @@ def payload_authority(
     weight_n = float(model.gravity(q, theta)[Z])
     hover = weight_n / (thrust_scale * max_thrust_n)
     if hover > limits.max_hover_thrust:
-        return (
-            f"thrust margin exceeded: hovering with the payload (m2 = {m2_kg:.3f} kg) takes "
-            f"{100 * hover:.1f} % of the vehicle's maximum thrust, more than the "
-            f"{100 * limits.max_hover_thrust:.0f} % allowed ([flight] max_hover_thrust)"
-        )
+        return _thrust_reason(f"hovering with the payload (m2 = {m2_kg:.3f} kg)", hover, limits)
     worst = (0.0, 0.0)
     for eta1, eta2 in poses:
         q[ETA1], q[ETA2] = eta1, eta2
@@ -135,10 +128,15 @@ def lift_thrust_reason(thrust_relative: float, limits: AuthorityLimits) -> str |
     (one line), or None."""
     if not thrust_relative > limits.max_hover_thrust:
         return None
+    return _thrust_reason("lifting the payload", thrust_relative, limits)
+
+
+def _thrust_reason(what: str, relative: float, limits: AuthorityLimits) -> str:
+    """The one line of a relative thrust beyond the hover limit."""
     return (
-        f"thrust margin exceeded: lifting the payload takes {100 * thrust_relative:.1f} % of "
-        f"the vehicle's maximum thrust, more than the {100 * limits.max_hover_thrust:.0f} % "
-        "allowed ([flight] max_hover_thrust)"
+        f"thrust margin exceeded: {what} takes {100 * relative:.1f} % of the vehicle's "
+        f"maximum thrust, more than the {100 * limits.max_hover_thrust:.0f} % allowed "
+        "([flight] max_hover_thrust)"
     )
 
 

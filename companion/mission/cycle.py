@@ -39,7 +39,6 @@ from companion.link.telemetry import BodyRates, LandedState, VehiclePose, Vehicl
 from companion.logs.flightlog import CycleRecord
 from companion.mission.arm_supervisor import ArmSupervisor
 from companion.mission.authority import (
-    WEIGH_HEIGHT_M,
     AuthorityLimits,
     AuthorityWatch,
     lift_thrust_reason,
@@ -143,8 +142,6 @@ class ControlCycle:
         """What the payload may ask of the thrust and the servos
         (:mod:`companion.mission.authority`)."""
         self.authority_watch = AuthorityWatch()
-        self._lift_from_z = math.nan
-        """Height of the base when the lift began [m]."""
         self._grasp_holds: bool | None = None
         """The gripper's last reading in the grasp phase (None: none)."""
         self.figures = FlightFigures()
@@ -515,9 +512,8 @@ class ControlCycle:
         if phase == Phase.GRASP and holds is not None:
             self._grasp_holds = holds
         elif command.phase_changed and phase == Phase.LIFT:
-            self._lift_from_z = z_m
             verdict = self.carry.grasp(self._grasp_holds)
-        if verdict is None and phase == Phase.LIFT and z_m - self._lift_from_z <= WEIGH_HEIGHT_M:
+        if verdict is None and self.mission.weighing(z_m):
             verdict = self._beyond_authority(t_s)
         if verdict is None and carrying(phase) and not command.phase_changed:
             if holds is not None:

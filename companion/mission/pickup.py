@@ -59,7 +59,9 @@ from companion.control.laws import DesiredState
 from companion.coordinates import ETA1, ETA2, HORIZONTAL, JOINTS, N_Q, POSITION, PSI, TILT, X, Y, Z
 
 __all__ = [
+    "LIFT_RESTART_M",
     "PICKUP_ORDER",
+    "WEIGH_HEIGHT_M",
     "EstimatorAction",
     "GripperAction",
     "MissionCommand",
@@ -129,6 +131,10 @@ _CALIBRATION_PHASES = frozenset({Phase.TO_OBJECT, Phase.DESCEND})
 learns only the thrust scale (:attr:`EstimatorAction.CALIBRATE`)."""
 
 
+WEIGH_HEIGHT_M = 0.1
+"""The lift's first metres, above where it began, in which the payload is checked
+(:mod:`companion.mission.authority`, :meth:`PickupMission.weighing`) [m]: the most it can
+fall when let go there."""
 LIFT_RESTART_M = 0.05
 """Height the lift has gained [m] when the estimator restarts once more
 (:attr:`EstimatorAction.RESTART`): an object standing on the ground gives its weight to
@@ -454,8 +460,7 @@ class PickupMission:
             if self.phase != Phase.DONE:
                 self._begin(t_s, q_end, self.phase)
         if self.phase == Phase.LIFT and not self._lift_restarted:
-            assert self._segment is not None
-            if q[Z] - self._segment.q_from[Z] >= LIFT_RESTART_M:
+            if self._lift_gain_m(float(q[Z])) >= LIFT_RESTART_M:
                 self._lift_restarted = True
                 estimator = EstimatorAction.RESTART
         if changed and self.phase == Phase.GRASP:
@@ -469,6 +474,17 @@ class PickupMission:
             elif self.phase in _CALIBRATION_PHASES:
                 estimator = EstimatorAction.CALIBRATE
         return MissionCommand(self.phase, self._desired(t_s), gripper, estimator, changed)
+
+    def weighing(self, z_m: float) -> bool:
+        """Whether the lift, the base at height ``z_m`` [m], is within its first
+        :data:`WEIGH_HEIGHT_M`: where the payload is checked against the vehicle's and the
+        servos' authority."""
+        return self.phase == Phase.LIFT and self._lift_gain_m(z_m) <= WEIGH_HEIGHT_M
+
+    def _lift_gain_m(self, z_m: float) -> float:
+        """Height gained above where the lift began (the grasp's height) [m]."""
+        assert self._segment is not None
+        return z_m - float(self._segment.q_from[Z])
 
     def abandon(self, t_s: float, outcome: Outcome, detail: str) -> MissionCommand:
         """Stop the pickup at vehicle time ``t_s`` [s] because the object is not carried
