@@ -25,8 +25,9 @@ PLAN = PickupPlan(home_m=(0.0, 0.0), payload_at_m=(1.5, 1.0, 0.05), place_at_m=(
 DT = 0.004
 
 
-def fly(plan=PLAN, confident_after_s=8.0, lag=0):
-    """Track q_d perfectly (or ``lag`` cycles late); return the per-cycle record."""
+def fly(plan=PLAN, confident_after_s=8.0, lag=0, payload_kg=0.0):
+    """Track q_d perfectly (or ``lag`` cycles late), the estimator saying ``payload_kg``;
+    return the per-cycle record."""
     mission = PickupMission(plan, SCENARIO)
     q = np.array([0.0, 0.0, 1.5, 0.0, 0.0, 0.0, 0.0, -1.5])
     mission.start(0.0, q)
@@ -36,7 +37,7 @@ def fly(plan=PLAN, confident_after_s=8.0, lag=0):
     excite_start = None
     while mission.phase != Phase.DONE and t < 600.0:
         conf = excite_start is not None and t - excite_start >= confident_after_s
-        cmd = mission.update(t, history[0], conf)
+        cmd = mission.update(t, history[0], conf, payload_kg)
         if cmd.phase == Phase.EXCITE and excite_start is None:
             excite_start = t
         records.append((t, cmd))
@@ -91,8 +92,11 @@ def test_phases_run_in_order_with_gripper_and_estimator_actions():
     assert [c.phase for c in closes] == [Phase.GRASP]
     assert [c.phase for c in opens] == [Phase.RELEASE]
     actions = [cmd.estimator for _, cmd in records]
-    assert actions.count(EstimatorAction.RESTART) == 2  # the grasp; the lift off the ground
+    # the grasp; the lift's start; the lift off the ground
+    assert actions.count(EstimatorAction.RESTART) == 3
     assert actions.count(EstimatorAction.RESET_EMPTY) == 1
+    # the estimate drops the payload as the gripper opens, not after the release's wait
+    assert [c.estimator for c in opens] == [EstimatorAction.EMPTY]
     assert mission.confident_when_done
 
 
@@ -150,7 +154,7 @@ def test_plan_rejects_nonsense():
 def test_estimator_learns_only_from_the_grasp_on():
     """Before the grasp the arm is known empty: only the thrust scale is learnt; the
     estimator restarts as the grasp begins (the weight comes on as the jaws close) and
-    holds while the jaws open."""
+    holds the empty arm's values while the jaws open."""
     _, records = fly()
     by_phase = {}
     for _, cmd in records:
@@ -158,14 +162,17 @@ def test_estimator_learns_only_from_the_grasp_on():
     assert by_phase[Phase.TO_OBJECT] == {EstimatorAction.CALIBRATE}
     assert by_phase[Phase.DESCEND] == {EstimatorAction.CALIBRATE}
     assert by_phase[Phase.GRASP] == {EstimatorAction.RESTART, EstimatorAction.RUN}
-    restart, again = ((t, cmd) for t, cmd in records if cmd.estimator == EstimatorAction.RESTART)
+    restarts = [(t, cmd) for t, cmd in records if cmd.estimator == EstimatorAction.RESTART]
+    restart, lift, again = restarts
     assert restart[1].phase == Phase.GRASP and restart[1].phase_changed
-    # Once more in the lift, LIFT_RESTART_M above where it began: the object's weight
-    # comes on as it leaves the ground.
+    # As the lift begins (the weight starts to come over from the ground), and once more
+    # LIFT_RESTART_M above where it began: the object's weight is on as it leaves the
+    # ground.
+    assert lift[1].phase == Phase.LIFT and lift[1].phase_changed
     assert again[1].phase == Phase.LIFT and not again[1].phase_changed
     lift_z = next(cmd.desired.q[Z] for _, cmd in records if cmd.phase == Phase.LIFT)
     assert LIFT_RESTART_M <= again[1].desired.q[Z] - lift_z < LIFT_RESTART_M + 0.01
-    assert by_phase[Phase.RELEASE] == {EstimatorAction.FREEZE}
+    assert by_phase[Phase.RELEASE] == {EstimatorAction.EMPTY, EstimatorAction.FREEZE}
     assert EstimatorAction.RUN in by_phase[Phase.EXCITE]
     assert EstimatorAction.RUN in by_phase[Phase.CLIMB]
 
@@ -292,3 +299,25 @@ def test_the_payload_is_weighed_in_the_lifts_first_centimetres_only():
     assert grasp_z is not None
     assert mission.weighing(grasp_z) and mission.weighing(grasp_z + WEIGH_HEIGHT_M)
     assert not mission.weighing(grasp_z + WEIGH_HEIGHT_M + 0.01)
+
+
+@pytest.mark.parametrize(("payload_kg", "swing"), [(0.1, 1.0), (0.25, 1.0), (0.5, 0.5)])
+def test_a_heavier_payload_swings_the_arm_less(payload_kg, swing):
+    """The excitation's joint amplitudes are for ``excite_payload_kg``: a heavier payload,
+    as estimated when the swing begins, swings in proportion less (the moment of its
+    weight across the swing the same); the circle stays."""
+    plan = replace(PLAN, excite_payload_kg=0.25)
+    _, records = fly(plan, payload_kg=payload_kg)
+    excite = np.array([cmd.desired.q for _, cmd in records if cmd.phase == Phase.EXCITE])
+    centre = excite[0]
+    reach = np.max(np.abs(excite - centre), axis=0)
+    assert reach[6] == pytest.approx(swing * plan.excite_eta1_rad, rel=0.01)
+    assert reach[7] == pytest.approx(swing * plan.excite_eta2_rad, rel=0.01)
+    assert reach[1] == pytest.approx(plan.excite_radius_m, rel=0.01)
+
+
+def test_the_swing_is_the_plans_without_a_reference_payload():
+    mission = PickupMission(PLAN, SCENARIO)
+    assert PLAN.excite_payload_kg is None and mission.swing_scale(2.0) == 1.0
+    with pytest.raises(ValueError, match="excite_payload_kg"):
+        replace(PLAN, excite_payload_kg=0.0)

@@ -391,6 +391,7 @@ def plan_for(scenario: CompanionConfig, payload_at, place_at, cruise_altitude: f
         cruise_altitude_m=cruise_altitude,
         stow_joints_rad=tuple(stow),  # type: ignore[arg-type]
         excite_eta1_rad=scenario.flight.excite_eta1_rad,
+        excite_payload_kg=scenario.flight.excite_payload_kg,
     )
 
 

@@ -263,7 +263,9 @@ class ControlCycle:
         command = None
         if self.offboard.flying:
             command = self._check_carry(
-                t_s, self.mission.update(t_s, state.q, self._confident()), float(state.q[Z])
+                t_s,
+                self.mission.update(t_s, state.q, self._confident(), self._payload_kg()),
+                float(state.q[Z]),
             )
             desired = command.desired
             self._apply_estimator(command)
@@ -550,13 +552,20 @@ class ControlCycle:
             self.config.nominal_theta.as_tuple(),
             self.mission.grasp_point_m,
             control.estimator.compensation_scale,
-            self.mission.loaded_poses(),
+            self.mission.loaded_poses(self._payload_kg()),
         ) or lift_thrust_reason(out.setpoint.thrust_relative, self.authority)
         refused = self.authority_watch.update(t_s, why)
         return None if refused is None else CarryVerdict(Outcome.BEYOND_AUTHORITY, refused)
 
     def _confident(self) -> bool:
         return bool(self._last_output is not None and self._last_output.estimate.confident)
+
+    def _payload_kg(self) -> float:
+        """The estimated payload now: m2 over the empty link 2's [kg] (0 before a step)."""
+        out = self._last_output
+        if out is None:
+            return 0.0
+        return float(out.estimate.theta[0]) - self.config.nominal_theta.m2_kg
 
     def _on_bound(self, out: ControlOutput) -> bool:
         low, high = self.config.estimator.m2_bounds_kg

@@ -8,12 +8,14 @@ estimator should do. Phases, in order:
 ``to_object``   fly at cruise altitude to above the object, arm lowered (straight down)
 ``descend``     lower until link 2's payload point meets the object
 ``grasp``       close the gripper, wait ``grasp_wait_s``; the estimator restarts its confidence
-``lift``        climb back to cruise altitude with the payload
+``lift``        climb back to cruise altitude with the payload; the estimator restarts as it
+                begins and once more :data:`LIFT_RESTART_M` up
 ``excite``      swing the arm and circle until the estimator is confident (or time out),
                 fade out, and hold until the vehicle is back within ``arrive_tolerance_m``
 ``to_place``    carry to above the place point
 ``lower``       lower until the payload point is at the place point
-``release``     open the gripper, wait; the estimate returns to the empty-arm values
+``release``     open the gripper, wait; the estimate returns to the empty-arm values as
+                the gripper opens (held), and runs again from them after the wait
 ``climb``       climb to cruise altitude
 ``to_home``     fly back above the start point, arm stowed; then the app asks PX4 to land
 
@@ -118,14 +120,18 @@ class Outcome(StrEnum):
 
 
 _FROZEN_PHASES = frozenset({Phase.RELEASE, Phase.DONE})
-"""The estimator holds still while the gripper opens and after the mission; after an
-:meth:`PickupMission.abandon` it holds the empty arm's values to the end. It runs from
+"""The estimator holds still while the gripper opens (at the empty arm's values) and after
+the mission; after an :meth:`PickupMission.abandon` it holds the empty arm's values to
+the end. It runs from
 the start of the grasp (restarted there): an object whose weight comes onto the arm
 as the jaws close is learnt at once, not after a dip of its weight over the height gain
 (10 cm for 0.4 kg, measured when the SITL attached it at the jaws' closing: the vehicle
 reached the ground-contact height); an object still on the ground (as in the SITL now)
-only gives the empty arm's data until it lifts, so the estimator restarts again once
-the lift has gained :data:`LIFT_RESTART_M`."""
+only gives the empty arm's data until it lifts, so the estimator restarts again as the
+lift begins (the weight comes over while the vehicle has yet to rise: with the grasp's
+covariance the default pickup sank 5.4 cm below the lift's reference, 4.2 cm with this
+restart, 0.42 kg 9.3 and 7.6 cm) and once more when the lift has gained
+:data:`LIFT_RESTART_M`."""
 _CALIBRATION_PHASES = frozenset({Phase.TO_OBJECT, Phase.DESCEND})
 """Until the grasp the arm is known empty: the estimator holds the empty-arm values and
 learns only the thrust scale (:attr:`EstimatorAction.CALIBRATE`)."""
@@ -161,15 +167,17 @@ class EstimatorAction(StrEnum):
     calibration; the estimator holds both where it has no thrust scale)."""
     RESTART = "restart"
     """Keep theta, restart its covariance and confidence, hold the thrust scale: the
-    grasp begins, and again once the lift has gained :data:`LIFT_RESTART_M`."""
+    grasp begins, the lift begins, and the lift has gained :data:`LIFT_RESTART_M`."""
     RESET_EMPTY = "reset_empty"
-    """Back to the empty-arm values: the payload was just released."""
+    """Back to the empty-arm values and run from them: the release is over."""
     EMPTY = "empty"
-    """Back to the empty-arm values and held there for the rest of the flight: the object
-    was lost or never grasped, the arm is known to be empty (as before the grasp), and the
-    cycles after the loss carry its transient (measured in the SITL's slip: estimating on
-    from the reset, m2 went to its lower bound in the first cycle, then to twice the empty
-    value)."""
+    """Back to the empty-arm values and held there: the gripper opens at the release (held
+    to its end: with the payload's weight in the model after the jaws had let go, the
+    SITL's default pickup rose 7 cm above the place point for the release's 1.5 s), or
+    for the rest of the flight: the object was lost or never grasped, the arm is known to
+    be empty (as before the grasp), and the cycles after the loss carry its transient
+    (measured in the SITL's slip: estimating on from the reset, m2 went to its lower bound
+    in the first cycle, then to twice the empty value)."""
 
 
 @dataclass(frozen=True)
@@ -201,6 +209,10 @@ class PickupPlan:
     excite_eta1_rad: float = 0.5
     excite_eta2_rad: float = 0.4
     excite_radius_m: float = 0.15
+    excite_payload_kg: float | None = None
+    """The payload the joints' swing amplitudes are for [kg]: a heavier payload (its
+    estimate as the excitation begins) swings them by this over its mass; None: the full
+    amplitudes for every payload."""
     arrive_tolerance_m: float = 0.15
     arrive_timeout_s: float = 20.0
     grasp_tolerance_m: float = 0.03
@@ -232,6 +244,8 @@ class PickupPlan:
         for name in (*positive, "return_hold_s"):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name} must be positive")
+        if self.excite_payload_kg is not None and not self.excite_payload_kg > 0.0:
+            raise ValueError("excite_payload_kg must be positive")
         if not self.excite_max_s >= self.excite_min_s + self.excite_period_s:
             raise ValueError("need excite_max_s >= excite_min_s + excite_period_s")
 
@@ -318,6 +332,7 @@ class PickupMission:
     _excite_stop_s: float = math.nan
     _settled_since: float = math.nan
     _lift_restarted: bool = False
+    _swing: float = 1.0
     _yaw_rad: float = 0.0
     _return_xy_m: tuple[float, float] = (0.0, 0.0)
 
@@ -333,11 +348,13 @@ class PickupMission:
         arm = self.scenario.arm
         return -arm.mount_point_m[2] + arm.link1.length_m + self.grasp_point_m
 
-    def loaded_poses(self) -> tuple[tuple[float, float], ...]:
-        """The (eta1, eta2) [rad] the arm takes with the payload: straight down, and the
-        excitation's two extremes (its joints swing in phase)."""
+    def loaded_poses(self, payload_kg: float = 0.0) -> tuple[tuple[float, float], ...]:
+        """The (eta1, eta2) [rad] the arm takes with a payload of ``payload_kg`` [kg]:
+        straight down, and the excitation's two extremes (its joints swing in phase, by
+        :meth:`swing_scale` of the plan's amplitudes)."""
         down1, down2 = ARM_DOWN
-        a1, a2 = self.plan.excite_eta1_rad, self.plan.excite_eta2_rad
+        swing = self.swing_scale(payload_kg)
+        a1, a2 = self.plan.excite_eta1_rad * swing, self.plan.excite_eta2_rad * swing
         return (ARM_DOWN, (down1 + a1, down2 + a2), (down1 - a1, down2 - a2))
 
     def start_from(self, ground_z_m: float, height_offset_m: float, margin_m: float) -> str | None:
@@ -438,10 +455,14 @@ class PickupMission:
             t_s, duration, q_from, q_to, check_arrival=phase not in (Phase.GRASP, Phase.RELEASE)
         )
 
-    def update(self, t_s: float, q: FloatArray, confident: bool) -> MissionCommand:
+    def update(
+        self, t_s: float, q: FloatArray, confident: bool, payload_kg: float = 0.0
+    ) -> MissionCommand:
         """Desired state, gripper and estimator actions at vehicle time ``t_s`` [s].
 
-        ``q`` is the filtered configuration, ``confident`` the estimator's confidence flag.
+        ``q`` is the filtered configuration, ``confident`` the estimator's confidence flag,
+        ``payload_kg`` the estimated payload (m2 over the empty link 2's) [kg], which sets
+        the excitation's swing as it begins (:meth:`swing_scale`).
         """
         if self._segment is None:
             raise RuntimeError("call start() before update()")
@@ -453,10 +474,12 @@ class PickupMission:
             self.phase = _NEXT[self.phase]
             self.phase_log.append((t_s, self.phase))
             changed = True
-            if finished == Phase.DESCEND:
+            if finished in (Phase.DESCEND, Phase.GRASP):
                 estimator = EstimatorAction.RESTART
             if finished == Phase.RELEASE:
                 estimator = EstimatorAction.RESET_EMPTY
+            if self.phase == Phase.EXCITE:
+                self._swing = self.swing_scale(payload_kg)
             if self.phase != Phase.DONE:
                 self._begin(t_s, q_end, self.phase)
         if self.phase == Phase.LIFT and not self._lift_restarted:
@@ -466,7 +489,7 @@ class PickupMission:
         if changed and self.phase == Phase.GRASP:
             gripper = GripperAction.CLOSE
         if changed and self.phase == Phase.RELEASE:
-            gripper = GripperAction.OPEN
+            gripper, estimator = GripperAction.OPEN, EstimatorAction.EMPTY
         abandoned = self.outcome != Outcome.COMPLETED
         if estimator == EstimatorAction.RUN:
             if self.phase in _FROZEN_PHASES or abandoned:
@@ -474,6 +497,15 @@ class PickupMission:
             elif self.phase in _CALIBRATION_PHASES:
                 estimator = EstimatorAction.CALIBRATE
         return MissionCommand(self.phase, self._desired(t_s), gripper, estimator, changed)
+
+    def swing_scale(self, payload_kg: float) -> float:
+        """The fraction of the plan's joint amplitudes the excitation swings with a payload
+        of ``payload_kg`` [kg]: ``excite_payload_kg`` over it, at most 1 (the moment of the
+        payload's weight across the swing held to that of the plan's payload)."""
+        reference = self.plan.excite_payload_kg
+        if reference is None or not payload_kg > reference:
+            return 1.0
+        return reference / payload_kg
 
     def weighing(self, z_m: float) -> bool:
         """Whether the lift, the base at height ``z_m`` [m], is within its first
@@ -593,7 +625,7 @@ class PickupMission:
         ddf = np.zeros(N_Q)
         amp = np.zeros(N_Q)
         amp[X] = amp[Y] = p.excite_radius_m
-        amp[ETA1], amp[ETA2] = p.excite_eta1_rad, p.excite_eta2_rad
+        amp[ETA1], amp[ETA2] = p.excite_eta1_rad * self._swing, p.excite_eta2_rad * self._swing
         # x: r (1 - cos) keeps the circle through the centre; y: r sin; joints: sin.
         f[X], df[X], ddf[X] = 1.0 - c, w * s, w * w * c
         for row in (Y, ETA1, ETA2):
