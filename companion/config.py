@@ -377,6 +377,11 @@ class SlidingMode(_Section):
     """Time constant of the low-pass on the eq. asc2 mass read-out [s]."""
 
 
+def _one_or_pair(value: object) -> object:
+    """A (roll, pitch) pair given as one number for both, or as the pair."""
+    return (value, value) if isinstance(value, int | float) and not isinstance(value, bool) else value
+
+
 Pair = Annotated[tuple[Positive, ...], Field(min_length=2, max_length=2)]
 NonNegativePair = Annotated[tuple[NonNegative, ...], Field(min_length=2, max_length=2)]
 
@@ -401,8 +406,13 @@ class AttitudeFeedforward(_Section):
     ]
     """Body torque of a normalized roll or pitch torque of 1 in PX4's control allocation
     for this airframe [N m] (``sitl authority`` prints it for the configured rotors)."""
-    max_offset_rad: Annotated[Positive, _within(0.5, "rad", "a correction, not a manoeuvre")] = 0.3
-    """Largest offset per axis [rad]."""
+    max_offset_rad: Annotated[
+        tuple[Annotated[NonNegative, _within(0.5, "rad", "a correction, not a manoeuvre")], ...],
+        BeforeValidator(_one_or_pair),
+        Field(min_length=2, max_length=2),
+    ] = (0.3, 0.3)
+    """Largest offset of roll and of pitch [rad] (one number: both); 0 sends none on that
+    axis."""
     torque_filter_s: TimeConstant = 0.05
     """Time constant of the first-order low-pass on the torque the offset is for [s]."""
 

@@ -150,6 +150,10 @@ def test_offset_and_integrator_copy_are_limited_as_px4s():
     loop = inverse(integrator_limit=(0.1, 0.1))
     e = loop.offset(1e-3, np.array([100.0, -100.0]))
     np.testing.assert_array_equal(e, [0.3, -0.3])
+    pitch_only = inverse(max_offset_rad=(0.0, 0.2))
+    e = pitch_only.offset(1e-3, np.array([100.0, -100.0]))
+    np.testing.assert_array_equal(e, [0.0, -0.2])
+    assert pitch_only.integral[0] == 0.0  # no offset sent: PX4's integrator is not driven
     for _ in range(2000):
         loop.offset(1e-3, np.array([100.0, -100.0]))
     np.testing.assert_array_equal(loop.integral, [0.1, -0.1])
@@ -162,7 +166,8 @@ def test_offset_and_integrator_copy_are_limited_as_px4s():
         {"rate_p": (0.15,)},
         {"rate_i": (-0.1, 0.2)},
         {"torque_per_normalized_n_m": (math.nan, 3.0)},
-        {"max_offset_rad": 0.0},
+        {"max_offset_rad": -0.1},
+        {"max_offset_rad": (0.3, 0.3, 0.3)},
         {"torque_filter_s": 0.0},
     ],
 )
@@ -180,3 +185,9 @@ def test_config_section_is_validated_with_a_clear_error():
     data["controller"]["attitude_feedforward"]["max_offset_rad"] = 1.0
     with pytest.raises(ConfigError, match="max_offset_rad"):
         parse_config(data)
+    data["controller"]["attitude_feedforward"]["max_offset_rad"] = [0.0, 0.6]
+    with pytest.raises(ConfigError, match="max_offset_rad"):
+        parse_config(data)
+    data["controller"]["attitude_feedforward"]["max_offset_rad"] = 0.2  # one number: both
+    section = parse_config(data).controller.attitude_feedforward
+    assert section is not None and section.max_offset_rad == (0.2, 0.2)

@@ -74,7 +74,7 @@ typedef struct {
     double com_from_joints; /* 1: the RLS rows x, y, z learn m2 (and s) only */
     double ff_on;           /* 1: AttitudeLoopInverse, with (roll, pitch) pairs: */
     double ff_att_p[2], ff_rate_p[2], ff_rate_i[2], ff_int_lim[2], ff_torque[2];
-    double ff_max;          /* its offset limit [rad] */
+    double ff_max[2];       /* its offset limits (roll, pitch) [rad] */
     double ff_tf;           /* its torque filter's time constant [s] */
 } Params;
 
@@ -601,7 +601,7 @@ static int control_step(const Params *P, State *S, double dt, int skip, const do
             if (P->compensate) torque = torque / S->s_comp;
             S->ff_torque_f[i] = S->ff_torque_f[i] + alpha * (torque - S->ff_torque_f[i]);
             double v = (S->ff_torque_f[i] / P->ff_torque[i] - S->ff_int[i]) / P->ff_rate_p[i];
-            double e = py_min(py_max(v / P->ff_att_p[i], -P->ff_max), P->ff_max);
+            double e = py_min(py_max(v / P->ff_att_p[i], -P->ff_max[i]), P->ff_max[i]);
             v = P->ff_att_p[i] * e;
             double integral = S->ff_int[i] + P->ff_rate_i[i] * v * dt;
             S->ff_int[i] = py_min(py_max(integral, -P->ff_int_lim[i]), P->ff_int_lim[i]);
@@ -950,7 +950,7 @@ static int add_offsets(PyObject *m)
     FIELD(Params, trim_gain, 1); FIELD(Params, trim_limit, 1);
     FIELD(Params, ff_on, 1); FIELD(Params, ff_att_p, 2); FIELD(Params, ff_rate_p, 2);
     FIELD(Params, ff_rate_i, 2); FIELD(Params, ff_int_lim, 2); FIELD(Params, ff_torque, 2);
-    FIELD(Params, ff_max, 1); FIELD(Params, ff_tf, 1);
+    FIELD(Params, ff_max, 2); FIELD(Params, ff_tf, 1);
     FIELD(State, theta, 3); FIELD(State, frozen, 1); FIELD(State, thrust_scale, 1);
     FIELD(State, scale_held, 1); FIELD(State, calibrating, 1); FIELD(State, s_comp, 1);
     FIELD(State, skipped, N_SKIP); FIELD(State, qhat_valid, 1); FIELD(State, qhat, NQ);

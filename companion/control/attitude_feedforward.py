@@ -62,8 +62,9 @@ class AttitudeLoopInverse:
         PX4's rate integrator limit (MC_RR_INT_LIM, MC_PR_INT_LIM) [normalized torque].
     torque_per_normalized_n_m : array_like, shape (2,)
         Body torque of a normalized roll or pitch torque of 1 on this airframe [N m].
-    max_offset_rad : float
-        Largest offset per axis [rad].
+    max_offset_rad : float or array_like, shape (2,)
+        Largest offset of each axis (roll, pitch), or of both [rad]; 0 sends none on
+        that axis.
     torque_filter_s : float
         Time constant of the first-order low-pass on the torque [s].
     """
@@ -75,7 +76,7 @@ class AttitudeLoopInverse:
         rate_i: ArrayLike,
         integrator_limit: ArrayLike,
         torque_per_normalized_n_m: ArrayLike,
-        max_offset_rad: float,
+        max_offset_rad: ArrayLike,
         torque_filter_s: float,
     ) -> None:
         self.attitude_p = _pair(attitude_p, "attitude_p")
@@ -93,11 +94,11 @@ class AttitudeLoopInverse:
             raise ValueError("attitude_p, rate_p and torque_per_normalized_n_m must be positive")
         if np.any(self.rate_i < 0.0) or np.any(self.integrator_limit < 0.0):
             raise ValueError("rate_i and integrator_limit must not be negative")
-        if not max_offset_rad > 0.0:
-            raise ValueError("max_offset_rad must be positive")
+        self.max_offset_rad = _pair(np.broadcast_to(max_offset_rad, 2), "max_offset_rad")
+        if np.any(self.max_offset_rad < 0.0):
+            raise ValueError("max_offset_rad must not be negative")
         if not torque_filter_s > 0.0:
             raise ValueError("torque_filter_s must be positive")
-        self.max_offset_rad = float(max_offset_rad)
         self.torque_filter_s = float(torque_filter_s)
         self.reset()
 
