@@ -588,10 +588,12 @@ class Flight(_Section):
     learns m3 and m4 from)."""
     excite_payload_kg: Annotated[Positive, _within(10.0, "kg", "a payload")] = 0.25
     """The payload the swing's amplitudes are for [kg]: a heavier one (the estimate as the
-    excitation begins) swings both joints in proportion less, so that the moment of its
-    weight across the swing, which the vehicle's attitude holds against, stays that of
-    this one (the estimator's signal with it). Measured in the SITL with 0.44 kg and a
-    0.7 rad swing: 62-82 cm off the circle and 53 deg of tilt."""
+    excitation begins) swings both joints by the square root of this over its mass
+    (companion.mission.pickup.PickupMission.swing_scale): the moment of its weight across
+    the swing, which pushes the vehicle off its circle, grows less, and the estimator
+    still gets enough excitation to be confident. Measured in the SITL with 0.44 kg at
+    the tip and a 0.7 rad swing: 36 cm RMS (82 cm max) off the circle at full swing, 23
+    cm RMS scaled."""
     global_origin_deg_m: Vec3 = (47.397742, 8.545594, 488.0)
     """(latitude [deg], longitude [deg], altitude AMSL [m]) the app sets as PX4's global
     origin when the vehicle has none (no GPS: motion capture indoors); PX4 SITL's default

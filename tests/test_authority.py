@@ -90,10 +90,12 @@ def test_the_mission_knows_the_poses_it_loads_the_arm_in():
     assert down == DOWN
     assert up == pytest.approx((-0.5 * math.pi + plan.excite_eta1_rad, plan.excite_eta2_rad))
     assert back == pytest.approx((-0.5 * math.pi - plan.excite_eta1_rad, -plan.excite_eta2_rad))
-    # a payload twice the one the swing is for swings half as far
+    # a payload four times the one the swing is for swings half as far
     halved = PickupMission(replace(plan, excite_payload_kg=0.25), CONFIG)
-    _, up, back = halved.loaded_poses(0.5)
-    assert up == pytest.approx((-0.5 * math.pi + 0.5 * plan.excite_eta1_rad, 0.5 * plan.excite_eta2_rad))
+    _, up, back = halved.loaded_poses(1.0)
+    assert up == pytest.approx(
+        (-0.5 * math.pi + 0.5 * plan.excite_eta1_rad, 0.5 * plan.excite_eta2_rad)
+    )
     assert halved.loaded_poses(0.2) == mission.loaded_poses()
 
 

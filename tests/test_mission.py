@@ -301,11 +301,13 @@ def test_the_payload_is_weighed_in_the_lifts_first_centimetres_only():
     assert not mission.weighing(grasp_z + WEIGH_HEIGHT_M + 0.01)
 
 
-@pytest.mark.parametrize(("payload_kg", "swing"), [(0.1, 1.0), (0.25, 1.0), (0.5, 0.5)])
+@pytest.mark.parametrize(
+    ("payload_kg", "swing"), [(0.1, 1.0), (0.25, 1.0), (0.5, math.sqrt(0.5)), (1.0, 0.5)]
+)
 def test_a_heavier_payload_swings_the_arm_less(payload_kg, swing):
     """The excitation's joint amplitudes are for ``excite_payload_kg``: a heavier payload,
-    as estimated when the swing begins, swings in proportion less (the moment of its
-    weight across the swing the same); the circle stays."""
+    as estimated when the swing begins, swings by the square root of the mass ratio; the
+    circle stays."""
     plan = replace(PLAN, excite_payload_kg=0.25)
     _, records = fly(plan, payload_kg=payload_kg)
     excite = np.array([cmd.desired.q for _, cmd in records if cmd.phase == Phase.EXCITE])
