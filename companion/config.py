@@ -379,7 +379,9 @@ class SlidingMode(_Section):
 
 def _one_or_pair(value: object) -> object:
     """A (roll, pitch) pair given as one number for both, or as the pair."""
-    return (value, value) if isinstance(value, int | float) and not isinstance(value, bool) else value
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        return (value, value)
+    return value
 
 
 Pair = Annotated[tuple[Positive, ...], Field(min_length=2, max_length=2)]

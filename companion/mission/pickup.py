@@ -122,16 +122,15 @@ class Outcome(StrEnum):
 _FROZEN_PHASES = frozenset({Phase.RELEASE, Phase.DONE})
 """The estimator holds still while the gripper opens (at the empty arm's values) and after
 the mission; after an :meth:`PickupMission.abandon` it holds the empty arm's values to
-the end. It runs from
-the start of the grasp (restarted there): an object whose weight comes onto the arm
-as the jaws close is learnt at once, not after a dip of its weight over the height gain
-(10 cm for 0.4 kg, measured when the SITL attached it at the jaws' closing: the vehicle
-reached the ground-contact height); an object still on the ground (as in the SITL now)
-only gives the empty arm's data until it lifts, so the estimator restarts again as the
-lift begins (the weight comes over while the vehicle has yet to rise: with the grasp's
-covariance the default pickup sank 5.4 cm below the lift's reference, 4.2 cm with this
-restart, 0.42 kg 9.3 and 7.6 cm) and once more when the lift has gained
-:data:`LIFT_RESTART_M`."""
+the end. It runs from the start of the grasp (restarted there): an object whose weight
+comes onto the arm as the jaws close is learnt at once, not after a dip of its weight
+over the height gain (10 cm for 0.4 kg, measured when the SITL attached it at the jaws'
+closing: the vehicle reached the ground-contact height); an object still on the ground
+(as in the SITL now) only gives the empty arm's data until it lifts, so the estimator
+restarts again as the lift begins (the weight comes over while the vehicle has yet to
+rise: with the grasp's covariance the default pickup sank 5.4 cm below the lift's
+reference, 4.2 cm with this restart, 0.42 kg 9.3 and 7.6 cm) and once more when the lift
+has gained :data:`LIFT_RESTART_M`."""
 _CALIBRATION_PHASES = frozenset({Phase.TO_OBJECT, Phase.DESCEND})
 """Until the grasp the arm is known empty: the estimator holds the empty-arm values and
 learns only the thrust scale (:attr:`EstimatorAction.CALIBRATE`)."""
