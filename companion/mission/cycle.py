@@ -264,7 +264,9 @@ class ControlCycle:
         if self.offboard.flying:
             command = self._check_carry(
                 t_s,
-                self.mission.update(t_s, state.q, self._confident(), self._payload_kg()),
+                self.mission.update(
+                    t_s, state.q, self._confident(), self._payload_kg(self._last_output)
+                ),
                 float(state.q[Z]),
             )
             desired = command.desired
@@ -552,7 +554,7 @@ class ControlCycle:
             self.config.nominal_theta.as_tuple(),
             self.mission.grasp_point_m,
             control.estimator.compensation_scale,
-            self.mission.loaded_poses(self._payload_kg()),
+            self.mission.loaded_poses(self._payload_kg(out)),
         ) or lift_thrust_reason(out.setpoint.thrust_relative, self.authority)
         refused = self.authority_watch.update(t_s, why)
         return None if refused is None else CarryVerdict(Outcome.BEYOND_AUTHORITY, refused)
@@ -560,9 +562,8 @@ class ControlCycle:
     def _confident(self) -> bool:
         return bool(self._last_output is not None and self._last_output.estimate.confident)
 
-    def _payload_kg(self) -> float:
-        """The estimated payload now: m2 over the empty link 2's [kg] (0 before a step)."""
-        out = self._last_output
+    def _payload_kg(self, out: ControlOutput | None) -> float:
+        """The payload ``out`` estimates: m2 over the empty link 2's [kg] (0: no output yet)."""
         if out is None:
             return 0.0
         return float(out.estimate.theta[0]) - self.config.nominal_theta.m2_kg
@@ -603,9 +604,8 @@ class ControlCycle:
         theta = out.estimate.theta
         empty = self.config.nominal_theta
         self.report.theta_hat = [float(v) for v in theta]
-        self.report.payload_mass_kg = float(theta[0]) - empty.m2_kg
+        self.report.payload_mass_kg = mass = self._payload_kg(out)
         # Payload CoM along link 2: (m3 - m3_empty) / (m2 - m2_empty), a point mass.
-        mass = self.report.payload_mass_kg
         self.report.payload_com_m = (
             (float(theta[1]) - empty.m3_kg_m) / mass if mass > 1e-6 else None
         )

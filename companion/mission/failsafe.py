@@ -58,7 +58,7 @@ import math
 from dataclasses import dataclass, field
 from enum import StrEnum
 
-from companion.mission.pickup import Outcome
+from companion.mission.pickup import LETS_GO, Outcome
 
 __all__ = ["CARRY_REACTIONS", "REACTIONS", "FailsafeMonitor", "Fault", "FaultEvent", "Reaction"]
 
@@ -102,23 +102,15 @@ REACTIONS: dict[Fault, tuple[Reaction, ...]] = {
     Fault.NAVIGATION: (Reaction.FREEZE_ESTIMATE, Reaction.LAND),
     Fault.GROUND_CONTACT: (Reaction.FREEZE_ESTIMATE, Reaction.LEVEL_ON_GROUND, Reaction.LAND),
 }
-CARRY_REACTIONS: dict[Outcome, tuple[Reaction, ...]] = {
-    Outcome.GRASP_FAILED: (
-        Reaction.OPEN_GRIPPER,
-        Reaction.RESET_ESTIMATE,
-        Reaction.RETURN_HOME,
-        Reaction.LAND,
-    ),
-    Outcome.PAYLOAD_LOST: (Reaction.RESET_ESTIMATE, Reaction.RETURN_HOME, Reaction.LAND),
-    Outcome.BEYOND_AUTHORITY: (
-        Reaction.OPEN_GRIPPER,
-        Reaction.RESET_ESTIMATE,
-        Reaction.RETURN_HOME,
-        Reaction.LAND,
-    ),
-}
-"""What the object not carried does (the module docstring), by the mission's outcome."""
 """The reactions of each fault, in the order they are carried out."""
+CARRY_REACTIONS: dict[Outcome, tuple[Reaction, ...]] = {
+    outcome: ((Reaction.OPEN_GRIPPER,) if outcome in LETS_GO else ())
+    + (Reaction.RESET_ESTIMATE, Reaction.RETURN_HOME, Reaction.LAND)
+    for outcome in (Outcome.GRASP_FAILED, Outcome.PAYLOAD_LOST, Outcome.BEYOND_AUTHORITY)
+}
+"""What the object not carried does (the module docstring), by the mission's outcome: the
+gripper opened for the outcomes the mission lets go on
+(:data:`~companion.mission.pickup.LETS_GO`)."""
 
 
 @dataclass(frozen=True)

@@ -61,6 +61,7 @@ from companion.control.laws import DesiredState
 from companion.coordinates import ETA1, ETA2, HORIZONTAL, JOINTS, N_Q, POSITION, PSI, TILT, X, Y, Z
 
 __all__ = [
+    "LETS_GO",
     "LIFT_RESTART_M",
     "PICKUP_ORDER",
     "WEIGH_HEIGHT_M",
@@ -117,6 +118,11 @@ class Outcome(StrEnum):
     BEYOND_AUTHORITY = "beyond_authority"
     """The payload needs more thrust or servo torque than the vehicle may give
     (:mod:`companion.mission.authority`): let go where it was grasped; returned home."""
+
+
+LETS_GO: frozenset[Outcome] = frozenset({Outcome.GRASP_FAILED, Outcome.BEYOND_AUTHORITY})
+"""The outcomes of :meth:`PickupMission.abandon` that open the gripper (whatever it touches
+is let go where it is); ``payload_lost`` leaves it as it is."""
 
 
 _FROZEN_PHASES = frozenset({Phase.RELEASE, Phase.DONE})
@@ -553,8 +559,7 @@ class PickupMission:
         v_from[TILT] = 0.0
         v_from[PSI] = 0.0
         self._segment.v_from = v_from
-        let_go = outcome in (Outcome.GRASP_FAILED, Outcome.BEYOND_AUTHORITY)
-        gripper = GripperAction.OPEN if let_go else GripperAction.HOLD
+        gripper = GripperAction.OPEN if outcome in LETS_GO else GripperAction.HOLD
         return MissionCommand(self.phase, self._desired(t_s), gripper, EstimatorAction.EMPTY, True)
 
     def _finished(self, t_s: float, q: FloatArray, confident: bool) -> bool:

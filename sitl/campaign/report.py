@@ -226,9 +226,9 @@ def _refused(rows: Sequence[Row], axes: Sequence[str]) -> str:
         return "<p>No payload was refused.</p>"
     flights = [(r, html.escape(str(r.get("failure") or ""))) for r in mine]
     return (
-        f"<p>{len(mine)} of {len(rows)} flights were refused at the grasp: the payload needed "
-        "more hover thrust or servo torque than the flight config allows; the gripper let go "
-        "where the object lay and the vehicle flew home.</p>\n"
+        f"<p>{len(mine)} of {len(rows)} flights were refused in the grasp or the lift's first "
+        "centimetres: the payload needed more hover thrust or servo torque than the flight "
+        "config allows; the gripper let go where the object lay and the vehicle flew home.</p>\n"
         + _flight_table(flights, axes, "outcome")
     )
 

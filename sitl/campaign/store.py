@@ -204,8 +204,9 @@ class ResultsStore:
 
 
 def refused(row: dict[str, Any]) -> bool:
-    """A flight whose payload the companion refused at the grasp as beyond the vehicle's or
-    the servos' authority (``beyond_authority``): a safe refusal, not a failure."""
+    """A flight whose payload the companion refused (in the grasp or the lift's first
+    centimetres) as beyond the vehicle's or the servos' authority (``beyond_authority``):
+    a safe refusal, not a failure."""
     return row.get("status") == "ok" and row.get("outcome") == Outcome.BEYOND_AUTHORITY.value
 
 
