@@ -14,8 +14,7 @@ estimator should do. Phases, in order:
                 fade out, and hold until the vehicle is back within ``arrive_tolerance_m``
 ``to_place``    carry to above the place point
 ``lower``       lower until the payload point is at the place point
-``release``     open the gripper, wait; the estimate returns to the empty-arm values as
-                the gripper opens (held), and runs again from them after the wait
+``release``     open the gripper, wait; the estimate returns to the empty-arm values
 ``climb``       climb to cruise altitude
 ``to_home``     fly back above the start point, arm stowed; then the app asks PX4 to land
 
@@ -126,17 +125,17 @@ is let go where it is); ``payload_lost`` leaves it as it is."""
 
 
 _FROZEN_PHASES = frozenset({Phase.RELEASE, Phase.DONE})
-"""The estimator holds still while the gripper opens (at the empty arm's values) and after
-the mission; after an :meth:`PickupMission.abandon` it holds the empty arm's values to
-the end. It runs from the start of the grasp (restarted there): an object whose weight
-comes onto the arm as the jaws close is learnt at once, not after a dip of its weight
-over the height gain (10 cm for 0.4 kg, measured when the SITL attached it at the jaws'
-closing: the vehicle reached the ground-contact height); an object still on the ground
-(as in the SITL now) only gives the empty arm's data until it lifts, so the estimator
-restarts again as the lift begins (the weight comes over while the vehicle has yet to
-rise: with the grasp's covariance the default pickup sank 5.4 cm below the lift's
-reference, 4.2 cm with this restart, 0.42 kg 9.3 and 7.6 cm) and once more when the lift
-has gained :data:`LIFT_RESTART_M`."""
+"""The estimator holds still while the gripper opens and after the mission; after an
+:meth:`PickupMission.abandon` it holds the empty arm's values to the end. It runs from
+the start of the grasp (restarted there): an object whose weight comes onto the arm as
+the jaws close is learnt at once, not after a dip of its weight over the height gain (10
+cm for 0.4 kg, measured when the SITL attached it at the jaws' closing: the vehicle
+reached the ground-contact height); an object still on the ground (as in the SITL now)
+only gives the empty arm's data until it lifts, so the estimator restarts again as the
+lift begins (the weight comes over while the vehicle has yet to rise: with the grasp's
+covariance the default pickup sank 5.4 cm below the lift's reference, 4.2 cm with this
+restart, 0.42 kg 9.3 and 7.6 cm) and once more when the lift has gained
+:data:`LIFT_RESTART_M`."""
 _CALIBRATION_PHASES = frozenset({Phase.TO_OBJECT, Phase.DESCEND})
 """Until the grasp the arm is known empty: the estimator holds the empty-arm values and
 learns only the thrust scale (:attr:`EstimatorAction.CALIBRATE`)."""
@@ -174,15 +173,16 @@ class EstimatorAction(StrEnum):
     """Keep theta, restart its covariance and confidence, hold the thrust scale: the
     grasp begins, the lift begins, and the lift has gained :data:`LIFT_RESTART_M`."""
     RESET_EMPTY = "reset_empty"
-    """Back to the empty-arm values and run from them: the release is over."""
+    """Back to the empty-arm values: the payload was just released (at the release's end;
+    reset as the gripper opens, the SITL's default pickup no longer rose 7 cm over the
+    place point, but with PX4 SIH, the estimate unconfident at 0.185 kg, the vehicle sank
+    into ``ground_contact`` 0.3 s after the reset, low over the point)."""
     EMPTY = "empty"
-    """Back to the empty-arm values and held there: the gripper opens at the release (held
-    to its end: with the payload's weight in the model after the jaws had let go, the
-    SITL's default pickup rose 7 cm above the place point for the release's 1.5 s), or
-    for the rest of the flight: the object was lost or never grasped, the arm is known to
-    be empty (as before the grasp), and the cycles after the loss carry its transient
-    (measured in the SITL's slip: estimating on from the reset, m2 went to its lower bound
-    in the first cycle, then to twice the empty value)."""
+    """Back to the empty-arm values and held there for the rest of the flight: the object
+    was lost or never grasped, the arm is known to be empty (as before the grasp), and the
+    cycles after the loss carry its transient (measured in the SITL's slip: estimating on
+    from the reset, m2 went to its lower bound in the first cycle, then to twice the empty
+    value)."""
 
 
 @dataclass(frozen=True)
@@ -494,7 +494,7 @@ class PickupMission:
         if changed and self.phase == Phase.GRASP:
             gripper = GripperAction.CLOSE
         if changed and self.phase == Phase.RELEASE:
-            gripper, estimator = GripperAction.OPEN, EstimatorAction.EMPTY
+            gripper = GripperAction.OPEN
         abandoned = self.outcome != Outcome.COMPLETED
         if estimator == EstimatorAction.RUN:
             if self.phase in _FROZEN_PHASES or abandoned:
