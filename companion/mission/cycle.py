@@ -290,8 +290,10 @@ class ControlCycle:
         setpoint_us = setpoint_cpu_us = None
         if sp is not None:
             self.link.send_setpoint(sp, pose.time_boot_ms)
-            setpoint_us = (time.perf_counter() - received) * 1e6
+            # CPU clock read first: its interval lies inside the wall clock's (read
+            # the other way round at the start), so CPU <= latency holds per cycle.
             setpoint_cpu_us = (time.thread_time() - received_cpu) * 1e6
+            setpoint_us = (time.perf_counter() - received) * 1e6
             self.report.setpoint_latency_us.append(setpoint_us)
             self.report.setpoint_cpu_us.append(setpoint_cpu_us)
         if self.collecting:
