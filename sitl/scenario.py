@@ -210,11 +210,15 @@ class WorldSection(_Section):
     start_joints_rad: Annotated[tuple[Real, ...], Field(min_length=2, max_length=2)]
     """(eta1, eta2) at the start [rad]."""
     payload_position_m: Vec3 | None = None
-    """Where the payload object's centre of mass rests (the ``[payload]`` section's mass and
-    inertia); absent: no object in the world."""
+    """Where the payload object rests, at the point the jaws take hold of it (the
+    ``[payload]`` section's mass and inertia); absent: no object in the world."""
     grasp_tolerance_m: Positive
-    """Largest distance between the object and link 2's payload point at which closing the
-    gripper grasps it [m]."""
+    """Largest distance between the object and the jaws at which closing the gripper
+    grasps it [m]."""
+    jaw_point_m: Positive | None = None
+    """Where along link 2 the jaws hold an object, from joint 2 [m]; absent: 2 cm inside
+    link 2's tip. The held object's centre of mass is at ``[payload] position_m`` along
+    link 2, which may lie beyond or short of the jaws."""
     jaw_closure_on_object: Annotated[
         float, Field(strict=True, gt=0.5, lt=1.0, allow_inf_nan=False)
     ] = 0.8
@@ -262,8 +266,8 @@ class Scenario(CompanionConfig):
 
 
 def check_simulator(cfg: Scenario, path: str) -> None:
-    """The simulator's values no world can have: a payload beyond link 2, an object below
-    the ground, a control rate that does not divide the plant rate."""
+    """The simulator's values no world can have: a payload or the jaws beyond link 2, an
+    object below the ground, a control rate that does not divide the plant rate."""
     l2 = cfg.arm.link2.length_m
     if cfg.payload.position_m > l2:
         raise ConfigError(
@@ -278,6 +282,11 @@ def check_simulator(cfg: Scenario, path: str) -> None:
             "simulation.control_rate_hz",
             f"{cfg.simulation.control_rate_hz:g} Hz must divide plant.rate_hz "
             f"({cfg.plant.rate_hz:g} Hz) into a whole number of plant steps",
+        )
+    jaws = None if cfg.world is None else cfg.world.jaw_point_m
+    if jaws is not None and jaws > l2:
+        raise ConfigError(
+            path, "world.jaw_point_m", f"{jaws:g} m lies beyond link 2 (length {l2:g} m)"
         )
     if cfg.world is not None and cfg.world.payload_position_m is not None:
         if cfg.world.payload_position_m[2] < 0.0:

@@ -40,6 +40,15 @@ def test_object_below_ground_is_rejected():
         parse_scenario(raw, "x.toml")
 
 
+@pytest.mark.parametrize(("value", "words"), [(0.18, "beyond link 2"), (0.0, "greater than 0")])
+def test_jaws_beyond_link_2_or_not_positive_are_rejected(value, words):
+    raw = data()
+    raw["world"]["jaw_point_m"] = value
+    with pytest.raises(ConfigError, match=words) as info:
+        parse_scenario(raw, "x.toml")
+    assert "world.jaw_point_m" in str(info.value)
+
+
 def test_autopilot_params_must_be_numbers():
     raw = data()
     raw["world"]["autopilot_params"] = {"COM_OF_LOSS_T": "1.0"}

@@ -26,7 +26,7 @@ def _position_mode(servo: XM430Servo, goal_rad: float) -> None:
     assert servo.write(ct.TORQUE_ENABLE.address, b"\x01").error == 0
 
 
-def _world(joints=(-1.2, 0.3), direction=1, object_at=None, tolerance=0.05):
+def _world(joints=(-1.2, 0.3), direction=1, object_at=None, tolerance=0.05, jaw_point_m=None):
     plant = TruthPlant.from_scenario(SCENARIO, "underactuated")
     configs = [
         JointConfig("eta1", 1, 1.78, 4.1, direction=direction),
@@ -37,6 +37,7 @@ def _world(joints=(-1.2, 0.3), direction=1, object_at=None, tolerance=0.05):
         landing_gear_height_m=GEAR_M,
         payload_position_m=object_at,
         grasp_tolerance_m=tolerance,
+        jaw_point_m=jaw_point_m,
         start_joints_rad=joints,
     )
     world = World(
@@ -123,7 +124,7 @@ def _open_gripper(world, servos, steps=400):
 
 def test_gripper_grasps_an_object_within_tolerance_and_releases_it():
     probe, _ = _world()
-    point = probe.payload_point_m()
+    point = probe.jaw_point_m()
     world, servos = _world(object_at=tuple(np.add(point, [0.02, 0.0, 0.0])))
     empty = world.truth().true_theta
     _close_gripper(world, servos)
@@ -132,7 +133,7 @@ def test_gripper_grasps_an_object_within_tolerance_and_releases_it():
     assert truth.payload_attached
     # On the ground the object's weight stays on the ground: the jaws have not lifted it.
     assert truth.true_theta[0] == pytest.approx(empty[0], abs=0.02 * SCENARIO.payload.mass_kg)
-    np.testing.assert_allclose(truth.object_position_m, world.payload_point_m())
+    np.testing.assert_allclose(truth.object_position_m, world.jaw_point_m())
     _open_gripper(world, servos)
     truth = world.truth()
     assert not truth.payload_attached
@@ -140,9 +141,32 @@ def test_gripper_grasps_an_object_within_tolerance_and_releases_it():
     assert truth.object_position_m[2] <= point[2] + 1e-9
 
 
+def test_the_jaws_grasp_where_they_are_and_the_mass_sits_at_the_payloads_own_point():
+    """The jaws (2 cm inside link 2's tip) take the object; its centre of mass lies at the
+    payload's point along link 2 (4 cm short of the jaws here), which the grasp does not
+    need to be over the object."""
+    probe, _ = _world()
+    jaws, com = probe.jaw_point_m(), probe.payload_point_m()
+    jaw_at = SCENARIO.arm.link2.length_m - 0.02
+    assert math.dist(jaws, com) == pytest.approx(jaw_at - SCENARIO.payload.position_m)
+    assert math.dist(jaws, com) > 0.03
+    world, servos = _world(object_at=tuple(jaws))
+    _close_gripper(world, servos)
+    assert world.truth().payload_attached
+    np.testing.assert_allclose(world.truth().object_position_m, world.jaw_point_m())
+    # Where the jaws are is the truth's own setting: set at the payload's point, the jaws
+    # stay 4 cm from an object resting at the default jaw point, beyond a 3 cm tolerance.
+    far, servos = _world(
+        object_at=tuple(jaws), tolerance=0.03, jaw_point_m=SCENARIO.payload.position_m
+    )
+    np.testing.assert_allclose(far.jaw_point_m(), com)
+    _close_gripper(far, servos)
+    assert far.jaw.closed and not far.truth().payload_attached
+
+
 def test_gripper_closing_far_from_the_object_grasps_nothing():
     probe, _ = _world()
-    point = probe.payload_point_m()
+    point = probe.jaw_point_m()
     world, servos = _world(object_at=tuple(np.add(point, [0.2, 0.0, 0.0])))
     _close_gripper(world, servos)
     assert world.jaw.closed
@@ -155,6 +179,8 @@ def test_settings_reject_nonsense():
         WorldSettings(landing_gear_height_m=0.0)
     with pytest.raises(ValueError, match="finite"):
         WorldSettings(start_yaw_rad=math.nan)
+    with pytest.raises(ValueError, match="jaw_point_m"):
+        WorldSettings(jaw_point_m=-0.1)
 
 
 def test_jsbsim_plant_stands_on_its_own_gear_in_the_world():

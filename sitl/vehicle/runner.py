@@ -300,6 +300,7 @@ def world_settings(scenario: Scenario) -> WorldSettings:
         landing_gear_height_m=world.landing_gear_height_m,
         payload_position_m=None if payload is None else (payload[0], payload[1], payload[2]),
         grasp_tolerance_m=world.grasp_tolerance_m,
+        jaw_point_m=world.jaw_point_m,
         start_position_m=(east, north, 0.0),
         start_yaw_rad=world.start_yaw_rad,
         start_joints_rad=(shoulder, elbow),

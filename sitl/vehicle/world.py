@@ -23,10 +23,12 @@ Simplifications, all stated here:
   not collide with the ground.
 - Gripper: one jaw shaft (inertia, viscous friction, hard stops at the open and closed
   positions) driven by the gripper servo. It counts as closed past the middle of its
-  travel toward the closed position. When it closes with the payload's centre of mass
-  within ``grasp_tolerance_m`` of the object, the plant attaches the payload (an inelastic
-  capture, see :meth:`~sitl.physics.TruthPlant.attach_payload`) with the ground still
-  holding its weight: link 2 takes it over as the object's point rises
+  travel toward the closed position. When it closes with its jaws (``jaw_point_m`` along
+  link 2) within ``grasp_tolerance_m`` of the object, the plant attaches the payload (an
+  inelastic capture, see :meth:`~sitl.physics.TruthPlant.attach_payload`) with its centre
+  of mass at the payload's own point along link 2 (``payload.position_m``: where the
+  object's mass lies beyond or short of the jaws) and the ground still holding its
+  weight: link 2 takes it over as the jaws rise
   :data:`LIFT_SPAN_M` above where the jaws closed, and gives it back to the ground if it
   sinks there again before it has cleared :data:`CLEAR_M`
   (:meth:`~sitl.physics.TruthPlant.set_payload_share`): a payload too heavy to lift stays
@@ -68,6 +70,10 @@ __all__ = [
     "WorldTruth",
 ]
 
+JAWS_INSIDE_TIP_M = 0.02
+"""Where the jaws hold an object when ``jaw_point_m`` is not given: this far inside link
+2's tip [m]."""
+
 _CONTACT_SLACK_M = 0.03
 """A plant with its own gear stands when its CoM is within this of the gear height [m]
 (the gear's spring compresses and extends by millimetres) and hardly moves vertically."""
@@ -94,8 +100,12 @@ class WorldSettings:
         Where the payload object's centre of mass rests at the start, world ENU [m];
         ``None`` for no object.
     grasp_tolerance_m
-        Largest distance between the object and the payload point of link 2 (the
-        configured ``payload.position_m`` along it) at which closing the gripper grasps [m].
+        Largest distance between the object and the jaws (:attr:`jaw_point_m` along link 2)
+        at which closing the gripper grasps [m].
+    jaw_point_m
+        Where along link 2 the jaws hold an object, from joint 2 [m]; ``None``: 2 cm inside
+        the tip. The grasped object's centre of mass sits at the payload's own point along
+        link 2 (``payload.position_m``), which need not be the jaws'.
     start_position_m
         Base CoM position at the start, world ENU [m]; its z is replaced by the landing
         gear height (the vehicle starts standing on the ground).
@@ -119,6 +129,7 @@ class WorldSettings:
     landing_gear_height_m: float = 0.25
     payload_position_m: tuple[float, float, float] | None = None
     grasp_tolerance_m: float = 0.05
+    jaw_point_m: float | None = None
     start_position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     start_yaw_rad: float = 0.0
     start_joints_rad: tuple[float, float] = (0.0, 0.0)
@@ -131,6 +142,9 @@ class WorldSettings:
             raise ValueError("landing_gear_height_m must be > 0")
         if not self.grasp_tolerance_m > 0.0:
             raise ValueError("grasp_tolerance_m must be > 0")
+        jaw = self.jaw_point_m
+        if jaw is not None and not (math.isfinite(jaw) and jaw > 0.0):
+            raise ValueError("jaw_point_m must be > 0 and finite")
         if not 0.5 < self.jaw_closure_on_object < 1.0:
             raise ValueError("jaw_closure_on_object must lie between 0.5 and 1 (exclusive)")
         slip = self.payload_slip_after_s
@@ -309,6 +323,11 @@ class World:
         self._mount = np.array(scenario.arm.mount_point_m, dtype=np.float64)
         self._l1 = scenario.arm.link1.length_m
         self._lc = scenario.payload.position_m
+        self._jaw_at = (
+            scenario.arm.link2.length_m - JAWS_INSIDE_TIP_M
+            if settings.jaw_point_m is None
+            else settings.jaw_point_m
+        )
         self._gravity = scenario.environment.gravity_m_s2
         self._object = (
             np.array(settings.payload_position_m, dtype=np.float64)
@@ -406,23 +425,31 @@ class World:
 
     def payload_point_m(self) -> FloatArray:
         """World ENU position [m] of the payload point of link 2 (where a grasped CoM sits)."""
+        return self._link2_point_m(self._lc)
+
+    def jaw_point_m(self) -> FloatArray:
+        """World ENU position [m] of the jaws on link 2 (where they hold an object)."""
+        return self._link2_point_m(self._jaw_at)
+
+    def _link2_point_m(self, along_m: float) -> FloatArray:
         q = self._state.q
         e1, e2 = float(q[ETA1]), float(q[ETA2])
         arm_b = self._mount + np.array(
             [
-                self._l1 * math.cos(e1) + self._lc * math.cos(e1 + e2),
+                self._l1 * math.cos(e1) + along_m * math.cos(e1 + e2),
                 0.0,
-                self._l1 * math.sin(e1) + self._lc * math.sin(e1 + e2),
+                self._l1 * math.sin(e1) + along_m * math.sin(e1 + e2),
             ]
         )
         return q[POSITION] + self._state.rotation_world_body @ arm_b
 
     @property
     def object_position_m(self) -> FloatArray | None:
-        """The object's CoM, world ENU [m]: on link 2 while grasped, else where it rests."""
+        """Where the object is held, world ENU [m]: at the jaws while grasped, else where
+        it rests."""
         if self._object is None:
             return None
-        return self.payload_point_m() if self.plant.payload_attached else self._object.copy()
+        return self.jaw_point_m() if self.plant.payload_attached else self._object.copy()
 
     def _update_payload(self) -> None:
         jaw = self.jaw
@@ -432,9 +459,9 @@ class World:
         settings = self.settings
         if closed and not self._was_closed and self._object is not None:
             if not self.plant.payload_attached and not settings.grasp_fails:
-                gap = float(np.linalg.norm(self.payload_point_m() - self._object))
+                gap = float(np.linalg.norm(self.jaw_point_m() - self._object))
                 if gap <= settings.grasp_tolerance_m:
-                    self._lift_from_z = float(self.payload_point_m()[2])
+                    self._lift_from_z = float(self.jaw_point_m()[2])
                     self.plant.attach_payload(share=0.0)  # the ground holds it still
                     self._state = self.plant.state
                     self.grasps += 1
@@ -443,7 +470,7 @@ class World:
         elif not closed and self._was_closed and self.plant.payload_attached:
             self._drop()
         if self._lift_from_z is not None and self.plant.payload_attached:
-            rise = float(self.payload_point_m()[2]) - self._lift_from_z
+            rise = float(self.jaw_point_m()[2]) - self._lift_from_z
             self.plant.set_payload_share(rise / LIFT_SPAN_M)
             if rise >= CLEAR_M:
                 self._lift_from_z = None  # off the ground: carried
@@ -460,7 +487,7 @@ class World:
     def _drop(self) -> None:
         """Detach the payload: the object falls straight down to its resting height and
         the jaws hold nothing."""
-        released = self.payload_point_m()
+        released = self.jaw_point_m()
         self.plant.detach_payload()
         self._state = self.plant.state
         self._lift_from_z = None
