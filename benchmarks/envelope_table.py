@@ -18,7 +18,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from sitl.campaign.report import percentile_rows
+from sitl.campaign.report import flown_by, percentile_rows
 from sitl.campaign.spec import load_spec
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -40,7 +40,7 @@ def rows_of(out: Path) -> list[dict]:
 
 
 def page(rows: list[dict], commit: str, machine: str) -> str:
-    controllers = sorted({r["controller"] for r in rows})
+    controllers = sorted({flown_by(r) for r in rows})
     lines = [
         "# The flight envelope: `configs/campaigns/envelope.toml`",
         "",
@@ -52,7 +52,7 @@ def page(rows: list[dict], commit: str, machine: str) -> str:
         "|---|---|---|",
     ]
     for controller in controllers:
-        mine = [r for r in rows if r["controller"] == controller]
+        mine = [r for r in rows if flown_by(r) == controller]
         outcomes = Counter(
             r.get("outcome") or ("error" if r.get("status") == "error" else "?") for r in mine
         )

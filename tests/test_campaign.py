@@ -23,7 +23,13 @@ from typer.testing import CliRunner, Result
 
 from companion.config import read_toml
 from sitl.campaign.design import sample_ranges, unit_design
-from sitl.campaign.flights import expand, replay_toml, scenario_document, scenario_of
+from sitl.campaign.flights import (
+    expand,
+    replay_command,
+    replay_toml,
+    scenario_document,
+    scenario_of,
+)
 from sitl.campaign.spec import load_spec
 from sitl.campaign.store import TIMING_COLUMNS
 from sitl.cli import app as sitl_app
@@ -79,6 +85,11 @@ def write_spec(tmp_path: Path, body: str, name: str = "spec.toml") -> Path:
             ("bounds.passivity.mass_eror_pct", "'mass_error_pct'"),
         ),
         ("[bounds.passivity]\nmass_error_pct = -3.0\n", ("greater than 0",)),
+        ('autopilots = ["px5"]\n', ("autopilots", "'imitation' or 'px4'")),
+        (
+            'autopilots = ["px4"]\n[[faults]]\nkind = "link_cut"\nat_s = 20.0\nduration_s = 2.0\n',
+            ("link_cut flies on the imitation only",),
+        ),
     ],
 )
 def test_a_spec_mistake_is_one_line_naming_the_key_and_nothing_flies(tmp_path, body, words):
@@ -91,6 +102,32 @@ def test_a_spec_mistake_is_one_line_naming_the_key_and_nothing_flies(tmp_path, b
     for word in words:
         assert word in lines[0], lines[0]
     assert not (tmp_path / "out").exists()
+
+
+def test_a_px4_spec_without_a_px4_build_is_one_line_and_nothing_flies(tmp_path, monkeypatch):
+    monkeypatch.delenv("PX4_SITL_DIR", raising=False)
+    spec = write_spec(tmp_path, 'autopilots = ["px4"]\n')
+    for extra in ((), ("--px4-dir", str(tmp_path))):
+        result = sitl("campaign", spec, "--out", tmp_path / "out", *extra)
+        assert result.exit_code == 2, (result.stdout, result.stderr)
+        lines = [line for line in result.stderr.splitlines() if line.strip()]
+        assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
+        assert "Traceback" not in result.stderr + result.stdout
+    assert "--px4-dir" in sitl("campaign", spec, "--out", tmp_path / "out").stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_px4_flights_are_their_own_pairs_and_leave_the_imitations_ids_as_they_were(tmp_path):
+    """The autopilot is part of a px4 flight's identity (its own id and pair); the
+    imitation's ids do not name it, so tables written before autopilots came stay valid."""
+    one = expand(load_spec(write_spec(tmp_path, "", "one.toml")), tmp_path / "one.toml")
+    both = write_spec(tmp_path, 'autopilots = ["imitation", "px4"]\n', "both.toml")
+    two = expand(load_spec(both), both)
+    assert [f.autopilot for f in two] == ["imitation", "px4"]
+    assert two[0].flight_id == one[0].flight_id and two[0].pair_id == one[0].pair_id
+    assert two[1].flight_id != two[0].flight_id and two[1].pair_id != two[0].pair_id
+    replay = replay_command(two[1], tmp_path / "out", both)
+    assert replay.startswith("sitl demo --autopilot px4 --speed validated --config ")
 
 
 def test_a_completed_flight_beyond_its_controllers_bounds_is_named_with_the_figure():
@@ -154,6 +191,14 @@ def test_the_shipped_specs_expand_to_their_flights_in_pairs_with_stable_ids():
     envelope = expand(load_spec(CAMPAIGNS / "envelope.toml"), CAMPAIGNS / "envelope.toml")
     masses = [dict(f.settings)["payload.mass_kg"] for f in envelope]
     assert 0.10 <= min(masses) < 0.11 and 0.44 < max(masses) <= 0.45
+    # The PX4 sample: 20 adaptive flights on PX4 over the envelope's own axes.
+    sample_path = CAMPAIGNS / "envelope_px4.toml"
+    sample = load_spec(sample_path)
+    assert sample.axes == load_spec(CAMPAIGNS / "envelope.toml").axes
+    flights = expand(sample, sample_path)
+    assert len(flights) == 20 and {(f.autopilot, f.controller) for f in flights} == {
+        ("px4", "passivity")
+    }
 
 
 def test_the_replay_scenario_file_is_the_scenario_each_flight_flew(tmp_path):
@@ -382,3 +427,24 @@ def test_the_ray_engine_without_ray_or_with_bad_options_is_one_line(
         assert done.returncode == 2, done.stdout + done.stderr
         lines = [line for line in done.stderr.splitlines() if line.strip()]
         assert lines == [f"error: {says}"] or (len(lines) == 1 and says in lines[0]), lines
+
+
+@pytest.mark.slow
+def test_a_px4_campaign_flies_the_real_px4_and_records_its_flight(run_sitl, px4_build, tmp_path):
+    """One flight with the real PX4 SITL build in the loop (at its validated speed), from a
+    spec that names it: recorded as px4's, within absolute figures."""
+    spec = write_spec(
+        tmp_path,
+        'autopilots = ["px4"]\n[set]\n"world.payload_position_m" = [0.8, 0.0, 0.05]\n',
+    )
+    out = tmp_path / "out"
+    done = run_sitl("campaign", str(spec), "--out", str(out), "--px4-dir", str(px4_build.root))
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "1 to fly on 1 worker" in done.stdout
+    (row,) = table(out).values()
+    assert row["autopilot"] == "px4" and row["status"] == "ok", row.get("error")
+    assert row["completed"] == 1 and json.loads(row["faults"]) == []
+    assert abs(row["mass_error_pct"]) < 10.0 and abs(row["com_error_pct"]) < 15.0
+    assert row["placement_error_m"] < 0.10 and 0.0 < row["carry_rms_m"] < 0.05
+    assert 100.0 < row["control_cycles"] / row["sim_s"] < 130.0  # PX4's ODOMETRY at 125 Hz
+    assert "passivity on px4" in (out / "report.html").read_text()

@@ -3,7 +3,10 @@
 :mod:`sitl.campaign.ray_engine`), record each in ``DIR/results.sqlite`` and write
 ``DIR/report.html``.
 
-The spec's mistakes are one ``error:`` line each (exit status 2) before anything flies.
+The spec's mistakes are one ``error:`` line each (exit status 2) before anything flies. A
+spec whose ``autopilots`` name ``px4`` needs the PX4 SITL build (``--px4-dir`` or
+``PX4_SITL_DIR``); each such flight runs PX4, the simulator and the companion at the
+validated speed (about two cores), so the default number of workers halves.
 The same command again flies only the flights not in the table yet; ``--replay ID`` flies
 one flight alone, with its log and figures, into ``DIR/replay/ID``.
 """
@@ -25,6 +28,7 @@ from companion.cli.usage import fail, load_or_exit, output_dir_or_exit
 from sitl.campaign.flights import Flight, expand, replay_command, replay_toml, scenario_document
 from sitl.campaign.spec import CampaignSpec, load_spec
 from sitl.campaign.store import failed, refused
+from sitl.cli_sim import Px4DirOpt
 
 if TYPE_CHECKING:
     from sitl.campaign.engine import FlightTask
@@ -93,7 +97,7 @@ def campaign(
         int,
         typer.Option(
             help="Worker processes, or the CPUs of the local Ray runtime [default: the "
-            "machine's cores].",
+            "machine's cores; half of them when the spec flies px4].",
             show_default=False,
         ),
     ] = 0,
@@ -124,6 +128,7 @@ def campaign(
         str | None,
         typer.Option(help="Fly the flight of this id alone into OUT/replay/ID (log, figures)."),
     ] = None,
+    px4_dir: Px4DirOpt = None,
 ) -> None:
     """Fly a campaign (a spec's flights over a scenario's keys) on this machine's cores,
     one SQLite row per flight, and write report.html."""
@@ -141,6 +146,8 @@ def campaign(
         if limit < 1:
             fail(f"--limit must be 1 or more, got {limit}")
         flights = flights[:limit]
+    if loaded.flies_px4:
+        _use_px4(px4_dir)
     if replay is not None:
         _replay(flights, replay, out, spec_path)
         return
@@ -150,8 +157,24 @@ def campaign(
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         fail(f"--out {out}: cannot create ({exc.strerror or exc})")
-    cpus = workers or os.cpu_count() or 1
+    cores = os.cpu_count() or 1
+    cpus = workers or (max(1, cores // 2) if loaded.flies_px4 else cores)
     _run(loaded, flights, out, spec_path, _Engine(engine, address, cpus), flight_timeout)
+
+
+def _use_px4(px4_dir: Path | None) -> None:
+    """Check the PX4 SITL build the spec's px4 flights need and name it to the workers
+    (``PX4_SITL_DIR`` in this process's environment, which they inherit)."""
+    from sitl.campaign.fly import PX4_DIR_VARIABLE
+    from sitl.px4_sitl.launcher import Px4Build, Px4BuildError
+
+    if px4_dir is None:
+        fail("the spec flies px4 (autopilots): pass --px4-dir DIR or set PX4_SITL_DIR")
+    try:
+        build = Px4Build.at(px4_dir)
+    except Px4BuildError as exc:
+        fail(str(exc))
+    os.environ[PX4_DIR_VARIABLE] = str(build.root)
 
 
 class _Engine:

@@ -2,10 +2,10 @@
 
 A :class:`Flight` is everything that decides a flight on simulated time (DESIGN.md section
 7): the base scenario's bytes (by hash), the scenario keys set, the place point, the noise
-seed, the controller and the fault. Its :attr:`~Flight.flight_id` is a hash of those, so
-the same spec always names the same flights and a rerun flies only those missing from the
-results; :attr:`~Flight.pair_id` leaves the controller out (paired flights: one draw, every
-controller).
+seed, the controller, the fault and the autopilot. Its :attr:`~Flight.flight_id` is a hash
+of those, so the same spec always names the same flights and a rerun flies only those
+missing from the results; :attr:`~Flight.pair_id` leaves the controller out (paired
+flights: one draw and autopilot, every controller).
 
 The scenario of a flight is the base scenario's document with the flight's keys set,
 validated as a scenario file is (:func:`sitl.scenario.parse_scenario`); the same keys set
@@ -63,6 +63,9 @@ class Flight:
     """Seed of the simulated sensors' noise (the same for every controller of a draw)."""
     controller: str
     fault: Fault
+    autopilot: str
+    """``imitation`` (on simulated time, in one process) or ``px4`` (the real PX4 SITL
+    build in the loop, at its validated speed)."""
     settings: tuple[Setting, ...]
     """Scenario keys set for this flight ([set] and the axes), as the spec spells them."""
     axes: tuple[str, ...]
@@ -78,6 +81,8 @@ class Flight:
             "seed": self.seed,
             "fault": self.fault.model_dump(exclude_none=True),
         }
+        if self.autopilot != "imitation":  # the imitation's ids as before autopilots came
+            ident["autopilot"] = self.autopilot
         if with_controller:
             ident["controller"] = self.controller
         return ident
@@ -89,7 +94,8 @@ class Flight:
 
     @property
     def pair_id(self) -> str:
-        """The id of the draw's flights under every controller (controller left out)."""
+        """The id of the draw's flights under every controller on one autopilot (controller
+        left out)."""
         return _digest(self.identity(with_controller=False))
 
     def axis_values(self) -> dict[str, Any]:
@@ -180,7 +186,8 @@ def _scenario_keys(flight: Flight) -> set[str]:
 
 
 def replay_command(flight: Flight, out_dir: Path, spec_path: Path) -> str:
-    """The shell command that flies ``flight`` alone: ``sitl demo --clock virtual`` on its
+    """The shell command that flies ``flight`` alone: ``sitl demo --clock virtual`` (with
+    PX4: ``--autopilot px4 --speed validated``, the build from ``PX4_SITL_DIR``) on its
     scenario (``OUT/replay/ID.toml``, :func:`replay_toml`), seed, controller and place
     point; a flight with a link fault, which ``sitl demo`` cannot inject, is replayed by
     ``sitl campaign SPEC --out OUT --replay ID``."""
@@ -191,9 +198,14 @@ def replay_command(flight: Flight, out_dir: Path, spec_path: Path) -> str:
              flight.flight_id]
         )  # fmt: skip
     place = ",".join(repr(float(v)) for v in flight.place_at_m)
+    autopilot = (
+        ["--clock", "virtual"]
+        if flight.autopilot == "imitation"
+        else ["--autopilot", "px4", "--speed", "validated"]
+    )
     return shlex.join(
         [
-            "sitl", "demo", "--clock", "virtual",
+            "sitl", "demo", *autopilot,
             "--config", str(out / "replay" / f"{flight.flight_id}.toml"),
             "--controller", flight.controller,
             "--seed", str(flight.seed),
@@ -236,8 +248,8 @@ def _draws(spec: CampaignSpec, path: str) -> Iterator[tuple[Setting, ...]]:
 
 
 def expand(spec: CampaignSpec, spec_path: str | Path) -> list[Flight]:
-    """Every flight of a spec, in a fixed order (draw, repetition, fault, controller), each
-    one's scenario validated.
+    """Every flight of a spec, in a fixed order (draw, repetition, fault, autopilot,
+    controller), each one's scenario validated.
 
     Raises
     ------
@@ -267,8 +279,8 @@ def expand(spec: CampaignSpec, spec_path: str | Path) -> list[Flight]:
         for key, value in settings:
             if keys[key].is_place:
                 place[int(keys[key].parts[1])] = float(value)
-        for repetition, fault, controller in itertools.product(
-            range(spec.repetitions), spec.faults, spec.controllers
+        for repetition, fault, autopilot, controller in itertools.product(
+            range(spec.repetitions), spec.faults, spec.autopilots, spec.controllers
         ):
             flights.append(
                 Flight(
@@ -280,6 +292,7 @@ def expand(spec: CampaignSpec, spec_path: str | Path) -> list[Flight]:
                     seed=draw * spec.repetitions + repetition,
                     controller=controller,
                     fault=fault,
+                    autopilot=autopilot,
                     settings=settings,
                     axes=tuple(spec.axes),
                     place_at_m=(place[0], place[1], place[2]),

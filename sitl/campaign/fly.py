@@ -1,16 +1,20 @@
 """One flight of a campaign, flown and measured: what a worker does with a :class:`Flight`.
 
 The flight is ``sitl demo --clock virtual``'s (:func:`sitl.vehicle.virtual_flight.fly_virtual`: the
-companion's mission code against the simulated vehicle, in lockstep on simulated time), in a
-fresh temporary directory that is removed afterwards; what stays is one row of figures
-(:func:`flight_row`). A flight that raises becomes a row with ``status`` ``error`` and its
-traceback, never an exception out of the worker.
+companion's mission code against the simulated vehicle, in lockstep on simulated time), or,
+on the ``px4`` autopilot, ``sitl demo --autopilot px4 --speed validated``'s (``sitl run``
+with the real PX4 SITL build found through ``PX4_SITL_DIR``, the companion's mission over
+UDP on loopback), in a fresh temporary directory that is removed afterwards; what stays is
+one row of figures (:func:`flight_row`). A flight that raises becomes a row with ``status``
+``error`` and its traceback, never an exception out of the worker.
 """
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
+import os
 import shutil
 import tempfile
 import time
@@ -20,17 +24,22 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tomlkit
 
 from companion.cli.mission import plan_for
 from companion.logs.flightlog import read_flight_log
-from companion.mission.pickup import Phase
+from companion.mission.pickup import Phase, PickupPlan
 from companion.mission.report import MissionReport
 from sitl.campaign.flights import CRUISE_ALTITUDE_M, Flight, scenario_of
 from sitl.scenario import Scenario
 from sitl.vehicle.runner import RunOptions
 from sitl.vehicle.virtual_flight import fly_virtual
 
-__all__ = ["CARRY_PHASES", "flight_row", "fly_flight", "package_version"]
+__all__ = ["CARRY_PHASES", "PX4_DIR_VARIABLE", "flight_row", "fly_flight", "package_version"]
+
+PX4_DIR_VARIABLE = "PX4_SITL_DIR"
+"""The environment variable that names the PX4 SITL build a ``px4`` flight flies (the
+campaign's ``--px4-dir`` sets it for its workers)."""
 
 CARRY_PHASES = (Phase.LIFT.value, Phase.TO_PLACE.value, Phase.LOWER.value)
 """The carry from lift to place, the excitation left out: where carry RMS and maximum
@@ -129,27 +138,18 @@ def fly_flight(
             scenario.beliefs, scenario.world.payload_position_m, flight.place_at_m,
             CRUISE_ALTITUDE_M,
         )  # fmt: skip
-        fault = flight.fault
-        options = RunOptions(
-            seed=flight.seed,
-            navigation="mocap",
-            truth_log=work / "truth.jsonl",
-            link_cut=(fault.at_s, fault.duration_s)  # type: ignore[arg-type]
-            if fault.kind == "link_cut"
-            else None,
-            servo_silent=(fault.servo_id, fault.at_s)  # type: ignore[arg-type]
-            if fault.kind == "servo_silent"
-            else None,
-        )
-        report, failure = fly_virtual(
-            scenario,
-            plan,
-            work,
-            options,
-            controller=flight.controller,  # type: ignore[arg-type]
-            figures=keep is not None,
-            mcap=keep is not None,  # a replay keeps its log; a campaign's row is what stays
-        )
+        if flight.autopilot == "px4":
+            report, failure = _fly_px4(flight, scenario, document, plan, work, keep is not None)
+        else:
+            report, failure = fly_virtual(
+                scenario,
+                plan,
+                work,
+                _run_options(flight, work),
+                controller=flight.controller,  # type: ignore[arg-type]
+                figures=keep is not None,
+                mcap=keep is not None,  # a replay keeps its log; a campaign's row is what stays
+            )
         row = flight_row(flight, scenario, report, failure, work)
     except Exception:  # a crashed flight is a row, not a crashed worker
         row = {"status": "error", "error": traceback.format_exc()}
@@ -160,3 +160,71 @@ def fly_flight(
     row["cpu_s"] = time.process_time() - cpu0
     row["version"] = package_version()
     return row
+
+
+def _run_options(flight: Flight, work: Path) -> RunOptions:
+    """The imitation's run options: seed, motion capture, the truth log, the link faults."""
+    fault = flight.fault
+    return RunOptions(
+        seed=flight.seed,
+        navigation="mocap",
+        truth_log=work / "truth.jsonl",
+        link_cut=(fault.at_s, fault.duration_s)  # type: ignore[arg-type]
+        if fault.kind == "link_cut"
+        else None,
+        servo_silent=(fault.servo_id, fault.at_s)  # type: ignore[arg-type]
+        if fault.kind == "servo_silent"
+        else None,
+    )
+
+
+def _fly_px4(
+    flight: Flight,
+    scenario: Scenario,
+    document: dict[str, Any],
+    plan: PickupPlan,
+    work: Path,
+    keep: bool,
+) -> tuple[MissionReport, BaseException | None]:
+    """The flight with the real PX4 in the loop: ``sitl run --autopilot px4`` at the
+    validated speed on the flight's scenario (written to ``work/scenario.toml``), the
+    mission flown against it from this process. The CPU time of the row is the mission's
+    only (PX4 and the simulator run in their own processes)."""
+    from companion.cli.mission import fly_pickup
+    from sitl.hil.vehicle import VALIDATED_SPEED
+    from sitl.vehicle.launch import start_sitl
+
+    px4_dir = os.environ.get(PX4_DIR_VARIABLE)
+    if not px4_dir:
+        raise RuntimeError(f"a px4 flight needs the PX4 SITL build: set {PX4_DIR_VARIABLE}")
+    config = work / "scenario.toml"
+    config.write_text(tomlkit.dumps(document), encoding="utf-8")
+    extra = ["--seed", str(flight.seed), "--navigation", "mocap"]
+    extra += ["--autopilot", "px4", "--px4-dir", px4_dir]
+    if keep:
+        extra += ["--keep-log", str(work / "px4")]
+    fault = flight.fault
+    if fault.kind == "servo_silent":
+        extra += ["--servo-silent", f"{fault.servo_id}@{fault.at_s:g}"]
+    beliefs = scenario.beliefs
+    beliefs = beliefs.model_copy(
+        update={"flight": beliefs.flight.model_copy(update={"realtime_priority": 0})}
+    )
+    sitl = start_sitl(
+        config, *extra, speed=VALIDATED_SPEED, truth_log=work / "truth.jsonl", timeout_s=180.0
+    )
+    try:
+        return asyncio.run(
+            fly_pickup(
+                beliefs,
+                f"udpin://127.0.0.1:{sitl.onboard_port}",
+                sitl.arm_bus,
+                plan,
+                flight.controller,  # type: ignore[arg-type]
+                work,
+                figures=keep,
+                mcap=keep,
+            )
+        )
+    finally:
+        sitl.stop()

@@ -3,7 +3,8 @@ that opens offline (its figures embedded as base64 PNGs), and the PNGs beside it
 
 It shows the envelope maps (the mass and centre-of-mass errors of the payload estimate
 over the payload's mass and its point on link 2), the outcome over the thrust scale and
-the battery sag, a percentile table (p50, p95, max of each figure, per controller), the
+the battery sag, a percentile table (p50, p95, max of each figure, per controller and
+autopilot: :func:`flown_by`), the
 paired comparison of the adaptive controller against the non-adaptive one (the same
 draws, seeds and faults), and every flight that did not complete with the command that
 replays it alone; with the spec's bounds, every completed flight outside them, with its
@@ -25,7 +26,7 @@ import numpy as np
 from sitl.campaign.spec import CampaignSpec
 from sitl.campaign.store import failed, refused
 
-__all__ = ["METRICS", "REPORT_FILES", "percentile_rows", "write_report"]
+__all__ = ["METRICS", "REPORT_FILES", "flown_by", "percentile_rows", "write_report"]
 
 Row = dict[str, Any]
 
@@ -52,13 +53,20 @@ def _values(rows: Sequence[Row], column: str, convert: Callable[[float], float])
     )
 
 
+def flown_by(row: Row) -> str:
+    """Who flew a row's flight: its controller, with `` on px4`` when the real PX4 flew it
+    (the imitation's flights are named by the controller alone)."""
+    autopilot = row.get("autopilot") or "imitation"
+    return row["controller"] if autopilot == "imitation" else f"{row['controller']} on {autopilot}"
+
+
 def percentile_rows(rows: Sequence[Row]) -> list[tuple[str, str, int, float, float, float]]:
-    """(controller, metric label, n, p50, p95, max) for each controller and metric, over the
-    flights that completed (the estimate and carry of a flight that did not are not the
-    controller's)."""
+    """(controller, metric label, n, p50, p95, max) for each controller (and autopilot,
+    :func:`flown_by`) and metric, over the flights that completed (the estimate and carry
+    of a flight that did not are not the controller's)."""
     table = []
-    for controller in sorted({r["controller"] for r in rows}):
-        done = [r for r in rows if r["controller"] == controller and r.get("completed")]
+    for controller in sorted({flown_by(r) for r in rows}):
+        done = [r for r in rows if flown_by(r) == controller and r.get("completed")]
         for column, label, convert in METRICS:
             v = _values(done, column, convert)
             if v.size:
@@ -111,7 +119,7 @@ def _outcomes(rows: Sequence[Row], axes: Sequence[str], out_dir: Path, plt: Any)
     present = [a for a in (THRUST, SAG) if a in axes]
     if not present:
         return None
-    controllers = sorted({r["controller"] for r in rows})
+    controllers = sorted({flown_by(r) for r in rows})
     fig, panels = plt.subplots(
         1, len(controllers), figsize=(5.5 * len(controllers), 4.2), layout="constrained"
     )
@@ -119,7 +127,7 @@ def _outcomes(rows: Sequence[Row], axes: Sequence[str], out_dir: Path, plt: Any)
     for ax, controller in zip(panels, controllers, strict=True):
         for ok, style, label in ((True, "o", "completed"), (False, "x", "did not complete")):
             chosen = [
-                r for r in rows if r["controller"] == controller and bool(r.get("completed")) == ok
+                r for r in rows if flown_by(r) == controller and bool(r.get("completed")) == ok
             ]
             x = [r[present[0]] for r in chosen]
             y = [r[present[1]] if len(present) > 1 else r.get("carry_rms_m") for r in chosen]
@@ -211,7 +219,7 @@ def _flight_table(flights: Sequence[tuple[Row, str]], axes: Sequence[str], what:
     ]
     for r, detail in flights:
         lines.append(
-            f"<tr><td><code>{r['flight_id']}</code></td><td>{_fmt(r['controller'])}</td>"
+            f"<tr><td><code>{r['flight_id']}</code></td><td>{_fmt(flown_by(r))}</td>"
             f"<td>{_fmt(r['fault'])}</td><td>{r['seed']}</td>"
             + "".join(f"<td>{_fmt(r.get(a))}</td>" for a in axes)
             + f"<td>{detail}</td><td><code>{html.escape(r.get('replay') or '')}</code></td></tr>"
@@ -310,12 +318,12 @@ def write_report(
         f"{errors} crashed (errors). Versions: "
         f"{html.escape(', '.join(sorted({str(r.get('version')) for r in rows})))}.</p>",
     ]
-    by_controller = sorted({r["controller"] for r in rows})
+    by_controller = sorted({flown_by(r) for r in rows})
     parts.append(
         "<table><tr><th>controller</th><th>flights</th><th>completed</th><th>rate</th></tr>"
     )
     for c in by_controller:
-        mine = [r for r in rows if r["controller"] == c]
+        mine = [r for r in rows if flown_by(r) == c]
         n_done = sum(1 for r in mine if r.get("completed"))
         rate = n_done / len(mine) if mine else math.nan
         parts.append(

@@ -7,6 +7,8 @@ Format (every key but ``name`` and ``scenario`` optional)::
     description = "what it asks"
     scenario = "../sitl_pickup.toml"         # the base scenario, relative to this file
     controllers = ["passivity", "nonadaptive"]  # each draw flown by each: paired flights
+    autopilots = ["imitation"]               # and by each autopilot: imitation (simulated
+                                             # time) or px4 (the real build, PX4_SITL_DIR)
     repetitions = 2                          # flights per draw and controller, each its own
                                              # sensor-noise seed (the same for the pair)
     place_at_m = [-1.0, 0.5, 0.05]           # where the object goes (sitl demo --place-at)
@@ -175,6 +177,11 @@ class CampaignSpec(_Table):
     controllers: Annotated[
         tuple[Literal["passivity", "nonadaptive", "asmc"], ...], Field(min_length=1)
     ] = ("passivity",)
+    autopilots: Annotated[tuple[Literal["imitation", "px4"], ...], Field(min_length=1)] = (
+        "imitation",
+    )
+    """Who flies the vehicle: the PX4 imitation on simulated time, or the real PX4 SITL
+    build in the loop (at its validated speed, about 2 of this machine's cores a flight)."""
     repetitions: Annotated[int, Field(strict=True, ge=1, le=10_000)] = 1
     place_at_m: tuple[Number, Number, Number] = (-1.0, 0.5, 0.05)
     design: Design = Design()
@@ -192,7 +199,19 @@ class CampaignSpec(_Table):
     def _distinct(self) -> CampaignSpec:
         if len(set(self.controllers)) != len(self.controllers):
             raise ValueError(f"controllers listed twice: {list(self.controllers)}")
+        if len(set(self.autopilots)) != len(self.autopilots):
+            raise ValueError(f"autopilots listed twice: {list(self.autopilots)}")
+        if "px4" in self.autopilots and any(f.kind == "link_cut" for f in self.faults):
+            raise ValueError(
+                "link_cut flies on the imitation only (the campaign cuts its in-memory link); "
+                "against PX4, tests/test_px4_flight.py cuts the UDP link"
+            )
         return self
+
+    @property
+    def flies_px4(self) -> bool:
+        """Some of the flights need the PX4 SITL build."""
+        return "px4" in self.autopilots
 
     def outside_bounds(self, row: dict[str, object]) -> list[str]:
         """What of a completed flight's ``row`` lies outside its controller's bounds, one

@@ -10,8 +10,8 @@ inserted only if its id is not there yet, so nothing is ever written twice, and 
 flies exactly the flights whose ids are missing.
 
 Columns: the flight's identity (id, pair id, campaign, draw, repetition, seed, controller,
-fault, place point, every key set as JSON in ``settings``), one column per axis of the spec
-named by its dotted key (``"payload.mass_kg"``), the figures of
+autopilot, fault, place point, every key set as JSON in ``settings``), one column per axis
+of the spec named by its dotted key (``"payload.mass_kg"``), the figures of
 :func:`sitl.campaign.fly.flight_row`, ``status`` (``ok`` or ``error``), ``error`` (the
 traceback), ``replay`` (the command that flies it alone), and the measurements of the
 machine: ``wall_s``, ``cpu_s``, ``finished_unix_s``, ``worker``, ``version``.
@@ -47,6 +47,7 @@ COLUMNS: tuple[tuple[str, str], ...] = (
     ("repetition", "INTEGER NOT NULL"),
     ("seed", "INTEGER NOT NULL"),
     ("controller", "TEXT NOT NULL"),
+    ("autopilot", "TEXT NOT NULL DEFAULT 'imitation'"),
     ("fault", "TEXT NOT NULL"),
     ("place_at_x_m", "REAL"),
     ("place_at_y_m", "REAL"),
@@ -118,6 +119,7 @@ def identity_columns(flight: Flight) -> dict[str, Any]:
         "repetition": flight.repetition,
         "seed": flight.seed,
         "controller": flight.controller,
+        "autopilot": flight.autopilot,
         "fault": flight.fault.label(),
         "place_at_x_m": flight.place_at_m[0],
         "place_at_y_m": flight.place_at_m[1],
@@ -135,7 +137,8 @@ class ResultsStore:
         self._db: sqlite3.Connection | None = None
 
     def open(self, campaign: str, axes: Iterable[str]) -> ResultsStore:
-        """Connect, create the table if new and add a column for each new axis.
+        """Connect, create the table if new and add a column for each new axis (and each
+        fixed column a table written by an earlier version lacks).
 
         Raises :class:`CampaignMismatchError` if the table holds another campaign's
         flights.
@@ -157,6 +160,9 @@ class ResultsStore:
                 f"{campaign!r}: name another --out"
             )
         have = {r[1] for r in db.execute(f"PRAGMA table_info({TABLE})")}
+        for name, kind in COLUMNS:
+            if name not in have:
+                db.execute(f"ALTER TABLE {TABLE} ADD COLUMN {_quote(name)} {kind}")
         for axis in axes:
             if axis in _NAMES:
                 raise ValueError(f"an axis may not be named as a column: {axis!r}")
