@@ -92,8 +92,8 @@ def test_phases_run_in_order_with_gripper_and_estimator_actions():
     assert [c.phase for c in closes] == [Phase.GRASP]
     assert [c.phase for c in opens] == [Phase.RELEASE]
     actions = [cmd.estimator for _, cmd in records]
-    # the grasp; the lift's start; the lift off the ground
-    assert actions.count(EstimatorAction.RESTART) == 3
+    # the grasp; the lift's start; the lift off the ground; the release
+    assert actions.count(EstimatorAction.RESTART) == 4
     assert actions.count(EstimatorAction.RESET_EMPTY) == 1
     assert mission.confident_when_done
 
@@ -151,8 +151,8 @@ def test_plan_rejects_nonsense():
 
 def test_estimator_learns_only_from_the_grasp_on():
     """Before the grasp the arm is known empty: only the thrust scale is learnt; the
-    estimator restarts as the grasp begins (the weight comes on as the jaws close) and
-    holds while the jaws open."""
+    estimator restarts as the grasp begins (the weight comes on as the jaws close) and as
+    the jaws open (the weight leaves), and runs through the release."""
     _, records = fly()
     by_phase = {}
     for _, cmd in records:
@@ -161,7 +161,7 @@ def test_estimator_learns_only_from_the_grasp_on():
     assert by_phase[Phase.DESCEND] == {EstimatorAction.CALIBRATE}
     assert by_phase[Phase.GRASP] == {EstimatorAction.RESTART, EstimatorAction.RUN}
     restarts = [(t, cmd) for t, cmd in records if cmd.estimator == EstimatorAction.RESTART]
-    restart, lift, again = restarts
+    restart, lift, again, release = restarts
     assert restart[1].phase == Phase.GRASP and restart[1].phase_changed
     # As the lift begins (the weight starts to come over from the ground), and once more
     # LIFT_RESTART_M above where it began: the object's weight is on as it leaves the
@@ -170,7 +170,9 @@ def test_estimator_learns_only_from_the_grasp_on():
     assert again[1].phase == Phase.LIFT and not again[1].phase_changed
     lift_z = next(cmd.desired.q[Z] for _, cmd in records if cmd.phase == Phase.LIFT)
     assert LIFT_RESTART_M <= again[1].desired.q[Z] - lift_z < LIFT_RESTART_M + 0.01
-    assert by_phase[Phase.RELEASE] == {EstimatorAction.FREEZE}
+    assert release[1].phase == Phase.RELEASE and release[1].phase_changed
+    assert release[1].gripper == GripperAction.OPEN
+    assert by_phase[Phase.RELEASE] == {EstimatorAction.RESTART, EstimatorAction.RUN}
     assert EstimatorAction.RUN in by_phase[Phase.EXCITE]
     assert EstimatorAction.RUN in by_phase[Phase.CLIMB]
 

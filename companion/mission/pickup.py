@@ -14,7 +14,8 @@ estimator should do. Phases, in order:
                 fade out, and hold until the vehicle is back within ``arrive_tolerance_m``
 ``to_place``    carry to above the place point
 ``lower``       lower until the payload point is at the place point
-``release``     open the gripper, wait; the estimate returns to the empty-arm values
+``release``     open the gripper, wait; the estimator restarts as the gripper opens and
+                learns the weight leaving, then returns to the empty-arm values
 ``climb``       climb to cruise altitude
 ``to_home``     fly back above the start point, arm stowed; then the app asks PX4 to land
 
@@ -124,8 +125,8 @@ LETS_GO: frozenset[Outcome] = frozenset({Outcome.GRASP_FAILED, Outcome.BEYOND_AU
 is let go where it is); ``payload_lost`` leaves it as it is."""
 
 
-_FROZEN_PHASES = frozenset({Phase.RELEASE, Phase.DONE})
-"""The estimator holds still while the gripper opens and after the mission; after an
+_FROZEN_PHASES = frozenset({Phase.DONE})
+"""The estimator holds still after the mission; after an
 :meth:`PickupMission.abandon` it holds the empty arm's values to the end. It runs from
 the start of the grasp (restarted there): an object whose weight comes onto the arm as
 the jaws close is learnt at once, not after a dip of its weight over the height gain (10
@@ -135,7 +136,11 @@ only gives the empty arm's data until it lifts, so the estimator restarts again 
 lift begins (the weight comes over while the vehicle has yet to rise: with the grasp's
 covariance the default pickup sank 5.4 cm below the lift's reference, 4.2 cm with this
 restart, 0.42 kg 9.3 and 7.6 cm) and once more when the lift has gained
-:data:`LIFT_RESTART_M`."""
+:data:`LIFT_RESTART_M`. The release mirrors the grasp: the estimator restarts as the
+gripper opens and runs through the release's wait, so it learns the weight as it leaves
+(held at the payload's values there, the default pickup rose 7.3 cm over the place
+point); what it does not see leave, it keeps (set to the empty arm as the gripper opened,
+a PX4 SIH vehicle whose estimate held 0.185 kg it did not carry sank into the ground)."""
 _CALIBRATION_PHASES = frozenset({Phase.TO_OBJECT, Phase.DESCEND})
 """Until the grasp the arm is known empty: the estimator holds the empty-arm values and
 learns only the thrust scale (:attr:`EstimatorAction.CALIBRATE`)."""
@@ -171,7 +176,8 @@ class EstimatorAction(StrEnum):
     calibration; the estimator holds both where it has no thrust scale)."""
     RESTART = "restart"
     """Keep theta, restart its covariance and confidence, hold the thrust scale: the
-    grasp begins, the lift begins, and the lift has gained :data:`LIFT_RESTART_M`."""
+    grasp begins, the lift begins, the lift has gained :data:`LIFT_RESTART_M`, and the
+    release begins."""
     RESET_EMPTY = "reset_empty"
     """Back to the empty-arm values: the payload was just released (at the release's end;
     reset as the gripper opens, the SITL's default pickup no longer rose 7 cm over the
@@ -479,7 +485,7 @@ class PickupMission:
             self.phase = _NEXT[self.phase]
             self.phase_log.append((t_s, self.phase))
             changed = True
-            if finished in (Phase.DESCEND, Phase.GRASP):
+            if finished in (Phase.DESCEND, Phase.GRASP, Phase.LOWER):
                 estimator = EstimatorAction.RESTART
             if finished == Phase.RELEASE:
                 estimator = EstimatorAction.RESET_EMPTY
