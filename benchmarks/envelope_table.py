@@ -1,9 +1,10 @@
-"""Write docs/envelope.md from a finished campaign of configs/campaigns/envelope.toml: how
-each controller fared over the envelope (outcomes, and p50 / p95 / max of each metric over
-the flights that completed), the numbers the envelope's acceptance is judged on.
+"""Write docs/NAME.md from a finished campaign of configs/campaigns/NAME.toml (default
+``envelope``; ``envelope_px4``, its sample with PX4 in the loop): how each controller fared
+over the envelope (outcomes, and p50 / p95 / max of each metric over the flights that
+completed), the numbers the envelope's acceptance is judged on.
 
     sitl campaign configs/campaigns/envelope.toml --out OUT
-    python benchmarks/envelope_table.py OUT --commit HASH [--machine TEXT]
+    python benchmarks/envelope_table.py OUT --commit HASH [--machine TEXT] [--spec NAME]
 
 ``--commit`` is the commit the campaign flew (the results store records the package
 version, not the commit); ``--machine`` what it flew on.
@@ -22,8 +23,6 @@ from sitl.campaign.report import flown_by, percentile_rows
 from sitl.campaign.spec import load_spec
 
 ROOT = Path(__file__).resolve().parent.parent
-PAGE = ROOT / "docs" / "envelope.md"
-SPEC = ROOT / "configs" / "campaigns" / "envelope.toml"
 
 
 def rows_of(out: Path) -> list[dict]:
@@ -39,14 +38,29 @@ def rows_of(out: Path) -> list[dict]:
         db.close()
 
 
-def page(rows: list[dict], commit: str, machine: str) -> str:
+def page(rows: list[dict], commit: str, machine: str, name: str) -> str:
     controllers = sorted({flown_by(r) for r in rows})
+    spec_file = f"configs/campaigns/{name}.toml"
+    spec = load_spec(ROOT / spec_file)
     lines = [
-        "# The flight envelope: `configs/campaigns/envelope.toml`",
+        f"# The flight envelope: `{spec_file}`",
+        "",
+        f"{spec.description}.",
         "",
         f"Written by `python benchmarks/envelope_table.py` from `sitl campaign "
-        f"configs/campaigns/envelope.toml` flown at commit {commit} on {machine}: "
-        f"{len(rows)} flights, each draw flown by every controller on the same seed.",
+        f"{spec_file}` flown at commit {commit} on {machine}: "
+        f"{len(rows)} flights"
+        + (
+            ", each draw flown by every controller on the same seed."
+            if len(controllers) > 1
+            else "."
+        )
+        + (
+            " With PX4 in the loop a flight's CPU time is the companion's process alone (PX4"
+            " and the simulator run in their own)."
+            if "px4" in spec.autopilots
+            else ""
+        ),
         "",
         "| controller | flights | outcomes |",
         "|---|---|---|",
@@ -68,7 +82,6 @@ def page(rows: list[dict], commit: str, machine: str) -> str:
     for controller, label, n, p50, p95, high in percentile_rows(rows):
         label = label.replace("|", "\\|")  # |x| inside a table cell
         lines.append(f"| {controller} | {label} | {n} | {p50:.3g} | {p95:.3g} | {high:.3g} |")
-    spec = load_spec(SPEC)
     outside = [r for r in rows if spec.outside_bounds(r)]
     bounds = "; ".join(
         f"{c}: " + ", ".join(f"|{k}| <= {v:g}" for k, v in b.items())
@@ -105,9 +118,11 @@ def main() -> None:
     parser.add_argument("out", type=Path, help="The campaign's --out directory.")
     parser.add_argument("--commit", required=True, help="The commit the campaign flew.")
     parser.add_argument("--machine", default="this machine", help="What it flew on.")
+    parser.add_argument("--spec", default="envelope", help="The spec's name in configs/campaigns.")
     args = parser.parse_args()
-    PAGE.write_text(page(rows_of(args.out), args.commit, args.machine))
-    print(f"wrote {PAGE}")
+    path = ROOT / "docs" / f"{args.spec}.md"
+    path.write_text(page(rows_of(args.out), args.commit, args.machine, args.spec))
+    print(f"wrote {path}")
 
 
 if __name__ == "__main__":
