@@ -6,14 +6,14 @@ q_d_dot, q_d_ddot) in world ENU and joint angles, the gripper command and what t
 estimator should do. Phases, in order:
 
 ``to_object``   fly at cruise altitude to above the object, arm lowered (straight down)
-``descend``     lower until link 2's payload point meets the object
+``descend``     lower until the jaws' grasp point on link 2 meets the object
 ``grasp``       close the gripper, wait ``grasp_wait_s``; the estimator restarts its confidence
 ``lift``        climb back to cruise altitude with the payload; the estimator restarts as it
                 begins and once more :data:`LIFT_RESTART_M` up
 ``excite``      swing the arm and circle until the estimator is confident (or time out),
                 fade out, and hold until the vehicle is back within ``arrive_tolerance_m``
 ``to_place``    carry to above the place point
-``lower``       lower until the payload point is at the place point
+``lower``       lower until the grasp point is at the place point
 ``release``     open the gripper, wait; the estimator restarts as the gripper opens and
                 learns the weight leaving, then returns to the empty-arm values
 ``climb``       climb to cruise altitude

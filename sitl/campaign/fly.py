@@ -33,7 +33,7 @@ from companion.mission.report import MissionReport
 from sitl.campaign.flights import CRUISE_ALTITUDE_M, Flight, scenario_of
 from sitl.scenario import Scenario
 from sitl.vehicle.runner import RunOptions
-from sitl.vehicle.virtual_flight import fly_virtual
+from sitl.vehicle.virtual_flight import fly_virtual, normally_scheduled
 
 __all__ = ["CARRY_PHASES", "PX4_DIR_VARIABLE", "flight_row", "fly_flight", "package_version"]
 
@@ -206,17 +206,13 @@ def _fly_px4(
     fault = flight.fault
     if fault.kind == "servo_silent":
         extra += ["--servo-silent", f"{fault.servo_id}@{fault.at_s:g}"]
-    beliefs = scenario.beliefs
-    beliefs = beliefs.model_copy(
-        update={"flight": beliefs.flight.model_copy(update={"realtime_priority": 0})}
-    )
     sitl = start_sitl(
         config, *extra, speed=VALIDATED_SPEED, truth_log=work / "truth.jsonl", timeout_s=180.0
     )
     try:
         return asyncio.run(
             fly_pickup(
-                beliefs,
+                normally_scheduled(scenario),
                 f"udpin://127.0.0.1:{sitl.onboard_port}",
                 sitl.arm_bus,
                 plan,

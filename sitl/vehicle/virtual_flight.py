@@ -21,6 +21,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from companion.cli.mission import fly_pickup
+from companion.config import CompanionConfig
 from companion.control.flight import FlightControllerName
 from companion.mission.pickup import PickupPlan
 from companion.mission.report import MissionReport
@@ -29,13 +30,22 @@ from sitl.truth_mcap import add_flight_truth
 from sitl.vehicle.lockstep import run_lockstep
 from sitl.vehicle.runner import RunOptions, SitlVehicle
 
-__all__ = ["BOOT_UNIX_TIME_US", "fly_virtual"]
+__all__ = ["BOOT_UNIX_TIME_US", "fly_virtual", "normally_scheduled"]
 
 BOOT_UNIX_TIME_US = 1_767_225_600_000_000
 """The Unix time the simulated autopilot boots at on simulated time (2026-01-01 00:00 UTC)
 [us]: a constant, so that nothing of the wall clock enters the flight."""
 
 _flights = itertools.count(1)
+
+
+def normally_scheduled(scenario: Scenario) -> CompanionConfig:
+    """The companion's part of ``scenario`` with ``flight.realtime_priority`` 0: a
+    simulated flight's companion shares the cores with the vehicle and other flights."""
+    beliefs = scenario.beliefs
+    return beliefs.model_copy(
+        update={"flight": beliefs.flight.model_copy(update={"realtime_priority": 0})}
+    )
 
 
 def fly_virtual(
@@ -67,10 +77,7 @@ def fly_virtual(
         options, memory=name, unix_time_at_boot_us=BOOT_UNIX_TIME_US if boot_us is None else boot_us
     )
     out_dir.mkdir(parents=True, exist_ok=True)
-    beliefs = scenario.beliefs
-    beliefs = beliefs.model_copy(
-        update={"flight": beliefs.flight.model_copy(update={"realtime_priority": 0})}
-    )
+    beliefs = normally_scheduled(scenario)
     with SitlVehicle(scenario, options) as vehicle:
         where = vehicle.describe()
         result = run_lockstep(
