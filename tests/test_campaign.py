@@ -12,8 +12,10 @@ rate), before the vehicle takes off.
 from __future__ import annotations
 
 import json
+import os
 import shlex
 import sqlite3
+import subprocess
 import sys
 from pathlib import Path
 
@@ -341,21 +343,33 @@ def test_a_tiny_campaign_records_every_flight_once_a_rerun_flies_only_the_missin
     [("local", 2), ("ray", 1)],
 )
 def test_a_flight_whose_worker_dies_is_flown_once_more_then_recorded_not_retried(
-    run_sitl, tmp_path, engine, worker
+    tmp_path, engine, worker
 ):
     """A worker stopped under its flight (here by the wall-clock timeout, as a kill -9
     would) loses that flight alone: it is handed to a new worker once (local: a second
     process; Ray: the task cancelled, its worker killed, the flight resubmitted to slot 1),
-    and when that one dies too the flight is an error row with its replay command."""
+    and when that one dies too the flight is an error row with its replay command. The
+    killed flights' logs do not stay behind in the temporary directory (the local engine's
+    is the test's own here; Ray's runtime keeps its sessions in the system's)."""
     spec = write_spec(tmp_path, TINY)
     out = tmp_path / "out"
-    args = ("--engine", engine, "--workers", "1", "--limit", "1", "--flight-timeout", "2")
-    done = run_sitl("campaign", str(spec), "--out", str(out), *args)
+    temp = tmp_path / "temp"
+    temp.mkdir()
+    args = ("--engine", engine, "--workers", "1", "--limit", "1", "--flight-timeout", "5")
+    command = [sys.executable, "-c", "from sitl.cli import main; main()", "campaign", str(spec)]
+    done = subprocess.run(
+        [*command, "--out", str(out), *args],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=dict(os.environ, **({"TMPDIR": str(temp)} if engine == "local" else {})),
+    )
     assert done.returncode == 0, done.stdout + done.stderr
     (row,) = table(out).values()
     assert row["status"] == "error" and row["worker"] == worker
-    assert row["error"].startswith("not flown: it flew longer than 2 s of wall time, 2 times")
+    assert row["error"].startswith("not flown: it flew longer than 5 s of wall time, 2 times")
     assert row["replay"].startswith("sitl demo --clock virtual")
+    assert list(temp.iterdir()) == []
 
 
 def test_the_report_lists_the_flights_outside_the_bounds_with_their_replay(tmp_path):

@@ -14,8 +14,10 @@ one flight alone, with its log and figures, into ``DIR/replay/ID``.
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import sys
+import tempfile
 import time
 import tomllib
 from collections.abc import Callable
@@ -26,6 +28,7 @@ import typer
 
 from companion.cli.usage import fail, load_or_exit, output_dir_or_exit
 from sitl.campaign.flights import Flight, expand, replay_command, replay_toml, scenario_document
+from sitl.campaign.fly import WORK_DIR_VARIABLE
 from sitl.campaign.spec import CampaignSpec, load_spec
 from sitl.campaign.store import failed, refused
 from sitl.cli_sim import Px4DirOpt
@@ -264,6 +267,8 @@ def _run(
 
         # A SIGTERM (a job scheduler's stop) ends the campaign as Ctrl-C does.
         previous = signal.signal(signal.SIGTERM, _interrupt)
+        work = tempfile.mkdtemp(prefix=f"sitl-campaign-{spec.name}-")
+        os.environ[WORK_DIR_VARIABLE] = work  # the workers' flights log there (fly.py)
         try:
             if tasks:
                 engine.run(tasks, record, flight_timeout_s)
@@ -278,6 +283,7 @@ def _run(
             raise typer.Exit(130) from None
         finally:
             signal.signal(signal.SIGTERM, previous)
+            shutil.rmtree(work, ignore_errors=True)  # a killed worker's flight left its logs
         ids = {f.flight_id for f in flights}
         rows = [r for r in store.rows() if r["flight_id"] in ids]
     report = write_report(rows, list(spec.axes), out, spec.name, spec.description, spec)

@@ -35,11 +35,23 @@ from sitl.scenario import Scenario
 from sitl.vehicle.runner import RunOptions
 from sitl.vehicle.virtual_flight import fly_virtual, normally_scheduled
 
-__all__ = ["CARRY_PHASES", "PX4_DIR_VARIABLE", "flight_row", "fly_flight", "package_version"]
+__all__ = [
+    "CARRY_PHASES",
+    "PX4_DIR_VARIABLE",
+    "WORK_DIR_VARIABLE",
+    "flight_row",
+    "fly_flight",
+    "package_version",
+]
 
 PX4_DIR_VARIABLE = "PX4_SITL_DIR"
 """The environment variable that names the PX4 SITL build a ``px4`` flight flies (the
 campaign's ``--px4-dir`` sets it for its workers)."""
+WORK_DIR_VARIABLE = "SITL_CAMPAIGN_WORK_DIR"
+"""The environment variable that names the directory a worker's flights write their logs
+in (each in a directory of its own, removed when it ends): the campaign's, which it removes
+at its end, so that a worker killed under its flight leaves nothing behind. Unset, or not
+a directory on this machine (a Ray node): the system's temporary directory."""
 
 CARRY_PHASES = (Phase.LIFT.value, Phase.TO_PLACE.value, Phase.LOWER.value)
 """The carry from lift to place, the excitation left out: where carry RMS and maximum
@@ -129,7 +141,7 @@ def fly_flight(
     :func:`flight_row`, or ``status`` ``error`` with the traceback; wall and CPU time and
     the version in both. The logs go to a temporary directory, removed afterwards, or to
     ``keep`` (with figures)."""
-    work = keep if keep is not None else Path(tempfile.mkdtemp(prefix="campaign-flight-"))
+    work = keep if keep is not None else _work_dir()
     wall0, cpu0 = time.perf_counter(), time.process_time()
     try:
         scenario = scenario_of(flight, document)
@@ -160,6 +172,13 @@ def fly_flight(
     row["cpu_s"] = time.process_time() - cpu0
     row["version"] = package_version()
     return row
+
+
+def _work_dir() -> Path:
+    """A new directory for a flight's logs, in the campaign's (:data:`WORK_DIR_VARIABLE`)."""
+    root = os.environ.get(WORK_DIR_VARIABLE)
+    where = root if root and os.path.isdir(root) else None
+    return Path(tempfile.mkdtemp(prefix="campaign-flight-", dir=where))
 
 
 def _run_options(flight: Flight, work: Path) -> RunOptions:
