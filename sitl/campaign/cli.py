@@ -167,9 +167,9 @@ def campaign(
 
 def _use_px4(px4_dir: Path | None) -> None:
     """Check the PX4 SITL build the spec's px4 flights need and name it to the workers
-    (``PX4_SITL_DIR`` in this process's environment, which they inherit)."""
-    from sitl.campaign.fly import PX4_DIR_VARIABLE
-    from sitl.px4_sitl.launcher import Px4Build, Px4BuildError
+    (``PX4_SITL_DIR`` in this process's environment, which they inherit and
+    :meth:`~sitl.px4_sitl.launcher.Px4Build.from_env` reads)."""
+    from sitl.px4_sitl.launcher import PX4_SITL_DIR_ENV, Px4Build, Px4BuildError
 
     if px4_dir is None:
         fail("the spec flies px4 (autopilots): pass --px4-dir DIR or set PX4_SITL_DIR")
@@ -177,7 +177,7 @@ def _use_px4(px4_dir: Path | None) -> None:
         build = Px4Build.at(px4_dir)
     except Px4BuildError as exc:
         fail(str(exc))
-    os.environ[PX4_DIR_VARIABLE] = str(build.root)
+    os.environ[PX4_SITL_DIR_ENV] = str(build.root)
 
 
 class _Engine:

@@ -37,16 +37,12 @@ from sitl.vehicle.virtual_flight import fly_virtual, normally_scheduled
 
 __all__ = [
     "CARRY_PHASES",
-    "PX4_DIR_VARIABLE",
     "WORK_DIR_VARIABLE",
     "flight_row",
     "fly_flight",
     "package_version",
 ]
 
-PX4_DIR_VARIABLE = "PX4_SITL_DIR"
-"""The environment variable that names the PX4 SITL build a ``px4`` flight flies (the
-campaign's ``--px4-dir`` sets it for its workers)."""
 WORK_DIR_VARIABLE = "SITL_CAMPAIGN_WORK_DIR"
 """The environment variable that names the directory a worker's flights write their logs
 in (each in a directory of its own, removed when it ends): the campaign's, which it removes
@@ -211,15 +207,16 @@ def _fly_px4(
     only (PX4 and the simulator run in their own processes)."""
     from companion.cli.mission import fly_pickup
     from sitl.hil.vehicle import VALIDATED_SPEED
+    from sitl.px4_sitl.launcher import PX4_SITL_DIR_ENV, Px4Build
     from sitl.vehicle.launch import start_sitl
 
-    px4_dir = os.environ.get(PX4_DIR_VARIABLE)
-    if not px4_dir:
-        raise RuntimeError(f"a px4 flight needs the PX4 SITL build: set {PX4_DIR_VARIABLE}")
+    build = Px4Build.from_env()  # the campaign's --px4-dir, set for its workers
+    if build is None:
+        raise RuntimeError(f"a px4 flight needs the PX4 SITL build: set {PX4_SITL_DIR_ENV}")
     config = work / "scenario.toml"
     config.write_text(tomlkit.dumps(document), encoding="utf-8")
     extra = ["--seed", str(flight.seed), "--navigation", "mocap"]
-    extra += ["--autopilot", "px4", "--px4-dir", px4_dir]
+    extra += ["--autopilot", "px4", "--px4-dir", str(build.root)]
     if keep:
         extra += ["--keep-log", str(work / "px4")]
     fault = flight.fault
