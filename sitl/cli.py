@@ -127,7 +127,10 @@ def run(
         str, typer.Option(help="Truth physics: pinocchio (our plant) or jsbsim.")
     ] = "pinocchio",
     wind: Annotated[
-        str | None, typer.Option(help="Steady wind 'E,N,U' [m/s], world ENU (jsbsim only).")
+        str | None,
+        typer.Option(
+            help="Steady wind 'E,N,U' [m/s], world ENU, in place of the scenario's plant.wind_m_s."
+        ),
     ] = None,
     turbulence: Annotated[
         float,
@@ -255,11 +258,11 @@ def run(
     if navigation not in ("mocap", "gps"):
         _fail(f"--navigation must be mocap or gps, got {navigation!r}")
     try:
-        air = Wind.from_text(wind, turbulence, seed)
+        air = Wind.from_text(wind, turbulence, seed, cfg.plant.wind_m_s)
     except ValueError as exc:
         _fail(str(exc))
-    if air is not None and physics != "jsbsim":
-        _fail("--wind and --turbulence need --physics jsbsim")
+    if turbulence != 0.0 and physics != "jsbsim":
+        _fail("--turbulence needs --physics jsbsim")
     vehicle: SitlVehicle | Px4InTheLoop
     try:
         options = RunOptions(

@@ -127,7 +127,10 @@ PhysicsOpt = Annotated[
 ]
 WindOpt = Annotated[
     str | None,
-    typer.Option(help="Steady wind 'E,N,U' [m/s], world ENU, e.g. '3,0,0' (jsbsim only)."),
+    typer.Option(
+        help="Steady wind 'E,N,U' [m/s], world ENU, e.g. '3,0,0', in place of the scenario's "
+        "plant.wind_m_s (underactuated plant)."
+    ),
 ]
 TurbulenceOpt = Annotated[
     float,
@@ -165,9 +168,15 @@ def _run(cfg: Scenario, options, label: str):
 
 
 def _check_physics(
-    physics: PhysicsChoice, plant: PlantChoice, wind: str | None, turbulence: float, seed: int
+    cfg: Scenario,
+    physics: PhysicsChoice,
+    plant: PlantChoice,
+    wind: str | None,
+    turbulence: float,
+    seed: int,
 ):
-    """The ``Wind`` of the options (None when calm); usage errors exit 2."""
+    """The ``Wind`` of the options, else the scenario's steady ``plant.wind_m_s`` (None
+    when calm); usage errors exit 2."""
     from sitl.physics.jsbsim.wind import Wind
 
     if physics is PhysicsChoice.jsbsim and plant is PlantChoice.ideal:
@@ -177,16 +186,24 @@ def _check_physics(
             err=True,
         )
         raise typer.Exit(EXIT_USAGE)
-    if wind is None and turbulence == 0.0:
-        return None
-    if physics is not PhysicsChoice.jsbsim:
-        typer.echo("error: --wind and --turbulence need --physics jsbsim", err=True)
+    if turbulence != 0.0 and physics is not PhysicsChoice.jsbsim:
+        typer.echo("error: --turbulence needs --physics jsbsim", err=True)
         raise typer.Exit(EXIT_USAGE)
     try:
-        return Wind.from_text(wind, turbulence, seed)
+        air = Wind.from_text(wind, turbulence, seed, cfg.plant.wind_m_s)
     except ValueError as exc:
         typer.echo(f"error: --wind {wind!r} / --turbulence {turbulence:g}: {exc}", err=True)
         raise typer.Exit(EXIT_USAGE) from None
+    if air is None and any(cfg.plant.wind_m_s):
+        air = Wind(cfg.plant.wind_m_s)
+    if plant is PlantChoice.ideal and air is not None:
+        typer.echo(
+            "error: wind needs --plant underactuated (the ideal plant, tau on all 8 rows, has "
+            "no drag for the wind to act through)",
+            err=True,
+        )
+        raise typer.Exit(EXIT_USAGE)
+    return air
 
 
 def _wind_label(air) -> str:
@@ -253,7 +270,7 @@ def sim(
     cfg = load_or_exit(scenario, load_scenario)
     _check_times(cfg, duration, pickup_at, release_at)
     _check_seed(seed)
-    air = _check_physics(physics, plant, wind, turbulence, seed)
+    air = _check_physics(cfg, physics, plant, wind, turbulence, seed)
     out = output_dir_or_exit(out, SIM_FILES)
     options = SimOptions(
         controller=controller.value,
@@ -324,7 +341,7 @@ def compare(
     cfg = load_or_exit(scenario, load_scenario)
     _check_times(cfg, duration)
     _check_seed(seed)
-    air = _check_physics(physics, plant, wind, turbulence, seed)
+    air = _check_physics(cfg, physics, plant, wind, turbulence, seed)
     out = output_dir_or_exit(out, COMPARE_FILES)
     runs = []
     left_out = []

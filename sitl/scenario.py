@@ -56,6 +56,7 @@ MIN_PLANT_RATE_HZ = 1000.0
 MAX_DURATION_S = 3600.0
 """Longest offline run [s]: a multirotor's battery lasts well under an hour."""
 
+WindSpeed = Annotated[Real, _within(30.0, "m/s", "a wind a multirotor flies in", low=-30.0)]
 PayloadMass = Annotated[NonNegative, _within(50.0, "kg", "a payload a multirotor lifts")]
 
 
@@ -173,8 +174,16 @@ class Plant(_Section):
     """Thrust per command decaying over the flight (absent: constant); Pinocchio and
     JSBSim plants only (SIH's thrust is PX4's own)."""
     linear_drag_n_s_m: NonNegativeVec3
-    """Diagonal D of the linear drag force -D v on the vehicle, v the world-frame (ENU)
-    velocity of the vehicle CoM [N s/m]; underactuated plant only."""
+    """Diagonal D of the linear drag force -D (v - w) on the vehicle, v the world-frame
+    (ENU) velocity of the vehicle CoM, w the wind [N s/m]; underactuated plant only."""
+    wind_m_s: Annotated[tuple[WindSpeed, ...], Field(min_length=3, max_length=3)] = (
+        0.0,
+        0.0,
+        0.0,
+    )
+    """Steady wind, the air's velocity over the ground, world ENU [m/s] ((3, 0, 0) blows
+    toward the east): the linear drag acts on the velocity relative to the air, -D (v - w),
+    on both physics (JSBSim: its atmosphere's wind); ``sitl run --wind`` overrides it."""
     servo_torque_limit_n_m: Annotated[
         Positive, _within(1000.0, "N m", "a servo an arm on a multirotor carries")
     ]

@@ -218,6 +218,7 @@ samples = 3
 "payload.mass_kg" = { range = [0.10, 0.45] }
 "plant.battery_sag.thrust_loss" = { range = [0.0, 0.15] }
 "world.payload_position_m[1]" = { values = [0, 1] }
+"plant.wind_m_s[0]" = { range = [-3.0, 3.0] }
 [[faults]]
 kind = "payload_slip"
 after_grasp_s = 2.5
@@ -233,6 +234,9 @@ after_grasp_s = 2.5
         assert load_scenario(path) == flown
         assert flown.world is not None and flown.world.payload_slip is not None
         assert flown.plant.battery_sag is not None and flown.plant.battery_sag.over_s == 80.0
+        east, north, up = flown.plant.wind_m_s
+        assert -3.0 <= east <= 3.0 and east != 0.0 and north == up == 0.0
+        assert east == dict(flight.settings)["plant.wind_m_s[0]"]
 
 
 # --- a tiny campaign on two workers ---------------------------------------------------------

@@ -269,9 +269,17 @@ def test_ideal_mode_is_pinocchio_only() -> None:
         JsbsimPlant.from_scenario(FLIGHT, mode="ideal")
 
 
-def test_wind_is_jsbsim_only_and_unknown_backends_are_refused() -> None:
-    with pytest.raises(BackendError, match="need physics='jsbsim'"):
-        make_plant(FLIGHT, "pinocchio", wind=Wind((1.0, 0.0, 0.0)))
+def test_turbulence_is_jsbsim_only_wind_underactuated_only_and_unknown_backends_refused() -> None:
+    with pytest.raises(BackendError, match="turbulence needs physics='jsbsim'"):
+        make_plant(FLIGHT, "pinocchio", wind=Wind((1.0, 0.0, 0.0), "milspec", 7.7))
+    with pytest.raises(BackendError, match="wind needs mode='underactuated'"):
+        make_plant(FLIGHT, "pinocchio", "ideal", wind=Wind((1.0, 0.0, 0.0)))
+    windy = FLIGHT.model_copy(
+        update={"plant": FLIGHT.plant.model_copy(update={"wind_m_s": (0.0, 2.0, 0.0)})}
+    )
+    with pytest.raises(BackendError, match="wind needs mode='underactuated'"):
+        make_plant(windy, "pinocchio", "ideal")
+    assert make_plant(windy, "jsbsim").wind.velocity_enu_m_s == (0.0, 2.0, 0.0)  # type: ignore[union-attr]
     with pytest.raises(BackendError, match="physics must be one of"):
         make_plant(FLIGHT, "mujoco")  # type: ignore[arg-type]
     assert type(make_plant(FLIGHT, "jsbsim")).__name__ == "JsbsimPlant"
@@ -290,17 +298,22 @@ def test_wind_options_are_validated() -> None:
 # --------------------------------------------------------------- command line
 
 
-def test_cli_refuses_jsbsim_ideal_and_wind_on_pinocchio(run_sitl, tmp_path: Path) -> None:
+def test_cli_refuses_jsbsim_ideal_turbulence_on_pinocchio_and_wind_on_ideal(
+    run_sitl, tmp_path: Path
+) -> None:
     scenario = str(CONFIGS / "paper_sim_flight.toml")
     ideal = run_sitl("sim", "--scenario", scenario, "--out", str(tmp_path), "--physics", "jsbsim")
     assert ideal.returncode == 2
     assert "--physics jsbsim needs --plant underactuated" in ideal.stderr
-    windy = run_sitl(
+    turbulent = run_sitl(
         "compare", "--scenario", scenario, "--out", str(tmp_path), "--plant", "underactuated",
-        "--wind", "3,0,0",
+        "--turbulence", "7.7",
     )  # fmt: skip
+    assert turbulent.returncode == 2
+    assert "--turbulence needs --physics jsbsim" in turbulent.stderr
+    windy = run_sitl("sim", "--scenario", scenario, "--out", str(tmp_path), "--wind", "3,0,0")
     assert windy.returncode == 2
-    assert "need --physics jsbsim" in windy.stderr
+    assert "wind needs --plant underactuated" in windy.stderr
     bad = run_sitl(
         "sim", "--scenario", scenario, "--out", str(tmp_path), "--plant", "underactuated",
         "--physics", "jsbsim", "--wind", "3,0",

@@ -97,8 +97,10 @@ def test_compiled_step_matches_the_python_integrator(integrator, kind) -> None:
         if kind == "generalized":
             force: GeneralizedForce | BodyWrench = GeneralizedForce(rng.normal(0, 5, 8).tolist())
         else:
-            b = rng.normal(0, 1, 9).tolist()
-            force = BodyWrench(20.0 + b[0], (b[1], b[2], b[3]), (0.3, 0.2, 0.1), (b[7], b[8]))
+            b = rng.normal(0, 1, 12).tolist()
+            force = BodyWrench(
+                20.0 + b[0], (b[1], b[2], b[3]), (0.3, 0.2, 0.1), (b[7], b[8]), (b[9], b[10], b[11])
+            )
         x, u, r9, euler, qd, wi = _random_state(rng)
         out = integ.step_kinematics(x, u, force, r9, euler, qd, wi)
         assert out[0] == 0

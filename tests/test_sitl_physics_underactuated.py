@@ -63,6 +63,31 @@ def test_thrust_mismatch_makes_the_believed_hover_thrust_sink() -> None:
     assert plant.rotor_thrusts_n.sum() == pytest.approx(0.9 * plant.total_mass_kg * g, rel=1e-3)
 
 
+def test_steady_wind_acts_through_the_drag_on_the_velocity_relative_to_the_air() -> None:
+    """GIVEN a steady wind w WHEN the vehicle flies at v THEN it moves exactly as in calm
+    air at v - w (the drag -D (v - w) is all the wind does): at rest in the wind it is
+    pushed downwind, and carried along at the wind's own velocity it feels no drag."""
+    wind = (2.0, -1.0, 0.5)
+    windy_cfg = with_plant(PAPER, wind_m_s=wind)
+    q0 = PAPER.simulation.initial_q
+    hover = believed_hover_thrust(PAPER, TruthPlant.from_scenario(PAPER).total_mass_kg)
+    setpoint = AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, hover)
+
+    def first_step(cfg: Scenario, velocity: tuple[float, float, float], **kw) -> np.ndarray:
+        plant = TruthPlant.from_scenario(cfg, "underactuated", **kw)
+        plant.reset(q0, [*velocity, 0.0, 0.0, 0.0, 0.0, 0.0])
+        return plant.step(setpoint, [0.0, 0.0]).q_ddot
+
+    at_rest = first_step(windy_cfg, (0.0, 0.0, 0.0))
+    calm_against = first_step(PAPER, (-2.0, 1.0, -0.5))
+    np.testing.assert_allclose(at_rest, calm_against, rtol=0, atol=1e-12)
+    assert at_rest[0] > 0.0 and at_rest[1] < 0.0  # pushed downwind
+    carried = first_step(windy_cfg, wind)
+    np.testing.assert_allclose(carried, first_step(PAPER, (0.0, 0.0, 0.0)), rtol=0, atol=1e-12)
+    replaced = first_step(windy_cfg, (0.0, 0.0, 0.0), wind_m_s=(0.0, 0.0, 0.0))
+    np.testing.assert_allclose(replaced, first_step(PAPER, (0.0, 0.0, 0.0)), rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize(
     ("payload", "rise_s", "settle_s", "overshoot_deg"),
     [(False, 0.45, 0.5, 1.5), (True, 0.5, 1.9, 3.0)],

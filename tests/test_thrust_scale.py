@@ -403,6 +403,16 @@ def test_sih_refuses_a_battery_sag() -> None:
         sih_parameters(parse_scenario(data))
 
 
+def test_sih_refuses_a_wind() -> None:
+    from sitl.px4_sitl.sih import SihMismatchError, sih_parameters
+
+    data = tomllib.loads((CONFIGS / "px4_sih_pickup.toml").read_text())
+    sih_parameters(parse_scenario(data))
+    data["plant"]["wind_m_s"] = [0.0, 2.0, 0.0]
+    with pytest.raises(SihMismatchError, match="wind_m_s"):
+        sih_parameters(parse_scenario(data))
+
+
 # --------------------------------------------------------- acceptance
 
 ACCEPT_SCALE = {"drift_std_per_sqrt_s": 0.01}

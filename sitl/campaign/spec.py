@@ -25,6 +25,7 @@ Format (every key but ``name`` and ``scenario`` optional)::
     "payload.mass_kg" = { range = [0.10, 0.45] }       # sampled by the design
     "world.start_yaw_rad" = { values = [0.0, 1.57] }   # a grid: every draw with each value
     "world.payload_position_m[0]" = { range = [0.8, 1.5] }  # one entry of a vector
+    "plant.wind_m_s[0]" = { range = [-3.0, 3.0] }      # a steady wind from the west or east
     "place_at_m[1]" = { range = [0.0, 0.5] }           # the place point, entry by entry
 
     [[faults]]                               # each draw flown with each fault (default: none)

@@ -167,7 +167,7 @@ static int euler_rate_inverse9(double phi, double theta, double *wi)
 
 typedef struct {
     int kind;        /* 0: GeneralizedForce (tau conjugate to q), 1: BodyWrench */
-    double v[9];     /* tau (8) | thrust, torque (3), drag (3), joint torques (2) */
+    double v[12];    /* tau (8) | thrust, torque (3), drag (3), joint torques (2), wind (3) */
 } Force;
 
 typedef struct {
@@ -199,7 +199,8 @@ static int force_eval(const Force *f, const double *r, const double *u, double *
         return OK;
     }
     const double *b = f->v;
-    double fx = -b[4] * u[0], fy = -b[5] * u[1], fz = -b[6] * u[2];
+    double fx = -b[4] * (u[0] - b[9]), fy = -b[5] * (u[1] - b[10]);
+    double fz = -b[6] * (u[2] - b[11]);
     out[0] = r[0] * fx + r[3] * fy + r[6] * fz;
     out[1] = r[1] * fx + r[4] * fy + r[7] * fz;
     out[2] = r[2] * fx + r[5] * fy + r[8] * fz + b[0];
@@ -449,7 +450,7 @@ static PyObject *py_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     if (!read_doubles(args[2], x, 9, "x") || !read_doubles(args[3], u, 8, "u")
         || !read_doubles(args[4], r, 9, "r9") || !read_doubles(args[5], euler, 3, "euler")
         || !read_doubles(args[6], qd, 8, "q_dot") || !read_doubles(args[7], wi, 9, "w_inv9")
-        || !read_doubles(args[9], f.v, f.kind == 0 ? 8 : 9, "force"))
+        || !read_doubles(args[9], f.v, f.kind == 0 ? 8 : 12, "force"))
         return NULL;
     Dynamics d = {args[10], args[11], args[12], args[13], args[14], args[15], 0.0};
     double x_new[9], u_new[8], k1[8], qdd[8];

@@ -84,24 +84,36 @@ def make_plant(
     payload_attached : bool
         Start with the payload grasped.
     wind : sitl.physics.jsbsim.Wind, optional
-        Steady wind and turbulence; needs ``physics="jsbsim"`` unless calm.
+        Steady wind and turbulence, in place of the scenario's steady ``plant.wind_m_s``;
+        turbulence needs ``physics="jsbsim"``.
 
     Raises
     ------
     BackendError
-        Unknown backend or mode, ideal mode on JSBSim, or wind on Pinocchio.
+        Unknown backend or mode, ideal mode on JSBSim, or turbulence on Pinocchio.
     """
     if physics not in PHYSICS_BACKENDS:
         raise BackendError(f"physics must be one of {PHYSICS_BACKENDS}, got {physics!r}")
     if mode not in ("ideal", "underactuated"):
         raise BackendError(f"mode must be 'ideal' or 'underactuated', got {mode!r}")
+    steady = scenario.plant.wind_m_s if wind is None else wind.velocity_enu_m_s
+    if mode == "ideal" and any(steady):
+        raise BackendError(
+            "wind needs mode='underactuated': the ideal plant (tau on all 8 rows) has no drag "
+            "for the wind to act through"
+        )
     if physics == "pinocchio":
-        if wind is not None and not wind.calm:
+        if wind is not None and wind.turbulence != "none":
             raise BackendError(
-                "wind and turbulence need physics='jsbsim': the Pinocchio plant has no "
-                "atmosphere (its drag acts on the ground velocity)"
+                "turbulence needs physics='jsbsim': the Pinocchio plant's drag acts on the "
+                "steady wind only"
             )
-        return TruthPlant.from_scenario(scenario, mode, payload_attached=payload_attached)
+        return TruthPlant.from_scenario(
+            scenario,
+            mode,
+            payload_attached=payload_attached,
+            wind_m_s=None if wind is None else wind.velocity_enu_m_s,
+        )
     if mode == "ideal":
         raise BackendError(
             "ideal mode (tau on all 8 rows) exists only with physics='pinocchio': JSBSim "

@@ -95,7 +95,8 @@ class GeneralizedForce:
 
 
 class BodyWrench:
-    """Rotor thrust and torque (body axes), linear drag (world) and joint torques.
+    """Rotor thrust and torque (body axes), linear drag on the velocity relative to the air
+    (world) and joint torques.
 
     Attributes
     ----------
@@ -104,12 +105,14 @@ class BodyWrench:
     torque_n_m : tuple of 3 float
         Body torque of the rotors (FLU) [N m].
     drag_n_s_m : tuple of 3 float
-        Diagonal D of the world-frame drag force -D p_dot [N s/m].
+        Diagonal D of the world-frame drag force -D (p_dot - w) [N s/m].
     joint_torques_n_m : tuple of 2 float
         Servo torques [N m].
+    wind_m_s : tuple of 3 float
+        Steady wind w, the air's velocity over the ground, world ENU [m/s].
     """
 
-    __slots__ = ("drag_n_s_m", "joint_torques_n_m", "thrust_n", "torque_n_m")
+    __slots__ = ("drag_n_s_m", "joint_torques_n_m", "thrust_n", "torque_n_m", "wind_m_s")
     KIND = 1
     """The kernel's tag of this force."""
 
@@ -119,20 +122,29 @@ class BodyWrench:
         torque_n_m: tuple[float, float, float],
         drag_n_s_m: tuple[float, float, float],
         joint_torques_n_m: tuple[float, float],
+        wind_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0),
     ) -> None:
         self.thrust_n = thrust_n
         self.torque_n_m = torque_n_m
         self.drag_n_s_m = drag_n_s_m
         self.joint_torques_n_m = joint_torques_n_m
+        self.wind_m_s = wind_m_s
 
     @property
     def values(self) -> tuple[float, ...]:
-        """(thrust, torque (3), drag (3), joint torques (2)), as the kernel takes it."""
-        return (self.thrust_n, *self.torque_n_m, *self.drag_n_s_m, *self.joint_torques_n_m)
+        """(thrust, torque (3), drag (3), joint torques (2), wind (3)), as the kernel takes it."""
+        return (
+            self.thrust_n,
+            *self.torque_n_m,
+            *self.drag_n_s_m,
+            *self.joint_torques_n_m,
+            *self.wind_m_s,
+        )
 
     def __call__(self, r: Rot9, u: list[float]) -> tuple[float, ...]:
         dx, dy, dz = self.drag_n_s_m
-        fx, fy, fz = -dx * u[0], -dy * u[1], -dz * u[2]
+        wx, wy, wz = self.wind_m_s
+        fx, fy, fz = -dx * (u[0] - wx), -dy * (u[1] - wy), -dz * (u[2] - wz)
         mx, my, mz = self.torque_n_m
         j1, j2 = self.joint_torques_n_m
         return (

@@ -12,10 +12,9 @@ Two modes (DESIGN.md sections 2-4):
     per motor with the autopilot's THR_MDL_FAC, :meth:`TruthPlant.configure_autopilot`),
     six lagged rotors with their own THR_MDL_FAC-shaped curve (scaled by
     ``plant.thrust_mismatch`` and, if set, the ``plant.battery_sag`` of the plant's time)
-    push the body, linear drag
-    -D v acts on the vehicle CoM, and the servos apply joint torques clipped to
-    ``plant.servo_torque_limit_n_m``
-    (:meth:`TruthPlant.step`).
+    push the body, linear drag -D (v - w) acts on the vehicle CoM (w the steady wind,
+    ``plant.wind_m_s``), and the servos apply joint torques clipped to
+    ``plant.servo_torque_limit_n_m`` (:meth:`TruthPlant.step`).
 
 Generalized forces. Pinocchio's free-flyer velocity is (v_B, omega_B), body axes, so with
 J = blockdiag(R^T, W(Phi), I2) mapping our q_dot to it, power balance gives
@@ -127,7 +126,12 @@ class TruthPlant(RotorPlant):
         )
 
     def __init__(
-        self, scenario: Scenario, mode: PlantMode = "ideal", *, payload_attached: bool = False
+        self,
+        scenario: Scenario,
+        mode: PlantMode = "ideal",
+        *,
+        payload_attached: bool = False,
+        wind_m_s: tuple[float, ...] | None = None,
     ) -> None:
         if mode not in ("ideal", "underactuated"):
             raise ValueError(f"mode must be 'ideal' or 'underactuated', got {mode!r}")
@@ -165,6 +169,9 @@ class TruthPlant(RotorPlant):
         self._drag: tuple[float, float, float] = tuple(  # type: ignore[assignment]
             float(d) for d in scenario.plant.linear_drag_n_s_m
         )
+        self._wind: tuple[float, float, float] = tuple(  # type: ignore[assignment]
+            float(w) for w in (scenario.plant.wind_m_s if wind_m_s is None else wind_m_s)
+        )
         self._servo_limit = scenario.plant.servo_torque_limit_n_m
         self._actuators: ActuatorState | None = None
         self._actuator_signals: tuple = ()
@@ -182,10 +189,16 @@ class TruthPlant(RotorPlant):
 
     @classmethod
     def from_scenario(
-        cls, scenario: Scenario, mode: PlantMode = "ideal", *, payload_attached: bool = False
+        cls,
+        scenario: Scenario,
+        mode: PlantMode = "ideal",
+        *,
+        payload_attached: bool = False,
+        wind_m_s: tuple[float, ...] | None = None,
     ) -> TruthPlant:
-        """Plant of a validated scenario, at rest at ``simulation.initial_q``."""
-        return cls(scenario, mode, payload_attached=payload_attached)
+        """Plant of a validated scenario, at rest at ``simulation.initial_q``; ``wind_m_s``
+        (steady, world ENU [m/s]) replaces the scenario's ``plant.wind_m_s``."""
+        return cls(scenario, mode, payload_attached=payload_attached, wind_m_s=wind_m_s)
 
     # ------------------------------------------------------------------ state
 
@@ -437,7 +450,9 @@ class TruthPlant(RotorPlant):
             wy[0] * t0 + wy[1] * t1 + wy[2] * t2 + wy[3] * t3 + wy[4] * t4 + wy[5] * t5,
             wz[0] * t0 + wz[1] * t1 + wz[2] * t2 + wz[3] * t3 + wz[4] * t4 + wz[5] * t5,
         )
-        self._advance(BodyWrench(sum(thrusts), torque, self._drag, (joint[0], joint[1])))
+        self._advance(
+            BodyWrench(sum(thrusts), torque, self._drag, (joint[0], joint[1]), self._wind)
+        )
         self._rotors.advance(motor_commands)
         self._actuator_signals = (
             motor_commands,

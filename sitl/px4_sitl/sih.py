@@ -39,7 +39,7 @@ def sih_parameters(scenario: Scenario, joints_rad: tuple[float, float] | None = 
 
     Raises :class:`SihMismatchError` when the rotors' thrust curve is not linear
     (``vehicle.rotors.thr_mdl_fac`` > 0): SIH's motors are; and when the scenario has a
-    ``plant.battery_sag``, which SIH does not model.
+    ``plant.battery_sag`` or a ``plant.wind_m_s``, which SIH does not model.
     """
     rotors = scenario.vehicle.rotors
     if rotors.thr_mdl_fac > 0.0:
@@ -51,6 +51,11 @@ def sih_parameters(scenario: Scenario, joints_rad: tuple[float, float] | None = 
         raise SihMismatchError(
             f"{scenario.name}: plant.battery_sag is a truth model of sitl's own plants; SIH's "
             "thrust is PX4's: remove the section to fly SIH"
+        )
+    if any(scenario.plant.wind_m_s):
+        raise SihMismatchError(
+            f"{scenario.name}: plant.wind_m_s is a truth model of sitl's own plants; SIH "
+            "flies PX4's own physics: set it to [0, 0, 0] to fly SIH"
         )
     if joints_rad is None:
         world = scenario.world

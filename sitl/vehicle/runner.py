@@ -146,7 +146,8 @@ class RunOptions:
     physics: str = "pinocchio"
     """Truth physics backend: ``pinocchio`` or ``jsbsim`` (``sitl.physics.make_plant``)."""
     wind: Wind | None = None
-    """Steady wind and turbulence (JSBSim only)."""
+    """Steady wind and turbulence in place of the scenario's steady ``plant.wind_m_s``
+    (turbulence: JSBSim only)."""
     servo_silent: tuple[int, float] | None = None
     """Fault injection: (servo id, simulation time [s]) from which that servo carries out
     instructions but never answers again (a broken TX line)."""

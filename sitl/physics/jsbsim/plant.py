@@ -111,7 +111,8 @@ class JsbsimPlant(RotorPlant):
     payload_attached : bool
         Start with the payload grasped.
     wind : Wind, optional
-        Steady wind and turbulence (calm by default).
+        Steady wind and turbulence (by default the scenario's steady ``plant.wind_m_s``, no
+        turbulence).
     gear : GearGeometry, optional
         Landing gear of the airframe.
 
@@ -145,7 +146,7 @@ class JsbsimPlant(RotorPlant):
         self.rate_hz = float(scenario.plant.rate_hz)
         self.dt_s = 1.0 / self.rate_hz
         self.gravity_m_s2 = scenario.environment.gravity_m_s2
-        self.wind = wind if wind is not None else Wind()
+        self.wind = wind if wind is not None else Wind(scenario.plant.wind_m_s)
         self.gear = gear if gear is not None else GearGeometry()
         self._fdm = HexarotorFdm(scenario, self.gear, self.dt_s)
 

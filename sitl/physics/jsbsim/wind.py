@@ -36,7 +36,7 @@ _TURB_TYPE = {"none": 0, "milspec": 3}
 
 @dataclass(frozen=True)
 class Wind:
-    """Steady wind and turbulence for the JSBSim backend.
+    """Steady wind (both backends) and turbulence (JSBSim).
 
     Attributes
     ----------
@@ -52,7 +52,7 @@ class Wind:
         Seed of JSBSim's random generator (``simulation/randomseed``).
     """
 
-    velocity_enu_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    velocity_enu_m_s: tuple[float, ...] = (0.0, 0.0, 0.0)
     turbulence: TurbulenceKind = "none"
     windspeed_20ft_m_s: float = 0.0
     seed: int = 0
@@ -74,18 +74,28 @@ class Wind:
             raise ValueError("turbulence needs windspeed_20ft_m_s > 0 (its intensity)")
 
     @classmethod
-    def from_text(cls, wind: str | None, turbulence_m_s: float, seed: int = 0) -> Wind | None:
+    def from_text(
+        cls,
+        wind: str | None,
+        turbulence_m_s: float,
+        seed: int = 0,
+        steady_m_s: tuple[float, ...] = (0.0, 0.0, 0.0),
+    ) -> Wind | None:
         """The wind of the command lines' ``--wind E,N,U`` [m/s] and ``--turbulence W20``
-        [m/s] options; None when calm. Raises ``ValueError`` with the reason."""
+        [m/s] options, the steady wind ``steady_m_s`` (the scenario's ``plant.wind_m_s``)
+        where ``--wind`` is absent; None when neither option is given (the scenario's wind
+        applies). Raises ``ValueError`` with the reason."""
         if wind is None and turbulence_m_s == 0.0:
             return None
-        parts = (wind or "0,0,0").split(",")
-        try:
-            velocity = tuple(float(v) for v in parts)
-        except ValueError:
-            raise ValueError(f"--wind needs E,N,U in m/s, got {wind!r}") from None
-        if len(velocity) != 3:
-            raise ValueError(f"--wind needs three values E,N,U in m/s, got {wind!r}")
+        if wind is None:
+            velocity = tuple(steady_m_s)
+        else:
+            try:
+                velocity = tuple(float(v) for v in wind.split(","))
+            except ValueError:
+                raise ValueError(f"--wind needs E,N,U in m/s, got {wind!r}") from None
+            if len(velocity) != 3:
+                raise ValueError(f"--wind needs three values E,N,U in m/s, got {wind!r}")
         return cls(
             velocity_enu_m_s=velocity,
             turbulence="milspec" if turbulence_m_s > 0.0 else "none",
