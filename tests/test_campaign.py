@@ -122,6 +122,27 @@ def test_a_px4_spec_without_a_px4_build_is_one_line_and_nothing_flies(tmp_path, 
     assert not (tmp_path / "out").exists()
 
 
+def test_a_mixed_spec_replays_its_imitation_flights_without_a_px4_build(tmp_path, monkeypatch):
+    """Only a px4 flight needs the build: the imitation's replay flies (here a draw whose
+    joint gain is too high for the loop, which fails at once with its reason), the px4
+    flight's replay is the one line asking for the build."""
+    monkeypatch.delenv("PX4_SITL_DIR", raising=False)
+    spec = write_spec(
+        tmp_path,
+        'autopilots = ["imitation", "px4"]\n'
+        '[set]\n"world.payload_position_m" = [0.8, 0.0, 0.05]\n'
+        '[axes]\n"controller.k[6]" = { values = [500.0] }\n',
+    )
+    imitation, px4 = expand(load_spec(spec), spec)
+    out = tmp_path / "out"
+    flown = sitl("campaign", spec, "--out", out, "--replay", imitation.flight_id)
+    assert flown.exit_code == 1, (flown.stdout, flown.stderr)
+    assert "too long for the velocity gains" in flown.stderr
+    assert "pass --px4-dir" not in flown.stderr
+    refused = sitl("campaign", spec, "--out", out, "--replay", px4.flight_id)
+    assert refused.exit_code == 2 and "pass --px4-dir DIR or set PX4_SITL_DIR" in refused.stderr
+
+
 def test_px4_flights_are_their_own_pairs_and_leave_the_imitations_ids_as_they_were(tmp_path):
     """The autopilot is part of a px4 flight's identity (its own id and pair); the
     imitation's ids do not name it, so tables written before autopilots came stay valid."""

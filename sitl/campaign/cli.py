@@ -149,11 +149,11 @@ def campaign(
         if limit < 1:
             fail(f"--limit must be 1 or more, got {limit}")
         flights = flights[:limit]
+    if replay is not None:
+        _replay(flights, replay, out, spec_path, px4_dir)
+        return
     if loaded.flies_px4:
         _use_px4(px4_dir)
-    if replay is not None:
-        _replay(flights, replay, out, spec_path)
-        return
     if out.exists() and not out.is_dir():
         fail(f"--out {out}: is a file, not a directory")
     try:
@@ -297,7 +297,10 @@ def _run(
     )
 
 
-def _replay(flights: list[Flight], flight_id: str, out: Path, spec_path: Path) -> None:
+def _replay(
+    flights: list[Flight], flight_id: str, out: Path, spec_path: Path, px4_dir: Path | None
+) -> None:
+    """Fly one flight alone; only a px4 flight needs the PX4 build."""
     from companion.config import read_toml
     from sitl.campaign.fly import fly_flight
 
@@ -305,6 +308,8 @@ def _replay(flights: list[Flight], flight_id: str, out: Path, spec_path: Path) -
     if not chosen:
         fail(f"--replay {flight_id}: no flight of {spec_path} has this id")
     flight = chosen[0]
+    if flight.autopilot == "px4":
+        _use_px4(px4_dir)
     where = output_dir_or_exit(out / "replay" / flight.flight_id, ("summary.json",), "--out")
     typer.echo(
         f"replaying flight {flight.flight_id}: {flight.controller}, seed {flight.seed}, "
