@@ -452,7 +452,6 @@ def demo(
     if autopilot == "px4":
         if px4_dir is None:
             fail("--autopilot px4 needs a PX4 SITL build: pass --px4-dir DIR or set PX4_SITL_DIR")
-        extra += ["--autopilot", "px4", "--px4-dir", str(px4_dir)]
         if navigation == "gps":
             extra += ["--gps", "rtk"]
     scenario = load_or_exit(config, load_scenario)
@@ -489,8 +488,7 @@ def demo(
         draw_with_truth(out)
         write_flight_page(out)
         raise typer.Exit(status)
-    if autopilot == "px4":
-        extra += ["--keep-log", str(out / "px4")]
+    px4 = autopilot == "px4"
     try:
         sitl = start_sitl(
             config,
@@ -499,7 +497,8 @@ def demo(
             *extra,
             speed=factor,
             truth_log=out / "truth.jsonl",
-            timeout_s=180.0 if autopilot == "px4" else 60.0,
+            px4_dir=px4_dir if px4 else None,
+            px4_log=out / "px4" if px4 else None,
         )
     except SitlNotReadyError as exc:
         fail(str(exc), 1)

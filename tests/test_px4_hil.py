@@ -102,9 +102,8 @@ def fly_pickup(
     px4_dir = tmp / "px4"
     payload_at, place_at = MISSION_POINTS
     sitl = start_sitl(
-        CONFIG, "--seed", "1", "--autopilot", "px4", "--px4-dir", str(px4_root),
-        "--keep-log", str(px4_dir), *sitl_args,
-        speed=speed, truth_log=truth_log, timeout_s=180.0,
+        CONFIG, "--seed", "1", *sitl_args,
+        speed=speed, truth_log=truth_log, px4_dir=px4_root, px4_log=px4_dir,
     )  # fmt: skip
     out = tmp / controller
     port = sitl.onboard_port

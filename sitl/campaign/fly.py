@@ -216,14 +216,16 @@ def _fly_px4(
     config = work / "scenario.toml"
     config.write_text(tomlkit.dumps(document), encoding="utf-8")
     extra = ["--seed", str(flight.seed), "--navigation", "mocap"]
-    extra += ["--autopilot", "px4", "--px4-dir", str(build.root)]
-    if keep:
-        extra += ["--keep-log", str(work / "px4")]
     fault = flight.fault
     if fault.kind == "servo_silent":
         extra += ["--servo-silent", f"{fault.servo_id}@{fault.at_s:g}"]
     sitl = start_sitl(
-        config, *extra, speed=VALIDATED_SPEED, truth_log=work / "truth.jsonl", timeout_s=180.0
+        config,
+        *extra,
+        speed=VALIDATED_SPEED,
+        truth_log=work / "truth.jsonl",
+        px4_dir=build.root,
+        px4_log=work / "px4" if keep else None,
     )
     try:
         return asyncio.run(

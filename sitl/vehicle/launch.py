@@ -98,16 +98,25 @@ class SihProcess(_ReadyChild):
     """PX4's console log (removed at stop unless ``--keep-log``)."""
 
 
+PX4_READY_TIMEOUT_S = 180.0
+"""How long ``sitl run --autopilot px4`` may take to get ready [s]: PX4 boots, the EKF
+aligns and the vehicle is armable (about 20 s here, much more on a loaded machine)."""
+
+
 def start_sitl(
     config: str | Path,
     *extra: str,
     speed: float = 1.0,
     truth_log: Path | None = None,
-    timeout_s: float = 60.0,
+    px4_dir: Path | None = None,
+    px4_log: Path | None = None,
+    timeout_s: float | None = None,
 ) -> SitlProcess:
     """Start ``sitl run --config config *extra`` at ``speed`` on four free loopback UDP
     ports and wait for its ``ready`` line; raises :class:`SitlNotReadyError` with what
-    it printed otherwise."""
+    it printed otherwise. With ``px4_dir`` the real PX4 of that build flies it
+    (``--autopilot px4``), its logs kept in ``px4_log`` if given; ``timeout_s`` defaults
+    to 60 s, :data:`PX4_READY_TIMEOUT_S` with PX4."""
     ports = [free_udp_port() for _ in range(4)]
     args = ["run", "--config", str(config), "--speed", str(speed)]
     for option, port in zip(
@@ -119,6 +128,14 @@ def start_sitl(
     args += extra
     if truth_log is not None:
         args += ["--truth-log", str(truth_log)]
+    if px4_dir is not None:
+        args += ["--autopilot", "px4", "--px4-dir", str(px4_dir)]
+        if px4_log is not None:
+            args += ["--keep-log", str(px4_log)]
+    elif px4_log is not None:
+        raise ValueError("px4_log needs px4_dir: only PX4 writes that log")
+    if timeout_s is None:
+        timeout_s = 60.0 if px4_dir is None else PX4_READY_TIMEOUT_S
     process, where, output = _start_ready(args, timeout_s)
     onboard, gcs, onboard_local, gcs_local = ports
     return SitlProcess(
