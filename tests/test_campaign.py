@@ -35,6 +35,7 @@ from sitl.campaign.flights import (
     scenario_document,
     scenario_of,
 )
+from sitl.campaign.report import write_report
 from sitl.campaign.spec import load_spec
 from sitl.campaign.store import TIMING_COLUMNS
 from sitl.cli import app as sitl_app
@@ -225,6 +226,20 @@ def test_the_shipped_specs_expand_to_their_flights_in_pairs_with_stable_ids():
     assert len(flights) == 20 and {(f.autopilot, f.controller) for f in flights} == {
         ("px4", "passivity")
     }
+    # The baseline sample: 10 draws of the same axes, each flown by the adaptive controller
+    # and by PX4's own position control on PX4, on the same seed.
+    baseline_path = CAMPAIGNS / "envelope_px4_baseline.toml"
+    baseline = load_spec(baseline_path)
+    assert baseline.axes == sample.axes
+    pairs = {}
+    for f in expand(baseline, baseline_path):
+        pairs.setdefault(f.pair_id, []).append(f)
+    assert len(pairs) == 10
+    for pair in pairs.values():
+        assert sorted((f.autopilot, f.controller) for f in pair) == [
+            ("px4", "passivity"), ("px4", "px4_position")
+        ]  # fmt: skip
+        assert len({(f.seed, f.settings, f.place_at_m) for f in pair}) == 1
 
 
 def test_the_replay_scenario_file_is_the_scenario_each_flight_flew(tmp_path):
@@ -560,3 +575,26 @@ def test_a_worker_killed_then_ctrl_c_then_a_rerun_leaves_every_flight_once(tmp_p
     for flight_id, row in before.items():
         assert row == after[flight_id]
     assert all(r["status"] == "ok" and r["completed"] == 1 for r in after.values())
+
+
+def test_the_report_pairs_the_adaptive_controller_with_each_baseline_flown_beside_it(tmp_path):
+    """Rows of three pairs (passivity, px4_position) on PX4: the report has the PX4 position
+    control section, with the medians, the share of pairs the adaptive carry is lower in and
+    at most half in, and its scatter; no non-adaptive section (none flew)."""
+
+    def row(pair, controller, carry_m):
+        return {
+            "pair_id": pair, "controller": controller, "autopilot": "px4", "status": "ok",
+            "completed": 1, "outcome": "completed", "version": "x", "carry_rms_m": carry_m,
+            "placement_error_m": 0.01, "carry_max_error_m": 3 * carry_m,
+        }  # fmt: skip
+
+    rows = []
+    for pair, (adaptive, px4) in enumerate(((0.01, 0.40), (0.012, 0.02), (0.02, 0.015))):
+        rows += [row(str(pair), "passivity", adaptive), row(str(pair), "px4_position", px4)]
+    report = write_report(rows, [], tmp_path, "baseline").read_text()
+    assert "against PX4 position control, paired" in report
+    assert "against non-adaptive" not in report
+    assert "<td>carry RMS [cm]</td><td>3</td><td>1.20</td><td>2.00</td>" in report
+    assert "67 % (at most half in 33 %)" in report
+    assert (tmp_path / "paired_px4_position.png").stat().st_size > 0

@@ -54,3 +54,22 @@ def test_nonadaptive_ignores_the_estimate():
     np.testing.assert_allclose(out.theta_hat, SCENARIO.nominal_theta.as_tuple())
     with pytest.raises(ValueError, match="controller"):
         FlightControl(SCENARIO, "pid")
+
+
+def test_with_px4_flying_position_the_law_drives_the_joints_and_learns_from_them_alone():
+    """``px4_position``: PX4's thrust is not the companion's, so the estimator runs on the
+    joint rows without a thrust scale, the rate check covers the joints only, and the
+    joint torques are eq. tau2's with the estimate (as the adaptive law's)."""
+    fc = FlightControl(SCENARIO, "px4_position")
+    adaptive = FlightControl(SCENARIO, "passivity")
+    assert fc.px4_flies_position and not adaptive.px4_flies_position
+    assert fc.rows == (6, 7) and fc.actuated_rows == (6, 7)
+    assert fc.estimator.scale is None and SCENARIO.estimator.thrust_scale is not None
+    q = np.array([0.0, 0.0, 1.5, 0.0, 0.0, 0.0, -1.2, 0.3])
+    desired = DesiredState(q + 0.1, np.zeros(8), np.zeros(8))
+    theta = [0.3, 0.03, 0.004]
+    for law in (fc, adaptive):
+        law.estimator.reset(theta)
+    outs = [law.step(0.004, hover(q), desired, np.full(8, np.nan)) for law in (fc, adaptive)]
+    np.testing.assert_allclose(outs[0].tau[6:8], outs[1].tau[6:8], rtol=1e-9)
+    assert abs(outs[0].tau[7]) > 0.01

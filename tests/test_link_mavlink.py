@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as m
 
-from companion.control.setpoints import AttitudeThrustSetpoint
+from companion.control.setpoints import AttitudeThrustSetpoint, PositionSetpoint
 from companion.frames import enu_from_ned, rotation_from_quaternion
 from companion.link import (
     CommandDenied,
@@ -428,6 +428,33 @@ def test_set_attitude_target_is_ned_frd():
     q = msg.q
     yaw = math.atan2(2 * (q[0] * q[3] + q[1] * q[2]), 1 - 2 * (q[2] ** 2 + q[3] ** 2))
     assert yaw == pytest.approx(math.pi / 2 - psi, abs=1e-6)
+
+
+def test_set_position_target_is_local_ned_with_only_the_yaw_rate_ignored():
+    """What PX4's receiver takes into its trajectory setpoint (every field not ignored):
+    position, velocity and acceleration in NED, yaw from north."""
+    sp = PositionSetpoint((1.0, 2.0, 3.0), (0.1, 0.2, 0.3), (-0.5, 0.25, 1.5), 0.3)
+
+    async def scenario():
+        peer = Peer()
+        link = await _connected(peer)
+        link.send_position_target(sp, time_boot_ms=4321)
+        msg = await peer.expect("SET_POSITION_TARGET_LOCAL_NED")
+        bad = PositionSetpoint((1.0, math.nan, 3.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0)
+        with pytest.raises(SetpointError):
+            link.send_position_target(bad, 0)
+        await link.close()
+        peer.close()
+        return msg
+
+    msg = run(scenario())
+    assert msg.coordinate_frame == m.MAV_FRAME_LOCAL_NED
+    assert msg.type_mask == m.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
+    assert (msg.target_system, msg.target_component, msg.time_boot_ms) == (1, 1, 4321)
+    np.testing.assert_allclose([msg.x, msg.y, msg.z], _ned((1.0, 2.0, 3.0)), rtol=1e-6)
+    np.testing.assert_allclose([msg.vx, msg.vy, msg.vz], _ned((0.1, 0.2, 0.3)), rtol=1e-6)
+    np.testing.assert_allclose([msg.afx, msg.afy, msg.afz], _ned((-0.5, 0.25, 1.5)), rtol=1e-6)
+    assert msg.yaw == pytest.approx(math.pi / 2 - 0.3, abs=1e-6)
 
 
 def _ned(v_enu):

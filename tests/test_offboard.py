@@ -70,6 +70,30 @@ def test_each_stage_streams_its_setpoint():
     assert ground.thrust_relative == pytest.approx(0.1)  # PX4's MPC_THR_MIN, not zero
 
 
+def test_with_px4_flying_position_the_air_stages_stream_position_targets():
+    """HOLD and LEVEL: where the vehicle is, at rest (PX4 brakes and holds); CONTROL: the
+    mission's desired position, velocity, acceleration and yaw; GROUND and OFF: none (the
+    ground stays an attitude setpoint)."""
+    o = Offboard()
+    q_d = np.array([4.0, 5.0, 6.0, 0.0, 0.0, 0.2, 0.0, 0.0])
+    rate, accel = np.arange(8.0) * 0.1, np.arange(8.0) * -0.2
+    assert o.position_setpoint(Q, q_d, rate, accel) is None
+    o.to(Stream.HOLD)
+    hold = o.position_setpoint(Q, q_d, rate, accel)
+    assert (hold.position_m, hold.velocity_m_s, hold.yaw_rad) == ((1.0, 2.0, 3.0), (0, 0, 0), 0.7)
+    assert hold.acceleration_m_s2 == (0.0, 0.0, 0.0)
+    o.accept(0.0)
+    control = o.position_setpoint(Q, q_d, rate, accel)
+    assert control.position_m == (4.0, 5.0, 6.0) and control.yaw_rad == 0.2
+    assert control.velocity_m_s == pytest.approx((0.0, 0.1, 0.2))
+    assert control.acceleration_m_s2 == pytest.approx((0.0, -0.2, -0.4))
+    o.to(Stream.LEVEL)
+    assert o.position_setpoint(Q, q_d, rate, accel).position_m == (1.0, 2.0, 3.0)
+    o.to(Stream.OFF)
+    o.to(Stream.GROUND)
+    assert o.position_setpoint(Q, q_d, rate, accel) is None
+
+
 def status(time_boot_ms, mode):
     return VehicleStatus(time_boot_ms, True, px4_mode(mode), 4)
 

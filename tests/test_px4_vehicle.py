@@ -307,6 +307,59 @@ def test_rate_setpoints_are_counted_as_unsupported(vehicle):
     assert not vehicle.offboard_alive(0.0)
 
 
+def position_target(
+    ned=(1.0, 2.0, -3.0),
+    v=(0.0, 0.0, 0.0),
+    a=(0.0, 0.0, 0.0),
+    yaw=0.0,
+    mask=M.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE,
+    frame=M.MAV_FRAME_LOCAL_NED,
+):
+    return received(M.MAVLink_set_position_target_local_ned_message(
+        0, 1, 1, frame, mask, *ned, *v, *a, yaw, 0.0))  # fmt: skip
+
+
+def test_position_targets_fly_the_position_controller_in_offboard():
+    """In OFFBOARD a position target is flown by the position loop (as PX4's OFFBOARD
+    position control): at rest 1 m west of the target, facing east (yaw from north pi/2),
+    the setpoint pitches toward it; the acceleration feed-forward pitches it further."""
+    tilts = []
+    for accel_ned in ((0.0, 0.0, 0.0), (0.0, 2.0, 0.0)):
+        vehicle = new_vehicle("gps")
+        air = _offboard_in_air(vehicle)
+        target = position_target(ned=(0.0, 1.0, -3.0), a=accel_ned, yaw=math.pi / 2)  # east
+        vehicle.handle(target, "onboard", 0.01)
+        assert vehicle.offboard_alive(0.01)
+        sp = vehicle.control(0.02, measurement(0.02, **air))
+        phi, theta, _ = (float(x) for x in _euler(sp.quaternion_wxyz))
+        assert phi == pytest.approx(0.0, abs=1e-6) and theta > 0.0  # nose down toward east
+        tilts.append(theta)
+    assert tilts[1] > tilts[0] + math.radians(5)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "reason"),
+    [
+        (dict(frame=M.MAV_FRAME_BODY_NED), "position_setpoint_unsupported"),
+        (dict(mask=M.POSITION_TARGET_TYPEMASK_X_IGNORE), "position_setpoint_unsupported"),
+        (dict(mask=M.POSITION_TARGET_TYPEMASK_FORCE_SET), "position_setpoint_unsupported"),
+        (dict(ned=(math.nan, 0.0, -1.0)), "invalid_setpoint"),
+    ],
+)
+def test_position_targets_the_imitation_cannot_fly_are_counted_not_flown(vehicle, kwargs, reason):
+    assert vehicle.handle(position_target(**kwargs), "onboard", 0.0) == []
+    assert vehicle.counters[reason] == 1
+    assert not vehicle.offboard_alive(0.0)
+
+
+def _euler(q_wxyz):
+    w, x, y, z = q_wxyz
+    phi = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    theta = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+    psi = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return phi, theta, psi
+
+
 def _offboard_in_air(vehicle):
     vehicle.handle(attitude_target(), "onboard", 0.0)
     assert set_mode(vehicle, Px4Mode.OFFBOARD, 0.0) == M.MAV_RESULT_ACCEPTED

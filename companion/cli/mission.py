@@ -298,7 +298,12 @@ LiveOpt = Annotated[
 ]
 
 ControllerOpt = Annotated[
-    str, typer.Option(help="passivity (adaptive, the paper's) or nonadaptive (empty-arm values).")
+    str,
+    typer.Option(
+        help="passivity (adaptive, the paper's), nonadaptive (empty-arm values) or "
+        "px4_position (PX4's own position controller flies the vehicle on position "
+        "setpoints; the companion drives the arm)."
+    ),
 ]
 
 
@@ -363,8 +368,8 @@ def check_mission_options(
             check_port(live_port)
         except LiveViewError as exc:
             fail(f"--live {exc}")
-    if controller not in ("passivity", "nonadaptive"):
-        fail(f"--controller must be passivity or nonadaptive, got {controller!r}")
+    if controller not in ("passivity", "nonadaptive", "px4_position"):
+        fail(f"--controller must be passivity, nonadaptive or px4_position, got {controller!r}")
     low, high = CONTROL_RATE_RANGE_HZ
     check_range(control_rate_hz, "--control-rate", low, high, "Hz",
                 "PX4 drops OFFBOARD below 2 Hz; its ODOMETRY comes at most at 1 kHz")  # fmt: skip

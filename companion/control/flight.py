@@ -64,6 +64,7 @@ from companion.control.setpoints import (
 from companion.control.trajectory import TiltReference
 from companion.coordinates import HORIZONTAL, JOINTS, N_Q, PHI, POSITION, PSI, THETA, TILT
 from companion.estimation.estimator import (
+    JOINT_ROWS,
     TRANSLATION_AND_JOINT_ROWS,
     Estimate,
     ScaleDrift,
@@ -78,7 +79,7 @@ from companion.model import ManipulatorModel, ModelTerms
 __all__ = ["ControlOutput", "FlightControl", "FlightControllerName"]
 
 FloatArray = NDArray[np.float64]
-FlightControllerName = Literal["passivity", "nonadaptive", "asmc"]
+FlightControllerName = Literal["passivity", "nonadaptive", "asmc", "px4_position"]
 
 
 @dataclass(frozen=True)
@@ -106,7 +107,12 @@ class FlightControl:
         Gains, estimator settings, vehicle thrust model (the companion's configuration).
     controller
         ``"passivity"`` (eq. tau2 with the estimate), ``"nonadaptive"`` (eq. tau2 with the
-        empty-arm theta; the estimator still runs, for the log) or ``"asmc"`` (eq. asc1).
+        empty-arm theta; the estimator still runs, for the log), ``"asmc"`` (eq. asc1) or
+        ``"px4_position"``: PX4's own position controller flies the vehicle (the app streams
+        the desired position, velocity and acceleration, :attr:`px4_flies_position`) and
+        eq. tau2 with the estimate drives the joints only; the estimator runs on the joint
+        rows (the thrust PX4 commands is not known to the companion) and without a thrust
+        scale.
     rows
         Rows of q the estimator uses [default: the configuration's ``estimator.rows``
         whose force is known in flight: x, y, z and the joints].
@@ -132,16 +138,26 @@ class FlightControl:
         estimator_kind: str | None = None,
         compiled: bool | None = None,
     ) -> None:
-        if controller not in ("passivity", "nonadaptive", "asmc"):
+        if controller not in ("passivity", "nonadaptive", "asmc", "px4_position"):
             raise ValueError(
-                f"controller must be 'passivity', 'nonadaptive' or 'asmc', got {controller!r}"
+                "controller must be 'passivity', 'nonadaptive', 'asmc' or 'px4_position', "
+                f"got {controller!r}"
             )
+        self.px4_flies_position = controller == "px4_position"
+        """PX4's position controller flies the vehicle; the law's force and attitude setpoint
+        are not flown (``"px4_position"``)."""
         self.scenario = config
         self.model = ManipulatorModel.from_config(config)
+        known = JOINT_ROWS if self.px4_flies_position else TRANSLATION_AND_JOINT_ROWS
+        if self.px4_flies_position:
+            actuated_rows = JOINT_ROWS
         if rows is None:
-            rows = tuple(r for r in config.estimator.rows if r in TRANSLATION_AND_JOINT_ROWS)
+            rows = tuple(r for r in config.estimator.rows if r in known)
         if not rows:
-            raise ValueError("estimator.rows has no row with a force known in flight (0-2, 6-7)")
+            raise ValueError(
+                "estimator.rows has no row with a force known in flight "
+                f"({', '.join(map(str, known))})"
+            )
         self.rows = rows
         self.actuated_rows = actuated_rows
         kind = estimator_kind or config.estimator.kind

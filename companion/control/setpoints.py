@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 __all__ = [
     "AttitudeThrustSetpoint",
+    "PositionSetpoint",
     "ThrustModel",
     "attitude_thrust_setpoint",
     "fixed_setpoint",
@@ -120,6 +121,19 @@ class AttitudeThrustSetpoint:
     """PX4's relative thrust in [0, 1] (:class:`ThrustModel`)."""
     tilt_saturated: bool
     thrust_saturated: bool
+
+
+@dataclass(frozen=True)
+class PositionSetpoint:
+    """What goes to the autopilot when PX4's own position controller flies the vehicle:
+    position, velocity and acceleration feed-forward (world ENU) and yaw (ZYX, about z up
+    from east). PX4's velocity loop adds the acceleration to its own output and its hover
+    thrust estimator supplies the weight (``mc_pos_control``)."""
+
+    position_m: tuple[float, float, float]
+    velocity_m_s: tuple[float, float, float]
+    acceleration_m_s2: tuple[float, float, float]
+    yaw_rad: float
 
 
 def attitude_thrust_setpoint(

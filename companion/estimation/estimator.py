@@ -42,6 +42,7 @@ if TYPE_CHECKING:
     from companion.config import CompanionConfig
 
 __all__ = [
+    "JOINT_ROWS",
     "TRANSLATION_AND_JOINT_ROWS",
     "Estimate",
     "Estimator",
@@ -60,6 +61,9 @@ FloatArray = NDArray[np.float64]
 ALL_ROWS = (0, 1, 2, 3, 4, 5, 6, 7)
 TRANSLATION_AND_JOINT_ROWS = (0, 1, 2, 6, 7)
 """Rows of q with a known generalized force in flight (x, y, z, eta1, eta2)."""
+JOINT_ROWS = (6, 7)
+"""Rows of the joints (eta1, eta2): the known force when PX4's position controller flies
+the vehicle (its thrust is not the companion's)."""
 
 
 class Skip(StrEnum):

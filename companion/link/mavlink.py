@@ -36,7 +36,9 @@ from companion.link.messages import CommandAck, MavlinkMessage, ParamValue
 from companion.link.px4_commands import Px4Commands
 from companion.link.setpoint import (
     ATTITUDE_ONLY_TYPE_MASK,
+    POSITION_VELOCITY_ACCELERATION_YAW_TYPE_MASK,
     attitude_target_ned_frd,
+    position_target_local_ned,
     quaternion_from_euler_zyx,
 )
 from companion.link.signing import SigningConfig, advance_timestamp
@@ -45,7 +47,7 @@ from companion.link.transport import MemoryTransport, Transport, open_transport
 from companion.link.url import LinkUrl, parse_link_url
 
 if TYPE_CHECKING:
-    from companion.control.setpoints import AttitudeThrustSetpoint
+    from companion.control.setpoints import AttitudeThrustSetpoint, PositionSetpoint
 
 __all__ = ["LinkStats", "MavlinkLink"]
 
@@ -367,6 +369,30 @@ class MavlinkLink(Px4Commands):
         quaternion, and its relative thrust)."""
         q = quaternion_from_euler_zyx(setpoint.roll_rad, setpoint.pitch_rad, setpoint.yaw_rad)
         self.send_attitude_target(q, setpoint.thrust_relative, time_boot_ms)
+
+    def send_position_target(self, setpoint: PositionSetpoint, time_boot_ms: int) -> None:
+        """SET_POSITION_TARGET_LOCAL_NED to the vehicle (MAV_FRAME_LOCAL_NED): position,
+        velocity, acceleration and yaw of ``setpoint`` (ENU, sent as NED), yaw rate ignored,
+        for PX4's position controller to fly; ``time_boot_ms`` [ms] (sent modulo 2^32).
+
+        Raises ``SetpointError`` for a value that is not finite (nothing is sent), and
+        ``VehicleNotFoundError`` before the vehicle is detected.
+        """
+        vehicle = self._require_vehicle()
+        target = position_target_local_ned(setpoint)
+        msg = self.mav.set_position_target_local_ned_encode(
+            int(time_boot_ms) & 0xFFFFFFFF,
+            vehicle.system_id,
+            vehicle.component_id,
+            mavlink2.MAV_FRAME_LOCAL_NED,
+            POSITION_VELOCITY_ACCELERATION_YAW_TYPE_MASK,
+            *target.position_m,
+            *target.velocity_m_s,
+            *target.acceleration_m_s2,
+            target.yaw_rad,
+            0.0,
+        )
+        self.send_message(msg)
 
     # --- tasks -------------------------------------------------------------------------
 

@@ -1,4 +1,5 @@
-"""SET_ATTITUDE_TARGET content from our attitude setpoints (pure; the link sends it).
+"""SET_ATTITUDE_TARGET and SET_POSITION_TARGET_LOCAL_NED content from our setpoints (pure;
+the link sends it).
 
 Our setpoints are ENU/FLU (:class:`companion.control.setpoints.AttitudeThrustSetpoint`: ZYX Euler
 angles and PX4's relative thrust). PX4 wants the quaternion body FRD -> world NED, the
@@ -6,22 +7,46 @@ collective thrust relative to the maximum, in [0, 1] (a multicopter takes it as
 ``thrust_body[2] = -thrust`` and linearizes it per motor with THR_MDL_FAC), and
 ``type_mask`` bits set for what to ignore: 7 = ignore the three body rates, i.e.
 attitude + thrust only (PX4 ``mavlink_receiver.cpp``, ``handle_message_set_attitude_target``).
+
+A :class:`~companion.control.setpoints.PositionSetpoint` goes as SET_POSITION_TARGET_LOCAL_NED
+in MAV_FRAME_LOCAL_NED: position, velocity and acceleration in PX4's local NED frame (the
+frame its ODOMETRY gives the pose in), yaw from north; only the yaw rate ignored. PX4 takes
+each unignored field into its trajectory setpoint (NaN for an ignored one) and flies it with
+``mc_pos_control`` (``handle_message_set_position_target_local_ned``).
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 from numpy.typing import ArrayLike
 
-from companion.frames import quaternion_ned_frd_from_enu_flu
+from companion.frames import (
+    euler_ned_frd_from_enu_flu,
+    ned_from_enu,
+    quaternion_ned_frd_from_enu_flu,
+)
 from companion.link.errors import SetpointError
 
-__all__ = ["ATTITUDE_ONLY_TYPE_MASK", "attitude_target_ned_frd", "quaternion_from_euler_zyx"]
+if TYPE_CHECKING:
+    from companion.control.setpoints import PositionSetpoint
+
+__all__ = [
+    "ATTITUDE_ONLY_TYPE_MASK",
+    "POSITION_VELOCITY_ACCELERATION_YAW_TYPE_MASK",
+    "PositionTargetNed",
+    "attitude_target_ned_frd",
+    "position_target_local_ned",
+    "quaternion_from_euler_zyx",
+]
 
 ATTITUDE_ONLY_TYPE_MASK = 7
 """ATTITUDE_TARGET_TYPEMASK_BODY_{ROLL,PITCH,YAW}_RATE_IGNORE: attitude and thrust only."""
+
+POSITION_VELOCITY_ACCELERATION_YAW_TYPE_MASK = 2048
+"""POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE: position, velocity, acceleration and yaw."""
 
 
 def quaternion_from_euler_zyx(phi: float, theta: float, psi: float) -> tuple[float, ...]:
@@ -55,3 +80,42 @@ def attitude_target_ned_frd(
     except ValueError as exc:
         raise SetpointError(f"attitude setpoint: {exc}") from None
     return [float(c) for c in q_ned], thrust
+
+
+@dataclass(frozen=True)
+class PositionTargetNed:
+    """SET_POSITION_TARGET_LOCAL_NED's values: local NED position [m], velocity [m/s],
+    acceleration [m/s^2] and yaw from north [rad]."""
+
+    position_m: tuple[float, float, float]
+    velocity_m_s: tuple[float, float, float]
+    acceleration_m_s2: tuple[float, float, float]
+    yaw_rad: float
+
+
+def position_target_local_ned(setpoint: PositionSetpoint) -> PositionTargetNed:
+    """The NED values of a position setpoint (ENU).
+
+    Raises ``SetpointError`` for a value that is not finite (PX4 would take a NaN as
+    "ignore this field" and fly something else than asked).
+    """
+    values = (
+        *setpoint.position_m,
+        *setpoint.velocity_m_s,
+        *setpoint.acceleration_m_s2,
+        setpoint.yaw_rad,
+    )
+    if not all(math.isfinite(v) for v in values):
+        raise SetpointError(f"position setpoint {values!r} is not finite")
+
+    def ned(v: tuple[float, float, float]) -> tuple[float, float, float]:
+        x, y, z = (float(c) for c in ned_from_enu(v))
+        return x, y, z
+
+    _, _, yaw = euler_ned_frd_from_enu_flu(0.0, 0.0, setpoint.yaw_rad)
+    return PositionTargetNed(
+        ned(setpoint.position_m),
+        ned(setpoint.velocity_m_s),
+        ned(setpoint.acceleration_m_s2),
+        yaw,
+    )

@@ -30,7 +30,7 @@ from arm_driver.dynamixel.units import CURRENT_A_PER_UNIT
 from companion.config import CompanionConfig
 from companion.control.flight import ControlOutput, FlightControl
 from companion.control.laws import DesiredState
-from companion.control.setpoints import AttitudeThrustSetpoint
+from companion.control.setpoints import AttitudeThrustSetpoint, PositionSetpoint
 from companion.coordinates import HORIZONTAL, JOINTS, N_Q, PHI, PSI, THETA, TILT, Z
 from companion.estimation.estimator import Skip
 from companion.estimation.state import StateAssembler, thrust_force_world
@@ -278,9 +278,7 @@ class ControlCycle:
         self._last_output = out
         if self.offboard.flying:
             self._last_desired = out.desired
-        sp = self.offboard.setpoint(
-            out.setpoint, state.q, self.control.weight_n(), self.control.thrust
-        )
+        sp, target = self._setpoints(state.q, out, desired)
         if self.offboard.stream in (Stream.OFF, Stream.HOLD) and self._in_hold():
             q = state.q
             force = thrust_force_world(
@@ -288,8 +286,12 @@ class ControlCycle:
             )
             self.hold_bias.record(t_s, force[HORIZONTAL], state.q_dot[HORIZONTAL])
         setpoint_us = setpoint_cpu_us = None
-        if sp is not None:
-            self.link.send_setpoint(sp, pose.time_boot_ms)
+        if sp is not None or target is not None:
+            if target is not None:
+                self.link.send_position_target(target, pose.time_boot_ms)
+            else:
+                assert sp is not None
+                self.link.send_setpoint(sp, pose.time_boot_ms)
             # CPU clock read first: its interval lies inside the wall clock's (read
             # the other way round at the start), so CPU <= latency holds per cycle.
             setpoint_cpu_us = (time.thread_time() - received_cpu) * 1e6
@@ -310,6 +312,19 @@ class ControlCycle:
         phase = command.phase.value if command else self.offboard.stream.value
         timing = (dt * 1e3, setpoint_us, cycle_us, setpoint_cpu_us)
         self._log_row(t_s, state, out, sp, joints, phase, tau_cmd, timing)
+
+    def _setpoints(
+        self, q: FloatArray, out: ControlOutput, desired: DesiredState
+    ) -> tuple[AttitudeThrustSetpoint | None, PositionSetpoint | None]:
+        """This cycle's stream (:class:`~companion.mission.offboard.Offboard`): an attitude
+        setpoint, or a position setpoint where PX4's position controller flies the vehicle
+        (``px4_position``) and the stage is in the air; (None, None): nothing."""
+        if self.control.px4_flies_position:
+            target = self.offboard.position_setpoint(q, desired.q, desired.q_dot, desired.q_ddot)
+            if target is not None:
+                return None, target
+        sp = self.offboard.setpoint(out.setpoint, q, self.control.weight_n(), self.control.thrust)
+        return sp, None
 
     # ------------------------------------------------------------ servo check
 
@@ -428,10 +443,11 @@ class ControlCycle:
     ) -> FloatArray | Skip:
         """The force applied over the last cycle for the estimator, or why it is unknown:
         outside CONTROL PX4 flies its own thrust; a late cycle is not the period the
-        estimator's forward-Euler step is tuned for."""
+        estimator's forward-Euler step is tuned for. Where PX4's position controller flies
+        the vehicle only the joints' torques are known (the estimator uses only them)."""
         if period is None or period.late:
             return Skip.LATE_CYCLE
-        if not math.isfinite(self._last_thrust_n):
+        if not math.isfinite(self._last_thrust_n) and not self.control.px4_flies_position:
             return Skip.NO_FORCE
         if joints is None:
             return Skip.NO_SERVO_READ
@@ -471,11 +487,12 @@ class ControlCycle:
                 f"height {q[Z]:.2f} m below the take-off height + margin ({ground:.2f} m)",
             )
         sp = out.setpoint
+        flown = not self.control.px4_flies_position  # else PX4 flies its own attitude
         for event in self.failsafe.update(
             t_s,
             on_bound=self._on_bound(out),
-            tilt_saturated=sp.tilt_saturated,
-            thrust_saturated=sp.thrust_saturated,
+            tilt_saturated=flown and sp.tilt_saturated,
+            thrust_saturated=flown and sp.thrust_saturated,
         ):
             self._on_fault(event)
         self.figures.update(t_s, q, command)

@@ -13,6 +13,12 @@ its own (:class:`Stream`), changed only along :data:`TRANSITIONS`:
              thrust, until PX4 acknowledges the landing or hold command.
 ``GROUND``   the way out on the ground: level with the thrust floor (no tilt, no lift).
 
+When PX4's position controller flies the vehicle (the ``px4_position`` baseline), the air
+stages stream SET_POSITION_TARGET_LOCAL_NED instead (:meth:`Offboard.position_setpoint`):
+``HOLD`` and ``LEVEL`` the position the vehicle has at rest (zero velocity and
+acceleration: PX4 brakes and holds there), ``CONTROL`` the mission's desired position,
+velocity and acceleration; ``GROUND`` stays the attitude setpoint with the thrust floor.
+
 :class:`HoldBias` is what PX4's Hold needed horizontally before the handover, the force
 the controller's trim starts from. Pure: no I/O, no clock; times are vehicle time [s].
 """
@@ -26,8 +32,13 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.control.setpoints import AttitudeThrustSetpoint, ThrustModel, fixed_setpoint
-from companion.coordinates import PHI, PSI, THETA
+from companion.control.setpoints import (
+    AttitudeThrustSetpoint,
+    PositionSetpoint,
+    ThrustModel,
+    fixed_setpoint,
+)
+from companion.coordinates import PHI, POSITION, PSI, THETA
 from companion.link.telemetry import VehicleStatus
 
 __all__ = ["TRANSITIONS", "HoldBias", "Offboard", "Stream", "StreamTransitionError"]
@@ -112,12 +123,35 @@ class Offboard:
             return fixed_setpoint(0.0, 0.0, yaw, 0.0, thrust)
         return None
 
+    def position_setpoint(
+        self, q: FloatArray, q_d: FloatArray, q_d_dot: FloatArray, q_d_ddot: FloatArray
+    ) -> PositionSetpoint | None:
+        """The position setpoint of the current stage when PX4's position controller flies
+        the vehicle; None where the stage streams an attitude (``GROUND``) or nothing.
+
+        ``q`` is the measured state, ``q_d``, ``q_d_dot``, ``q_d_ddot`` the mission's desired
+        state and its rates (ENU, yaw about z up in index PSI).
+        """
+        if self.stream == Stream.CONTROL:
+            return PositionSetpoint(
+                _vec3(q_d[POSITION]), _vec3(q_d_dot[POSITION]), _vec3(q_d_ddot[POSITION]),
+                float(q_d[PSI]),
+            )  # fmt: skip
+        if self.stream in (Stream.HOLD, Stream.LEVEL):
+            zero = (0.0, 0.0, 0.0)
+            return PositionSetpoint(_vec3(q[POSITION]), zero, zero, float(q[PSI]))
+        return None
+
     def left(self, status: VehicleStatus | None) -> bool:
         """A heartbeat sent after PX4 had time to show OFFBOARD shows another mode."""
         if status is None or status.time_boot_ms is None:
             return False
         after_s = status.time_boot_ms * 1e-3 - self.accepted_s
         return after_s > _SHOW_MODE_S and status.mode.name != "OFFBOARD"
+
+
+def _vec3(v: FloatArray) -> tuple[float, float, float]:
+    return float(v[0]), float(v[1]), float(v[2])
 
 
 class HoldBias:

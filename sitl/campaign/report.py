@@ -4,10 +4,10 @@ that opens offline (its figures embedded as base64 PNGs), and the PNGs beside it
 It shows the envelope maps (the mass and centre-of-mass errors of the payload estimate
 over the payload's mass and its point on link 2), the outcome over the thrust scale and
 the battery sag, a percentile table (p50, p95, max of each figure, per controller and
-autopilot: :func:`flown_by`), the
-paired comparison of the adaptive controller against the non-adaptive one (the same
-draws, seeds and faults), and every flight that did not complete with the command that
-replays it alone; with the spec's bounds, every completed flight outside them, with its
+autopilot: :func:`flown_by`), the paired comparison of the adaptive controller against
+each baseline flown beside it (the non-adaptive law, PX4's own position control, ASMC: the
+same draws, seeds and faults), and every flight that did not complete with the command
+that replays it alone; with the spec's bounds, every completed flight outside them, with its
 replay command too.
 """
 
@@ -142,29 +142,39 @@ def _outcomes(rows: Sequence[Row], axes: Sequence[str], out_dir: Path, plt: Any)
     return uri
 
 
-def _pairs(rows: Sequence[Row]) -> list[tuple[Row, Row]]:
+BASELINES = {
+    "nonadaptive": ("non-adaptive", "paired"),
+    "px4_position": ("PX4 position control", "paired_px4_position"),
+    "asmc": ("ASMC", "paired_asmc"),
+}
+"""The baselines the adaptive controller is paired with: label, PNG name."""
+
+
+def _pairs(rows: Sequence[Row], baseline: str) -> list[tuple[Row, Row]]:
+    """(passivity, ``baseline``) flights of the same draw, seed, fault and autopilot."""
     by_pair: dict[str, dict[str, Row]] = {}
     for r in rows:
         by_pair.setdefault(r["pair_id"], {})[r["controller"]] = r
     return [
-        (p["passivity"], p["nonadaptive"])
+        (p["passivity"], p[baseline])
         for p in by_pair.values()
-        if "passivity" in p and "nonadaptive" in p
+        if "passivity" in p and baseline in p
     ]
 
 
-def _paired(pairs: list[tuple[Row, Row]], out_dir: Path, plt: Any) -> tuple[str | None, str]:
-    if not pairs:
-        return None, "<p>No paired flights (the spec flies one controller).</p>"
+def _paired(
+    pairs: list[tuple[Row, Row]], baseline: str, out_dir: Path, plt: Any
+) -> tuple[str | None, str]:
+    label, png = BASELINES[baseline]
     lines = ["<table><tr><th>figure</th><th>pairs</th><th>passivity median</th>"
-             "<th>non-adaptive median</th><th>passivity lower in</th></tr>"]  # fmt: skip
+             f"<th>{html.escape(label)} median</th><th>passivity lower in</th></tr>"]  # fmt: skip
     completed = [(int(bool(a.get("completed"))), int(bool(b.get("completed")))) for a, b in pairs]
     lines.append(
         f"<tr><td>completed</td><td>{len(pairs)}</td>"
         f"<td>{sum(a for a, _ in completed)}</td><td>{sum(b for _, b in completed)}</td>"
         "<td></td></tr>"
     )
-    for column, label, convert in METRICS[2:5]:
+    for column, metric, convert in METRICS[2:5]:
         both = [
             (convert(float(a[column])), convert(float(b[column])))
             for a, b in pairs
@@ -174,10 +184,11 @@ def _paired(pairs: list[tuple[Row, Row]], out_dir: Path, plt: Any) -> tuple[str 
             continue
         arr = np.array(both)
         lower = float(np.mean(arr[:, 0] < arr[:, 1]))
+        half = float(np.mean(arr[:, 0] <= 0.5 * arr[:, 1]))
         lines.append(
-            f"<tr><td>{html.escape(label)}</td><td>{len(both)}</td>"
+            f"<tr><td>{html.escape(metric)}</td><td>{len(both)}</td>"
             f"<td>{np.median(arr[:, 0]):.2f}</td><td>{np.median(arr[:, 1]):.2f}</td>"
-            f"<td>{100 * lower:.0f} %</td></tr>"
+            f"<td>{100 * lower:.0f} % (at most half in {100 * half:.0f} %)</td></tr>"
         )
     lines.append("</table>")
     both = [
@@ -193,12 +204,12 @@ def _paired(pairs: list[tuple[Row, Row]], out_dir: Path, plt: Any) -> tuple[str 
     top = float(arr.max()) * 1.1
     ax.plot([0, top], [0, top], "k--", lw=1, label="equal")
     ax.plot([0, top], [0, top / 2], "k:", lw=1, label="half")
-    ax.set_xlabel("non-adaptive carry RMS [cm]")
+    ax.set_xlabel(f"{label} carry RMS [cm]")
     ax.set_ylabel("passivity (adaptive) carry RMS [cm]")
     ax.set_title("paired flights: same draw, seed and fault")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    uri = _png(fig, out_dir, "paired")
+    uri = _png(fig, out_dir, png)
     plt.close(fig)
     return uri, "\n".join(lines)
 
@@ -346,11 +357,16 @@ def write_report(
             f"<td>{p50:.3g}</td><td>{p95:.3g}</td><td>{top:.3g}</td></tr>"
         )
     parts.append("</table>")
-    parts.append("<h2>Adaptive (passivity) against non-adaptive, paired</h2>")
-    paired_png, paired_table = _paired(_pairs(ok), out_dir, plt)
-    parts.append(paired_table)
-    if paired_png:
-        parts.append(f"<img src='{paired_png}'>")
+    paired = [(b, pairs) for b in BASELINES if (pairs := _pairs(ok, b))]
+    if not paired:
+        parts += ["<h2>Paired flights</h2>", "<p>No paired flights (the spec flies one "
+                  "controller).</p>"]  # fmt: skip
+    for baseline, pairs in paired:
+        parts.append(f"<h2>Adaptive (passivity) against {BASELINES[baseline][0]}, paired</h2>")
+        paired_png, paired_table = _paired(pairs, baseline, out_dir, plt)
+        parts.append(paired_table)
+        if paired_png:
+            parts.append(f"<img src='{paired_png}'>")
     parts += ["<h2>Flights that did not complete</h2>", _failed(rows, axes)]
     parts += ["<h2>Payloads refused (beyond authority)</h2>", _refused(rows, axes)]
     if spec is not None and spec.bounds:

@@ -7,6 +7,8 @@ Format (every key but ``name`` and ``scenario`` optional)::
     description = "what it asks"
     scenario = "../sitl_pickup.toml"         # the base scenario, relative to this file
     controllers = ["passivity", "nonadaptive"]  # each draw flown by each: paired flights
+                                             # (also "px4_position": PX4's own position
+                                             # control with its hover thrust estimator)
     autopilots = ["imitation"]               # and by each autopilot: imitation (simulated
                                              # time) or px4 (the real build, PX4_SITL_DIR)
     repetitions = 2                          # flights per draw and controller, each its own
@@ -176,7 +178,8 @@ class CampaignSpec(_Table):
     scenario: str
     """The base scenario file, relative to the spec's directory (or absolute)."""
     controllers: Annotated[
-        tuple[Literal["passivity", "nonadaptive", "asmc"], ...], Field(min_length=1)
+        tuple[Literal["passivity", "nonadaptive", "asmc", "px4_position"], ...],
+        Field(min_length=1),
     ] = ("passivity",)
     autopilots: Annotated[tuple[Literal["imitation", "px4"], ...], Field(min_length=1)] = (
         "imitation",
@@ -190,7 +193,7 @@ class CampaignSpec(_Table):
     axes: dict[str, Axis] = Field(default_factory=dict)
     faults: Annotated[tuple[Fault, ...], Field(min_length=1)] = (Fault(kind="none"),)
     bounds: dict[
-        Literal["passivity", "nonadaptive", "asmc"],
+        Literal["passivity", "nonadaptive", "asmc", "px4_position"],
         dict[BoundFigure, Annotated[float, Field(gt=0.0, allow_inf_nan=False)]],
     ] = Field(default_factory=dict)
     """Per controller, the largest magnitude of each figure a completed flight may have

@@ -161,6 +161,7 @@ class Commander:
         self._landed_since_s: float | None = None
         self._stall_since_s: float | None = None
         self._offboard_sp: AttitudeSetpoint | None = None
+        self._offboard_target: PositionTarget | None = None
         self._offboard_last_s = -math.inf
         self._target: PositionTarget | None = None
         self._target_mode: Px4Mode | None = None
@@ -294,6 +295,15 @@ class Commander:
     def offboard_setpoint(self, setpoint: AttitudeSetpoint, now_s: float) -> None:
         """Record a valid SET_ATTITUDE_TARGET (proof of life; flown only in OFFBOARD)."""
         self._offboard_sp = setpoint
+        self._offboard_target = None
+        self._offboard_last_s = now_s
+
+    def offboard_position(self, target: PositionTarget, now_s: float) -> None:
+        """Record a valid SET_POSITION_TARGET_LOCAL_NED (proof of life; in OFFBOARD the
+        position controller flies it, with the hover thrust estimator, as in PX4's
+        OFFBOARD position control)."""
+        self._offboard_target = target
+        self._offboard_sp = None
         self._offboard_last_s = now_s
 
     def set_global_origin(self, origin: GeoReference, now_s: float) -> bool:
@@ -425,7 +435,11 @@ class Commander:
         self.home = Home(float(pos[0]), float(pos[1]), float(pos[2]))
 
     def _current_target(self, m: VehicleMeasurement) -> PositionTarget:
-        """The mode's position target, captured from ``m`` when the mode was entered."""
+        """The mode's position target, captured from ``m`` when the mode was entered (in
+        OFFBOARD the latest position setpoint)."""
+        if self.mode == Px4Mode.OFFBOARD and self._offboard_target is not None:
+            self._target_mode = self.mode
+            return self._offboard_target
         if self._target is not None and self._target_mode == self.mode:
             return self._target
         pos = m.position_enu_m
@@ -504,7 +518,8 @@ class Commander:
             self._in_air = False
         elif float(m.position_enu_m[2]) - home_up > IN_AIR_HEIGHT_M:
             self._in_air = True
-        if not self._in_air or self.mode not in _POSITION_MODES:
+        position_offboard = self.mode == Px4Mode.OFFBOARD and self._offboard_target is not None
+        if not self._in_air or not (self.mode in _POSITION_MODES or position_offboard):
             self._hover.invalidate()
             return
         rot = rotation_from_quaternion(m.quaternion_enu_flu_wxyz)

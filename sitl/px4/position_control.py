@@ -7,8 +7,10 @@ in ENU (the cascade is frame covariant, so PX4's per-axis gains carry over):
    MPC_XY_VEL_MAX) and ``MPC_Z_P (z_sp - z) + v_ff,z`` vertically (clipped to
    [-MPC_Z_VEL_MAX_DN, MPC_Z_VEL_MAX_UP], and to a climb limit such as MPC_TKO_SPEED); a
    target without a height is velocity-only vertically (AUTO.LAND descends at v_ff,z);
-2. velocity PI: ``a_sp = K_P (v_sp - v) + K_I integral(v_sp - v) dt`` with the
-   MPC_*_VEL_P_ACC / MPC_*_VEL_I_ACC gains; the vertical integral learns the hover-thrust
+2. velocity PI: ``a_sp = a_ff + K_P (v_sp - v) + K_I integral(v_sp - v) dt`` with the
+   MPC_*_VEL_P_ACC / MPC_*_VEL_I_ACC gains and the target's acceleration feed-forward
+   ``a_ff`` (an OFFBOARD trajectory setpoint's; zero in the AUTO modes); the vertical
+   integral learns the hover-thrust
    error (e.g. a grasped payload), both integrals are clipped to +-INTEGRAL_LIMIT_M_S2;
 3. acceleration to thrust (PX4 ``_accelerationControl``): the thrust axis is
    ``normalize(a_x, a_y, g)`` (tilt limited to MPC_TILTMAX_AIR), the relative collective
@@ -18,8 +20,8 @@ in ENU (the cascade is frame covariant, so PX4's per-axis gains carry over):
    so that the thrust does not jump (PX4 ``updateHoverThrust``);
 4. attitude: the thrust axis and the held yaw give roll and pitch (ZYX Euler angles).
 
-No jerk-limited trajectory smoothing, no velocity D term and no acceleration feed-forward:
-the gains are PX4's defaults, not tuned to this vehicle.
+No jerk-limited trajectory smoothing and no velocity D term (PX4's MPC_XY_VEL_D_ACC): the
+gains are PX4's defaults, not tuned to this vehicle.
 """
 
 from __future__ import annotations
@@ -54,6 +56,10 @@ class PositionTarget:
         Vertical velocity feed-forward [m/s] (up positive).
     climb_limit_m_s : float
         Largest climb velocity setpoint [m/s] (on top of MPC_Z_VEL_MAX_UP).
+    velocity_m_s : (float, float)
+        Horizontal velocity feed-forward (east, north) [m/s].
+    acceleration_m_s2 : (float, float, float)
+        Acceleration feed-forward (east, north, up) [m/s^2].
     """
 
     east_m: float
@@ -62,6 +68,8 @@ class PositionTarget:
     yaw_rad: float
     climb_m_s: float = 0.0
     climb_limit_m_s: float = math.inf
+    velocity_m_s: tuple[float, float] = (0.0, 0.0)
+    acceleration_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 class PositionController:
@@ -131,8 +139,8 @@ class PositionController:
         p = self._params
         pos = m.position_enu_m.tolist()
         vel = m.velocity_enu_m_s.tolist()
-        vx = p["MPC_XY_P"] * (target.east_m - pos[0])
-        vy = p["MPC_XY_P"] * (target.north_m - pos[1])
+        vx = p["MPC_XY_P"] * (target.east_m - pos[0]) + target.velocity_m_s[0]
+        vy = p["MPC_XY_P"] * (target.north_m - pos[1]) + target.velocity_m_s[1]
         horizontal = math.hypot(vx, vy)
         if horizontal > p["MPC_XY_VEL_MAX"]:
             scale = p["MPC_XY_VEL_MAX"] / horizontal
@@ -152,7 +160,7 @@ class PositionController:
                 max(self._integral[i] + gains_i[i] * errors[i] * dt_s, -INTEGRAL_LIMIT_M_S2),
                 INTEGRAL_LIMIT_M_S2,
             )
-            acc.append(gains_p[i] * errors[i] + self._integral[i])
+            acc.append(target.acceleration_m_s2[i] + gains_p[i] * errors[i] + self._integral[i])
         self._acc_up_m_s2 = acc[2]
         return self._attitude(acc, target.yaw_rad, p["MPC_THR_MIN"] if flying else 0.0)
 

@@ -26,6 +26,12 @@ Message handling follows PX4's ``mavlink_receiver.cpp`` and commander as measure
   non-finite or zero quaternion or a thrust outside [0, 1] are dropped and counted. A
   setpoint that ignores thrust has thrust 0, as in PX4. Body-rate setpoints (attitude
   ignored) are not supported by the simulated attitude loop: dropped and counted.
+- SET_POSITION_TARGET_LOCAL_NED in MAV_FRAME_LOCAL_NED with position and yaw (velocity and
+  acceleration optional: feed-forward) is proof of life; in OFFBOARD the position
+  controller flies it with the hover thrust estimator (:mod:`sitl.px4.position_control`).
+  Other frames, a target without a position or a yaw, a force setpoint or a value that is
+  not finite are dropped and counted (PX4 flies velocity-only and body-frame targets too;
+  this imitation does not).
 - SET_GPS_GLOBAL_ORIGIN (motion capture): the estimator takes the origin, answers with
   GPS_GLOBAL_ORIGIN on every link, and from then on has a global position and a home.
   With GPS aiding the origin is GPS's and the message is ignored.
@@ -46,13 +52,18 @@ from typing import ClassVar
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.frames import quaternion_enu_flu_from_ned_frd
+from companion.frames import (
+    enu_from_ned,
+    euler_enu_flu_from_ned_frd,
+    quaternion_enu_flu_from_ned_frd,
+)
 from sitl.physics import AttitudeSetpoint
 from sitl.px4.commander import FORCE_MAGIC, Commander, ConsoleLine
 from sitl.px4.geo import GeoReference
 from sitl.px4.measurement import VehicleMeasurement
 from sitl.px4.modes import Px4Mode
 from sitl.px4.params import PARAMETERS, ParamError, Px4Params, UnknownParamError
+from sitl.px4.position_control import PositionTarget
 from sitl.px4.telemetry import (
     GCS_RATES_HZ,
     ONBOARD_RATES_HZ,
@@ -277,6 +288,46 @@ class Px4Vehicle:
         self._commander.offboard_setpoint(setpoint, now_s)
         return []
 
+    def _position_target(self, msg, link: str, now_s: float) -> Outgoing:
+        if not self._for_us(msg.target_system, msg.target_component, broadcast_ok=True):
+            return []
+        mask = msg.type_mask
+        needed = (
+            M.POSITION_TARGET_TYPEMASK_X_IGNORE
+            | M.POSITION_TARGET_TYPEMASK_Y_IGNORE
+            | M.POSITION_TARGET_TYPEMASK_Z_IGNORE
+            | M.POSITION_TARGET_TYPEMASK_YAW_IGNORE
+            | M.POSITION_TARGET_TYPEMASK_FORCE_SET
+        )
+        if msg.coordinate_frame != M.MAV_FRAME_LOCAL_NED or mask & needed:
+            self.counters["position_setpoint_unsupported"] += 1
+            return []
+        velocity_ignored = mask & (
+            M.POSITION_TARGET_TYPEMASK_VX_IGNORE
+            | M.POSITION_TARGET_TYPEMASK_VY_IGNORE
+            | M.POSITION_TARGET_TYPEMASK_VZ_IGNORE
+        )
+        acceleration_ignored = mask & (
+            M.POSITION_TARGET_TYPEMASK_AX_IGNORE
+            | M.POSITION_TARGET_TYPEMASK_AY_IGNORE
+            | M.POSITION_TARGET_TYPEMASK_AZ_IGNORE
+        )
+        v = (0.0, 0.0, 0.0) if velocity_ignored else (msg.vx, msg.vy, msg.vz)
+        a = (0.0, 0.0, 0.0) if acceleration_ignored else (msg.afx, msg.afy, msg.afz)
+        values = (msg.x, msg.y, msg.z, *v, *a, msg.yaw)
+        if not all(math.isfinite(x) for x in values):
+            self.counters["invalid_setpoint"] += 1
+            return []
+        _, _, yaw = euler_enu_flu_from_ned_frd(0.0, 0.0, msg.yaw)
+        east, north, up = enu_from_ned((msg.x, msg.y, msg.z)).tolist()
+        v_e, v_n, v_u = enu_from_ned(v).tolist()
+        target = PositionTarget(
+            east, north, up, yaw, climb_m_s=v_u, velocity_m_s=(v_e, v_n),
+            acceleration_m_s2=tuple(enu_from_ned(a).tolist()),
+        )  # fmt: skip
+        self._commander.offboard_position(target, now_s)
+        return []
+
     def _command(self, msg, link: str, now_s: float) -> Outgoing:
         command = msg.command
         if not self._for_us(
@@ -475,6 +526,7 @@ class Px4Vehicle:
 
     _handlers: ClassVar[dict] = {
         "SET_ATTITUDE_TARGET": _attitude_target,
+        "SET_POSITION_TARGET_LOCAL_NED": _position_target,
         "COMMAND_LONG": _command,
         "COMMAND_INT": _command,
         "SET_MODE": _set_mode_message,
