@@ -32,6 +32,12 @@ def setpoint(time_boot_ms: int) -> bytes:
     ).pack(APP)
 
 
+def position_setpoint(time_boot_ms: int) -> bytes:
+    return APP.set_position_target_local_ned_encode(
+        time_boot_ms, 1, 1, 1, 2048, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    ).pack(APP)
+
+
 def heartbeat() -> bytes:
     return APP.heartbeat_encode(18, 8, 0, 0, 0).pack(APP)
 
@@ -130,6 +136,18 @@ def test_the_clock_waits_for_the_answer_and_the_joint_read(ends):
     assert ends.relay.holds == 1 and waited >= 0.19 and ends.relay.held_s >= 0.19
     assert ends.px4.recvfrom(1024)[0] == setpoint(3000)  # forwarded while holding
     assert ends.px4.recvfrom(1024)[0] == setpoint(3004)
+
+
+def test_a_position_target_answers_a_pose_as_an_attitude_setpoint_does(ends):
+    """The ``px4_position`` baseline streams SET_POSITION_TARGET_LOCAL_NED, stamped with
+    the pose it answers: it engages the hold too (else that companion flies off the lockstep
+    and a busy machine makes its cycles late)."""
+    ends.px4_sends(odometry(5_000_000))
+    ends.relay.pump()
+    ends.app_sends(position_setpoint(5000))
+    ends.relay.pump()
+    assert ends.relay.engaged and ends.relay.answered_ms == 5000
+    assert ends.px4.recvfrom(1024)[0] == position_setpoint(5000)
 
 
 def test_a_companion_that_stops_streaming_releases_the_hold_once(ends):

@@ -560,11 +560,16 @@ class ControlCycle:
 
     def _beyond_authority(self, t_s: float) -> CarryVerdict | None:
         """A payload whose estimated weight has needed more hover thrust or servo torque
-        than ``[flight]`` allows for a while (:mod:`companion.mission.authority`)."""
+        than ``[flight]`` allows for a while (:mod:`companion.mission.authority`); the lift's
+        thrust only where it is the companion's (PX4's position controller flies its own,
+        unknown here: the law's thrust, not flown, grew with the height lost while PX4's
+        hover thrust estimator learnt the payload, and refused a 0.40 kg payload on PX4
+        that the adaptive law carried on the same draw)."""
         out = self._last_output
         if out is None:
             return None
         control = self.control
+        flown = out.setpoint.thrust_relative if not control.px4_flies_position else None
         why = payload_authority(
             control.model,
             control.thrust.max_thrust_n,
@@ -574,7 +579,7 @@ class ControlCycle:
             self.mission.grasp_point_m,
             control.estimator.compensation_scale,
             self.mission.loaded_poses(self._payload_kg(out)),
-        ) or lift_thrust_reason(out.setpoint.thrust_relative, self.authority)
+        ) or (None if flown is None else lift_thrust_reason(flown, self.authority))
         refused = self.authority_watch.update(t_s, why)
         return None if refused is None else CarryVerdict(Outcome.BEYOND_AUTHORITY, refused)
 

@@ -9,8 +9,9 @@ every datagram passes through unchanged, both ways. The relay reads two numbers 
 passes:
 
 - PX4's ODOMETRY ``time_usec`` (the pose the companion's control cycle runs on), and
-- the companion's SET_ATTITUDE_TARGET ``time_boot_ms``, which ``companion`` stamps with
-  the pose it answers (:meth:`companion.link.mavlink.MavlinkLink.send_setpoint`).
+- the companion's SET_ATTITUDE_TARGET or SET_POSITION_TARGET_LOCAL_NED ``time_boot_ms``,
+  which ``companion`` stamps with the pose it answers
+  (:meth:`companion.link.mavlink.MavlinkLink.send_setpoint`, ``send_position_target``).
 
 Once a setpoint has answered a pose (the client is such a companion, streaming), the
 simulator holds PX4's clock after every frame until the companion has answered the last
@@ -41,7 +42,11 @@ __all__ = ["CompanionRelay", "mavlink_frames"]
 
 _HOST = "127.0.0.1"
 _ODOMETRY = mavlink.MAVLINK_MSG_ID_ODOMETRY
-_SET_ATTITUDE_TARGET = mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET
+_SETPOINTS = (
+    mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET,
+    mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED,
+)
+"""The setpoints that answer a pose: both start with ``time_boot_ms`` (uint32)."""
 _MAX_DATAGRAM = 65536
 _READ_POLL_S = 5e-5
 """How often a hold looks whether the companion's Sync Read was answered [s]."""
@@ -222,7 +227,7 @@ class CompanionRelay:
             return False
         self._companion_addr = sender
         for msgid, payload in mavlink_frames(data):
-            if msgid == _SET_ATTITUDE_TARGET:
+            if msgid in _SETPOINTS:
                 answered = _leading_uint(payload, "<I")
                 if answered == self.last_pose_ms:
                     self.engaged = True

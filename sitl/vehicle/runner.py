@@ -79,12 +79,13 @@ before it goes on without it (counted; the stream counts as stopped) [s]: well i
 companion's telemetry timeout (0.5 s), so that a stream the client stops on purpose (after
 the landing) costs one short wait, not a lost link."""
 _STREAMING_S = 0.1
-"""With ``RunOptions.lockstep``: simulated time after a SET_ATTITUDE_TARGET during which the
-client counts as streaming (the vehicle waits for its setpoints) [s]."""
+"""With ``RunOptions.lockstep``: simulated time after a setpoint (:data:`_SETPOINTS`) during
+which the client counts as streaming (the vehicle waits for its setpoints) [s]."""
 _READ_POLL_S = 5e-5
 """How often a lockstep wait looks whether the client's Sync Read was answered [s]."""
 _ODOMETRY = "ODOMETRY"
-_SETPOINT = "SET_ATTITUDE_TARGET"
+_SETPOINTS = ("SET_ATTITUDE_TARGET", "SET_POSITION_TARGET_LOCAL_NED")
+"""The setpoints a lockstep client answers a pose with (stamped with its ``time_boot_ms``)."""
 
 DEFAULT_JOINTS = (
     JointConfig("eta1", 1, 1.78, 4.1, position_min_rad=-2.6, position_max_rad=0.6),
@@ -166,7 +167,8 @@ class RunOptions:
     """The Unix time the autopilot booted at [us] (its SYSTEM_TIME); ``None``: now."""
     lockstep: bool = False
     """Step in lockstep with a client in another process (``sitl run --lockstep``): while
-    it streams SET_ATTITUDE_TARGET on the onboard link, the vehicle does not step past an
+    it streams setpoints (SET_ATTITUDE_TARGET, or SET_POSITION_TARGET_LOCAL_NED) on the
+    onboard link, the vehicle does not step past an
     ODOMETRY until a setpoint stamped with that pose's time (``time_boot_ms``) is in and
     the client has read the joints since (a Sync Read on the servo bus: the joint state of
     the next cycle), and runs as fast as the two go; it waits at most
@@ -364,7 +366,7 @@ class SitlVehicle:
         self._reads_stopped_at = -1
         """The Sync Reads when a wait for one timed out: no wait for reads until the next."""
         self._setpoint_ms = -1
-        """``time_boot_ms`` of the latest SET_ATTITUDE_TARGET received."""
+        """``time_boot_ms`` of the latest setpoint received (:data:`_SETPOINTS`)."""
         self._streaming_until_s = -math.inf
         self._open = False
 
@@ -520,7 +522,7 @@ class SitlVehicle:
             for message in messages:
                 if name == silent:
                     continue
-                if lockstep and name == "onboard" and message.get_type() == _SETPOINT:
+                if lockstep and name == "onboard" and message.get_type() in _SETPOINTS:
                     self._note_setpoint(message, now_s)
                 for reply_link, reply in autopilot.handle(message, name, now_s):
                     links[reply_link].send(reply)
@@ -573,7 +575,7 @@ class SitlVehicle:
             link.wait_readable(remaining)
             for message in link.receive():
                 self._held.append(message)
-                if message.get_type() == _SETPOINT:
+                if message.get_type() in _SETPOINTS:
                     self._note_setpoint(message, self.world.time_s)
         if self.servo_bus.sync_reads == self._reads_stopped_at:
             return True  # the client stopped reading the joints (e.g. landed)
