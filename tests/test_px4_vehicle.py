@@ -15,7 +15,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as M
 
-from companion.frames import quaternion_ned_frd_from_enu_flu
+from companion.frames import euler_zyx_from_quaternion, quaternion_ned_frd_from_enu_flu
 from sitl.physics.frames import quaternion_from_euler
 from sitl.px4 import PARAMETERS, Px4Mode, Px4Params, Px4Vehicle, VehicleMeasurement
 from sitl.px4.params import attitude_loop_params
@@ -331,7 +331,7 @@ def test_position_targets_fly_the_position_controller_in_offboard():
         vehicle.handle(target, "onboard", 0.01)
         assert vehicle.offboard_alive(0.01)
         sp = vehicle.control(0.02, measurement(0.02, **air))
-        phi, theta, _ = (float(x) for x in _euler(sp.quaternion_wxyz))
+        phi, theta, _ = euler_zyx_from_quaternion(sp.quaternion_wxyz)
         assert phi == pytest.approx(0.0, abs=1e-6) and theta > 0.0  # nose down toward east
         tilts.append(theta)
     assert tilts[1] > tilts[0] + math.radians(5)
@@ -350,14 +350,6 @@ def test_position_targets_the_imitation_cannot_fly_are_counted_not_flown(vehicle
     assert vehicle.handle(position_target(**kwargs), "onboard", 0.0) == []
     assert vehicle.counters[reason] == 1
     assert not vehicle.offboard_alive(0.0)
-
-
-def _euler(q_wxyz):
-    w, x, y, z = q_wxyz
-    phi = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    theta = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
-    psi = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return phi, theta, psi
 
 
 def _offboard_in_air(vehicle):
