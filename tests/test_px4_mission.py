@@ -28,6 +28,11 @@ from flight_checks import MISSION_PHASES
 from companion.logs.flightlog import read_flight_log
 from sitl.vehicle.launch import start_sih
 
+pytestmark = pytest.mark.alone
+"""SIH flies on the wall clock (real time) and its servos answer on a pseudo-terminal: beside
+another PX4 flight in the test command's parallel phase it starved (one CI run: the estimate
+on its bound in the excitation and a saturated tilt; another: servo 1 silent for 21.6 ms
+before the mission began); run alone on an idle machine it passed four times of four."""
 ROOT = Path(__file__).parent.parent
 CONFIG = ROOT / "configs" / "px4_sih_pickup.toml"
 PAYLOAD_AT = "1.5,1.0,0.05"
