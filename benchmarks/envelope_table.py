@@ -20,11 +20,10 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from sitl.campaign.report import flown_by, percentile_rows
+from sitl.campaign.report import BASELINES, flown_by, paired_flights, percentile_rows
 from sitl.campaign.spec import load_spec
 
 ROOT = Path(__file__).resolve().parent.parent
-PX4_POSITION = "PX4's position control (hover thrust estimator)"
 
 
 def rows_of(out: Path) -> list[dict]:
@@ -90,17 +89,12 @@ def page(rows: list[dict], commit: str, machine: str, name: str) -> str:
         for c, b in spec.bounds.items()
     )
     lines += ["", f"Completed flights outside the spec's bounds ({bounds}): {len(outside)}."]
-    by_pair: dict[str, dict[str, dict]] = {}
-    for r in rows:
-        by_pair.setdefault(r["pair_id"], {})[r["controller"]] = r
-    for baseline, label in (("nonadaptive", "non-adaptive"), ("px4_position", PX4_POSITION)):
+    for baseline in ("nonadaptive", "px4_position"):
+        label = BASELINES[baseline][0]
         ratios = [
-            p["passivity"]["carry_rms_m"] / p[baseline]["carry_rms_m"]
-            for p in by_pair.values()
-            if all(
-                c in p and p[c].get("completed") and p[c].get("carry_rms_m")
-                for c in ("passivity", baseline)
-            )
+            adaptive["carry_rms_m"] / other["carry_rms_m"]
+            for adaptive, other in paired_flights(rows, baseline)
+            if all(r.get("completed") and r.get("carry_rms_m") for r in (adaptive, other))
         ]
         if ratios:
             half = sum(1 for x in ratios if x <= 0.5)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from companion.control.laws import DesiredState
 from companion.control.setpoints import AttitudeThrustSetpoint, ThrustModel
 from companion.link.px4_modes import px4_mode
 from companion.link.telemetry import VehicleStatus
@@ -76,22 +77,22 @@ def test_with_px4_flying_position_the_air_stages_stream_position_targets():
     ground stays an attitude setpoint)."""
     o = Offboard()
     q_d = np.array([4.0, 5.0, 6.0, 0.0, 0.0, 0.2, 0.0, 0.0])
-    rate, accel = np.arange(8.0) * 0.1, np.arange(8.0) * -0.2
-    assert o.position_setpoint(Q, q_d, rate, accel) is None
+    desired = DesiredState(q_d, np.arange(8.0) * 0.1, np.arange(8.0) * -0.2)
+    assert o.position_setpoint(Q, desired) is None
     o.to(Stream.HOLD)
-    hold = o.position_setpoint(Q, q_d, rate, accel)
+    hold = o.position_setpoint(Q, desired)
     assert (hold.position_m, hold.velocity_m_s, hold.yaw_rad) == ((1.0, 2.0, 3.0), (0, 0, 0), 0.7)
     assert hold.acceleration_m_s2 == (0.0, 0.0, 0.0)
     o.accept(0.0)
-    control = o.position_setpoint(Q, q_d, rate, accel)
+    control = o.position_setpoint(Q, desired)
     assert control.position_m == (4.0, 5.0, 6.0) and control.yaw_rad == 0.2
     assert control.velocity_m_s == pytest.approx((0.0, 0.1, 0.2))
     assert control.acceleration_m_s2 == pytest.approx((0.0, -0.2, -0.4))
     o.to(Stream.LEVEL)
-    assert o.position_setpoint(Q, q_d, rate, accel).position_m == (1.0, 2.0, 3.0)
+    assert o.position_setpoint(Q, desired).position_m == (1.0, 2.0, 3.0)
     o.to(Stream.OFF)
     o.to(Stream.GROUND)
-    assert o.position_setpoint(Q, q_d, rate, accel) is None
+    assert o.position_setpoint(Q, desired) is None
 
 
 def status(time_boot_ms, mode):

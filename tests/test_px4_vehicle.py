@@ -337,6 +337,23 @@ def test_position_targets_fly_the_position_controller_in_offboard():
     assert tilts[1] > tilts[0] + math.radians(5)
 
 
+def test_an_ignored_feed_forward_component_is_zero_and_the_others_are_flown():
+    """PX4 sets each ignored field NaN and adds no feed-forward for it: with the north
+    acceleration ignored (a garbage value in its field), the east one still pitches the
+    setpoint toward east as much as when north is zero."""
+    pitch = []
+    for mask, a_north in ((0, 0.0), (M.POSITION_TARGET_TYPEMASK_AX_IGNORE, 50.0)):
+        vehicle = new_vehicle("gps")
+        air = _offboard_in_air(vehicle)
+        ignore = M.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE | mask
+        target = position_target(ned=(0.0, 1.0, -3.0), a=(a_north, 2.0, 0.0), yaw=math.pi / 2,
+                                 mask=ignore)  # fmt: skip
+        vehicle.handle(target, "onboard", 0.01)
+        sp = vehicle.control(0.02, measurement(0.02, **air))
+        pitch.append(euler_zyx_from_quaternion(sp.quaternion_wxyz))
+    np.testing.assert_allclose(pitch[1], pitch[0], atol=1e-9)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "reason"),
     [

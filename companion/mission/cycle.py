@@ -286,12 +286,11 @@ class ControlCycle:
             )
             self.hold_bias.record(t_s, force[HORIZONTAL], state.q_dot[HORIZONTAL])
         setpoint_us = setpoint_cpu_us = None
+        if target is not None:
+            self.link.send_position_target(target, pose.time_boot_ms)
+        elif sp is not None:
+            self.link.send_setpoint(sp, pose.time_boot_ms)
         if sp is not None or target is not None:
-            if target is not None:
-                self.link.send_position_target(target, pose.time_boot_ms)
-            else:
-                assert sp is not None
-                self.link.send_setpoint(sp, pose.time_boot_ms)
             # CPU clock read first: its interval lies inside the wall clock's (read
             # the other way round at the start), so CPU <= latency holds per cycle.
             setpoint_cpu_us = (time.thread_time() - received_cpu) * 1e6
@@ -320,7 +319,7 @@ class ControlCycle:
         setpoint, or a position setpoint where PX4's position controller flies the vehicle
         (``px4_position``) and the stage is in the air; (None, None): nothing."""
         if self.control.px4_flies_position:
-            target = self.offboard.position_setpoint(q, desired.q, desired.q_dot, desired.q_ddot)
+            target = self.offboard.position_setpoint(q, desired)
             if target is not None:
                 return None, target
         sp = self.offboard.setpoint(out.setpoint, q, self.control.weight_n(), self.control.thrust)

@@ -32,6 +32,7 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
+from companion.control.laws import DesiredState
 from companion.control.setpoints import (
     AttitudeThrustSetpoint,
     PositionSetpoint,
@@ -123,19 +124,17 @@ class Offboard:
             return fixed_setpoint(0.0, 0.0, yaw, 0.0, thrust)
         return None
 
-    def position_setpoint(
-        self, q: FloatArray, q_d: FloatArray, q_d_dot: FloatArray, q_d_ddot: FloatArray
-    ) -> PositionSetpoint | None:
+    def position_setpoint(self, q: FloatArray, desired: DesiredState) -> PositionSetpoint | None:
         """The position setpoint of the current stage when PX4's position controller flies
         the vehicle; None where the stage streams an attitude (``GROUND``) or nothing.
 
-        ``q`` is the measured state, ``q_d``, ``q_d_dot``, ``q_d_ddot`` the mission's desired
-        state and its rates (ENU, yaw about z up in index PSI).
+        ``q`` is the measured state, ``desired`` the mission's desired state and its rates
+        (ENU, yaw about z up in index PSI).
         """
         if self.stream == Stream.CONTROL:
             return PositionSetpoint(
-                _vec3(q_d[POSITION]), _vec3(q_d_dot[POSITION]), _vec3(q_d_ddot[POSITION]),
-                float(q_d[PSI]),
+                _vec3(desired.q[POSITION]), _vec3(desired.q_dot[POSITION]),
+                _vec3(desired.q_ddot[POSITION]), float(desired.q[PSI]),
             )  # fmt: skip
         if self.stream in (Stream.HOLD, Stream.LEVEL):
             zero = (0.0, 0.0, 0.0)

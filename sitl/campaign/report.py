@@ -26,7 +26,15 @@ import numpy as np
 from sitl.campaign.spec import CampaignSpec
 from sitl.campaign.store import failed, refused
 
-__all__ = ["METRICS", "REPORT_FILES", "flown_by", "percentile_rows", "write_report"]
+__all__ = [
+    "BASELINES",
+    "METRICS",
+    "REPORT_FILES",
+    "flown_by",
+    "paired_flights",
+    "percentile_rows",
+    "write_report",
+]
 
 Row = dict[str, Any]
 
@@ -150,7 +158,7 @@ BASELINES = {
 """The baselines the adaptive controller is paired with: label, PNG name."""
 
 
-def _pairs(rows: Sequence[Row], baseline: str) -> list[tuple[Row, Row]]:
+def paired_flights(rows: Sequence[Row], baseline: str) -> list[tuple[Row, Row]]:
     """(passivity, ``baseline``) flights of the same draw, seed, fault and autopilot."""
     by_pair: dict[str, dict[str, Row]] = {}
     for r in rows:
@@ -357,7 +365,7 @@ def write_report(
             f"<td>{p50:.3g}</td><td>{p95:.3g}</td><td>{top:.3g}</td></tr>"
         )
     parts.append("</table>")
-    paired = [(b, pairs) for b in BASELINES if (pairs := _pairs(ok, b))]
+    paired = [(b, pairs) for b in BASELINES if (pairs := paired_flights(ok, b))]
     if not paired:
         parts += ["<h2>Paired flights</h2>", "<p>No paired flights (the spec flies one "
                   "controller).</p>"]  # fmt: skip

@@ -302,18 +302,20 @@ class Px4Vehicle:
         if msg.coordinate_frame != M.MAV_FRAME_LOCAL_NED or mask & needed:
             self.counters["position_setpoint_unsupported"] += 1
             return []
-        velocity_ignored = mask & (
-            M.POSITION_TARGET_TYPEMASK_VX_IGNORE
-            | M.POSITION_TARGET_TYPEMASK_VY_IGNORE
-            | M.POSITION_TARGET_TYPEMASK_VZ_IGNORE
+
+        def field(ignore_bit: int, value: float) -> float:
+            return 0.0 if mask & ignore_bit else value  # PX4: NaN, a feed-forward of nothing
+
+        v = (
+            field(M.POSITION_TARGET_TYPEMASK_VX_IGNORE, msg.vx),
+            field(M.POSITION_TARGET_TYPEMASK_VY_IGNORE, msg.vy),
+            field(M.POSITION_TARGET_TYPEMASK_VZ_IGNORE, msg.vz),
         )
-        acceleration_ignored = mask & (
-            M.POSITION_TARGET_TYPEMASK_AX_IGNORE
-            | M.POSITION_TARGET_TYPEMASK_AY_IGNORE
-            | M.POSITION_TARGET_TYPEMASK_AZ_IGNORE
+        a = (
+            field(M.POSITION_TARGET_TYPEMASK_AX_IGNORE, msg.afx),
+            field(M.POSITION_TARGET_TYPEMASK_AY_IGNORE, msg.afy),
+            field(M.POSITION_TARGET_TYPEMASK_AZ_IGNORE, msg.afz),
         )
-        v = (0.0, 0.0, 0.0) if velocity_ignored else (msg.vx, msg.vy, msg.vz)
-        a = (0.0, 0.0, 0.0) if acceleration_ignored else (msg.afx, msg.afy, msg.afz)
         values = (msg.x, msg.y, msg.z, *v, *a, msg.yaw)
         if not all(math.isfinite(x) for x in values):
             self.counters["invalid_setpoint"] += 1
