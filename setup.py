@@ -1,7 +1,46 @@
 """Build the C extensions (the model's generated dynamics, the compiled control step, the
-truth plant's step kernel); all other metadata lives in pyproject.toml."""
+truth plant's step kernel) and the compiled twins of pure-Python modules; all other
+metadata lives in pyproject.toml.
 
+A compiled twin is a module's own Python source compiled by Cython (pure-Python mode) into
+``_<name>`` beside it: the source is copied to ``build/cython/_<name>.py`` with its SHA-256
+appended as ``SOURCE_SHA256``, so that :mod:`companion.compiled` loads the twin only while
+the source is the one it was built from.
+"""
+
+import hashlib
+from pathlib import Path
+
+from Cython.Build import cythonize
 from setuptools import Extension, setup
+
+ROOT = Path(__file__).resolve().parent
+TWINS = ("sitl.servo.xm430_loop",)
+"""Modules written once in Python and also built compiled."""
+
+
+def twin_source(module: str) -> str:
+    """``build/cython/_<name>.py``: the module's source and its SHA-256 (relative path)."""
+    source = ROOT.joinpath(*module.split(".")).with_suffix(".py")
+    text = source.read_bytes()
+    digest = hashlib.sha256(text).hexdigest()
+    copy = ROOT / "build" / "cython" / f"_{source.stem}.py"
+    copy.parent.mkdir(parents=True, exist_ok=True)
+    body = text + f'\nSOURCE_SHA256 = "{digest}"\n'.encode()
+    if not copy.exists() or copy.read_bytes() != body:
+        copy.write_bytes(body)
+    return str(copy.relative_to(ROOT))
+
+
+def twin(module: str) -> Extension:
+    package, _, name = module.rpartition(".")
+    # No contraction into fused multiply-adds: the twin computes what the Python computes.
+    return Extension(
+        f"{package}._{name}",
+        sources=[twin_source(module)],
+        extra_compile_args=["-O2", "-ffp-contract=off"],
+    )
+
 
 setup(
     ext_modules=[
@@ -25,11 +64,10 @@ setup(
             sources=["sitl/physics/_kernel.c"],
             extra_compile_args=["-O2", "-ffp-contract=off"],
         ),
-        # The XM430 servo model's per-step physics, operation for operation as its Python.
-        Extension(
-            "sitl.servo._xm430",
-            sources=["sitl/servo/_xm430.c"],
-            extra_compile_args=["-O2", "-ffp-contract=off"],
+        *cythonize(
+            [twin(module) for module in TWINS],
+            compiler_directives={"language_level": 3},
+            quiet=True,
         ),
     ]
 )

@@ -64,21 +64,16 @@ the viscous friction (0.02 N m s/rad at the output) is an example value.
 from __future__ import annotations
 
 import math
-import struct
 from array import array
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 from arm_driver.dynamixel import control_table as ct
-from arm_driver.dynamixel import units
 from arm_driver.dynamixel.instructions import encode_int
 from arm_driver.dynamixel.protocol import InstructionPacket
 from arm_driver.errors import HardwareErrorStatus, StatusError
-
-try:
-    from sitl.servo import _xm430
-except ImportError:  # a source checkout without ``python setup.py build_ext --inplace``
-    _xm430 = None  # type: ignore[assignment]
+from companion.compiled import twin
+from sitl.servo import xm430_loop
 
 __all__ = [
     "EXAMPLE_TORQUE_CONSTANT_N_M_PER_A",
@@ -213,47 +208,23 @@ class ServoReply:
     alert: bool = False
 
 
-def _compiled_constants(p: XM430Parameters) -> array:
-    """The compiled step's constants (``sitl/servo/_xm430.c``'s C_*) for parameters ``p``."""
-    return array(
-        "d",
-        (
-            p.torque_constant_n_m_per_a,
-            p.current_time_constant_s,
-            p.position_kp_a_per_rad,
-            p.position_kd_a_s_per_rad,
-            p.overload_current_fraction,
-            p.overload_time_s,
-            p.winding_resistance_ohm,
-            p.back_emf_v_s_per_rad,
-            p.viscous_friction_n_m_s_per_rad,
-            units.RAD_PER_TICK,
-            units.POSITION_CENTER_TICKS,
-            units.VELOCITY_RAD_S_PER_UNIT,
-            units.CURRENT_A_PER_UNIT,
-            units.VOLTAGE_V_PER_UNIT,
-            _TORQUE_ENABLE,
-            _OPERATING_MODE,
-            _CURRENT_LIMIT,
-            _GOAL_CURRENT,
-            _GOAL_POSITION,
-            _PRESENT_CURRENT,
-            _PRESENT_VELOCITY,
-            _PRESENT_INPUT_VOLTAGE,
-            _PROFILE_VELOCITY,
-            _BUS_WATCHDOG,
-            _TRIPPED,
-            ct.BUS_WATCHDOG_MAX,
-            ct.BUS_WATCHDOG_UNIT_S,
-            _CURRENT_MODE,
-            _CURRENT_BASED_POSITION_MODE,
-            TABLE_SIZE,
-        ),
-    )
+def _loop_parameters(p: XM430Parameters) -> array:
+    """The parameters as :mod:`sitl.servo.xm430_loop` takes them (its ``P_*`` indices)."""
+    values = [0.0] * xm430_loop.PARAMS_SIZE
+    values[xm430_loop.P_TORQUE_CONSTANT] = p.torque_constant_n_m_per_a
+    values[xm430_loop.P_CURRENT_TIME_CONSTANT] = p.current_time_constant_s
+    values[xm430_loop.P_KP] = p.position_kp_a_per_rad
+    values[xm430_loop.P_KD] = p.position_kd_a_s_per_rad
+    values[xm430_loop.P_OVERLOAD_FRACTION] = p.overload_current_fraction
+    values[xm430_loop.P_OVERLOAD_TIME] = p.overload_time_s
+    values[xm430_loop.P_RESISTANCE] = p.winding_resistance_ohm
+    values[xm430_loop.P_BACK_EMF] = p.back_emf_v_s_per_rad
+    values[xm430_loop.P_FRICTION] = p.viscous_friction_n_m_s_per_rad
+    return array("d", values)
 
 
 class _LoopValue:
-    """One float of :attr:`XM430Servo._loop`, the loops' state the compiled step shares."""
+    """One float of :attr:`XM430Servo._loop`, the loops' state (:mod:`sitl.servo.xm430_loop`)."""
 
     def __init__(self, index: int) -> None:
         self.index = index
@@ -265,19 +236,12 @@ class _LoopValue:
         obj._loop[self.index] = value
 
 
-_LOOP_SIZE = 9
-"""Floats in :attr:`XM430Servo._loop`, in the order of its :class:`_LoopValue` indices
-(``sitl/servo/_xm430.c``'s L_*)."""
-
-
 class XM430Servo:
     """One simulated XM430-W350; implements :class:`ServoJoint`.
 
-    :meth:`set_state` and :meth:`step` run in the compiled ``sitl.servo._xm430`` where it is
-    built (``compiled``), on the control table and :attr:`_loop`; their Python versions
-    (``_set_state_reference``, ``_step_reference``) are the reference it is tested against
-    bit for bit (tests/test_xm430_model.py) and run any step the compiled one declines (a
-    value out of range, the Overload bit).
+    The per-step physics (:meth:`set_state`, :meth:`step`, :meth:`torque_n_m`,
+    :meth:`commanded_current_a`) is :mod:`sitl.servo.xm430_loop` on the control table and
+    :attr:`_loop`, compiled where its twin is built from it (``compiled``).
 
     Parameters
     ----------
@@ -288,18 +252,19 @@ class XM430Servo:
     angle_rad
         Initial shaft angle [rad] (0 at tick 2048); Goal Position starts there.
     compiled
-        Use the compiled step where it is built (False: the Python reference).
+        Use the compiled twin of :mod:`sitl.servo.xm430_loop` where it is built (False:
+        its Python source).
     """
 
-    _angle_rad = _LoopValue(0)
-    _rate_rad_s = _LoopValue(1)
-    _current_a = _LoopValue(2)
-    _lag_dt_s = _LoopValue(3)
-    _lag = _LoopValue(4)
-    _overload_s = _LoopValue(5)
-    _silent_s = _LoopValue(6)
-    _hold_rad = _LoopValue(7)
-    _profile_rad = _LoopValue(8)
+    _angle_rad = _LoopValue(xm430_loop.L_ANGLE)
+    _rate_rad_s = _LoopValue(xm430_loop.L_RATE)
+    _current_a = _LoopValue(xm430_loop.L_CURRENT)
+    _lag_dt_s = _LoopValue(xm430_loop.L_LAG_DT)
+    _lag = _LoopValue(xm430_loop.L_LAG)
+    _overload_s = _LoopValue(xm430_loop.L_OVERLOAD)
+    _silent_s = _LoopValue(xm430_loop.L_SILENT)
+    _hold_rad = _LoopValue(xm430_loop.L_HOLD)
+    _profile_rad = _LoopValue(xm430_loop.L_PROFILE)
 
     def __init__(
         self,
@@ -312,9 +277,9 @@ class XM430Servo:
         if not 0 <= servo_id <= 252:
             raise ValueError(f"servo id {servo_id} out of range (0-252)")
         self._parameters = parameters if parameters is not None else XM430Parameters()
-        self._loop = array("d", [0.0] * _LOOP_SIZE)
-        self._compiled = _xm430 if compiled else None
-        self._constants = _compiled_constants(self._parameters)
+        self._loop = array("d", [0.0] * xm430_loop.LOOP_SIZE)
+        self._physics = twin(xm430_loop, compiled)
+        self._params = _loop_parameters(self._parameters)
         self.table = bytearray(TABLE_SIZE)
         for entry, value in _FACTORY:
             self._put(entry, int(value))
@@ -480,168 +445,30 @@ class XM430Servo:
     # -- physics (ServoJoint) -----------------------------------------------------------
 
     def set_state(self, angle_rad: float, rate_rad_s: float) -> None:
-        """Present Position(132) and Present Velocity(128) from the shaft's angle and rate."""
-        compiled = self._compiled
-        if compiled is None or not compiled.set_state(
-            self.table, self._loop, self._constants, angle_rad, rate_rad_s
-        ):
-            self._set_state_reference(angle_rad, rate_rad_s)
-
-    def _set_state_reference(self, angle_rad: float, rate_rad_s: float) -> None:
-        self._angle_rad = float(angle_rad)
-        self._rate_rad_s = float(rate_rad_s)
-        ticks = units.rad_to_ticks(self._angle_rad)
-        velocity = units.rad_s_to_velocity_units(self._rate_rad_s)
-        try:  # the two adjacent entries in one pack (every servo, every plant step)
-            _VELOCITY_POSITION.pack_into(self.table, _PRESENT_VELOCITY, velocity, ticks)
-        except struct.error:  # out of range: _put raises as the encoders do
-            self._put(ct.PRESENT_POSITION, ticks)
-            self._put(ct.PRESENT_VELOCITY, velocity)
-
-    # The loops below run for every servo at every plant step: they read the few entries
-    # they need straight from the table (as get() does, without its per-call lookups).
+        """Present Position(132) and Present Velocity(128) from the shaft's angle [rad] and
+        rate [rad/s]."""
+        self._physics.set_state(self.table, self._loop, angle_rad, rate_rad_s)
 
     def torque_n_m(self) -> float:
         """Output torque [N m]: torque constant x present current (0 with torque off)
         minus the gearbox's viscous friction."""
-        p = self.parameters
-        friction = p.viscous_friction_n_m_s_per_rad * self._rate_rad_s
-        if self.table[_TORQUE_ENABLE] != 1:
-            return -friction
-        return p.torque_constant_n_m_per_a * self._current_a - friction
+        return self._physics.torque_n_m(self.table, self._loop, self._params)
 
     def commanded_current_a(self) -> float:
         """Current the active control mode asks for now [A], clamped to the limits."""
-        if self.table[_TORQUE_ENABLE] != 1:
-            return 0.0
-        return self._command_a(self._limit_a())
-
-    def _limit_a(self) -> float:
-        """Current Limit(38) [A]."""
-        return units.current_units_to_a(_UINT16.unpack_from(self.table, _CURRENT_LIMIT)[0])
-
-    def _command_a(self, limit_a: float) -> float:
-        """:meth:`commanded_current_a` with torque on and Current Limit ``limit_a`` [A]."""
-        table = self.table
-        goal_a = units.current_units_to_a(_INT16.unpack_from(table, _GOAL_CURRENT)[0])
-        mode = table[_OPERATING_MODE]
-        tripped = table[_BUS_WATCHDOG] == _TRIPPED
-        if mode == _CURRENT_MODE:
-            command = 0.0 if tripped else goal_a
-        else:
-            if tripped:
-                goal_rad = self._hold_rad
-            elif _UINT32.unpack_from(table, _PROFILE_VELOCITY)[0] == 0:
-                goal_rad = units.ticks_to_rad(_INT32.unpack_from(table, _GOAL_POSITION)[0])
-            else:
-                goal_rad = self._profile_rad
-            p = self.parameters
-            command = p.position_kp_a_per_rad * (goal_rad - self._angle_rad)
-            command -= p.position_kd_a_s_per_rad * self._rate_rad_s
-            if mode == _CURRENT_BASED_POSITION_MODE:
-                limit_a = min(limit_a, abs(goal_a))
-        return max(-limit_a, min(limit_a, command))
+        return self._physics.command_a(self.table, self._loop, self._params)
 
     def step(self, dt_s: float) -> None:
         """Advance the bus watchdog, the current loop and the overload detector by ``dt_s`` [s]."""
-        compiled = self._compiled
-        if compiled is None or not compiled.step(self.table, self._loop, self._constants, dt_s):
-            self._step_reference(dt_s)
-
-    def _step_reference(self, dt_s: float) -> None:
-        if not dt_s >= 0.0:
-            raise ValueError(f"time step {dt_s} s must be >= 0")
-        self._watch(dt_s)
-        self._advance_profile(dt_s)
-        p = self.parameters
-        table = self.table
-        limit_a = self._limit_a()
-        command = self._command_a(limit_a) if table[_TORQUE_ENABLE] == 1 else 0.0
-        driven = self._drivable_a(command)
-        if dt_s != self._lag_dt_s:  # the current loop's factor, once per step size
-            self._lag_dt_s = dt_s
-            self._lag = -math.expm1(-dt_s / p.current_time_constant_s)
-        self._current_a += (driven - self._current_a) * self._lag
-        overloaded = abs(command) >= p.overload_current_fraction * limit_a > 0.0
-        self._overload_s = self._overload_s + dt_s if overloaded else 0.0
-        if self._overload_s >= p.overload_time_s:
+        if self._physics.step(self.table, self._loop, self._params, dt_s):
             self.inject_hardware_error(HardwareErrorStatus.OVERLOAD)
-        if table[_TORQUE_ENABLE] != 1:
-            self._current_a = 0.0
-        current = units.a_to_current_units(self._current_a)
-        try:
-            _INT16.pack_into(table, _PRESENT_CURRENT, current)
-        except struct.error:  # out of range: _put raises as the encoders do
-            self._put(ct.PRESENT_CURRENT, current)
-
-    def _advance_profile(self, dt_s: float) -> None:
-        """Move the profile's position toward Goal Position at Profile Velocity (at once
-        when it is 0); with torque off it follows the shaft. Not kept in Current Control
-        Mode, which has no position goal (leaving it needs torque off, which resets it)."""
-        table = self.table
-        if table[_TORQUE_ENABLE] != 1:
-            self._profile_rad = self._angle_rad
-            return
-        if table[_OPERATING_MODE] == _CURRENT_MODE:
-            return
-        goal_rad = units.ticks_to_rad(_INT32.unpack_from(table, _GOAL_POSITION)[0])
-        rate = units.velocity_units_to_rad_s(_UINT32.unpack_from(table, _PROFILE_VELOCITY)[0])
-        if rate == 0.0:
-            self._profile_rad = goal_rad
-            return
-        step = rate * dt_s
-        self._profile_rad += max(-step, min(step, goal_rad - self._profile_rad))
-
-    def _drivable_a(self, command_a: float) -> float:
-        """``command_a`` [A] within what the supply voltage drives against the back-EMF."""
-        p = self.parameters
-        volts = units.voltage_units_to_v(_UINT16.unpack_from(self.table, _PRESENT_INPUT_VOLTAGE)[0])
-        emf = p.back_emf_v_s_per_rad * self._rate_rad_s
-        low = (-volts - emf) / p.winding_resistance_ohm
-        high = (volts - emf) / p.winding_resistance_ohm
-        return max(low, min(high, command_a))
-
-    def _watch(self, dt_s: float) -> None:
-        """Count the silence while the watchdog is armed; trip when it exceeds the timeout."""
-        timeout = self.table[_BUS_WATCHDOG]
-        if self.table[_TORQUE_ENABLE] != 1 or not 0 < timeout <= ct.BUS_WATCHDOG_MAX:
-            self._silent_s = 0.0
-            return
-        self._silent_s += dt_s
-        if self._silent_s > timeout * ct.BUS_WATCHDOG_UNIT_S:
-            self.table[_BUS_WATCHDOG] = _TRIPPED
-            self._hold_rad = self._angle_rad
+            self._physics.write_current(self.table, self._loop)
 
 
-assert ct.TORQUE_ENABLE.size == ct.OPERATING_MODE.size == 1
-assert not ct.CURRENT_LIMIT.signed and ct.GOAL_CURRENT.signed and ct.GOAL_POSITION.signed
-assert (ct.CURRENT_LIMIT.size, ct.GOAL_CURRENT.size, ct.PRESENT_CURRENT.size) == (2, 2, 2)
-assert ct.PRESENT_CURRENT.signed and ct.GOAL_POSITION.size == 4
-assert not ct.PRESENT_INPUT_VOLTAGE.signed and ct.PRESENT_INPUT_VOLTAGE.size == 2
-assert ct.PRESENT_VELOCITY.end == ct.PRESENT_POSITION.address
-assert ct.PRESENT_VELOCITY.size == ct.PRESENT_POSITION.size == 4
-assert ct.PROFILE_VELOCITY.size == 4 and not ct.PROFILE_VELOCITY.signed
-_TORQUE_ENABLE = ct.TORQUE_ENABLE.address
-_OPERATING_MODE = ct.OPERATING_MODE.address
-_CURRENT_LIMIT = ct.CURRENT_LIMIT.address
-_GOAL_CURRENT = ct.GOAL_CURRENT.address
-_GOAL_POSITION = ct.GOAL_POSITION.address
-_PRESENT_CURRENT = ct.PRESENT_CURRENT.address
-_PRESENT_VELOCITY = ct.PRESENT_VELOCITY.address
-_PRESENT_INPUT_VOLTAGE = ct.PRESENT_INPUT_VOLTAGE.address
-_PROFILE_VELOCITY = ct.PROFILE_VELOCITY.address
-_UINT16 = struct.Struct("<H")
-_UINT32 = struct.Struct("<I")
-_INT16 = struct.Struct("<h")
-_INT32 = struct.Struct("<i")
-_VELOCITY_POSITION = struct.Struct("<ii")
-"""Little-endian control-table fields (Protocol 2.0), read and written in place."""
 _BUS_WATCHDOG = ct.BUS_WATCHDOG.address
 _TRIPPED = ct.BUS_WATCHDOG_TRIPPED & 0xFF
 _GOAL_VALUES = range(100, ct.GOAL_POSITION.end)
 """Goal PWM(100) .. Goal Position(116): read-only while the bus watchdog is tripped."""
-_CURRENT_MODE = int(ct.OperatingMode.CURRENT)
-_CURRENT_BASED_POSITION_MODE = int(ct.OperatingMode.CURRENT_BASED_POSITION)
 
 
 def _encode_uint(value: int, size: int) -> bytes:

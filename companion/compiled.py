@@ -1,0 +1,60 @@
+"""Compiled twins: a module written once in Python, and the same file compiled.
+
+``setup.py`` compiles each module it lists in ``TWINS`` (say ``sitl.servo.xm430_loop``)
+with Cython into ``_<name>`` beside it (``sitl.servo._xm430_loop``), which carries the
+SHA-256 of the source it was built from. :func:`twin` gives the compiled module while it
+was built from the source as it is now, and otherwise the Python module itself: a twin
+that is not built (a checkout without ``pip install .``) or stale (the source edited
+since the build) is never used, and says so once per process in a one-line warning.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import logging
+from pathlib import Path
+from types import ModuleType
+
+__all__ = ["twin", "twin_reason"]
+
+_log = logging.getLogger(__name__)
+_warned: set[str] = set()
+
+
+def _compiled_name(module: str) -> str:
+    package, _, name = module.rpartition(".")
+    return f"{package}._{name}"
+
+
+def twin_reason(module: ModuleType) -> str | None:
+    """Why ``module``'s compiled twin cannot run (not built, or built from another
+    source), or None when it can."""
+    name = _compiled_name(module.__name__)
+    try:
+        compiled = importlib.import_module(name)
+    except ImportError as error:
+        return f"{name} is not built ({error}; `pip install .` builds it)"
+    assert module.__file__ is not None
+    digest = hashlib.sha256(Path(module.__file__).read_bytes()).hexdigest()
+    if getattr(compiled, "SOURCE_SHA256", None) != digest:
+        return (
+            f"{name} was built from another {Path(module.__file__).name} "
+            "(rebuild: `python setup.py build_ext --inplace`)"
+        )
+    return None
+
+
+def twin(module: ModuleType, compiled: bool = True) -> ModuleType:
+    """``module``'s compiled twin if ``compiled`` and it is built from ``module``'s
+    source as it is now; else ``module`` (with a one-line warning, once per process, when
+    the twin was wanted)."""
+    if not compiled:
+        return module
+    reason = twin_reason(module)
+    if reason is None:
+        return importlib.import_module(_compiled_name(module.__name__))
+    if module.__name__ not in _warned:
+        _warned.add(module.__name__)
+        _log.warning("%s: running its Python source", reason)
+    return module
