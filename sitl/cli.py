@@ -180,8 +180,9 @@ def run(
         bool,
         typer.Option(
             "--lockstep",
-            help="While the client streams SET_ATTITUDE_TARGET, step past a pose only once "
-            "its setpoint is in, as fast as the two go (the imitation; PX4 keeps its own).",
+            help="While the client streams setpoints (SET_ATTITUDE_TARGET or "
+            "SET_POSITION_TARGET_LOCAL_NED), step past a pose only once its setpoint is in, as "
+            "fast as the two go (the imitation; PX4 keeps its own).",
         ),
     ] = False,
     companion_lockstep: Annotated[
@@ -189,9 +190,9 @@ def run(
         typer.Option(
             "--companion-lockstep/--no-companion-lockstep",
             help="--autopilot px4: relay the onboard link and hold PX4's clock after each "
-            "frame until the companion has answered the last pose (a SET_ATTITUDE_TARGET "
-            "stamped with its time) and read the joints: its computing takes no vehicle "
-            "time, on an idle or a busy machine.",
+            "frame until the companion has answered the last pose (a SET_ATTITUDE_TARGET or "
+            "SET_POSITION_TARGET_LOCAL_NED stamped with its time) and read the joints: its "
+            "computing takes no vehicle time, on an idle or a busy machine.",
         ),
     ] = True,
     nice: Annotated[
