@@ -1,25 +1,30 @@
-"""sitl.physics._kernel: the compiled step against the Python it mirrors.
+"""sitl.physics._kernel: the compiled step against the Python it mirrors; the attitude
+loop's compiled twin against its Python source.
 
 The kernel computes the same floating-point operations in the same order as the Python
-reference (``ArticulatedIntegrator.step``, the frames functions, the attitude loop's parts),
-so the two agree to 1e-12 (in practice to the last bit) on random states and inputs. It is
-reached through its public callers: ``ArticulatedIntegrator.step_kinematics``,
-``Px4AttitudeLoop.update`` and the plant's steps.
+reference (``ArticulatedIntegrator.step``, the frames functions), so the two agree to 1e-12
+(in practice to the last bit) on random states and inputs. It is reached through its public
+callers: ``ArticulatedIntegrator.step_kinematics`` and the plant's steps. The attitude loop
+(``sitl.physics.attitude_loop``) is one source built twice: the two builds agree bit for
+bit, and ``Px4AttitudeLoop.update`` agrees with its parts called one by one.
 """
 
 from __future__ import annotations
 
 import math
+from array import array
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from companion.compiled import twin, twin_reason
 from sitl.physics import (
     AttitudeSetpoint,
     EulerSingularityError,
     PlantDivergedError,
     TruthPlant,
+    attitude_loop,
 )
 from sitl.physics.articulation import build_articulation
 from sitl.physics.attitude_control import AttitudeLoopParams, Px4AttitudeLoop
@@ -121,11 +126,50 @@ def _loop(rng: np.random.Generator) -> Px4AttitudeLoop:
     return Px4AttitudeLoop.from_params(params, mixer, 1e-3)
 
 
-def test_compiled_attitude_loop_matches_its_python_parts() -> None:
-    """GIVEN the same loop twice WHEN one runs the kernel (update) and the other its parts'
-    Python (rate_setpoint, rate.update with the previous saturation, mixer.mix, the
-    THR_MDL_FAC inverse) over random attitudes, rates and setpoints, many saturating THEN
-    every output and the rate controller's state agree."""
+def test_the_attitude_loop_twin_is_its_python_source_bit_for_bit() -> None:
+    """GIVEN the same loop's constants and state twice WHEN the compiled twin and the Python
+    source of sitl.physics.attitude_loop each run 2000 steps of random attitudes, rates and
+    setpoints (many saturating) THEN commands, relative thrusts, rate setpoints, torques,
+    the rate controller's state and the saturation flags have the same bits."""
+    assert twin_reason(attitude_loop) is None, twin_reason(attitude_loop)
+    compiled = twin(attitude_loop)
+    rng = np.random.default_rng(5)
+    saturated = 0
+    for _ in range(10):
+        seed = int(rng.integers(1 << 30))
+        loops = [_loop(np.random.default_rng(seed)) for _ in range(2)]
+        for _ in range(200):
+            q = tuple(quaternion_from_euler(*rng.uniform(-1.5, 1.5, 3)).tolist())
+            rate = tuple(rng.normal(0.0, 2.0, 3).tolist())
+            setpoint = AttitudeSetpoint.from_euler(*rng.uniform(-1.5, 1.5, 3), rng.uniform(0, 1))
+            bits = []
+            for module, loop in zip((compiled, attitude_loop), loops, strict=True):
+                relative = array("d", [0.0] * 6)
+                commands, rate_sp, torque = module.attitude_loop(
+                    q,
+                    rate,
+                    setpoint.quaternion_wxyz,
+                    setpoint.thrust,
+                    loop.attitude._constants,
+                    loop.rate._constants,
+                    loop.rate._state,
+                    loop.mixer._constants,
+                    loop._saturation,
+                    loop.thr_mdl_fac,
+                    relative,
+                )
+                values = [*commands, *relative, *rate_sp, *torque, *loop.rate._state]
+                bits.append([float(v).hex() for v in (*values, *loop._saturation)])
+            assert bits[0] == bits[1]
+            saturated += any(loops[0]._saturation)
+    assert saturated > 100  # the desaturation and anti-windup paths ran
+
+
+def test_the_attitude_loop_is_its_parts_in_a_row() -> None:
+    """GIVEN the same loop twice WHEN one runs update and the other its parts one by one
+    (rate_setpoint, rate.update with the previous saturation, mixer.mix, the THR_MDL_FAC
+    inverse) over random attitudes, rates and setpoints, many saturating THEN every output
+    and the rate controller's state agree."""
     rng = np.random.default_rng(9)
     saturated = 0
     for _ in range(20):

@@ -10,10 +10,6 @@
  *                  (TruthPlant._update_kinematics) and the step's q_ddot (_to_q_ddot).
  * kinematics(...)  the plant's kinematics of a state alone (after reset, hold, payload).
  * pack(...)       a state's floats as the bytes of one float64 array (PlantState).
- * attitude_loop(...) one update of sitl.physics.attitude_control.Px4AttitudeLoop: PX4's
- *                  attitude P, rate PID, the sequential-desaturation mixer of
- *                  sitl.physics.rotors and the THR_MDL_FAC linearization; its Python classes
- *                  are the reference it is tested against (tests/test_sitl_kernel.py).
  *
  * Independent of companion.model (DESIGN.md section 6): nothing here knows the arm's
  * dynamics, which stay Pinocchio's. Frames and units as in the Python modules: world ENU,
@@ -109,23 +105,6 @@ static PyObject *new_tuple(const double *values, Py_ssize_t n)
         PyTuple_SET_ITEM(tuple, i, f);
     }
     return tuple;
-}
-
-/* Writes new floats into an existing list of n items (the Python objects' own state). */
-static int set_list(PyObject *list, const double *values, Py_ssize_t n, const char *name)
-{
-    if (!PyList_Check(list) || PyList_GET_SIZE(list) != n) {
-        PyErr_Format(PyExc_TypeError, "%s: expected a list of %zd floats", name, n);
-        return 0;
-    }
-    for (Py_ssize_t i = 0; i < n; i++) {
-        PyObject *f = PyFloat_FromDouble(values[i]);
-        if (f == NULL) return 0;
-        PyObject *old = PyList_GET_ITEM(list, i);
-        PyList_SET_ITEM(list, i, f);
-        Py_XDECREF(old);
-    }
-    return 1;
 }
 
 /* ------------------------------------------------------------------ frames (frames.py) */
@@ -474,229 +453,6 @@ static PyObject *py_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     return kinematics_tuple(&k, qdd);
 }
 
-/* ------------------------------------------------------------------ attitude_control.py */
-
-typedef struct { double w, x, y, z; } Quat;
-
-static Quat qmul(Quat a, Quat b)
-{
-    Quat q;
-    q.w = a.w * b.w - a.x * b.x - a.y * b.y - a.z * b.z;
-    q.x = a.w * b.x + a.x * b.w + a.y * b.z - a.z * b.y;
-    q.y = a.w * b.y - a.x * b.z + a.y * b.w + a.z * b.x;
-    q.z = a.w * b.z + a.x * b.y - a.y * b.x + a.z * b.w;
-    return q;
-}
-
-static Quat qinv(Quat q)
-{
-    Quat r = {q.w, -q.x, -q.y, -q.z};
-    return r;
-}
-
-static Quat canonical(Quat q)
-{
-    if (q.w >= 0.0) return q;
-    Quat r = {-q.w, -q.x, -q.y, -q.z};
-    return r;
-}
-
-static void dcm_z(Quat q, double *out)
-{
-    out[0] = 2.0 * (q.x * q.z + q.w * q.y);
-    out[1] = 2.0 * (q.y * q.z - q.w * q.x);
-    out[2] = 1.0 - 2.0 * (q.x * q.x + q.y * q.y);
-}
-
-static Quat between(const double *s, const double *d)
-{
-    double sx = s[0], sy = s[1], sz = s[2], dx = d[0], dy = d[1], dz = d[2];
-    double cr[3] = {sy * dz - sz * dy, sz * dx - sx * dz, sx * dy - sy * dx};
-    double dot = sx * dx + sy * dy + sz * dz;
-    double w;
-    if (sqrt(cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2]) < 1e-5 && dot < 0.0) {
-        double a0 = fabs(sx), a1 = fabs(sy), a2 = fabs(sz), axis[3] = {0.0, 0.0, 0.0};
-        if (a0 < a1)
-            axis[a0 < a2 ? 0 : 2] = 1.0;
-        else
-            axis[a1 < a2 ? 1 : 2] = 1.0;
-        cr[0] = sy * axis[2] - sz * axis[1];
-        cr[1] = sz * axis[0] - sx * axis[2];
-        cr[2] = sx * axis[1] - sy * axis[0];
-        w = 0.0;
-    } else {
-        w = dot + sqrt((sx * sx + sy * sy + sz * sz) * (dx * dx + dy * dy + dz * dz));
-    }
-    double n = sqrt(w * w + cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2]);
-    Quat q = {w / n, cr[0] / n, cr[1] / n, cr[2] / n};
-    return q;
-}
-
-static double clip(double v, double lo, double hi)
-{
-    /* Python's min(max(v, lo), hi) */
-    double m = lo > v ? lo : v;
-    return hi < m ? hi : m;
-}
-
-/* Constants of one loop, the layout of Px4AttitudeLoop._kernel_constants. */
-enum {
-    C_ATT_GAIN = 0, C_YAW_WEIGHT = 3, C_RATE_MAX = 4, C_P = 7, C_I = 10, C_D = 13,
-    C_LIMIT = 16, C_ALPHA = 19, C_DT = 20, C_I_FACTOR_RATE = 21, C_THR_MDL_FAC = 22,
-    C_MIX = 23, /* roll (6), pitch (6), yaw (6), thrust (6), allocated rows (3 x 6), hi_yaw */
-    N_CONSTANTS = C_MIX + 24 + 18 + 1
-};
-#define USABLE 1e-7
-#define SATURATION_TOL 1e-6
-
-static double desaturation_gain(const double *u, const double *dir, double hi)
-{
-    double k_min = 0.0, k_max = 0.0;
-    for (int i = 0; i < 6; i++) {
-        double d = dir[i], k;
-        if (-USABLE < d && d < USABLE) continue;
-        if (u[i] < 0.0)
-            k = -u[i] / d;
-        else if (u[i] > hi)
-            k = (hi - u[i]) / d;
-        else
-            continue;
-        if (k < k_min) k_min = k;
-        if (k > k_max) k_max = k;
-    }
-    return k_min + k_max;
-}
-
-static void desaturate(double *u, const double *dir, double hi, int reduce_only)
-{
-    double gain = desaturation_gain(u, dir, hi);
-    if (reduce_only && gain > 0.0) return;
-    for (int i = 0; i < 6; i++) u[i] += gain * dir[i];
-    gain = 0.5 * desaturation_gain(u, dir, hi);
-    if (reduce_only && gain > 0.0) return;
-    for (int i = 0; i < 6; i++) u[i] += gain * dir[i];
-}
-
-static int outside(const double *u, double hi)
-{
-    double lo = u[0], up = u[0];
-    for (int i = 1; i < 6; i++) {
-        if (u[i] < lo) lo = u[i];
-        if (u[i] > up) up = u[i];
-    }
-    return lo < 0.0 || up > hi;
-}
-
-/* SequentialDesaturationMixer.mix: u (6) and the saturation flags (pos 3, neg 3). */
-static void mix(const double *c, const double *torque, double thrust, double *u, double *sat)
-{
-    const double *roll = c + C_MIX, *pitch = roll + 6, *yaw = pitch + 6, *thr = yaw + 6;
-    const double *rows = thr + 6, hi_yaw = rows[18];
-    double c0 = torque[0], c1 = torque[1], c2 = torque[2];
-    for (int i = 0; i < 6; i++) u[i] = roll[i] * c0 + pitch[i] * c1 + thr[i] * thrust;
-    if (outside(u, 1.0)) {
-        desaturate(u, thr, 1.0, 1);
-        desaturate(u, roll, 1.0, 0);
-        desaturate(u, pitch, 1.0, 0);
-    }
-    for (int i = 0; i < 6; i++) u[i] = u[i] + yaw[i] * c2;
-    if (outside(u, hi_yaw)) desaturate(u, yaw, hi_yaw, 0);
-    if (outside(u, 1.0)) {
-        desaturate(u, thr, 1.0, 1);
-        for (int i = 0; i < 6; i++) u[i] = u[i] < 0.0 ? 0.0 : (u[i] > 1.0 ? 1.0 : u[i]);
-    }
-    for (int axis = 0; axis < 3; axis++) {
-        const double *a = rows + 6 * axis;
-        double x = torque[axis]
-                   - (a[0] * u[0] + a[1] * u[1] + a[2] * u[2] + a[3] * u[3] + a[4] * u[4]
-                      + a[5] * u[5]);
-        sat[axis] = x > SATURATION_TOL;
-        sat[3 + axis] = x < -SATURATION_TOL;
-    }
-}
-
-static PyObject *py_attitude_loop(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
-{
-    if (nargs != 9) {
-        PyErr_SetString(PyExc_TypeError,
-                        "attitude_loop(q_wxyz, rate, q_setpoint_wxyz, thrust, constants, "
-                        "integral, previous_rate, angular_accel, saturation)");
-        return NULL;
-    }
-    double qa[4], rate[3], qsa[4], c[N_CONSTANTS], integral[3], prev[3], accel[3], sat[6];
-    double thrust = PyFloat_AsDouble(args[3]);
-    if (thrust == -1.0 && PyErr_Occurred()) return NULL;
-    if (!read_doubles(args[0], qa, 4, "q_wxyz") || !read_doubles(args[1], rate, 3, "rate")
-        || !read_buffer(args[2], qsa, 4, "q_setpoint_wxyz")
-        || !read_buffer(args[4], c, N_CONSTANTS, "constants")
-        || !read_doubles(args[5], integral, 3, "integral")
-        || !read_doubles(args[6], prev, 3, "previous_rate")
-        || !read_doubles(args[7], accel, 3, "angular_accel")
-        || !read_doubles(args[8], sat, 6, "saturation"))
-        return NULL;
-
-    /* AttitudeController.rate_setpoint */
-    Quat q = {qa[0], qa[1], qa[2], qa[3]}, qd = {qsa[0], qsa[1], qsa[2], qsa[3]};
-    double ez[3], ezd[3];
-    dcm_z(q, ez);
-    dcm_z(qd, ezd);
-    Quat qd_red = between(ez, ezd);
-    if (fabs(qd_red.x) > 1.0 - 1e-5 || fabs(qd_red.y) > 1.0 - 1e-5)
-        qd_red = qd;
-    else
-        qd_red = qmul(qd_red, q);
-    Quat dyaw = canonical(qmul(qinv(qd_red), qd));
-    double w = clip(dyaw.w, -1.0, 1.0), z = clip(dyaw.z, -1.0, 1.0);
-    double yw = c[C_YAW_WEIGHT];
-    Quat turn = {cos(yw * acos(w)), 0.0, 0.0, sin(yw * asin(z))};
-    qd = qmul(qd_red, turn);
-    Quat qe = canonical(qmul(qinv(q), qd));
-    double qe_v[3] = {qe.x, qe.y, qe.z}, rate_sp[3];
-    for (int i = 0; i < 3; i++) {
-        double m = c[C_RATE_MAX + i];
-        rate_sp[i] = clip(2.0 * qe_v[i] * c[C_ATT_GAIN + i], -m, m);
-    }
-
-    /* RateController.update with the mixer's previous saturation flags */
-    double torque[3], dt = c[C_DT];
-    for (int i = 0; i < 3; i++) {
-        double r = rate[i], a = accel[i];
-        a += c[C_ALPHA] * ((r - prev[i]) / dt - a);
-        accel[i] = a;
-        prev[i] = r;
-        double error = rate_sp[i] - r;
-        torque[i] = c[C_P + i] * error + integral[i] - c[C_D + i] * a;
-        if (sat[i] != 0.0 && error > 0.0) error = 0.0;
-        if (sat[3 + i] != 0.0 && 0.0 > error) error = 0.0;
-        double e = error / c[C_I_FACTOR_RATE];
-        double i_factor = 1.0 - e * e;
-        if (!(i_factor > 0.0)) i_factor = 0.0;
-        double next = integral[i] + i_factor * c[C_I + i] * error * dt;
-        integral[i] = clip(next, -c[C_LIMIT + i], c[C_LIMIT + i]);
-    }
-
-    /* mixer, then PX4 FunctionMotors (THR_MDL_FAC linearization) */
-    double rel[6], cmd[6];
-    mix(c, torque, thrust, rel, sat);
-    double fac = c[C_THR_MDL_FAC];
-    if (fac < 1e-9) {
-        memcpy(cmd, rel, sizeof cmd);
-    } else {
-        double b = 1.0 - fac, b2 = b * b, inv = 0.5 / fac;
-        for (int i = 0; i < 6; i++) cmd[i] = (sqrt(b2 + 4.0 * fac * rel[i]) - b) * inv;
-    }
-    if (!set_list(args[5], integral, 3, "integral") || !set_list(args[6], prev, 3, "previous_rate")
-        || !set_list(args[7], accel, 3, "angular_accel") || !set_list(args[8], sat, 6, "saturation"))
-        return NULL;
-    PyObject *a = new_list(cmd, 6), *b = new_list(rel, 6), *s = new_tuple(rate_sp, 3),
-             *t = new_tuple(torque, 3);
-    if (a == NULL || b == NULL || s == NULL || t == NULL) {
-        Py_XDECREF(a); Py_XDECREF(b); Py_XDECREF(s); Py_XDECREF(t);
-        return NULL;
-    }
-    return Py_BuildValue("(NNNN)", a, b, s, t);
-}
-
 /* The doubles of the given sequences, in order, as one bytes object (a frozen state's
  * storage: numpy reads it in place, read-only). */
 static PyObject *py_pack(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
@@ -734,9 +490,6 @@ static PyMethodDef methods[] = {
      " one integration step and the new state's kinematics."},
     {"kinematics", (PyCFunction)(void (*)(void))py_kinematics, METH_FASTCALL,
      "kinematics(x, u, euler_previous): the plant's kinematics of a state."},
-    {"attitude_loop", (PyCFunction)(void (*)(void))py_attitude_loop, METH_FASTCALL,
-     "attitude_loop(q_wxyz, rate, q_setpoint_wxyz, thrust, constants, integral, previous_rate,"
-     " angular_accel, saturation): one update of the PX4-like attitude loop."},
     {NULL, NULL, 0, NULL},
 };
 

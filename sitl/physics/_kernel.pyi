@@ -1,6 +1,6 @@
 """Type stub of the C extension ``_kernel`` (source ``_kernel.c``): the truth plant's
-per-step arithmetic; see :mod:`sitl.physics.integration`, :mod:`sitl.physics.plant` and
-:mod:`sitl.physics.attitude_control` for the layouts."""
+per-step arithmetic; see :mod:`sitl.physics.integration` and :mod:`sitl.physics.plant` for
+the layouts."""
 
 from collections.abc import Callable, Sequence
 
@@ -29,19 +29,6 @@ def step(
 
 def kinematics(x: Sequence[float], u: Sequence[float], euler_previous: Sequence[float]) -> tuple:
     """The plant's kinematics of a state (status first)."""
-
-def attitude_loop(
-    q_wxyz: Sequence[float],
-    rate: Sequence[float],
-    q_setpoint_wxyz: NDArray[np.float64],
-    thrust: float,
-    constants: NDArray[np.float64],
-    integral: list[float],
-    previous_rate: list[float],
-    angular_accel: list[float],
-    saturation: list[float],
-) -> tuple[list[float], list[float], tuple[float, float, float], tuple[float, float, float]]:
-    """One update of the PX4-like attitude loop; the four lists are updated in place."""
 
 def pack(*sequences: Sequence[float]) -> bytes:
     """The floats of the sequences, in order, as the bytes of float64 values (at most 64)."""

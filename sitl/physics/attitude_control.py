@@ -34,13 +34,15 @@ References: PX4-Autopilot ``src/modules/mc_att_control/AttitudeControl/AttitudeC
 from __future__ import annotations
 
 import math
+from array import array
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
-from sitl.physics import _kernel
+from companion.compiled import twin
+from sitl.physics import attitude_loop
 from sitl.physics.frames import quaternion_from_euler
 from sitl.physics.rotors import SequentialDesaturationMixer
 from sitl.scenario import AttitudeControl as AttitudeControlConfig
@@ -60,6 +62,8 @@ Vec3 = tuple[float, float, float]
 
 _I_FACTOR_RATE_RAD_S = math.radians(400.0)
 """PX4: the I gain fades to zero as the rate error approaches 400 deg/s."""
+_LOOP = twin(attitude_loop)
+"""The loop's arithmetic: :mod:`sitl.physics.attitude_loop`, compiled where built."""
 
 
 @dataclass(frozen=True)
@@ -112,50 +116,6 @@ def _as_quat(q: Iterable[float]) -> Quat:
     """Four Python floats of a quaternion given as an array, tuple or list."""
     w, x, y, z = q.tolist() if isinstance(q, np.ndarray) else map(float, q)
     return (w, x, y, z)
-
-
-def _mul(a: Quat, b: Quat) -> Quat:
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
-
-
-def _inv(q: Quat) -> Quat:
-    return (q[0], -q[1], -q[2], -q[3])
-
-
-def _canonical(q: Quat) -> Quat:
-    return q if q[0] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
-
-
-def _dcm_z(q: Quat) -> tuple[float, float, float]:
-    w, x, y, z = q
-    return (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y))
-
-
-def _between(src: tuple[float, float, float], dst: tuple[float, float, float]) -> Quat:
-    """Shortest rotation taking unit vector ``src`` to ``dst`` (PX4 Quaternion(src, dst))."""
-    sx, sy, sz = src
-    dx, dy, dz = dst
-    cr = (sy * dz - sz * dy, sz * dx - sx * dz, sx * dy - sy * dx)
-    dot = sx * dx + sy * dy + sz * dz
-    if math.sqrt(cr[0] ** 2 + cr[1] ** 2 + cr[2] ** 2) < 1e-5 and dot < 0.0:
-        a = (abs(sx), abs(sy), abs(sz))
-        if a[0] < a[1]:
-            axis = (1.0, 0.0, 0.0) if a[0] < a[2] else (0.0, 0.0, 1.0)
-        else:
-            axis = (0.0, 1.0, 0.0) if a[1] < a[2] else (0.0, 0.0, 1.0)
-        cr = (sy * axis[2] - sz * axis[1], sz * axis[0] - sx * axis[2], sx * axis[1] - sy * axis[0])
-        w = 0.0
-    else:
-        w = dot + math.sqrt((sx * sx + sy * sy + sz * sz) * (dx * dx + dy * dy + dz * dz))
-    n = math.sqrt(w * w + cr[0] ** 2 + cr[1] ** 2 + cr[2] ** 2)
-    return (w / n, cr[0] / n, cr[1] / n, cr[2] / n)
 
 
 def _vec3(values: Iterable[float]) -> Vec3:
@@ -239,31 +199,15 @@ class AttitudeController:
         self.yaw_weight = min(max(float(yaw_weight), 0.0), 1.0)
         if self.yaw_weight > 1e-4:
             gains[2] /= self.yaw_weight
-        self._gains = tuple(gains)
-        self._rate_max = tuple(float(r) for r in rate_max_rad_s)
+        self._constants = attitude_loop.attitude_constants(
+            gains, self.yaw_weight, [float(r) for r in rate_max_rad_s]
+        )
 
     def rate_setpoint(
         self, q_wxyz: Iterable[float], q_setpoint_wxyz: Iterable[float]
     ) -> tuple[float, float, float]:
         """Body-rate setpoint (FLU) [rad/s] for attitude q and its setpoint (both wxyz)."""
-        q: Quat = _as_quat(q_wxyz)
-        qd: Quat = _as_quat(q_setpoint_wxyz)
-        qd_red = _between(_dcm_z(q), _dcm_z(qd))
-        if abs(qd_red[1]) > 1.0 - 1e-5 or abs(qd_red[2]) > 1.0 - 1e-5:
-            qd_red = qd
-        else:
-            qd_red = _mul(qd_red, q)
-        dyaw = _canonical(_mul(_inv(qd_red), qd))
-        w = min(max(dyaw[0], -1.0), 1.0)
-        z = min(max(dyaw[3], -1.0), 1.0)
-        yw = self.yaw_weight
-        qd = _mul(qd_red, (math.cos(yw * math.acos(w)), 0.0, 0.0, math.sin(yw * math.asin(z))))
-        qe = _canonical(_mul(_inv(q), qd))
-        out = [0.0, 0.0, 0.0]
-        for i in range(3):
-            r = 2.0 * qe[i + 1] * self._gains[i]
-            out[i] = min(max(r, -self._rate_max[i]), self._rate_max[i])
-        return (out[0], out[1], out[2])
+        return _LOOP.rate_setpoint(_as_quat(q_wxyz), _as_quat(q_setpoint_wxyz), self._constants)
 
 
 class RateController:
@@ -291,10 +235,9 @@ class RateController:
         dt_s: float,
     ) -> None:
         self._dt = float(dt_s)
+        self._state = attitude_loop.rate_state((0.0, 0.0, 0.0))
+        """Integrators, previous rates, filtered angular accelerations."""
         self.set_gains(rate_p, rate_i, rate_d, integrator_limit, d_cutoff_hz)
-        self._integral = [0.0, 0.0, 0.0]
-        self._previous_rate = [0.0, 0.0, 0.0]
-        self._angular_accel = [0.0, 0.0, 0.0]
 
     def set_gains(
         self,
@@ -306,27 +249,29 @@ class RateController:
     ) -> None:
         """New gains, limits and D cutoff (as the constructor's); the integrators and the
         acceleration filter keep their state, as PX4's on a parameter change."""
-        self._p = [float(g) for g in rate_p]
-        self._i = [float(g) for g in rate_i]
-        self._d = [float(g) for g in rate_d]
-        self._limit = [float(g) for g in integrator_limit]
-        self._alpha = 1.0 - math.exp(-2.0 * math.pi * d_cutoff_hz * self._dt)
+        self._constants = attitude_loop.rate_constants(
+            [float(g) for g in rate_p],
+            [float(g) for g in rate_i],
+            [float(g) for g in rate_d],
+            [float(g) for g in integrator_limit],
+            1.0 - math.exp(-2.0 * math.pi * d_cutoff_hz * self._dt),
+            self._dt,
+            _I_FACTOR_RATE_RAD_S,
+        )
 
     @property
     def integral(self) -> FloatArray:
         """Integrator states [normalized torque], shape (3,) (a new array)."""
-        return np.array(self._integral)
+        return np.array(attitude_loop.rate_integral(self._state))
 
     @property
     def angular_acceleration_estimate(self) -> FloatArray:
         """Filtered angular acceleration used by the D term [rad/s^2], shape (3,)."""
-        return np.array(self._angular_accel)
+        return np.array(attitude_loop.rate_acceleration(self._state))
 
     def reset(self, rate_rad_s: Iterable[float] = (0.0, 0.0, 0.0)) -> None:
         """Zero the integrators and the acceleration filter; start from body rate ``rate_rad_s``."""
-        self._integral = [0.0, 0.0, 0.0]
-        self._previous_rate = [float(r) for r in rate_rad_s]
-        self._angular_accel = [0.0, 0.0, 0.0]
+        self._state = attitude_loop.rate_state([float(r) for r in rate_rad_s])
 
     def update(
         self,
@@ -340,23 +285,10 @@ class RateController:
         The saturation flags are the mixer's from the previous step (PX4 feeds back the
         control allocator status the same way).
         """
-        torque = [0.0, 0.0, 0.0]
-        for i in range(3):
-            rate = rate_rad_s[i]
-            accel = self._angular_accel[i]
-            accel += self._alpha * ((rate - self._previous_rate[i]) / self._dt - accel)
-            self._angular_accel[i] = accel
-            self._previous_rate[i] = rate
-            error = rate_setpoint_rad_s[i] - rate
-            torque[i] = self._p[i] * error + self._integral[i] - self._d[i] * accel
-            if saturation_positive[i]:
-                error = min(error, 0.0)
-            if saturation_negative[i]:
-                error = max(error, 0.0)
-            i_factor = max(0.0, 1.0 - (error / _I_FACTOR_RATE_RAD_S) ** 2)
-            integral = self._integral[i] + i_factor * self._i[i] * error * self._dt
-            self._integral[i] = min(max(integral, -self._limit[i]), self._limit[i])
-        return (torque[0], torque[1], torque[2])
+        flags = array("d", (float(bool(f)) for f in (*saturation_positive, *saturation_negative)))
+        return _LOOP.rate_update(
+            rate_rad_s, rate_setpoint_rad_s, self._constants, self._state, flags
+        )
 
 
 @dataclass(frozen=True)
@@ -389,11 +321,9 @@ class Px4AttitudeLoop:
     """Attitude P -> rate PID -> mixer -> THR_MDL_FAC linearization, one :meth:`update` per
     plant step.
 
-    :meth:`update` runs in the compiled kernel ``sitl.physics._kernel`` on the state of
-    :attr:`rate` (its integrators and filter, updated in place) with the constants of the
-    three parts; the parts' own Python methods (``attitude.rate_setpoint``,
-    ``rate.update``, ``mixer.mix``) are the reference it is tested against
-    (tests/test_sitl_kernel.py). Change gains through :meth:`configure`.
+    :meth:`update` is :func:`sitl.physics.attitude_loop.attitude_loop` (compiled where its
+    twin is built) on the constants of the three parts and the state of :attr:`rate` (its
+    integrators and filter, updated in place). Change gains through :meth:`configure`.
     """
 
     attitude: AttitudeController
@@ -401,9 +331,10 @@ class Px4AttitudeLoop:
     mixer: SequentialDesaturationMixer
     thr_mdl_fac: float = 0.0
     """The autopilot's THR_MDL_FAC: relative rotor thrust -> motor command."""
-    _saturation: list[float] = field(default_factory=lambda: [0.0] * 6, repr=False)
+    _saturation: array = field(default_factory=lambda: array("d", [0.0] * 6), repr=False)
     """The mixer's last saturation flags (positive roll, pitch, yaw; negative), 0 or 1."""
-    _constants: FloatArray | None = field(default=None, repr=False)
+    _relative: array = field(default_factory=lambda: array("d", [0.0] * 6), repr=False)
+    """The rotors' relative thrusts of the last step."""
 
     @classmethod
     def from_params(
@@ -441,12 +372,11 @@ class Px4AttitudeLoop:
             params.d_cutoff_hz,
         )
         self.thr_mdl_fac = params.thr_mdl_fac
-        self._constants = None
 
     def reset(self, rate_rad_s: Iterable[float] = (0.0, 0.0, 0.0)) -> None:
         """Clear integrators, filters and the saturation feedback."""
         self.rate.reset(rate_rad_s)
-        self._saturation = [0.0] * 6
+        self._saturation = array("d", [0.0] * 6)
 
     def update(
         self,
@@ -455,38 +385,18 @@ class Px4AttitudeLoop:
         setpoint: AttitudeSetpoint,
     ) -> ControllerOutput:
         """Motor commands for measured attitude ``q_wxyz`` and body rate ``rate_rad_s`` (FLU)."""
-        if self._constants is None:
-            self._constants = self._kernel_constants()
-        rate = self.rate
-        commands, relative, rate_sp, torque = _kernel.attitude_loop(
+        rate, relative = self.rate, self._relative
+        commands, rate_sp, torque = _LOOP.attitude_loop(
             q_wxyz,
             rate_rad_s,
             setpoint.quaternion_wxyz,
             setpoint.thrust,
-            self._constants,
-            rate._integral,
-            rate._previous_rate,
-            rate._angular_accel,
+            self.attitude._constants,
+            rate._constants,
+            rate._state,
+            self.mixer._constants,
             self._saturation,
+            self.thr_mdl_fac,
+            relative,
         )
-        return ControllerOutput(commands, relative, rate_sp, torque, setpoint.thrust)
-
-    def _kernel_constants(self) -> FloatArray:
-        """Gains, limits and allocation of the three parts in the kernel's layout."""
-        att, rate = self.attitude, self.rate
-        return np.array(
-            [
-                *att._gains,
-                att.yaw_weight,
-                *att._rate_max,
-                *rate._p,
-                *rate._i,
-                *rate._d,
-                *rate._limit,
-                rate._alpha,
-                rate._dt,
-                _I_FACTOR_RATE_RAD_S,
-                self.thr_mdl_fac,
-                *self.mixer.kernel_constants(),
-            ]
-        )
+        return ControllerOutput(commands, relative.tolist(), rate_sp, torque, setpoint.thrust)

@@ -34,11 +34,15 @@ References: PX4-Autopilot ``src/modules/control_allocator/ControlAllocation/``
 from __future__ import annotations
 
 import math
+from array import array
 from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from companion.compiled import twin
+from sitl.physics import attitude_loop
 
 __all__ = [
     "FIRST_ROTOR_AZIMUTH_RAD",
@@ -63,11 +67,8 @@ MINIMUM_YAW_MARGIN = 0.15
 _SMALL = 1e-3
 """PX4 zeroes allocation entries below this magnitude and ignores them when counting."""
 
-_SATURATION_TOL = 1e-6
-"""Unallocated normalized torque above which an axis counts as saturated."""
-
-_USABLE = 1e-7
-"""Allocation entries smaller than this cannot desaturate an actuator."""
+_LOOP = twin(attitude_loop)
+"""The allocation's arithmetic: :mod:`sitl.physics.attitude_loop`, compiled where built."""
 
 
 def thrust_curve(u: ArrayLike, thr_mdl_fac: float) -> FloatArray:
@@ -247,13 +248,14 @@ class SequentialDesaturationMixer:
         mix[np.abs(mix) < _SMALL] = 0.0
         self._mix = mix
         self._scale = scale
-        self._roll = mix[:, 0].tolist()
-        self._pitch = mix[:, 1].tolist()
-        self._yaw = mix[:, 2].tolist()
-        self._thrust = mix[:, 3].tolist()
-        self._roll_pitch_thrust = list(zip(self._roll, self._pitch, self._thrust, strict=True))
-        self._allocated_rows = [(scale[i] * wrench[i]).tolist() for i in range(3)]
-        self._hi_yaw = 1.0 + MINIMUM_YAW_MARGIN
+        self._constants = attitude_loop.mixer_constants(
+            mix[:, 0].tolist(),
+            mix[:, 1].tolist(),
+            mix[:, 2].tolist(),
+            mix[:, 3].tolist(),
+            [a for i in range(3) for a in (scale[i] * wrench[i]).tolist()],
+            1.0 + MINIMUM_YAW_MARGIN,
+        )
 
     @property
     def mix_matrix(self) -> FloatArray:
@@ -267,78 +269,16 @@ class SequentialDesaturationMixer:
         believed maximum thrust."""
         return 1.0 / self._scale[:3]
 
-    def kernel_constants(self) -> list[float]:
-        """The allocation as the compiled loop takes it (:mod:`sitl.physics.attitude_control`):
-        the roll, pitch, yaw and thrust columns (6 each), the allocated-torque rows (3 x 6)
-        and the raised upper bound of the yaw desaturation."""
-        rows = [a for row in self._allocated_rows for a in row]
-        return [*self._roll, *self._pitch, *self._yaw, *self._thrust, *rows, self._hi_yaw]
-
     def mix(self, torque_normalized: Iterable[float], thrust_normalized: float) -> MixerOutput:
         """Allocate normalized torques (roll, pitch, yaw) and the relative collective thrust
         to six relative rotor thrusts in [0, 1]; see the class docstring for the priorities.
         """
-        c0, c1, c2 = (float(c) for c in torque_normalized)
-        t = float(thrust_normalized)
-        u = [r * c0 + p * c1 + th * t for r, p, th in self._roll_pitch_thrust]
-        # A desaturation step moves nothing while every command is inside its bounds (its
-        # gain is 0), so it is skipped then: the per-step cost in unsaturated flight.
-        if min(u) < 0.0 or max(u) > 1.0:
-            _desaturate(u, self._thrust, 1.0, reduce_only=True)
-            _desaturate(u, self._roll, 1.0)
-            _desaturate(u, self._pitch, 1.0)
-        u = [ui + y * c2 for ui, y in zip(u, self._yaw, strict=True)]
-        if min(u) < 0.0 or max(u) > self._hi_yaw:
-            _desaturate(u, self._yaw, self._hi_yaw)
-        if min(u) < 0.0 or max(u) > 1.0:
-            _desaturate(u, self._thrust, 1.0, reduce_only=True)
-            u = [0.0 if ui < 0.0 else (1.0 if ui > 1.0 else ui) for ui in u]
-        u0, u1, u2, u3, u4, u5 = u
-        sat_pos, sat_neg = [], []
-        for c, (a0, a1, a2, a3, a4, a5) in zip((c0, c1, c2), self._allocated_rows, strict=True):
-            x = c - (a0 * u0 + a1 * u1 + a2 * u2 + a3 * u3 + a4 * u4 + a5 * u5)
-            sat_pos.append(x > _SATURATION_TOL)
-            sat_neg.append(x < -_SATURATION_TOL)
+        torque = tuple(float(c) for c in torque_normalized)
+        u = array("d", [0.0] * N_ROTORS)
+        flags = array("d", [0.0] * 6)
+        _LOOP.mix(self._constants, torque, float(thrust_normalized), u, flags)
         return MixerOutput(
-            relative_thrusts=u,
-            saturation_positive=tuple(sat_pos),
-            saturation_negative=tuple(sat_neg),
+            relative_thrusts=u.tolist(),
+            saturation_positive=(flags[0] != 0.0, flags[1] != 0.0, flags[2] != 0.0),
+            saturation_negative=(flags[3] != 0.0, flags[4] != 0.0, flags[5] != 0.0),
         )
-
-
-def _desaturate(
-    u: list[float], direction: list[float], hi: float, reduce_only: bool = False
-) -> None:
-    """Shift u (in place) along ``direction`` back into [0, hi] (PX4 desaturateActuators).
-
-    PX4 applies the full desaturation gain, then half of the gain that remains. With
-    ``reduce_only`` the shift may only lower u along a positive ``direction`` (the thrust
-    column: airmode disabled never raises thrust to unsaturate a motor).
-    """
-    gain = _gain(u, direction, hi)
-    if reduce_only and gain > 0.0:
-        return
-    for i, d in enumerate(direction):
-        u[i] += gain * d
-    gain = 0.5 * _gain(u, direction, hi)
-    if reduce_only and gain > 0.0:
-        return
-    for i, d in enumerate(direction):
-        u[i] += gain * d
-
-
-def _gain(u: list[float], direction: list[float], hi: float) -> float:
-    """PX4 computeDesaturationGain: k_min + k_max over the actuators outside [0, hi]."""
-    k_min = k_max = 0.0
-    for ui, d in zip(u, direction, strict=True):
-        if -_USABLE < d < _USABLE:
-            continue
-        if ui < 0.0:
-            k = -ui / d
-        elif ui > hi:
-            k = (hi - ui) / d
-        else:
-            continue
-        k_min = min(k_min, k)
-        k_max = max(k_max, k)
-    return k_min + k_max
