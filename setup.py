@@ -3,7 +3,8 @@ truth plant's step kernel) and the compiled twins of pure-Python modules; all ot
 metadata lives in pyproject.toml.
 
 A compiled twin is a module's own Python source compiled by Cython (pure-Python mode) into
-``_<name>`` beside it: the source is copied to ``build/cython/_<name>.py`` with its SHA-256
+``_<name>`` beside it: the source is copied to ``build/cython/<package>/_<name>.py`` with
+its SHA-256
 appended as ``SOURCE_SHA256``, so that :mod:`companion.compiled` loads the twin only while
 the source is the one it was built from.
 """
@@ -20,11 +21,12 @@ TWINS = ("sitl.servo.xm430_loop", "sitl.physics.attitude_loop")
 
 
 def twin_source(module: str) -> str:
-    """``build/cython/_<name>.py``: the module's source and its SHA-256 (relative path)."""
+    """``build/cython/<package>/_<name>.py``: the module's source and its SHA-256 (the
+    path relative to this directory)."""
     source = ROOT.joinpath(*module.split(".")).with_suffix(".py")
     text = source.read_bytes()
     digest = hashlib.sha256(text).hexdigest()
-    copy = ROOT / "build" / "cython" / f"_{source.stem}.py"
+    copy = ROOT.joinpath("build", "cython", *module.split(".")[:-1], f"_{source.stem}.py")
     copy.parent.mkdir(parents=True, exist_ok=True)
     body = text + f'\nSOURCE_SHA256 = "{digest}"\n'.encode()
     if not copy.exists() or copy.read_bytes() != body:
