@@ -4,9 +4,8 @@ metadata lives in pyproject.toml.
 
 A compiled twin is a module's own Python source compiled by Cython (pure-Python mode) into
 ``_<name>`` beside it: the source is copied to ``build/cython/<package>/_<name>.py`` with
-its SHA-256
-appended as ``SOURCE_SHA256``, so that :mod:`companion.compiled` loads the twin only while
-the source is the one it was built from.
+its SHA-256 appended as ``SOURCE_SHA256``, so that :mod:`companion.compiled` loads the twin
+only while the source is the one it was built from.
 """
 
 import hashlib
