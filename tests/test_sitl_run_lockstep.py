@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import socket
 import time
 from pathlib import Path
 
@@ -13,15 +12,10 @@ import pytest
 from pymavlink import mavutil
 
 from sitl.scenario import load_scenario
+from sitl.vehicle.launch import free_udp_port
 from sitl.vehicle.runner import LinkPorts, RunOptions, SitlVehicle
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def send(client, kind: str, time_boot_ms: int) -> None:
@@ -51,12 +45,12 @@ def test_either_setpoint_stamped_with_a_poses_time_answers_it(setpoint: str) -> 
     """A client's attitude or position target stamped with an ODOMETRY's time_boot_ms has
     answered that pose, and from then on the vehicle waits for the client's setpoints; any
     other message (a heartbeat, stamped with nothing) answers no pose."""
-    client_port = free_port()
+    client_port = free_udp_port()
     ports = LinkPorts(
-        onboard_local=free_port(),
+        onboard_local=free_udp_port(),
         onboard_remote=client_port,
-        gcs_local=free_port(),
-        gcs_remote=free_port(),
+        gcs_local=free_udp_port(),
+        gcs_remote=free_udp_port(),
     )
     scenario = load_scenario(CONFIGS / "sitl_pickup.toml")
     client = mavutil.mavlink_connection(f"udpin:127.0.0.1:{client_port}", source_system=255)
