@@ -10,34 +10,42 @@ since the build) is never used, and says so once per process in a one-line warni
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib
 import logging
 from pathlib import Path
 from types import ModuleType
 
-__all__ = ["twin", "twin_reason"]
+__all__ = ["twin", "twin_name", "twin_reason"]
 
 _log = logging.getLogger(__name__)
 _warned: set[str] = set()
 
 
-def _compiled_name(module: str) -> str:
+def twin_name(module: str) -> str:
+    """The compiled twin's module name of ``module`` (``a.b.c`` -> ``a.b._c``)."""
     package, _, name = module.rpartition(".")
     return f"{package}._{name}"
+
+
+@functools.cache
+def _source_sha256(path: str) -> str:
+    """SHA-256 of a twin's source (read once per process: sources do not change under a
+    running flight)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def twin_reason(module: ModuleType) -> str | None:
     """Why ``module``'s compiled twin cannot run (not built, or built from another
     source), or None when it can."""
-    name = _compiled_name(module.__name__)
+    name = twin_name(module.__name__)
     try:
         compiled = importlib.import_module(name)
     except ImportError as error:
         return f"{name} is not built ({error}; `pip install .` builds it)"
     assert module.__file__ is not None
-    digest = hashlib.sha256(Path(module.__file__).read_bytes()).hexdigest()
-    if getattr(compiled, "SOURCE_SHA256", None) != digest:
+    if getattr(compiled, "SOURCE_SHA256", None) != _source_sha256(module.__file__):
         return (
             f"{name} was built from another {Path(module.__file__).name} "
             "(rebuild: `python setup.py build_ext --inplace`)"
@@ -53,7 +61,7 @@ def twin(module: ModuleType, compiled: bool = True) -> ModuleType:
         return module
     reason = twin_reason(module)
     if reason is None:
-        return importlib.import_module(_compiled_name(module.__name__))
+        return importlib.import_module(twin_name(module.__name__))
     if module.__name__ not in _warned:
         _warned.add(module.__name__)
         _log.warning("%s: running its Python source", reason)

@@ -29,10 +29,7 @@ def test_every_twin_is_built_from_its_source_as_it_is(name: str) -> None:
     module = importlib.import_module(name)
     assert compiled.twin_reason(module) is None, compiled.twin_reason(module)
     fast = compiled.twin(module)
-    assert (
-        fast is not module
-        and fast.__name__ == name.rpartition(".")[0] + "._" + module.__name__.rpartition(".")[2]
-    )
+    assert fast is not module and fast.__name__ == compiled.twin_name(name)
     assert Path(fast.__file__).suffix in (".so", ".pyd")
 
 

@@ -208,21 +208,6 @@ class ServoReply:
     alert: bool = False
 
 
-def _loop_parameters(p: XM430Parameters) -> array:
-    """The parameters as :mod:`sitl.servo.xm430_loop` takes them (its ``P_*`` indices)."""
-    values = [0.0] * xm430_loop.PARAMS_SIZE
-    values[xm430_loop.P_TORQUE_CONSTANT] = p.torque_constant_n_m_per_a
-    values[xm430_loop.P_CURRENT_TIME_CONSTANT] = p.current_time_constant_s
-    values[xm430_loop.P_KP] = p.position_kp_a_per_rad
-    values[xm430_loop.P_KD] = p.position_kd_a_s_per_rad
-    values[xm430_loop.P_OVERLOAD_FRACTION] = p.overload_current_fraction
-    values[xm430_loop.P_OVERLOAD_TIME] = p.overload_time_s
-    values[xm430_loop.P_RESISTANCE] = p.winding_resistance_ohm
-    values[xm430_loop.P_BACK_EMF] = p.back_emf_v_s_per_rad
-    values[xm430_loop.P_FRICTION] = p.viscous_friction_n_m_s_per_rad
-    return array("d", values)
-
-
 class _LoopValue:
     """One float of :attr:`XM430Servo._loop`, the loops' state (:mod:`sitl.servo.xm430_loop`)."""
 
@@ -279,7 +264,18 @@ class XM430Servo:
         self._parameters = parameters if parameters is not None else XM430Parameters()
         self._loop = array("d", [0.0] * xm430_loop.LOOP_SIZE)
         self._physics = twin(xm430_loop, compiled)
-        self._params = _loop_parameters(self._parameters)
+        p = self._parameters
+        self._params = xm430_loop.loop_parameters(
+            p.torque_constant_n_m_per_a,
+            p.current_time_constant_s,
+            p.position_kp_a_per_rad,
+            p.position_kd_a_s_per_rad,
+            p.overload_current_fraction,
+            p.overload_time_s,
+            p.winding_resistance_ohm,
+            p.back_emf_v_s_per_rad,
+            p.viscous_friction_n_m_s_per_rad,
+        )
         self.table = bytearray(TABLE_SIZE)
         for entry, value in _FACTORY:
             self._put(entry, int(value))

@@ -14,11 +14,13 @@ file as it is now. ``round`` and ``math.expm1`` stay Python's calls in the compi
 so both builds compute the same bits (tests/test_xm430_model.py compares them).
 
 The state lives in buffers the servo owns: ``table`` (the control table, bytes, Protocol
-2.0 little-endian fields), ``loop`` (float64, indices ``L_*``) and ``params`` (float64,
-indices ``P_*``, from :class:`~sitl.servo.xm430.XM430Parameters`).
+2.0 little-endian fields), ``loop`` (float64, indices ``L_*``: the servo's instruction handling
+resets some of it) and ``params`` (float64, built by :func:`loop_parameters` from
+:class:`~sitl.servo.xm430.XM430Parameters`).
 """
 
 import math
+from array import array
 
 import cython
 
@@ -45,16 +47,16 @@ L_PROFILE = 8
 """The velocity profile's position [rad]."""
 LOOP_SIZE = 9
 
-P_TORQUE_CONSTANT = 0
-P_CURRENT_TIME_CONSTANT = 1
-P_KP = 2
-P_KD = 3
-P_OVERLOAD_FRACTION = 4
-P_OVERLOAD_TIME = 5
-P_RESISTANCE = 6
-P_BACK_EMF = 7
-P_FRICTION = 8
-PARAMS_SIZE = 9
+# Offsets in ``params`` (private: :func:`loop_parameters` builds it).
+_P_TORQUE_CONSTANT = cython.declare(cython.Py_ssize_t, 0)
+_P_CURRENT_TIME_CONSTANT = cython.declare(cython.Py_ssize_t, 1)
+_P_KP = cython.declare(cython.Py_ssize_t, 2)
+_P_KD = cython.declare(cython.Py_ssize_t, 3)
+_P_OVERLOAD_FRACTION = cython.declare(cython.Py_ssize_t, 4)
+_P_OVERLOAD_TIME = cython.declare(cython.Py_ssize_t, 5)
+_P_RESISTANCE = cython.declare(cython.Py_ssize_t, 6)
+_P_BACK_EMF = cython.declare(cython.Py_ssize_t, 7)
+_P_FRICTION = cython.declare(cython.Py_ssize_t, 8)
 
 _TORQUE_ENABLE = cython.declare(cython.Py_ssize_t, ct.TORQUE_ENABLE.address)
 _OPERATING_MODE = cython.declare(cython.Py_ssize_t, ct.OPERATING_MODE.address)
@@ -88,6 +90,34 @@ assert not ct.PRESENT_INPUT_VOLTAGE.signed and ct.PRESENT_INPUT_VOLTAGE.size == 
 assert ct.PRESENT_VELOCITY.size == ct.PRESENT_POSITION.size == 4
 assert ct.PRESENT_VELOCITY.signed and ct.PRESENT_POSITION.signed
 assert ct.PROFILE_VELOCITY.size == 4 and not ct.PROFILE_VELOCITY.signed
+
+
+def loop_parameters(
+    torque_constant_n_m_per_a: float,
+    current_time_constant_s: float,
+    position_kp_a_per_rad: float,
+    position_kd_a_s_per_rad: float,
+    overload_current_fraction: float,
+    overload_time_s: float,
+    winding_resistance_ohm: float,
+    back_emf_v_s_per_rad: float,
+    viscous_friction_n_m_s_per_rad: float,
+) -> array:
+    """The ``params`` buffer of a servo (see :class:`~sitl.servo.xm430.XM430Parameters`)."""
+    return array(
+        "d",
+        [
+            torque_constant_n_m_per_a,
+            current_time_constant_s,
+            position_kp_a_per_rad,
+            position_kd_a_s_per_rad,
+            overload_current_fraction,
+            overload_time_s,
+            winding_resistance_ohm,
+            back_emf_v_s_per_rad,
+            viscous_friction_n_m_s_per_rad,
+        ],
+    )
 
 
 @cython.cfunc
@@ -190,8 +220,8 @@ def _command(
             goal_rad = (_i32(table, _GOAL_POSITION) - _CENTER_TICKS) * _RAD_PER_TICK
         else:
             goal_rad = profile_rad
-        command = params[P_KP] * (goal_rad - loop[L_ANGLE])
-        command -= params[P_KD] * loop[L_RATE]
+        command = params[_P_KP] * (goal_rad - loop[L_ANGLE])
+        command -= params[_P_KD] * loop[L_RATE]
         if mode == _CURRENT_BASED_POSITION_MODE:
             limit_a = min(limit_a, abs(goal_a))
     return max(-limit_a, min(limit_a, command))
@@ -214,10 +244,10 @@ def torque_n_m(
 ) -> cython.double:
     """Output torque [N m]: torque constant x present current (0 with torque off) minus the
     gearbox's viscous friction."""
-    friction: cython.double = params[P_FRICTION] * loop[L_RATE]
+    friction: cython.double = params[_P_FRICTION] * loop[L_RATE]
     if table[_TORQUE_ENABLE] != 1:
         return -friction
-    return params[P_TORQUE_CONSTANT] * loop[L_CURRENT] - friction
+    return params[_P_TORQUE_CONSTANT] * loop[L_CURRENT] - friction
 
 
 def step(
@@ -264,17 +294,17 @@ def step(
         tripped: cython.bint = table[_BUS_WATCHDOG] == _TRIPPED
         command = _command(table, loop, params, limit_a, profile, loop[L_HOLD], tripped)
     volts: cython.double = _u16(table, _PRESENT_INPUT_VOLTAGE) * _VOLTAGE_UNIT
-    emf: cython.double = params[P_BACK_EMF] * loop[L_RATE]
-    low: cython.double = (-volts - emf) / params[P_RESISTANCE]
-    high: cython.double = (volts - emf) / params[P_RESISTANCE]
+    emf: cython.double = params[_P_BACK_EMF] * loop[L_RATE]
+    low: cython.double = (-volts - emf) / params[_P_RESISTANCE]
+    high: cython.double = (volts - emf) / params[_P_RESISTANCE]
     driven: cython.double = max(low, min(high, command))
     if dt_s != loop[L_LAG_DT]:  # the current loop's factor, once per step size
         loop[L_LAG_DT] = dt_s
-        loop[L_LAG] = -math.expm1(-dt_s / params[P_CURRENT_TIME_CONSTANT])
+        loop[L_LAG] = -math.expm1(-dt_s / params[_P_CURRENT_TIME_CONSTANT])
     loop[L_CURRENT] += (driven - loop[L_CURRENT]) * loop[L_LAG]
-    overloaded: cython.bint = abs(command) >= params[P_OVERLOAD_FRACTION] * limit_a > 0.0
+    overloaded: cython.bint = abs(command) >= params[_P_OVERLOAD_FRACTION] * limit_a > 0.0
     loop[L_OVERLOAD] = loop[L_OVERLOAD] + dt_s if overloaded else 0.0
-    if loop[L_OVERLOAD] >= params[P_OVERLOAD_TIME]:
+    if loop[L_OVERLOAD] >= params[_P_OVERLOAD_TIME]:
         return True
     write_current(table, loop)
     return False
