@@ -157,7 +157,10 @@ def rate_setpoint(q_wxyz, q_setpoint_wxyz, att: cython.double[:]) -> tuple:
     else:
         rw = dot + sqrt((sx * sx + sy * sy + sz * sz) * (tx * tx + ty * ty + tz * tz))
     n: cython.double = sqrt(rw * rw + c0 * c0 + c1 * c1 + c2 * c2)
-    rw, rx, ry, rz = rw / n, c0 / n, c1 / n, c2 / n
+    rx: cython.double = c0 / n
+    ry: cython.double = c1 / n
+    rz: cython.double = c2 / n
+    rw = rw / n
     # the reduced setpoint: tilt only, unless it is (nearly) upside down
     pw: cython.double
     px: cython.double
@@ -384,5 +387,8 @@ def attitude_loop(
     rate_sp = rate_setpoint(q_wxyz, q_setpoint_wxyz, att)
     torque = rate_update(rate_rad_s, rate_sp, rate, state, saturation)
     mix(m, torque, thrust, relative, saturation)
-    commands = [motor_command(relative[i], thr_mdl_fac) for i in range(6)]
+    commands = []
+    i: cython.Py_ssize_t
+    for i in range(6):
+        commands.append(motor_command(relative[i], thr_mdl_fac))
     return commands, rate_sp, torque
