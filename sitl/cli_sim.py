@@ -36,6 +36,7 @@ from companion.cli.mission import (
     run_mission,
 )
 from companion.cli.usage import EXIT_USAGE, check_range, fail, load_or_exit, output_dir_or_exit
+from sitl.cli_options import Px4DirOpt
 from sitl.flight_figures import draw_with_truth
 from sitl.scenario import MAX_DURATION_S, Scenario, load_scenario
 from sitl.truth_mcap import add_flight_truth
@@ -372,18 +373,6 @@ def compare(
     write_summary({name: r.summary for name, r in runs}, out / "summaries.json")
     plot_comparison(runs, out)
     Console().print(table, markup=False, highlight=False)
-
-
-Px4DirOpt = Annotated[
-    Path | None,
-    typer.Option(
-        envvar="PX4_SITL_DIR",
-        show_envvar=False,
-        help="The PX4 SITL build to fly (a directory with bin/px4 and etc/; default "
-        "$PX4_SITL_DIR).",
-    ),
-]
-"""``--px4-dir``, the same in every command that starts the real PX4."""
 
 
 @sim_app.command()

@@ -31,7 +31,7 @@ from sitl.campaign.flights import Flight, expand, replay_command, replay_toml, s
 from sitl.campaign.fly import WORK_DIR_VARIABLE
 from sitl.campaign.spec import CampaignSpec, load_spec
 from sitl.campaign.store import failed, refused
-from sitl.cli_sim import Px4DirOpt
+from sitl.cli_options import Px4DirOpt
 
 if TYPE_CHECKING:
     from sitl.campaign.engine import FlightTask

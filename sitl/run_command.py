@@ -1,0 +1,295 @@
+"""``sitl run``'s options, declared once, and the vehicle they describe.
+
+:class:`RunCommand` is the command's options (its fields, with their ``typer.Option``, are
+the command line: :func:`companion.cli.options.options_command`) and their checks:
+:meth:`RunCommand.vehicle` turns them into the scenario and the vehicle to run, the PX4
+imitation (:class:`~sitl.vehicle.runner.SitlVehicle`) or the real PX4 flying our physics
+(:class:`~sitl.hil.Px4InTheLoop`). Every mistake is one ``error:`` line and exit status 2,
+before anything starts.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from companion.cli.usage import fail, load_or_exit
+from sitl.cli_options import ConfigOpt, Px4DirOpt
+from sitl.hil import HilOptions, Px4InTheLoop
+from sitl.hil.sensors import GPS_GRADES
+from sitl.physics.jsbsim import Wind
+from sitl.px4 import ParamError, SigningKeyError, load_signing_key
+from sitl.px4_sitl.launcher import Px4Build, Px4BuildError
+from sitl.scenario import MAX_DURATION_S, PayloadSlip, Scenario, load_scenario
+from sitl.vehicle.runner import LinkPorts, RunOptions, SitlVehicle
+
+__all__ = ["RunCommand"]
+
+
+@dataclass(frozen=True)
+class RunCommand:
+    """The options of ``sitl run`` (units in the help of each)."""
+
+    config: ConfigOpt
+    speed: Annotated[
+        float, typer.Option(help="Simulated seconds per wall-clock second (e.g. 5 for 5x).")
+    ] = 1.0
+    seed: Annotated[int, typer.Option(help="Seed of the sensor noise.")] = 0
+    noise: Annotated[
+        bool, typer.Option("--noise/--no-noise", help="The estimator's errors (or exact).")
+    ] = True
+    navigation: Annotated[
+        str,
+        typer.Option(
+            help="Estimator aiding: mocap (motion capture; set the global origin to hold) "
+            "or gps (GPS and baro)."
+        ),
+    ] = "mocap"
+    duration: Annotated[
+        float | None, typer.Option(help="Stop after this many simulated seconds.")
+    ] = None
+    truth_log: Annotated[
+        Path | None, typer.Option(help="Write ground truth here (JSON lines).")
+    ] = None
+    onboard_port: Annotated[
+        int, typer.Option(help="Remote UDP port of the onboard (API) link.")
+    ] = 14540
+    onboard_local_port: Annotated[int, typer.Option(help="Local UDP port of that link.")] = 14580
+    gcs_port: Annotated[int, typer.Option(help="Remote UDP port of the GCS link.")] = 14550
+    gcs_local_port: Annotated[int, typer.Option(help="Local UDP port of that link.")] = 18570
+    signing_key: Annotated[
+        Path | None,
+        typer.Option(help="MAVLink 2 signing key file (32 bytes); unsigned input is rejected."),
+    ] = None
+    physics: Annotated[
+        str, typer.Option(help="Truth physics: pinocchio (our plant) or jsbsim.")
+    ] = "pinocchio"
+    wind: Annotated[
+        str | None,
+        typer.Option(
+            help="Steady wind 'E,N,U' [m/s], world ENU, in place of the scenario's plant.wind_m_s."
+        ),
+    ] = None
+    turbulence: Annotated[
+        float,
+        typer.Option(help="Dryden turbulence, MIL-F-8785C wind speed at 20 ft [m/s] (jsbsim)."),
+    ] = 0.0
+    servo_silent: Annotated[
+        str | None,
+        typer.Option(help="Fault injection 'ID@T': servo ID stops answering at T [s, sim time]."),
+    ] = None
+    servo_reply_delay_ms: Annotated[
+        float,
+        typer.Option(
+            help="Extra delay before every servo reply [ms], as a USB-serial adapter's latency "
+            "timer adds (an FTDI chip's default is 16 ms)."
+        ),
+    ] = 0.0
+    grasp_fails: Annotated[
+        bool,
+        typer.Option(
+            "--grasp-fails", help="Fault injection: the gripper closes on nothing (no grasp)."
+        ),
+    ] = False
+    payload_slip: Annotated[
+        float | None,
+        typer.Option(
+            help="Fault injection: the grasped object slips out this many seconds after "
+            "the grasp [s, sim time]."
+        ),
+    ] = None
+    autopilot: Annotated[
+        str,
+        typer.Option(
+            help="imitation (our PX4-like autopilot) or px4 (the real PX4 SITL build flies "
+            "our physics through simulator_mavlink, in lockstep)."
+        ),
+    ] = "imitation"
+    px4_dir: Px4DirOpt = None
+    keep_log: Annotated[
+        Path | None,
+        typer.Option(help="--autopilot px4: keep PX4's working directory (log, ULog) here."),
+    ] = None
+    gps: Annotated[
+        str,
+        typer.Option(help="--autopilot px4 --navigation gps: the receiver, standard or rtk."),
+    ] = "standard"
+    lockstep: Annotated[
+        bool,
+        typer.Option(
+            "--lockstep",
+            help="While the client streams setpoints (SET_ATTITUDE_TARGET or "
+            "SET_POSITION_TARGET_LOCAL_NED), step past a pose only once its setpoint is in, as "
+            "fast as the two go (the imitation; PX4 keeps its own).",
+        ),
+    ] = False
+    companion_lockstep: Annotated[
+        bool,
+        typer.Option(
+            "--companion-lockstep/--no-companion-lockstep",
+            help="--autopilot px4: relay the onboard link and hold PX4's clock after each "
+            "frame until the companion has answered the last pose (a SET_ATTITUDE_TARGET or "
+            "SET_POSITION_TARGET_LOCAL_NED stamped with its time) and read the joints: its "
+            "computing takes no vehicle time, on an idle or a busy machine.",
+        ),
+    ] = True
+    nice: Annotated[
+        int,
+        typer.Option(
+            help="--autopilot px4: lower the simulator's CPU priority (not PX4's) by this "
+            "much (0-19), so that a companion on the same machine keeps its real-time "
+            "period; the lockstep pair only slows down."
+        ),
+    ] = 5
+
+    @property
+    def flown_by(self) -> str:
+        """Who flies: "the PX4 imitation" or "PX4"."""
+        return "the PX4 imitation" if self.autopilot == "imitation" else "PX4"
+
+    def vehicle(self) -> tuple[Scenario, SitlVehicle | Px4InTheLoop]:
+        """The scenario (with the options' pickup faults) and the vehicle to run; each
+        mistake one ``error:`` line, exit status 2."""
+        cfg = load_or_exit(self.config, load_scenario)
+        build = self._px4_build()
+        self._check_run()
+        silent = _servo_fault(self.servo_silent) if self.servo_silent is not None else None
+        if not (
+            math.isfinite(self.servo_reply_delay_ms) and 0.0 <= self.servo_reply_delay_ms < 1000.0
+        ):
+            fail(f"--servo-reply-delay-ms must be 0 to 999 ms, got {self.servo_reply_delay_ms:g}")
+        cfg = _pickup_faults(cfg, self.config, self.grasp_fails, self.payload_slip)
+        air = self._air(cfg)
+        try:
+            options = RunOptions(
+                speed=self.speed,
+                seed=self.seed,
+                noise=self.noise,
+                navigation=self.navigation,
+                ports=LinkPorts(
+                    onboard_local=self.onboard_local_port,
+                    onboard_remote=self.onboard_port,
+                    gcs_local=self.gcs_local_port,
+                    gcs_remote=self.gcs_port,
+                ),
+                signing_key=self.signing_key,
+                truth_log=self.truth_log,
+                servo_silent=silent,
+                servo_reply_delay_s=self.servo_reply_delay_ms * 1e-3,
+                physics=self.physics,
+                wind=air,
+                lockstep=self.lockstep,
+            )
+            if build is None:
+                return cfg, SitlVehicle(cfg, options)
+            hil = HilOptions(
+                build,
+                keep_dir=self.keep_log,
+                gps=self.gps,
+                companion_lockstep=self.companion_lockstep,
+                nice=self.nice,
+            )
+            return cfg, Px4InTheLoop(cfg, options, hil)
+        except (ValueError, ParamError, SigningKeyError) as exc:
+            fail(f"{self.config}: {exc}")
+
+    def _px4_build(self) -> Px4Build | None:
+        """The PX4 build that flies (``--autopilot px4``), else None."""
+        if self.autopilot not in ("imitation", "px4"):
+            fail(f"--autopilot must be imitation or px4, got {self.autopilot!r}")
+        px4 = self.autopilot == "px4"
+        if px4 and self.px4_dir is None:
+            fail("--autopilot px4 needs a PX4 SITL build: pass --px4-dir DIR or set PX4_SITL_DIR")
+        if px4 and self.lockstep:
+            fail("--lockstep is the imitation's: PX4 in the loop runs in its own lockstep")
+        if px4 and self.signing_key is not None:
+            fail("--signing-key is the imitation's: configure PX4's own signing (MAV_SIGN_CFG)")
+        if self.gps not in GPS_GRADES:
+            fail(f"--gps must be one of {', '.join(GPS_GRADES)}, got {self.gps!r}")
+        if not px4 or self.px4_dir is None:
+            return None
+        try:
+            return Px4Build.at(self.px4_dir)
+        except Px4BuildError as exc:
+            fail(str(exc))
+
+    def _check_run(self) -> None:
+        """The run's length, seed, truth log, ports and signing key."""
+        if self.duration is not None and not self.duration > 0.0:
+            fail(f"--duration must be positive, got {self.duration:g}")
+        if self.seed < 0:
+            fail(f"--seed must be a whole number 0 or more (a numpy seed), got {self.seed}")
+        if self.truth_log is not None:
+            if self.truth_log.exists():
+                fail(
+                    f"--truth-log {self.truth_log}: exists; an earlier run's truth is never "
+                    "overwritten: name a new file"
+                )
+            if not self.truth_log.parent.is_dir():
+                fail(f"--truth-log {self.truth_log}: no directory {self.truth_log.parent}")
+        ports = (
+            ("--onboard-port", self.onboard_port),
+            ("--onboard-local-port", self.onboard_local_port),
+            ("--gcs-port", self.gcs_port),
+            ("--gcs-local-port", self.gcs_local_port),
+        )
+        for option, port in ports:
+            if not 0 <= port <= 65535:
+                fail(f"{option} must be a UDP port number 0-65535, got {port}")
+        if self.signing_key is not None:
+            try:
+                load_signing_key(self.signing_key)
+            except OSError as exc:
+                fail(f"--signing-key {self.signing_key}: cannot read: {exc.strerror or exc}")
+            except SigningKeyError as exc:
+                fail(f"--signing-key {exc}")
+
+    def _air(self, cfg: Scenario) -> Wind | None:
+        """The physics and navigation named right, and the wind of the options."""
+        if self.physics not in ("pinocchio", "jsbsim"):
+            fail(f"--physics must be pinocchio or jsbsim, got {self.physics!r}")
+        if self.navigation not in ("mocap", "gps"):
+            fail(f"--navigation must be mocap or gps, got {self.navigation!r}")
+        try:
+            air = Wind.from_text(self.wind, self.turbulence, self.seed, cfg.plant.wind_m_s)
+        except ValueError as exc:
+            fail(str(exc))
+        if self.turbulence != 0.0 and self.physics != "jsbsim":
+            fail("--turbulence needs --physics jsbsim")
+        return air
+
+
+def _pickup_faults(
+    cfg: Scenario, config: Path, grasp_fails: bool, slip_after_s: float | None
+) -> Scenario:
+    """The scenario with the pickup faults of the options (``--grasp-fails``,
+    ``--payload-slip``) in its ``[world]``; one ``error:`` line for a bad value."""
+    if not grasp_fails and slip_after_s is None:
+        return cfg
+    if cfg.world is None or cfg.world.payload_position_m is None:
+        fail(f"--grasp-fails and --payload-slip need an object: {config} has no [world] "
+             "payload_position_m")  # fmt: skip
+    update: dict[str, object] = {}
+    if grasp_fails:
+        update["grasp_fails"] = True
+    if slip_after_s is not None:
+        if not (math.isfinite(slip_after_s) and 0.0 <= slip_after_s <= MAX_DURATION_S):
+            fail(
+                f"--payload-slip must be 0-{MAX_DURATION_S:g} s after the grasp, "
+                f"got {slip_after_s:g}"
+            )
+        update["payload_slip"] = PayloadSlip(after_grasp_s=slip_after_s)
+    return cfg.model_copy(update={"world": cfg.world.model_copy(update=update)})
+
+
+def _servo_fault(text: str) -> tuple[int, float]:
+    """``--servo-silent ID@SECONDS`` as (servo id, simulated time [s])."""
+    servo, _, at = text.partition("@")
+    try:
+        return int(servo), float(at)
+    except ValueError:
+        fail(f"--servo-silent needs ID@SECONDS, e.g. 2@30, got {text!r}")
