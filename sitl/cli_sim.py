@@ -495,7 +495,16 @@ def demo(
     typer.echo(f"sitl: running ({sitl.arm_bus}, MAVLink {connect})")
     try:
         status = run_mission(
-            beliefs, connect, sitl.arm_bus, plan, controller, out, None, 250.0, live_port=live
+            beliefs,
+            connect,
+            sitl.arm_bus,
+            plan,
+            controller,
+            out,
+            None,
+            250.0,
+            live_port=live,
+            figures=False,  # drawn once the truth is in
         )
     finally:
         sitl.stop()
@@ -550,6 +559,7 @@ def _fly_virtual(
             out,
             options,
             controller=controller,  # type: ignore[arg-type]
+            figures=False,  # drawn once the truth is in
             live_port=live_port,
         )
     except UsageError as exc:

@@ -1,6 +1,6 @@
 """A simulated flight's figures with the truth beside the estimate: ``companion plot``'s
-figures (:func:`companion.cli.plot.plot_flight_log`) drawn again once the flight is over,
-with link 2's true m2 and lc from the truth log the companion never saw."""
+figures (:func:`companion.cli.mission.draw_figures`) drawn once the flight is over, with
+link 2's true m2 and lc from the truth log the companion never saw."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.cli.plot import TruthLines, figures_available, plot_flight_log
-from companion.logs.flightlog import FlightLogError, read_flight_log
+from companion.cli.mission import draw_figures
+from companion.cli.plot import TruthLines
 
 __all__ = ["draw_with_truth", "truth_lines"]
 
@@ -29,13 +29,9 @@ def truth_lines(truth_log: Path) -> TruthLines:
 
 
 def draw_with_truth(out_dir: Path) -> list[Path]:
-    """Draw ``out_dir``'s flight figures again with the truth beside the estimate; none
-    (an empty list) without matplotlib, a flight log or a truth log."""
-    flight_csv, truth_log = out_dir / "flight.csv", out_dir / "truth.jsonl"
-    if not (figures_available() and flight_csv.exists() and truth_log.exists()):
-        return []
-    try:
-        flight = read_flight_log(flight_csv)
-    except FlightLogError:
-        return []
-    return plot_flight_log(flight, out_dir, truth_lines(truth_log))
+    """Draw ``out_dir``'s flight figures with the truth beside the estimate (without it
+    when there is no truth log); the paths drawn, none without a flight log or matplotlib
+    (:func:`~companion.cli.mission.draw_figures`'s notes)."""
+    truth_log = out_dir / "truth.jsonl"
+    truth = truth_lines(truth_log) if truth_log.exists() else None
+    return draw_figures(out_dir / "flight.csv", out_dir, truth)

@@ -29,7 +29,7 @@ import typer
 from arm_driver.bus import open_bus
 from arm_driver.errors import ArmDriverError
 from companion.cli.flight_page import FLIGHT_PAGE, write_flight_page
-from companion.cli.plot import FIGURES, figures_available, plot_flight_log
+from companion.cli.plot import FIGURES, TruthLines, figures_available, plot_flight_log
 from companion.cli.usage import check_range, config_or_exit, fail, output_dir_or_exit
 from companion.config import CompanionConfig, arm_bus_configs
 from companion.control.flight import FlightControl, FlightControllerName
@@ -221,9 +221,8 @@ async def fly_pickup(
     summary = report.as_dict()
     summary["failure"] = None if failure is None else f"{type(failure).__name__}: {failure}"
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    if figures and log_path.stat().st_size > 0:
-        _draw_figures(log_path, out_dir)
     if figures:
+        draw_figures(log_path, out_dir)
         write_flight_page(out_dir)
     return report, failure
 
@@ -252,20 +251,25 @@ def _tee(*sinks: Callable[..., None]) -> Callable[..., None]:
     return call
 
 
-def _draw_figures(log_path: Path, out_dir: Path) -> None:
-    """The figures of ``companion plot``, if matplotlib is installed (the flight install
-    need not have it); a figure must never hide the mission's result."""
+def draw_figures(log_path: Path, out_dir: Path, truth: TruthLines | None = None) -> list[Path]:
+    """The figures of ``companion plot`` into ``out_dir`` (with ``truth`` beside the
+    estimate, if given) when the flight log holds a control cycle and matplotlib is
+    installed (the flight install need not have it); the paths drawn. A figure must never
+    hide the mission's result: a failure to draw is one warning line."""
+    if not log_path.exists() or log_path.stat().st_size == 0:
+        return []
     if not figures_available():
         typer.echo("note: figures not drawn (matplotlib not installed: pip install '.[plot]')")
-        return
+        return []
     try:
         flight = read_flight_log(log_path)
         if len(flight) == 0:
             typer.echo("note: no figures: the flight log has no control cycle")
-            return
-        plot_flight_log(flight, out_dir)
+            return []
+        return plot_flight_log(flight, out_dir, truth)
     except Exception as exc:
         typer.echo(f"warning: figures not drawn: {exc}", err=True)
+        return []
 
 
 def _print_report(report: MissionReport, failure: BaseException | None) -> None:
@@ -401,11 +405,20 @@ def plan_for(scenario: CompanionConfig, payload_at, place_at, cruise_altitude: f
 
 
 def run_mission(
-    scenario, connect, bus_url, plan, controller, out, signing_key, rate, live_port=None
+    scenario,
+    connect,
+    bus_url,
+    plan,
+    controller,
+    out,
+    signing_key,
+    rate,
+    live_port=None,
+    figures: bool = True,
 ) -> int:
     """Fly, print the report; the exit status (0 completed, 1 failed). ``out`` is the
     directory :func:`companion.cli.usage.output_dir_or_exit` chose (created if missing);
-    ``live_port``: see :func:`fly_pickup`."""
+    ``live_port``, ``figures``: see :func:`fly_pickup`."""
     check_mission_options(controller, rate, signing_key, live_port)
     out.mkdir(parents=True, exist_ok=True)
     try:
@@ -420,6 +433,7 @@ def run_mission(
                 signing_key=signing_key,
                 control_rate_hz=rate,
                 live_port=live_port,
+                figures=figures,
             )
         )
     except UsageError as exc:
