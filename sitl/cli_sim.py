@@ -36,7 +36,7 @@ from companion.cli.mission import (
     run_mission,
 )
 from companion.cli.usage import EXIT_USAGE, check_range, fail, load_or_exit, output_dir_or_exit
-from sitl.cli_options import Px4DirOpt
+from sitl.cli_options import AutopilotOpt, Px4DirOpt, SeedOpt, check_seed
 from sitl.flight_figures import draw_with_truth
 from sitl.scenario import MAX_DURATION_S, Scenario, load_scenario
 from sitl.truth_mcap import add_flight_truth
@@ -121,7 +121,6 @@ DurationOpt = Annotated[
         "simulation.duration_s]."
     ),
 ]
-SeedOpt = Annotated[int, typer.Option(help="Seed of the sensor-noise generator, 0 or more.")]
 PhysicsOpt = Annotated[
     PhysicsChoice,
     typer.Option(help="Truth physics: our Pinocchio plant, or JSBSim (underactuated only)."),
@@ -229,11 +228,6 @@ def _check_times(cfg: Scenario, duration: float | None, *times: float | None) ->
             fail(f"event time {t:g} s lies outside the run [0, {end:g}] s")
 
 
-def _check_seed(seed: int) -> None:
-    if seed < 0:
-        fail(f"--seed must be a whole number 0 or more (a numpy seed), got {seed}")
-
-
 @sim_app.command()
 def sim(
     scenario: ScenarioOpt,
@@ -270,7 +264,7 @@ def sim(
 
     cfg = load_or_exit(scenario, load_scenario)
     _check_times(cfg, duration, pickup_at, release_at)
-    _check_seed(seed)
+    check_seed(seed)
     air = _check_physics(cfg, physics, plant, wind, turbulence, seed)
     out = output_dir_or_exit(out, SIM_FILES)
     options = SimOptions(
@@ -341,7 +335,7 @@ def compare(
 
     cfg = load_or_exit(scenario, load_scenario)
     _check_times(cfg, duration)
-    _check_seed(seed)
+    check_seed(seed)
     air = _check_physics(cfg, physics, plant, wind, turbulence, seed)
     out = output_dir_or_exit(out, COMPARE_FILES)
     runs = []
@@ -395,17 +389,11 @@ def demo(
             "the highest speed whose results stay within speed 1's (docs/px4_speed.md)."
         ),
     ] = "1",
-    seed: Annotated[int, typer.Option(help="Seed of the SITL's sensor noise.")] = 0,
+    seed: SeedOpt = 0,
     place_at: Annotated[
         str, typer.Option(help="Where to put the object, X,Y,Z [m, ENU].")
     ] = "-1.0,0.5,0.05",
-    autopilot: Annotated[
-        str,
-        typer.Option(
-            help="imitation (our PX4-like autopilot) or px4 (the real PX4 SITL build flies "
-            "our physics: sitl run --autopilot px4)."
-        ),
-    ] = "imitation",
+    autopilot: AutopilotOpt = "imitation",
     px4_dir: Px4DirOpt = None,
     navigation: Annotated[
         str, typer.Option(help="mocap (motion capture) or gps (with --autopilot px4: RTK).")
@@ -469,7 +457,7 @@ def demo(
         )
     plan = plan_for(beliefs, payload_at, place, 1.5)
     check_mission_options(controller, 250.0, None, live)
-    _check_seed(seed)
+    check_seed(seed)
     out = output_dir_or_exit(out, DEMO_FILES)
     if clock == "virtual":
         status = _fly_virtual(scenario, plan, controller, out, seed, navigation, live)

@@ -18,7 +18,7 @@ from typing import Annotated
 import typer
 
 from companion.cli.usage import fail, load_or_exit
-from sitl.cli_options import ConfigOpt, Px4DirOpt
+from sitl.cli_options import AutopilotOpt, ConfigOpt, Px4DirOpt, SeedOpt, check_seed
 from sitl.hil import HilOptions, Px4InTheLoop
 from sitl.hil.sensors import GPS_GRADES
 from sitl.physics.jsbsim import Wind
@@ -38,7 +38,7 @@ class RunCommand:
     speed: Annotated[
         float, typer.Option(help="Simulated seconds per wall-clock second (e.g. 5 for 5x).")
     ] = 1.0
-    seed: Annotated[int, typer.Option(help="Seed of the sensor noise.")] = 0
+    seed: SeedOpt = 0
     noise: Annotated[
         bool, typer.Option("--noise/--no-noise", help="The estimator's errors (or exact).")
     ] = True
@@ -102,13 +102,7 @@ class RunCommand:
             "the grasp [s, sim time]."
         ),
     ] = None
-    autopilot: Annotated[
-        str,
-        typer.Option(
-            help="imitation (our PX4-like autopilot) or px4 (the real PX4 SITL build flies "
-            "our physics through simulator_mavlink, in lockstep)."
-        ),
-    ] = "imitation"
+    autopilot: AutopilotOpt = "imitation"
     px4_dir: Px4DirOpt = None
     keep_log: Annotated[
         Path | None,
@@ -221,8 +215,7 @@ class RunCommand:
         """The run's length, seed, truth log, ports and signing key."""
         if self.duration is not None and not self.duration > 0.0:
             fail(f"--duration must be positive, got {self.duration:g}")
-        if self.seed < 0:
-            fail(f"--seed must be a whole number 0 or more (a numpy seed), got {self.seed}")
+        check_seed(self.seed)
         if self.truth_log is not None:
             if self.truth_log.exists():
                 fail(
