@@ -41,7 +41,7 @@ from pathlib import Path
 
 import tomlkit
 
-from sitl.cli_sim import DEFAULT_SCENARIO
+from sitl.demo_command import DEFAULT_SCENARIO
 
 SPIN = "while True:\n    pass\n"
 

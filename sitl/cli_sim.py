@@ -16,7 +16,6 @@ import json
 import math
 import sys
 from enum import StrEnum
-from importlib.resources import files
 from pathlib import Path
 from typing import Annotated
 
@@ -28,21 +27,20 @@ from rich.table import Table
 from companion.cli.flight_page import write_flight_page
 from companion.cli.mission import (
     MISSION_FILES,
-    ControllerOpt,
-    LiveOpt,
     check_mission_options,
-    parse_xyz,
-    plan_for,
     run_mission,
 )
+from companion.cli.options import options_command
 from companion.cli.usage import EXIT_USAGE, check_range, fail, load_or_exit, output_dir_or_exit
-from sitl.cli_options import AutopilotOpt, Px4DirOpt, SeedOpt, check_seed
+from companion.mission.pickup import PickupPlan
+from sitl.cli_options import SeedOpt, check_seed
+from sitl.demo_command import DemoCommand
 from sitl.flight_figures import draw_with_truth
 from sitl.scenario import MAX_DURATION_S, Scenario, load_scenario
 from sitl.truth_mcap import add_flight_truth
 from sitl.vehicle.launch import SitlNotReadyError, start_sitl
 
-__all__ = ["COMPARE_FILES", "DEFAULT_SCENARIO", "DEMO_FILES", "SIM_FILES", "sim_app"]
+__all__ = ["COMPARE_FILES", "DEMO_FILES", "SIM_FILES", "sim_app"]
 
 SIM_FILES = ("summary.json", "timeseries.csv", "tracking.png", "estimation.png", "parameters.png")
 """What ``sitl sim`` writes into ``--out``."""
@@ -50,9 +48,6 @@ COMPARE_FILES = ("compare.md", "summaries.json", "compare.png")
 """What ``sitl compare`` writes into ``--out``."""
 DEMO_FILES = (*MISSION_FILES, "truth.jsonl")
 """What ``sitl demo`` writes into ``--out``."""
-
-DEFAULT_SCENARIO = Path(str(files("sitl.configs") / "sitl_pickup.toml"))
-"""The demo's built-in scenario (package data: configs/ is also ``sitl.configs``)."""
 
 sim_app = typer.Typer(add_completion=False)
 """The commands of this module; ``sitl.cli`` adds them to ``sitl``."""
@@ -370,111 +365,45 @@ def compare(
 
 
 @sim_app.command()
-def demo(
-    out: Annotated[
-        Path,
-        typer.Option(
-            help="Directory for log, summary, truth and figures; if it holds an earlier "
-            "run, this one goes to OUT-2, OUT-3, ... (never overwritten)."
-        ),
-    ] = Path("out/demo"),
-    config: Annotated[
-        Path, typer.Option(help="Scenario with [world] and [arm_bus].")
-    ] = DEFAULT_SCENARIO,
-    controller: ControllerOpt = "passivity",
-    speed: Annotated[
-        str,
-        typer.Option(
-            help="SITL speed (simulated s per wall s), or 'validated': with --autopilot px4 "
-            "the highest speed whose results stay within speed 1's (docs/px4_speed.md)."
-        ),
-    ] = "1",
-    seed: SeedOpt = 0,
-    place_at: Annotated[
-        str, typer.Option(help="Where to put the object, X,Y,Z [m, ENU].")
-    ] = "-1.0,0.5,0.05",
-    autopilot: AutopilotOpt = "imitation",
-    px4_dir: Px4DirOpt = None,
-    navigation: Annotated[
-        str, typer.Option(help="mocap (motion capture) or gps (with --autopilot px4: RTK).")
-    ] = "mocap",
-    clock: Annotated[
-        str,
-        typer.Option(
-            help="wall (sitl run in its own process, paced at --speed, over UDP and a pty) "
-            "or virtual (vehicle and companion in one process on the simulation's clock, "
-            "in lockstep, as fast as the machine goes: the same flight log every time)."
-        ),
-    ] = "wall",
-    live: LiveOpt = None,
-) -> None:
+@options_command(DemoCommand)
+def demo(options: DemoCommand) -> None:
     """Start the simulated vehicle (``sitl run``), fly the pickup mission against it
     (``companion mission pickup``'s code, given only the companion's part of the scenario),
     write log, summary and figures, and compare the estimate with the truth. With
     ``--autopilot px4`` the real PX4 flies our physics; its log and ULog stay in
     ``OUT/px4``. With ``--clock virtual`` the vehicle and the companion run in this
     process on simulated time (:mod:`sitl.vehicle.lockstep`)."""
-    if autopilot not in ("imitation", "px4"):
-        fail(f"--autopilot must be imitation or px4, got {autopilot!r}")
-    if clock not in ("wall", "virtual"):
-        fail(f"--clock must be wall or virtual, got {clock!r}")
-    if clock == "virtual" and autopilot != "imitation":
-        fail("--clock virtual flies the PX4 imitation; PX4 keeps its own lockstep clock")
-    factor = _speed(speed, autopilot)
-    if clock == "virtual" and factor != 1.0:
-        fail("--speed paces the wall clock; --clock virtual runs as fast as it can")
-    if navigation not in ("mocap", "gps"):
-        fail(f"--navigation must be mocap or gps, got {navigation!r}")
-    extra = ["--navigation", navigation]
-    if autopilot == "px4":
-        if px4_dir is None:
-            fail("--autopilot px4 needs a PX4 SITL build: pass --px4-dir DIR or set PX4_SITL_DIR")
-        if navigation == "gps":
-            extra += ["--gps", "rtk"]
-    scenario = load_or_exit(config, load_scenario)
-    if scenario.world is None or scenario.world.payload_position_m is None:
-        fail(f"{config}: the demo needs a [world] section with payload_position_m")
-    beliefs = scenario.beliefs
-    payload_at = scenario.world.payload_position_m
-    place_world = parse_xyz(place_at, "--place-at")
-    place = place_world
-    if navigation == "gps":
-        # EKF2 starts its local frame where the vehicle stands (its CoM at its first GPS
-        # fix), not at the world's origin: the mission's points move into that frame,
-        # horizontally; their heights too unless the companion knows its standing height
-        # ([flight] standing_height_m: heights above the ground, moved by the companion).
-        east, north = scenario.world.start_position_m
-        up = (
-            0.0
-            if beliefs.flight.standing_height_m is not None
-            else scenario.world.landing_gear_height_m
-        )
-        payload_at = (payload_at[0] - east, payload_at[1] - north, payload_at[2] - up)
-        place = (place[0] - east, place[1] - north, place[2] - up)
-        typer.echo(
-            f"GPS: PX4's local frame starts at the standing vehicle ({east}, {north}, "
-            f"{scenario.world.landing_gear_height_m}) m"
-        )
-    plan = plan_for(beliefs, payload_at, place, 1.5)
+    factor = options.speed_factor()
+    scenario, plan, place_world = options.pickup()
+    controller, live, seed = options.controller, options.live, options.seed
     check_mission_options(controller, 250.0, None, live)
     check_seed(seed)
-    out = output_dir_or_exit(out, DEMO_FILES)
-    if clock == "virtual":
-        status = _fly_virtual(scenario, plan, controller, out, seed, navigation, live)
-        _print_truth(scenario, out, place_world)
-        draw_with_truth(out)
-        write_flight_page(out)
-        raise typer.Exit(status)
-    px4 = autopilot == "px4"
+    out = output_dir_or_exit(options.out, DEMO_FILES)
+    if options.clock == "virtual":
+        status = _fly_virtual(scenario, plan, controller, out, seed, options.navigation, live)
+    else:
+        status = _fly_wall(options, factor, scenario, plan, out)
+    _print_truth(scenario, out, place_world)
+    draw_with_truth(out)
+    write_flight_page(out)
+    raise typer.Exit(status)
+
+
+def _fly_wall(
+    options: DemoCommand, factor: float, scenario: Scenario, plan: PickupPlan, out: Path
+) -> int:
+    """The demo against ``sitl run`` in its own process at ``factor`` times real time;
+    the truth (and PX4's log) merged into the flight's MCAP; the exit status."""
+    px4 = options.px4
     try:
         sitl = start_sitl(
-            config,
+            options.config,
             "--seed",
-            str(seed),
-            *extra,
+            str(options.seed),
+            *options.sitl_arguments(),
             speed=factor,
             truth_log=out / "truth.jsonl",
-            px4_dir=px4_dir if px4 else None,
+            px4_dir=options.px4_dir if px4 else None,
             px4_log=out / "px4" if px4 else None,
         )
     except SitlNotReadyError as exc:
@@ -483,43 +412,23 @@ def demo(
     typer.echo(f"sitl: running ({sitl.arm_bus}, MAVLink {connect})")
     try:
         status = run_mission(
-            beliefs,
+            scenario.beliefs,
             connect,
             sitl.arm_bus,
             plan,
-            controller,
+            options.controller,
             out,
             None,
             250.0,
-            live_port=live,
+            live_port=options.live,
             figures=False,  # drawn once the truth is in
         )
     finally:
         sitl.stop()
     add_flight_truth(out, out / "truth.jsonl")
-    if autopilot == "px4":
+    if px4:
         _add_px4_log(out)
-    _print_truth(scenario, out, place_world)
-    draw_with_truth(out)
-    write_flight_page(out)
-    raise typer.Exit(status)
-
-
-def _speed(text: str, autopilot: str) -> float:
-    """``--speed``: a positive factor, or ``validated`` (PX4 in the loop's validated speed)."""
-    if text == "validated":
-        if autopilot != "px4":
-            fail("--speed validated is PX4 in the loop's (--autopilot px4)")
-        from sitl.hil.vehicle import VALIDATED_SPEED
-
-        return VALIDATED_SPEED
-    try:
-        factor = float(text)
-    except ValueError:
-        fail(f"--speed must be a positive number or 'validated', got {text!r}")
-    if not (math.isfinite(factor) and factor > 0.0):
-        fail(f"--speed must be a positive number or 'validated', got {text!r}")
-    return factor
+    return status
 
 
 def _fly_virtual(
