@@ -88,6 +88,7 @@ from sitl.px4_sitl.launcher import (
     release_instance,
 )
 from sitl.scenario import Scenario
+from sitl.stepping import WallPacer, running
 from sitl.vehicle.launch import free_udp_port
 from sitl.vehicle.runner import (
     LOCKSTEP_WAIT_S,
@@ -415,31 +416,23 @@ class Px4InTheLoop:
             else (self.options.ports.onboard_local, self.options.ports.onboard_remote)
         )
         boot = _Boot(self.px4, self.options, onboard, self._mode_link_port())
-        wall_step = world.dt_s / self.options.speed
+        pacer = WallPacer(world.dt_s / self.options.speed, _MAX_LAG_S)
         truth_every = max(1, round(1.0 / (self.options.truth_rate_hz * world.dt_s)))
         silent = self.options.servo_silent
         log_offset = 0
         sim0 = world.time_s
         wall0 = time.perf_counter()
-        slot = next_look = wall0
+        next_look = wall0
         ready = False
         step = 0
         perf = time.perf_counter
-        while not stop.is_set() and (until_s is None or world.time_s < until_s - 0.5 * world.dt_s):
+        while running(stop, world.time_s, world.dt_s, until_s):
             force = np.zeros(3)
             omega = np.zeros(3)
             commands = self._commands
             for _ in range(self.steps_per_frame):
                 if ready:  # each plant step in its wall-clock slot, as the imitation's
-                    wait = slot - perf()
-                    if wait > 0.0:
-                        time.sleep(wait)
-                        stats.paced_s += wait
-                    elif -wait > _MAX_LAG_S:
-                        stats.overruns += 1
-                        slot = perf()
-                    stats.lateness_us.append(max(0.0, -wait) * 1e6)
-                    slot += wall_step
+                    stats.lateness_us.append(pacer.wait() * 1e6)
                 t0 = perf()
                 with self.servo_bus.lock:
                     state = world.step_motors(commands)
@@ -482,7 +475,7 @@ class Px4InTheLoop:
                         log_offset = self.px4.log_path.stat().st_size
                         if on_ready is not None:
                             on_ready(self.describe())
-                        slot = perf()
+                        pacer.restart()
                     elif t3 - wall0 > self.hil.ready_timeout_s:
                         raise Px4NotReadyError(
                             f"PX4 was not ready within {self.hil.ready_timeout_s:g} s "
@@ -494,6 +487,7 @@ class Px4InTheLoop:
             stats.companion_holds = relay.holds
             stats.companion_wait_s = relay.held_s
             stats.companion_releases = relay.releases
+        stats.overruns, stats.paced_s = pacer.overruns, pacer.slept_s
         stats.steps = step
         stats.sim_time_s = world.time_s - sim0
         stats.wall_time_s = time.perf_counter() - wall0

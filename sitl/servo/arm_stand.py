@@ -36,8 +36,9 @@ estimate's carry check off, ``[flight] carry_check_estimate = false``), no Coulo
 friction and no joint stops (neither has ``sitl run``'s plant).
 
 Time: the thread steps the fixed plant step ``1 / plant.rate_hz`` as often as the wall
-clock (times ``speed``) asks, several steps at once when it woke late; a backlog longer
-than ``max_lag_s`` is dropped and counted in :attr:`ArmStand.overruns`. The servos' own
+clock (times ``speed``) asks (:class:`~sitl.stepping.WallPacer`), back to back when it
+woke late; a backlog longer than ``max_lag_s`` is dropped and counted in
+:attr:`ArmStand.overruns`. The servos' own
 time (current loop, Bus Watchdog) is the stand's: the pty server does not step them.
 """
 
@@ -45,7 +46,6 @@ from __future__ import annotations
 
 import math
 import threading
-import time
 
 from arm_driver.joint import GripperConfig, JointConfig
 from companion.config import arm_bus_configs
@@ -53,6 +53,7 @@ from sitl.physics.jsbsim.arm import ArmDynamics
 from sitl.scenario import Scenario
 from sitl.servo.pty_server import PtyServoBus
 from sitl.servo.xm430 import XM430Parameters, XM430Servo
+from sitl.stepping import WallPacer
 from sitl.vehicle.world import GripperJaw
 
 __all__ = ["HELD_BASE_MASS_KG", "ArmStand", "held_base_arm"]
@@ -207,19 +208,14 @@ class ArmStand:
         self.stop()
 
     def _run(self) -> None:
-        wall_step = self.dt_s / self.speed
-        max_backlog = max(1, int(self._max_lag_s / wall_step))
-        due_at = time.monotonic()
-        while not self._stop.wait(max(0.0, due_at - time.monotonic())):
-            owed = int((time.monotonic() - due_at) / wall_step) + 1
-            if owed > max_backlog:
-                self.overruns += 1
-                due_at = time.monotonic()
-                owed = 1
+        pacer = WallPacer(self.dt_s / self.speed, self._max_lag_s, self._stop)
+        while not self._stop.is_set():
+            pacer.wait()
+            if self._stop.is_set():
+                break
             with self.lock:
-                for _ in range(owed):
-                    self.step()
-            due_at += owed * wall_step
+                self.step()
+            self.overruns = pacer.overruns
 
 
 def _servo(joint: JointConfig, angle_rad: float, mismatch: float) -> XM430Servo:

@@ -56,6 +56,7 @@ from sitl.px4 import (
 from sitl.scenario import Scenario
 from sitl.servo import Faults, PtyServoBus, XM430Parameters, XM430Servo
 from sitl.servo.memory_bus import MemoryServoBus
+from sitl.stepping import WallPacer, running
 from sitl.vehicle.navigation import ERROR_MODELS, Navigation
 from sitl.vehicle.world import World, WorldSettings
 
@@ -469,34 +470,22 @@ class SitlVehicle:
         # to answer like a servo, not after Python's default 5 ms switch interval.
         sys.setswitchinterval(_SWITCH_INTERVAL_S)
         self._console = console
-        wall_dt = self.world.dt_s / self.options.speed
+        world = self.world
+        pacer = WallPacer(world.dt_s / self.options.speed, _MAX_LAG_S)
         stats = RunStats()
-        sim0 = self.world.time_s
+        sim0 = world.time_s
         step0 = self.steps
         wall0 = time.perf_counter()
-        slot = wall0
-        while not stop.is_set() and (
-            until_s is None or self.world.time_s < until_s - 0.5 * self.world.dt_s
-        ):
-            now_wall = time.perf_counter()
-            lateness = now_wall - slot
-            if lateness > _MAX_LAG_S:
-                stats.overruns += 1
-                slot = now_wall
-                lateness = 0.0
-            stats.lateness_us.append(lateness * 1e6)
+        while running(stop, world.time_s, world.dt_s, until_s):
+            stats.lateness_us.append(pacer.wait() * 1e6)
             self.step()
             if self.options.lockstep and self._streaming():
                 if self._pose_sent_ms is not None:
                     stats.lockstep_waits += 1
                     if not self._await_setpoint():
                         stats.lockstep_timeouts += 1
-                slot = time.perf_counter()  # in lockstep the client paces the steps
-                continue
-            slot += wall_dt
-            wait = slot - time.perf_counter()
-            if wait > 0.0:
-                time.sleep(wait)
+                pacer.restart()  # in lockstep the client paces the steps
+        stats.overruns = pacer.overruns
         stats.steps = self.steps - step0
         stats.sim_time_s = self.world.time_s - sim0
         stats.wall_time_s = time.perf_counter() - wall0

@@ -1,0 +1,111 @@
+"""sitl.stepping: the wall-clock slots of the simulator's steps, and the end of a run
+(on a fake clock: what is asserted is the schedule, not this machine's timing)."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+
+from sitl import stepping
+from sitl.stepping import WallPacer, running
+
+
+class _Clock:
+    """time.perf_counter and time.sleep on a clock that moves only when told."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+        self.sleeps: list[float] = []
+
+    def perf_counter(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.sleeps.append(seconds)
+        self.now += seconds
+
+
+@pytest.fixture
+def clock(monkeypatch) -> _Clock:
+    fake = _Clock()
+    monkeypatch.setattr(stepping, "time", fake)
+    return fake
+
+
+def test_steps_on_time_wait_for_their_slots(clock) -> None:
+    """GIVEN 1 ms slots and steps that take 0.4 ms WHEN paced THEN each step starts in its
+    slot, on time, after sleeping the rest of the millisecond."""
+    pacer = WallPacer(1e-3, 0.02)
+    starts = []
+    for _ in range(5):
+        assert pacer.wait() == pytest.approx(0.0, abs=1e-12)
+        starts.append(clock.now)
+        clock.now += 4e-4
+    assert starts == pytest.approx([100.0, 100.001, 100.002, 100.003, 100.004])
+    assert clock.sleeps == pytest.approx([6e-4] * 4)
+    assert pacer.slept_s == pytest.approx(2.4e-3) and pacer.overruns == 0
+
+
+def test_a_late_step_is_caught_up_within_the_largest_lag(clock) -> None:
+    """GIVEN a step that took 5 ms of 1 ms slots (lag limit 20 ms) WHEN paced THEN the next
+    steps start late by 4, 3, 2, 1 ms, back to back, and then on their slots again."""
+    pacer = WallPacer(1e-3, 0.02)
+    pacer.wait()
+    clock.now += 5e-3
+    late = []
+    for _ in range(5):
+        late.append(pacer.wait())
+    assert late == pytest.approx([4e-3, 3e-3, 2e-3, 1e-3, 0.0], abs=1e-12)
+    assert pacer.overruns == 0 and sum(clock.sleeps) < 1e-9  # back to back
+
+
+def test_a_step_beyond_the_largest_lag_is_an_overrun_and_the_slots_start_again(clock) -> None:
+    """GIVEN a 50 ms stall (lag limit 20 ms) WHEN paced THEN one overrun, that step counts
+    as on time, and the next slot is one step after it."""
+    pacer = WallPacer(1e-3, 0.02)
+    pacer.wait()
+    clock.now += 0.05
+    assert pacer.wait() == 0.0 and pacer.overruns == 1
+    resumed = clock.now
+    assert pacer.wait() == pytest.approx(0.0, abs=1e-12)
+    assert clock.now == pytest.approx(resumed + 1e-3)
+
+
+def test_restart_makes_the_next_slot_now(clock) -> None:
+    """GIVEN a pacer whose next slot lies ahead WHEN restarted after an outside wait (a
+    lockstep client's setpoint) THEN the next step starts at once, on time."""
+    pacer = WallPacer(1e-3, 0.02)
+    pacer.wait()
+    clock.now += 3e-3
+    pacer.restart()
+    assert pacer.wait() == 0.0 and clock.sleeps == []
+
+
+def test_the_stop_event_wakes_a_waiting_pacer() -> None:
+    """GIVEN a pacer with 10 s slots and its loop's stop set WHEN it waits for the second
+    slot THEN it returns at once (the event's wait, not a sleep)."""
+    stop = threading.Event()
+    pacer = WallPacer(10.0, 1.0, stop)
+    pacer.wait()
+    stop.set()
+    thread = threading.Thread(target=pacer.wait)
+    thread.start()
+    thread.join(timeout=5.0)
+    assert not thread.is_alive()
+
+
+def test_a_run_ends_when_stopped_or_at_its_time() -> None:
+    stop = threading.Event()
+    assert running(stop, 0.0, 1e-3)
+    assert running(stop, 0.9985, 1e-3, until_s=1.0)
+    assert not running(stop, 0.9996, 1e-3, until_s=1.0)  # within half a step of the end
+    stop.set()
+    assert not running(stop, 0.0, 1e-3)
+
+
+def test_a_pacer_needs_positive_times() -> None:
+    with pytest.raises(ValueError, match="wall_step_s"):
+        WallPacer(0.0, 0.02)
+    with pytest.raises(ValueError, match="max_lag_s"):
+        WallPacer(1e-3, 0.0)
