@@ -175,75 +175,103 @@ def simulate(
     progress : callable, optional
         Called about every simulated second with the simulated time [s].
     """
-    opts = options
-    duration = opts.duration_s if opts.duration_s is not None else scenario.simulation.duration_s
-    kind = opts.estimator or scenario.estimator.kind
-    rows = tuple(scenario.estimator.rows)
-    if opts.plant == "underactuated":
-        rows = tuple(r for r in rows if r in TRANSLATION_AND_JOINT_ROWS)
-    if not rows:
-        raise ValueError("no estimator row has a known generalized force on this plant")
-
-    rng = np.random.default_rng(opts.seed)
-    attached = scenario.simulation.payload_attached_at_start
-    plant: PlantCore
-    ideal: IdealPlant | None = None
-    flown: Plant | None = None
-    if opts.plant == "ideal":
-        plant = ideal = make_plant(
-            scenario, opts.physics, "ideal", payload_attached=attached, wind=opts.wind
-        )
-    else:
-        plant = flown = make_plant(
-            scenario, opts.physics, "underactuated", payload_attached=attached, wind=opts.wind
-        )
-    # The rows the companion actuates: all on the ideal plant; on the underactuated one PX4
-    # closes the attitude loop itself.
-    actuated = tuple(range(8)) if opts.plant == "ideal" else TRANSLATION_AND_JOINT_ROWS
-    # The companion's one control step (the flight app runs the same), given only the
-    # companion's part of the scenario.
-    control = FlightControl(
-        scenario.beliefs, opts.controller, rows=rows, actuated_rows=actuated, estimator_kind=kind
-    )
-    q0 = np.asarray(scenario.simulation.initial_q)
-    control.check_rate(scenario.simulation.control_rate_hz, q0)
-    estimator = control.estimator
-    if opts.pickup_at_s is not None and not attached:
-        # The arm is known empty until the pickup: the thrust scale alone is learnt (as the
-        # mission does before its grasp; an estimator without one holds theta).
-        estimator.calibrate()
-    traj = PaperSinusoid(scenario.trajectory)
-    sensing = _Measurements(scenario, opts.noise, rng)
-    nominal = scenario.nominal_theta.as_tuple()
-
-    sub = round(plant.rate_hz / scenario.simulation.control_rate_hz)
-    dt_c = sub * plant.dt_s
-    n_ctrl = math.floor(duration / dt_c + 1e-9)
-    data = np.empty((n_ctrl, len(COLUMNS)))
-    observer = estimator if isinstance(estimator, PaperEstimator) else None
-    # columns qd_x..thrust_scale_hat
-    not_ready = (math.nan,) * (_COL["thrust_scale_hat"] + 1 - _COL["qd_x"])
-    start = time.perf_counter()
-
-    # Until the filter has a first measurement of every row, hold gravity compensation at
-    # the scenario's start pose with the initial estimate (a few ms with latency).
-    tau = control.model.gravity(q0, scenario.estimator.initial_theta.as_tuple())
-    setpoint = attitude_thrust_setpoint(
-        tau[POSITION], q0[PSI], q0[PSI], control.tilt_max_rad, control.thrust
-    )
-    applied: np.ndarray | Skip = Skip.NO_FORCE
-    events = sorted(
-        (t, name)
-        for t, name in ((opts.pickup_at_s, "pickup"), (opts.release_at_s, "release"))
-        if t is not None
-    )
+    loop = _ClosedLoop(scenario, options)
     next_progress = 1.0
-    truth_row = _truth_row(plant)
+    for i in range(loop.periods):
+        t = i * loop.dt_s
+        loop.gripper_events(t)
+        loop.data[i] = loop.control(t, first=i == 0)
+        loop.advance()
+        if progress is not None and t >= next_progress:
+            progress(t)
+            next_progress += 1.0
+    result = SimResult(options=options, data=loop.data)
+    elapsed_s = time.perf_counter() - loop.start
+    result.summary = summarize(result, scenario, loop.kind, loop.rows, elapsed_s)
+    return result
 
-    for i in range(n_ctrl):
-        t = i * dt_c
-        while events and events[0][0] <= t:
-            _, name = events.pop(0)
+
+class _ClosedLoop:
+    """One offline run's two sides and what it carries from one control period to the
+    next: the truth plant stepped ``sub`` times per period under the companion's last
+    command (:meth:`advance`), the companion fed the period's measurements and run once
+    (:meth:`control`), the gripper's events at their times (:meth:`gripper_events`)."""
+
+    def __init__(self, scenario: Scenario, opts: SimOptions) -> None:
+        duration = (
+            opts.duration_s if opts.duration_s is not None else scenario.simulation.duration_s
+        )
+        self.kind = opts.estimator or scenario.estimator.kind
+        rows = tuple(scenario.estimator.rows)
+        if opts.plant == "underactuated":
+            rows = tuple(r for r in rows if r in TRANSLATION_AND_JOINT_ROWS)
+        if not rows:
+            raise ValueError("no estimator row has a known generalized force on this plant")
+        self.rows = rows
+        self.scenario = scenario
+        self.opts = opts
+        attached = scenario.simulation.payload_attached_at_start
+        self.ideal: IdealPlant | None = None
+        self.flown: Plant | None = None
+        self.plant: PlantCore
+        if opts.plant == "ideal":
+            self.plant = self.ideal = make_plant(
+                scenario, opts.physics, "ideal", payload_attached=attached, wind=opts.wind
+            )
+        else:
+            self.plant = self.flown = make_plant(
+                scenario, opts.physics, "underactuated", payload_attached=attached, wind=opts.wind
+            )
+        # The rows the companion actuates: all on the ideal plant; on the underactuated one
+        # PX4 closes the attitude loop itself.
+        actuated = tuple(range(8)) if opts.plant == "ideal" else TRANSLATION_AND_JOINT_ROWS
+        # The companion's one control step (the flight app runs the same), given only the
+        # companion's part of the scenario.
+        self.companion = control = FlightControl(
+            scenario.beliefs, opts.controller, rows=rows, actuated_rows=actuated,
+            estimator_kind=self.kind,
+        )  # fmt: skip
+        q0 = np.asarray(scenario.simulation.initial_q)
+        control.check_rate(scenario.simulation.control_rate_hz, q0)
+        self.estimator = estimator = control.estimator
+        if opts.pickup_at_s is not None and not attached:
+            # The arm is known empty until the pickup: the thrust scale alone is learnt (as
+            # the mission does before its grasp; an estimator without one holds theta).
+            estimator.calibrate()
+        self.trajectory = PaperSinusoid(scenario.trajectory)
+        self.sensing = _Measurements(scenario, opts.noise, np.random.default_rng(opts.seed))
+        self.nominal = scenario.nominal_theta.as_tuple()
+        self.sub = round(self.plant.rate_hz / scenario.simulation.control_rate_hz)
+        self.dt_s = self.sub * self.plant.dt_s
+        """The control period [s]."""
+        self.periods = math.floor(duration / self.dt_s + 1e-9)
+        self.data = np.empty((self.periods, len(COLUMNS)))
+        self.observer = estimator if isinstance(estimator, PaperEstimator) else None
+        # columns qd_x..thrust_scale_hat
+        self.not_ready = (math.nan,) * (_COL["thrust_scale_hat"] + 1 - _COL["qd_x"])
+        self.start = time.perf_counter()
+        # Until the filter has a first measurement of every row, hold gravity compensation
+        # at the scenario's start pose with the initial estimate (a few ms with latency).
+        self.tau = control.model.gravity(q0, scenario.estimator.initial_theta.as_tuple())
+        self.setpoint = attitude_thrust_setpoint(
+            self.tau[POSITION], q0[PSI], q0[PSI], control.tilt_max_rad, control.thrust
+        )
+        self.applied: np.ndarray | Skip = Skip.NO_FORCE
+        self.q_filtered: np.ndarray | None = None
+        """The filter's q of the last period (None: not ready)."""
+        self.events = sorted(
+            (t, name)
+            for t, name in ((opts.pickup_at_s, "pickup"), (opts.release_at_s, "release"))
+            if t is not None
+        )
+        self.truth_row = _truth_row(self.plant)
+
+    def gripper_events(self, t: float) -> None:
+        """The pick-up and release due by ``t`` [s]: the plant's payload, and the
+        estimator restarted (module docstring)."""
+        plant, estimator = self.plant, self.estimator
+        while self.events and self.events[0][0] <= t:
+            _, name = self.events.pop(0)
             if name == "pickup":
                 plant.attach_payload()
                 estimator.reset(estimator.theta)
@@ -251,25 +279,33 @@ def simulate(
                     estimator.resume()
             else:
                 plant.detach_payload()
-                estimator.reset(nominal)
-            truth_row = _truth_row(plant)
-        state = plant.state
+                estimator.reset(self.nominal)
+            self.truth_row = _truth_row(plant)
+
+    def control(self, t: float, first: bool) -> tuple[float, ...]:
+        """The companion's control step at ``t`` [s] on this period's measurements (the
+        held gravity compensation until the filter is ready); the period's row, in the
+        order of :data:`COLUMNS`."""
+        state = self.plant.state
         tick = time.perf_counter_ns()
-        sensing.feed(t, state, dt_c if i else None)
-        ready = sensing.assembler.ready
-        if ready:
+        sensing = self.sensing
+        sensing.feed(t, state, None if first else self.dt_s)
+        self.q_filtered = None
+        if sensing.assembler.ready:
             f = sensing.assembler.estimate
-            q = f.q
-            out = control.step(dt_c, f, traj(t), applied)
-            tau, setpoint, est, desired = out.tau, out.setpoint, out.estimate, out.desired
+            q = self.q_filtered = f.q
+            out = self.companion.step(self.dt_s, f, self.trajectory(t), self.applied)
+            self.tau, self.setpoint = out.tau, out.setpoint
+            est, desired = out.estimate, out.desired
             # The estimate logged: the law's own for the sliding-mode baseline (eq. asc2),
             # the estimator's otherwise (it runs beside the non-adaptive law too).
-            own = isinstance(control.controller, SlidingModeController)
+            own = isinstance(self.companion.controller, SlidingModeController)
             theta_hat = out.theta_hat if own else est.theta
             step_us = (time.perf_counter_ns() - tick) / 1e3
             qhat = [math.nan] * 8  # the paper observer's qhat on its rows
+            observer = self.observer
             if observer is not None and observer.qhat is not None:
-                for r, value in zip(rows, observer.qhat.tolist(), strict=True):
+                for r, value in zip(self.rows, observer.qhat.tolist(), strict=True):
                     qhat[r] = value
             m2_hat, m3_hat, m4_hat = theta_hat.tolist()
             companion = (
@@ -285,15 +321,15 @@ def simulate(
                 est.thrust_scale,
             )
         else:
-            companion, step_us = not_ready, math.nan
-        # One row in the order of COLUMNS.
-        data[i] = (
+            companion, step_us = self.not_ready, math.nan
+        setpoint = self.setpoint
+        return (
             t,
             *state.q.tolist(),
             *companion,
-            *truth_row,
-            _true_thrust_scale(scenario, opts.plant, t),
-            *tau.tolist(),
+            *self.truth_row,
+            _true_thrust_scale(self.scenario, self.opts.plant, t),
+            *self.tau.tolist(),
             setpoint.roll_rad,
             setpoint.pitch_rad,
             setpoint.yaw_rad,
@@ -302,28 +338,29 @@ def simulate(
             step_us,
         )
 
-        if ideal is not None:
+    def advance(self) -> None:
+        """The truth plant's steps of one control period under the companion's command;
+        the force the estimator takes as applied in the next period."""
+        tau, sub = self.tau, self.sub
+        if self.ideal is not None:
             for _ in range(sub):
-                ideal.step_ideal(tau)
-            applied = tau
-        elif flown is not None:
+                self.ideal.step_ideal(tau)
+            self.applied = tau
+        elif self.flown is not None:
+            setpoint = self.setpoint
             command = AttitudeSetpoint.from_euler(
                 setpoint.roll_rad, setpoint.pitch_rad, setpoint.yaw_rad, setpoint.thrust_relative
             )
             for _ in range(sub):
-                flown.step(command, tau[JOINTS])
-            read_back = sensing.joint_torques(flown.actuators.joint_torques_n_m)
+                self.flown.step(command, tau[JOINTS])
+            read_back = self.sensing.joint_torques(self.flown.actuators.joint_torques_n_m)
             # The thrust along the filtered attitude of this step, the servos' read-back.
-            applied = (
-                control.applied_force(q, setpoint.thrust_n, read_back) if ready else Skip.NO_FORCE
+            q = self.q_filtered
+            self.applied = (
+                Skip.NO_FORCE
+                if q is None
+                else self.companion.applied_force(q, setpoint.thrust_n, read_back)
             )
-        if progress is not None and t >= next_progress:
-            progress(t)
-            next_progress += 1.0
-
-    result = SimResult(options=opts, data=data)
-    result.summary = summarize(result, scenario, kind, rows, time.perf_counter() - start)
-    return result
 
 
 def _truth_row(plant: PlantCore) -> tuple[float, ...]:
