@@ -140,7 +140,7 @@ def chain(transforms: list[dict], child: str) -> np.ndarray:
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory):
     out = tmp_path_factory.mktemp("mcap_flight")
-    failure, _, truth = fly(out, SHORT)
+    failure, _, truth = fly(out, SHORT, mcap=True)
     assert failure is None
     return out, read_flight_log(out / "flight.csv"), truth, read_mcap(out / "flight.mcap")
 

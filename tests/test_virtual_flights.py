@@ -51,6 +51,7 @@ def fly(
     seed: int = 1,
     controller: str = "passivity",
     cruise_m: float = 1.5,
+    mcap: bool = False,
     **options,
 ):
     assert scenario.world is not None and scenario.world.payload_position_m is not None
@@ -63,7 +64,7 @@ def fly(
         run,
         controller=controller,  # type: ignore[arg-type]
         figures=False,
-        mcap=False,  # what these flights assert is in the CSV logs (the demo's test has the MCAP)
+        mcap=mcap,  # off: most flights' assertions are on the CSV logs
     )
     summary = json.loads((out / "summary.json").read_text())
     truth = [json.loads(line) for line in (out / "truth.jsonl").read_text().splitlines()]
