@@ -15,7 +15,11 @@ from Cython.Build import cythonize
 from setuptools import Extension, setup
 
 ROOT = Path(__file__).resolve().parent
-TWINS = ("sitl.servo.xm430_loop", "sitl.physics.attitude_loop")
+TWINS = (
+    "sitl.servo.xm430_loop",
+    "sitl.physics.attitude_loop",
+    "sitl.physics.integration_step",
+)
 """Modules written once in Python and also built compiled."""
 
 

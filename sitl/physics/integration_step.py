@@ -1,0 +1,607 @@
+"""The arithmetic of the truth plant's integration step, one plant step at a time.
+
+What :class:`~sitl.physics.integration.ArticulatedIntegrator` and
+:class:`~sitl.physics.plant.TruthPlant` run at every plant step: :func:`step` (one step of
+semi-implicit Euler or RK4 on the configuration manifold under a generalized force or a
+body wrench, the accelerations by Pinocchio's own compiled ABA, called back through
+Python and never re-implemented here, then the kinematics of the new state and the step's
+q_ddot), :func:`kinematics` (the plant's kinematics of a state alone: after a reset, a
+hold on the ground, a payload change) and :func:`acceleration` (q_ddot at a state, no
+step). The scheme is described in :mod:`sitl.physics.integration`; nothing here knows the
+arm's dynamics, which stay Pinocchio's (DESIGN.md section 6).
+
+One source, two builds: this module runs as Python, and ``setup.py`` compiles the same
+file with Cython into ``sitl.physics._integration_step`` (:mod:`companion.compiled`); the
+arithmetic is written as plain float operations (``x * x``, no ``**``, every sum in index
+order) so that both builds compute the same bits (tests/test_sitl_kernel.py compares
+them); the square root, the trigonometric functions, ``fmod`` and ``copysign`` are the C
+library's in both (Python's ``math`` calls them).
+
+Frames and units: world ENU, body FLU, SI. A configuration ``x`` is Pinocchio's free-flyer
+layout ``[p (3, world), quaternion x, y, z, w (body to world), eta1, eta2]`` and a velocity
+``u = [p_dot (3, world), omega (3, body), eta1_dot, eta2_dot]``; the returned quaternions
+are ``[w, x, y, z]``. R (body to world) and W(Phi)^-1 are row-major 9-tuples, Euler angles
+ZYX (phi, theta, psi) [rad] with phi and psi unwrapped next to the previous ones.
+
+A force is a kind and its floats: :data:`GENERALIZED` (our tau, 8 floats, conjugate to
+q = [p, phi, theta, psi, eta]) or :data:`WRENCH` (thrust along body z, body torque (3),
+world drag diagonal (3), joint torques (2), wind (3): 12 floats). Every step works in one
+float64 buffer (``array("d")``) the integrator owns, built by :func:`work_buffer`; ABA
+reads its q, v and tau in that buffer (:func:`aba_arguments`: numpy arrays over it).
+
+Return conventions: a result is ``(0, ...)``; a failure ``(1, 0.0)`` for non-finite
+accelerations or a non-finite state, ``(2, theta)`` for W(Phi) singular at pitch theta
+(|cos(theta)| < 1e-6).
+"""
+
+from array import array
+
+import cython
+import numpy as np
+from cython.cimports.libc.math import asin, atan2, copysign, cos, fabs, fmod, isfinite, sin, sqrt
+
+GENERALIZED = cython.declare(cython.int, 0)
+"""The force kind of a generalized force tau (conjugate to our q)."""
+WRENCH = cython.declare(cython.int, 1)
+"""The force kind of a body wrench (rotor thrust and torque, drag, joint torques, wind)."""
+
+_OK = cython.declare(cython.int, 0)
+_DIVERGED = cython.declare(cython.int, 1)
+_SINGULAR = cython.declare(cython.int, 2)
+_COS_THETA_MIN = cython.declare(cython.double, 1e-6)
+_TWO_PI = cython.declare(cython.double, 2.0 * 3.141592653589793)
+
+# Offsets in the work buffer (private: :func:`work_buffer` builds it).
+_X = cython.declare(cython.Py_ssize_t, 0)  # the state's x (9)
+_U = cython.declare(cython.Py_ssize_t, 9)  # its u (8)
+_R = cython.declare(cython.Py_ssize_t, 17)  # its R (9)
+_E = cython.declare(cython.Py_ssize_t, 26)  # its Euler angles (3)
+_QD = cython.declare(cython.Py_ssize_t, 29)  # its q_dot (8)
+_WI = cython.declare(cython.Py_ssize_t, 37)  # its W^-1 (9)
+_F = cython.declare(cython.Py_ssize_t, 46)  # the force's floats (up to 12)
+_K1 = cython.declare(cython.Py_ssize_t, 58)  # du/dt of the stages (8 each)
+_K2 = cython.declare(cython.Py_ssize_t, 66)
+_K3 = cython.declare(cython.Py_ssize_t, 74)
+_K4 = cython.declare(cython.Py_ssize_t, 82)
+_U2 = cython.declare(cython.Py_ssize_t, 90)  # the stages' u (8 each)
+_U3 = cython.declare(cython.Py_ssize_t, 98)
+_U4 = cython.declare(cython.Py_ssize_t, 106)
+_MEAN = cython.declare(cython.Py_ssize_t, 114)  # the RK4 mean velocity (8)
+_XS = cython.declare(cython.Py_ssize_t, 122)  # a stage's x (9)
+_RS = cython.declare(cython.Py_ssize_t, 131)  # a stage's R (9)
+_FWI = cython.declare(cython.Py_ssize_t, 140)  # the generalized force's W^-1 (9)
+_XN = cython.declare(cython.Py_ssize_t, 149)  # the step's x+ (9)
+_UN = cython.declare(cython.Py_ssize_t, 158)  # its u+ (8)
+_QDD = cython.declare(cython.Py_ssize_t, 166)  # the step's q_ddot (8)
+_KX = cython.declare(cython.Py_ssize_t, 174)  # kinematics: x, quaternion renormalized (9)
+_KR = cython.declare(cython.Py_ssize_t, 183)  # R (9)
+_KE = cython.declare(cython.Py_ssize_t, 192)  # Euler angles (3)
+_KWI = cython.declare(cython.Py_ssize_t, 195)  # W^-1 (9)
+_KQ = cython.declare(cython.Py_ssize_t, 204)  # our q (8)
+_KQD = cython.declare(cython.Py_ssize_t, 212)  # our q_dot (8)
+_THETA = cython.declare(cython.Py_ssize_t, 220)  # the pitch of a singular result
+_A = cython.declare(cython.Py_ssize_t, 221)  # ABA's result (8)
+_Q = cython.declare(cython.Py_ssize_t, 229)  # ABA's q (9), v (8), tau (8)
+_V = cython.declare(cython.Py_ssize_t, 238)
+_TAU = cython.declare(cython.Py_ssize_t, 246)
+_SIZE = cython.declare(cython.Py_ssize_t, 254)
+
+
+def work_buffer() -> array:
+    """The float64 buffer one integrator's steps work in (zeros)."""
+    return array("d", bytes(8 * _SIZE))
+
+
+def aba_arguments(work) -> tuple:
+    """(q (9), v (8), tau (8)): numpy arrays over ``work`` where every step writes the
+    arguments of its ABA calls (Pinocchio's q, v = [R^T p_dot, omega, eta_dot], tau)."""
+    return (
+        np.frombuffer(work, count=9, offset=8 * _Q),
+        np.frombuffer(work, count=8, offset=8 * _V),
+        np.frombuffer(work, count=8, offset=8 * _TAU),
+    )
+
+
+# ------------------------------------------------------------------ frames
+
+
+@cython.cfunc
+@cython.inline
+def _rotation9(
+    qw: cython.double,
+    qx: cython.double,
+    qy: cython.double,
+    qz: cython.double,
+    w: cython.double[:],
+    o: cython.Py_ssize_t,
+):
+    """R (body to world) of the unit quaternion qw + qx i + qy j + qz k into w[o:o + 9]."""
+    w[o] = 1.0 - 2.0 * (qy * qy + qz * qz)
+    w[o + 1] = 2.0 * (qx * qy - qw * qz)
+    w[o + 2] = 2.0 * (qx * qz + qw * qy)
+    w[o + 3] = 2.0 * (qx * qy + qw * qz)
+    w[o + 4] = 1.0 - 2.0 * (qx * qx + qz * qz)
+    w[o + 5] = 2.0 * (qy * qz - qw * qx)
+    w[o + 6] = 2.0 * (qx * qz - qw * qy)
+    w[o + 7] = 2.0 * (qy * qz + qw * qx)
+    w[o + 8] = 1.0 - 2.0 * (qx * qx + qy * qy)
+
+
+@cython.cfunc
+@cython.inline
+def _clamp_unit(v: cython.double) -> cython.double:
+    """v clipped to [-1, 1] (1 for NaN, as Python's max(-1.0, min(1.0, v)))."""
+    m: cython.double = v if v < 1.0 else 1.0
+    return m if m > -1.0 else -1.0
+
+
+@cython.cfunc
+@cython.inline
+def _nearest(v: cython.double) -> cython.double:
+    """The integer nearest to a finite v, halves to even, as a float with v's sign (C's
+    nearbyint): the fractional part fmod(v, 1) and v minus it are exact."""
+    fraction: cython.double = fmod(v, 1.0)
+    whole: cython.double = v - fraction
+    odd: cython.bint = fmod(whole, 2.0) != 0.0
+    if fraction > 0.5 or (fraction == 0.5 and odd):
+        whole = whole + 1.0
+    elif fraction < -0.5 or (fraction == -0.5 and odd):
+        whole = whole - 1.0
+    return copysign(whole, v)
+
+
+@cython.cfunc
+def _euler_rate_inverse9(
+    phi: cython.double, theta: cython.double, w: cython.double[:], o: cython.Py_ssize_t
+) -> cython.bint:
+    """W(Phi)^-1 into w[o:o + 9]; False (nothing written) when |cos(theta)| < 1e-6."""
+    ct: cython.double = cos(theta)
+    if fabs(ct) < _COS_THETA_MIN:
+        return False
+    cf: cython.double = cos(phi)
+    sf: cython.double = sin(phi)
+    tt: cython.double = sin(theta) / ct
+    w[o] = 1.0
+    w[o + 1] = sf * tt
+    w[o + 2] = cf * tt
+    w[o + 3] = 0.0
+    w[o + 4] = cf
+    w[o + 5] = -sf
+    w[o + 6] = 0.0
+    w[o + 7] = sf / ct
+    w[o + 8] = cf / ct
+    return True
+
+
+# ------------------------------------------------------------------ the step
+
+
+@cython.cfunc
+def _force(
+    w: cython.double[:], kind: cython.int, r: cython.Py_ssize_t, u: cython.Py_ssize_t
+) -> cython.int:
+    """Pinocchio's generalized force into the buffer's tau at rotation w[r:r + 9] and
+    velocity w[u:u + 8]: [R^T f_W, W(Phi)^-T tau_Phi, tau_eta] of a generalized force (the
+    pitch of a singular W to the buffer's theta), [R^T (drag) + thrust e_z, torque, joint
+    torques] of a wrench."""
+    fx: cython.double
+    fy: cython.double
+    fz: cython.double
+    if kind == GENERALIZED:
+        phi: cython.double = atan2(w[r + 7], w[r + 8])
+        theta: cython.double = asin(_clamp_unit(-w[r + 6]))
+        if not _euler_rate_inverse9(phi, theta, w, _FWI):
+            w[_THETA] = theta
+            return _SINGULAR
+        fx = w[_F]
+        fy = w[_F + 1]
+        fz = w[_F + 2]
+        tp: cython.double = w[_F + 3]
+        tt: cython.double = w[_F + 4]
+        ts: cython.double = w[_F + 5]
+        w[_TAU] = w[r] * fx + w[r + 3] * fy + w[r + 6] * fz
+        w[_TAU + 1] = w[r + 1] * fx + w[r + 4] * fy + w[r + 7] * fz
+        w[_TAU + 2] = w[r + 2] * fx + w[r + 5] * fy + w[r + 8] * fz
+        w[_TAU + 3] = tp
+        w[_TAU + 4] = w[_FWI + 1] * tp + w[_FWI + 4] * tt + w[_FWI + 7] * ts
+        w[_TAU + 5] = w[_FWI + 2] * tp + w[_FWI + 5] * tt + w[_FWI + 8] * ts
+        w[_TAU + 6] = w[_F + 6]
+        w[_TAU + 7] = w[_F + 7]
+        return _OK
+    fx = -w[_F + 4] * (w[u] - w[_F + 9])
+    fy = -w[_F + 5] * (w[u + 1] - w[_F + 10])
+    fz = -w[_F + 6] * (w[u + 2] - w[_F + 11])
+    w[_TAU] = w[r] * fx + w[r + 3] * fy + w[r + 6] * fz
+    w[_TAU + 1] = w[r + 1] * fx + w[r + 4] * fy + w[r + 7] * fz
+    w[_TAU + 2] = w[r + 2] * fx + w[r + 5] * fy + w[r + 8] * fz + w[_F]
+    w[_TAU + 3] = w[_F + 1]
+    w[_TAU + 4] = w[_F + 2]
+    w[_TAU + 5] = w[_F + 3]
+    w[_TAU + 6] = w[_F + 7]
+    w[_TAU + 7] = w[_F + 8]
+    return _OK
+
+
+@cython.cfunc
+def _accelerations(
+    w: cython.double[:],
+    x: cython.Py_ssize_t,
+    u: cython.Py_ssize_t,
+    r: cython.Py_ssize_t,
+    kind: cython.int,
+    aba,
+    k: cython.Py_ssize_t,
+) -> cython.int:
+    """du/dt = [p_ddot (world), omega_dot (body), eta_ddot] at (w[x:x + 9], w[u:u + 8])
+    into w[k:k + 8]: a = ABA(q, [R^T p_dot, omega, eta_dot], tau), p_ddot = R (a_v +
+    omega x v_B). ``r`` is the offset of the rotation of x, or -1 to compute it. Returns
+    OK, DIVERGED (non-finite a) or SINGULAR."""
+    i: cython.Py_ssize_t
+    if r < 0:
+        _rotation9(w[x + 6], w[x + 3], w[x + 4], w[x + 5], w, _RS)
+        r = _RS
+    fx: cython.double = w[u]
+    fy: cython.double = w[u + 1]
+    fz: cython.double = w[u + 2]
+    w[_V] = w[r] * fx + w[r + 3] * fy + w[r + 6] * fz
+    w[_V + 1] = w[r + 1] * fx + w[r + 4] * fy + w[r + 7] * fz
+    w[_V + 2] = w[r + 2] * fx + w[r + 5] * fy + w[r + 8] * fz
+    for i in range(3, 8):
+        w[_V + i] = w[u + i]
+    status: cython.int = _force(w, kind, r, u)
+    if status != _OK:
+        return status
+    for i in range(9):
+        w[_Q + i] = w[x + i]
+    a: cython.double[:] = aba()
+    for i in range(8):
+        w[_A + i] = a[i]
+    total: cython.double = 0.0
+    for i in range(8):
+        total += w[_A + i]
+    if not isfinite(total):
+        return _DIVERGED
+    ox: cython.double = w[u + 3]
+    oy: cython.double = w[u + 4]
+    oz: cython.double = w[u + 5]
+    bx: cython.double = w[_A] + oy * w[_V + 2] - oz * w[_V + 1]
+    by: cython.double = w[_A + 1] + oz * w[_V] - ox * w[_V + 2]
+    bz: cython.double = w[_A + 2] + ox * w[_V + 1] - oy * w[_V]
+    w[k] = w[r] * bx + w[r + 1] * by + w[r + 2] * bz
+    w[k + 1] = w[r + 3] * bx + w[r + 4] * by + w[r + 5] * bz
+    w[k + 2] = w[r + 6] * bx + w[r + 7] * by + w[r + 8] * bz
+    for i in range(3, 8):
+        w[k + i] = w[_A + i]
+    return _OK
+
+
+@cython.cfunc
+def _retract(
+    w: cython.double[:],
+    x: cython.Py_ssize_t,
+    u: cython.Py_ssize_t,
+    h: cython.double,
+    out: cython.Py_ssize_t,
+) -> cython.int:
+    """x (+) h u into w[out:out + 9]: p and eta linearly, the attitude by the exact
+    exponential of the body rate (quaternion * exp(h omega / 2)); DIVERGED on a
+    non-finite body rate."""
+    qx: cython.double = w[x + 3]
+    qy: cython.double = w[x + 4]
+    qz: cython.double = w[x + 5]
+    qw: cython.double = w[x + 6]
+    hx: cython.double = 0.5 * h * w[u + 3]
+    hy: cython.double = 0.5 * h * w[u + 4]
+    hz: cython.double = 0.5 * h * w[u + 5]
+    half: cython.double = sqrt(hx * hx + hy * hy + hz * hz)
+    if not isfinite(half):
+        return _DIVERGED
+    c: cython.double
+    k: cython.double
+    if half > 1e-8:
+        c = cos(half)
+        k = sin(half) / half
+    else:
+        c = 1.0 - 0.5 * half * half
+        k = 1.0 - half * half / 6.0
+    hx = k * hx
+    hy = k * hy
+    hz = k * hz
+    w[out] = w[x] + h * w[u]
+    w[out + 1] = w[x + 1] + h * w[u + 1]
+    w[out + 2] = w[x + 2] + h * w[u + 2]
+    w[out + 3] = qw * hx + qx * c + qy * hz - qz * hy
+    w[out + 4] = qw * hy - qx * hz + qy * c + qz * hx
+    w[out + 5] = qw * hz + qx * hy - qy * hx + qz * c
+    w[out + 6] = qw * c - qx * hx - qy * hy - qz * hz
+    w[out + 7] = w[x + 7] + h * w[u + 6]
+    w[out + 8] = w[x + 8] + h * w[u + 7]
+    return _OK
+
+
+@cython.cfunc
+def _stage_velocity(
+    w: cython.double[:],
+    u: cython.Py_ssize_t,
+    h: cython.double,
+    k: cython.Py_ssize_t,
+    out: cython.Py_ssize_t,
+):
+    """u + h k into w[out:out + 8]."""
+    i: cython.Py_ssize_t
+    for i in range(8):
+        w[out + i] = w[u + i] + h * w[k + i]
+
+
+@cython.cfunc
+def _integrate(
+    w: cython.double[:], rk4: cython.bint, dt: cython.double, kind: cython.int, aba
+) -> cython.int:
+    """One step from the buffer's state into (x+, u+), its first stage's du/dt in K1:
+    semi-implicit Euler (u+ = u + dt f(x, u), x+ = x (+) dt u+) or classical RK4 with the
+    stage configurations and the final update by the same retraction."""
+    i: cython.Py_ssize_t
+    s: cython.int = _accelerations(w, _X, _U, _R, kind, aba, _K1)
+    if s != _OK:
+        return s
+    if not rk4:
+        _stage_velocity(w, _U, dt, _K1, _UN)
+        return _retract(w, _X, _UN, dt, _XN)
+    h: cython.double = 0.5 * dt
+    _stage_velocity(w, _U, h, _K1, _U2)
+    s = _retract(w, _X, _U, h, _XS)
+    if s != _OK:
+        return s
+    s = _accelerations(w, _XS, _U2, -1, kind, aba, _K2)
+    if s != _OK:
+        return s
+    _stage_velocity(w, _U, h, _K2, _U3)
+    s = _retract(w, _X, _U2, h, _XS)
+    if s != _OK:
+        return s
+    s = _accelerations(w, _XS, _U3, -1, kind, aba, _K3)
+    if s != _OK:
+        return s
+    _stage_velocity(w, _U, dt, _K3, _U4)
+    s = _retract(w, _X, _U3, dt, _XS)
+    if s != _OK:
+        return s
+    s = _accelerations(w, _XS, _U4, -1, kind, aba, _K4)
+    if s != _OK:
+        return s
+    sixth: cython.double = dt / 6.0
+    for i in range(8):
+        w[_UN + i] = w[_U + i] + sixth * (
+            w[_K1 + i] + 2.0 * w[_K2 + i] + 2.0 * w[_K3 + i] + w[_K4 + i]
+        )
+        w[_MEAN + i] = (w[_U + i] + 2.0 * w[_U2 + i] + 2.0 * w[_U3 + i] + w[_U4 + i]) / 6.0
+    return _retract(w, _X, _MEAN, dt, _XN)
+
+
+# ------------------------------------------------------------------ the plant's kinematics
+
+
+@cython.cfunc
+def _kinematics(
+    w: cython.double[:], x: cython.Py_ssize_t, u: cython.Py_ssize_t, euler: cython.Py_ssize_t
+) -> cython.int:
+    """The plant's kinematics of (w[x:x + 9], w[u:u + 8]) into the buffer's K block: x with
+    the quaternion renormalized (w >= 0), R, Euler angles unwrapped next to
+    w[euler:euler + 3], W^-1, our q and q_dot. DIVERGED for a non-finite state or a zero
+    quaternion, SINGULAR (pitch to the buffer's theta) at the singularity."""
+    i: cython.Py_ssize_t
+    total: cython.double = 0.0
+    for i in range(9):
+        total += w[x + i]
+    total_u: cython.double = 0.0
+    for i in range(8):
+        total_u += w[u + i]
+    if not isfinite(total + total_u):
+        return _DIVERGED
+    qx: cython.double = w[x + 3]
+    qy: cython.double = w[x + 4]
+    qz: cython.double = w[x + 5]
+    qw: cython.double = w[x + 6]
+    n: cython.double = sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+    if n == 0.0:
+        return _DIVERGED
+    if qw < 0.0:
+        n = -n
+    qx = qx / n
+    qy = qy / n
+    qz = qz / n
+    qw = qw / n
+    for i in range(9):
+        w[_KX + i] = w[x + i]
+    w[_KX + 3] = qx
+    w[_KX + 4] = qy
+    w[_KX + 5] = qz
+    w[_KX + 6] = qw
+    _rotation9(qw, qx, qy, qz, w, _KR)
+    phi: cython.double = atan2(w[_KR + 7], w[_KR + 8])
+    theta: cython.double = asin(_clamp_unit(-w[_KR + 6]))
+    psi: cython.double = atan2(w[_KR + 3], w[_KR])
+    phi += _TWO_PI * _nearest((w[euler] - phi) / _TWO_PI)
+    psi += _TWO_PI * _nearest((w[euler + 2] - psi) / _TWO_PI)
+    w[_KE] = phi
+    w[_KE + 1] = theta
+    w[_KE + 2] = psi
+    if not _euler_rate_inverse9(phi, theta, w, _KWI):
+        w[_THETA] = theta
+        return _SINGULAR
+    ox: cython.double = w[u + 3]
+    oy: cython.double = w[u + 4]
+    oz: cython.double = w[u + 5]
+    w[_KQ] = w[x]
+    w[_KQ + 1] = w[x + 1]
+    w[_KQ + 2] = w[x + 2]
+    w[_KQ + 3] = phi
+    w[_KQ + 4] = theta
+    w[_KQ + 5] = psi
+    w[_KQ + 6] = w[x + 7]
+    w[_KQ + 7] = w[x + 8]
+    w[_KQD] = w[u]
+    w[_KQD + 1] = w[u + 1]
+    w[_KQD + 2] = w[u + 2]
+    w[_KQD + 3] = ox + w[_KWI + 1] * oy + w[_KWI + 2] * oz
+    w[_KQD + 4] = w[_KWI + 4] * oy + w[_KWI + 5] * oz
+    w[_KQD + 5] = w[_KWI + 7] * oy + w[_KWI + 8] * oz
+    w[_KQD + 6] = w[u + 6]
+    w[_KQD + 7] = w[u + 7]
+    return _OK
+
+
+@cython.cfunc
+def _q_ddot(w: cython.double[:], k: cython.Py_ssize_t):
+    """Our q_ddot into the buffer's QDD from du/dt w[k:k + 8] at the buffer's state (its
+    Euler angles, q_dot and W^-1): Phi_ddot = W^-1 (omega_dot - W_dot Phi_dot)."""
+    phi: cython.double = w[_E]
+    theta: cython.double = w[_E + 1]
+    pd: cython.double = w[_QD + 3]
+    td: cython.double = w[_QD + 4]
+    sd: cython.double = w[_QD + 5]
+    cf: cython.double = cos(phi)
+    sf: cython.double = sin(phi)
+    ct: cython.double = cos(theta)
+    st: cython.double = sin(theta)
+    c0: cython.double = -ct * td * sd
+    c1: cython.double = -sf * pd * td + (cf * ct * pd - sf * st * td) * sd
+    c2: cython.double = -cf * pd * td - (sf * ct * pd + cf * st * td) * sd
+    d0: cython.double = w[k + 3] - c0
+    d1: cython.double = w[k + 4] - c1
+    d2: cython.double = w[k + 5] - c2
+    w[_QDD] = w[k]
+    w[_QDD + 1] = w[k + 1]
+    w[_QDD + 2] = w[k + 2]
+    w[_QDD + 3] = d0 + w[_WI + 1] * d1 + w[_WI + 2] * d2
+    w[_QDD + 4] = w[_WI + 4] * d1 + w[_WI + 5] * d2
+    w[_QDD + 5] = w[_WI + 7] * d1 + w[_WI + 8] * d2
+    w[_QDD + 6] = w[k + 6]
+    w[_QDD + 7] = w[k + 7]
+
+
+# ------------------------------------------------------------------ Python floats in and out
+
+
+@cython.cfunc
+def _read(w: cython.double[:], o: cython.Py_ssize_t, values, n: cython.Py_ssize_t):
+    """The first n floats of ``values`` into w[o:o + n]."""
+    i: cython.Py_ssize_t
+    for i in range(n):
+        w[o + i] = values[i]
+
+
+@cython.cfunc
+def _list(w: cython.double[:], o: cython.Py_ssize_t, n: cython.Py_ssize_t) -> list:
+    """w[o:o + n] as a list of floats."""
+    values = []
+    i: cython.Py_ssize_t
+    for i in range(n):
+        values.append(w[o + i])
+    return values
+
+
+@cython.cfunc
+def _tuple9(w: cython.double[:], o: cython.Py_ssize_t) -> tuple:
+    """w[o:o + 9] as a tuple of floats."""
+    return (w[o], w[o + 1], w[o + 2], w[o + 3], w[o + 4], w[o + 5], w[o + 6], w[o + 7], w[o + 8])
+
+
+@cython.cfunc
+def _read_state(w: cython.double[:], x, u, r9, euler, q_dot, w_inv9, kind: cython.int, force):
+    """A state as the plant keeps it, and a force, into the buffer."""
+    _read(w, _X, x, 9)
+    _read(w, _U, u, 8)
+    _read(w, _R, r9, 9)
+    _read(w, _E, euler, 3)
+    _read(w, _QD, q_dot, 8)
+    _read(w, _WI, w_inv9, 9)
+    _read(w, _F, force, 8 if kind == GENERALIZED else 12)
+
+
+@cython.cfunc
+def _kinematics_tuple(w: cython.double[:], u: cython.Py_ssize_t, q_ddot: cython.bint) -> tuple:
+    """(0, x, u, [q_ddot,] quaternion wxyz, R9, euler, W^-1 9, omega, q, q_dot) of the
+    buffer's kinematics (the velocity at offset ``u``)."""
+    x = _list(w, _KX, 9)
+    velocity = _list(w, u, 8)
+    tail = (
+        (w[_KX + 6], w[_KX + 3], w[_KX + 4], w[_KX + 5]),
+        _tuple9(w, _KR),
+        (w[_KE], w[_KE + 1], w[_KE + 2]),
+        _tuple9(w, _KWI),
+        (w[u + 3], w[u + 4], w[u + 5]),
+        _list(w, _KQ, 8),
+        _list(w, _KQD, 8),
+    )
+    if q_ddot:
+        return (0, x, velocity, _list(w, _QDD, 8), *tail)
+    return (0, x, velocity, *tail)
+
+
+@cython.ccall
+def step(
+    rk4: cython.bint,
+    dt: cython.double,
+    x,
+    u,
+    r9,
+    euler,
+    q_dot,
+    w_inv9,
+    kind: cython.int,
+    force,
+    aba,
+    work: cython.double[:],
+) -> tuple:
+    """One step of ``dt`` [s] (RK4 if ``rk4``, else semi-implicit Euler) from (x, u) with
+    its R, Euler angles, our q_dot and W^-1, under a force held over the step; ``aba()``
+    returns Pinocchio's ABA of the buffer's q, v, tau (:func:`aba_arguments`).
+
+    Returns ``(0, x+ (quaternion renormalized), u+, q_ddot of the step, quaternion wxyz,
+    R9, euler, W^-1 9, omega, q, q_dot)`` of the new state; a failure of the step
+    ``(status, theta)``; or ``(status + 2, theta, x+, u+, q_ddot)`` when the step was taken
+    but the new state is non-finite (3) or at the singularity (4)."""
+    w: cython.double[:] = work
+    _read_state(w, x, u, r9, euler, q_dot, w_inv9, kind, force)
+    w[_THETA] = 0.0
+    s: cython.int = _integrate(w, rk4, dt, kind, aba)
+    if s != _OK:
+        return (s, w[_THETA])
+    _q_ddot(w, _K1)
+    s = _kinematics(w, _XN, _UN, _E)
+    if s != _OK:
+        return (s + 2, w[_THETA], _list(w, _XN, 9), _list(w, _UN, 8), _list(w, _QDD, 8))
+    return _kinematics_tuple(w, _UN, True)
+
+
+@cython.ccall
+def kinematics(x, u, euler_previous, work: cython.double[:]) -> tuple:
+    """The plant's kinematics of (x, u), Euler angles unwrapped next to ``euler_previous``:
+    ``(0, x (quaternion renormalized), u, quaternion wxyz, R9, euler, W^-1 9, omega, q,
+    q_dot)``, or ``(status, theta)``."""
+    w: cython.double[:] = work
+    _read(w, _X, x, 9)
+    _read(w, _U, u, 8)
+    _read(w, _E, euler_previous, 3)
+    w[_THETA] = 0.0
+    s: cython.int = _kinematics(w, _X, _U, _E)
+    if s != _OK:
+        return (s, w[_THETA])
+    return _kinematics_tuple(w, _U, False)
+
+
+@cython.ccall
+def acceleration(
+    x, u, r9, euler, q_dot, w_inv9, kind: cython.int, force, aba, work: cython.double[:]
+) -> tuple:
+    """Our q_ddot at (x, u) (with its R, Euler angles, q_dot and W^-1) under a force, no
+    step: ``(0, q_ddot)`` or ``(status, theta)``."""
+    w: cython.double[:] = work
+    _read_state(w, x, u, r9, euler, q_dot, w_inv9, kind, force)
+    w[_THETA] = 0.0
+    s: cython.int = _accelerations(w, _X, _U, _R, kind, aba, _K1)
+    if s != _OK:
+        return (s, w[_THETA])
+    _q_ddot(w, _K1)
+    return (0, _list(w, _QDD, 8))
