@@ -1,6 +1,5 @@
-"""Build the C extensions (the model's generated dynamics, the compiled control step, the
-truth plant's step kernel) and the compiled twins of pure-Python modules; all other
-metadata lives in pyproject.toml.
+"""Build the C extensions (the model's generated dynamics, the compiled control step) and
+the compiled twins of pure-Python modules; all other metadata lives in pyproject.toml.
 
 A compiled twin is a module's own Python source compiled by Cython (pure-Python mode) into
 ``_<name>`` beside it: the source is copied to ``build/cython/<package>/_<name>.py`` with
@@ -60,13 +59,6 @@ setup(
             "companion.control._step",
             sources=["companion/control/_step.c"],
             depends=["companion/model/_mcg.c"],
-            extra_compile_args=["-O2", "-ffp-contract=off"],
-        ),
-        # The truth plant's per-step arithmetic; no contraction into fused multiply-adds, so
-        # that it computes what the Python it mirrors computes.
-        Extension(
-            "sitl.physics._kernel",
-            sources=["sitl/physics/_kernel.c"],
             extra_compile_args=["-O2", "-ffp-contract=off"],
         ),
         *cythonize(

@@ -1,18 +1,17 @@
-"""sitl.physics._kernel: the compiled step against the Python it mirrors; the attitude
-loop's compiled twin against its Python source.
+"""The truth plant's compiled twins against their Python source: the integration step
+(``sitl.physics.integration_step``) and the attitude loop (``sitl.physics.attitude_loop``).
 
-The kernel computes the same floating-point operations in the same order as the Python
-reference (``ArticulatedIntegrator.step``, the frames functions), so the two agree to 1e-12
-(in practice to the last bit) on random states and inputs. It is reached through its public
-callers: ``ArticulatedIntegrator.step_kinematics`` and the plant's steps. The attitude loop
-(``sitl.physics.attitude_loop``) is one source built twice: the two builds agree bit for
-bit, and ``Px4AttitudeLoop.update`` agrees with its parts called one by one.
+Each is one source built twice: the two builds agree bit for bit on random states and
+inputs, failures included. The step is reached through its public caller,
+``ArticulatedIntegrator`` (compiled or not), and its kinematics is checked against the
+frames functions; ``Px4AttitudeLoop.update`` agrees with its parts called one by one.
 """
 
 from __future__ import annotations
 
 import math
 from array import array
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -25,11 +24,11 @@ from sitl.physics import (
     PlantDivergedError,
     TruthPlant,
     attitude_loop,
+    integration_step,
 )
 from sitl.physics.articulation import build_articulation
 from sitl.physics.attitude_control import AttitudeLoopParams, Px4AttitudeLoop
 from sitl.physics.frames import (
-    euler_accelerations,
     euler_from_rotation9,
     euler_rate_matrix_inverse9,
     quaternion_from_euler,
@@ -41,36 +40,72 @@ from sitl.physics.rotors import (
     SequentialDesaturationMixer,
     inverse_thrust_curve,
 )
-from sitl.scenario import Scenario, load_scenario
+from sitl.scenario import load_scenario
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 PAPER = load_scenario(CONFIGS / "paper_sim.toml")
 TOL = 1e-12
 
 
-def _with_integrator(cfg: Scenario, integrator: str) -> Scenario:
-    return cfg.model_copy(update={"plant": cfg.plant.model_copy(update={"integrator": integrator})})
-
-
-def _random_state(rng: np.random.Generator):
-    """Random (x, u) in Pinocchio's layout with their rotation, Euler angles (psi unwrapped
-    to another turn), our q_dot and W^-1, as the plant keeps them."""
-    phi, theta = rng.uniform(-1.2, 1.2, 2)
+def _state(rng: np.random.Generator, phi: float, theta: float, u: list[float]):
+    """(x, u) in Pinocchio's layout at attitude (phi, theta, random psi), with their
+    rotation, Euler angles (psi unwrapped to another turn), our q_dot and W^-1 (of the pitch
+    at most 90 deg - 2e-6 rad, where it exists), as the plant keeps them."""
     psi = rng.uniform(-3.1, 3.1)
     w, qx, qy, qz = quaternion_from_euler(phi, theta, psi).tolist()
     x = [*rng.normal(0, 2, 3), qx, qy, qz, w, *rng.normal(0, 2, 2)]
-    u = rng.normal(0.0, 2.0, 8).tolist()
     r9 = rotation9_from_quaternion(w, qx, qy, qz)
     euler = (phi, theta, psi + 2.0 * math.pi)
-    wi = euler_rate_matrix_inverse9(phi, theta)
+    wi = euler_rate_matrix_inverse9(
+        phi, math.copysign(min(abs(theta), 0.5 * math.pi - 2e-6), theta)
+    )
     ox, oy, oz = u[3:6]
     qd = [*u[0:3], ox + wi[1] * oy + wi[2] * oz, wi[4] * oy + wi[5] * oz]
     qd += [wi[7] * oy + wi[8] * oz, u[6], u[7]]
     return x, u, r9, euler, qd, wi
 
 
+def _case(rng: np.random.Generator, case: int):
+    """A random state, or (case 1-4) one whose step fails: 1 the pitch 5e-7 rad short of
+    +-90 deg (W(Phi) singular for a generalized force, the new state for a wrench), 2 pitch
+    1.5e-6 rad short of it and pitching on (the new state singular), 3 a NaN body rate
+    (diverged), 4 joint angles whose sum overflows (the new state non-finite)."""
+    u = rng.normal(0.0, 2.0, 8).tolist()
+    phi, theta = rng.uniform(-1.2, 1.2, 2)
+    if case in (1, 2):
+        sign = float(rng.choice([-1.0, 1.0]))
+        phi, theta = 0.0, sign * (0.5 * math.pi - (5e-7 if case == 1 else 1.5e-6))
+        u = [0.0, 0.0, 0.0, 0.0, sign * 1e-3, 0.0, 0.0, 0.0]
+    state = _state(rng, phi, theta, u)
+    if case == 3:
+        state[1][3] = math.nan
+    if case == 4:
+        state[0][7:9] = [1.7e308, 1.7e308]
+        state[1][6:8] = [0.0, 0.0]
+    return state
+
+
+def _force(rng: np.random.Generator, kind: str, held: bool) -> GeneralizedForce | BodyWrench:
+    """A random force of ``kind``, or zero (only gravity: the vehicle ``held`` on course)."""
+    if kind == "generalized":
+        return GeneralizedForce([0.0] * 8 if held else rng.normal(0, 5, 8).tolist())
+    if held:
+        return BodyWrench(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0))
+    b = rng.normal(0, 1, 12).tolist()
+    return BodyWrench(
+        20.0 + b[0], (b[1], b[2], b[3]), (0.3, 0.2, 0.1), (b[7], b[8]), (b[9], b[10], b[11])
+    )
+
+
+def _bits(values) -> list:
+    """The float bits (and the integer statuses) of nested tuples and lists."""
+    if isinstance(values, (list, tuple)):
+        return [b for v in values for b in _bits(v)]
+    return [values if isinstance(values, int) else float(values).hex()]
+
+
 def _python_kinematics(x, u, euler_previous):
-    """TruthPlant's kinematics in Python (frames functions), as the kernel returns them."""
+    """TruthPlant's kinematics by the frames functions, as the step returns them."""
     px, py, pz, qx, qy, qz, qw, e1, e2 = x
     n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
     n = -n if qw < 0.0 else n
@@ -92,29 +127,57 @@ def _flat(values) -> np.ndarray:
 
 @pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])
 @pytest.mark.parametrize("kind", ["generalized", "wrench"])
-def test_compiled_step_matches_the_python_integrator(integrator, kind) -> None:
-    """GIVEN random states and inputs WHEN the kernel steps THEN x+, u+, q_ddot and the new
-    state's kinematics are those of ArticulatedIntegrator.step and the frames functions."""
-    rng = np.random.default_rng(7)
+def test_the_integration_step_twin_is_its_python_source_bit_for_bit(integrator, kind) -> None:
+    """GIVEN random states and forces, and states whose step fails in each way WHEN the
+    compiled twin and the Python source of sitl.physics.integration_step each step, evaluate
+    q_ddot without a step and the kinematics of the state THEN every result and status has
+    the same bits; the step's q_ddot is the acceleration's, and the kinematics of a random
+    state's step is the frames functions' to 1e-12."""
+    assert twin_reason(integration_step) is None, twin_reason(integration_step)
     model = build_articulation(PAPER).model
-    integ = ArticulatedIntegrator(model, 1e-3, integrator)
-    for _ in range(50):
-        if kind == "generalized":
-            force: GeneralizedForce | BodyWrench = GeneralizedForce(rng.normal(0, 5, 8).tolist())
-        else:
-            b = rng.normal(0, 1, 12).tolist()
-            force = BodyWrench(
-                20.0 + b[0], (b[1], b[2], b[3]), (0.3, 0.2, 0.1), (b[7], b[8]), (b[9], b[10], b[11])
-            )
-        x, u, r9, euler, qd, wi = _random_state(rng)
-        out = integ.step_kinematics(x, u, force, r9, euler, qd, wi)
-        assert out[0] == 0
-        x_ref, u_ref, k1 = integ.step(x, u, force, r9)
-        phi, theta, _ = euler
-        qdd_ref = [*k1[0:3], *euler_accelerations(phi, theta, qd[3:6], k1[3:6], wi), *k1[6:8]]
-        expected = _python_kinematics(x_ref, u_ref, euler)
-        expected.insert(2, qdd_ref)
-        np.testing.assert_allclose(_flat(out[1:]), _flat(expected), rtol=0, atol=TOL)
+    compiled = ArticulatedIntegrator(model, 1e-3, integrator)
+    source = ArticulatedIntegrator(model, 1e-3, integrator, compiled=False)
+    assert compiled._step is twin(integration_step) is not integration_step
+    assert source._step is integration_step
+    rng = np.random.default_rng(7)
+    statuses: Counter[int] = Counter()
+    for i in range(200):
+        case = i % 5 if i < 100 else 0
+        x, u, r9, euler, qd, wi = _case(rng, case)
+        force = _force(rng, kind, held=case in (1, 2))
+        results = []
+        for integ in (compiled, source):
+            out = integ.step_kinematics(x, u, force, r9, euler, qd, wi)
+            a = integ.acceleration(x, u, force, r9, euler, qd, wi)
+            k = integ.kinematics(x, u, euler)
+            results.append(_bits((out, a, k)))
+        assert results[0] == results[1]
+        statuses[out[0]] += 1
+        if out[0] == 0:
+            assert _bits(a) == _bits((0, out[3]))
+        if case == 0:
+            expected = _python_kinematics(out[1], out[2], euler)
+            expected.insert(2, out[3])
+            np.testing.assert_allclose(_flat(out[1:]), _flat(expected), rtol=0, atol=TOL)
+    if kind == "wrench":
+        failures = {1, 3, 4}  # a wrench is defined at any pitch
+    elif integrator == "rk4":
+        failures = {1, 2, 3}  # a later stage of case 2 reaches the singularity first
+    else:
+        failures = {1, 2, 3, 4}
+    assert statuses[0] > 100 and failures <= set(statuses), statuses
+
+
+def test_the_acceleration_is_the_steps_q_ddot() -> None:
+    """GIVEN a plant in motion WHEN q_ddot is evaluated under tau, then a step taken under
+    it THEN the step's q_ddot is that q_ddot, bit for bit."""
+    plant = TruthPlant.from_scenario(PAPER, "ideal")
+    rng = np.random.default_rng(3)
+    q = np.array(PAPER.simulation.initial_q) + rng.normal(0.0, 0.2, 8)
+    plant.reset(q, rng.normal(0.0, 0.5, 8))
+    tau = rng.normal(0.0, 3.0, 8)
+    q_ddot = plant.acceleration(tau)
+    assert _bits(q_ddot.tolist()) == _bits(plant.step_ideal(tau).q_ddot.tolist())
 
 
 def _loop(rng: np.random.Generator) -> Px4AttitudeLoop:

@@ -40,7 +40,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from companion.config import Theta
 from companion.coordinates import N_Q
-from sitl.physics import _kernel
 from sitl.physics.articulation import ETA2_JOINT, build_articulation, theta_of
 from sitl.physics.attitude_control import (
     AttitudeLoopParams,
@@ -52,17 +51,8 @@ from sitl.physics.errors import (
     PlantError,
     PlantModeError,
 )
-from sitl.physics.frames import (
-    euler_accelerations,
-    euler_rate_matrix,
-    quaternion_from_euler,
-)
-from sitl.physics.integration import (
-    ArticulatedIntegrator,
-    BodyWrench,
-    DivergedError,
-    GeneralizedForce,
-)
+from sitl.physics.frames import euler_rate_matrix, quaternion_from_euler
+from sitl.physics.integration import ArticulatedIntegrator, BodyWrench, GeneralizedForce
 from sitl.physics.rotor_plant import RotorPlant
 from sitl.physics.rotors import (
     N_ROTORS,
@@ -399,12 +389,20 @@ class TruthPlant(RotorPlant):
         Pure rigid-body dynamics (no drag, no actuators), valid in both modes:
         M(q) q_ddot + C q_dot + G = tau.
         """
-        force = GeneralizedForce(_vector(tau, "tau"))
-        try:
-            k = self._integrator.accelerations(self._x, self._u, force, self._R9)
-        except DivergedError:
-            raise PlantDivergedError(self.time_s) from None
-        return np.array(self._to_q_ddot(k))
+        out = self._integrator.acceleration(
+            self._x,
+            self._u,
+            GeneralizedForce(_vector(tau, "tau")),
+            self._R9,
+            self._euler,
+            self._qd_ours,
+            self._w_inv9,
+        )
+        if out[0] == 0:
+            return np.array(out[1])
+        if out[0] == _SINGULAR:
+            raise EulerSingularityError(out[1])
+        raise PlantDivergedError(self.time_s)
 
     def step_ideal(self, tau: ArrayLike) -> PlantState:
         """Advance one step under generalized force tau (ideal mode); returns the new state.
@@ -464,13 +462,13 @@ class TruthPlant(RotorPlant):
         self._actuators = None
 
     # -------------------------------------------------------------- internals
-    # The per-step path works on Python floats (lists, tuples) around the compiled kernel
-    # (sitl.physics._kernel), which reads and returns them. Row-major 9-tuples hold R and
-    # W^-1.
+    # The per-step path works on Python floats (lists, tuples) around the integration step
+    # (sitl.physics.integration_step, compiled where built), which reads and returns them.
+    # Row-major 9-tuples hold R and W^-1.
 
     def _advance(self, force: GeneralizedForce | BodyWrench) -> None:
-        """One integration step under ``force`` (the compiled kernel, which also returns the
-        new state's kinematics); records the step's q_ddot."""
+        """One integration step under ``force`` (which also returns the new state's
+        kinematics); records the step's q_ddot."""
         out = self._integrator.step_kinematics(
             self._x, self._u, force, self._R9, self._euler, self._qd_ours, self._w_inv9
         )
@@ -493,7 +491,7 @@ class TruthPlant(RotorPlant):
 
     def _update_kinematics(self) -> None:
         """Renormalize the quaternion and cache R, Euler angles, W^-1 and our q, q_dot."""
-        out = _kernel.kinematics(self._x, self._u, self._euler)
+        out = self._integrator.kinematics(self._x, self._u, self._euler)
         if out[0] == _SINGULAR:
             raise EulerSingularityError(out[1])
         if out[0] != 0:
@@ -507,16 +505,10 @@ class TruthPlant(RotorPlant):
         self._q_ours, self._qd_ours = q, qd
         self._state_cache = None
 
-    def _to_q_ddot(self, k: list[float]) -> list[float]:
-        """Our q_ddot from du/dt = (p_ddot, omega_dot, eta_ddot) at the cached state."""
-        phi, theta, _ = self._euler
-        euler_ddot = euler_accelerations(phi, theta, self._qd_ours[3:6], k[3:6], self._w_inv9)
-        return [k[0], k[1], k[2], *euler_ddot, k[6], k[7]]
-
 
 _DIVERGED = 1
 _SINGULAR = 2
-"""Failure codes of the kernel's step and kinematics (see ``step_kinematics``)."""
+"""Failure codes of the integration step and kinematics (see ``step_kinematics``)."""
 
 
 def _vector(values: ArrayLike, name: str) -> list[float]:

@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sitl.physics import _kernel
-
 __all__ = ["ActuatorState", "PlantState", "frozen_array"]
 
 FloatArray = NDArray[np.float64]
+
+_PACK_STATE = struct.Struct("40d").pack
+"""The 40 floats of a state as the bytes of float64 values (native order)."""
 
 
 def frozen_array(values: ArrayLike) -> FloatArray:
@@ -72,7 +74,7 @@ class PlantState:
         """A state from a plant's per-step float lists (one read-only array behind all
         fields, over an immutable bytes object; ``rotation9`` is R row-major)."""
         flat = np.frombuffer(
-            _kernel.pack(q, q_dot, q_ddot, quaternion_wxyz, rotation9, omega_body_rad_s)
+            _PACK_STATE(*q, *q_dot, *q_ddot, *quaternion_wxyz, *rotation9, *omega_body_rad_s)
         )
         return cls(
             time_s=time_s,
