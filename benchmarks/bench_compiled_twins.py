@@ -1,11 +1,13 @@
 """The compiled twins against their Python source: time per call of what runs every step.
 
 The XM430 servo's per-step physics (``sitl.servo.xm430_loop``: one servo's ``set_state``,
-``step`` and ``torque_n_m``, as the plant calls them for every servo at every 1 kHz step)
-and the PX4-like attitude loop (``sitl.physics.attitude_loop``: one
-``Px4AttitudeLoop.update`` of the default scenario's loop at a tilted attitude). Prints the
-best of ``--repeat`` runs of ``--calls`` calls, for the compiled twin and for the Python
-source::
+``step`` and ``torque_n_m``, as the plant calls them for every servo at every 1 kHz step),
+the PX4-like attitude loop (``sitl.physics.attitude_loop``: one
+``Px4AttitudeLoop.update`` of the default scenario's loop at a tilted attitude) and the
+truth plant's integration step (``sitl.physics.integration_step``: one
+``ArticulatedIntegrator.step_kinematics`` of the default scenario's model under a rotor
+wrench, semi-implicit Euler and RK4). Prints the best of ``--repeat`` runs of ``--calls``
+calls, for the compiled twin and for the Python source::
 
     python benchmarks/bench_compiled_twins.py
 """
@@ -13,13 +15,21 @@ source::
 from __future__ import annotations
 
 import argparse
+import functools
 import timeit
 from pathlib import Path
 
 from arm_driver.dynamixel import control_table as ct
 from companion.compiled import twin_reason
-from sitl.physics import attitude_control, attitude_loop, rotors
+from sitl.physics import attitude_control, attitude_loop, integration_step, rotors
+from sitl.physics.articulation import build_articulation
 from sitl.physics.attitude_control import AttitudeLoopParams, AttitudeSetpoint, Px4AttitudeLoop
+from sitl.physics.frames import (
+    euler_rate_matrix_inverse9,
+    quaternion_from_euler,
+    rotation9_from_quaternion,
+)
+from sitl.physics.integration import ArticulatedIntegrator, BodyWrench, IntegratorMethod
 from sitl.physics.rotors import RotorGeometry, SequentialDesaturationMixer
 from sitl.scenario import load_scenario
 from sitl.servo import xm430_loop
@@ -66,18 +76,48 @@ def attitude_loop_us(compiled: bool, calls: int, repeat: int) -> float:
     return min(seconds) / calls * 1e6
 
 
+def integration_step_us(method: IntegratorMethod, compiled: bool, calls: int, repeat: int) -> float:
+    """Microseconds per ArticulatedIntegrator.step_kinematics (the sitl_pickup.toml model,
+    1 kHz) from a tilted, moving state under a hover wrench."""
+    scenario = load_scenario(ROOT / "configs" / "sitl_pickup.toml")
+    integrator = ArticulatedIntegrator(
+        build_articulation(scenario).model, 1e-3, method, compiled=compiled
+    )
+    phi, theta, psi = 0.05, -0.03, 0.4
+    w, qx, qy, qz = quaternion_from_euler(phi, theta, psi).tolist()
+    x = [0.1, 0.2, 1.0, qx, qy, qz, w, 0.3, -0.4]
+    u = [0.1, -0.05, 0.02, 0.01, 0.02, -0.03, 0.2, -0.1]
+    r9 = rotation9_from_quaternion(w, qx, qy, qz)
+    w_inv9 = euler_rate_matrix_inverse9(phi, theta)
+    force = BodyWrench(20.0, (0.01, -0.02, 0.003), (0.3, 0.3, 0.5), (0.1, -0.05))
+    seconds = timeit.repeat(
+        lambda: integrator.step_kinematics(x, u, force, r9, (phi, theta, psi), u, w_inv9),
+        number=calls,
+        repeat=repeat,
+    )
+    return min(seconds) / calls * 1e6
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--calls", type=int, default=50_000)
     parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args()
-    for module in (xm430_loop, attitude_loop):
+    for module in (xm430_loop, attitude_loop, integration_step):
         reason = twin_reason(module)
         if reason is not None:
             raise SystemExit(f"bench_compiled_twins: {reason}")
     for title, measure in (
         ("XM430 servo, set_state + step + torque_n_m per servo and plant step", servo_step_us),
         ("PX4-like attitude loop, Px4AttitudeLoop.update per plant step", attitude_loop_us),
+        (
+            "Integration step, semi-implicit Euler, step_kinematics per plant step",
+            functools.partial(integration_step_us, "semi_implicit_euler"),
+        ),
+        (
+            "Integration step, RK4, step_kinematics per plant step",
+            functools.partial(integration_step_us, "rk4"),
+        ),
     ):
         fast = measure(True, args.calls, args.repeat)
         slow = measure(False, args.calls // 10, args.repeat)
