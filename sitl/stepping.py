@@ -58,7 +58,7 @@ class WallPacer:
 
     def wait(self) -> float:
         """Sleep until the next step's slot; how late the step starts [s] (0 after an
-        overrun)."""
+        overrun, and when the stop event ended the sleep early)."""
         wait = self._slot - time.perf_counter()
         if wait > 0.0:
             if self._stop is not None:
@@ -67,7 +67,7 @@ class WallPacer:
                 time.sleep(wait)
             self.slept_s += wait
         now = time.perf_counter()
-        lateness = now - self._slot
+        lateness = max(0.0, now - self._slot)
         if lateness > self.max_lag_s:
             self.overruns += 1
             self._slot = now

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Annotated
 
 import pytest
@@ -66,6 +66,13 @@ def test_a_missing_required_option_is_a_usage_error() -> None:
     assert seen == []
 
 
-def test_only_a_dataclass_declares_options() -> None:
+def test_only_a_dataclass_with_plain_defaults_declares_options() -> None:
     with pytest.raises(TypeError, match="not a dataclass"):
         options_command(dict)
+
+    @dataclass(frozen=True)
+    class Made:
+        ids: list[int] = field(default_factory=list)
+
+    with pytest.raises(TypeError, match=r"Made\.ids: an option's default is a value"):
+        options_command(Made)

@@ -89,10 +89,11 @@ def test_the_stop_event_wakes_a_waiting_pacer() -> None:
     pacer = WallPacer(10.0, 1.0, stop)
     pacer.wait()
     stop.set()
-    thread = threading.Thread(target=pacer.wait)
+    late = []
+    thread = threading.Thread(target=lambda: late.append(pacer.wait()))
     thread.start()
     thread.join(timeout=5.0)
-    assert not thread.is_alive()
+    assert not thread.is_alive() and late == [0.0]
 
 
 def test_a_run_ends_when_stopped_or_at_its_time() -> None:

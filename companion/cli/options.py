@@ -29,6 +29,13 @@ def options_command(
     keyword, in their order (what typer reads for the command's options and its help)."""
     if not dataclasses.is_dataclass(options):
         raise TypeError(f"{options.__name__} is not a dataclass")
+    made = [
+        f.name for f in dataclasses.fields(options) if f.default_factory is not dataclasses.MISSING
+    ]
+    if made:
+        raise TypeError(
+            f"{options.__name__}.{made[0]}: an option's default is a value, not a factory"
+        )
     hints = typing.get_type_hints(options, include_extras=True)
     parameters = [
         inspect.Parameter(
