@@ -46,8 +46,10 @@ WRENCH = cython.declare(cython.int, 1)
 """The force kind of a body wrench (rotor thrust and torque, drag, joint torques, wind)."""
 
 _OK = cython.declare(cython.int, 0)
-_DIVERGED = cython.declare(cython.int, 1)
-_SINGULAR = cython.declare(cython.int, 2)
+DIVERGED = cython.declare(cython.int, 1)
+"""A failure's status: non-finite accelerations, body rate or state."""
+SINGULAR = cython.declare(cython.int, 2)
+"""A failure's status: W(Phi) singular at the failure's pitch theta."""
 _COS_THETA_MIN = cython.declare(cython.double, 1e-6)
 _TWO_PI = cython.declare(cython.double, 2.0 * 3.141592653589793)
 
@@ -192,7 +194,7 @@ def _force(
         theta: cython.double = asin(_clamp_unit(-w[r + 6]))
         if not _euler_rate_inverse9(phi, theta, w, _FWI):
             w[_THETA] = theta
-            return _SINGULAR
+            return SINGULAR
         fx = w[_F]
         fy = w[_F + 1]
         fz = w[_F + 2]
@@ -260,7 +262,7 @@ def _accelerations(
     for i in range(8):
         total += w[_A + i]
     if not isfinite(total):
-        return _DIVERGED
+        return DIVERGED
     ox: cython.double = w[u + 3]
     oy: cython.double = w[u + 4]
     oz: cython.double = w[u + 5]
@@ -295,7 +297,7 @@ def _retract(
     hz: cython.double = 0.5 * h * w[u + 5]
     half: cython.double = sqrt(hx * hx + hy * hy + hz * hz)
     if not isfinite(half):
-        return _DIVERGED
+        return DIVERGED
     c: cython.double
     k: cython.double
     if half > 1e-8:
@@ -334,6 +336,26 @@ def _stage_velocity(
 
 
 @cython.cfunc
+def _rk4_stage(
+    w: cython.double[:],
+    h: cython.double,
+    u_before: cython.Py_ssize_t,
+    k_before: cython.Py_ssize_t,
+    u_stage: cython.Py_ssize_t,
+    k_stage: cython.Py_ssize_t,
+    kind: cython.int,
+    aba,
+) -> cython.int:
+    """One RK4 stage ``h`` [s] on from the buffer's state: its velocity u + h k_before
+    into u_stage, its configuration x (+) h u_before, and its du/dt into k_stage."""
+    _stage_velocity(w, _U, h, k_before, u_stage)
+    s: cython.int = _retract(w, _X, u_before, h, _XS)
+    if s != _OK:
+        return s
+    return _accelerations(w, _XS, u_stage, -1, kind, aba, k_stage)
+
+
+@cython.cfunc
 def _integrate(
     w: cython.double[:], rk4: cython.bint, dt: cython.double, kind: cython.int, aba
 ) -> cython.int:
@@ -348,25 +370,13 @@ def _integrate(
         _stage_velocity(w, _U, dt, _K1, _UN)
         return _retract(w, _X, _UN, dt, _XN)
     h: cython.double = 0.5 * dt
-    _stage_velocity(w, _U, h, _K1, _U2)
-    s = _retract(w, _X, _U, h, _XS)
+    s = _rk4_stage(w, h, _U, _K1, _U2, _K2, kind, aba)
     if s != _OK:
         return s
-    s = _accelerations(w, _XS, _U2, -1, kind, aba, _K2)
+    s = _rk4_stage(w, h, _U2, _K2, _U3, _K3, kind, aba)
     if s != _OK:
         return s
-    _stage_velocity(w, _U, h, _K2, _U3)
-    s = _retract(w, _X, _U2, h, _XS)
-    if s != _OK:
-        return s
-    s = _accelerations(w, _XS, _U3, -1, kind, aba, _K3)
-    if s != _OK:
-        return s
-    _stage_velocity(w, _U, dt, _K3, _U4)
-    s = _retract(w, _X, _U3, dt, _XS)
-    if s != _OK:
-        return s
-    s = _accelerations(w, _XS, _U4, -1, kind, aba, _K4)
+    s = _rk4_stage(w, dt, _U3, _K3, _U4, _K4, kind, aba)
     if s != _OK:
         return s
     sixth: cython.double = dt / 6.0
@@ -397,14 +407,14 @@ def _kinematics(
     for i in range(8):
         total_u += w[u + i]
     if not isfinite(total + total_u):
-        return _DIVERGED
+        return DIVERGED
     qx: cython.double = w[x + 3]
     qy: cython.double = w[x + 4]
     qz: cython.double = w[x + 5]
     qw: cython.double = w[x + 6]
     n: cython.double = sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
     if n == 0.0:
-        return _DIVERGED
+        return DIVERGED
     if qw < 0.0:
         n = -n
     qx = qx / n
@@ -428,7 +438,7 @@ def _kinematics(
     w[_KE + 2] = psi
     if not _euler_rate_inverse9(phi, theta, w, _KWI):
         w[_THETA] = theta
-        return _SINGULAR
+        return SINGULAR
     ox: cython.double = w[u + 3]
     oy: cython.double = w[u + 4]
     oz: cython.double = w[u + 5]

@@ -40,6 +40,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from companion.config import Theta
 from companion.coordinates import N_Q
+from sitl.physics import integration_step
 from sitl.physics.articulation import ETA2_JOINT, build_articulation, theta_of
 from sitl.physics.attitude_control import (
     AttitudeLoopParams,
@@ -506,8 +507,8 @@ class TruthPlant(RotorPlant):
         self._state_cache = None
 
 
-_DIVERGED = 1
-_SINGULAR = 2
+_DIVERGED = integration_step.DIVERGED
+_SINGULAR = integration_step.SINGULAR
 """Failure codes of the integration step and kinematics (see ``step_kinematics``)."""
 
 
