@@ -27,14 +27,13 @@ from rich.table import Table
 from companion.cli.flight_page import write_flight_page
 from companion.cli.mission import (
     MISSION_FILES,
-    check_mission_options,
     run_mission,
 )
 from companion.cli.options import options_command
 from companion.cli.usage import EXIT_USAGE, check_range, fail, load_or_exit, output_dir_or_exit
 from companion.mission.pickup import PickupPlan
 from sitl.cli_options import SeedOpt, check_seed
-from sitl.demo_command import DemoCommand
+from sitl.demo_command import CONTROL_RATE_HZ, DemoCommand
 from sitl.flight_figures import draw_with_truth
 from sitl.scenario import MAX_DURATION_S, Scenario, load_scenario
 from sitl.truth_mcap import add_flight_truth
@@ -375,12 +374,9 @@ def demo(options: DemoCommand) -> None:
     process on simulated time (:mod:`sitl.vehicle.lockstep`)."""
     factor = options.speed_factor()
     scenario, plan, place_world = options.pickup()
-    controller, live, seed = options.controller, options.live, options.seed
-    check_mission_options(controller, 250.0, None, live)
-    check_seed(seed)
     out = output_dir_or_exit(options.out, DEMO_FILES)
     if options.clock == "virtual":
-        status = _fly_virtual(scenario, plan, controller, out, seed, options.navigation, live)
+        status = _fly_virtual(options, scenario, plan, out)
     else:
         status = _fly_wall(options, factor, scenario, plan, out)
     _print_truth(scenario, out, place_world)
@@ -419,7 +415,7 @@ def _fly_wall(
             options.controller,
             out,
             None,
-            250.0,
+            CONTROL_RATE_HZ,
             live_port=options.live,
             figures=False,  # drawn once the truth is in
         )
@@ -431,22 +427,16 @@ def _fly_wall(
     return status
 
 
-def _fly_virtual(
-    scenario: Scenario,
-    plan,
-    controller: str,
-    out: Path,
-    seed: int,
-    navigation: str,
-    live_port: int | None,
-) -> int:
+def _fly_virtual(options: DemoCommand, scenario: Scenario, plan: PickupPlan, out: Path) -> int:
     """The demo on simulated time; the exit status (0 completed, 1 failed)."""
     from companion.cli.mission import UsageError, finish_mission
     from sitl.physics import PlantError
     from sitl.vehicle.runner import RunOptions
     from sitl.vehicle.virtual_flight import fly_virtual
 
-    options = RunOptions(seed=seed, navigation=navigation, truth_log=out / "truth.jsonl")
+    run = RunOptions(
+        seed=options.seed, navigation=options.navigation, truth_log=out / "truth.jsonl"
+    )
     typer.echo("sitl: vehicle and companion in lockstep on simulated time (memory links)")
     out.mkdir(parents=True, exist_ok=True)
     try:
@@ -454,10 +444,11 @@ def _fly_virtual(
             scenario,
             plan,
             out,
-            options,
-            controller=controller,  # type: ignore[arg-type]
+            run,
+            controller=options.controller,  # type: ignore[arg-type]
+            control_rate_hz=CONTROL_RATE_HZ,
             figures=False,  # drawn once the truth is in
-            live_port=live_port,
+            live_port=options.live,
         )
     except UsageError as exc:
         fail(str(exc))

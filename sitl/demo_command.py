@@ -17,18 +17,26 @@ from typing import Annotated
 
 import typer
 
-from companion.cli.mission import ControllerOpt, LiveOpt, parse_xyz, plan_for
+from companion.cli.mission import (
+    ControllerOpt,
+    LiveOpt,
+    check_mission_options,
+    parse_xyz,
+    plan_for,
+)
 from companion.cli.usage import fail, load_or_exit
 from companion.mission.pickup import PickupPlan
-from sitl.cli_options import AutopilotOpt, Px4DirOpt, SeedOpt
+from sitl.cli_options import AutopilotOpt, Px4DirOpt, SeedOpt, check_seed
 from sitl.scenario import Scenario, load_scenario
 
-__all__ = ["CRUISE_ALTITUDE_M", "DEFAULT_SCENARIO", "DemoCommand"]
+__all__ = ["CONTROL_RATE_HZ", "CRUISE_ALTITUDE_M", "DEFAULT_SCENARIO", "DemoCommand"]
 
 DEFAULT_SCENARIO = Path(str(files("sitl.configs") / "sitl_pickup.toml"))
 """The demo's built-in scenario (package data: configs/ is also ``sitl.configs``)."""
 CRUISE_ALTITUDE_M = 1.5
 """The demo's cruise height above the ground [m]."""
+CONTROL_RATE_HZ = 250.0
+"""The demo's control loop rate [Hz] (``companion mission pickup``'s default)."""
 
 
 @dataclass(frozen=True)
@@ -104,7 +112,7 @@ class DemoCommand:
 
     def pickup(self) -> tuple[Scenario, PickupPlan, tuple[float, float, float]]:
         """The scenario, the mission's plan (its points in the autopilot's local frame) and
-        the place point in the world [m, ENU]."""
+        the place point in the world [m, ENU]; the mission's options and the seed checked."""
         scenario = load_or_exit(self.config, load_scenario)
         if scenario.world is None or scenario.world.payload_position_m is None:
             fail(f"{self.config}: the demo needs a [world] section with payload_position_m")
@@ -129,7 +137,10 @@ class DemoCommand:
                 f"GPS: PX4's local frame starts at the standing vehicle ({east}, {north}, "
                 f"{scenario.world.landing_gear_height_m}) m"
             )
-        return scenario, plan_for(beliefs, payload_at, place, CRUISE_ALTITUDE_M), place_world
+        plan = plan_for(beliefs, payload_at, place, CRUISE_ALTITUDE_M)
+        check_mission_options(self.controller, CONTROL_RATE_HZ, None, self.live)
+        check_seed(self.seed)
+        return scenario, plan, place_world
 
     def _speed(self) -> float:
         """``--speed``: a positive factor, or ``validated`` (PX4 in the loop's validated
