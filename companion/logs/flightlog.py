@@ -240,7 +240,7 @@ def _vec(name: str, values: ArrayLike | None, n: int) -> list[str]:
     arr = np.asarray(values, dtype=np.float64).reshape(-1)
     if arr.size != n:
         raise FlightLogError(f"{name} must have {n} entries, got {arr.size}")
-    return [repr(float(v)) for v in arr]
+    return list(map(repr, arr.tolist()))
 
 
 def format_row(record: CycleRecord) -> list[str]:
