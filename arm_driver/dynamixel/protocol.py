@@ -16,7 +16,7 @@ Packet layout (ROBOTIS e-Manual, "DYNAMIXEL Protocol 2.0", Instruction / Status 
 - CRC-16 over everything from the header to the last parameter byte (stuffing
   included), polynomial 0x8005, initial value 0, no reflection (the e-Manual's
   ``update_crc``; DynamixelSDK ``protocol2_packet_handler.updateCRC`` uses the same
-  256-entry table this module builds);
+  256-entry table; computed by fastcrc, as pymavlink computes MAVLink's);
 - byte stuffing (e-Manual, "Packet Process"): in the instruction-to-parameters area
   every ``FF FF FD`` becomes ``FF FF FD FD``, so a header never appears inside a
   packet; the receiver checks the CRC on the stuffed bytes, then removes the stuffing.
@@ -32,6 +32,8 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
+
+from fastcrc.crc16 import umts as crc16_umts
 
 from arm_driver.errors import CommunicationError, CrcError, HardwareError, InstructionError
 
@@ -93,21 +95,9 @@ class Instruction(enum.IntEnum):
     BULK_WRITE = 0x93
 
 
-def _crc_table() -> tuple[int, ...]:
-    table = []
-    for byte in range(256):
-        crc = byte << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x8005) if crc & 0x8000 else (crc << 1)
-        table.append(crc & 0xFFFF)
-    return tuple(table)
-
-
-_CRC_TABLE = _crc_table()
-
-
 def crc16(data: bytes | bytearray | memoryview, crc: int = 0) -> int:
-    """CRC-16 of DYNAMIXEL Protocol 2.0 (polynomial 0x8005, MSB first, initial 0).
+    """CRC-16 of DYNAMIXEL Protocol 2.0 (polynomial 0x8005, MSB first, initial 0): the
+    CRC-16/UMTS of fastcrc's catalogue, whose table is the e-Manual's and the SDK's.
 
     Parameters
     ----------
@@ -121,10 +111,7 @@ def crc16(data: bytes | bytearray | memoryview, crc: int = 0) -> int:
     int
         The 16-bit CRC; the packet carries it little-endian (CRC_L, CRC_H).
     """
-    table = _CRC_TABLE
-    for byte in data:
-        crc = ((crc << 8) & 0xFF00) ^ table[(crc >> 8) ^ byte]
-    return crc
+    return crc16_umts(data, crc)
 
 
 def stuff(data: bytes) -> bytes:
