@@ -5,7 +5,10 @@ figures) ``--flights`` times in this process, one core, and prints per flight th
 simulated duration, the wall and CPU time, the real-time factor (simulated / wall) and the
 pickups per hour per core (3600 / CPU seconds per pickup); then the split of the wall time
 between the simulated vehicle's steps, the servo bus's answers and the rest (the
-companion, its links and the event loop). ``--profile`` adds cProfile's 25 most expensive
+companion, its links and the event loop), and the first flight part by part (the
+vehicle's steps, the truth plant's, pymavlink's encoding and decoding on both sides, the
+flight log's CSV rows and MCAP messages, the control cycles and steps) against the wall
+time a pickup at 30x real time may take. ``--profile`` adds cProfile's 25 most expensive
 functions (the profile itself slows the flight down about twice). ``--write`` puts the
 table in ``docs/virtual_speed.md`` with the machine and the commit::
 
@@ -24,11 +27,19 @@ import shutil
 import statistics
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from checkout import this_commit
+from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.cli.mission import plan_for
+from companion.control.flight import FlightControl
+from companion.logs.flightlog import FlightLogWriter
+from companion.logs.mcap_log import McapLogWriter
+from companion.mission.cycle import ControlCycle
+from sitl.physics.rotor_plant import RotorPlant
 from sitl.scenario import load_scenario
 from sitl.vehicle.runner import RunOptions, SitlVehicle
 from sitl.vehicle.virtual_flight import fly_virtual
@@ -37,33 +48,55 @@ ROOT = Path(__file__).resolve().parent.parent
 PLACE_AT = (-1.0, 0.5, 0.05)
 
 
-class Split:
-    """Wall time inside SitlVehicle.step and SitlVehicle.serve [s], wrapped around them."""
+class Timed:
+    """Wall time [s] and calls of methods, wrapped around them while in the ``with``.
 
-    def __init__(self) -> None:
-        self.step_s = self.serve_s = 0.0
-        self.steps = 0
-        self._step, self._serve = SitlVehicle.step, SitlVehicle.serve
+    ``parts`` maps a label to ``(class, method name)``; a method called inside another
+    timed one counts in both (the parts are not a partition of the flight).
+    """
 
-    def __enter__(self) -> Split:
-        step, serve, split = self._step, self._serve, self
+    def __init__(self, parts: dict[str, tuple[type, str]]) -> None:
+        self.seconds = dict.fromkeys(parts, 0.0)
+        self.calls = dict.fromkeys(parts, 0)
+        self._parts = parts
+        self._originals = {label: getattr(cls, name) for label, (cls, name) in parts.items()}
 
-        def timed_step(vehicle: SitlVehicle) -> None:
-            t0 = time.perf_counter()
-            step(vehicle)
-            split.step_s += time.perf_counter() - t0
-            split.steps += 1
-
-        def timed_serve(vehicle: SitlVehicle) -> None:
-            t0 = time.perf_counter()
-            serve(vehicle)
-            split.serve_s += time.perf_counter() - t0
-
-        SitlVehicle.step, SitlVehicle.serve = timed_step, timed_serve  # type: ignore[method-assign]
+    def __enter__(self) -> Timed:
+        for label, (cls, name) in self._parts.items():
+            setattr(cls, name, self._timed(label, self._originals[label]))
         return self
 
+    def _timed(self, label: str, method: Callable[..., Any]) -> Callable[..., Any]:
+        seconds, calls, clock = self.seconds, self.calls, time.perf_counter
+
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            t0 = clock()
+            try:
+                return method(*args, **kwargs)
+            finally:
+                seconds[label] += clock() - t0
+                calls[label] += 1
+
+        return timed
+
     def __exit__(self, *exc: object) -> None:
-        SitlVehicle.step, SitlVehicle.serve = self._step, self._serve  # type: ignore[method-assign]
+        for label, (cls, name) in self._parts.items():
+            setattr(cls, name, self._originals[label])
+
+
+PARTS: dict[str, tuple[type, str]] = {
+    "vehicle steps": (SitlVehicle, "step"),
+    "servo bus answers": (SitlVehicle, "serve"),
+    "truth plant steps": (RotorPlant, "step"),
+    "MAVLink framing and CRC (pymavlink _pack, both sides)": (mavlink2.MAVLink_message, "_pack"),
+    "MAVLink decoding (pymavlink parse_buffer, both sides)": (mavlink2.MAVLink, "parse_buffer"),
+    "flight log CSV rows": (FlightLogWriter, "write"),
+    "flight log MCAP messages (a cycle's)": (McapLogWriter, "write"),
+    "control cycles (ControlCycle.run: sense, control, send, log)": (ControlCycle, "run"),
+    "control steps (FlightControl.step)": (FlightControl, "step"),
+}
+"""What :func:`floor` reports: the simulation's own parts (the two first are the
+split of the table), and the fixed costs of the flight code's bytes and logs."""
 
 
 def fly_once(seed: int, work: Path, profile: cProfile.Profile | None) -> dict[str, float]:
@@ -71,7 +104,7 @@ def fly_once(seed: int, work: Path, profile: cProfile.Profile | None) -> dict[st
     assert scenario.world is not None and scenario.world.payload_position_m is not None
     plan = plan_for(scenario.beliefs, scenario.world.payload_position_m, PLACE_AT, 1.5)
     out = work / f"seed-{seed}"
-    with Split() as split:
+    with Timed(PARTS) as timed:
         wall0, cpu0 = time.perf_counter(), time.process_time()
         if profile is not None:
             profile.enable()
@@ -79,7 +112,10 @@ def fly_once(seed: int, work: Path, profile: cProfile.Profile | None) -> dict[st
         if profile is not None:
             profile.disable()
         wall_s, cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
-    sim_s = split.steps * 1e-3
+    steps = timed.calls["vehicle steps"]
+    sim_s = steps * 1e-3
+    parts = {f"{label} [s]": seconds for label, seconds in timed.seconds.items()}
+    parts |= {f"{label} [calls]": float(calls) for label, calls in timed.calls.items()}
     return {
         "seed": seed,
         "completed": float(failure is None and report.completed),
@@ -88,10 +124,11 @@ def fly_once(seed: int, work: Path, profile: cProfile.Profile | None) -> dict[st
         "cpu_s": cpu_s,
         "factor": sim_s / wall_s,
         "per_hour": 3600.0 / cpu_s,
-        "step_share": split.step_s / wall_s,
-        "serve_share": split.serve_s / wall_s,
-        "step_us": split.step_s / max(split.steps, 1) * 1e6,
+        "step_share": timed.seconds["vehicle steps"] / wall_s,
+        "serve_share": timed.seconds["servo bus answers"] / wall_s,
+        "step_us": timed.seconds["vehicle steps"] / max(steps, 1) * 1e6,
         "cycles": float(report.control_cycles),
+        **parts,
     }
 
 
@@ -121,8 +158,35 @@ def table(runs: list[dict[str, float]]) -> str:
     lines += [
         "",
         f"Real-time factor: median {statistics.median(factors):.1f}x, best {max(factors):.1f}x.",
+        "",
+        *floor(runs[0]),
     ]
     return "\n".join(lines) + "\n"
+
+
+def floor(run: dict[str, float], factor: float = 30.0) -> list[str]:
+    """Where seed ``run``'s wall time went, part by part (:data:`PARTS`), beside the wall
+    time a ``factor`` x real-time pickup may take in all (its budget)."""
+    budget_s = run["sim_s"] / factor
+    lines = [
+        f"## Seed {run['seed']:.0f}, part by part, against a {factor:g}x budget",
+        "",
+        f"A pickup of {run['sim_s']:.1f} simulated seconds at {factor:g}x real time has "
+        f"{budget_s:.2f} s of wall time in all. Each part's wall time is measured around its "
+        "calls in the same flight (a part called inside another counts in both; the timers "
+        "add about 0.3 us a call). The flight writes the demo's logs (CSV and MCAP).",
+        "",
+        f"| part | calls | wall [s] | per call [us] | % of the flight's wall | % of the "
+        f"{factor:g}x budget |",
+        "|---|---|---|---|---|---|",
+    ]
+    for label in PARTS:
+        seconds, calls = run[f"{label} [s]"], run[f"{label} [calls]"]
+        lines.append(
+            f"| {label} | {calls:.0f} | {seconds:.2f} | {seconds / max(calls, 1.0) * 1e6:.1f} | "
+            f"{100 * seconds / run['wall_s']:.0f} | {100 * seconds / budget_s:.0f} |"
+        )
+    return lines
 
 
 def main() -> None:
@@ -137,7 +201,7 @@ def main() -> None:
         for seed in range(args.flights):
             profile = cProfile.Profile() if args.profile and seed == 0 else None
             runs.append(fly_once(seed, work, profile))
-            print({k: round(v, 3) for k, v in runs[-1].items()}, flush=True)
+            print({k: round(v, 3) for k, v in runs[-1].items() if "[" not in k}, flush=True)
             if profile is not None:
                 text = io.StringIO()
                 pstats.Stats(profile, stream=text).sort_stats("tottime").print_stats(25)
