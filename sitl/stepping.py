@@ -1,20 +1,28 @@
-"""Fixed steps on the wall clock: the pace and the end of the simulator's loops.
+"""The simulator's one stepping loop: fixed steps of simulated time, each in its
+wall-clock slot or back to back, until stopped or until a simulated time.
 
-The simulated vehicle (:class:`~sitl.vehicle.runner.SitlVehicle`), PX4 in the loop of our
-physics (:class:`~sitl.hil.Px4InTheLoop`) and the arm stand beside PX4's SIH
-(:class:`~sitl.servo.arm_stand.ArmStand`) step their plant in fixed steps of simulated
-time, each in its wall-clock slot (:class:`WallPacer`), until stopped or until a simulated
-time (:func:`running`). On simulated time nothing paces the steps: their caller steps them
-(:mod:`sitl.vehicle.lockstep`), and the offline simulator (:mod:`sitl.offline.simulation`)
-runs its control periods back to back.
+:func:`step_loop` runs a :class:`Stepped` host: the simulated vehicle
+(:class:`~sitl.vehicle.runner.SitlVehicle`: the imitation's autopilot, the world, the
+telemetry, a lockstep client's waits), PX4 in the loop of our physics
+(:class:`~sitl.hil.Px4InTheLoop`: the world under PX4's motor outputs, a sensor frame to
+PX4 every few steps), the arm stand beside PX4's SIH
+(:class:`~sitl.servo.arm_stand.ArmStand`: the servos and the arm alone) and the offline
+simulator (:mod:`sitl.offline.simulation`: the companion's control period over several
+plant steps). The host says what one step is; the loop holds the pace
+(:class:`WallPacer`, when given), restarts it after a wait outside the slots, ends the run
+(:func:`running`) and counts (:class:`LoopStats`). On simulated time with the companion in
+the same process, the event loop's selector steps the vehicle instead, whenever the
+companion waits (:mod:`sitl.vehicle.lockstep`).
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from dataclasses import dataclass, field
+from typing import Protocol
 
-__all__ = ["WallPacer", "running"]
+__all__ = ["LoopStats", "Stepped", "WallPacer", "running", "step_loop"]
 
 
 class WallPacer:
@@ -77,8 +85,81 @@ class WallPacer:
 
 
 def running(
-    stop: threading.Event, time_s: float, dt_s: float, until_s: float | None = None
+    stop: threading.Event | None, time_s: float, dt_s: float, until_s: float | None = None
 ) -> bool:
     """Whether a loop at simulated ``time_s`` [s], stepping ``dt_s`` [s], takes another
     step: not stopped, and not yet at ``until_s`` (half a step of rounding allowed)."""
-    return not stop.is_set() and (until_s is None or time_s < until_s - 0.5 * dt_s)
+    if stop is not None and stop.is_set():
+        return False
+    return until_s is None or time_s < until_s - 0.5 * dt_s
+
+
+class Stepped(Protocol):
+    """What :func:`step_loop` steps."""
+
+    @property
+    def dt_s(self) -> float:
+        """Simulated time of one step [s]."""
+        ...
+
+    @property
+    def time_s(self) -> float:
+        """Simulated time now [s]."""
+        ...
+
+    @property
+    def paced(self) -> bool:
+        """Whether the next step keeps its wall-clock slot (PX4 in the loop boots as fast
+        as it can)."""
+        ...
+
+    def advance(self) -> bool:
+        """One step; True when it waited outside its wall-clock slot (a lockstep client's
+        setpoint, PX4's boot), so that the slots start again after it."""
+        ...
+
+
+@dataclass
+class LoopStats:
+    """What one run of :func:`step_loop` did."""
+
+    steps: int = 0
+    sim_time_s: float = 0.0
+    """Simulated time stepped [s]."""
+    wall_time_s: float = 0.0
+    lateness_us: list[float] = field(default_factory=list)
+    """Each paced step's lateness after its slot [us]."""
+    overruns: int = 0
+    """Paced steps beyond the pacer's largest lag (:class:`WallPacer`)."""
+    paced_s: float = 0.0
+    """Wall time slept to hold the pace [s]."""
+
+
+def step_loop(
+    host: Stepped,
+    stop: threading.Event | None = None,
+    until_s: float | None = None,
+    pacer: WallPacer | None = None,
+) -> LoopStats:
+    """Step ``host`` until ``stop`` is set or its simulated time reaches ``until_s`` [s]
+    (:func:`running`); with ``pacer``, each step the host wants :attr:`~Stepped.paced`
+    waits for its wall-clock slot first (no step after a stop that woke the wait), and
+    the slots start again after a step that waited outside them. Without one the steps
+    run back to back. Raises what the host's step raises."""
+    stats = LoopStats()
+    sim0, wall0 = host.time_s, time.perf_counter()
+    try:
+        while running(stop, host.time_s, host.dt_s, until_s):
+            if pacer is not None and host.paced:
+                stats.lateness_us.append(pacer.wait() * 1e6)
+                if stop is not None and stop.is_set():
+                    break
+            if host.advance() and pacer is not None:
+                pacer.restart()
+            stats.steps += 1
+    finally:
+        stats.sim_time_s = host.time_s - sim0
+        stats.wall_time_s = time.perf_counter() - wall0
+        if pacer is not None:
+            stats.overruns, stats.paced_s = pacer.overruns, pacer.slept_s
+    return stats

@@ -1,5 +1,6 @@
-"""sitl.stepping: the wall-clock slots of the simulator's steps, and the end of a run
-(on a fake clock: what is asserted is the schedule, not this machine's timing)."""
+"""sitl.stepping: the wall-clock slots of the simulator's steps, the end of a run, and the
+one stepping loop over them (on a fake clock: what is asserted is the schedule, not this
+machine's timing)."""
 
 from __future__ import annotations
 
@@ -110,3 +111,87 @@ def test_a_pacer_needs_positive_times() -> None:
         WallPacer(0.0, 0.02)
     with pytest.raises(ValueError, match="max_lag_s"):
         WallPacer(1e-3, 0.0)
+
+
+class _Host:
+    """A host of ``step_loop`` on the fake clock: each step takes ``step_wall_s`` of wall
+    time; ``waits_at`` the steps after which it waited outside its slots (a lockstep
+    client), ``paced_from`` the first step it wants paced (PX4's boot before it)."""
+
+    def __init__(
+        self,
+        clock: _Clock,
+        step_wall_s: float = 4e-4,
+        waits_at: tuple[int, ...] = (),
+        paced_from: int = 0,
+        stop: threading.Event | None = None,
+        stop_at: int | None = None,
+    ) -> None:
+        self.clock, self.step_wall_s = clock, step_wall_s
+        self.waits_at, self.paced_from = waits_at, paced_from
+        self.stop, self.stop_at = stop, stop_at
+        self.dt_s = 1e-3
+        self.steps = 0
+        self.starts: list[float] = []
+
+    @property
+    def time_s(self) -> float:
+        return self.steps * self.dt_s
+
+    @property
+    def paced(self) -> bool:
+        return self.steps >= self.paced_from
+
+    def advance(self) -> bool:
+        self.starts.append(self.clock.now)
+        self.clock.now += self.step_wall_s
+        self.steps += 1
+        if self.stop is not None and self.steps == self.stop_at:
+            self.stop.set()
+        if self.steps in self.waits_at:
+            self.clock.now += 0.05  # the client's setpoint came 50 ms later
+            return True
+        return False
+
+
+def test_without_a_pacer_the_steps_run_back_to_back_to_the_end(clock) -> None:
+    """GIVEN no pacer WHEN looped until 10 ms THEN ten steps, nothing slept, the stats say
+    so."""
+    host = _Host(clock)
+    stats = stepping.step_loop(host, until_s=0.01)
+    assert host.steps == stats.steps == 10 and clock.sleeps == []
+    assert stats.sim_time_s == pytest.approx(0.01) and stats.wall_time_s == pytest.approx(4e-3)
+    assert stats.lateness_us == [] and stats.overruns == 0
+
+
+def test_paced_steps_keep_their_slots_and_a_wait_outside_them_restarts_the_slots(clock) -> None:
+    """GIVEN 1 ms slots, and a host that waits 50 ms for a client after its 3rd step WHEN
+    looped for 6 steps THEN steps 1-3 start 1 ms apart, step 4 at once after the wait (on
+    time, no overrun: the slots started again), 5 and 6 1 ms after it."""
+    host = _Host(clock, waits_at=(3,))
+    stats = stepping.step_loop(host, until_s=0.006, pacer=WallPacer(1e-3, 0.02))
+    t0 = host.starts[0]
+    resumed = t0 + 2e-3 + 4e-4 + 0.05
+    assert host.starts == pytest.approx(
+        [t0, t0 + 1e-3, t0 + 2e-3, resumed, resumed + 1e-3, resumed + 2e-3]
+    )
+    assert stats.lateness_us == pytest.approx([0.0] * 6, abs=1e-6)
+    assert stats.overruns == 0 and stats.paced_s == pytest.approx(4 * 6e-4)  # none before 4
+
+
+def test_steps_the_host_does_not_want_paced_run_back_to_back(clock) -> None:
+    """GIVEN a host paced from its 4th step (booting before) WHEN looped THEN the first
+    three steps are not waited for nor timed, the rest are."""
+    host = _Host(clock, paced_from=3)
+    stats = stepping.step_loop(host, until_s=0.006, pacer=WallPacer(1e-3, 0.02))
+    assert len(stats.lateness_us) == 3
+    assert host.starts[1] - host.starts[0] == pytest.approx(4e-4)
+
+
+def test_a_stop_ends_the_loop_after_the_step_that_set_it(clock) -> None:
+    """GIVEN a stop set by the host's 4th step WHEN looped without an end time THEN the
+    loop ends after that step."""
+    stop = threading.Event()
+    host = _Host(clock, stop=stop, stop_at=4)
+    stats = stepping.step_loop(host, stop, pacer=WallPacer(1e-3, 0.02))
+    assert host.steps == stats.steps == 4

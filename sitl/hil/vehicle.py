@@ -50,7 +50,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
@@ -88,7 +88,7 @@ from sitl.px4_sitl.launcher import (
     release_instance,
 )
 from sitl.scenario import Scenario
-from sitl.stepping import WallPacer, running
+from sitl.stepping import WallPacer, step_loop
 from sitl.vehicle.launch import free_udp_port
 from sitl.vehicle.runner import (
     LOCKSTEP_WAIT_S,
@@ -193,8 +193,6 @@ class HilStats(RunStats):
     """Wall time in the world's steps (plant, servos, gripper, truth log) [s]."""
     sensors_s: float = 0.0
     """Wall time making and sending the sensor messages [s]."""
-    paced_s: float = 0.0
-    """Wall time slept to hold the requested speed [s]."""
     companion_holds: int = 0
     """Frames PX4's clock was held for the companion's answer (companion lockstep)."""
     companion_wait_s: float = 0.0
@@ -294,6 +292,8 @@ class Px4InTheLoop:
         """PX4's working directory after :meth:`close`, when kept."""
         self.stats: HilStats | None = None
         """What the running (or last) :meth:`run` achieved so far."""
+        self._frame: _FrameLoop | None = None
+        """The run's state between plant steps (:meth:`run`)."""
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -407,7 +407,6 @@ class Px4InTheLoop:
     def _run(self, stop, until_s, console, on_ready) -> HilStats:
         assert self.px4 is not None and self._link is not None
         sys.setswitchinterval(_SWITCH_INTERVAL_S)
-        world, link = self.world, self._link
         self.stats = stats = HilStats()
         relay = self._relay
         onboard = (
@@ -415,85 +414,120 @@ class Px4InTheLoop:
             if relay is not None
             else (self.options.ports.onboard_local, self.options.ports.onboard_remote)
         )
-        boot = _Boot(self.px4, self.options, onboard, self._mode_link_port())
-        pacer = WallPacer(world.dt_s / self.options.speed, _MAX_LAG_S)
-        truth_every = max(1, round(1.0 / (self.options.truth_rate_hz * world.dt_s)))
-        silent = self.options.servo_silent
-        log_offset = 0
-        sim0 = world.time_s
-        wall0 = time.perf_counter()
-        next_look = wall0
-        ready = False
-        step = 0
-        perf = time.perf_counter
-        while running(stop, world.time_s, world.dt_s, until_s):
-            force = np.zeros(3)
-            omega = np.zeros(3)
-            commands = self._commands
-            for _ in range(self.steps_per_frame):
-                if ready:  # each plant step in its wall-clock slot, as the imitation's
-                    stats.lateness_us.append(pacer.wait() * 1e6)
-                t0 = perf()
-                with self.servo_bus.lock:
-                    state = world.step_motors(commands)
-                force += world.specific_force_flu_m_s2()
-                omega += state.omega_body_rad_s
-                if silent is not None and world.time_s >= silent[1]:
-                    self.servo_bus.set_faults(servo_faults(self.options, silent[0]))
-                    silent = None
-                if self._truth_file is not None and step % truth_every == 0:
-                    self._truth_file.write(
-                        json.dumps(truth_record(world, self.armed, self.mode)) + "\n"
-                    )
-                step += 1
-                stats.physics_s += perf() - t0
-            t1 = perf()
-            time_us = round(world.time_s * 1e6)
-            n = self.steps_per_frame
-            link.send(*self._sensor_messages(stats.frames, time_us, force / n, omega / n))
-            t2 = perf()
-            self._await_px4(time_us, stop)
-            if relay is not None:
-                if ready:
-                    relay.hold(stop)
-                else:
-                    relay.pump()
-            t3 = perf()
-            stats.frames += 1
-            stats.sensors_s += t2 - t1
-            stats.px4_wait_s += t3 - t2
-            if t3 >= next_look:
-                next_look = t3 + _HOUSEKEEPING_S
-                self._read_heartbeats()
-                if not self.px4.alive():
-                    raise Px4Exited(f"PX4 exited:\n{self.px4.log_tail(15)}")
-                if not ready:
-                    if boot.advance():
-                        ready = True
-                        stats.boot_sim_s = world.time_s - sim0
-                        stats.boot_wall_s = t3 - wall0
-                        log_offset = self.px4.log_path.stat().st_size
-                        if on_ready is not None:
-                            on_ready(self.describe())
-                        pacer.restart()
-                    elif t3 - wall0 > self.hil.ready_timeout_s:
-                        raise Px4NotReadyError(
-                            f"PX4 was not ready within {self.hil.ready_timeout_s:g} s "
-                            f"({boot.waiting_for}):\n{self.px4.log_tail(15)}"
-                        )
-                elif console is not None:
-                    log_offset = _forward_log(self.px4.log_path, log_offset, console)
+        self._frame = _FrameLoop(
+            boot=_Boot(self.px4, self.options, onboard, self._mode_link_port()),
+            truth_every=max(1, round(1.0 / (self.options.truth_rate_hz * self.world.dt_s))),
+            silent=self.options.servo_silent,
+            stop=stop,
+            console=console,
+            on_ready=on_ready,
+            wall0=time.perf_counter(),
+            sim0=self.world.time_s,
+        )
+        pacer = WallPacer(self.world.dt_s / self.options.speed, _MAX_LAG_S)
+        loop = step_loop(self, stop, until_s, pacer)
         if relay is not None:
             stats.companion_holds = relay.holds
             stats.companion_wait_s = relay.held_s
             stats.companion_releases = relay.releases
-        stats.overruns, stats.paced_s = pacer.overruns, pacer.slept_s
-        stats.steps = step
-        stats.sim_time_s = world.time_s - sim0
-        stats.wall_time_s = time.perf_counter() - wall0
+        for name, value in vars(loop).items():
+            setattr(stats, name, value)
         if self._truth_file is not None:
             self._truth_file.flush()
         return stats
+
+    @property
+    def dt_s(self) -> float:
+        """Simulated time of one plant step [s]."""
+        return self.world.dt_s
+
+    @property
+    def time_s(self) -> float:
+        """Simulation time [s]."""
+        return self.world.time_s
+
+    @property
+    def paced(self) -> bool:
+        """Whether PX4 is ready: it boots as fast as it can, then each plant step keeps
+        its wall-clock slot, as the imitation's (:class:`~sitl.stepping.Stepped`)."""
+        return self._frame is not None and self._frame.ready
+
+    def advance(self) -> bool:
+        """One plant step under PX4's motor outputs (:class:`~sitl.stepping.Stepped`): the
+        servo fault and the truth log when due; after the frame's last step, the frame's
+        sensors to PX4 and its answer awaited (:meth:`_end_frame`). True when PX4 just got
+        ready (the slots start then)."""
+        frame, stats, world = self._frame, self.stats, self.world
+        assert frame is not None and stats is not None
+        t0 = time.perf_counter()
+        if frame.step_in_frame == 0:
+            frame.force, frame.omega = np.zeros(3), np.zeros(3)
+            frame.commands = self._commands
+        with self.servo_bus.lock:
+            state = world.step_motors(frame.commands)
+        frame.force += world.specific_force_flu_m_s2()
+        frame.omega += state.omega_body_rad_s
+        silent = frame.silent
+        if silent is not None and world.time_s >= silent[1]:
+            self.servo_bus.set_faults(servo_faults(self.options, silent[0]))
+            frame.silent = None
+        if self._truth_file is not None and frame.steps % frame.truth_every == 0:
+            self._truth_file.write(json.dumps(truth_record(world, self.armed, self.mode)) + "\n")
+        frame.steps += 1
+        frame.step_in_frame += 1
+        stats.physics_s += time.perf_counter() - t0
+        if frame.step_in_frame < self.steps_per_frame:
+            return False
+        frame.step_in_frame = 0
+        return self._end_frame(frame, stats)
+
+    def _end_frame(self, frame: _FrameLoop, stats: HilStats) -> bool:
+        """The frame's mean specific force and body rate to PX4 and its answer awaited (the
+        companion held or pumped); every :data:`_HOUSEKEEPING_S` PX4's heartbeats, life,
+        boot and console. True when PX4 just got ready."""
+        assert self.px4 is not None and self._link is not None
+        relay = self._relay
+        t1 = time.perf_counter()
+        time_us = round(self.world.time_s * 1e6)
+        n = self.steps_per_frame
+        self._link.send(
+            *self._sensor_messages(stats.frames, time_us, frame.force / n, frame.omega / n)
+        )
+        t2 = time.perf_counter()
+        self._await_px4(time_us, frame.stop)
+        if relay is not None:
+            if frame.ready:
+                relay.hold(frame.stop)
+            else:
+                relay.pump()
+        t3 = time.perf_counter()
+        stats.frames += 1
+        stats.sensors_s += t2 - t1
+        stats.px4_wait_s += t3 - t2
+        if t3 < frame.next_look:
+            return False
+        frame.next_look = t3 + _HOUSEKEEPING_S
+        self._read_heartbeats()
+        if not self.px4.alive():
+            raise Px4Exited(f"PX4 exited:\n{self.px4.log_tail(15)}")
+        if frame.ready:
+            if frame.console is not None:
+                frame.log_offset = _forward_log(self.px4.log_path, frame.log_offset, frame.console)
+            return False
+        if frame.boot.advance():
+            frame.ready = True
+            stats.boot_sim_s = self.world.time_s - frame.sim0
+            stats.boot_wall_s = t3 - frame.wall0
+            frame.log_offset = self.px4.log_path.stat().st_size
+            if frame.on_ready is not None:
+                frame.on_ready(self.describe())
+            return True
+        if t3 - frame.wall0 > self.hil.ready_timeout_s:
+            raise Px4NotReadyError(
+                f"PX4 was not ready within {self.hil.ready_timeout_s:g} s "
+                f"({frame.boot.waiting_for}):\n{self.px4.log_tail(15)}"
+            )
+        return False
 
     def _mode_link_port(self) -> int:
         assert self._mode_link is not None
@@ -560,6 +594,37 @@ class Px4InTheLoop:
             if message.get_type() == "HEARTBEAT" and message.autopilot == mavlink.MAV_AUTOPILOT_PX4:
                 mode = Px4Mode.from_custom_mode(message.custom_mode)
                 self.mode = None if mode is None else mode.name
+
+
+@dataclass
+class _FrameLoop:
+    """What :meth:`Px4InTheLoop.run` carries from one plant step to the next: the frame
+    being summed (its steps so far, specific force and body rate, PX4's motor outputs at
+    its start), PX4's boot, the housekeeping's next wall-clock time, and the run's
+    options."""
+
+    boot: _Boot
+    truth_every: int
+    """Plant steps between two truth lines."""
+    silent: tuple[int, float] | None
+    """The servo to silence and when [s] (``servo_silent``), until done."""
+    stop: threading.Event
+    console: Callable[[str], None] | None
+    on_ready: Callable[[dict[str, str]], None] | None
+    wall0: float
+    """perf_counter at the start [s]."""
+    sim0: float
+    """Simulation time at the start [s]."""
+    ready: bool = False
+    next_look: float = 0.0
+    """perf_counter of the next housekeeping [s] (0: at the first frame's end)."""
+    log_offset: int = 0
+    """PX4's console log read up to here (bytes)."""
+    steps: int = 0
+    step_in_frame: int = 0
+    force: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    omega: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    commands: list[float] = field(default_factory=list)
 
 
 class _Boot:

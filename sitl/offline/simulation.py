@@ -49,6 +49,7 @@ from sitl.physics import (
 )
 from sitl.physics.jsbsim.wind import Wind
 from sitl.scenario import Scenario
+from sitl.stepping import step_loop
 from sitl.vehicle.sensors import GyroSensor, JointEncoders, PoseSensor
 
 __all__ = ["COLUMNS", "SimOptions", "SimResult", "simulate"]
@@ -175,16 +176,8 @@ def simulate(
     progress : callable, optional
         Called about every simulated second with the simulated time [s].
     """
-    loop = _ClosedLoop(scenario, options)
-    next_progress = 1.0
-    for i in range(loop.periods):
-        t = i * loop.dt_s
-        loop.gripper_events(t)
-        loop.data[i] = loop.control(t, first=i == 0)
-        loop.advance()
-        if progress is not None and t >= next_progress:
-            progress(t)
-            next_progress += 1.0
+    loop = _ClosedLoop(scenario, options, progress)
+    step_loop(loop, until_s=loop.periods * loop.dt_s)
     result = SimResult(options=options, data=loop.data)
     elapsed_s = time.perf_counter() - loop.start
     result.summary = summarize(result, scenario, loop.kind, loop.rows, elapsed_s)
@@ -194,10 +187,20 @@ def simulate(
 class _ClosedLoop:
     """One offline run's two sides and what it carries from one control period to the
     next: the truth plant stepped ``sub`` times per period under the companion's last
-    command (:meth:`advance`), the companion fed the period's measurements and run once
-    (:meth:`control`), the gripper's events at their times (:meth:`gripper_events`)."""
+    command (:meth:`step_plant`), the companion fed the period's measurements and run once
+    (:meth:`control`), the gripper's events at their times (:meth:`gripper_events`); one
+    control period is one step of :func:`~sitl.stepping.step_loop` (:meth:`advance`), back
+    to back."""
 
-    def __init__(self, scenario: Scenario, opts: SimOptions) -> None:
+    paced = False
+    """The periods run back to back (:class:`~sitl.stepping.Stepped`)."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        opts: SimOptions,
+        progress: Callable[[float], None] | None = None,
+    ) -> None:
         duration = (
             opts.duration_s if opts.duration_s is not None else scenario.simulation.duration_s
         )
@@ -265,6 +268,30 @@ class _ClosedLoop:
             if t is not None
         )
         self.truth_row = _truth_row(self.plant)
+        self.period = 0
+        """Control periods run."""
+        self._progress = progress
+        self._next_progress_s = 1.0
+
+    @property
+    def time_s(self) -> float:
+        """The start of the next control period [s]."""
+        return self.period * self.dt_s
+
+    def advance(self) -> bool:
+        """One control period (:class:`~sitl.stepping.Stepped`): the gripper's events, the
+        companion's step on the period's measurements (its row logged), the plant's steps
+        under its command; the progress callback about every simulated second."""
+        i = self.period
+        t = i * self.dt_s
+        self.gripper_events(t)
+        self.data[i] = self.control(t, first=i == 0)
+        self.step_plant()
+        if self._progress is not None and t >= self._next_progress_s:
+            self._progress(t)
+            self._next_progress_s += 1.0
+        self.period += 1
+        return False
 
     def gripper_events(self, t: float) -> None:
         """The pick-up and release due by ``t`` [s]: the plant's payload, and the
@@ -338,7 +365,7 @@ class _ClosedLoop:
             step_us,
         )
 
-    def advance(self) -> None:
+    def step_plant(self) -> None:
         """The truth plant's steps of one control period under the companion's command;
         the force the estimator takes as applied in the next period."""
         tau, sub = self.tau, self.sub

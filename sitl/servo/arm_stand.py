@@ -35,10 +35,10 @@ Simplifications: no payload mass (SIH cannot carry one; a scenario flown here tu
 estimate's carry check off, ``[flight] carry_check_estimate = false``), no Coulomb
 friction and no joint stops (neither has ``sitl run``'s plant).
 
-Time: the thread steps the fixed plant step ``1 / plant.rate_hz`` as often as the wall
-clock (times ``speed``) asks (:class:`~sitl.stepping.WallPacer`), back to back when it
-woke late; a backlog longer than ``max_lag_s`` is dropped and counted in
-:attr:`ArmStand.overruns`. The servos' own
+Time: the thread steps (:func:`~sitl.stepping.step_loop`) the fixed plant step
+``1 / plant.rate_hz`` as often as the wall clock (times ``speed``) asks
+(:class:`~sitl.stepping.WallPacer`), back to back when it woke late; a backlog longer
+than ``max_lag_s`` is dropped and counted in :attr:`ArmStand.overruns`. The servos' own
 time (current loop, Bus Watchdog) is the stand's: the pty server does not step them.
 """
 
@@ -53,7 +53,7 @@ from sitl.physics.jsbsim.arm import ArmDynamics
 from sitl.scenario import Scenario
 from sitl.servo.pty_server import PtyServoBus
 from sitl.servo.xm430 import XM430Parameters, XM430Servo
-from sitl.stepping import WallPacer
+from sitl.stepping import WallPacer, step_loop
 from sitl.vehicle.world import GripperJaw
 
 __all__ = ["HELD_BASE_MASS_KG", "ArmStand", "held_base_arm"]
@@ -134,7 +134,8 @@ class ArmStand:
         self.steps = 0
         """Plant steps taken."""
         self.overruns = 0
-        """Times the thread fell more than ``max_lag_s`` behind and dropped the backlog."""
+        """Times the thread fell more than ``max_lag_s`` behind and dropped the backlog
+        (counted when it stops)."""
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -207,15 +208,18 @@ class ArmStand:
     def __exit__(self, *exc_info: object) -> None:
         self.stop()
 
+    paced = True
+    """Every step keeps its wall-clock slot (:class:`~sitl.stepping.Stepped`)."""
+
+    def advance(self) -> bool:
+        """One step under :attr:`lock` (:class:`~sitl.stepping.Stepped`)."""
+        with self.lock:
+            self.step()
+        return False
+
     def _run(self) -> None:
         pacer = WallPacer(self.dt_s / self.speed, self._max_lag_s, self._stop)
-        while not self._stop.is_set():
-            pacer.wait()
-            if self._stop.is_set():
-                break
-            with self.lock:
-                self.step()
-            self.overruns = pacer.overruns
+        self.overruns = step_loop(self, self._stop, pacer=pacer).overruns
 
 
 def _servo(joint: JointConfig, angle_rad: float, mismatch: float) -> XM430Servo:

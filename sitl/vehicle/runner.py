@@ -56,7 +56,7 @@ from sitl.px4 import (
 from sitl.scenario import Scenario
 from sitl.servo import Faults, PtyServoBus, XM430Parameters, XM430Servo
 from sitl.servo.memory_bus import MemoryServoBus
-from sitl.stepping import WallPacer, running
+from sitl.stepping import LoopStats, WallPacer, step_loop
 from sitl.vehicle.navigation import ERROR_MODELS, Navigation
 from sitl.vehicle.world import World, WorldSettings
 
@@ -196,14 +196,9 @@ class RunOptions:
 
 
 @dataclass
-class RunStats:
+class RunStats(LoopStats):
     """What one run achieved (printed by ``sitl run`` when it stops)."""
 
-    sim_time_s: float = 0.0
-    wall_time_s: float = 0.0
-    steps: int = 0
-    overruns: int = 0
-    lateness_us: list[float] = field(default_factory=list)
     lockstep_waits: int = 0
     """Poses after which the vehicle waited for the client's setpoint (``lockstep``)."""
     lockstep_timeouts: int = 0
@@ -357,6 +352,10 @@ class SitlVehicle:
         self._console: Callable[[str], None] | None = None
         self.steps = 0
         """Plant steps taken."""
+        self._lockstep_waits = 0
+        self._lockstep_timeouts = 0
+        """Of :meth:`run`'s steps, those after which the vehicle waited for a lockstep
+        client's setpoint, and those waits that timed out."""
         self._held: list = []
         """Onboard messages received while waiting for a setpoint (``lockstep``), handed to
         the autopilot at the next step."""
@@ -470,27 +469,36 @@ class SitlVehicle:
         # to answer like a servo, not after Python's default 5 ms switch interval.
         sys.setswitchinterval(_SWITCH_INTERVAL_S)
         self._console = console
-        world = self.world
-        pacer = WallPacer(world.dt_s / self.options.speed, _MAX_LAG_S)
-        stats = RunStats()
-        sim0 = world.time_s
-        step0 = self.steps
-        wall0 = time.perf_counter()
-        while running(stop, world.time_s, world.dt_s, until_s):
-            stats.lateness_us.append(pacer.wait() * 1e6)
-            self.step()
-            if self.options.lockstep and self._streaming():
-                if self._pose_sent_ms is not None:
-                    stats.lockstep_waits += 1
-                    if not self._await_setpoint():
-                        stats.lockstep_timeouts += 1
-                pacer.restart()  # in lockstep the client paces the steps
-        stats.overruns = pacer.overruns
-        stats.steps = self.steps - step0
-        stats.sim_time_s = self.world.time_s - sim0
-        stats.wall_time_s = time.perf_counter() - wall0
+        self._lockstep_waits = self._lockstep_timeouts = 0  # of this run
+        pacer = WallPacer(self.world.dt_s / self.options.speed, _MAX_LAG_S)
+        loop = step_loop(self, stop, until_s, pacer)
         self.flush_truth()
-        return stats
+        return RunStats(
+            **vars(loop),
+            lockstep_waits=self._lockstep_waits,
+            lockstep_timeouts=self._lockstep_timeouts,
+        )
+
+    @property
+    def dt_s(self) -> float:
+        """Simulated time of one step [s]."""
+        return self.world.dt_s
+
+    paced = True
+    """Every step of :meth:`run` keeps its wall-clock slot (:class:`~sitl.stepping.Stepped`)."""
+
+    def advance(self) -> bool:
+        """One step of :meth:`run`: :meth:`step`, then, with a lockstep client streaming
+        setpoints, the wait for its setpoint answering the pose just sent; True when the
+        client streams (it paces the steps, not the wall clock)."""
+        self.step()
+        if not (self.options.lockstep and self._streaming()):
+            return False
+        if self._pose_sent_ms is not None:
+            self._lockstep_waits += 1
+            if not self._await_setpoint():
+                self._lockstep_timeouts += 1
+        return True
 
     def step(self) -> None:
         """One plant step (see the module docstring): the messages received go to the
