@@ -8,6 +8,7 @@ only while the source is the one it was built from.
 """
 
 import hashlib
+import os
 from pathlib import Path
 
 from Cython.Build import cythonize
@@ -47,6 +48,8 @@ def twin(module: str) -> Extension:
 
 
 setup(
+    # The extensions compile side by side, one per core (the twins' generated C is large).
+    options={"build_ext": {"parallel": os.cpu_count() or 1}},
     ext_modules=[
         Extension(
             "companion.model._mcg",
@@ -66,5 +69,5 @@ setup(
             compiler_directives={"language_level": 3},
             quiet=True,
         ),
-    ]
+    ],
 )
