@@ -13,6 +13,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import importlib
+import importlib.util
 import logging
 from pathlib import Path
 from types import ModuleType
@@ -36,18 +37,25 @@ def _source_sha256(path: str) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def twin_reason(module: ModuleType) -> str | None:
+def twin_reason(module: ModuleType | str) -> str | None:
     """Why ``module``'s compiled twin cannot run (not built, or built from another
-    source), or None when it can."""
-    name = twin_name(module.__name__)
+    source), or None when it can. ``module`` is the Python module or its name: a name's
+    source is found, not imported (it imports Cython, which the flight install lacks)."""
+    if isinstance(module, str):
+        spec = importlib.util.find_spec(module)
+        assert spec is not None and spec.origin is not None, module
+        module_name, source = module, spec.origin
+    else:
+        assert module.__file__ is not None
+        module_name, source = module.__name__, module.__file__
+    name = twin_name(module_name)
     try:
         compiled = importlib.import_module(name)
     except ImportError as error:
         return f"{name} is not built ({error}; `pip install .` builds it)"
-    assert module.__file__ is not None
-    if getattr(compiled, "SOURCE_SHA256", None) != _source_sha256(module.__file__):
+    if getattr(compiled, "SOURCE_SHA256", None) != _source_sha256(source):
         return (
-            f"{name} was built from another {Path(module.__file__).name} "
+            f"{name} was built from another {Path(source).name} "
             "(rebuild: `python setup.py build_ext --inplace`)"
         )
     return None
