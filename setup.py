@@ -1,5 +1,6 @@
-"""Build the C extensions (the model's generated dynamics, the compiled control step) and
-the compiled twins of pure-Python modules; all other metadata lives in pyproject.toml.
+"""Build the C extension of the model's generated dynamics and the compiled twins of
+pure-Python modules (the control step among them); all other metadata lives in
+pyproject.toml.
 
 A compiled twin is a module's own Python source compiled by Cython (pure-Python mode) into
 ``_<name>`` beside it: the source is copied to ``build/cython/<package>/_<name>.py`` with
@@ -16,6 +17,7 @@ from setuptools import Extension, setup
 
 ROOT = Path(__file__).resolve().parent
 TWINS = (
+    "companion.control.control_step",
     "sitl.servo.xm430_loop",
     "sitl.physics.attitude_loop",
     "sitl.physics.integration_step",
@@ -55,14 +57,6 @@ setup(
             "companion.model._mcg",
             sources=["companion/model/_mcg.c"],
             extra_compile_args=["-O2"],
-        ),
-        # The step must reproduce the Python reference operation for operation: no fused
-        # multiply-add (aarch64 compilers contract a * b + c by default).
-        Extension(
-            "companion.control._step",
-            sources=["companion/control/_step.c"],
-            depends=["companion/model/_mcg.c"],
-            extra_compile_args=["-O2", "-ffp-contract=off"],
         ),
         *cythonize(
             [twin(module) for module in TWINS],

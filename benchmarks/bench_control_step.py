@@ -6,10 +6,11 @@ passivity + paper estimator, passivity + RLS, and the adaptive sliding-mode cont
 
 - ``step``: :meth:`FlightControl.step <companion.control.flight.FlightControl.step>` alone
   (model terms, estimator, tilt reference, control law, trim, setpoint mapping), median
-  and 99th percentile in microseconds, for the compiled step (``companion.control._step``) and the
-  Python reference. The inputs (filtered state, desired state, applied force, dt) are
-  recorded from one offline run and replayed cycle by cycle through a fresh
-  ``FlightControl`` of each kind, so both paths time the same sequence;
+  and 99th percentile in microseconds, for the compiled step (the compiled twin of
+  ``companion.control.control_step``) and the Python reference. The inputs (filtered
+  state, desired state, applied force, dt) are recorded from one offline run and replayed
+  cycle by cycle through a fresh ``FlightControl`` of each kind, so both paths time the
+  same sequence;
 - ``sim step``: the step as the offline simulator times it, which adds the state filter
   (feeding the measurements, reading q, q_dot, q_ddot; in Python on both paths);
 - ``wall``: the whole 10 s run (control steps, truth plant at ``plant.rate_hz``, logging),

@@ -282,7 +282,7 @@ def test_compensation_maps_the_force_over_s(compiled: bool) -> None:
     from companion.estimation.filters import FilteredState
 
     if compiled and native_module() is None:
-        pytest.skip("companion.control._step is not built")
+        pytest.skip("the compiled control step is not built")
     outputs = {}
     for compensate in (False, True):
         cfg = parse_scenario(_flight_data(initial=0.8, bounds=[0.7, 1.3], compensate=compensate))

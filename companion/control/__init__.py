@@ -7,8 +7,9 @@
 - :mod:`~companion.control.setpoints`: the small-angle tilt mapping to attitude + thrust;
 - :mod:`~companion.control.attitude_feedforward`: PX4's attitude loop inverted;
 - :mod:`~companion.control.trajectory`: reference trajectories;
-- :mod:`~companion.control.compiled_step`, :mod:`~companion.control.native`: the compiled
-  step (C extension ``companion.control._step``) and the switch to the Python reference.
+- :mod:`~companion.control.control_step`, :mod:`~companion.control.compiled_step`,
+  :mod:`~companion.control.native`: the step's arithmetic (a compiled twin), the compiled
+  step around it and the switch to the Python reference.
 """
 
 from typing import TYPE_CHECKING

@@ -1,19 +1,20 @@
-"""The compiled control step: :class:`CompiledStep` around the C extension
-``companion.control._step``.
+"""The compiled control step: :class:`CompiledStep` around the compiled twin of
+:mod:`companion.control.control_step` (``companion.control._control_step``).
 
 :class:`~companion.control.flight.FlightControl` runs its step (model terms, estimator,
-tilt reference, eq. tau2 with the trim, setpoint mapping) in one C call per cycle when the
-extension is built; the Python classes stay the reference the C code is tested against
+tilt reference, eq. tau2 with the trim, setpoint mapping) in one compiled call per cycle
+when the twin is built; the Python classes stay the reference the twin is tested against
 (tests/test_compiled_step.py, to 1e-12 over whole offline runs).
 
-What the step keeps between cycles lives in one float64 buffer (``CompiledStep.state``)
-and what is fixed in another (``CompiledStep.params``), laid out as the C structs of
-``_step.c`` (their offsets come from the extension, ``_step.LAYOUT``). The estimator, the
-excitation monitor, the tilt reference and the trim the flight app and the offline
-simulator hold are subclasses of the Python ones whose state attributes read and write
-those buffers (:class:`_Field`), so ``freeze``, ``reset``, ``tilt.reset``, ``trim.start``
-and every read of ``theta``, ``qhat``, ``skipped`` act on the compiled state, with the
-Python methods unchanged.
+What the step keeps between cycles, what is fixed and the outputs of the last cycle live
+in one float64 buffer (:func:`control_step.work <companion.control.control_step.work>`):
+``CompiledStep.state`` and ``CompiledStep.params`` are numpy arrays over its blocks, their
+fields at the offsets of ``control_step.LAYOUT``. The estimator, the excitation monitor,
+the tilt reference and the trim the flight app and the offline simulator hold are
+subclasses of the Python ones whose state attributes read and write those arrays
+(:class:`_Field`), so ``freeze``, ``reset``, ``tilt.reset``, ``trim.start`` and every read
+of ``theta``, ``qhat``, ``skipped`` act on the compiled state, with the Python methods
+unchanged.
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ _NO_FORCE = np.full(8, math.nan)
 
 
 def _skip_and_force(applied_tau: FloatArray | Skip) -> tuple[int, FloatArray]:
-    """The C step's skip index (-1: none) and force (NaN if skipped)."""
+    """The step's skip index (-1: none) and force (NaN if skipped)."""
     if isinstance(applied_tau, Skip):
         return _SKIP_INDEX[applied_tau], _NO_FORCE
     return -1, applied_tau
@@ -79,7 +80,7 @@ def frozen_record(cls: type[_R], **fields: Any) -> _R:
 
 class _Field:
     """An attribute stored in a float64 buffer of the instance (``_params`` or
-    ``_state``) at the offset of a field of ``_step.c``'s structs: a float, a bool, or
+    ``_state``) at the offset of a field of ``control_step.LAYOUT``: a float, a bool, or
     (``shape`` given) an array, returned as a copy or (``view``) as a writable view."""
 
     def __init__(
@@ -169,7 +170,8 @@ class _Backed:
 
 
 class _CompiledMonitor(_Backed, ExcitationMonitor):
-    """The excitation monitor whose windows and information matrix the C step updates."""
+    """The excitation monitor whose windows and information matrix the compiled step
+    updates."""
 
     info = _Field("_state", "State.info", shape=(3, 3))
     excitation = _Field("_state", "State.excitation")
@@ -212,7 +214,7 @@ class _CompiledRlsEstimator(_Backed, _EstimatorFields, RlsEstimator):
 
 
 class _CompiledTilt(_Backed, TiltReference):
-    """The tilt reference whose angle, rate and acceleration the C step advances."""
+    """The tilt reference whose angle, rate and acceleration the compiled step advances."""
 
     x = _Field("_state", "State.tilt_x", shape=(2,), view=True)
     v = _Field("_state", "State.tilt_v", shape=(2,), view=True)
@@ -221,7 +223,7 @@ class _CompiledTilt(_Backed, TiltReference):
 
 
 class _CompiledTrim(_Backed, HorizontalTrim):
-    """The horizontal trim whose force the C step integrates."""
+    """The horizontal trim whose force the compiled step integrates."""
 
     force_n = _Field("_state", "State.trim_force", shape=(2,))
     gain = _Field("_params", "Params.trim_gain")
@@ -229,7 +231,7 @@ class _CompiledTrim(_Backed, HorizontalTrim):
 
 
 class _CompiledAttitudeInverse(_Backed, AttitudeLoopInverse):
-    """The tilt loop inverse whose integrator copy the C step advances."""
+    """The tilt loop inverse whose integrator copy the compiled step advances."""
 
     torque_n_m = _Field("_state", "State.ff_torque_f", shape=(2,))
     integral = _Field("_state", "State.ff_int", shape=(2,))
@@ -253,7 +255,7 @@ _STATE_ATTRIBUTES = {
 }
 """Per class, the attributes moved into the buffers."""
 _DROPPED = ("_m2", "_lc", "_since_sample", "_samples")
-"""The Python monitor's windows and counters: the C step keeps its own."""
+"""The Python monitor's windows and counters: the compiled step keeps its own."""
 
 
 def _backed(obj: Any, cls: type[Any], step: CompiledStep) -> Any:
@@ -271,7 +273,7 @@ def _backed(obj: Any, cls: type[Any], step: CompiledStep) -> Any:
 
 
 class CompiledStep:
-    """Parameters and state of the C step for one control law, estimator, tilt reference,
+    """Parameters and state of the compiled step for one control law, estimator, tilt reference,
     trim and thrust model, taken over from the Python objects given (which are not used
     afterwards: use :attr:`estimator`, :attr:`tilt` and :attr:`trim`).
 
@@ -302,8 +304,8 @@ class CompiledStep:
         self.layout: dict[str, tuple[int, int]] = dict(module.LAYOUT)
         monitor = estimator.monitor
         window = monitor._window_samples
-        self.params = np.zeros(module.PARAMS_SIZE)
-        self.state = np.zeros(module.STATE_SIZE + 2 * window)
+        self._work = module.work(window)
+        self.params, self.state, self._out = module.blocks(self._work)
         n = len(estimator.rows)
         par: dict[str, Any] = {
             "model": model_params,
@@ -385,7 +387,6 @@ class CompiledStep:
         )
         self.thrust = thrust
         self.tilt_max_rad = tilt_max_rad
-        self._out = np.empty(module.OUT_SIZE)
 
     @staticmethod
     def supports(controller: object, estimator: object) -> bool:
@@ -441,22 +442,22 @@ class CompiledStep:
         the estimator runs on ``estimator_inputs`` (q, q_dot, q_ddot, applied force) if
         given, else on this cycle's."""
         skip, tau = _skip_and_force(applied_tau)
-        out = np.empty_like(self._out)
         args: tuple[Any, ...] = (q, q_dot, q_ddot, desired.q, desired.q_dot, desired.q_ddot, tau)
         extra: tuple[Any, ...] = ()
         if estimator_inputs is not None:
             est_skip, est_tau = _skip_and_force(estimator_inputs[3])
             extra = (*estimator_inputs[:3], est_tau, est_skip)
         try:
-            self._module.step(self.params, self.state, dt_s, skip, *args, out, *extra)
+            self._module.step(self._work, dt_s, skip, *args, *extra)
         except (BufferError, TypeError, ValueError):
-            # Not C-contiguous float64 arrays (numpy says so with ValueError): convert and
-            # call again, which raises if they are not 8 values each. Every check precedes
-            # any change of the state.
+            # Not C-contiguous float64 arrays (the buffer protocol says so with ValueError):
+            # convert and call again, which raises if they are not 8 values each. Every
+            # check precedes any change of the state.
             arrays = [np.ascontiguousarray(a, dtype=np.float64) for a in args]
             if extra:
                 extra = (*[np.ascontiguousarray(a, dtype=np.float64) for a in extra[:4]], extra[4])
-            self._module.step(self.params, self.state, float(dt_s), skip, *arrays, out, *extra)
+            self._module.step(self._work, float(dt_s), skip, *arrays, *extra)
+        out = self._out.copy()
         v = out.tolist()
         setpoint = frozen_record(
             AttitudeThrustSetpoint,

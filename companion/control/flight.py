@@ -23,14 +23,14 @@ and send the result to PX4 (or the plant) and the servos. The pieces are the pap
 
 Compiled and reference paths
 ----------------------------
-Where the C extension ``companion.control._step`` is built (``pip install .`` always builds it),
-the step of the passivity and non-adaptive laws, with the paper or the RLS estimator (with
-or without the thrust scale), runs in one C call per cycle
-(:mod:`companion.control.compiled_step`); the Python classes remain the reference it is tested
-against to 1e-12 (tests/test_compiled_step.py). The sliding-mode law (eq. asc1) always runs
-in Python. ``FlightControl(..., compiled=False)`` or the environment variable
-``COMPANION_STEP=python`` selects the Python step; if the extension is missing the Python
-step runs after a one-line warning. The state filter
+Where the compiled twin of :mod:`companion.control.control_step` is built from its source
+(``pip install .`` always builds it), the step of the passivity and non-adaptive laws, with
+the paper or the RLS estimator (with or without the thrust scale), runs in one compiled
+call per cycle (:mod:`companion.control.compiled_step`); the Python classes remain the
+reference it is tested against to 1e-12 (tests/test_compiled_step.py). The sliding-mode
+law (eq. asc1) always runs in Python. ``FlightControl(..., compiled=False)`` or the
+environment variable ``COMPANION_STEP=python`` selects the Python step; if the twin is
+missing or stale the Python step runs after a one-line warning. The state filter
 (:mod:`companion.estimation.filters`) runs before the step, in Python, on either path.
 """
 
@@ -122,10 +122,10 @@ class FlightControl:
     estimator_kind
         ``"paper"`` or ``"rls"`` [default: ``estimator.kind``].
     compiled
-        Run the step in C (True; RuntimeError if the extension is not built) or in Python,
-        the reference (False) [default: C where it is built and the law is eq. tau2,
-        unless the environment variable ``COMPANION_STEP`` is ``python``]. The attribute
-        :attr:`compiled` says which runs.
+        Run the step compiled (True; RuntimeError if the twin is not built from its
+        source) or in Python, the reference (False) [default: compiled where it is built
+        and the law is eq. tau2, unless the environment variable ``COMPANION_STEP`` is
+        ``python``]. The attribute :attr:`compiled` says which runs.
     """
 
     def __init__(
@@ -228,7 +228,7 @@ class FlightControl:
 
     @property
     def compiled(self) -> bool:
-        """True if the step runs in C (:mod:`companion.control.compiled_step`)."""
+        """True if the step runs compiled (:mod:`companion.control.compiled_step`)."""
         return self._compiled is not None
 
     @property
@@ -291,7 +291,8 @@ class FlightControl:
 
         ``applied_tau`` is the generalized force applied over the last cycle (see
         :meth:`applied_force`), or why it is not known: the estimator skips the step.
-        Runs in C when :attr:`compiled`, with the same result (see the module docstring).
+        Runs compiled when :attr:`compiled`, with the same result (see the module
+        docstring).
         The thrust scale's drift (:attr:`scale_drift`) goes around the step.
         """
         drift = self.scale_drift

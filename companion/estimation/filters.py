@@ -40,18 +40,19 @@ form, equal in exact arithmetic; a test checks that P stays symmetric positive d
 Measured on the development machine (median / p99, us): predict 1.5 / 3, estimate
 3.5 / 6.5, predict + update 12 / 25 whether all rows or a subset are measured; a 1 kHz
 control step with 100 Hz motion capture, 100 Hz encoders and 250 Hz gyro rates costs
-7 / 30 (most steps only predict and read the estimate). Where the extension
-``companion.control._step`` is built, the update's product and element-wise steps run there in
-one call (``_step.fuse``, the same operations as :meth:`StateFilter._fuse`, which stays
-the reference; tests/test_compiled_step.py compares them call by call): an update of all
-rows costs 3-5 us instead of 13-16 (``benchmarks/bench_filters.py`` on a loaded
-2-core machine: predict + update 5.5 us median); so does the predict's product (``_step.predict``,
-a plain loop: OpenBLAS's call for a 17 x 17 by 17 x 8 product cost 7 us inside the offline
-simulator). The common update (default variance, every row started) is one C call,
-``_step.update``: it places the measurement and the variance row and builds G itself, bit
-for bit as the numpy steps around ``_step.fuse`` do (the joints' ages are continuous, so
-their G was never in the cache; in flight, after the idle wait between poses, each numpy
-call of the glue cost 3-5 us).
+7 / 30 (most steps only predict and read the estimate). Where the compiled twin of
+:mod:`companion.control.control_step` is built, the update's product and element-wise
+steps run there in one call (``control_step.fuse``, the same operations as
+:meth:`StateFilter._fuse`, which stays the reference; tests/test_compiled_step.py compares
+them call by call): an update of all rows costs 3-5 us instead of 13-16
+(``benchmarks/bench_filters.py`` on a loaded 2-core machine: predict + update 5.5 us
+median); so does the predict's product (``control_step.predict``, a plain loop: OpenBLAS's
+call for a 17 x 17 by 17 x 8 product cost 7 us inside the offline simulator). The common
+update (default variance, every row started) is one compiled call, ``control_step.update``:
+it places the measurement and the variance row and builds G itself, bit for bit as the
+numpy steps around ``control_step.fuse`` do (the joints' ages are continuous, so their G
+was never in the cache; in flight, after the idle wait between poses, each numpy call of
+the glue cost 3-5 us).
 
 Angles
 ------
@@ -200,7 +201,8 @@ class _Selection:
 
 
 def _propagate(A: FloatArray, X: FloatArray, X_next: FloatArray) -> None:
-    """X_next = A X, the predict's product (numpy, the reference of ``_step.predict``)."""
+    """X_next = A X, the predict's product (numpy, the reference of
+    ``control_step.predict``)."""
     np.dot(A, X, out=X_next)
 
 
@@ -244,9 +246,10 @@ class StateFilter:
     initial_acceleration_std : float or array_like, shape (n,)
         Standard deviation of the zero initial acceleration [m/s^2 or rad/s^2].
     compiled : bool, optional
-        Fuse measurements in C (``companion.control._step.fuse``, the same operations as
-        :meth:`_fuse`, which stays the reference) or in numpy [default: C where it is
-        built, unless ``COMPANION_STEP=python``; see :mod:`companion.control.native`].
+        Fuse measurements compiled (``companion.control.control_step.fuse``, the same
+        operations as :meth:`_fuse`, which stays the reference) or in numpy [default:
+        compiled where the twin is built, unless ``COMPANION_STEP=python``; see
+        :mod:`companion.control.native`].
     """
 
     def __init__(
@@ -285,12 +288,12 @@ class StateFilter:
         self._selection_cache: dict[tuple[int, ...] | None, _Selection] = {}
         native = native_module(compiled)
         self._fuse_columns = self._fuse if native is None else native.fuse
-        """The scalar updates of every column: C, or the numpy reference."""
+        """The scalar updates of every column: compiled, or the numpy reference."""
         self._propagate = _propagate if native is None else native.predict
-        """The prediction product ``X_next = A X``: C, or the numpy reference."""
+        """The prediction product ``X_next = A X``: compiled, or the numpy reference."""
         self._native_update = None if native is None else native.update
-        """The common update (default variance, every row started) in one C call, or None:
-        the numpy steps of :meth:`_update` then run, which stay its reference."""
+        """The common update (default variance, every row started) in one compiled call,
+        or None: the numpy steps of :meth:`_update` then run, which stay its reference."""
 
     # -- properties -------------------------------------------------------------------
 

@@ -1564,7 +1564,6 @@ static void mcg_eval(const double *q, const double *qd, const double *p, double 
     out[534] = a2;
 }
 
-#ifndef MCG_EVAL_ONLY /* companion/control/_step.c includes the evaluation only */
 static void potential_eval(const double *q, const double *p, double *out)
 {
     const double x = q[0];
@@ -1741,4 +1740,3 @@ static struct PyModuleDef module = {
 };
 
 PyMODINIT_FUNC PyInit__mcg(void) { return PyModule_Create(&module); }
-#endif

@@ -140,7 +140,6 @@ static void mcg_eval(const double *q, const double *qd, const double *p, double 
 {mcg_body}
 }}
 
-#ifndef MCG_EVAL_ONLY /* companion/control/_step.c includes the evaluation only */
 static void potential_eval(const double *q, const double *p, double *out)
 {{
 {potential_body}
@@ -282,7 +281,6 @@ static struct PyModuleDef module = {{
 }};
 
 PyMODINIT_FUNC PyInit__mcg(void) {{ return PyModule_Create(&module); }}
-#endif
 """
 
 
