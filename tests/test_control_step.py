@@ -1,0 +1,218 @@
+"""The control cycle's compiled twin (``companion.control.control_step``) against its Python
+source: one source built twice, the two builds agree bit for bit.
+
+The step runs through :class:`~companion.control.flight.FlightControl`, once over the
+compiled twin and once over the Python source, on seeded random cycles that reach what runs
+rarely (every skip reason, calibrate/freeze/resume/reset, theta and the thrust scale on
+their bounds, tilt and thrust saturation, the trim at its limit, late cycles that sub-step
+the tilt reference, a non-finite estimate, the estimator on delayed inputs); the state
+filter's ``fuse``, ``update`` and ``predict`` on random stacked states, rejections included.
+How the compiled step compares with the numpy reference classes is
+tests/test_compiled_step.py.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+
+from companion.compiled import twin, twin_reason
+from companion.control import control_step, flight
+from companion.control.flight import FlightControl
+from companion.control.laws import DesiredState
+from companion.control.setpoints import ThrustModel
+from companion.estimation.estimator import Skip
+from companion.estimation.filters import FilteredState
+from sitl.scenario import parse_scenario
+
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+
+pytestmark = pytest.mark.skipif(
+    twin_reason(control_step) is not None, reason=f"twin not used: {twin_reason(control_step)}"
+)
+
+
+def bits(values) -> list[str]:
+    """The float bits of arrays, floats and booleans, flattened."""
+    return [float(v).hex() for v in np.ravel(np.asarray(values, dtype=float))]
+
+
+def control_over(module: ModuleType, config, controller: str, kind: str, monkeypatch):
+    """A FlightControl whose step runs on ``module`` (the twin or its source), with a
+    thrust floor and the trim on."""
+    monkeypatch.setattr(flight, "native_module", lambda compiled=None: module)
+    control = FlightControl(config, controller, estimator_kind=kind)
+    assert control.compiled
+    control.thrust = ThrustModel(control.thrust.max_thrust_n, 0.1)
+    control.trim_active = True
+    control.trim.start(np.array([0.3, -2.0]))
+    return control
+
+
+SCALE = {"initial": 1.0, "bounds": [0.9, 1.1], "compensate": True}
+CASES = {
+    "paper, feed-forward": ("passivity", "paper", None, True, 0.0),
+    "rls, no feed-forward, delayed inputs": ("passivity", "rls", None, False, 0.02),
+    "nonadaptive rls": ("nonadaptive", "rls", None, True, 0.0),
+    "paper + thrust scale, compensated, delayed inputs": ("passivity", "paper", SCALE, False, 0.02),
+    "rls + thrust scale, compensated": ("passivity", "rls", SCALE, True, 0.0),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_the_step_twin_is_its_python_source_bit_for_bit(case: str, monkeypatch) -> None:
+    """GIVEN the same FlightControl twice, its step over the compiled twin and over its
+    Python source WHEN 600 seeded random cycles run with events between them THEN every
+    output, the whole compiled state after every cycle, and the errors (a non-finite
+    estimate from forces near overflow) have the same bits."""
+    controller, kind, scale, feedforward, delay_s = CASES[case]
+    data = tomllib.loads((CONFIGS / "sitl_pickup.toml").read_text())
+    if scale is not None:
+        data["estimator"]["thrust_scale"] = scale
+    if not feedforward:
+        del data["controller"]["attitude_feedforward"]
+    data["estimator"]["acceleration_delay_s"] = delay_s
+    config = parse_scenario(data).beliefs
+    compiled = twin(control_step)
+    assert compiled is not control_step
+    fast, slow = (
+        control_over(module, config, controller, kind, monkeypatch)
+        for module in (compiled, control_step)
+    )
+    rng = np.random.default_rng(11)
+    q = np.array([0.0, 0.0, 1.5, 0.0, 0.0, 0.3, -1.2, 0.4])
+    skips = list(Skip)
+    seen = dict.fromkeys(("skip", "tilt", "thrust", "bound", "trim", "substep", "error"), 0)
+    n = 600
+    for i in range(n):
+        q = q + rng.normal(0.0, 0.01, 8)
+        q[5] = (q[5] + math.pi) % (2 * math.pi) - math.pi
+        state = FilteredState(q.copy(), rng.normal(0.0, 0.5, 8), rng.normal(0.0, 2.0, 8))
+        desired = DesiredState(
+            q + rng.normal(0.0, 0.3, 8) * (1 + 5 * (i % 97 == 0)),
+            rng.normal(0.0, 0.3, 8),
+            rng.normal(0.0, 1.0, 8),
+        )
+        dt = 0.004 if i % 50 else float(rng.uniform(0.001, 0.03))
+        roll = rng.integers(20)
+        applied: np.ndarray | Skip
+        if roll == 0:
+            applied = skips[rng.integers(len(skips))]
+        else:
+            thrust = rng.uniform(-5.0, 40.0) if roll < 3 else rng.uniform(10.0, 20.0)
+            applied = fast.applied_force(q, thrust, rng.normal(0.0, 0.3, 2))
+            if roll == 3:
+                applied[2] = math.nan
+            elif roll == 4:
+                applied = applied * 50.0
+            elif roll == 5 and i % 5 == 0:
+                applied = applied * 1e200
+        results = []
+        for control in (fast, slow):
+            if i == n // 6:
+                control.estimator.calibrate()
+            elif i in (n // 6 + 100, n // 3 + 40):
+                control.estimator.resume()
+            elif i == n // 3:
+                control.estimator.freeze()
+            elif i == n // 2:
+                control.tilt.reset(0.2, -0.1)
+            elif i == 2 * n // 3:
+                control.estimator.reset(control.nominal_theta)
+            assert control._compiled is not None
+            try:
+                out = control.step(dt, state, desired, applied)
+            except FloatingPointError as error:
+                results.append([str(error), *bits(control._compiled.state)])
+                continue
+            setpoint, estimate = out.setpoint, out.estimate
+            values = [out.tau, [getattr(setpoint, f) for f in setpoint.__dataclass_fields__]]
+            values += [estimate.theta, estimate.excitation, estimate.spread]
+            values += [estimate.confident, estimate.thrust_scale, out.theta_hat]
+            values += [out.desired.q, out.desired.q_dot, out.desired.q_ddot]
+            results.append([b for v in values for b in bits(v)] + bits(control._compiled.state))
+        assert results[0] == results[1], f"cycle {i}"
+        if not results[0][0].startswith("0x"):
+            seen["error"] += 1
+            continue
+        b = fast.estimator.bounds  # type: ignore[attr-defined]
+        seen["skip"] += isinstance(applied, Skip)
+        seen["tilt"] += out.setpoint.tilt_saturated
+        seen["thrust"] += out.setpoint.thrust_saturated
+        seen["bound"] += float(out.estimate.theta[0]) in (b.m2_min_kg, b.m2_max_kg)
+        seen["trim"] += bool(np.any(np.abs(fast.trim.force_n) == fast.trim.limit))
+        seen["substep"] += dt * fast.tilt.w > 0.1
+    assert all(count > 0 for count in seen.values()), seen
+
+
+def stacked_state(rng: np.random.Generator, n: int) -> np.ndarray:
+    """A random stacked filter state (17 x n): per column an estimate, a symmetric positive
+    definite covariance, the jerk PSD, a measurement and the variances."""
+    x = np.zeros((17, n))
+    for c in range(n):
+        a = rng.normal(0.0, 0.1, (3, 3))
+        p = a @ a.T + 1e-3 * np.eye(3)
+        estimate = rng.normal(0.0, 2.0, 3)
+        for i in range(3):
+            x[4 * i, c] = estimate[i]
+            x[4 * i + 1 : 4 * i + 4, c] = p[i]
+    x[12] = 1.0
+    x[14:17] = rng.uniform(1e-6, 1e-3, (3, n))
+    return x
+
+
+def test_the_filter_functions_twin_is_their_python_source_bit_for_bit() -> None:
+    """GIVEN random stacked states WHEN the compiled twin and the Python source each
+    predict, fuse (random G, angles a turn off) and update (random rows in any order,
+    latencies, rates, and rejected measurements: non-finite, a negative latency, a wrong
+    count, not numbers) THEN the states and the errors have the same bits."""
+    compiled = twin(control_step)
+    rng = np.random.default_rng(3)
+    rejected = 0
+    for i in range(400):
+        n = int(rng.integers(1, 9))
+        x = stacked_state(rng, n)
+        a = rng.normal(0.0, 1.0, (17, 17))
+        nexts = [np.empty_like(x) for _ in range(2)]
+        for module, x_next in zip((compiled, control_step), nexts, strict=True):
+            module.predict(a, x, x_next)
+        assert bits(nexts[0]) == bits(nexts[1])
+        g = rng.normal(0.0, 1.0, (25, 17))
+        g[24] = -np.abs(g[24]) - 1.0
+        wrap = tuple(range(min(n, 3)))
+        x[0, : len(wrap)] += 7.0
+        states = [x.copy() for _ in range(2)]
+        for module, state in zip((compiled, control_step), states, strict=True):
+            module.fuse(state, g, wrap)
+        assert bits(states[0]) == bits(states[1])
+        rows = tuple(int(r) for r in rng.permutation(n)[: rng.integers(1, n + 1)])
+        z: list = rng.normal(0.0, 2.0, len(rows)).tolist()
+        latency = float(rng.choice([0.0, rng.uniform(0.0, 0.03)]))
+        bad = i % 10
+        if bad == 1:
+            z[0] = math.nan
+        elif bad == 2:
+            latency = -0.001
+        elif bad == 3:
+            z = [*z, 1.0]
+        elif bad == 4:
+            z = ["a"] * len(rows)
+        order = int(rng.integers(2))
+        wrap = tuple(r for r in rows if r < 3) if order == 0 else ()
+        states = [x.copy() for _ in range(2)]
+        errors = []
+        for module, state in zip((compiled, control_step), states, strict=True):
+            try:
+                module.update(state, order, latency, rows, z, wrap)
+                errors.append(None)
+            except ValueError as error:
+                errors.append(str(error))
+        assert errors[0] == errors[1]
+        assert bits(states[0]) == bits(states[1])
+        rejected += errors[0] is not None
+    assert rejected >= 150
