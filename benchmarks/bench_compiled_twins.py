@@ -6,8 +6,10 @@ the PX4-like attitude loop (``sitl.physics.attitude_loop``: one
 ``Px4AttitudeLoop.update`` of the default scenario's loop at a tilted attitude) and the
 truth plant's integration step (``sitl.physics.integration_step``: one
 ``ArticulatedIntegrator.step_kinematics`` of the default scenario's model under a rotor
-wrench, semi-implicit Euler and RK4). Prints the best of ``--repeat`` runs of ``--calls``
-calls, for the compiled twin and for the Python source::
+wrench, semi-implicit Euler and RK4) and the companion's control step
+(``companion.control.control_step``: one ``CompiledStep.step`` of the default scenario's
+controller, RLS estimator with the attitude feed-forward). Prints the best of
+``--repeat`` runs of ``--calls`` calls, for the compiled twin and for the Python source::
 
     python benchmarks/bench_compiled_twins.py
 """
@@ -19,8 +21,14 @@ import functools
 import timeit
 from pathlib import Path
 
+import numpy as np
+
 from arm_driver.dynamixel import control_table as ct
-from companion.compiled import twin_reason
+from companion.compiled import twin, twin_reason
+from companion.control import control_step
+from companion.control.compiled_step import CompiledStep
+from companion.control.flight import FlightControl
+from companion.control.laws import DesiredState, PassivityController
 from sitl.physics import attitude_control, attitude_loop, integration_step, rotors
 from sitl.physics.articulation import build_articulation
 from sitl.physics.attitude_control import AttitudeLoopParams, AttitudeSetpoint, Px4AttitudeLoop
@@ -98,12 +106,41 @@ def integration_step_us(method: IntegratorMethod, compiled: bool, calls: int, re
     return min(seconds) / calls * 1e6
 
 
+def control_step_us(compiled: bool, calls: int, repeat: int) -> float:
+    """Microseconds per CompiledStep.step (the sitl_pickup.toml controller and estimator,
+    the estimator on this cycle's inputs) near hover."""
+    config = load_scenario(ROOT / "configs" / "sitl_pickup.toml").beliefs
+    control = FlightControl(config, compiled=False)
+    law = control.controller
+    assert isinstance(law, PassivityController)
+    step = CompiledStep(
+        twin(control_step) if compiled else control_step,
+        control.model.params.vector(),
+        control.estimator,
+        law,
+        np.asarray(config.controller.lambda_, dtype=float),
+        control.tilt,
+        control.trim,
+        control.thrust,
+        control.tilt_max_rad,
+        attitude_inverse=control.attitude_inverse,
+    )
+    q = np.array([0.1, -0.2, 1.5, 0.02, -0.03, 0.3, -1.2, 0.4])
+    q_dot = np.full(8, 0.05)
+    desired = DesiredState(q + 0.01, np.zeros(8), np.zeros(8))
+    applied = control.applied_force(q, 20.0, np.array([0.1, -0.05]))
+    seconds = timeit.repeat(
+        lambda: step.step(0.008, q, q_dot, q_dot, desired, applied), number=calls, repeat=repeat
+    )
+    return min(seconds) / calls * 1e6
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--calls", type=int, default=50_000)
     parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args()
-    for module in (xm430_loop, attitude_loop, integration_step):
+    for module in (xm430_loop, attitude_loop, integration_step, control_step):
         reason = twin_reason(module)
         if reason is not None:
             raise SystemExit(f"bench_compiled_twins: {reason}")
@@ -118,6 +155,7 @@ def main() -> None:
             "Integration step, RK4, step_kinematics per plant step",
             functools.partial(integration_step_us, "rk4"),
         ),
+        ("Companion control step, CompiledStep.step per control cycle", control_step_us),
     ):
         fast = measure(True, args.calls, args.repeat)
         slow = measure(False, args.calls // 10, args.repeat)
