@@ -40,7 +40,8 @@ def _source_sha256(path: str) -> str:
 def twin_reason(module: ModuleType | str) -> str | None:
     """Why ``module``'s compiled twin cannot run (not built, or built from another
     source), or None when it can. ``module`` is the Python module or its name: a name's
-    source is found, not imported (it imports Cython, which the flight install lacks)."""
+    source is found and hashed, not imported (a caller with another fallback than the
+    source, as the control step's numpy reference, need not load it)."""
     if isinstance(module, str):
         spec = importlib.util.find_spec(module)
         assert spec is not None and spec.origin is not None, module
