@@ -306,6 +306,24 @@ class CompiledStep:
         window = monitor._window_samples
         self._work = module.work(window)
         self.params, self.state, self._out = module.blocks(self._work)
+        at = {name[4:]: offset for name, (offset, _) in self.layout.items() if name[:4] == "Out."}
+        self._scalars = tuple(
+            at[name]
+            for name in (
+                "roll", "pitch", "yaw", "thrust", "thrust_rel", "tilt_sat", "thrust_sat",
+                "excitation", "spread", "confident", "frozen", "scale",
+            )
+        )  # fmt: skip
+        """Offsets in the outputs' block of the setpoint's and the estimate's numbers."""
+        self._vectors = tuple(
+            slice(at[name], at[name] + size)
+            for name, size in (
+                ("tau", 8), ("theta", 3), ("theta_used", 3), ("ref_q", 8), ("ref_qd", 8),
+                ("ref_qdd", 8),
+            )
+        )  # fmt: skip
+        """Slices of the outputs' block: tau, theta, theta used, the reference q, q_dot,
+        q_ddot."""
         n = len(estimator.rows)
         par: dict[str, Any] = {
             "model": model_params,
@@ -459,24 +477,28 @@ class CompiledStep:
             self._module.step(self._work, float(dt_s), skip, *arrays, *extra)
         out = self._out.copy()
         v = out.tolist()
+        roll, pitch, yaw, thrust, rel, tilt_sat, thrust_sat, exc, spread, conf, frozen, scale = (
+            self._scalars
+        )
+        at_tau, at_theta, at_used, at_q, at_qd, at_qdd = self._vectors
         setpoint = frozen_record(
             AttitudeThrustSetpoint,
-            roll_rad=v[8],
-            pitch_rad=v[9],
-            yaw_rad=v[10],
-            thrust_n=v[11],
-            thrust_relative=v[12],
-            tilt_saturated=v[13] == 1.0,
-            thrust_saturated=v[14] == 1.0,
+            roll_rad=v[roll],
+            pitch_rad=v[pitch],
+            yaw_rad=v[yaw],
+            thrust_n=v[thrust],
+            thrust_relative=v[rel],
+            tilt_saturated=v[tilt_sat] == 1.0,
+            thrust_saturated=v[thrust_sat] == 1.0,
         )
         estimate = frozen_record(
             Estimate,
-            theta=out[15:18],
-            excitation=v[18],
-            spread=v[19],
-            confident=v[20] == 1.0,
-            frozen=v[21] == 1.0,
-            thrust_scale=v[22],
+            theta=out[at_theta],
+            excitation=v[exc],
+            spread=v[spread],
+            confident=v[conf] == 1.0,
+            frozen=v[frozen] == 1.0,
+            thrust_scale=v[scale],
         )
-        reference = frozen_record(DesiredState, q=out[26:34], q_dot=out[34:42], q_ddot=out[42:50])
-        return out[0:8], setpoint, estimate, out[23:26], reference
+        reference = frozen_record(DesiredState, q=out[at_q], q_dot=out[at_qd], q_ddot=out[at_qdd])
+        return out[at_tau], setpoint, estimate, out[at_used], reference

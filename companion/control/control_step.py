@@ -41,7 +41,7 @@ compares them).
 Everything one step keeps between calls, everything fixed and its scratch live in one
 float64 buffer (``array("d")``) built by :func:`work`: the parameters, the outputs, the
 scratch and the state with the monitor's windows at its end. :data:`LAYOUT` gives the
-offsets of the parameters' and the state's fields within their blocks (:func:`blocks`
+offsets of the parameters', the state's and the outputs' fields within their blocks (:func:`blocks`
 gives numpy arrays over the blocks), so Python and the step cannot disagree. Booleans and
 counts are stored as floats (0.0 / 1.0, exact integers).
 """
@@ -296,8 +296,27 @@ LAYOUT = {
     "State.ff_torque_f": (_S_FF_TORQUE_F - _STATE, 2),
     "State.ff_int": (_S_FF_INT - _STATE, 2),
     "State.ring": (_S_RING - _STATE, 0),
+    "Out.tau": (_O_TAU - _OUT, 8),
+    "Out.roll": (_O_ROLL - _OUT, 1),
+    "Out.pitch": (_O_PITCH - _OUT, 1),
+    "Out.yaw": (_O_YAW - _OUT, 1),
+    "Out.thrust": (_O_THRUST - _OUT, 1),
+    "Out.thrust_rel": (_O_THRUST_REL - _OUT, 1),
+    "Out.tilt_sat": (_O_TILT_SAT - _OUT, 1),
+    "Out.thrust_sat": (_O_THRUST_SAT - _OUT, 1),
+    "Out.theta": (_O_THETA - _OUT, 3),
+    "Out.excitation": (_O_EXCITATION - _OUT, 1),
+    "Out.spread": (_O_SPREAD - _OUT, 1),
+    "Out.confident": (_O_CONFIDENT - _OUT, 1),
+    "Out.frozen": (_O_FROZEN - _OUT, 1),
+    "Out.scale": (_O_SCALE - _OUT, 1),
+    "Out.theta_used": (_O_THETA_USED - _OUT, 3),
+    "Out.ref_q": (_O_REF_Q - _OUT, 8),
+    "Out.ref_qd": (_O_REF_QD - _OUT, 8),
+    "Out.ref_qdd": (_O_REF_QDD - _OUT, 8),
 }
-"""``"Params.<field>"`` / ``"State.<field>"`` -> (offset in its block, number of values)."""
+"""``"Params.<field>"`` / ``"State.<field>"`` / ``"Out.<field>"`` -> (offset in its block,
+number of values)."""
 
 
 def work(window_samples: int) -> tuple:
