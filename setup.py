@@ -61,6 +61,8 @@ setup(
         *cythonize(
             [twin(module) for module in TWINS],
             compiler_directives={"language_level": 3},
+            # The twins' cimports (companion/model/mcg_eval.pxd) are found from the root.
+            include_path=[str(ROOT)],
             quiet=True,
         ),
     ],

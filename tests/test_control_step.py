@@ -216,3 +216,33 @@ def test_the_filter_functions_twin_is_their_python_source_bit_for_bit() -> None:
         assert bits(states[0]) == bits(states[1])
         rejected += errors[0] is not None
     assert rejected >= 150
+
+
+def test_the_step_refuses_what_it_cannot_read_as_8_float64_values(monkeypatch) -> None:
+    """GIVEN the default scenario's step over the compiled twin and over its Python source
+    WHEN an input is 7 values, a 2 x 4 array or a value with no buffer (and, for the
+    compiled build, which reads the values' memory, integers, big-endian or strided
+    float64) THEN ValueError or TypeError, and the step's buffer is untouched
+    (CompiledStep converts such inputs and calls again: tests/test_compiled_step.py)."""
+    config = parse_scenario(tomllib.loads((CONFIGS / "sitl_pickup.toml").read_text())).beliefs
+    q = np.array([0.0, 0.0, 1.5, 0.0, 0.0, 0.3, -1.2, 0.4])
+    wide = np.zeros((8, 2))
+    wide[:, 0] = q
+    common = {"7 values": q[:7], "2 x 4": q.reshape(2, 4).copy(), "a string": "abcdefgh"}
+    memory = {
+        "integers": np.arange(8),
+        "big-endian": q.astype(">f8"),
+        "strided": wide[:, 0],
+    }
+    for module, bad_inputs in ((twin(control_step), common | memory), (control_step, common)):
+        step = control_over(module, config, "passivity", "paper", monkeypatch)._compiled
+        values = np.frombuffer(step._work[0], dtype=np.float64)
+        module.step(step._work, 0.004, -1, *[q] * 7)  # the good inputs run
+        before = values.copy()
+        for name, bad in bad_inputs.items():
+            for position in range(7):
+                args = [q] * 7
+                args[position] = bad
+                with pytest.raises((ValueError, TypeError)):
+                    module.step(step._work, 0.004, -1, *args)
+                np.testing.assert_array_equal(values, before, err_msg=f"{module.__name__}: {name}")

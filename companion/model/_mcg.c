@@ -1739,4 +1739,18 @@ static struct PyModuleDef module = {
     methods
 };
 
-PyMODINIT_FUNC PyInit__mcg(void) { return PyModule_Create(&module); }
+/* The module, with mcg_eval's address in the capsule "mcg_eval" (its C type: mcg_eval.pxd),
+ * which compiled callers (the control step's twin) call without the Python API. */
+PyMODINIT_FUNC PyInit__mcg(void)
+{
+    PyObject *m = PyModule_Create(&module);
+    if (m == NULL) return NULL;
+    PyObject *eval = PyCapsule_New((void *)mcg_eval, "companion.model._mcg.mcg_eval", NULL);
+    int added = eval != NULL && PyModule_AddObjectRef(m, "mcg_eval", eval) == 0;
+    Py_XDECREF(eval);
+    if (!added) {
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
+}
