@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.model import ManipulatorModel
+from companion.model import ManipulatorModel, _mcg
 from sitl.scenario import load_scenario
 
 ROOT = Path(__file__).parent.parent
@@ -160,6 +160,46 @@ def test_rejects_wrong_shapes(setup) -> None:
         model.terms(np.zeros(7), np.zeros(8))
     with pytest.raises(ValueError, match="q_dot"):
         model.terms(np.zeros(8), np.zeros((8, 1)))
+
+
+def test_one_call_evaluate_converts_what_the_extension_cannot_read(setup) -> None:
+    """GIVEN lists, integers, a tuple theta and strided views WHEN evaluate THEN the same
+    M, C, G, Y as from float64 arrays; a wrong shape is refused with the argument's name."""
+    cfg, model = setup
+    theta = np.array(cfg.true_theta.as_tuple())
+    q = np.array([0.0, 1.0, 2.0, 0.0, -1.0, 1.0, -1.0, 1.0])  # integers, for astype(int)
+    wide = np.zeros((8, 2))
+    wide[:, 0] = q
+    expected = model.evaluate(q, q, theta, q, q)
+    for args in (
+        (q.tolist(), q.astype(int), tuple(theta), wide[:, 0], q.astype(">f8")),
+        (wide[:, 0], wide[:, 0], theta.tolist(), q.tolist(), q),
+    ):
+        for got, want in zip(model.evaluate(*args), expected, strict=True):
+            np.testing.assert_array_equal(got, want)
+    with pytest.raises(ValueError, match=r"qr_dot must have shape \(8,\)"):
+        model.evaluate(q, q, theta, q.reshape(2, 4), q)
+    with pytest.raises(ValueError, match=r"theta must have shape \(3,\)"):
+        model.evaluate(q, q, theta[:2], q, q)
+
+
+def test_the_extension_refuses_what_is_not_native_float64(setup) -> None:
+    """GIVEN the generated extension WHEN an argument is integers, big-endian, two-
+    dimensional where a vector is asked, bytes, too short, or not a buffer THEN ValueError
+    or TypeError and ``out`` unwritten."""
+    _, model = setup
+    q = np.linspace(-1.0, 1.0, 8)
+    for bad in (q.astype(np.int64), q.astype(">f8"), q.reshape(2, 4), q.tobytes(), q[:7], "q"):
+        out = np.full(4 * 136, 7.0)
+        with pytest.raises((ValueError, TypeError)):
+            _mcg.mcg(bad, q, model._p, out)
+        assert (out == 7.0).all()
+    with pytest.raises(TypeError, match="takes 4 arguments"):
+        _mcg.mcg(q, q, model._p)
+    readonly = np.full(4 * 136, 7.0)
+    readonly.flags.writeable = False
+    with pytest.raises((ValueError, BufferError)):
+        _mcg.mcg(q, q, model._p, readonly)
 
 
 def test_generated_code_is_up_to_date() -> None:

@@ -1,6 +1,8 @@
 """Type stub of the generated C extension ``_mcg`` (source ``_mcg.c``, from
-:mod:`companion.model.derive`). Each function writes into ``out`` (C-contiguous float64) and
-raises ValueError on a wrong number of values; see :mod:`companion.model.layout`."""
+:mod:`companion.model.derive`). Each function writes into ``out``; every argument must be
+C-contiguous native float64 values of the right count, one-dimensional where a vector is
+meant (else ValueError; TypeError for an object without a buffer), checked before anything
+is written; see :mod:`companion.model.layout`."""
 
 import numpy as np
 from numpy.typing import NDArray

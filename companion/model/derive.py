@@ -149,132 +149,150 @@ static void potential_eval(const double *q, const double *p, double *out)
 {potential_body}
 }}
 
-static int check(Py_buffer *b, Py_ssize_t n, const char *name)
+/* One argument: its name, its number of float64 values, whether it is written and whether
+ * it must be one-dimensional. */
+typedef struct {{ const char *name; Py_ssize_t n; int writable; int vector; }} Arg;
+
+/* The buffers of args[0:count] as spec says, each C-contiguous native float64 ("d"),
+ * or 0 with an error set (TypeError: the count of arguments or no buffer; ValueError:
+ * another element type, byte order, shape or number of values) and none held. */
+static int take(const char *function, PyObject *const *args, Py_ssize_t nargs,
+                const Arg *spec, Py_ssize_t count, Py_buffer *b)
 {{
-    if (b->len != n * (Py_ssize_t)sizeof(double)) {{
-        PyErr_Format(PyExc_ValueError, "%s: expected %zd float64 values, got %zd bytes",
-                     name, n, b->len);
+    if (nargs != count) {{
+        PyErr_Format(PyExc_TypeError, "%s() takes %zd arguments (%zd given)", function, count,
+                     nargs);
         return 0;
+    }}
+    for (Py_ssize_t i = 0; i < count; ++i) {{
+        int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (spec[i].writable ? PyBUF_WRITABLE : 0);
+        int ok = PyObject_GetBuffer(args[i], &b[i], flags) == 0;
+        if (ok && (b[i].format == NULL || strcmp(b[i].format, "d") != 0
+                   || (spec[i].vector && b[i].ndim != 1)
+                   || b[i].len != spec[i].n * (Py_ssize_t)sizeof(double))) {{
+            PyErr_Format(PyExc_ValueError,
+                         "%s: expected %zd native float64 values%s, got %zd bytes of format %s "
+                         "in %d dimensions", spec[i].name, spec[i].n,
+                         spec[i].vector ? " in one dimension" : "", b[i].len,
+                         b[i].format == NULL ? "B" : b[i].format, b[i].ndim);
+            PyBuffer_Release(&b[i]);
+            ok = 0;
+        }}
+        if (!ok) {{
+            while (i-- > 0) PyBuffer_Release(&b[i]);
+            return 0;
+        }}
     }}
     return 1;
 }}
 
-static PyObject *py_mcg(PyObject *self, PyObject *args)
+static PyObject *release(Py_buffer *b, Py_ssize_t count)
 {{
-    Py_buffer q, qd, p, out;
-    PyObject *result = NULL;
-    if (!PyArg_ParseTuple(args, "y*y*y*w*", &q, &qd, &p, &out)) return NULL;
-    if (check(&q, 8, "q") && check(&qd, 8, "qd") && check(&p, {n_params}, "p")
-        && check(&out, {mcg_size}, "out")) {{
-        mcg_eval((const double *)q.buf, (const double *)qd.buf, (const double *)p.buf,
-                 (double *)out.buf);
-        result = Py_NewRef(Py_None);
-    }}
-    PyBuffer_Release(&q); PyBuffer_Release(&qd); PyBuffer_Release(&p); PyBuffer_Release(&out);
-    return result;
+    for (Py_ssize_t i = 0; i < count; ++i) PyBuffer_Release(&b[i]);
+    Py_RETURN_NONE;
 }}
 
-static PyObject *py_potential(PyObject *self, PyObject *args)
+#define D(b) ((const double *)(b).buf)
+
+static PyObject *py_mcg(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {{
-    Py_buffer q, p, out;
-    PyObject *result = NULL;
-    if (!PyArg_ParseTuple(args, "y*y*w*", &q, &p, &out)) return NULL;
-    if (check(&q, 8, "q") && check(&p, {n_params}, "p") && check(&out, 4, "out")) {{
-        potential_eval((const double *)q.buf, (const double *)p.buf, (double *)out.buf);
-        result = Py_NewRef(Py_None);
-    }}
-    PyBuffer_Release(&q); PyBuffer_Release(&p); PyBuffer_Release(&out);
-    return result;
+    static const Arg spec[] = {{
+        {{"q", 8, 0, 1}}, {{"qd", 8, 0, 1}}, {{"p", {n_params}, 0, 1}}, {{"out", {mcg_size}, 1, 0}},
+    }};
+    Py_buffer b[4];
+    if (!take("mcg", args, nargs, spec, 4, b)) return NULL;
+    mcg_eval(D(b[0]), D(b[1]), D(b[2]), (double *)b[3].buf);
+    return release(b, 4);
+}}
+
+static PyObject *py_potential(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{{
+    static const Arg spec[] = {{{{"q", 8, 0, 1}}, {{"p", {n_params}, 0, 1}}, {{"out", 4, 1, 0}}}};
+    Py_buffer b[3];
+    if (!take("potential", args, nargs, spec, 3, b)) return NULL;
+    potential_eval(D(b[0]), D(b[1]), (double *)b[2].buf);
+    return release(b, 3);
 }}
 
 /* combine(pieces, xi, out): out[j] = sum_k xi[k] pieces[k][j]  (M, C, G rows for one theta) */
-static PyObject *py_combine(PyObject *self, PyObject *args)
+static PyObject *py_combine(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {{
-    Py_buffer pieces, xi, out;
-    PyObject *result = NULL;
-    if (!PyArg_ParseTuple(args, "y*y*w*", &pieces, &xi, &out)) return NULL;
-    if (check(&pieces, 4 * {piece_size}, "pieces") && check(&xi, 4, "xi")
-        && check(&out, {piece_size}, "out")) {{
-        const double *p = (const double *)pieces.buf, *w = (const double *)xi.buf;
-        double *o = (double *)out.buf;
-        for (int j = 0; j < {piece_size}; ++j)
-            o[j] = w[0] * p[j] + w[1] * p[{piece_size} + j] + w[2] * p[2 * {piece_size} + j]
-                   + w[3] * p[3 * {piece_size} + j];
-        result = Py_NewRef(Py_None);
-    }}
-    PyBuffer_Release(&pieces); PyBuffer_Release(&xi); PyBuffer_Release(&out);
-    return result;
+    static const Arg spec[] = {{
+        {{"pieces", 4 * {piece_size}, 0, 0}}, {{"xi", 4, 0, 1}}, {{"out", {piece_size}, 1, 0}},
+    }};
+    Py_buffer b[3];
+    if (!take("combine", args, nargs, spec, 3, b)) return NULL;
+    const double *p = D(b[0]), *w = D(b[1]);
+    double *o = (double *)b[2].buf;
+    for (int j = 0; j < {piece_size}; ++j)
+        o[j] = w[0] * p[j] + w[1] * p[{piece_size} + j] + w[2] * p[2 * {piece_size} + j]
+               + w[3] * p[3 * {piece_size} + j];
+    return release(b, 3);
 }}
 
 /* regress(pieces, qr_dot, qr_ddot, out): out[k][i] = M_k[i] qr_ddot + C_k[i] qr_dot + G_k[i],
  * that is Y^T (4 x 8) */
-static PyObject *py_regress(PyObject *self, PyObject *args)
+static PyObject *py_regress(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {{
-    Py_buffer pieces, qrd, qrdd, out;
-    PyObject *result = NULL;
-    if (!PyArg_ParseTuple(args, "y*y*y*w*", &pieces, &qrd, &qrdd, &out)) return NULL;
-    if (check(&pieces, 4 * {piece_size}, "pieces") && check(&qrd, 8, "qr_dot")
-        && check(&qrdd, 8, "qr_ddot") && check(&out, 32, "out")) {{
-        const double *p = (const double *)pieces.buf;
-        const double *v = (const double *)qrd.buf, *a = (const double *)qrdd.buf;
-        double *o = (double *)out.buf;
-        for (int r = 0; r < 32; ++r, p += 17) {{
-            double acc = p[16];
-            for (int j = 0; j < 8; ++j) acc += p[j] * a[j] + p[8 + j] * v[j];
-            o[r] = acc;
-        }}
-        result = Py_NewRef(Py_None);
+    static const Arg spec[] = {{
+        {{"pieces", 4 * {piece_size}, 0, 0}}, {{"qr_dot", 8, 0, 1}}, {{"qr_ddot", 8, 0, 1}},
+        {{"out", 32, 1, 0}},
+    }};
+    Py_buffer b[4];
+    if (!take("regress", args, nargs, spec, 4, b)) return NULL;
+    const double *p = D(b[0]), *v = D(b[1]), *a = D(b[2]);
+    double *o = (double *)b[3].buf;
+    for (int r = 0; r < 32; ++r, p += 17) {{
+        double acc = p[16];
+        for (int j = 0; j < 8; ++j) acc += p[j] * a[j] + p[8 + j] * v[j];
+        o[r] = acc;
     }}
-    PyBuffer_Release(&pieces); PyBuffer_Release(&qrd); PyBuffer_Release(&qrdd);
-    PyBuffer_Release(&out);
-    return result;
+    return release(b, 4);
 }}
 
 /* all(q, qd, p, theta, qr_dot, qr_ddot, out): M (8 x 8), C (8 x 8), G (8) for
  * theta = (m2, m3, m4) and Y^T (4 x 8) in one call, 168 values */
-static PyObject *py_all(PyObject *self, PyObject *args)
+static PyObject *py_all(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {{
-    Py_buffer q, qd, p, th, qrd, qrdd, out;
-    PyObject *result = NULL;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*w*", &q, &qd, &p, &th, &qrd, &qrdd, &out))
-        return NULL;
-    if (check(&q, 8, "q") && check(&qd, 8, "qd") && check(&p, {n_params}, "p")
-        && check(&th, 3, "theta") && check(&qrd, 8, "qr_dot") && check(&qrdd, 8, "qr_ddot")
-        && check(&out, 168, "out")) {{
-        double pieces[4 * 136];
-        const double *t = (const double *)th.buf, w[4] = {{t[0], t[1], t[2], 1.0}};
-        const double *v = (const double *)qrd.buf, *a = (const double *)qrdd.buf;
-        double *o = (double *)out.buf;
-        mcg_eval((const double *)q.buf, (const double *)qd.buf, (const double *)p.buf, pieces);
-        for (int i = 0; i < 8; ++i)
-            for (int j = 0; j < 17; ++j) {{
-                int at = 17 * i + j;
-                double value = w[0] * pieces[at] + w[1] * pieces[136 + at]
-                               + w[2] * pieces[2 * 136 + at] + w[3] * pieces[3 * 136 + at];
-                if (j < 8) o[8 * i + j] = value;
-                else if (j < 16) o[64 + 8 * i + j - 8] = value;
-                else o[128 + i] = value;
-            }}
-        const double *r = pieces;
-        for (int k = 0; k < 32; ++k, r += 17) {{
-            double acc = r[16];
-            for (int j = 0; j < 8; ++j) acc += r[j] * a[j] + r[8 + j] * v[j];
-            o[136 + k] = acc;
+    static const Arg spec[] = {{
+        {{"q", 8, 0, 1}}, {{"qd", 8, 0, 1}}, {{"p", {n_params}, 0, 1}}, {{"theta", 3, 0, 1}},
+        {{"qr_dot", 8, 0, 1}}, {{"qr_ddot", 8, 0, 1}}, {{"out", 168, 1, 0}},
+    }};
+    Py_buffer b[7];
+    if (!take("all", args, nargs, spec, 7, b)) return NULL;
+    double pieces[4 * {piece_size}];
+    const double *t = D(b[3]), w[4] = {{t[0], t[1], t[2], 1.0}};
+    const double *v = D(b[4]), *a = D(b[5]);
+    double *o = (double *)b[6].buf;
+    mcg_eval(D(b[0]), D(b[1]), D(b[2]), pieces);
+    for (int i = 0; i < 8; ++i)
+        for (int j = 0; j < 17; ++j) {{
+            int at = 17 * i + j;
+            double value = w[0] * pieces[at] + w[1] * pieces[{piece_size} + at]
+                           + w[2] * pieces[2 * {piece_size} + at]
+                           + w[3] * pieces[3 * {piece_size} + at];
+            if (j < 8) o[8 * i + j] = value;
+            else if (j < 16) o[64 + 8 * i + j - 8] = value;
+            else o[128 + i] = value;
         }}
-        result = Py_NewRef(Py_None);
+    const double *r = pieces;
+    for (int k = 0; k < 32; ++k, r += 17) {{
+        double acc = r[16];
+        for (int j = 0; j < 8; ++j) acc += r[j] * a[j] + r[8 + j] * v[j];
+        o[136 + k] = acc;
     }}
-    PyBuffer_Release(&q); PyBuffer_Release(&qd); PyBuffer_Release(&p); PyBuffer_Release(&th);
-    PyBuffer_Release(&qrd); PyBuffer_Release(&qrdd); PyBuffer_Release(&out);
-    return result;
+    return release(b, 7);
 }}
 
+#define FAST(f) (PyCFunction)(void (*)(void))(f), METH_FASTCALL
+
 static PyMethodDef methods[] = {{
-    {{"mcg", py_mcg, METH_VARARGS, "mcg(q, qd, p, out): stacked M, C, G pieces into out."}},
-    {{"potential", py_potential, METH_VARARGS, "potential(q, p, out): V pieces into out."}},
-    {{"combine", py_combine, METH_VARARGS, "combine(pieces, xi, out): xi @ pieces into out."}},
-    {{"regress", py_regress, METH_VARARGS,
+    {{"mcg", FAST(py_mcg), "mcg(q, qd, p, out): stacked M, C, G pieces into out."}},
+    {{"potential", FAST(py_potential), "potential(q, p, out): V pieces into out."}},
+    {{"combine", FAST(py_combine), "combine(pieces, xi, out): xi @ pieces into out."}},
+    {{"regress", FAST(py_regress),
       "regress(pieces, qr_dot, qr_ddot, out): Y^T (4 x 8) into out."}},
-    {{"all", py_all, METH_VARARGS,
+    {{"all", FAST(py_all),
       "all(q, qd, p, theta, qr_dot, qr_ddot, out): M, C, G for theta and Y^T into out."}},
     {{NULL, NULL, 0, NULL}}
 }};

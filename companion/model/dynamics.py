@@ -29,11 +29,9 @@ from companion.model.layout import N_XI, PARAM_NAMES, ROW
 __all__ = ["ManipulatorModel", "ModelParameters", "ModelTerms"]
 
 FloatArray = NDArray[np.float64]
-_C_AT = N_Q * N_Q
-_G_AT = 2 * N_Q * N_Q
-_Y_AT = _G_AT + N_Q
-_ALL_SIZE = _Y_AT + N_XI * N_Q
-"""Layout of ``_mcg.all``'s output: M, C (row-major), G, Y^T."""
+_ALL_ROWS = 2 * N_Q + 1 + N_XI
+"""``_mcg.all``'s output as rows of N_Q values: M (N_Q rows), C (N_Q rows), G, Y^T (N_XI
+rows)."""
 
 
 @dataclass(frozen=True)
@@ -202,22 +200,22 @@ class ManipulatorModel:
         Y(q, q_dot, qr_dot, qr_ddot) (paper eq. reg), shapes (8, 8), (8, 8), (8,), (8, 4),
         in one call of the generated C: ``terms(q, q_dot).evaluate(theta)`` and
         ``.regressor(qr_dot, qr_ddot)`` without the pieces in between."""
-        out = np.empty(_ALL_SIZE)
-        _mcg.all(
-            _vector(q, "q"),
-            _vector(q_dot, "q_dot"),
-            self._p,
-            np.ascontiguousarray(theta, dtype=np.float64),
-            _vector(qr_dot, "qr_dot"),
-            _vector(qr_ddot, "qr_ddot"),
-            out,
-        )
-        return (
-            out[:_C_AT].reshape(N_Q, N_Q),
-            out[_C_AT:_G_AT].reshape(N_Q, N_Q),
-            out[_G_AT:_Y_AT],
-            out[_Y_AT:].reshape(N_XI, N_Q).T,
-        )
+        out = np.empty((_ALL_ROWS, N_Q))
+        try:
+            _mcg.all(q, q_dot, self._p, theta, qr_dot, qr_ddot, out)  # type: ignore[arg-type]
+        except (BufferError, TypeError, ValueError):
+            # Not native float64 vectors of the right size (the extension refuses them before
+            # it writes anything): converted, and refused with the argument's name if wrong.
+            _mcg.all(
+                _vector(q, "q"),
+                _vector(q_dot, "q_dot"),
+                self._p,
+                _vector(theta, "theta", 3),
+                _vector(qr_dot, "qr_dot"),
+                _vector(qr_ddot, "qr_ddot"),
+                out,
+            )
+        return out[:N_Q], out[N_Q : 2 * N_Q], out[2 * N_Q], out[2 * N_Q + 1 :].T
 
     def mass_matrix(self, q: ArrayLike, theta: ArrayLike) -> FloatArray:
         """M(q) for theta = (m2, m3, m4), shape (8, 8)."""
@@ -256,8 +254,9 @@ def _vec3(values: Sequence[float]) -> tuple[float, float, float]:
     return (x, y, z)
 
 
-def _vector(values: ArrayLike, name: str) -> FloatArray:
+def _vector(values: ArrayLike, name: str, size: int = N_Q) -> FloatArray:
+    """``values`` as ``size`` C-contiguous float64 values; ValueError for another shape."""
     arr = np.ascontiguousarray(values, dtype=np.float64)
-    if arr.shape != (N_Q,):
-        raise ValueError(f"{name} must have shape ({N_Q},), got {arr.shape}")
+    if arr.shape != (size,):
+        raise ValueError(f"{name} must have shape ({size},), got {arr.shape}")
     return arr
