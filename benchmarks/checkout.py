@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import platform
 import subprocess
 import sys
 from collections.abc import Callable, Sequence
@@ -51,6 +52,15 @@ def now_and_before(
     now = best(now, measure())
     then = best(then, measure_checkout(before, script, args))
     return now, then
+
+
+def written_by(command: str) -> str:
+    """The first sentence of a page a benchmark writes into ``docs/``: the command, the
+    machine, Python and the commit."""
+    return (
+        f"Written by `benchmarks/{command}` on {platform.node()} ({platform.machine()}, "
+        f"{os.cpu_count()} cores, Python {platform.python_version()}), commit {this_commit()}."
+    )
 
 
 def this_commit() -> str:

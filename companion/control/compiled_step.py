@@ -41,7 +41,7 @@ from companion.estimation.estimator import (
 )
 from companion.estimation.inputs import EstimatorInputs
 
-__all__ = ["CompiledStep", "frozen_record"]
+__all__ = ["CompiledStep", "frozen_record", "skip_and_force"]
 
 FloatArray = NDArray[np.float64]
 _R = TypeVar("_R")
@@ -50,7 +50,7 @@ _SKIP_INDEX = {reason: i for i, reason in enumerate(_SKIPS)}
 _NO_FORCE = np.full(8, math.nan)
 
 
-def _skip_and_force(applied_tau: FloatArray | Skip) -> tuple[int, FloatArray]:
+def skip_and_force(applied_tau: FloatArray | Skip) -> tuple[int, FloatArray]:
     """The step's skip index (-1: none) and force (NaN if skipped)."""
     if isinstance(applied_tau, Skip):
         return _SKIP_INDEX[applied_tau], _NO_FORCE
@@ -459,11 +459,11 @@ class CompiledStep:
         reference), as :meth:`FlightControl.step <companion.control.flight.FlightControl.step>`;
         the estimator runs on ``estimator_inputs`` (q, q_dot, q_ddot, applied force) if
         given, else on this cycle's."""
-        skip, tau = _skip_and_force(applied_tau)
+        skip, tau = skip_and_force(applied_tau)
         args: tuple[Any, ...] = (q, q_dot, q_ddot, desired.q, desired.q_dot, desired.q_ddot, tau)
         extra: tuple[Any, ...] = ()
         if estimator_inputs is not None:
-            est_skip, est_tau = _skip_and_force(estimator_inputs[3])
+            est_skip, est_tau = skip_and_force(estimator_inputs[3])
             extra = (*estimator_inputs[:3], est_tau, est_skip)
         try:
             self._module.step(self._work, dt_s, skip, *args, *extra)
