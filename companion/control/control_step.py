@@ -71,6 +71,8 @@ if cython.compiled:
 
     _BufferView = cython.typedef(Py_buffer)  # type: ignore[name-defined]  # noqa: F821
     """Cython's own type of the buffer protocol's view."""
+    if not hasattr(_mcg, "mcg_eval"):
+        raise ImportError("companion.model._mcg has no capsule mcg_eval: it predates this twin")
     _mcg_eval = cython.declare(McgEval)
     _mcg_eval = cython.cast(
         McgEval, PyCapsule_GetPointer(_mcg.mcg_eval, "companion.model._mcg.mcg_eval")
