@@ -344,12 +344,11 @@ number of values)."""
 
 
 def work(window_samples: int) -> tuple:
-    """``(buffer, model, pieces)``: the zeroed float64 buffer of one step whose monitor
-    keeps ``window_samples`` samples per window, and the views of it the model's extension
-    reads and writes through its Python API (the model's parameters, its pieces)."""
+    """``(buffer, view)``: the zeroed float64 buffer (``array("d")``) of one step whose
+    monitor keeps ``window_samples`` samples per window, and a memoryview of it, whose
+    slices the Python build hands to the model's extension."""
     buffer = array("d", bytes(8 * (_S_RING + 2 * window_samples)))
-    view = memoryview(buffer)
-    return buffer, view[_P_MODEL : _P_MODEL + 14], view[_PIECES : _PIECES + 4 * _PIECE]
+    return buffer, memoryview(buffer)
 
 
 def blocks(step_work: tuple) -> tuple:
@@ -904,8 +903,13 @@ def _pieces(
     if cython.compiled:
         _mcg_eval(b + q_at, b + qd_at, b + _P_MODEL, b + _PIECES)
     else:
-        values = memoryview(step_work[0])
-        _mcg.mcg(values[q_at : q_at + 8], values[qd_at : qd_at + 8], step_work[1], step_work[2])
+        v = step_work[1]
+        _mcg.mcg(
+            v[q_at : q_at + 8],
+            v[qd_at : qd_at + 8],
+            v[_P_MODEL : _P_MODEL + 14],
+            v[_PIECES : _PIECES + 4 * _PIECE],
+        )
 
 
 @cython.cfunc
