@@ -301,8 +301,10 @@ class ThrustScale(_Section):
     """Learn how fast s drifts (a sagging battery) as well as its value: the slope of s
     over the last this many seconds of the hover calibration before the grasp, by least
     squares; from the grasp on s moves along that slope (while it is held and after), and
-    so does the compensated force [s] (0: s is held constant from the grasp). 10 s: in the
-    SITL pickup with 15 % sag over 80 s the slope came within 6 % of the truth's."""
+    so does the compensated force, if the slope stands out of the estimate's noise (more
+    than 2 standard errors, its samples' correlation counted); otherwise s is held at the
+    window's mean [s] (0: s is held constant from the grasp). 10 s: in the SITL pickup
+    with 15 % sag over 80 s the slope came within 6 % of the truth's."""
     compensate: bool = True
     """Divide the commanded force (and the tilt torque asked of PX4's attitude loop) by the
     calibrated s before the thrust model maps it to PX4's relative thrust, so that the

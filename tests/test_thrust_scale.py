@@ -25,6 +25,7 @@ from companion.estimation.estimator import (
     ThetaBounds,
     ThrustScaleModel,
     estimator_from_config,
+    slope_stands_out,
 )
 from companion.model import ManipulatorModel
 from sitl.offline.simulation import SimOptions, simulate
@@ -260,6 +261,70 @@ def test_only_the_still_moments_of_the_calibration_make_the_line() -> None:
     assert drift.rate_per_s == 0.0 and estimator.thrust_scale == s_end
 
 
+def _line(t: np.ndarray, s: np.ndarray) -> tuple[float, np.ndarray, float]:
+    """Least-squares slope of s over t, its residuals and the sum of squared time deviations."""
+    t_c, s_c = t - t.mean(), s - s.mean()
+    sxx = float(t_c @ t_c)
+    slope = float(t_c @ s_c) / sxx
+    return slope, s_c - slope * t_c, sxx
+
+
+def test_a_slope_stands_out_only_against_the_noise_counted_with_its_correlation() -> None:
+    """10 s of samples at 125 Hz. A steady level under slowly wandering noise (AR(1), lag-1
+    correlation 0.995, std 2 %: an estimate that wanders as s did on PX4 SIH): the fitted
+    slope, up to 0.3 %/s, is not told from zero, where the standard error of independent
+    samples would call most of them real. A 0.17 %/s sag under white noise of 0.2 %
+    stands out; so does any slope through residuals of exactly zero."""
+    t = np.arange(0.0, 10.0, 0.008)
+    called_real_if_independent = 0
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        e = np.zeros(len(t))
+        for i in range(1, len(t)):
+            e[i] = 0.995 * e[i - 1] + rng.normal(0.0, 0.02 * math.sqrt(1 - 0.995**2))
+        slope, residuals, sxx = _line(t, 1.0 + e)
+        assert not slope_stands_out(slope, residuals, sxx, 2.0)
+        se_independent = math.sqrt(residuals @ residuals / (len(t) - 2) / sxx)
+        called_real_if_independent += abs(slope) > 2.0 * se_independent
+    assert called_real_if_independent >= 3
+    rng = np.random.default_rng(0)
+    slope, residuals, sxx = _line(t, 0.92 - 0.0017 * t + rng.normal(0.0, 0.002, len(t)))
+    assert slope == pytest.approx(-0.0017, rel=0.05)
+    assert slope_stands_out(slope, residuals, sxx, 2.0)
+    slope, residuals, sxx = _line(t, 0.92 - 1e-6 * t)
+    assert slope_stands_out(slope, np.zeros(len(t)), sxx, 2.0)
+    assert not slope_stands_out(0.0, np.zeros(len(t)), sxx, 2.0)
+
+
+def test_a_wandering_thrust_gives_no_slope_and_s_the_windows_mean() -> None:
+    """A calibration on a battery that does not sag but whose thrust wanders +-2 % (a 7 s
+    oscillation): the line through the last 10 s has a slope, which the wander made; it is
+    not followed (rate 0) and s starts from the window's mean, within 1 % of the level,
+    and stays there."""
+    estimator = rls(ThrustScaleModel(initial_std=0.2, drift_std_per_sqrt_s=0.01))
+    drift = ScaleDrift(10.0)
+    estimator.reset(NOMINAL)
+    estimator.calibrate()
+    samples = []
+    for i in range(int(14.0 / DT)):
+        drift.before(DT, estimator)
+        run(estimator, DT, lambda t: 0.92 * (1 + 0.02 * math.sin(2 * math.pi * t / 9.0)),
+            theta=NOMINAL, t0=i * DT)  # fmt: skip
+        drift.after(DT, estimator, np.zeros(3))
+        samples.append((i * DT, estimator.thrust_scale))
+    t, s = np.array(samples).T
+    window = t > t[-1] - 10.0
+    assert abs(_line(t[window], s[window])[0]) > 1e-3
+    estimator.reset(estimator.theta)
+    drift.before(DT, estimator)
+    assert drift.rate_per_s == 0.0
+    assert estimator.thrust_scale == pytest.approx(s[window].mean(), rel=1e-3)
+    assert estimator.thrust_scale == pytest.approx(0.92, rel=0.01)
+    for _ in range(int(20.0 / DT)):
+        drift.before(DT, estimator)
+    assert estimator.thrust_scale == pytest.approx(s[window].mean(), rel=1e-3)
+
+
 def test_a_calibration_too_short_for_its_window_leaves_s_where_it_was() -> None:
     """Less than half the window recorded: no slope is fitted, s is the estimator's."""
     estimator, drift = calibrated_with_drift(10.0, 4.0)
@@ -269,6 +334,8 @@ def test_a_calibration_too_short_for_its_window_leaves_s_where_it_was() -> None:
     assert drift.rate_per_s == 0.0 and estimator.thrust_scale == s_end
     with pytest.raises(ValueError, match="window_s"):
         ScaleDrift(0.0)
+    with pytest.raises(ValueError, match="slope_z"):
+        ScaleDrift(10.0, slope_z=-1.0)
 
 
 @pytest.mark.parametrize("compiled", [False, True])
