@@ -30,9 +30,11 @@ from sitl.vehicle.launch import start_sih
 
 pytestmark = pytest.mark.alone
 """SIH flies on the wall clock (real time) and its servos answer on a pseudo-terminal: beside
-another PX4 flight in the test command's parallel phase it starved (one CI run: the estimate
-on its bound in the excitation and a saturated tilt; another: servo 1 silent for 21.6 ms
-before the mission began); run alone on an idle machine it passed four times of four."""
+another PX4 flight in the test command's parallel phase it starved (servo 1 silent for 21.6
+ms before the mission began). The estimate on its bound in the excitation with a saturated
+tilt, seen in CI twice (once alone), was the thrust scale carried off along a slope fitted
+to noise (reproduced with both cores busy: s 0.98 -> 0.62 over 90 s, m2 on its bound); the
+config now holds s, as SIH's thrust does not sag, and a slope must stand out of the noise."""
 ROOT = Path(__file__).parent.parent
 CONFIG = ROOT / "configs" / "px4_sih_pickup.toml"
 PAYLOAD_AT = "1.5,1.0,0.05"
@@ -83,6 +85,20 @@ def flight(request, px4_build, tmp_path_factory):
     return (request.param, *fly(px4_build, tmp, request.param))
 
 
+def _estimate_by_phase(log) -> str:
+    """m2 and the thrust scale s (min..max) in each flown phase: what a fault of the
+    estimate needs to be told apart (s carried off along a slope, m2 on its bound)."""
+    c = log.columns
+    lines = []
+    for phase in MISSION_PHASES:
+        m = c["phase"] == phase
+        if m.any():
+            m2, s = c["theta_hat_m2_kg"][m], c["thrust_scale_hat"][m]
+            lines.append(f"{phase}: m2 {np.nanmin(m2):.3f}..{np.nanmax(m2):.3f} kg, "
+                         f"s {np.nanmin(s):.3f}..{np.nanmax(s):.3f}")  # fmt: skip
+    return "\n".join(lines)
+
+
 def _offboard(log):
     phase = log.columns["phase"]
     return np.isin(phase, MISSION_PHASES)
@@ -94,7 +110,8 @@ def test_the_mission_completes_against_px4_without_a_fault(flight):
     assert result.returncode == 0, result.stdout + result.stderr
     assert "Traceback" not in result.stderr
     assert summary["controller"] == controller and summary["completed"]
-    assert summary["faults"] == [] and summary["landed"] and summary["disarmed"]
+    assert summary["faults"] == [], _estimate_by_phase(log)
+    assert summary["landed"] and summary["disarmed"]
     assert [p["phase"] for p in summary["phases"]] == MISSION_PHASES
     assert 100.0 < summary["control_rate_hz"] < 130.0  # PX4: ODOMETRY at its EKF's 125 Hz
     assert "THR_MDL_FAC 0" in summary["vehicle_params"]
