@@ -54,7 +54,7 @@ __all__ = [
     "ThetaBounds",
     "ThrustScaleModel",
     "estimator_from_config",
-    "slope_stands_out",
+    "significant_slope",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -244,7 +244,7 @@ class ScaleDrift:
         half of ``window_s``: a calibration too short to tell.
 
         The slope is followed only when it stands out of the estimate's noise
-        (:func:`slope_stands_out` at ``slope_z``); otherwise s is held at the window's
+        (:func:`significant_slope` at ``slope_z``); otherwise s is held at the window's
         mean. Carried on over a minute and more, a slope the noise made moves s (and m2
         with it) far off: on PX4 SIH, whose thrust does not sag, a 10 s window of s
         wandering +-2 % gave -0.5 %/s, and 90 s later s was 0.62 and m2 on its bound."""
@@ -253,36 +253,34 @@ class ScaleDrift:
         if samples and samples[-1][0] - samples[0][0] >= 0.5 * self.window_s:
             t = np.array([sample[0] for sample in samples])
             s = np.array([sample[1] for sample in samples])
-            t_mean, s_mean = t.mean(), s.mean()
-            t_c, s_c = t - t_mean, s - s_mean
-            sxx = float(t_c @ t_c)
-            slope = float(t_c @ s_c) / sxx
-            followed = slope_stands_out(slope, s_c - slope * t_c, sxx, self.slope_z)
-            self.rate_per_s = slope if followed else 0.0
-            level = float(s_mean + self.rate_per_s * (t[-1] - t_mean))
+            self.rate_per_s = significant_slope(t, s, self.slope_z)
+            level = float(s.mean() + self.rate_per_s * (t[-1] - t.mean()))
         samples.clear()
         return level
 
 
-def slope_stands_out(slope: float, residuals: FloatArray, sxx: float, z: float) -> bool:
-    """Whether a least-squares slope lies more than ``z`` standard errors from zero.
+def significant_slope(t: FloatArray, s: FloatArray, z: float) -> float:
+    """The least-squares slope of ``s`` over ``t`` (samples in time order) if it lies more
+    than ``z`` standard errors from zero, else 0.
 
-    ``residuals`` are the samples' deviations from the fitted line (in time order) and
-    ``sxx`` the sum of squared deviations of their times from the mean. The estimator's s is
-    a smoothed signal whose successive samples are far from independent, so the standard
-    error counts the effective sample size of AR(1) residuals, n_eff = n (1 - r1) / (1 + r1)
-    with r1 their lag-1 autocorrelation (n when r1 <= 0; Santer et al. 2000, J. Geophys.
-    Res. 105(D6)): se^2 = sum(e^2) / (n_eff - 2) / sxx, n_eff taken as at least 3 (a line
-    through smooth, tiny residuals stands out however correlated they are). Residuals of
-    exactly zero: any non-zero slope stands out.
+    The estimator's s is a smoothed signal whose successive samples are far from
+    independent, so the standard error counts the effective sample size of AR(1)
+    residuals e, n_eff = n (1 - r1) / (1 + r1) with r1 their lag-1 autocorrelation (n when
+    r1 <= 0; Santer et al. 2000, J. Geophys. Res. 105(D6)): se^2 = sum(e^2) / (n_eff - 2)
+    / sum((t - mean t)^2), n_eff taken as at least 3 (a line through smooth, tiny residuals
+    stands out however correlated they are). Residuals of exactly zero: the slope as it is.
     """
+    t_c, s_c = t - t.mean(), s - s.mean()
+    sxx = float(t_c @ t_c)
+    slope = float(t_c @ s_c) / sxx
+    residuals = s_c - slope * t_c
     ee = float(residuals @ residuals)
     if ee == 0.0:
-        return slope != 0.0
+        return slope
     r1 = float(residuals[1:] @ residuals[:-1]) / ee
     n_eff = len(residuals) * (1.0 - r1) / (1.0 + r1) if r1 > 0.0 else len(residuals)
     n_eff = max(n_eff, 3.0)
-    return bool(abs(slope) > z * math.sqrt(ee / (n_eff - 2.0) / sxx))
+    return slope if abs(slope) > z * math.sqrt(ee / (n_eff - 2.0) / sxx) else 0.0
 
 
 @dataclass(frozen=True)
