@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 from pymavlink import mavutil
 
+from sitl.px4_sitl import launcher
 from sitl.px4_sitl.launcher import (
     Px4Build,
     Px4BuildError,
@@ -71,6 +72,17 @@ def test_an_instance_claimed_by_another_process_is_not_chosen():
         assert claimer.wait(timeout=10) == 0
     finally:
         claimer.kill()
+
+
+def test_no_free_instance_says_what_took_each(monkeypatch):
+    """Every instance taken: the error names, per instance, the claim or the busy port."""
+    busy = Px4Ports(0).onboard_remote
+    monkeypatch.setattr(launcher, "_INSTANCES", range(2))
+    monkeypatch.setattr(launcher, "_claim", lambda n: n == 0)
+    monkeypatch.setattr(launcher, "_udp_free", lambda port: port != busy)
+    with pytest.raises(Px4NotReadyError) as error:
+        free_instance()
+    assert str(error.value).endswith(f"(0: udp {busy} in use; 1: claimed by another process)")
 
 
 CLAIM_AND_WAIT = """

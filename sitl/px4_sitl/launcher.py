@@ -201,16 +201,24 @@ def _claim(instance: int) -> bool:
 def free_instance() -> Px4Ports:
     """The ports of the lowest instance 0-9 that no one has claimed and whose ports are
     all free, claimed for this process until :func:`release_instance`;
-    Px4NotReadyError when every instance is taken."""
+    Px4NotReadyError when every instance is taken, saying what took each."""
+    taken = []
     for n in _INSTANCES:
-        if n in _CLAIMS or not _claim(n):
+        if n in _CLAIMS:
+            taken.append(f"{n}: claimed by this process")
+            continue
+        if not _claim(n):
+            taken.append(f"{n}: claimed by another process")
             continue
         ports = Px4Ports(n)
         udp = [*ports.bound_by_px4(), ports.onboard_remote, ports.sih_display_remote]
-        if all(_udp_free(p) for p in udp) and _tcp_free(ports.simulator_tcp):
+        busy = [f"udp {p}" for p in udp if not _udp_free(p)]
+        busy += [] if _tcp_free(ports.simulator_tcp) else [f"tcp {ports.simulator_tcp}"]
+        if not busy:
             return ports
         release_instance(ports)
-    raise Px4NotReadyError("no PX4 instance 0-9 has all its ports free")
+        taken.append(f"{n}: {', '.join(busy)} in use")
+    raise Px4NotReadyError("no PX4 instance 0-9 has all its ports free (" + "; ".join(taken) + ")")
 
 
 def release_instance(ports: Px4Ports) -> None:
