@@ -91,7 +91,11 @@ def test_bad_options_are_refused(px4_build, option, value, word):
     assert_usage_error(sitl("sih", "--config", str(CONFIG), option, value), word)
 
 
+@pytest.mark.alone
 def test_busy_ports_are_refused(px4_build):
+    """Alone: it holds every PX4 instance's onboard port, so a PX4 flight starting beside
+    it in the parallel phase found no instance free (two CI runs: "no PX4 instance 0-9 has
+    all its ports free (0: udp 14540 in use; ...; 9: udp 14549 in use)")."""
     with contextlib.ExitStack() as stack:
         for n in range(10):  # every instance's onboard port taken
             sock = stack.enter_context(socket.socket(socket.AF_INET, socket.SOCK_DGRAM))
