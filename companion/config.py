@@ -293,18 +293,28 @@ class ThrustScale(_Section):
     initial_std: Annotated[Positive, _within(1.0, "", "a thrust model within 100 %")] = 0.1
     """RLS: initial standard deviation of s [-]."""
     drift_std_per_sqrt_s: Annotated[NonNegative, _within(1.0, "1/sqrt(s)", "battery sag")] = 0.01
-    """RLS: random-walk process noise of s, std per square root of a second [1/sqrt(s)]
-    (battery sag, up to 10 % over 20 s; 0: s is held constant apart from the forgetting)."""
+    """RLS: random-walk process noise of s while it is learnt, std per square root of a
+    second [1/sqrt(s)] (battery sag, up to 10 % over 20 s; 0: s is held constant apart from
+    the forgetting)."""
     gamma: Gain = 1.0
     """Paper estimator: learning rate of s [-]."""
-    rate_window_s: Annotated[NonNegative, _within(120.0, "s", "a hover calibration")] = 10.0
-    """Learn how fast s drifts (a sagging battery) as well as its value: the slope of s
-    over the last this many seconds of the hover calibration before the grasp, by least
-    squares; from the grasp on s moves along that slope (while it is held and after), and
-    so does the compensated force, if the slope stands out of the estimate's noise (more
-    than 2 standard errors, its samples' correlation counted); otherwise s is held at the
-    window's mean [s] (0: s is held constant from the grasp). 10 s: in the SITL pickup
-    with 15 % sag over 80 s the slope came within 6 % of the truth's."""
+    window_s: Annotated[NonNegative, _within(120.0, "s", "a hover calibration")] = 10.0
+    """Carry s through the flight from the battery's voltage (thrust per command goes with
+    the voltage to ``voltage_exponent``): the last this many seconds of the hover
+    calibration before the grasp fit s at the calibration's voltage, from the moments the
+    vehicle is nearly still; from the grasp on s follows the voltage the vehicle streams
+    (SYS_STATUS), and so does the compensated force (companion.estimation.thrust_supply).
+    Without a voltage, s is held at the fitted value [s] (0: s is held as the estimator
+    has it at the grasp)."""
+    voltage_exponent: Annotated[NonNegative, _within(4.0, "", "a motor's thrust law")] = 2.0
+    """Thrust per command goes with the battery voltage to this power [-] (2: the rotor
+    speed goes with duty cycle x voltage, the thrust with its square)."""
+    voltage_exponent_std: Annotated[NonNegative, _within(4.0, "", "a motor's thrust law")] = 0.5
+    """Standard deviation of ``voltage_exponent`` in the reported uncertainty of s and of
+    the payload's mass [-]."""
+    voltage_filter_s: Annotated[NonNegative, _within(10.0, "s", "a battery voltage filter")] = 0.3
+    """Time constant of the battery voltage's low-pass [s] (short: a grasp's load step
+    drops the voltage, and the thrust, at once)."""
     compensate: bool = True
     """Divide the commanded force (and the tilt torque asked of PX4's attitude loop) by the
     calibrated s before the thrust model maps it to PX4's relative thrust, so that the

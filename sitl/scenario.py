@@ -39,7 +39,7 @@ from companion.config import (
 __all__ = [
     "MIN_PLANT_RATE_HZ",
     "AttitudeControl",
-    "BatterySag",
+    "Battery",
     "Payload",
     "PayloadSlip",
     "Plant",
@@ -134,25 +134,27 @@ class AttitudeControl(_Section):
     (IMU_DGYRO_CUTOFF) [Hz]."""
 
 
-class BatterySag(_Section):
-    """Battery sag of the truth rotors: the thrust a given command produces falls linearly
-    with the plant's time, from ``thrust_mismatch`` at t = 0 to ``(1 - thrust_loss)`` times
-    that at ``over_s``, and stays there (a discharging battery's voltage; the companion's
-    thrust model does not know it). PX4's ``MC_BAT_SCALE_EN`` compensation is not modelled.
-    """
+class Battery(_Section):
+    """The truth battery feeding the rotors (:mod:`sitl.physics.battery`): a LiPo pack whose
+    voltage falls with the charge drawn and, at once, with the load current through its
+    internal resistance; the thrust a motor command makes follows the voltage squared,
+    relative to the pack at 3.85 V a cell (where ``vehicle.rotors.max_thrust_per_rotor_n``
+    times ``plant.thrust_mismatch`` holds). The vehicle streams its voltage and current
+    (BATTERY_STATUS, SYS_STATUS) as PX4 does; the companion's thrust model does not know
+    the battery."""
 
-    thrust_loss: Annotated[
+    cells: Annotated[int, Field(strict=True, ge=1), _within(14, "", "a multirotor pack")] = 4
+    """Cells in series [-] (4: a 4S pack, 16.8 V full)."""
+    capacity_ah: Annotated[Positive, _within(100.0, "A h", "a multirotor pack")] = 5.0
+    """Charge of the full pack [A h]."""
+    resistance_ohm: Annotated[NonNegative, _within(1.0, "ohm", "a pack that flies")] = 0.03
+    """Internal resistance of the pack with its wiring [ohm] (0.03: a 4S 5 A h pack)."""
+    start_charge: Annotated[
         float,
-        Field(strict=True, ge=0.0, lt=1.0, allow_inf_nan=False),
-        _within(0.5, "", "a battery that still flies the vehicle"),
-    ]
-    """Fraction of the thrust per command lost at ``over_s`` [-] (0.1: 10 % less)."""
-    over_s: Annotated[Positive, _within(MAX_DURATION_S, "s", "a multirotor's flight")]
-    """Time over which the loss builds up linearly [s]."""
-
-    def scale(self, time_s: float) -> float:
-        """Thrust per command at ``time_s`` relative to t = 0 [-]."""
-        return 1.0 - self.thrust_loss * min(max(time_s, 0.0) / self.over_s, 1.0)
+        Field(strict=True, gt=0.0, le=1.0, allow_inf_nan=False),
+        _within(1.0, "", "a state of charge"),
+    ] = 1.0
+    """State of charge at power-on, in (0, 1] [-] (1: fully charged)."""
 
 
 class Plant(_Section):
@@ -170,9 +172,10 @@ class Plant(_Section):
     thrust_mismatch: Annotated[Positive, _within(10.0, "", "true over believed thrust")]
     """True maximum rotor thrust over the believed ``vehicle.rotors.max_thrust_per_rotor_n``
     (1 = the companion's thrust model is exact) [-]."""
-    battery_sag: BatterySag | None = None
-    """Thrust per command decaying over the flight (absent: constant); Pinocchio and
-    JSBSim plants only (SIH's thrust is PX4's own)."""
+    battery: Battery | None = None
+    """The battery feeding the rotors (absent: an ideal supply at the reference voltage,
+    the thrust per command constant); Pinocchio and JSBSim plants only (SIH's thrust is
+    PX4's own)."""
     linear_drag_n_s_m: NonNegativeVec3
     """Diagonal D of the linear drag force -D (v - w) on the vehicle, v the world-frame
     (ENU) velocity of the vehicle CoM, w the wind [N s/m]; underactuated plant only."""

@@ -50,12 +50,12 @@ def close(a, b, what: str, tol: float = TOL) -> None:
 def flight_scenario(
     delay_s: float = 0.0, measured: bool = False, com_from_joints: bool = False, **thrust_scale
 ):
-    """paper_sim_flight with a 5 % thrust mismatch, 10 % sag and, if given, the thrust
+    """paper_sim_flight with a 5 % thrust mismatch, a draining battery and, if given, the thrust
     scale as an unknown, the estimator ``delay_s`` behind and the law on the measured
     attitude motion."""
     data = tomllib.loads((CONFIGS / "paper_sim_flight.toml").read_text())
     data["plant"]["thrust_mismatch"] = 0.95
-    data["plant"]["battery_sag"] = {"thrust_loss": 0.1, "over_s": 20.0}
+    data["plant"]["battery"] = {"capacity_ah": 0.2, "start_charge": 0.6}
     if thrust_scale:
         data["estimator"]["thrust_scale"] = thrust_scale
     data["estimator"]["acceleration_delay_s"] = delay_s

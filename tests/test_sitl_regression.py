@@ -8,8 +8,8 @@ tests/test_sitl_regression.py`` rewrites it, for a deliberate change of the phys
 - the ideal plant (paper scenario) under a PD law tracking a moving reference, with the
   payload grasped and released mid-run, for both integrators;
 - the underactuated plant (PX4-like loop, mixer with desaturation, rotor lag, servo
-  limit, battery sag) under tilts, a yaw turn through pi, saturating thrust, joint steps
-  beyond the servo limit, a PARAM_SET and then outside motor commands, for both
+  limit, a small draining battery) under tilts, a yaw turn through pi, saturating thrust,
+  joint steps beyond the servo limit, a PARAM_SET and then outside motor commands, for both
   integrators;
 - the SITL vehicle of ``configs/sitl_pickup.toml`` without its sockets: noisy navigation
   (seed 1), the PX4 imitation armed and taking off, the world with its XM430 servo models,
@@ -27,7 +27,7 @@ import pytest
 
 from sitl.physics import AttitudeSetpoint, TruthPlant
 from sitl.physics.attitude_control import AttitudeLoopParams
-from sitl.scenario import BatterySag, Scenario, load_scenario
+from sitl.scenario import Battery, Scenario, load_scenario
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 RECORD = Path(__file__).resolve().parent / "data" / "sitl_regression.npz"
@@ -74,7 +74,7 @@ def underactuated_run(integrator: str) -> np.ndarray:
     cfg = _with_plant(
         load_scenario(CONFIGS / "sitl_pickup.toml"),
         integrator=integrator,
-        battery_sag=BatterySag(thrust_loss=0.2, over_s=4.0),
+        battery=Battery(capacity_ah=0.05, resistance_ohm=0.05, start_charge=0.6),
     )
     plant = TruthPlant.from_scenario(cfg, "underactuated", payload_attached=True)
     rotors = cfg.vehicle.rotors

@@ -1,10 +1,10 @@
 """The vehicle's thrust scale as an unknown of the estimator, and the truth that needs it.
 
 Algorithm tests (prescribed motion, exact forces from companion.model, the translational
-force handed over as the *commanded* one, 1/s of the true), then the truth model of battery
-sag (sitl, never companion), then the acceptance offline: paper_sim_flight-like,
-noise, thrust mismatch across [0.9, 1.1] plus 10 % sag over 20 s, against the independent
-truth plant.
+force handed over as the *commanded* one, 1/s of the true), s carried from the hover
+calibration with the battery's voltage, then the truth battery (sitl, never companion), then
+the acceptance offline: paper_sim_flight-like, noise, thrust mismatch across [0.9, 1.1] plus
+a draining battery, against the independent truth plant.
 """
 
 import math
@@ -20,18 +20,18 @@ from companion.estimation.estimator import (
     ExcitationMonitor,
     PaperEstimator,
     RlsEstimator,
-    ScaleDrift,
     Skip,
     ThetaBounds,
     ThrustScaleModel,
     estimator_from_config,
-    significant_slope,
 )
+from companion.estimation.thrust_supply import SupplyScale, mean_and_error
 from companion.model import ManipulatorModel
 from sitl.offline.simulation import SimOptions, simulate
 from sitl.physics import AttitudeSetpoint, TruthPlant
+from sitl.physics.battery import AVIONICS_POWER_W, ROTOR_POWER_W_PER_N1_5, LipoPack
 from sitl.physics.rotors import thrust_curve
-from sitl.scenario import BatterySag, load_scenario, parse_scenario
+from sitl.scenario import load_scenario, parse_scenario
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 CFG = load_scenario(CONFIGS / "paper_sim.toml")
@@ -207,123 +207,137 @@ def test_after_a_reset_s_is_held_until_theta_is_confident() -> None:
     assert carried.thrust_scale == pytest.approx(0.92, rel=1e-3)
 
 
-def sagging(t: float) -> float:
-    """A battery losing 15 % of its thrust per command over 80 s, from 0.92 [-]."""
-    return 0.92 * (1.0 - 0.15 * t / 80.0)
+def pack_v(t: float) -> float:
+    """A pack's voltage falling 0.5 % a minute from 16.2 V [V]."""
+    return 16.2 * (1.0 - 0.005 * t / 60.0)
 
 
-def calibrated_with_drift(
-    window_s: float, duration_s: float, speed_m_s=lambda t: 0.0, s_of_t=sagging, trace=None
+def on_pack(t: float) -> float:
+    """The thrust scale of :func:`pack_v`'s motors: 0.92 at 16.2 V, with the voltage
+    squared [-]."""
+    return 0.92 * (pack_v(t) / 16.2) ** 2
+
+
+def calibrated_on_battery(
+    window_s: float,
+    duration_s: float,
+    speed_m_s=lambda t: 0.0,
+    s_of_t=on_pack,
+    v_of_t=pack_v,
+    trace=None,
 ):
-    """An RLS estimator calibrated (theta held, s learnt) over ``duration_s`` of a battery
-    whose thrust scale is ``s_of_t(t)`` (default: sagging) with the empty arm, a
-    :class:`ScaleDrift` of ``window_s`` around each step, the vehicle moving at
-    ``speed_m_s(t)``; each step's (t, estimate of s) appended to ``trace`` if given."""
+    """An RLS estimator calibrated (theta held, s learnt) over ``duration_s`` of a vehicle
+    whose thrust scale is ``s_of_t(t)`` and battery voltage ``v_of_t(t)`` (None: not
+    measured), with the empty arm, a :class:`SupplyScale` of ``window_s`` around each
+    step, the vehicle moving at ``speed_m_s(t)``; each step's (t, estimate of s) appended
+    to ``trace`` if given."""
     estimator = rls(ThrustScaleModel(initial_std=0.2, drift_std_per_sqrt_s=0.01))
-    drift = ScaleDrift(window_s)
+    supply = SupplyScale(window_s, filter_s=0.0)
     estimator.reset(NOMINAL)
     estimator.calibrate()
     for i in range(int(duration_s / DT)):
-        drift.before(DT, estimator)
+        supply.supply(v_of_t(i * DT))
+        supply.before(DT, estimator)
         run(estimator, DT, s_of_t, theta=NOMINAL, t0=i * DT)
-        drift.after(DT, estimator, np.array([speed_m_s(i * DT), 0.0, 0.0]))
+        supply.after(DT, estimator, np.array([speed_m_s(i * DT), 0.0, 0.0]))
         if trace is not None:
             trace.append((i * DT, estimator.thrust_scale))
-    return estimator, drift
+    return estimator, supply
 
 
-def test_the_drift_of_a_sagging_battery_carries_s_on_after_the_calibration() -> None:
-    """GIVEN a 14 s calibration on a battery sagging 0.17 %/s WHEN the grasp ends it THEN s
-    starts from the line through the last 10 s, within 0.3 % of the truth, and is carried
-    on at its slope (within 5 %): 20 s later, s held by the estimator is within 0.5 %,
-    where the held value alone would be 3.5 % off; the compensation scale goes along."""
-    estimator, drift = calibrated_with_drift(10.0, 14.0)
-    estimator.reset(estimator.theta)  # the grasp: s held until theta is confident
-    drift.before(DT, estimator)
-    assert drift.rate_per_s == pytest.approx(-0.92 * 0.15 / 80.0, rel=0.05)
-    assert estimator.thrust_scale == pytest.approx(sagging(14.0), rel=3e-3)
-    held_from = estimator.thrust_scale
-    steps = int(20.0 / DT)
-    for _ in range(steps):
-        drift.before(DT, estimator)
-    assert estimator.thrust_scale == pytest.approx(sagging(34.0 + DT), rel=5e-3)
-    assert abs(held_from / sagging(34.0) - 1.0) > 0.03
-    assert estimator.compensation_scale == pytest.approx(estimator.thrust_scale, rel=1e-12)
+def test_s_follows_the_battery_voltage_after_the_calibration() -> None:
+    """GIVEN a 14 s calibration on a pack sagging 0.5 %/min (s with its voltage squared)
+    WHEN the grasp ends it and the payload's load drops the voltage 2 % at once THEN s
+    drops with it, within 0.3 % of the truth, held for the estimator (theta alone is
+    learnt), and follows the voltage on: 60 s later within 0.3 %; the compensation scale
+    goes along; the uncertainty grows with the voltage's distance from the calibration's."""
+    estimator, supply = calibrated_on_battery(10.0, 14.0)
+    estimator.reset(estimator.theta)  # the grasp
+    assert supply.relative_std() is None
+    supply.supply(0.98 * pack_v(14.0))
+    supply.before(DT, estimator)
+    assert supply.calibration_v == pytest.approx(pack_v(9.0), rel=1e-3)
+    assert estimator.thrust_scale == pytest.approx(0.98**2 * on_pack(14.0), rel=3e-3)
+    assert estimator.scale_held
+    near = supply.relative_std()
+    assert near is not None and 0.0 < near < 0.02
+    for i in range(int(60.0 / DT)):
+        supply.supply(0.98 * pack_v(14.0 + i * DT))
+        supply.before(DT, estimator)
+    assert estimator.thrust_scale == pytest.approx(0.98**2 * on_pack(74.0), rel=3e-3)
+    assert estimator.compensation_scale == estimator.thrust_scale
+    far = supply.relative_std()
+    assert far is not None and far > near
 
 
-def test_only_the_still_moments_of_the_calibration_make_the_line() -> None:
-    """Moving (the drag the model lacks biases s), the samples are left out: still only at
-    the calibration's start and end, the line still spans them; still for less than half
-    the window, no line."""
-    estimator, drift = calibrated_with_drift(10.0, 14.0, lambda t: 0.0 if t < 5 or t > 12 else 0.5)
-    estimator.reset(estimator.theta)
-    drift.before(DT, estimator)
-    assert drift.rate_per_s == pytest.approx(-0.92 * 0.15 / 80.0, rel=0.1)
-    estimator, drift = calibrated_with_drift(10.0, 14.0, lambda t: 0.0 if t > 11 else 0.5)
+def test_only_the_still_moments_of_the_calibration_fit_s() -> None:
+    """Moving (the drag the model lacks biases s), the samples are left out: a calibration
+    still only at its end shorter than half the window fits nothing, and s stays where
+    the estimator had it."""
+    estimator, supply = calibrated_on_battery(10.0, 14.0, lambda t: 0.0 if t > 11 else 0.5)
     s_end = estimator.thrust_scale
     estimator.reset(estimator.theta)
-    drift.before(DT, estimator)
-    assert drift.rate_per_s == 0.0 and estimator.thrust_scale == s_end
+    supply.before(DT, estimator)
+    assert supply.level is None and estimator.thrust_scale == s_end
 
 
-def test_a_slope_stands_out_only_against_the_noise_counted_with_its_correlation() -> None:
-    """10 s of samples at 125 Hz. A steady level under slowly wandering noise (AR(1), lag-1
-    correlation 0.995, std 2 %: an estimate that wanders as s did on PX4 SIH): the fitted
-    slope, up to 0.3 %/s, is not told from zero, where the standard error of independent
-    samples would call most of them real. A 0.17 %/s sag under white noise of 0.2 %
-    stands out; so does the slope of an exact line; a flat level has none."""
+def test_the_standard_error_counts_the_samples_correlation() -> None:
+    """10 s of samples at 125 Hz around a level under slowly wandering noise (AR(1), lag-1
+    correlation 0.995, std 2 %: an estimate that wanders as s did on PX4 SIH): the error
+    of the mean counted with the correlation holds the level within 3 of it in 5 of 5
+    seeds (1.5-2.6 here: ten seconds hold about three independent samples, so even this
+    error is on the small side), where the independent-sample error (std / sqrt(n)) is
+    more than ten times smaller and misses it in most; white noise gives the
+    independent-sample error."""
     t = np.arange(0.0, 10.0, 0.008)
-    called_real_if_independent = 0
+    missed_if_independent = 0
     for seed in range(5):
         rng = np.random.default_rng(seed)
         e = np.zeros(len(t))
         for i in range(1, len(t)):
             e[i] = 0.995 * e[i - 1] + rng.normal(0.0, 0.02 * math.sqrt(1 - 0.995**2))
-        assert significant_slope(t, 1.0 + e, 2.0) == 0.0
-        (slope, _), cov = np.polyfit(t, 1.0 + e, 1, cov=True)
-        called_real_if_independent += abs(slope) > 2.0 * math.sqrt(cov[0, 0])
-    assert called_real_if_independent >= 3
-    rng = np.random.default_rng(0)
-    sag = 0.92 - 0.0017 * t + rng.normal(0.0, 0.002, len(t))
-    assert significant_slope(t, sag, 2.0) == pytest.approx(-0.0017, rel=0.05)
-    assert significant_slope(t, 0.92 - 1e-6 * t, 2.0) == pytest.approx(-1e-6, rel=1e-6)
-    assert significant_slope(t, np.full(len(t), 0.92), 2.0) == 0.0
+        mean, error = mean_and_error(1.0 + e)
+        independent = np.std(e) / math.sqrt(len(t))
+        assert abs(mean - 1.0) < 3.0 * error and error > 10.0 * independent
+        missed_if_independent += abs(mean - 1.0) > 2.0 * independent
+    assert missed_if_independent >= 3
+    white = np.random.default_rng(0).normal(1.0, 0.01, len(t))
+    assert mean_and_error(white)[1] == pytest.approx(0.01 / math.sqrt(len(t)), rel=0.1)
+    assert mean_and_error(np.full(10, 0.5)) == (0.5, 0.0)
 
 
-def test_a_wandering_thrust_gives_no_slope_and_s_the_windows_mean() -> None:
-    """A calibration on a battery that does not sag but whose thrust wanders +-2 % (a 9 s
-    oscillation): the line through the last 10 s has a slope, which the wander made; it is
-    not followed (rate 0) and s starts from the window's mean, within 1 % of the level,
-    and stays there."""
+def test_without_a_voltage_s_is_held_at_the_windows_mean() -> None:
+    """A vehicle that reports no voltage and whose thrust wanders +-2 % (a 9 s
+    oscillation, as on PX4 SIH whose body feels no arm): s is held at the calibration
+    window's mean, within 1 % of the level, however long the flight."""
     samples: list[tuple[float, float]] = []
-    estimator, drift = calibrated_with_drift(
+    estimator, supply = calibrated_on_battery(
         10.0, 14.0, s_of_t=lambda t: 0.92 * (1 + 0.02 * math.sin(2 * math.pi * t / 9.0)),
-        trace=samples,
+        v_of_t=lambda t: None, trace=samples,
     )  # fmt: skip
     t, s = np.array(samples).T
     window = t > t[-1] - 10.0
-    assert abs(np.polyfit(t[window], s[window], 1)[0]) > 1e-3
     estimator.reset(estimator.theta)
-    drift.before(DT, estimator)
-    assert drift.rate_per_s == 0.0
+    supply.before(DT, estimator)
+    assert supply.calibration_v is None
     assert estimator.thrust_scale == pytest.approx(s[window].mean(), rel=1e-3)
     assert estimator.thrust_scale == pytest.approx(0.92, rel=0.01)
     for _ in range(int(20.0 / DT)):
-        drift.before(DT, estimator)
+        supply.before(DT, estimator)
     assert estimator.thrust_scale == pytest.approx(s[window].mean(), rel=1e-3)
 
 
 def test_a_calibration_too_short_for_its_window_leaves_s_where_it_was() -> None:
-    """Less than half the window recorded: no slope is fitted, s is the estimator's."""
-    estimator, drift = calibrated_with_drift(10.0, 4.0)
+    """Less than half the window recorded: nothing is fitted, s is the estimator's."""
+    estimator, supply = calibrated_on_battery(10.0, 4.0)
     s_end = estimator.thrust_scale
     estimator.reset(estimator.theta)
-    drift.before(DT, estimator)
-    assert drift.rate_per_s == 0.0 and estimator.thrust_scale == s_end
+    supply.before(DT, estimator)
+    assert supply.level is None and estimator.thrust_scale == s_end
     with pytest.raises(ValueError, match="window_s"):
-        ScaleDrift(0.0)
-    with pytest.raises(ValueError, match="slope_z"):
-        ScaleDrift(10.0, slope_z=-1.0)
+        SupplyScale(0.0)
+    with pytest.raises(ValueError, match="exponent"):
+        SupplyScale(10.0, exponent=-1.0)
 
 
 @pytest.mark.parametrize("compiled", [False, True])
@@ -392,7 +406,7 @@ def test_thrust_scale_is_on_by_default_and_false_keeps_the_exact_thrust_model() 
     del data["estimator"]["thrust_scale"]
     default = parse_scenario(data).estimator.thrust_scale
     assert default is not None and default.compensate
-    assert default.drift_std_per_sqrt_s > 0.0 and default.rate_window_s > 0.0
+    assert default.drift_std_per_sqrt_s > 0.0 and default.window_s > 0.0
     on_by_default = estimator_from_config(parse_scenario(data), "rls", ROWS)
     assert on_by_default.scale is not None  # type: ignore[attr-defined]
     data["estimator"]["thrust_scale"] = True
@@ -424,37 +438,59 @@ def test_config_rejects_bad_thrust_scale(section: dict | int, key: str) -> None:
 # ------------------------------------------------------------------------- truth
 
 
-def test_battery_sag_is_linear_then_holds() -> None:
-    sag = BatterySag(thrust_loss=0.1, over_s=20.0)
-    assert sag.scale(0.0) == 1.0
-    assert sag.scale(10.0) == pytest.approx(0.95)
-    assert sag.scale(20.0) == pytest.approx(0.9)
-    assert sag.scale(60.0) == pytest.approx(0.9)
+def test_the_packs_voltage_drops_with_its_load_and_its_charge() -> None:
+    """At rest the open-circuit voltage of the LiPo curve (4.20 V a cell full, 3.84 V at
+    half charge); under a load the terminal voltage is that less I R, with P = V I the
+    rotors' and avionics' power; the charge falls by the current's integral."""
+    pack = LipoPack(4, 5.0, 0.03, 1.0)
+    assert pack.voltage_v == pytest.approx(16.8)
+    assert LipoPack(4, 5.0, 0.03, 0.5).open_circuit_v() == pytest.approx(4 * 3.84)
+    thrusts = [2.5] * 6
+    pack.draw(thrusts, 1e-3)
+    power = AVIONICS_POWER_W + 6 * ROTOR_POWER_W_PER_N1_5 * 2.5**1.5
+    assert pack.current_a == pytest.approx(power / pack.voltage_v)
+    assert pack.voltage_v == pytest.approx(16.8 - 0.03 * pack.current_a, rel=1e-6)
+    heavier = LipoPack(4, 5.0, 0.03, 1.0)
+    heavier.draw([3.0] * 6, 1e-3)
+    assert heavier.voltage_v < pack.voltage_v - 0.1  # a heavier payload: less at once
+    charge = pack.charge
+    for _ in range(60_000):
+        pack.draw(thrusts, 1e-3)
+    assert charge - pack.charge == pytest.approx(60.0 * pack.current_a / 3600.0 / 5.0, rel=1e-2)
+    assert pack.open_circuit_v() < 16.8
+    assert pack.thrust_factor == pytest.approx((pack.voltage_v / (4 * 3.85)) ** 2)
 
 
-def test_truth_rotors_sag_with_the_plants_time() -> None:
-    """The thrust per motor command falls as the sag says, on top of thrust_mismatch."""
+def test_truth_rotors_follow_the_batterys_voltage() -> None:
+    """The thrust per motor command is thrust_mismatch times (V / V_ref)^2 of the pack's
+    voltage, which a drained, resistive pack lowers; the plant reports its voltage and
+    current and the true thrust scale."""
     data = _flight_data()
     data["plant"]["thrust_mismatch"] = 1.05
-    data["plant"]["battery_sag"] = {"thrust_loss": 0.2, "over_s": 2.0}
+    data["plant"]["battery"] = {"capacity_ah": 0.05, "resistance_ohm": 0.05, "start_charge": 0.6}
     scenario = parse_scenario(data)
     plant = TruthPlant.from_scenario(scenario, "underactuated", payload_attached=True)
     rotors = scenario.vehicle.rotors
     command = AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, 0.5)
-    for _ in range(round(2.5 / plant.dt_s)):  # past over_s: held, and the lag settled
+    for _ in range(round(2.5 / plant.dt_s)):
         plant.step(command, [0.0, 0.0])
+    battery = plant.battery
+    assert battery is not None and battery.current_a > 5.0 and battery.remaining < 0.6
+    factor = (battery.voltage_v / (4 * 3.85)) ** 2
+    assert factor < 0.95
+    assert plant.thrust_per_command == pytest.approx(1.05 * factor, rel=1e-12)
     produced = plant.actuators.rotor_thrusts_n.sum()
     commands = np.asarray(plant.actuators.motor_commands)
     static = rotors.max_thrust_per_rotor_n * thrust_curve(commands, rotors.thr_mdl_fac).sum()
-    assert produced / static == pytest.approx(1.05 * 0.8, rel=5e-3)
+    assert produced / static == pytest.approx(1.05 * factor, rel=5e-3)
 
 
-def test_sih_refuses_a_battery_sag() -> None:
+def test_sih_refuses_a_battery() -> None:
     from sitl.px4_sitl.sih import SihMismatchError, sih_parameters
 
     data = tomllib.loads((CONFIGS / "px4_sih_pickup.toml").read_text())
-    data["plant"]["battery_sag"] = {"thrust_loss": 0.1, "over_s": 20.0}
-    with pytest.raises(SihMismatchError, match="battery_sag"):
+    data["plant"]["battery"] = {"start_charge": 0.5}
+    with pytest.raises(SihMismatchError, match=r"plant\.battery"):
         sih_parameters(parse_scenario(data))
 
 
@@ -476,13 +512,15 @@ about 5 s, ``ACCEPT_FORGETTING``) rather than the 2 s forgetting alone."""
 ACCEPT_FORGETTING = 0.9998
 
 
-def _accept_run(mismatch: float, sag: float, thrust_scale: dict | None):
+def _accept_run(mismatch: float, sag: bool, thrust_scale: dict | None):
     data = _flight_data(**thrust_scale) if thrust_scale is not None else _flight_data()
     if thrust_scale is not None:
         data["estimator"]["rls"]["forgetting"] = ACCEPT_FORGETTING
     data["plant"]["thrust_mismatch"] = mismatch
     if sag:
-        data["plant"]["battery_sag"] = {"thrust_loss": sag, "over_s": 20.0}
+        # a small pack, a third charged: its voltage, and the thrust per command with it,
+        # falls through the run (about 8 % of thrust over 20 s)
+        data["plant"]["battery"] = {"capacity_ah": 0.2, "start_charge": 0.6}
     return simulate(parse_scenario(data), SimOptions(plant="underactuated", noise=True, seed=1))
 
 
@@ -497,22 +535,22 @@ def _errors(result, t_s: float) -> tuple[float, float]:
 @pytest.mark.parametrize("mismatch", [0.9, 1.0, 1.1])
 def test_estimate_survives_thrust_mismatch_and_battery_sag(mismatch: float) -> None:
     """paper_sim_flight, noise, RLS with the thrust scale, thrust mismatch at
-    the ends and middle of [0.9, 1.1] plus 10 % sag over 20 s: m2 within 3 % and lc
-    within 5 % at 10 s and at the end."""
-    r = _accept_run(mismatch, 0.1, ACCEPT_SCALE)
+    the ends and middle of [0.9, 1.1] plus a draining battery (about 8 % of thrust over
+    20 s): m2 within 3 % and lc within 5 % at 10 s and at the end."""
+    r = _accept_run(mismatch, True, ACCEPT_SCALE)
     for t_s in (10.0, 20.0):
         m2_err, lc_err = _errors(r, t_s)
         assert m2_err < 0.03, f"m2 {100 * m2_err:.1f} % off at {t_s} s"
         assert lc_err < 0.05, f"lc {100 * lc_err:.1f} % off at {t_s} s"
-    s_hat, s_true = r.column("thrust_scale_hat")[-1], r.column("thrust_scale_true")[-1]
-    assert s_true == pytest.approx(mismatch * 0.9, rel=1e-4)  # the last step, 1 ms early
-    assert s_hat == pytest.approx(s_true, rel=0.02)
+    s_true = r.column("thrust_scale_true")
+    assert s_true[-1] < 0.95 * s_true[0]
+    assert r.column("thrust_scale_hat")[-1] == pytest.approx(s_true[-1], rel=0.02)
 
 
 def test_without_the_thrust_scale_the_sag_drives_the_estimate_off() -> None:
     """The same run with the thrust model taken as exact (today's default): the sag alone
     (no mismatch) puts m2 more than 10 % and lc more than 15 % off by the end."""
-    r = _accept_run(1.0, 0.1, None)
+    r = _accept_run(1.0, True, None)
     s_hat = r.column("thrust_scale_hat")
     assert np.all(s_hat[~np.isnan(s_hat)] == 1.0)
     m2_err, lc_err = _errors(r, 20.0)

@@ -22,7 +22,7 @@ from flight_checks import CARRY_RMS_BOUND_M, assert_calm_flight, carry_rms_m
 from companion.cli.mission import plan_for
 from companion.logs.flightlog import read_flight_log
 from companion.logs.mcap_log import describe_mcap
-from sitl.scenario import BatterySag, PayloadSlip, Scenario, load_scenario
+from sitl.scenario import Battery, PayloadSlip, Scenario, load_scenario
 from sitl.vehicle.runner import RunOptions
 from sitl.vehicle.virtual_flight import fly_virtual
 
@@ -167,21 +167,31 @@ def test_a_servo_weaker_than_its_datasheet_is_measured_before_take_off(tmp_path)
 
 
 def test_a_sagging_battery_is_followed_and_the_payload_learnt_as_on_a_fresh_one(tmp_path):
-    """The thrust 8 % below the model's and falling 15 % more over the 80 s of the flight
-    (battery sag, truth only): the thrust scale's slope is learnt over the hover before the
-    grasp and carried on, so the estimate of s stays within 1.5 % of the truth's from the
-    grasp to the place point, and the payload is learnt as without a sag (held at its grasp
-    value, s ended 4.6 % high and m2 took the difference: mass +13 %, CoM -16 %)."""
-    sag = BatterySag(thrust_loss=0.15, over_s=80.0)
-    plant = SCENARIO.plant.model_copy(update={"thrust_mismatch": 0.92, "battery_sag": sag})
-    failure, summary, _ = fly(tmp_path, SCENARIO.model_copy(update={"plant": plant}))
+    """The rotors 8 % below the model's at the reference voltage, on a small pack a third
+    charged with twice the nominal resistance (truth only): the voltage falls through the
+    flight and drops at once when the payload's weight comes on. The thrust scale fitted
+    in the hover before the grasp is carried with the voltage the vehicle streams, so the
+    estimate of s stays within 0.5 % of the truth's from the grasp to the place point but
+    in the lift, where the load comes on (a step of more than 2 %, followed within 2 %
+    behind the voltage's filter), the payload is learnt within 3 % / 5 %, and its reported
+    standard deviation holds the truth within two of it."""
+    battery = Battery(capacity_ah=1.0, resistance_ohm=0.06, start_charge=0.35)
+    plant = SCENARIO.plant.model_copy(update={"thrust_mismatch": 0.92, "battery": battery})
+    failure, summary, truth = fly(tmp_path, SCENARIO.model_copy(update={"plant": plant}))
     assert failure is None and summary["completed"]
     assert summary["payload_mass_kg"] == pytest.approx(TRUE_MASS_KG, rel=0.03)
     assert summary["payload_com_along_link2_m"] == pytest.approx(TRUE_COM_M, rel=0.05)
+    assert abs(summary["payload_mass_kg"] - TRUE_MASS_KG) <= 2.0 * summary["payload_mass_std_kg"]
     c = read_flight_log(tmp_path / "flight.csv").columns
-    carried = np.isin(c["phase"], ("grasp", "lift", "excite", "to_place"))
-    truth_s = np.array([0.92 * sag.scale(t) for t in c["t_vehicle_s"][carried]])
-    np.testing.assert_allclose(c["thrust_scale_hat"][carried], truth_s, rtol=0.015)
+    t_truth = np.array([r["t_s"] for r in truth])
+    s_truth = np.array([r["thrust_scale"] for r in truth])
+    lift = c["phase"] == "lift"
+    carried = np.isin(c["phase"], ("grasp", "excite", "to_place"))
+    for phase, bound in ((lift, 0.02), (carried, 0.005)):
+        truth_s = np.interp(c["t_vehicle_s"][phase], t_truth, s_truth)
+        np.testing.assert_allclose(c["thrust_scale_hat"][phase], truth_s, rtol=bound)
+    lifted = np.interp(c["t_vehicle_s"][lift], t_truth, s_truth)
+    assert lifted.max() - lifted.min() > 0.02  # the payload's load dropped the voltage
     assert carry_rms_m(c) < CARRY_RMS_BOUND_M
 
 

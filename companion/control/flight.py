@@ -67,13 +67,13 @@ from companion.estimation.estimator import (
     JOINT_ROWS,
     TRANSLATION_AND_JOINT_ROWS,
     Estimate,
-    ScaleDrift,
     Skip,
     estimator_from_config,
 )
 from companion.estimation.filters import FilteredState
 from companion.estimation.inputs import DelayedInputs, EstimatorInputs, delay_cycles
 from companion.estimation.state import thrust_force_world
+from companion.estimation.thrust_supply import SupplyScale
 from companion.model import ManipulatorModel, ModelTerms
 
 __all__ = ["ControlOutput", "FlightControl", "FlightControllerName"]
@@ -183,13 +183,18 @@ class FlightControl:
         scale = config.estimator.thrust_scale
         self.compensate_thrust = scale is not None and scale.compensate
         """Map the law's force divided by the calibrated thrust scale (``compensate``)."""
-        self.scale_drift = (
-            ScaleDrift(scale.rate_window_s)
-            if scale is not None and scale.rate_window_s > 0.0 and self.estimator.scale is not None
+        self.supply_scale = (
+            SupplyScale(
+                scale.window_s,
+                exponent=scale.voltage_exponent,
+                exponent_std=scale.voltage_exponent_std,
+                filter_s=scale.voltage_filter_s,
+            )
+            if scale is not None and scale.window_s > 0.0 and self.estimator.scale is not None
             else None
         )
-        """The thrust scale's drift rate, learnt over the hover calibration
-        (``rate_window_s``), or None."""
+        """The thrust scale carried from the hover calibration with the battery's voltage
+        (``window_s``), or None."""
         unactuated = [r for r in range(N_Q) if r not in actuated_rows]
         self._unactuated = (
             np.array(unactuated) if unactuated and ctl.measured_unactuated_motion else None
@@ -293,15 +298,36 @@ class FlightControl:
         :meth:`applied_force`), or why it is not known: the estimator skips the step.
         Runs compiled when :attr:`compiled`, with the same result (see the module
         docstring).
-        The thrust scale's drift (:attr:`scale_drift`) goes around the step.
+        The thrust scale from the battery (:attr:`supply_scale`) goes around the step.
         """
-        drift = self.scale_drift
-        if drift is None:
+        supply = self.supply_scale
+        if supply is None:
             return self._step(dt_s, state, desired, applied_tau)
-        drift.before(dt_s, self.estimator)
+        supply.before(dt_s, self.estimator)
         out = self._step(dt_s, state, desired, applied_tau)
-        drift.after(dt_s, self.estimator, state.q_dot)
+        supply.after(dt_s, self.estimator, state.q_dot)
         return out
+
+    def supply(self, voltage_v: float | None) -> None:
+        """The battery voltage the vehicle reports [V] (None: unknown), for the thrust
+        scale (:attr:`supply_scale`); ignored without one."""
+        if self.supply_scale is not None:
+            self.supply_scale.supply(voltage_v)
+
+    def payload_mass_std_kg(self) -> float | None:
+        """Standard deviation of m2 [kg] with the thrust scale's in it: the estimator's own
+        (RLS covariance; 0 for the paper observer, which has none) and, with s carried by
+        :attr:`supply_scale`, the mass its uncertainty moves: in a hover s T = (M + m2) g,
+        so m2 is off by (M + m2) sd(s)/s. None before the thrust scale is fitted, or
+        without a thrust scale."""
+        supply = self.supply_scale
+        relative = None if supply is None else supply.relative_std()
+        if relative is None:
+            return None
+        own = getattr(self.estimator, "std", None)
+        m2_std = 0.0 if own is None else float(own[0])
+        total_kg = self.weight_n() / self.scenario.environment.gravity_m_s2
+        return math.hypot(m2_std, total_kg * relative)
 
     def _step(
         self,

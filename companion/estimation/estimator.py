@@ -49,12 +49,10 @@ __all__ = [
     "ExcitationMonitor",
     "PaperEstimator",
     "RlsEstimator",
-    "ScaleDrift",
     "Skip",
     "ThetaBounds",
     "ThrustScaleModel",
     "estimator_from_config",
-    "significant_slope",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -169,118 +167,6 @@ class ThrustScaleModel:
         if not math.isfinite(s):
             raise FloatingPointError(f"non-finite thrust scale estimate {s}")
         return min(max(s, self.low), self.high)
-
-
-class ScaleDrift:
-    """The thrust scale s of a sagging battery (the thrust per command falls through the
-    flight): a least-squares line through the estimator's s over the last ``window_s`` of
-    a hover calibration (:meth:`_Base.calibrate`), taken while the vehicle is nearly still
-    (speed below ``still_m_s``); when the calibration ends, s and the compensation scale
-    start from the line's value at its end and move along its slope [1/s] each cycle from
-    then on. Times are the sum of the control periods handed in [s]; no clock.
-
-    Only the still moments: moving, the drag the model lacks biases s (the truth's 0.25
-    N s/m held the descending vehicle up and s ran ~0.15 % high, a few grams of m2: the
-    light payloads' CoM 4-6 % low in the envelope); still, it does not (the same flights:
-    mass +1.6 -> -0.7 %, CoM -4.2 -> -1.2 % for 0.127 kg).
-
-    Why a line, not a random walk alone: s is held from the grasp until theta is learnt
-    (theta and s cannot both be learnt in a hover), so a random walk's s stays where the
-    calibration left it while the battery sags on, and m2 takes the difference (SITL
-    pickup, 15 % sag over 80 s: s held 4.6 % high when theta became confident, m2 +9 %).
-    The line's end is also a steadier value than the last estimate (same flight: 0.2 %
-    from the truth against 0.7 %).
-
-    :meth:`before` and :meth:`after` go around each estimator step (compiled or not: they
-    read and write only its ``calibrating``, ``thrust_scale``, ``compensation_scale`` and
-    ``scale``).
-    """
-
-    def __init__(self, window_s: float, still_m_s: float = 0.1, slope_z: float = 2.0) -> None:
-        if not window_s > 0.0:
-            raise ValueError(f"window_s must be > 0, got {window_s}")
-        if not slope_z >= 0.0:
-            raise ValueError(f"slope_z must be >= 0, got {slope_z}")
-        self.window_s = window_s
-        self.still_m_s = still_m_s
-        self.slope_z = slope_z
-        """How many standard errors from zero a fitted slope must be to be followed [-]."""
-        self.rate_per_s = 0.0
-        """The fitted slope of s [1/s] (0 before a fit)."""
-        self._t_s = 0.0
-        self._samples: deque[tuple[float, float]] = deque()
-
-    def before(self, dt: float, estimator: Estimator) -> None:
-        """Before a step of ``dt`` [s]: outside a calibration, fit the line if one just
-        ended, and move s and the compensation scale along it."""
-        scale = estimator.scale
-        if scale is None or estimator.calibrating:
-            return
-        if self._samples:
-            level = self.fit()
-            if level is not None:
-                estimator.thrust_scale = estimator.compensation_scale = scale.clip(level)
-        if self.rate_per_s:
-            step = self.rate_per_s * dt
-            estimator.thrust_scale = scale.clip(estimator.thrust_scale + step)
-            estimator.compensation_scale = scale.clip(estimator.compensation_scale + step)
-
-    def after(self, dt: float, estimator: Estimator, velocity_m_s: FloatArray) -> None:
-        """After a step of ``dt`` [s] at the vehicle's ``velocity_m_s`` (x, y, z first): in a
-        calibration, record its estimate of s if the vehicle is nearly still."""
-        if not estimator.calibrating:
-            return
-        self._t_s += dt
-        samples = self._samples
-        vx, vy, vz = float(velocity_m_s[0]), float(velocity_m_s[1]), float(velocity_m_s[2])
-        if math.sqrt(vx * vx + vy * vy + vz * vz) < self.still_m_s:
-            samples.append((self._t_s, estimator.thrust_scale))
-        while samples and samples[0][0] < self._t_s - self.window_s:
-            samples.popleft()
-
-    def fit(self) -> float | None:
-        """Fit the line over the recorded window and start a new one; returns its value at
-        the window's end, or None (slope kept as it was) when the window holds less than
-        half of ``window_s``: a calibration too short to tell.
-
-        The slope is followed only when it stands out of the estimate's noise
-        (:func:`significant_slope` at ``slope_z``); otherwise s is held at the window's
-        mean. Carried on over a minute and more, a slope the noise made moves s (and m2
-        with it) far off: on PX4 SIH, whose thrust does not sag, a 10 s window of s
-        wandering +-2 % gave -0.5 %/s, and 90 s later s was 0.62 and m2 on its bound."""
-        samples = self._samples
-        level = None
-        if samples and samples[-1][0] - samples[0][0] >= 0.5 * self.window_s:
-            t = np.array([sample[0] for sample in samples])
-            s = np.array([sample[1] for sample in samples])
-            self.rate_per_s = significant_slope(t, s, self.slope_z)
-            level = float(s.mean() + self.rate_per_s * (t[-1] - t.mean()))
-        samples.clear()
-        return level
-
-
-def significant_slope(t: FloatArray, s: FloatArray, z: float) -> float:
-    """The least-squares slope of ``s`` over ``t`` (samples in time order) if it lies more
-    than ``z`` standard errors from zero, else 0.
-
-    The estimator's s is a smoothed signal whose successive samples are far from
-    independent, so the standard error counts the effective sample size of AR(1)
-    residuals e, n_eff = n (1 - r1) / (1 + r1) with r1 their lag-1 autocorrelation (n when
-    r1 <= 0; Santer et al. 2000, J. Geophys. Res. 105(D6)): se^2 = sum(e^2) / (n_eff - 2)
-    / sum((t - mean t)^2), n_eff taken as at least 3 (a line through smooth, tiny residuals
-    stands out however correlated they are). Residuals of exactly zero: the slope as it is.
-    """
-    t_c, s_c = t - t.mean(), s - s.mean()
-    sxx = float(t_c @ t_c)
-    slope = float(t_c @ s_c) / sxx
-    residuals = s_c - slope * t_c
-    ee = float(residuals @ residuals)
-    if ee == 0.0:
-        return slope
-    r1 = float(residuals[1:] @ residuals[:-1]) / ee
-    n_eff = len(residuals) * (1.0 - r1) / (1.0 + r1) if r1 > 0.0 else len(residuals)
-    n_eff = max(n_eff, 3.0)
-    return slope if abs(slope) > z * math.sqrt(ee / (n_eff - 2.0) / sxx) else 0.0
 
 
 @dataclass(frozen=True)
@@ -490,8 +376,9 @@ class _Base(ABC):
         """True while theta is held and s alone is learnt (:meth:`calibrate`)."""
         self.compensation_scale = self.thrust_scale
         """The s that ``[estimator.thrust_scale] compensate`` divides the force by: the last
-        one calibrated (the initial one before any calibration; carried on at its drift rate
-        by :class:`ScaleDrift` where one is learnt). Not the running estimate: with theta and
+        one calibrated (the initial one before any calibration; carried on with the battery's
+        voltage by :class:`~companion.estimation.thrust_supply.SupplyScale` where one is
+        fitted). Not the running estimate: with theta and
         s learnt together, dividing by it closed a loop that ran s to its bound (offline,
         ``configs/sitl_pickup.toml`` from the start: the thrust fell to 0)."""
         # The used rows whose force is the thrust's (x, y, z).

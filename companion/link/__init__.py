@@ -30,6 +30,7 @@ from companion.link.px4_modes import PX4_MODES, Px4Mode, decode_custom_mode, px4
 from companion.link.setpoint import quaternion_from_euler_zyx
 from companion.link.signing import SigningConfig, load_signing_key
 from companion.link.telemetry import (
+    BatteryState,
     BodyRates,
     ImuSample,
     LandedState,
@@ -41,6 +42,7 @@ from companion.link.url import LinkUrl, parse_link_url
 
 __all__ = [
     "PX4_MODES",
+    "BatteryState",
     "BodyRates",
     "CommandDenied",
     "CommandError",

@@ -22,6 +22,7 @@ sample                 from
 :class:`ImuSample`     HIGHRES_IMU
 :class:`VehicleStatus` HEARTBEAT of the vehicle (armed, PX4 mode)
 :class:`LandedState`   EXTENDED_SYS_STATE
+:class:`BatteryState`  SYS_STATUS (the battery's voltage and current)
 =====================  =========================================================
 """
 
@@ -44,6 +45,7 @@ from companion.link.errors import TelemetryError
 from companion.link.px4_modes import Px4Mode, decode_custom_mode
 
 __all__ = [
+    "BatteryState",
     "BodyRates",
     "ImuSample",
     "LandedState",
@@ -150,6 +152,18 @@ class LandedState:
         return self.landed_state == mavlink2.MAV_LANDED_STATE_ON_GROUND
 
 
+@dataclass(frozen=True)
+class BatteryState:
+    """The battery as SYS_STATUS reports it (PX4: its battery_status topic)."""
+
+    time_boot_ms: int | None
+    """Latest vehicle time seen before it [ms] (SYS_STATUS has no clock)."""
+    voltage_v: float | None
+    """Battery voltage [V]; None when not measured (UINT16_MAX)."""
+    current_a: float | None
+    """Current drawn [A]; None when not measured (-1)."""
+
+
 def _finite(reason: str, values: Any) -> tuple[float, ...]:
     out = tuple(float(v) for v in values)
     if not all(math.isfinite(v) for v in out):
@@ -229,6 +243,15 @@ class TelemetryDecoder:
             armed = bool(msg.base_mode & mavlink2.MAV_MODE_FLAG_SAFETY_ARMED)
             mode = decode_custom_mode(msg.custom_mode)
             return (VehicleStatus(self.time_boot_ms, armed, mode, int(msg.system_status)),)
+        if kind == "SYS_STATUS":
+            millivolts, centiamps = int(msg.voltage_battery), int(msg.current_battery)
+            return (
+                BatteryState(
+                    self.time_boot_ms,
+                    None if millivolts == 0xFFFF else millivolts * 1e-3,
+                    None if centiamps < 0 else centiamps * 1e-2,
+                ),
+            )
         if kind == "EXTENDED_SYS_STATE":
             state = int(msg.landed_state)
             if state not in _LANDED_NAMES:

@@ -35,7 +35,13 @@ from companion.coordinates import HORIZONTAL, JOINTS, N_Q, PHI, PSI, THETA, TILT
 from companion.estimation.estimator import Skip
 from companion.estimation.state import StateAssembler, thrust_force_world
 from companion.link import MavlinkLink
-from companion.link.telemetry import BodyRates, LandedState, VehiclePose, VehicleStatus
+from companion.link.telemetry import (
+    BatteryState,
+    BodyRates,
+    LandedState,
+    VehiclePose,
+    VehicleStatus,
+)
 from companion.logs.flightlog import CycleRecord
 from companion.mission.arm_supervisor import ArmSupervisor
 from companion.mission.authority import (
@@ -421,6 +427,8 @@ class ControlCycle:
         rates = self.link.latest(BodyRates)
         if rates is not None:
             a.body_rates(rates.omega_flu_rad_s)
+        battery = self.link.latest(BatteryState)
+        self.control.supply(None if battery is None else battery.voltage_v)
         if check.fault is not None and self.offboard.flying:
             self._fault(Fault.NAVIGATION, check.fault)
 
@@ -628,6 +636,7 @@ class ControlCycle:
         empty = self.config.nominal_theta
         self.report.theta_hat = [float(v) for v in theta]
         self.report.payload_mass_kg = mass = self._payload_kg(out)
+        self.report.payload_mass_std_kg = self.control.payload_mass_std_kg()
         # Payload CoM along link 2: (m3 - m3_empty) / (m2 - m2_empty), a point mass.
         self.report.payload_com_m = (
             (float(theta[1]) - empty.m3_kg_m) / mass if mass > 1e-6 else None

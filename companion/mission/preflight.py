@@ -52,6 +52,11 @@ __all__ = [
 
 Note = Callable[[str, str], None]
 
+BATTERY_RATE_HZ = 20.0
+"""Rate asked of SYS_STATUS, the battery's voltage and current [Hz]: the thrust scale
+follows the voltage, which a grasp's load step drops at once (PX4's onboard link sends it
+at 5 Hz by default)."""
+
 
 class PreflightError(RuntimeError):
     """The vehicle is not ready to fly the mission; the message is one line."""
@@ -92,13 +97,14 @@ async def check_vehicle(
     loop_period: LoopPeriodMonitor,
 ) -> LoopPeriodMonitor:
     """The vehicle's checks before arming, in order: the streams asked (ODOMETRY at
-    ``rate_hz``), PX4's parameters against the config (its MPC_THR_MIN becomes
-    ``control``'s thrust floor), the pose rate against the gains, on the ground, disarmed,
-    a global origin, Hold, ready to arm. Returns the loop's period watch for the measured
-    pose rate (the loop runs at the rate the stream arrives: PX4 publishes no faster than
-    its estimator, whatever was asked)."""
+    ``rate_hz``, the battery's SYS_STATUS at :data:`BATTERY_RATE_HZ`), PX4's parameters
+    against the config (its MPC_THR_MIN becomes ``control``'s thrust floor), the pose rate
+    against the gains, on the ground, disarmed, a global origin, Hold, ready to arm.
+    Returns the loop's period watch for the measured pose rate (the loop runs at the rate
+    the stream arrives: PX4 publishes no faster than its estimator, whatever was asked)."""
     await link.set_message_interval(mavlink2.MAVLINK_MSG_ID_ODOMETRY, rate_hz)
     await link.set_message_interval(mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, 5.0)
+    await link.set_message_interval(mavlink2.MAVLINK_MSG_ID_SYS_STATUS, BATTERY_RATE_HZ)
     params = await read_vehicle_params(link)
     problems = contradictions(params, config)
     for problem in problems[1:]:

@@ -36,6 +36,9 @@ class MissionReport:
     phases: list[tuple[float, str]] = field(default_factory=list)
     faults: list[dict[str, Any]] = field(default_factory=list)
     payload_mass_kg: float | None = None
+    payload_mass_std_kg: float | None = None
+    """Standard deviation of the payload's mass [kg], the thrust scale's in it (None
+    without a fitted thrust scale)."""
     payload_com_m: float | None = None
     theta_hat: list[float] | None = None
     confident: bool = False
@@ -96,6 +99,7 @@ class MissionReport:
             "phases": [{"t_s": t, "phase": p} for t, p in self.phases],
             "faults": self.faults,
             "payload_mass_kg": self.payload_mass_kg,
+            "payload_mass_std_kg": self.payload_mass_std_kg,
             "payload_com_along_link2_m": self.payload_com_m,
             "theta_hat": self.theta_hat,
             "estimate_confident": self.confident,

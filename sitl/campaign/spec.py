@@ -21,7 +21,7 @@ Format (every key but ``name`` and ``scenario`` optional)::
     seed = 1
 
     [set]                                    # scenario keys set for every flight
-    "plant.battery_sag.over_s" = 80.0
+    "plant.battery.capacity_ah" = 4.0
 
     [axes]                                   # scenario keys varied, by dotted name
     "payload.mass_kg" = { range = [0.10, 0.45] }       # sampled by the design

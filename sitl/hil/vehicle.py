@@ -37,8 +37,10 @@ pose (4. above: the companion in the lockstep); a third PX4 link
 records (PX4's 1 Hz heartbeat: up to a second late); ``armed`` comes with every
 HIL_ACTUATOR_CONTROLS.
 
-Not simulated: MAVLink signing (PX4's own), RC, the battery (PX4's battery simulator
-reports one), a range finder, airspeed.
+Not simulated: MAVLink signing (PX4's own), RC, a range finder, airspeed, and the battery:
+PX4 reports its own simulated one, held full (``SIM_BAT_MIN_PCT = 100``,
+:mod:`sitl.px4_sitl.launcher`), so the plant flies on an ideal supply whatever the
+scenario's ``plant.battery`` (the thrust per command steady, as the voltage PX4 reports).
 """
 
 from __future__ import annotations
@@ -231,6 +233,9 @@ class Px4InTheLoop:
                 f"[sensors] gyro_rate_hz = {imu_rate_hz:g} is PX4's IMU rate here: it must be "
                 f">= 250 Hz and divide plant.rate_hz = {plant_rate_hz:g}"
             )
+        # PX4's battery is the one reported, held full: the thrust must not sag under it
+        plant = scenario.plant.model_copy(update={"battery": None})
+        scenario = scenario.model_copy(update={"plant": plant})
         self.scenario = scenario
         self.options = options
         self.hil = hil

@@ -74,7 +74,7 @@ COLUMNS: tuple[str, ...] = (
 """Time-series columns: truth q, desired q_d, filtered q, the paper observer's qhat (NaN
 for unused rows or other estimators), estimates (with the thrust scale s, 1 when not
 estimated), truth theta and s (true over believed thrust per command: thrust mismatch x
-battery sag; 1 on the ideal plant), tau, setpoint, step cost."""
+the battery's voltage factor; 1 on the ideal plant), tau, setpoint, step cost."""
 _COL = {name: i for i, name in enumerate(COLUMNS)}
 
 
@@ -355,7 +355,7 @@ class _ClosedLoop:
             *state.q.tolist(),
             *companion,
             *self.truth_row,
-            _true_thrust_scale(self.scenario, self.opts.plant, t),
+            1.0 if self.flown is None else self.flown.thrust_per_command,
             *self.tau.tolist(),
             setpoint.roll_rad,
             setpoint.pitch_rad,
@@ -395,15 +395,6 @@ def _truth_row(plant: PlantCore) -> tuple[float, ...]:
     companion side)."""
     truth = plant.true_theta
     return (*truth.as_tuple(), truth.lc_m, float(plant.payload_attached))
-
-
-def _true_thrust_scale(scenario: Scenario, plant: PlantName, time_s: float) -> float:
-    """True over believed thrust per command at ``time_s`` (logged, never shown to the
-    companion side)."""
-    if plant == "ideal":
-        return 1.0
-    sag = scenario.plant.battery_sag
-    return scenario.plant.thrust_mismatch * (1.0 if sag is None else sag.scale(time_s))
 
 
 def _settle_time(t: np.ndarray, estimate: np.ndarray, truth: np.ndarray) -> float | None:

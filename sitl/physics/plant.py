@@ -11,7 +11,8 @@ Two modes (DESIGN.md sections 2-4):
     :class:`~sitl.physics.attitude_control.AttitudeSetpoint` (relative thrust, linearized
     per motor with the autopilot's THR_MDL_FAC, :meth:`TruthPlant.configure_autopilot`),
     six lagged rotors with their own THR_MDL_FAC-shaped curve (scaled by
-    ``plant.thrust_mismatch`` and, if set, the ``plant.battery_sag`` of the plant's time)
+    ``plant.thrust_mismatch`` and, if set, the ``plant.battery``'s voltage,
+    :mod:`sitl.physics.battery`)
     push the body, linear drag -D (v - w) acts on the vehicle CoM (w the steady wind,
     ``plant.wind_m_s``), and the servos apply joint torques clipped to
     ``plant.servo_torque_limit_n_m`` (:meth:`TruthPlant.step`).
@@ -46,6 +47,7 @@ from sitl.physics.attitude_control import (
     AttitudeLoopParams,
     Px4AttitudeLoop,
 )
+from sitl.physics.battery import LipoPack
 from sitl.physics.errors import (
     EulerSingularityError,
     PlantDivergedError,
@@ -150,7 +152,8 @@ class TruthPlant(RotorPlant):
             self.dt_s,
         )
         self._max_thrust_n = self._rotors.max_thrust_n
-        self._sag = scenario.plant.battery_sag
+        self._thrust_mismatch = scenario.plant.thrust_mismatch
+        self._battery = LipoPack.of(scenario.plant.battery)
         mixer = SequentialDesaturationMixer(self._geometry, rotors.max_thrust_per_rotor_n)
         self._autopilot = Px4AttitudeLoop.from_params(
             AttitudeLoopParams.from_config(scenario.plant.attitude_control, rotors.thr_mdl_fac),
@@ -437,9 +440,7 @@ class TruthPlant(RotorPlant):
     ) -> None:
         """One integration step pushed by the rotors' lagged thrusts, whose lag then moves
         toward ``motor_commands``; records the actuator signals."""
-        if self._sag is not None:
-            # battery sag: the thrust the next commands produce (truth only)
-            self._rotors.max_thrust_n = self._max_thrust_n * self._sag.scale(self.time_s)
+        self._feed_rotors()
         thrusts = self._rotors.thrust_list_n
         t0, t1, t2, t3, t4, t5 = thrusts
         wx, wy, wz = self._rotor_wrench

@@ -29,6 +29,7 @@ if TYPE_CHECKING:
 
     from companion.config import Theta
     from sitl.physics.attitude_control import AttitudeLoopParams, AttitudeSetpoint
+    from sitl.physics.battery import BatteryReading
     from sitl.physics.state import ActuatorState, PlantState
     from sitl.scenario import Scenario
 
@@ -125,6 +126,16 @@ class Plant(PlantCore, Protocol):
     @property
     def rotor_thrusts_n(self) -> NDArray[np.float64]:
         """Thrust of each rotor now [N], shape (6,)."""
+        ...
+
+    @property
+    def battery(self) -> BatteryReading | None:
+        """The battery's voltage, current and charge now; None for an ideal supply."""
+        ...
+
+    @property
+    def thrust_per_command(self) -> float:
+        """The true thrust scale now: thrust per command over the believed rotors' [-]."""
         ...
 
     def configure_autopilot(self, params: AttitudeLoopParams) -> None:

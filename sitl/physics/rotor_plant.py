@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sitl.physics.attitude_control import AttitudeLoopParams, AttitudeSetpoint, Px4AttitudeLoop
+from sitl.physics.battery import BatteryReading, LipoPack
 from sitl.physics.errors import PlantModeError
 from sitl.physics.rotors import N_ROTORS, RotorBank
 from sitl.physics.state import ActuatorState, PlantState
@@ -36,6 +37,11 @@ class RotorPlant:
     _t0: float
     _steps: int
     _rotors: RotorBank
+    _max_thrust_n: float
+    _thrust_mismatch: float
+    """A rotor's full thrust at the battery's reference voltage [N]."""
+    _battery: LipoPack | None
+    """The battery feeding the rotors, or None (an ideal supply)."""
     _autopilot: Px4AttitudeLoop
     _servo_limit: float
     _state_cache: PlantState | None
@@ -69,6 +75,26 @@ class RotorPlant:
         """One step pushed by the rotors' thrusts, which then move toward ``motor_commands``
         through their lag; records the actuator signals."""
         raise NotImplementedError
+
+    def _feed_rotors(self) -> None:
+        """Draw the battery for the thrusts acting over this step, and set the thrust the
+        next commands make at its voltage (truth only)."""
+        battery = self._battery
+        if battery is not None:
+            battery.draw(self._rotors.thrust_list_n, self.dt_s)
+            self._rotors.max_thrust_n = self._max_thrust_n * battery.thrust_factor
+
+    @property
+    def battery(self) -> BatteryReading | None:
+        """The battery's voltage, current and charge now, or None for an ideal supply."""
+        return None if self._battery is None else self._battery.reading()
+
+    @property
+    def thrust_per_command(self) -> float:
+        """The thrust a motor command makes now over what the believed rotors make (the
+        true thrust scale: ``plant.thrust_mismatch`` times the battery's factor) [-]."""
+        battery = self._battery
+        return self._thrust_mismatch * (1.0 if battery is None else battery.thrust_factor)
 
     # ------------------------------------------------------------------ state
 

@@ -75,6 +75,8 @@ class VehicleMeasurement:
         The world's ground contact is holding the vehicle (PX4's land detector input).
     battery_voltage_v : float
         Battery voltage [V].
+    battery_current_a : float
+        Battery current [A]; negative when not measured.
     battery_remaining : float
         Remaining charge as a fraction in [0, 1].
     estimate_time_us : int, optional
@@ -97,6 +99,7 @@ class VehicleMeasurement:
     specific_force_flu_m_s2: FloatArray
     on_ground: bool
     battery_voltage_v: float = 16.0
+    battery_current_a: float = -1.0
     battery_remaining: float = 1.0
     estimate_time_us: int | None = None
     estimator: EstimatorReport = EstimatorReport()
@@ -104,7 +107,7 @@ class VehicleMeasurement:
     def __post_init__(self) -> None:
         if not self._set_arrays_fast():
             self._set_arrays()
-        for name in ("time_s", "battery_voltage_v", "battery_remaining"):
+        for name in ("time_s", "battery_voltage_v", "battery_current_a", "battery_remaining"):
             value = float(getattr(self, name))
             if not math.isfinite(value):
                 raise ValueError(f"{name} must be finite, got {value!r}")

@@ -157,6 +157,13 @@ _IMU_FIELDS = 0b0001_1100_0011_1111
 _SEA_LEVEL_PA = 101_325.0
 
 
+def _centiamps(m: VehicleMeasurement) -> int:
+    """The battery current as SYS_STATUS and BATTERY_STATUS carry it [cA], -1 when not
+    measured."""
+    current = m.battery_current_a
+    return -1 if current < 0.0 else min(round(current * 100.0), 32767)
+
+
 @dataclass(frozen=True)
 class Home:
     """Home: where the vehicle was last armed (world ENU [m])."""
@@ -406,7 +413,7 @@ class TelemetryEncoder:
         health = _HEALTHY | (M.MAV_SYS_STATUS_PREARM_CHECK if status.prearm_ok else 0)
         return M.MAVLink_sys_status_message(
             present, present | M.MAV_SYS_STATUS_SENSOR_RC_RECEIVER, health, 0,
-            round(m.battery_voltage_v * 1e3), -1, round(m.battery_remaining * 100),
+            round(m.battery_voltage_v * 1e3), _centiamps(m), round(m.battery_remaining * 100),
             0, 0, 0, 0, 0, 0, 0, 0, 1,
         )  # fmt: skip
 
@@ -534,7 +541,7 @@ class TelemetryEncoder:
         millivolts = min(round(m.battery_voltage_v * 1e3), 65534)
         return M.MAVLink_battery_status_message(
             0, M.MAV_BATTERY_FUNCTION_ALL, M.MAV_BATTERY_TYPE_LIPO, 32767,
-            [millivolts] + [65535] * 9, -1, -1, -1, round(m.battery_remaining * 100), 0,
+            [millivolts] + [65535] * 9, _centiamps(m), -1, -1, round(m.battery_remaining * 100), 0,
             M.MAV_BATTERY_CHARGE_STATE_OK, [0] * 4, 0, 0,
         )  # fmt: skip
 

@@ -15,7 +15,11 @@ PX4 SITL build the way its start-up script expects, once per test or run:
   lock file until PX4 stops, so that processes starting PX4 at the same time (parallel
   tests, two ``sitl`` commands) never pick the same instance in the window between the
   choice and the binding of its ports;
-- parameters go in as ``PX4_PARAM_<NAME>`` (set after the airframe file);
+- parameters go in as ``PX4_PARAM_<NAME>`` (set after the airframe file); PX4's battery
+  simulator is held full (``SIM_BAT_MIN_PCT = 100``, :data:`DEFAULT_PARAMS`) unless asked
+  otherwise: its voltage would fall while the simulated thrust does not follow it (SIH's
+  rotors ignore the battery, and so does our physics in the loop), and the companion's
+  thrust scale follows the voltage it reports;
 - the process's output is written to ``px4.log`` in the working directory, which is kept
   when asked (a failed test) and removed otherwise.
 
@@ -40,6 +44,7 @@ from pathlib import Path
 from typing import IO
 
 __all__ = [
+    "DEFAULT_PARAMS",
     "PX4_SITL_DIR_ENV",
     "Px4Build",
     "Px4BuildError",
@@ -52,6 +57,10 @@ __all__ = [
 
 PX4_SITL_DIR_ENV = "PX4_SITL_DIR"
 """Environment variable naming the PX4 SITL build directory."""
+DEFAULT_PARAMS: dict[str, float] = {"SIM_BAT_MIN_PCT": 100.0}
+"""Parameters every start sets unless the caller gives them: PX4's simulated battery held
+full (its thrust does not follow it; see the module docstring)."""
+
 _INSTANCES = range(10)
 _CLAIMS: dict[int, IO[bytes]] = {}
 """Instance -> the open lock file holding this process's claim on it."""
@@ -274,7 +283,7 @@ class Px4Sitl:
         self.autostart = autostart
         self.simulator = simulator
         self.model = model
-        self.params = dict(params or {})
+        self.params = {**DEFAULT_PARAMS, **(params or {})}
         self.extra_env = dict(env or {})
         self._requested_ports = ports
         self.ports: Px4Ports | None = None

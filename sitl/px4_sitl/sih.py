@@ -39,7 +39,7 @@ def sih_parameters(scenario: Scenario, joints_rad: tuple[float, float] | None = 
 
     Raises :class:`SihMismatchError` when the rotors' thrust curve is not linear
     (``vehicle.rotors.thr_mdl_fac`` > 0): SIH's motors are; and when the scenario has a
-    ``plant.battery_sag`` or a ``plant.wind_m_s``, which SIH does not model.
+    ``plant.battery`` or a ``plant.wind_m_s``, which SIH does not model.
     """
     rotors = scenario.vehicle.rotors
     if rotors.thr_mdl_fac > 0.0:
@@ -47,9 +47,9 @@ def sih_parameters(scenario: Scenario, joints_rad: tuple[float, float] | None = 
             f"{scenario.name}: vehicle.rotors.thr_mdl_fac = {rotors.thr_mdl_fac:g}, but SIH "
             "motors are linear in the command: use a scenario with thr_mdl_fac = 0"
         )
-    if scenario.plant.battery_sag is not None:
+    if scenario.plant.battery is not None:
         raise SihMismatchError(
-            f"{scenario.name}: plant.battery_sag is a truth model of sitl's own plants; SIH's "
+            f"{scenario.name}: plant.battery is a truth model of sitl's own plants; SIH's "
             "thrust is PX4's: remove the section to fly SIH"
         )
     if any(scenario.plant.wind_m_s):

@@ -267,6 +267,7 @@ class Navigation:
             if self._noise and self._omega is not None
             else np.array(state.omega_body_rad_s)
         )
+        battery = world.battery
         self._last = VehicleMeasurement(
             time_s=state.time_s,
             position_enu_m=position,
@@ -275,8 +276,9 @@ class Navigation:
             omega_flu_rad_s=omega,
             specific_force_flu_m_s2=world.specific_force_flu_m_s2(),
             on_ground=world.on_ground,
-            battery_voltage_v=world.battery.voltage_v,
-            battery_remaining=world.battery.remaining,
+            battery_voltage_v=battery.voltage_v,
+            battery_current_a=battery.current_a,
+            battery_remaining=battery.remaining,
             estimate_time_us=output_us,
             estimator=self.report,
         )

@@ -609,7 +609,8 @@ class SitlVehicle:
 def truth_record(world: World, armed: bool, mode: str | None) -> dict:
     """One truth-log line (JSON object) of the world now: q, q_dot, the autopilot's arming
     state and mode name (``None`` while unknown), ground contact, payload, object
-    position, gripper angle, joint torques, true theta, battery voltage."""
+    position, gripper angle, joint torques, true theta, battery voltage and current, and
+    the true thrust scale (thrust per command over the believed rotors')."""
     truth = world.truth()
     state = truth.plant
     obj = truth.object_position_m
@@ -626,6 +627,8 @@ def truth_record(world: World, armed: bool, mode: str | None) -> dict:
         "joint_torques_n_m": truth.joint_torques_n_m.tolist(),
         "true_theta": list(truth.true_theta),
         "battery_v": round(world.battery.voltage_v, 3),
+        "battery_a": round(world.battery.current_a, 3),
+        "thrust_scale": world.plant.thrust_per_command if world.plant.flies_rotors else 1.0,
     }
 
 

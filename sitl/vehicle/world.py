@@ -41,8 +41,9 @@ Simplifications, all stated here:
   nothing whatever the distance (the object slides away); ``payload_slip_after_s`` makes a
   grasped object slip out that long after the grasp: it falls straight down to its resting
   height and the jaws close on nothing.
-- Battery: voltage falls linearly from full to empty with the charge drawn, the current
-  being proportional to the total rotor thrust.
+- Battery: the plant's (``plant.battery``, :mod:`sitl.physics.battery`), whose voltage the
+  rotors' thrust follows; without one an ideal supply at the reference voltage of a 4S
+  pack (:data:`IDEAL_SUPPLY`), its current unknown.
 """
 
 from __future__ import annotations
@@ -57,18 +58,23 @@ from numpy.typing import ArrayLike, NDArray
 from arm_driver.joint import GripperConfig, JointConfig
 from companion.coordinates import ETA1, ETA2, JOINTS, POSITION, PSI, X, Y, Z
 from sitl.physics import AttitudeSetpoint, PlantState
+from sitl.physics.battery import REFERENCE_CELL_V, BatteryReading
 from sitl.physics.frames import quaternion_from_euler
 from sitl.servo import ServoJoint
 
 __all__ = [
     "CLEAR_M",
+    "IDEAL_SUPPLY",
     "LIFT_SPAN_M",
-    "Battery",
     "GripperJaw",
     "World",
     "WorldSettings",
     "WorldTruth",
 ]
+
+IDEAL_SUPPLY = BatteryReading(4 * REFERENCE_CELL_V, -1.0, 1.0)
+"""The battery reading of a plant without ``plant.battery``: a 4S pack at the reference
+voltage [V], current unknown (-1 A, as MAVLink says), full."""
 
 JAWS_INSIDE_TIP_M = 0.02
 """Where the jaws hold an object when ``jaw_point_m`` is not given: this far inside link
@@ -218,49 +224,6 @@ class GripperJaw:
             self.rate_rad_s = 0.0
 
 
-class Battery:
-    """Linear battery: voltage from full to empty with the charge drawn.
-
-    Parameters
-    ----------
-    capacity_ah
-        Usable charge [A h].
-    full_v, empty_v
-        Pack voltage full and empty [V] (4S LiPo by default).
-    amps_per_newton
-        Current drawn per newton of total rotor thrust [A/N].
-    """
-
-    def __init__(
-        self,
-        capacity_ah: float = 5.0,
-        full_v: float = 16.8,
-        empty_v: float = 14.0,
-        amps_per_newton: float = 0.8,
-    ) -> None:
-        self.capacity_ah = capacity_ah
-        self.full_v = full_v
-        self.empty_v = empty_v
-        self.amps_per_newton = amps_per_newton
-        self.used_ah = 0.0
-        self.current_a = 0.0
-
-    @property
-    def remaining(self) -> float:
-        """Remaining charge, 0 to 1."""
-        return max(0.0, 1.0 - self.used_ah / self.capacity_ah)
-
-    @property
-    def voltage_v(self) -> float:
-        """Pack voltage [V]."""
-        return self.empty_v + (self.full_v - self.empty_v) * self.remaining
-
-    def draw(self, total_thrust_n: float, dt_s: float) -> None:
-        """Discharge for ``dt_s`` [s] at the current of ``total_thrust_n`` [N]."""
-        self.current_a = self.amps_per_newton * total_thrust_n
-        self.used_ah += self.current_a * dt_s / 3600.0
-
-
 @dataclass(frozen=True)
 class WorldTruth:
     """Ground truth of one instant, for the truth log and tests (never sent on MAVLink)."""
@@ -317,7 +280,6 @@ class World:
             if gripper
             else None
         )
-        self.battery = Battery()
         self.dt_s = 1.0 / plant.rate_hz
         scenario = plant.scenario
         self._mount = np.array(scenario.arm.mount_point_m, dtype=np.float64)
@@ -394,11 +356,17 @@ class World:
             servo.step(dt)
         if self._gripper_servo is not None:
             self._gripper_servo.step(dt)
-        self.battery.draw(self.plant.total_thrust_n, dt)
         state = self._ground_contact(state, etas, eta_rates)
         self._state = state
         self._update_payload()
         return state
+
+    @property
+    def battery(self) -> BatteryReading:
+        """The battery's voltage, current and charge now (the plant's, or
+        :data:`IDEAL_SUPPLY`)."""
+        reading = self.plant.battery if self.plant.flies_rotors else None
+        return IDEAL_SUPPLY if reading is None else reading
 
     def _ground_contact(
         self, state: PlantState, etas: list[float], eta_rates: list[float]

@@ -66,6 +66,7 @@ from sitl.physics.attitude_control import (
     AttitudeLoopParams,
     Px4AttitudeLoop,
 )
+from sitl.physics.battery import LipoPack
 from sitl.physics.errors import PlantDivergedError, PlantError, PlantModeError
 from sitl.physics.frames import (
     euler_from_rotation9,
@@ -160,7 +161,8 @@ class JsbsimPlant(RotorPlant):
             self.dt_s,
         )
         self._max_thrust_n = self._rotors.max_thrust_n
-        self._sag = scenario.plant.battery_sag
+        self._thrust_mismatch = scenario.plant.thrust_mismatch
+        self._battery = LipoPack.of(scenario.plant.battery)
         mixer = SequentialDesaturationMixer(geometry, rotors.max_thrust_per_rotor_n)
         self._autopilot = Px4AttitudeLoop.from_params(
             AttitudeLoopParams.from_config(scenario.plant.attitude_control, rotors.thr_mdl_fac),
@@ -340,9 +342,7 @@ class JsbsimPlant(RotorPlant):
     ) -> None:
         """One JSBSim step with the rotors' thrusts after their lag moved toward
         ``motor_commands``, the arm stepped alongside; records the actuator signals."""
-        if self._sag is not None:
-            # battery sag: the thrust the next commands produce (truth only)
-            self._rotors.max_thrust_n = self._max_thrust_n * self._sag.scale(self.time_s)
+        self._feed_rotors()
         thrusts = self._rotors.thrust_list_n  # acting over this step (written last step)
         self._rotors.advance(motor_commands)
         self._set_rotor_forces(self._rotors.thrust_list_n)
