@@ -72,8 +72,8 @@ def write_spec(tmp_path: Path, body: str, name: str = "spec.toml") -> Path:
             ),
         ),
         (
-            '[set]\n"plant.battery_sag.thrust_los" = 0.1\n',
-            ("did you mean 'plant.battery_sag.thrust_loss'",),
+            '[set]\n"plant.battery.start_charg" = 0.5\n',
+            ("did you mean 'plant.battery.start_charge'",),
         ),
         (
             '[axes]\n"world.payload_position_m[0].x" = { values = [1.0] }\n',
@@ -217,11 +217,17 @@ def test_the_shipped_specs_expand_to_their_flights_in_pairs_with_stable_ids():
             assert len({(f.seed, f.settings, f.place_at_m) for f in pair}) == 1
     envelope = expand(load_spec(CAMPAIGNS / "envelope.toml"), CAMPAIGNS / "envelope.toml")
     masses = [dict(f.settings)["payload.mass_kg"] for f in envelope]
-    assert 0.10 <= min(masses) < 0.11 and 0.44 < max(masses) <= 0.45
-    # The PX4 sample: 20 adaptive flights on PX4 over the envelope's own axes.
+    assert 0.08 <= min(masses) < 0.09 and 0.47 < max(masses) <= 0.48
+    # The envelope's guard in the suite: 32 adaptive draws over the envelope's own axes.
+    axes = load_spec(CAMPAIGNS / "envelope.toml").axes
+    guard = load_spec(CAMPAIGNS / "envelope_sample.toml")
+    assert guard.axes == axes and guard.controllers == ("passivity",)
+    assert len(expand(guard, CAMPAIGNS / "envelope_sample.toml")) == 32
+    # The PX4 sample: 20 adaptive flights on PX4 over the envelope's axes but the battery
+    # (PX4 reports its own, held full).
     sample_path = CAMPAIGNS / "envelope_px4.toml"
     sample = load_spec(sample_path)
-    assert sample.axes == load_spec(CAMPAIGNS / "envelope.toml").axes
+    assert sample.axes == {k: v for k, v in axes.items() if not k.startswith("plant.battery")}
     flights = expand(sample, sample_path)
     assert len(flights) == 20 and {(f.autopilot, f.controller) for f in flights} == {
         ("px4", "passivity")
@@ -249,10 +255,10 @@ def test_the_replay_scenario_file_is_the_scenario_each_flight_flew(tmp_path):
 [design]
 samples = 3
 [set]
-"plant.battery_sag.over_s" = 80.0
+"plant.battery.capacity_ah" = 4.0
 [axes]
 "payload.mass_kg" = { range = [0.10, 0.45] }
-"plant.battery_sag.thrust_loss" = { range = [0.0, 0.15] }
+"plant.battery.start_charge" = { range = [0.3, 1.0] }
 "world.payload_position_m[1]" = { values = [0, 1] }
 "plant.wind_m_s[0]" = { range = [-3.0, 3.0] }
 [[faults]]
@@ -269,7 +275,7 @@ after_grasp_s = 2.5
         flown = scenario_of(flight, scenario_document(flight, base))
         assert load_scenario(path) == flown
         assert flown.world is not None and flown.world.payload_slip is not None
-        assert flown.plant.battery_sag is not None and flown.plant.battery_sag.over_s == 80.0
+        assert flown.plant.battery is not None and flown.plant.battery.capacity_ah == 4.0
         east, north, up = flown.plant.wind_m_s
         assert -3.0 <= east <= 3.0 and east != 0.0 and north == up == 0.0
         assert east == dict(flight.settings)["plant.wind_m_s[0]"]

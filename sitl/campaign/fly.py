@@ -107,6 +107,7 @@ def flight_row(
         "failure": None if failure is None else f"{type(failure).__name__}: {failure}",
         "true_mass_kg": scenario.payload.mass_kg,
         "mass_kg": report.payload_mass_kg,
+        "mass_std_kg": report.payload_mass_std_kg,
         "mass_error_pct": _percent(report.payload_mass_kg, scenario.payload.mass_kg),
         "true_com_m": scenario.payload.position_m,
         "com_m": report.payload_com_m,

@@ -2,13 +2,13 @@
 that opens offline (its figures embedded as base64 PNGs), and the PNGs beside it.
 
 It shows the envelope maps (the mass and centre-of-mass errors of the payload estimate
-over the payload's mass and its point on link 2), the outcome over the thrust scale and
-the battery sag, a percentile table (p50, p95, max of each figure, per controller and
-autopilot: :func:`flown_by`), the paired comparison of the adaptive controller against
-each baseline flown beside it (the non-adaptive law, PX4's own position control, ASMC: the
-same draws, seeds and faults), and every flight that did not complete with the command
-that replays it alone; with the spec's bounds, every completed flight outside them, with its
-replay command too.
+over the payload's mass and its point on link 2), each bounded figure against every axis
+of the campaign (with the bound and the flights that did not complete), a percentile
+table (p50, p95, max of each figure, per controller and autopilot: :func:`flown_by`), the
+paired comparison of the adaptive controller against each baseline flown beside it (the
+non-adaptive law, PX4's own position control, ASMC: the same draws, seeds and faults), and
+every flight that did not complete with the command that replays it alone; with the spec's
+bounds, every completed flight outside them, with its replay command too.
 """
 
 from __future__ import annotations
@@ -52,7 +52,6 @@ METRICS: tuple[tuple[str, str, Callable[[float], float]], ...] = (
 """Figures of the percentile table: column, label, conversion."""
 
 MASS, COM = "payload.mass_kg", "payload.position_m"
-THRUST, SAG = "plant.thrust_mismatch", "plant.battery_sag.thrust_loss"
 
 
 def _values(rows: Sequence[Row], column: str, convert: Callable[[float], float]) -> np.ndarray:
@@ -123,31 +122,75 @@ def _envelope(rows: Sequence[Row], axes: Sequence[str], out_dir: Path, plt: Any)
     return uri
 
 
-def _outcomes(rows: Sequence[Row], axes: Sequence[str], out_dir: Path, plt: Any) -> str | None:
-    present = [a for a in (THRUST, SAG) if a in axes]
-    if not present:
-        return None
+AXIS_FIGURES: tuple[tuple[str, str, float], ...] = (
+    ("mass_error_pct", "mass error [%]", 1.0),
+    ("com_error_pct", "CoM error [%]", 1.0),
+    ("placement_error_m", "placement error [cm]", 100.0),
+    ("carry_rms_m", "carry RMS [cm]", 100.0),
+)
+"""The figures drawn against every axis (:func:`_by_axis`): column, label, scale to it."""
+
+
+def _by_axis(
+    rows: Sequence[Row],
+    axes: Sequence[str],
+    spec: CampaignSpec | None,
+    out_dir: Path,
+    plt: Any,
+) -> list[tuple[str, str]]:
+    """For each of :data:`AXIS_FIGURES`, one figure: that figure of every completed flight
+    (one colour per controller) against each axis of the campaign, the spec's bound drawn
+    where it has one, and the flights that did not complete marked on the axis (so that a
+    regression along one axis shows at a glance). Returns (label, data URI) pairs."""
+    numeric = [a for a in axes if any(isinstance(r.get(a), int | float) for r in rows)]
+    if not numeric:
+        return []
     controllers = sorted({flown_by(r) for r in rows})
-    fig, panels = plt.subplots(
-        1, len(controllers), figsize=(5.5 * len(controllers), 4.2), layout="constrained"
+    colours = dict(
+        zip(controllers, ("tab:blue", "tab:orange", "tab:green", "tab:purple"), strict=False)
     )
-    panels = np.atleast_1d(panels)
-    for ax, controller in zip(panels, controllers, strict=True):
-        for ok, style, label in ((True, "o", "completed"), (False, "x", "did not complete")):
-            chosen = [
-                r for r in rows if flown_by(r) == controller and bool(r.get("completed")) == ok
-            ]
-            x = [r[present[0]] for r in chosen]
-            y = [r[present[1]] if len(present) > 1 else r.get("carry_rms_m") for r in chosen]
-            ax.scatter(x, y, marker=style, c="tab:green" if ok else "tab:red", label=label, s=30)
-        ax.set_xlabel("thrust scale (true / believed)" if present[0] == THRUST else "battery sag")
-        ax.set_ylabel("battery sag (thrust lost)" if len(present) > 1 else "carry RMS [m]")
-        ax.set_title(f"{controller}: outcome")
-        ax.grid(alpha=0.3)
-        ax.legend(loc="best", fontsize=8)
-    uri = _png(fig, out_dir, "outcomes")
-    plt.close(fig)
-    return uri
+    bounds: dict[str, float] = {}
+    if spec is not None:
+        bounds.update(spec.bounds.get("passivity", {}).items())
+    columns = min(len(numeric), 5)
+    lines = math.ceil(len(numeric) / columns)
+    figures = []
+    for column, label, scale in AXIS_FIGURES:
+        if not any(r.get(column) is not None for r in rows):
+            continue
+        fig, panels = plt.subplots(
+            lines, columns, figsize=(2.9 * columns, 2.4 * lines), layout="constrained",
+            squeeze=False,
+        )  # fmt: skip
+        for ax, axis in zip(panels.flat, numeric, strict=False):
+            for controller in controllers:
+                mine = [r for r in rows if flown_by(r) == controller]
+                done = [r for r in mine if r.get("completed") and r.get(column) is not None]
+                ax.scatter(
+                    [r[axis] for r in done], [scale * float(r[column]) for r in done],
+                    s=9, c=colours.get(controller, "k"), label=controller,
+                )  # fmt: skip
+                missed = [r for r in mine if not r.get("completed") and r.get(axis) is not None]
+                if missed:
+                    ax.scatter(
+                        [r[axis] for r in missed], [0.0] * len(missed), marker="x", s=22,
+                        c="tab:red", label=f"{controller}: not completed",
+                    )  # fmt: skip
+            bound = bounds.get(column)
+            if bound is not None:
+                for sign in (1.0, -1.0) if column.endswith("_pct") else (1.0,):
+                    ax.axhline(sign * scale * bound, color="k", lw=0.8, ls="--")
+            ax.set_xlabel(axis, fontsize=7)
+            ax.tick_params(labelsize=7)
+            ax.grid(alpha=0.3)
+        for ax in panels.flat[len(numeric) :]:
+            ax.set_visible(False)
+        panels.flat[0].set_ylabel(label, fontsize=8)
+        panels.flat[0].legend(fontsize=6, loc="best")
+        fig.suptitle(f"{label} against each axis (dashed: the bound)", fontsize=9)
+        figures.append((label, _png(fig, out_dir, f"by_axis_{column}")))
+        plt.close(fig)
+    return figures
 
 
 BASELINES = {
@@ -283,7 +326,8 @@ def _failed(rows: Sequence[Row], axes: Sequence[str]) -> str:
 
 _STYLE = """
 body { font-family: sans-serif; margin: 2em; max-width: 1200px; }
-table { border-collapse: collapse; margin: 1em 0; font-size: 0.9em; }
+table { border-collapse: collapse; margin: 1em 0; font-size: 0.9em; display: block;
+        max-width: 100%; overflow-x: auto; }
 th, td { border: 1px solid #bbb; padding: 3px 8px; text-align: right; vertical-align: top; }
 th { background: #eee; }
 code { font-size: 0.85em; word-break: break-all; }
@@ -352,9 +396,8 @@ def write_report(
     envelope = _envelope(rows, axes, out_dir, plt)
     if envelope:
         parts += ["<h2>Envelope: the payload estimate</h2>", f"<img src='{envelope}'>"]
-    outcomes = _outcomes(rows, axes, out_dir, plt)
-    if outcomes:
-        parts += ["<h2>Outcome over thrust scale and battery sag</h2>", f"<img src='{outcomes}'>"]
+    for label, uri in _by_axis(rows, axes, spec, out_dir, plt):
+        parts += [f"<h2>{html.escape(label)} against each axis</h2>", f"<img src='{uri}'>"]
     parts.append("<h2>Percentiles (completed flights)</h2>")
     parts.append(
         "<table><tr><th>controller</th><th>figure</th><th>n</th><th>p50</th><th>p95</th><th>max</th></tr>"

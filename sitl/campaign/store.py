@@ -60,6 +60,7 @@ COLUMNS: tuple[tuple[str, str], ...] = (
     ("failure", "TEXT"),
     ("true_mass_kg", "REAL"),
     ("mass_kg", "REAL"),
+    ("mass_std_kg", "REAL"),
     ("mass_error_pct", "REAL"),
     ("true_com_m", "REAL"),
     ("com_m", "REAL"),
