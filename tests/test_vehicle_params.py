@@ -44,6 +44,24 @@ def test_another_rotor_count_is_refused():
     assert "CA_ROTOR_COUNT is 4" in problem
 
 
+def test_px4s_battery_scaling_beside_the_companions_is_refused():
+    """Both compensating the battery's voltage would count it twice: with MC_BAT_SCALE_EN
+    = 1 the companion's thrust scale, carried with the voltage, would fall while PX4 made
+    the thrust per command steady. Refused while the config carries it (window_s > 0);
+    with PX4's scaling off, or the companion's, nothing to say."""
+    (problem,) = contradictions(params(MC_BAT_SCALE_EN=1), PICKUP)
+    assert "MC_BAT_SCALE_EN = 1" in problem and "window_s" in problem and "\n" not in problem
+    assert contradictions(params(MC_BAT_SCALE_EN=0), PICKUP) == []
+    held = PICKUP.estimator.thrust_scale.model_copy(update={"window_s": 0.0})  # type: ignore[union-attr]
+    estimator = PICKUP.estimator.model_copy(update={"thrust_scale": held})
+    assert (
+        contradictions(
+            params(MC_BAT_SCALE_EN=1), PICKUP.model_copy(update={"estimator": estimator})
+        )
+        == []
+    )
+
+
 def test_optional_parameters_may_be_missing_required_ones_not():
     p = VehicleParams.from_values({"THR_MDL_FAC": 0.0, "MPC_THR_MIN": 0.12})
     assert p.rotor_count is None and contradictions(p, SIH) == []

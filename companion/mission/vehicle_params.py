@@ -18,6 +18,10 @@ MC_*RATE_P,    PX4's roll and pitch rate PI, its gain K and integrator limits: w
 _I, _K,        ``[controller.attitude_feedforward]`` the companion inverts PX4's tilt loop
 MC_RR_INT_LIM, (:mod:`companion.control.attitude_feedforward`), so these and MC_ROLL_P, MC_PITCH_P
 MC_PR_INT_LIM  must be the config's (checked only then)
+MC_BAT_SCALE_EN PX4 scales its thrust and torque setpoints up as the battery's voltage
+               falls; the companion carries the thrust scale with the voltage itself
+               (``[estimator.thrust_scale] window_s``), so the two must not both
+               compensate: refused while the companion does
 ============== ========================================================================
 """
 
@@ -37,7 +41,10 @@ ATTITUDE_LOOP = (
     *("MC_ROLLRATE_K", "MC_PITCHRATE_K", "MC_RR_INT_LIM", "MC_PR_INT_LIM"),
 )
 """PX4's roll and pitch rate loop, which the attitude feed-forward models."""
-OPTIONAL = ("CA_ROTOR_COUNT", "COM_OF_LOSS_T", "MC_ROLL_P", "MC_PITCH_P", *ATTITUDE_LOOP)
+OPTIONAL = (
+    *("CA_ROTOR_COUNT", "COM_OF_LOSS_T", "MC_ROLL_P", "MC_PITCH_P", "MC_BAT_SCALE_EN"),
+    *ATTITUDE_LOOP,
+)
 """Parameters checked or reported when the vehicle has them (older PX4 has no CA_*)."""
 GAIN_TOLERANCE = 0.02
 """Largest relative difference between a PX4 gain and the config's model of it [-]."""
@@ -58,6 +65,8 @@ class VehicleParams:
     pitch_p: float | None = None
     attitude_loop: dict[str, float] = field(default_factory=dict)
     """The :data:`ATTITUDE_LOOP` parameters the vehicle answered, by name."""
+    battery_scaling: bool | None = None
+    """MC_BAT_SCALE_EN: PX4 scales its setpoints with the battery's voltage."""
 
     @classmethod
     def from_values(cls, values: dict[str, float | None]) -> VehicleParams:
@@ -68,6 +77,7 @@ class VehicleParams:
         if missing:
             raise KeyError(", ".join(missing))
         count = values.get("CA_ROTOR_COUNT")
+        scaling = values.get("MC_BAT_SCALE_EN")
         return cls(
             thr_mdl_fac=float(required["THR_MDL_FAC"]),  # type: ignore[arg-type]
             thrust_min_relative=float(required["MPC_THR_MIN"]),  # type: ignore[arg-type]
@@ -80,6 +90,7 @@ class VehicleParams:
                 for name in ATTITUDE_LOOP
                 if (value := values.get(name)) is not None
             },
+            battery_scaling=None if scaling is None else scaling != 0.0,
         )
 
     def describe(self) -> str:
@@ -114,6 +125,14 @@ def contradictions(params: VehicleParams, scenario: CompanionConfig) -> list[str
         )
     if not 0.0 <= params.thrust_min_relative < 1.0:
         out.append(f"the vehicle's MPC_THR_MIN {params.thrust_min_relative:g} is not in [0, 1)")
+    scale = scenario.estimator.thrust_scale
+    if params.battery_scaling and scale is not None and scale.window_s > 0.0:
+        out.append(
+            "the vehicle scales its thrust with the battery's voltage (MC_BAT_SCALE_EN = 1), "
+            "and so does the companion ([estimator.thrust_scale] window_s carries the thrust "
+            "scale with the voltage it reports): set MC_BAT_SCALE_EN to 0 on the vehicle, or "
+            "window_s to 0 in the config to hold the thrust scale from the grasp"
+        )
     feedforward = scenario.controller.attitude_feedforward
     if feedforward is not None:
         out.extend(_attitude_loop_contradictions(params, feedforward))

@@ -117,7 +117,8 @@ _SPECS = (
     ParamSpec("MC_AIRMODE", "INT32", 0, 0, 2, "",
               "Airmode (informative: the mixer implements 0, disabled)"),
     ParamSpec("MC_BAT_SCALE_EN", "INT32", 0, 0, 1, "",
-              "Battery thrust scaling (informative: not implemented, as 0)"),
+              "Battery thrust scaling (informative: not modelled, flown as 0; the companion "
+              "refuses 1, carrying the thrust scale with the voltage itself)"),
     ParamSpec("MC_PITCHRATE_D", "REAL32", 0.003, 0.0, _INF, "", "Pitch rate D gain"),
     ParamSpec("MC_PITCHRATE_I", "REAL32", 0.2, 0.0, _INF, "", "Pitch rate I gain"),
     ParamSpec("MC_PITCHRATE_K", "REAL32", 1.0, 0.01, 5.0, "",
