@@ -20,6 +20,8 @@ import sys
 from collections import Counter
 from pathlib import Path
 
+import numpy as np
+
 from sitl.campaign.report import BASELINES, flown_by, paired_flights, percentile_rows
 from sitl.campaign.spec import load_spec
 
@@ -104,12 +106,55 @@ def page(rows: list[dict], commit: str, machine: str, name: str) -> str:
                 f"{len(ratios)} pairs at most 0.5, {lower} below 1 (median "
                 f"{statistics.median(ratios):.2f})."
             )
+    lines += _payload_figures(rows)
     starts = [r["finished_unix_s"] - r["wall_s"] for r in rows if r.get("wall_s") is not None]
     ends = [r["finished_unix_s"] for r in rows if r.get("finished_unix_s") is not None]
     if starts and ends:
         minutes = (max(ends) - min(starts)) / 60.0
         lines.append(f"Wall time, first flight's start to last flight's end: {minutes:.1f} min.")
     return "\n".join(lines) + "\n"
+
+
+def _payload_figures(rows: list[dict]) -> list[str]:
+    """The adaptive controller's payload estimate as the envelope's acceptance reads it:
+    the CoM error against max(5 %, 3 mm), the reported standard deviation's coverage, the
+    mass error by the battery's charge at take-off, and the flights' simulated length."""
+    done = [r for r in rows if r["controller"] == "passivity" and r.get("completed")]
+    if not done or any(r.get("com_m") is None for r in done):
+        return []
+    com = [abs(r["com_m"] - r["true_com_m"]) / max(0.05 * r["true_com_m"], 0.003) for r in done]
+    out = ["", f"Adaptive, completed ({len(done)} flights):", ""]
+    out.append(
+        f"- p95 of |CoM error| / max(5 %, 3 mm): {float(np.percentile(com, 95)):.3g} "
+        "(numpy's default percentile; at most 1 is within the bound)."
+    )
+    with_std = [r for r in done if r.get("mass_std_kg") is not None]
+    if with_std:
+        within = sum(
+            1 for r in with_std if abs(r["mass_kg"] - r["true_mass_kg"]) <= 2 * r["mass_std_kg"]
+        )
+        stds = [1e3 * r["mass_std_kg"] for r in with_std]
+        out.append(
+            f"- The true payload mass within 2 reported standard deviations "
+            f"(`payload_mass_std_kg`, the thrust scale's uncertainty in it): {within} of "
+            f"{len(with_std)} ({100 * within / len(with_std):.0f} %); the standard deviation "
+            f"{min(stds):.1f}-{max(stds):.1f} g, median {statistics.median(stds):.1f} g."
+        )
+    charge = "plant.battery.start_charge"
+    if all(r.get(charge) is not None for r in done):
+        parts = []
+        for low, high in ((0.3, 0.5), (0.5, 0.75), (0.75, 1.0001)):
+            bin_ = [abs(r["mass_error_pct"]) for r in done if low <= r[charge] < high]
+            if bin_:
+                parts.append(
+                    f"{100 * low:.0f}-{min(100 * high, 100):.0f} %: p95 "
+                    f"{float(np.percentile(bin_, 95)):.2f} % over {len(bin_)}"
+                )
+        out.append("- |mass error| by the battery's charge at take-off: " + "; ".join(parts) + ".")
+    sim = [r["sim_s"] for r in done if r.get("sim_s") is not None]
+    if sim:
+        out.append(f"- Simulated flight time {min(sim):.0f}-{max(sim):.0f} s.")
+    return out
 
 
 def main() -> None:

@@ -182,6 +182,9 @@ def test_a_sagging_battery_is_followed_and_the_payload_learnt_as_on_a_fresh_one(
     assert summary["payload_mass_kg"] == pytest.approx(TRUE_MASS_KG, rel=0.03)
     assert summary["payload_com_along_link2_m"] == pytest.approx(TRUE_COM_M, rel=0.05)
     assert abs(summary["payload_mass_kg"] - TRUE_MASS_KG) <= 2.0 * summary["payload_mass_std_kg"]
+    carried_with = summary["thrust_scale"]
+    assert carried_with["voltage_v"] < carried_with["calibration_v"]  # drained meanwhile
+    assert 0.0 < carried_with["relative_std"] < 0.05
     c = read_flight_log(tmp_path / "flight.csv").columns
     t_truth = np.array([r["t_s"] for r in truth])
     s_truth = np.array([r["thrust_scale"] for r in truth])

@@ -314,6 +314,20 @@ class FlightControl:
         if self.supply_scale is not None:
             self.supply_scale.supply(voltage_v)
 
+    def supply_summary(self) -> dict[str, float | None] | None:
+        """The thrust scale carried with the battery now, for the summary: ``value`` s,
+        ``relative_std`` sd(s)/s, ``calibration_v`` V_cal and ``voltage_v`` V (None: no
+        voltage) [V]; None before it is fitted, or without one."""
+        supply = self.supply_scale
+        if supply is None or supply.level is None:
+            return None
+        return {
+            "value": supply.scale(),
+            "relative_std": supply.relative_std(),
+            "calibration_v": supply.calibration_v,
+            "voltage_v": supply.voltage_v,
+        }
+
     def payload_mass_std_kg(self) -> float | None:
         """Standard deviation of m2 [kg] with the thrust scale's in it: the estimator's own
         (RLS covariance; 0 for the paper observer, which has none) and, with s carried by

@@ -637,6 +637,7 @@ class ControlCycle:
         self.report.theta_hat = [float(v) for v in theta]
         self.report.payload_mass_kg = mass = self._payload_kg(out)
         self.report.payload_mass_std_kg = self.control.payload_mass_std_kg()
+        self.report.thrust_scale = self.control.supply_summary()
         # Payload CoM along link 2: (m3 - m3_empty) / (m2 - m2_empty), a point mass.
         self.report.payload_com_m = (
             (float(theta[1]) - empty.m3_kg_m) / mass if mass > 1e-6 else None

@@ -39,6 +39,10 @@ class MissionReport:
     payload_mass_std_kg: float | None = None
     """Standard deviation of the payload's mass [kg], the thrust scale's in it (None
     without a fitted thrust scale)."""
+    thrust_scale: dict[str, float | None] | None = None
+    """The thrust scale carried with the battery (:meth:`~companion.control.flight
+    .FlightControl.supply_summary`): its value, relative standard deviation, the
+    calibration's voltage and the voltage now; None without one."""
     payload_com_m: float | None = None
     theta_hat: list[float] | None = None
     confident: bool = False
@@ -101,6 +105,7 @@ class MissionReport:
             "payload_mass_kg": self.payload_mass_kg,
             "payload_mass_std_kg": self.payload_mass_std_kg,
             "payload_com_along_link2_m": self.payload_com_m,
+            "thrust_scale": self.thrust_scale,
             "theta_hat": self.theta_hat,
             "estimate_confident": self.confident,
             "position_rms_with_payload_m": self.position_rms_with_payload_m,
