@@ -21,8 +21,9 @@ from __future__ import annotations
 import difflib
 import tomllib
 import typing
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, ValidationError
 from pydantic_core import ErrorDetails
@@ -30,9 +31,11 @@ from pydantic_core import ErrorDetails
 from arm_driver.joint import GripperConfig, JointConfig
 from arm_driver.url import parse_bus_url
 from companion.coordinates import N_Q
+from companion.user_files import SMALL_FILE_LIMIT_BYTES, UserFileError, read_small_file
 
 __all__ = [
     "SIMULATOR_SECTIONS",
+    "TOML_LIMIT_BYTES",
     "Arm",
     "ArmBusGripper",
     "ArmBusJoint",
@@ -52,6 +55,7 @@ __all__ = [
     "SlidingMode",
     "Theta",
     "ThrustScale",
+    "TomlDocument",
     "Vehicle",
     "arm_bus_configs",
     "check_companion",
@@ -59,6 +63,7 @@ __all__ = [
     "load_config",
     "parse_config",
     "read_toml",
+    "read_toml_document",
     "validate",
 ]
 
@@ -881,20 +886,54 @@ def validate(model: type[Model], data: dict, path: str) -> Model:
         raise ConfigError(path, *problems[0], *problems[1:]) from None
 
 
-def read_toml(path: str | Path) -> dict:
-    """A TOML file's document; :class:`ConfigError` if it cannot be read or parsed."""
+TOML_LIMIT_BYTES = SMALL_FILE_LIMIT_BYTES
+"""The largest TOML file read (configurations, scenarios, campaign specs) [bytes]: 1 MiB,
+a hundred times the largest shipped one. A larger file is refused by its size, unread."""
+
+
+@dataclass(frozen=True)
+class TomlDocument:
+    """A TOML file as read: its bytes, its text and its parsed document."""
+
+    path: Path
+    raw: bytes
+    text: str
+    data: dict[str, Any]
+
+
+def read_toml_document(path: str | Path) -> TomlDocument:
+    """A user's TOML file, read and parsed; :class:`ConfigError` (one line naming the file)
+    if it cannot be read or parsed.
+
+    Refused before anything is read (:mod:`companion.user_files`): a path that is not a
+    regular file (missing, a directory, a FIFO, a device, a socket, a loop of links) and a
+    file over :data:`TOML_LIMIT_BYTES`. Refused after: bytes that are not UTF-8, text that
+    is not TOML, and nesting deeper than the parser goes.
+    """
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(str(p), "", f"cannot read file ({exc.strerror or exc})") from None
+        raw = read_small_file(p, TOML_LIMIT_BYTES, "a TOML configuration, scenario or spec")
+    except UserFileError as exc:
+        raise ConfigError(str(p), "", exc.reason) from None
+    try:
+        text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         reason = f"not a UTF-8 text file ({exc.reason} at byte {exc.start})"
         raise ConfigError(str(p), "", reason) from None
     try:
-        return tomllib.loads(text)
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(str(p), "", f"invalid TOML: {exc}") from None
+    except RecursionError:
+        reason = "invalid TOML: arrays or tables nested too deeply to read"
+        raise ConfigError(str(p), "", reason) from None
+    return TomlDocument(p, raw, text, data)
+
+
+def read_toml(path: str | Path) -> dict:
+    """A TOML file's document (:func:`read_toml_document`); :class:`ConfigError` if it
+    cannot be read or parsed."""
+    return read_toml_document(path).data
 
 
 def parse_config(data: dict, path: str = "<string>") -> CompanionConfig:

@@ -236,8 +236,6 @@ class RunCommand:
         if self.signing_key is not None:
             try:
                 load_signing_key(self.signing_key)
-            except OSError as exc:
-                fail(f"--signing-key {self.signing_key}: cannot read: {exc.strerror or exc}")
             except SigningKeyError as exc:
                 fail(f"--signing-key {exc}")
 

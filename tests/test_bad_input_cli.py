@@ -7,7 +7,10 @@ nothing here starts a vehicle or a simulation.
 
 from __future__ import annotations
 
+import os
 import socket
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -124,6 +127,63 @@ def test_simulator_numbers_no_run_has_are_refused(tmp_path, no_simulation, old, 
     config = changed(tmp_path, PAPER, old, new)
     one_error(sitl("check", config), key, "must lie within")
     one_error(sitl("sim", "--scenario", config, "--out", tmp_path / "out"), key)
+    assert not (tmp_path / "out").exists()
+
+
+def nested(tmp_path: Path, depth: int = 600) -> Path:
+    """A 1.2 KB TOML of ``depth`` nested arrays: more than the parser's recursion takes."""
+    path = tmp_path / "nested.toml"
+    path.write_text("x = " + "[" * depth + "]" * depth + "\n")
+    return path
+
+
+def test_a_config_nested_too_deep_is_one_line(tmp_path):
+    config = nested(tmp_path)
+    for result in (companion("check", config), sitl("check", config)):
+        one_error(result, str(config), "nested too deeply")
+
+
+def test_a_config_over_the_size_limit_is_refused_unread(tmp_path, monkeypatch):
+    config = tmp_path / "big.toml"
+    config.write_text("# a comment\n" * 100_000)  # valid TOML, 1.1 MiB
+    opened = []
+    real_open = os.open
+    monkeypatch.setattr(os, "open", lambda path, *a: opened.append(path) or real_open(path, *a))
+    one_error(companion("check", config), str(config), "too large (1.1 MiB)", "at most 1.0 MiB")
+    assert str(config) not in map(str, opened)
+
+
+def _address_space_limit() -> None:  # in the child: a read without end stops at 2 GiB
+    import resource
+
+    resource.setrlimit(resource.RLIMIT_AS, (2 << 30, resource.RLIM_INFINITY))
+
+
+@pytest.mark.parametrize("scenario", ["/dev/zero", "fifo", "nested.toml"])
+def test_a_campaign_spec_whose_scenario_never_ends(tmp_path, scenario):
+    """In a subprocess with a timeout and a memory limit: the scenario was read whole (a
+    FIFO hung, /dev/zero filled the memory)."""
+    os.mkfifo(tmp_path / "fifo")
+    nested(tmp_path)
+    spec = changed(tmp_path, CONFIGS / "campaigns" / "smoke.toml", "../sitl_pickup.toml", scenario)
+    command = ["campaign", str(spec), "--out", str(tmp_path / "out")]
+    done = subprocess.run(
+        [sys.executable, "-c", "from sitl.entry import main; main()", *command],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        preexec_fn=_address_space_limit,
+    )
+    assert done.returncode == 2, done.stderr[-2000:]
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {spec}: scenario: "), lines
+    assert lines[0].endswith(
+        {
+            "/dev/zero": "cannot read: a character device, not a regular file",
+            "fifo": "cannot read: a named pipe (FIFO), not a regular file",
+            "nested.toml": "nested too deeply to read",
+        }[scenario]
+    )
     assert not (tmp_path / "out").exists()
 
 

@@ -406,7 +406,7 @@ def test_a_ulog_that_cannot_be_read_is_one_line(tmp_path, run_cli):
     mcap.write_bytes(b"not read before the ULog")
     garbage = tmp_path / "bad.ulg"
     garbage.write_bytes(b"ULog\x01\x12\x35" + bytes(range(256)) * 4)
-    for ulog, says in ((tmp_path / "none.ulg", "no such file"), (garbage, "not a readable ULog")):
+    for ulog, says in ((tmp_path / "none.ulg", "No such file"), (garbage, "not a readable ULog")):
         with pytest.raises(UlogError, match=says):
             add_ulog(mcap, ulog)
         done = run_cli("log", "add-ulog", str(mcap), str(ulog))

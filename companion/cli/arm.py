@@ -49,6 +49,7 @@ from companion.config import (
     ConfigError,
     arm_bus_configs,
     load_config,
+    read_toml_document,
 )
 from companion.model import ManipulatorModel
 
@@ -318,7 +319,8 @@ def calibrate(
         return
     note = f"companion arm calibrate, {datetime.date.today().isoformat()}"
     try:
-        text = with_joint_values(config.read_text(encoding="utf-8"), values, note, str(config))
+        original = read_toml_document(config).text
+        text = with_joint_values(original, values, note, str(config))
     except ConfigError as error:
         raise _fail(str(error).splitlines()[0]) from None
     partial = config.with_name(f".{config.name}.calibrate")

@@ -23,6 +23,7 @@ from pathlib import Path
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.link.errors import SigningKeyError
+from companion.user_files import UserFileError, read_small_file
 
 __all__ = [
     "SIGNING_KEY_BYTES",
@@ -33,6 +34,9 @@ __all__ = [
 ]
 
 SIGNING_KEY_BYTES = 32
+SIGNING_KEY_FILE_LIMIT_BYTES = 1024
+"""The largest key file read [bytes]: a key is 32 raw bytes or 64 hex digits."""
+_KEY_KIND = "a signing key file (32 raw bytes or 64 hex digits)"
 _EPOCH_2015_UNIX_S = 1_420_070_400
 _UNSIGNED_ALLOWED = frozenset({mavlink2.MAVLINK_MSG_ID_RADIO_STATUS})
 
@@ -41,9 +45,9 @@ def load_signing_key(path: str | Path) -> bytes:
     """Read a key file (32 raw bytes, or 64 hex digits); raises ``SigningKeyError``."""
     path = Path(path)
     try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise SigningKeyError(f"signing key {path}: cannot read: {exc.strerror}") from None
+        data = read_small_file(path, SIGNING_KEY_FILE_LIMIT_BYTES, _KEY_KIND)
+    except UserFileError as exc:
+        raise SigningKeyError(f"signing key {path}: {exc.reason}") from None
     if len(data) == SIGNING_KEY_BYTES:
         return data
     try:

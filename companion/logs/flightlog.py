@@ -68,17 +68,19 @@ fsyncs. A crash loses at most the last ``flush_every_rows`` rows.
 from __future__ import annotations
 
 import csv
-import io
 import math
 import os
 import time
-from collections.abc import Iterable, Sequence
+from array import array
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from companion.user_files import UserFileError, open_regular_file
 
 if TYPE_CHECKING:
     from companion.control.setpoints import AttitudeThrustSetpoint
@@ -426,23 +428,49 @@ class FlightLog:
         return len(self.columns["t_vehicle_s"])
 
 
-def _whole_rows(path: Path, data: bytes, warnings: list[str]) -> bytes:
-    """``data`` up to its last whole row: a row the writer finished ends with a newline;
-    a crash or a power cut leaves the last one cut (and on some file systems zeros after
-    it). The cut part is dropped and named in ``warnings``."""
-    kept = data.rstrip(b"\0")
-    if not kept or kept.endswith((b"\n", b"\r")):
-        return kept
-    end = kept.rfind(b"\n") + 1
-    if end == 0:
-        raise FlightLogError(
-            f"{path}: the header row is cut (the file ends after {len(kept)} bytes)"
-        )
-    line = kept.count(b"\n", 0, end) + 1
-    warnings.append(
-        f"{path}: line {line} is cut (a crash or a power cut?): read the whole rows before it"
-    )
-    return kept[:end]
+MAX_ROW_BYTES = 1 << 16
+"""The longest line read from a flight log [bytes]: a row of :data:`COLUMNS` is under
+2 KiB; a longer line is not a flight log's (and is not held in memory)."""
+
+
+def _only_zeros(f: BinaryIO) -> bool:
+    """Whether the rest of ``f`` is zero bytes (read in chunks, never whole)."""
+    while chunk := f.read(1 << 16):
+        if chunk.strip(b"\0"):
+            return False
+    return True
+
+
+def _whole_lines(f: BinaryIO, path: Path, warnings: list[str]) -> Iterator[str]:
+    """The lines of ``f`` (each with its line end), read one at a time, up to the last
+    whole row: a row the writer finished ends with a newline; a crash or a power cut leaves
+    the last one cut (and on some file systems zeros after it). The cut part is dropped
+    and named in ``warnings``."""
+    line_no = 0
+    while line := f.readline(MAX_ROW_BYTES + 1):
+        if not line.endswith(b"\n"):  # the file's end, or a line too long
+            kept = line.rstrip(b"\0")
+            if len(line) > MAX_ROW_BYTES and (len(kept) == len(line) or not _only_zeros(f)):
+                raise FlightLogError(
+                    f"{path}, line {line_no + 1}: longer than {MAX_ROW_BYTES} bytes: "
+                    "not a CSV flight log"
+                )
+            if kept and not kept.endswith(b"\r"):
+                if line_no == 0:
+                    raise FlightLogError(
+                        f"{path}: the header row is cut (the file ends after {len(kept)} bytes)"
+                    )
+                warnings.append(
+                    f"{path}: line {line_no + 1} is cut (a crash or a power cut?): read the "
+                    "whole rows before it"
+                )
+                return
+            line = kept
+        line_no += 1
+        try:
+            yield line.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise FlightLogError(f"{path}, line {line_no}: not a CSV flight log: {exc}") from None
 
 
 _ADDED_COLUMNS = ("thrust_scale_hat",)
@@ -452,18 +480,36 @@ _ADDED_COLUMNS = ("thrust_scale_hat",)
 def _read_csv(
     path: Path, expected: Sequence[str], text: Iterable[str], warnings: list[str]
 ) -> dict[str, NDArray]:
+    """One CSV file of a flight log, streamed row by row into its columns
+    (:func:`companion.user_files.open_regular_file`: a FIFO or a device is refused unread)."""
     try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise FlightLogError(f"{path}: cannot read: {exc.strerror}") from None
-    try:
-        content = _whole_rows(path, data, warnings).decode("utf-8")
-        rows = list(csv.reader(io.StringIO(content, newline="")))
-    except (UnicodeDecodeError, csv.Error) as exc:
-        raise FlightLogError(f"{path}: not a CSV flight log: {exc}") from None
-    if not rows:
-        raise FlightLogError(f"{path}: empty file, expected a header row")
-    header = rows[0]
+        f = open_regular_file(path)
+    except UserFileError as exc:
+        raise FlightLogError(str(exc)) from None
+    with f:
+        rows = csv.reader(_whole_lines(f, path, warnings))
+        try:
+            header = next(rows, None)
+            if header is None:
+                raise FlightLogError(f"{path}: empty file, expected a header row")
+            columns = _columns(path, header, expected, set(text), rows)
+        except csv.Error as exc:
+            raise FlightLogError(
+                f"{path}, line {rows.line_num}: not a CSV flight log: {exc}"
+            ) from None
+        except OSError as exc:
+            raise FlightLogError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    return columns
+
+
+def _columns(
+    path: Path,
+    header: list[str],
+    expected: Sequence[str],
+    text: set[str],
+    rows: Any,
+) -> dict[str, NDArray]:
+    """The columns of the rows after ``header`` (numbers as float64, ``text`` as str)."""
     older = tuple(c for c in expected if c not in _ADDED_COLUMNS)
     if tuple(header) not in (tuple(expected), older):
         missing = [c for c in expected if c not in header]
@@ -471,29 +517,29 @@ def _read_csv(
         raise FlightLogError(
             f"{path}: not a flight log header (missing {missing[:5]}, unknown {unknown[:5]})"
         )
-    text = set(text)
-    values: dict[str, list] = {name: [] for name in header}
-    for line_no, row in enumerate(rows[1:], start=2):
+    numbers: dict[str, array[float]] = {n: array("d") for n in header if n not in text}
+    strings: dict[str, list[str]] = {n: [] for n in header if n in text}
+    n_rows = 0
+    for row in rows:
         if len(row) != len(header):
             raise FlightLogError(
-                f"{path}, line {line_no}: {len(row)} cells, expected {len(header)}"
+                f"{path}, line {rows.line_num}: {len(row)} cells, expected {len(header)}"
             )
         for name, cell in zip(header, row, strict=True):
             if name in text:
-                values[name].append(cell)
+                strings[name].append(cell)
                 continue
             try:
-                values[name].append(float(cell) if cell else math.nan)
+                numbers[name].append(float(cell) if cell else math.nan)
             except ValueError:
                 raise FlightLogError(
-                    f"{path}, line {line_no}: {name} = {cell!r} is not a number"
+                    f"{path}, line {rows.line_num}: {name} = {cell!r} is not a number"
                 ) from None
-    columns = {
-        name: np.array(v, dtype=str) if name in text else np.array(v, dtype=np.float64)
-        for name, v in values.items()
-    }
+        n_rows += 1
+    columns: dict[str, NDArray] = {n: np.array(v, dtype=str) for n, v in strings.items()}
+    columns.update((n, np.frombuffer(v, dtype=np.float64).copy()) for n, v in numbers.items())
     missing = [name for name in expected if name not in columns]  # added columns only
-    columns.update((name, np.full(len(rows) - 1, math.nan)) for name in missing)
+    columns.update((name, np.full(n_rows, math.nan)) for name in missing)
     return {name: columns[name] for name in expected}
 
 

@@ -69,6 +69,7 @@ from numpy.typing import ArrayLike
 from companion.config import CompanionConfig
 from companion.link.setpoint import quaternion_from_euler_zyx
 from companion.logs.flightlog import Q_NAMES, CycleRecord, FlightLogError, FlightLogWriter
+from companion.user_files import UserFileError, open_regular_file
 
 __all__ = [
     "CHANNELS",
@@ -559,7 +560,11 @@ def merge_messages(
     mcap_path = Path(mcap_path)
     tmp = mcap_path.with_name(mcap_path.name + ".tmp")
     added = 0
-    with open(mcap_path, "rb") as src:
+    try:
+        src_file = open_regular_file(mcap_path)
+    except UserFileError as exc:
+        raise ValueError(str(exc)) from None
+    with src_file as src:
         try:
             reader = make_reader(src)
             summary = reader.get_summary()
@@ -864,7 +869,11 @@ def describe_mcap(path: str | Path) -> McapInfo:
     """
     path = Path(path)
     try:
-        with open(path, "rb") as f:
+        f = open_regular_file(path)
+    except UserFileError as exc:
+        raise FlightLogError(str(exc)) from None
+    try:
+        with f:
             try:
                 info = _from_summary(path, f)
             except (McapError, EOFError, ValueError, struct.error):

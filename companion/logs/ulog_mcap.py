@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.logs.mcap_log import encode, merge_messages
+from companion.user_files import UserFileError, check_regular_file, open_regular_file
 
 __all__ = ["PX4_TOPICS", "UlogError", "add_ulog", "ulog_channels"]
 
@@ -95,9 +96,12 @@ def _read(ulog_path: Path) -> dict[str, dict[str, Any]]:
     except ImportError:
         raise UlogError("reading a ULog needs pyulog: pip install pyulog") from None
     try:
-        ulog = ULog(str(ulog_path), list(PX4_TOPICS))
-    except FileNotFoundError:
-        raise UlogError(f"{ulog_path}: no such file") from None
+        f = open_regular_file(ulog_path)
+    except UserFileError as exc:
+        raise UlogError(str(exc)) from None
+    try:
+        with f:
+            ulog = ULog(f, list(PX4_TOPICS))
     except Exception as exc:  # pyulog raises what its parser meets in a corrupt file
         raise UlogError(f"{ulog_path}: not a readable ULog ({exc})") from None
     logged = {
@@ -126,6 +130,10 @@ def add_ulog(mcap_path: str | Path, ulog_path: str | Path) -> int:
     Raises :class:`UlogError` for a ULog that cannot be read and ``ValueError`` for a
     flight log that is not closed or holds PX4's channels already.
     """
+    try:  # both files are what they should be before either is read
+        check_regular_file(mcap_path)
+    except UserFileError as exc:
+        raise UlogError(str(exc)) from None
     logged = _read(Path(ulog_path))
     streams = [_topic_messages(topic, logged[topic]) for topic in PX4_TOPICS if topic in logged]
     merged = heapq.merge(*streams, key=lambda m: m[0])

@@ -19,7 +19,6 @@ import signal
 import sys
 import tempfile
 import time
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
@@ -27,6 +26,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from companion.cli.usage import fail, load_or_exit, output_dir_or_exit
+from companion.config import read_toml, read_toml_document
 from sitl.campaign.flights import Flight, expand, replay_command, replay_toml, scenario_document
 from sitl.campaign.fly import WORK_DIR_VARIABLE
 from sitl.campaign.spec import CampaignSpec, load_spec
@@ -247,8 +247,8 @@ def _run(
         base_texts: dict[str, str] = {}
         for f in flights:
             if f.base not in base_docs:
-                base_texts[f.base] = Path(f.base).read_text(encoding="utf-8")
-                base_docs[f.base] = tomllib.loads(base_texts[f.base])
+                document = load_or_exit(Path(f.base), read_toml_document)
+                base_texts[f.base], base_docs[f.base] = document.text, document.data
         for f in missing:
             tasks.append((f, scenario_document(f, base_docs[f.base])))
         progress = _Progress(len(flights), len(flights) - len(missing))
@@ -301,7 +301,6 @@ def _replay(
     flights: list[Flight], flight_id: str, out: Path, spec_path: Path, px4_dir: Path | None
 ) -> None:
     """Fly one flight alone; only a px4 flight needs the PX4 build."""
-    from companion.config import read_toml
     from sitl.campaign.fly import fly_flight
 
     chosen = [f for f in flights if f.flight_id == flight_id]
@@ -315,7 +314,9 @@ def _replay(
         f"replaying flight {flight.flight_id}: {flight.controller}, seed {flight.seed}, "
         f"fault {flight.fault.label()}, {dict(flight.settings)}"
     )
-    row = fly_flight(flight, scenario_document(flight, read_toml(flight.base)), keep=where)
+    row = fly_flight(
+        flight, scenario_document(flight, load_or_exit(Path(flight.base), read_toml)), keep=where
+    )
     if row["status"] == "error":
         typer.echo(row["error"], err=True)
         raise typer.Exit(1)

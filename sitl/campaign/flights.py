@@ -26,7 +26,7 @@ from typing import Any
 
 import tomlkit
 
-from companion.config import ConfigError, read_toml
+from companion.config import ConfigError, read_toml_document
 from sitl.campaign.design import sample_ranges
 from sitl.campaign.spec import CampaignSpec, Fault, KeyPath, parse_key
 from sitl.scenario import Scenario, parse_scenario
@@ -260,16 +260,16 @@ def expand(spec: CampaignSpec, spec_path: str | Path) -> list[Flight]:
     path = str(spec_path)
     base_path = (Path(spec_path).parent / spec.scenario).resolve()
     try:
-        raw = base_path.read_bytes()
-    except OSError as exc:
-        raise ConfigError(path, "scenario", f"cannot read {base_path} ({exc.strerror})") from None
-    base = read_toml(base_path)
+        document = read_toml_document(base_path)
+    except ConfigError as exc:
+        raise ConfigError(path, "scenario", str(exc)) from None
+    base = document.data
     try:
         parse_scenario(base, str(base_path))
     except ConfigError as exc:
         raise ConfigError(path, "scenario", f"{base_path}: {exc.problems[0][1]} "
                           f"({exc.key})") from None  # fmt: skip
-    sha = hashlib.sha256(raw).hexdigest()
+    sha = hashlib.sha256(document.raw).hexdigest()
     keys = {k: parse_key(k, k, path) for k in (*spec.set, *spec.axes)}
     fixed = [(k, _coerce(keys[k], v)) for k, v in spec.set.items()]
     flights: list[Flight] = []

@@ -36,6 +36,8 @@ from pathlib import Path
 from pymavlink.dialects.v20 import common as mavlink
 
 from arm_driver.memory import MemoryEnd
+from companion.link.signing import SIGNING_KEY_FILE_LIMIT_BYTES
+from companion.user_files import UserFileError, read_small_file
 
 __all__ = [
     "GCS_PORTS",
@@ -68,7 +70,10 @@ class SigningKeyError(ValueError):
 
 def load_signing_key(path: str | Path) -> bytes:
     """Read a MAVLink 2 signing key: 32 raw bytes, or 64 hex characters (whitespace ok)."""
-    data = Path(path).read_bytes()
+    try:
+        data = read_small_file(path, SIGNING_KEY_FILE_LIMIT_BYTES, "a signing key file")
+    except UserFileError as exc:
+        raise SigningKeyError(str(exc)) from None
     if len(data) == 32:
         return data
     try:
