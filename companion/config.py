@@ -876,8 +876,9 @@ def validate(model: type[Model], data: dict, path: str) -> Model:
         return model.model_validate(data)
     except ValidationError as exc:
         errors = exc.errors()
-        # A bad item of a tuple also shortens it: that length is no second problem.
-        inner = {err["loc"][:-1] for err in errors if err["loc"]}
+        # A bad item of a tuple also shortens it: that length is no second problem (the
+        # item's error lies anywhere below the tuple: its own key, or a key of its table).
+        inner = {err["loc"][:n] for err in errors for n in range(len(err["loc"]))}
         errors = [e for e in errors if not (e["type"] == "too_short" and e["loc"] in inner)]
         problems = sorted(
             (_describe(err, model) for err in errors),

@@ -187,6 +187,13 @@ def test_a_campaign_spec_whose_scenario_never_ends(tmp_path, scenario):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_campaign_fault_of_unknown_kind_is_one_line(tmp_path):
+    spec = changed(
+        tmp_path, CONFIGS / "campaigns" / "smoke.toml", 'kind = "none"', 'kind = "meteor"'
+    )
+    one_error(sitl("campaign", spec, "--out", tmp_path / "out"), "faults[0].kind", "'meteor'")
+
+
 # --- sitl sim / compare options --------------------------------------------------------
 
 
