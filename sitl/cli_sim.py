@@ -258,6 +258,11 @@ def sim(
 
     cfg = load_or_exit(scenario, load_scenario)
     _check_times(cfg, duration, pickup_at, release_at)
+    if pickup_at is not None and release_at is not None and not release_at > pickup_at:
+        fail(
+            f"--release-at {release_at:g} s must come after --pickup-at {pickup_at:g} s "
+            "(the payload is released once it is held)"
+        )
     check_seed(seed)
     air = _check_physics(cfg, physics, plant, wind, turbulence, seed)
     out = output_dir_or_exit(out, SIM_FILES)

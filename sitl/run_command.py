@@ -25,7 +25,7 @@ from sitl.physics.jsbsim import Wind
 from sitl.px4 import ParamError, SigningKeyError, load_signing_key
 from sitl.px4_sitl.launcher import Px4Build, Px4BuildError
 from sitl.scenario import MAX_DURATION_S, PayloadSlip, Scenario, load_scenario
-from sitl.vehicle.runner import LinkPorts, RunOptions, SitlVehicle
+from sitl.vehicle.runner import LinkPorts, RunOptions, SitlVehicle, simulated_servo_ids
 
 __all__ = ["RunCommand"]
 
@@ -151,7 +151,9 @@ class RunCommand:
         cfg = load_or_exit(self.config, load_scenario)
         build = self._px4_build()
         self._check_run()
-        silent = _servo_fault(self.servo_silent) if self.servo_silent is not None else None
+        silent = None
+        if self.servo_silent is not None:
+            silent = _servo_fault(self.servo_silent, simulated_servo_ids(cfg))
         if not (
             math.isfinite(self.servo_reply_delay_ms) and 0.0 <= self.servo_reply_delay_ms < 1000.0
         ):
@@ -212,7 +214,9 @@ class RunCommand:
             fail(str(exc))
 
     def _check_run(self) -> None:
-        """The run's length, seed, truth log, ports and signing key."""
+        """The run's pace, length, seed, truth log, ports and signing key."""
+        if not (math.isfinite(self.speed) and self.speed > 0.0):
+            fail(f"--speed must be a positive factor (simulated s per wall s), got {self.speed:g}")
         if self.duration is not None and not self.duration > 0.0:
             fail(f"--duration must be positive, got {self.duration:g}")
         check_seed(self.seed)
@@ -277,10 +281,20 @@ def _pickup_faults(
     return cfg.model_copy(update={"world": cfg.world.model_copy(update=update)})
 
 
-def _servo_fault(text: str) -> tuple[int, float]:
-    """``--servo-silent ID@SECONDS`` as (servo id, simulated time [s])."""
+def _servo_fault(text: str, servo_ids: tuple[int, ...]) -> tuple[int, float]:
+    """``--servo-silent ID@SECONDS`` as (servo id, simulated time [s]): a servo of the
+    simulated bus (``servo_ids``) and a time within the longest run."""
     servo, _, at = text.partition("@")
     try:
-        return int(servo), float(at)
+        servo_id, at_s = int(servo), float(at)
     except ValueError:
         fail(f"--servo-silent needs ID@SECONDS, e.g. 2@30, got {text!r}")
+    if servo_id not in servo_ids:
+        ids = ", ".join(str(i) for i in servo_ids)
+        fail(f"--servo-silent {text}: no servo {servo_id} on the simulated bus (its ids: {ids})")
+    if not (math.isfinite(at_s) and 0.0 <= at_s <= MAX_DURATION_S):
+        fail(
+            f"--servo-silent {text}: the time must lie in [0, {MAX_DURATION_S:g}] s of "
+            f"simulated time, got {at_s:g}"
+        )
+    return servo_id, at_s

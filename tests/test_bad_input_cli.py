@@ -7,6 +7,7 @@ nothing here starts a vehicle or a simulation.
 
 from __future__ import annotations
 
+import json
 import os
 import socket
 import subprocess
@@ -230,6 +231,22 @@ def test_an_output_that_cannot_be_made_is_refused_before_the_run(tmp_path, no_si
     one_error(sitl(command, "--scenario", PAPER, "--out", out), str(out), "cannot write")
 
 
+@pytest.mark.skipif(not Path("/proc/sys/kernel").is_dir(), reason="needs Linux's /proc")
+def test_an_output_directory_that_takes_no_files_is_named_as_such(tmp_path, no_simulation):
+    result = sitl("sim", "--scenario", PAPER, "--out", "/proc/sys/kernel")
+    line = one_error(result, "--out /proc/sys/kernel", "exists but takes no new files")
+    assert "No such file" not in line
+
+
+def test_a_release_before_the_pickup_is_refused(tmp_path, no_simulation):
+    out = tmp_path / "out"
+    result = sitl(
+        "sim", "--scenario", PAPER, "--out", out, "--pickup-at", "0.8", "--release-at", "0.2"
+    )
+    one_error(result, "--release-at 0.2 s must come after --pickup-at 0.8 s")
+    assert not out.exists()
+
+
 def test_sim_results_are_never_overwritten(tmp_path):
     out = tmp_path / "run"
     first = sitl("sim", "--scenario", PAPER, "--out", out, "--duration", "0.01")
@@ -447,6 +464,39 @@ def test_sitl_run_servo_reply_delay_out_of_range(value):
         "--servo-reply-delay-ms",
         "0 to 999 ms",
     )
+
+
+@pytest.mark.parametrize(
+    ("value", "words"),
+    [
+        ("99@-3", ("--servo-silent 99@-3", "no servo 99", "1, 2, 3")),
+        ("2@nan", ("--servo-silent 2@nan", "[0, 3600] s", "got nan")),
+        ("2@-3", ("--servo-silent 2@-3", "[0, 3600] s", "got -3")),
+        ("2@1e9", ("--servo-silent 2@1e9", "[0, 3600] s")),
+    ],
+)
+def test_sitl_run_servo_silent_out_of_range(value, words):
+    one_error(sitl("run", "--config", PICKUP, "--servo-silent", value), *words)
+
+
+@pytest.mark.parametrize("speed", ["-1", "0", "nan", "inf"])
+def test_sitl_run_speed_is_blamed_not_the_config(speed):
+    line = one_error(sitl("run", "--config", PICKUP, "--speed", speed), "--speed", "positive")
+    assert str(PICKUP) not in line
+
+
+def test_sitl_run_prints_the_ports_it_bound():
+    result = sitl(
+        "run", "--config", PICKUP, "--onboard-local-port", "0", "--gcs-local-port", "0",
+        "--duration", "0.01", "--speed", "10",
+    )  # fmt: skip
+    assert result.exit_code == 0, result.stderr
+    ready = json.loads(
+        next(line for line in result.stdout.splitlines() if line.startswith("ready "))[6:]
+    )
+    for link in ("onboard", "gcs"):
+        local = ready[link].split(" -> ")[0]
+        assert local.startswith("udp 127.0.0.1:") and int(local.rsplit(":", 1)[1]) > 0, ready
 
 
 def test_sitl_run_seed_below_zero():

@@ -8,6 +8,7 @@ done and never overwritten (:func:`output_dir_or_exit`).
 
 from __future__ import annotations
 
+import errno
 import math
 import tempfile
 from collections.abc import Callable, Iterable
@@ -80,7 +81,7 @@ def output_dir_or_exit(out: Path, writes: Iterable[str], option: str = "--out") 
         with tempfile.TemporaryFile(dir=candidate):
             pass
     except OSError as exc:
-        fail(f"{option} {out}: cannot write there ({exc.strerror or exc})")
+        fail(f"{option} {out}: cannot write there ({_why_not(exc, out)})")
     if candidate != out:
         typer.echo(
             f"note: {out} holds an earlier run's results, which are never overwritten; "
@@ -88,6 +89,17 @@ def output_dir_or_exit(out: Path, writes: Iterable[str], option: str = "--out") 
             err=True,
         )
     return candidate
+
+
+def _why_not(exc: OSError, out: Path) -> str:
+    """Why nothing can be written at ``out``: the system's reason, unless that reason is
+    "No such file or directory" for a directory that exists (/proc, /sys: file systems
+    that take no new files)."""
+    if exc.errno == errno.ENOENT:
+        existing = next((p for p in (out, *out.parents) if p.is_dir()), None)
+        if existing is not None:
+            return f"the directory {existing} exists but takes no new files"
+    return exc.strerror or str(exc)
 
 
 def _fresh_dir(out: Path, base: Path, names: tuple[str, ...], option: str) -> Path:

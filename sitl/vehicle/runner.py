@@ -66,6 +66,7 @@ __all__ = [
     "RunStats",
     "SitlVehicle",
     "build_world",
+    "simulated_servo_ids",
     "truth_record",
     "world_settings",
 ]
@@ -95,6 +96,15 @@ DEFAULT_JOINTS = (
 """Servos of a scenario without an ``[arm_bus]`` section: XM430-W350 ids 1 and 2."""
 DEFAULT_GRIPPER = GripperConfig(3, open_position_rad=0.785, closed_position_rad=-0.26)
 """Gripper servo of a scenario without an ``[arm_bus]`` section: id 3."""
+
+
+def simulated_servo_ids(scenario: Scenario) -> tuple[int, ...]:
+    """The ids of the servos :func:`build_world` puts on the simulated bus: the joints and
+    the gripper of the ``[arm_bus]`` section, or ids 1, 2 and 3."""
+    if scenario.arm_bus is None:
+        return (*(j.servo_id for j in DEFAULT_JOINTS), DEFAULT_GRIPPER.servo_id)
+    joints, gripper = arm_bus_configs(scenario.arm_bus)
+    return (*(j.servo_id for j in joints), (gripper or DEFAULT_GRIPPER).servo_id)
 
 
 @dataclass(frozen=True)
@@ -441,13 +451,24 @@ class SitlVehicle:
                 "connect": f"memory://{memory}-onboard",
                 "arm_bus": f"dynamixel://{self.servo_bus.device}?baud=1000000",
             }
+        onboard, gcs = (
+            self._bound_port("onboard", p.onboard_local),
+            self._bound_port("gcs", p.gcs_local),
+        )
         return {
-            "onboard": f"udp {p.host}:{p.onboard_local} -> {p.host}:{p.onboard_remote}",
-            "gcs": f"udp {p.host}:{p.gcs_local} -> {p.host}:{p.gcs_remote}",
+            "onboard": f"udp {p.host}:{onboard} -> {p.host}:{p.onboard_remote}",
+            "gcs": f"udp {p.host}:{gcs} -> {p.host}:{p.gcs_remote}",
             "connect": f"udpin://0.0.0.0:{p.onboard_remote}",
             # The emulator answers from a Python thread: allow for scheduling delays.
             "arm_bus": f"dynamixel://{self.servo_bus.device}?baud=1000000&timeout_margin_ms=20",
         }
+
+    def _bound_port(self, link: str, configured: int) -> int:
+        """The local port ``link`` is bound to (the free one chosen for 0), once open."""
+        endpoint = self.links.get(link)
+        if endpoint is None or not endpoint.is_open:
+            return configured
+        return endpoint.local_address[1]
 
     # ---------------------------------------------------------------------- loop
 
