@@ -30,7 +30,14 @@ from companion.cli.mission import (
     run_mission,
 )
 from companion.cli.options import options_command
-from companion.cli.usage import EXIT_USAGE, check_range, fail, load_or_exit, output_dir_or_exit
+from companion.cli.usage import (
+    EXIT_USAGE,
+    check_range,
+    fail,
+    load_or_exit,
+    output_dir_or_exit,
+    remove_if_unused,
+)
 from companion.mission.pickup import PickupPlan
 from sitl.cli_options import SeedOpt, check_seed
 from sitl.demo_command import CONTROL_RATE_HZ, DemoCommand
@@ -456,6 +463,7 @@ def _fly_virtual(options: DemoCommand, scenario: Scenario, plan: PickupPlan, out
             live_port=options.live,
         )
     except UsageError as exc:
+        remove_if_unused(out)
         fail(str(exc))
     except PlantError as exc:
         typer.echo(f"error: the simulated vehicle's physics failed: {exc}", err=True)

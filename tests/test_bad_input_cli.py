@@ -277,6 +277,36 @@ def mission(tmp_path: Path, *extra: str | Path) -> Result:
 def test_mission_refused_connection(tmp_path):
     line = one_error(mission(tmp_path), "--connect tcpout://127.0.0.1:", "refused")
     assert "cannot open" in line
+    assert not (tmp_path / "m").exists()
+
+
+@pytest.mark.parametrize(
+    ("extra", "words"),
+    [
+        (("--arm-bus", "nonsense://x"), ("arm bus nonsense://x",)),
+        (("--connect", "udpin://127.0.0.1:0"), ("bad connection URL",)),
+        (("--connect", "udpin://127.0.0.1:{udp}"), ("heartbeat",)),
+    ],
+    ids=["arm-bus", "connect", "no-heartbeat"],
+)
+def test_mission_leaves_no_empty_output_behind(tmp_path, monkeypatch, extra, words):
+    """--out (and the parents made with it) is taken away when nothing flew; a directory
+    the user had stays."""
+    import companion.cli.mission as cli_mission
+
+    monkeypatch.setattr(cli_mission.fly_pickup, "__kwdefaults__", {
+        **cli_mission.fly_pickup.__kwdefaults__, "vehicle_timeout_s": 0.2})  # fmt: skip
+    out = tmp_path / "new" / "m"
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:  # a free UDP port
+        sock.bind(("127.0.0.1", 0))
+        udp = sock.getsockname()[1]
+    extra = tuple(a.format(udp=udp) for a in extra)
+    args = ["mission", "pickup", "--config", PICKUP, *POINTS, "--out", out, *extra]
+    one_error(companion(*args), *words)
+    assert not (tmp_path / "new").exists()
+    out.mkdir(parents=True)
+    one_error(companion(*args), *words)
+    assert out.is_dir()
 
 
 @pytest.mark.parametrize(

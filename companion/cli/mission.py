@@ -30,7 +30,13 @@ from arm_driver.bus import open_bus
 from arm_driver.errors import ArmDriverError
 from companion.cli.flight_page import FLIGHT_PAGE, write_flight_page
 from companion.cli.plot import FIGURES, TruthLines, figures_available, plot_flight_log
-from companion.cli.usage import check_range, config_or_exit, fail, output_dir_or_exit
+from companion.cli.usage import (
+    check_range,
+    config_or_exit,
+    fail,
+    output_dir_or_exit,
+    remove_if_unused,
+)
 from companion.config import CompanionConfig, arm_bus_configs
 from companion.control.flight import FlightControl, FlightControllerName
 from companion.control.laws import ControlRateError
@@ -437,6 +443,7 @@ def run_mission(
             )
         )
     except UsageError as exc:
+        remove_if_unused(out)  # nothing flew: no empty --out is left behind
         fail(str(exc))
     return finish_mission(report, failure, out)
 

@@ -26,6 +26,7 @@ __all__ = [
     "fail",
     "load_or_exit",
     "output_dir_or_exit",
+    "remove_if_unused",
 ]
 
 EXIT_USAGE = 2
@@ -102,16 +103,42 @@ def _why_not(exc: OSError, out: Path) -> str:
     return exc.strerror or str(exc)
 
 
+_MADE: dict[Path, Path] = {}
+"""The directories :func:`output_dir_or_exit` made in this process, each with the topmost
+directory made with it (its new parents): what :func:`remove_if_unused` may take away."""
+
+
+def remove_if_unused(out: Path) -> None:
+    """Take away ``out`` and the parents made with it if :func:`output_dir_or_exit` made
+    them and they are still empty: a command that stops on a user mistake after choosing
+    its output leaves nothing behind. A directory the user had, or one holding anything,
+    stays."""
+    top = _MADE.pop(out, None)
+    if top is None:
+        return
+    for directory in (out, *out.parents):
+        try:
+            directory.rmdir()  # only an empty directory goes
+        except OSError:
+            return
+        if directory == top:
+            return
+
+
 def _fresh_dir(out: Path, base: Path, names: tuple[str, ...], option: str) -> Path:
     if out.exists() and not out.is_dir():
         fail(f"{option} {out}: is a file, not a directory; name a new or empty directory")
     n, candidate = 1, out
     while True:
         if not candidate.exists():
+            top = candidate
+            while not top.parent.exists() and top.parent != top:
+                top = top.parent
             try:
                 candidate.mkdir(parents=True)
             except FileExistsError:
                 continue  # another run took it meanwhile: look at it again
+            _MADE[candidate] = top
             return candidate
         if candidate.is_dir() and not any((candidate / name).exists() for name in names):
             return candidate
