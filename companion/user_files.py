@@ -30,6 +30,7 @@ __all__ = [
     "UserFileError",
     "check_regular_file",
     "describe_size",
+    "file_kind",
     "open_regular_file",
     "read_small_file",
 ]
@@ -68,6 +69,14 @@ def describe_size(n_bytes: int) -> str:
     raise AssertionError("unreachable")
 
 
+def file_kind(mode: int) -> str:
+    """What a file of status ``mode`` is: ``a directory``, ``a named pipe (FIFO)``, ...,
+    ``a regular file``."""
+    if stat.S_ISREG(mode):
+        return "a regular file"
+    return next((name for test, name in _KINDS if test(mode)), "not a file")
+
+
 def _os_reason(exc: OSError) -> str:
     if exc.errno == errno.ELOOP:
         return "cannot read: a loop of symbolic links"
@@ -85,8 +94,7 @@ def check_regular_file(path: str | Path) -> os.stat_result:
         raise UserFileError(path, f"cannot read file ({exc})") from None
     if stat.S_ISREG(status.st_mode):
         return status
-    kind = next((name for test, name in _KINDS if test(status.st_mode)), "not a file")
-    raise UserFileError(path, f"cannot read: {kind}, not a regular file")
+    raise UserFileError(path, f"cannot read: {file_kind(status.st_mode)}, not a regular file")
 
 
 def open_regular_file(path: str | Path) -> BinaryIO:

@@ -247,6 +247,33 @@ def test_a_release_before_the_pickup_is_refused(tmp_path, no_simulation):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("kind", ["fifo", "symlink-loop", "dev-null"])
+def test_an_output_that_is_no_directory_says_what_it_is(tmp_path, kind):
+    """In a subprocess with a timeout: a loop of links once made the choice of --out spin
+    forever."""
+    out = {"fifo": tmp_path / "fifo", "symlink-loop": tmp_path / "a", "dev-null": "/dev/null"}[kind]
+    if kind == "fifo":
+        os.mkfifo(out)
+    elif kind == "symlink-loop":
+        os.symlink(tmp_path / "b", tmp_path / "a")
+        os.symlink(tmp_path / "a", tmp_path / "b")
+    command = ["sim", "--scenario", str(PAPER), "--out", str(out)]
+    done = subprocess.run(
+        [sys.executable, "-c", "from sitl.entry import main; main()", *command],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.splitlines()
+    what = {
+        "fifo": "a named pipe",
+        "symlink-loop": "leads nowhere",
+        "dev-null": "a character device",
+    }
+    assert len(lines) == 1 and f"--out {out}: is " in lines[0] and what[kind] in lines[0], lines
+
+
 def test_sim_results_are_never_overwritten(tmp_path):
     out = tmp_path / "run"
     first = sitl("sim", "--scenario", PAPER, "--out", out, "--duration", "0.01")

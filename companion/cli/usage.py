@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import errno
 import math
+import stat
 import tempfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -18,6 +19,7 @@ from typing import NoReturn, TypeVar
 import typer
 
 from companion.config import CompanionConfig, ConfigError, load_config
+from companion.user_files import file_kind
 
 __all__ = [
     "EXIT_USAGE",
@@ -125,12 +127,25 @@ def remove_if_unused(out: Path) -> None:
             return
 
 
+def _not_a_directory(path: Path) -> str | None:
+    """What ``path`` is if it is there but no directory (a file, a FIFO, a device, a link
+    that leads nowhere or loops), else None. Looked at with stat, never opened."""
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        return "is a symbolic link that leads nowhere (or loops)" if path.is_symlink() else None
+    if stat.S_ISDIR(mode):
+        return None
+    return "is a file" if stat.S_ISREG(mode) else f"is {file_kind(mode)}"
+
+
 def _fresh_dir(out: Path, base: Path, names: tuple[str, ...], option: str) -> Path:
-    if out.exists() and not out.is_dir():
-        fail(f"{option} {out}: is a file, not a directory; name a new or empty directory")
     n, candidate = 1, out
     while True:
-        if not candidate.exists():
+        what = _not_a_directory(candidate)
+        if what is not None and candidate == out:
+            fail(f"{option} {out}: {what}, not a directory; name a new or empty directory")
+        if what is None and not candidate.exists():
             top = candidate
             while not top.parent.exists() and top.parent != top:
                 top = top.parent
