@@ -909,7 +909,8 @@ def read_toml_document(path: str | Path) -> TomlDocument:
     Refused before anything is read (:mod:`companion.user_files`): a path that is not a
     regular file (missing, a directory, a FIFO, a device, a socket, a loop of links) and a
     file over :data:`TOML_LIMIT_BYTES`. Refused after: bytes that are not UTF-8, text that
-    is not TOML, and nesting deeper than the parser goes.
+    is not TOML, nesting deeper than the parser goes, and a file without a key (nothing
+    any reader takes is empty).
     """
     p = Path(path)
     try:
@@ -928,6 +929,9 @@ def read_toml_document(path: str | Path) -> TomlDocument:
     except RecursionError:
         reason = "invalid TOML: arrays or tables nested too deeply to read"
         raise ConfigError(str(p), "", reason) from None
+    if not data:
+        empty = "an empty file" if not text.strip() else "only comments"
+        raise ConfigError(str(p), "", f"holds no TOML keys ({empty})")
     return TomlDocument(p, raw, text, data)
 
 
