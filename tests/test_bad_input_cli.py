@@ -8,6 +8,7 @@ nothing here starts a vehicle or a simulation.
 from __future__ import annotations
 
 import json
+import math
 import os
 import socket
 import subprocess
@@ -578,3 +579,33 @@ def test_help_shows_units_and_section_names(tool, command, texts):
     text = " ".join(result.stdout.split())  # the help wraps lines
     for expected in texts:
         assert expected in text, (expected, result.stdout)
+
+
+def write_log(path: Path, value: float, every: int) -> Path:
+    """A flight log whose q and q_d are ``value`` every ``every``-th row (1: all rows)."""
+    import numpy as np
+
+    from companion.logs.flightlog import CycleRecord
+
+    with FlightLogWriter(path) as log:
+        for i in range(50):
+            q = np.array([0.1 * i, 0.0, 1.0, 0.0, 0.0, 0.0, -1.5, 0.2])
+            if i % every == 0:
+                q[:] = value
+            log.write(CycleRecord(t_vehicle_s=0.004 * i, q=q, q_d=q, px4_mode="OFFBOARD"))
+    return path
+
+
+def test_plot_names_infinite_values_instead_of_matplotlib_warnings(tmp_path):
+    log = write_log(tmp_path / "flight.csv", math.inf, every=5)  # written as inf: 1e999 reads so
+    result = companion("plot", log, "--out", tmp_path / "fig")
+    assert result.exit_code == 0, result.stderr
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"warning: {log}: infinite values"), lines
+    assert "q_x_m (10)" in lines[0]
+
+
+def test_plot_of_a_log_without_a_number_is_one_error(tmp_path):
+    log = write_log(tmp_path / "flight.csv", math.nan, every=1)
+    one_error(companion("plot", log, "--out", tmp_path / "fig"), str(log), "holds a number")
+    assert not (tmp_path / "fig").exists()

@@ -20,7 +20,7 @@ gets its figures in ``OUT-2``, ``OUT-3``, ... (:func:`companion.cli.usage.output
 from __future__ import annotations
 
 import importlib.util
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Annotated
 
@@ -45,6 +45,32 @@ class TruthLines:
     t_s: np.ndarray
     m2_kg: np.ndarray
     lc_m: np.ndarray
+
+
+def finite_only(flight: FlightLog) -> tuple[FlightLog, list[str]]:
+    """``flight`` with its infinite numbers (``1e999`` in the file) as NaN, drawn as gaps
+    like empty cells, and a line naming the columns that held them (none: no line)."""
+    columns = dict(flight.columns)
+    infinite: list[str] = []
+    for name, values in columns.items():
+        if values.dtype.kind == "f" and np.isinf(values).any():
+            infinite.append(f"{name} ({int(np.isinf(values).sum())})")
+            columns[name] = np.where(np.isinf(values), np.nan, values)
+    notes = []
+    if infinite:
+        notes.append(f"infinite values drawn as gaps: {', '.join(infinite)}")
+    return replace(flight, columns=columns), notes
+
+
+DRAWN_COLUMNS = (
+    *("q_x_m", "q_y_m", "q_z_m", "qd_x_m", "qd_y_m", "qd_z_m", "q_phi_rad", "q_theta_rad"),
+    *("sp_roll_rad", "sp_pitch_rad", "theta_hat_m2_kg", "theta_hat_lc_m"),
+    *("theta_excitation", "theta_spread", "q_eta1_rad", "q_eta2_rad"),
+    *("qd_eta1_rad", "qd_eta2_rad", "servo_pos_eta1_rad", "servo_pos_eta2_rad"),
+    *("servo_tau_cmd_eta1_n_m", "servo_tau_cmd_eta2_n_m"),
+    *("servo_tau_meas_eta1_n_m", "servo_tau_meas_eta2_n_m"),
+)
+"""The flight log's columns the figures draw (against ``t_vehicle_s``)."""
 
 
 def figures_available() -> bool:
@@ -88,7 +114,8 @@ def plot_flight_log(
         return path
 
     c = flight.columns
-    t0 = float(c["t_vehicle_s"][0])
+    times = c["t_vehicle_s"][np.isfinite(c["t_vehicle_s"])]
+    t0 = float(times[0]) if len(times) else 0.0
     t = c["t_vehicle_s"] - t0
     title = flight.path.name
 
@@ -127,7 +154,7 @@ def plot_flight_log(
         _confident_spans(ax, t, c["theta_confident"])
         ax.plot(t, c[name], "b-", label="estimate (shaded: confident)")
         if truth is not None and true is not None:
-            span = (truth.t_s >= t0) & (truth.t_s <= t0 + t[-1])
+            span = (truth.t_s >= t0) & (truth.t_s <= t0 + np.nanmax(t))
             ax.plot(truth.t_s[span] - t0, true[span], "k--", linewidth=1.0, label="truth")
         ax.set_xlabel("t [s]")
         ax.set_ylabel(label)
@@ -189,6 +216,13 @@ def plot(
         typer.echo(f"warning: {warning}", err=True)
     if len(flight) == 0:
         fail(f"{log}: the flight log has no rows")
+    flight, notes = finite_only(flight)
+    if not np.isfinite(flight["t_vehicle_s"]).any():
+        fail(f"{log}: t_vehicle_s holds no number: nothing can be drawn against time")
+    if not any(np.isfinite(flight[name]).any() for name in DRAWN_COLUMNS):
+        fail(f"{log}: no column the figures draw holds a number (all empty, NaN or infinite)")
+    for note in notes:
+        typer.echo(f"warning: {log}: {note}", err=True)
     out = output_dir_or_exit(out, FIGURES)
     paths = plot_flight_log(flight, out)
     typer.echo(f"{log}: {len(flight)} rows; wrote {', '.join(str(p) for p in paths)}")
