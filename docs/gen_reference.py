@@ -152,6 +152,13 @@ def render_cli() -> str:
         "command also takes `--help`, which prints the same text. A usage error (an",
         "unknown option, a missing argument) is one `error:` line and exit status 2.",
         "",
+        "Every file a command reads is looked at before it is read (`companion.user_files`): a",
+        "missing path, a directory, a FIFO, a device, a socket or a loop of symbolic links is",
+        "one `error:` line naming the file and what it is, exit 2, and is never opened. A TOML",
+        "file (configuration, scenario, campaign spec) over 1 MiB is refused by its size, unread;",
+        "one nested too deeply to parse, or without a key, is one line too. Flight logs are",
+        "read row by row, never whole.",
+        "",
     ]
     for name, app in (("companion", companion_app), ("sitl", sitl_app)):
         root = typer.main.get_command(app)
