@@ -26,6 +26,7 @@ from rich.table import Table
 
 from companion.cli.flight_page import write_flight_page
 from companion.cli.mission import (
+    INTERRUPTED,
     MISSION_FILES,
     run_mission,
 )
@@ -391,6 +392,8 @@ def demo(options: DemoCommand) -> None:
         status = _fly_virtual(options, scenario, plan, out)
     else:
         status = _fly_wall(options, factor, scenario, plan, out)
+    if status == INTERRUPTED:  # its one line said where the partial log is
+        raise typer.Exit(status)
     _print_truth(scenario, out, place_world)
     draw_with_truth(out)
     write_flight_page(out)

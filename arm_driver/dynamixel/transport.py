@@ -189,7 +189,9 @@ class SerialTransport:
         port = self._port()
         try:
             port.write(data)
-        except (serial.SerialException, OSError) as error:
+        except serial.SerialException as error:  # pyserial's own says "write failed: ..."
+            raise CommunicationError(f"{self.device}: {error}") from error
+        except OSError as error:
             raise CommunicationError(f"{self.device}: write failed: {error}") from error
 
     async def read(self, deadline: float) -> bytes:

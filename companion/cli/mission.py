@@ -48,12 +48,14 @@ from companion.mission.app import (
     BUS_FAILURES,
     MissionAborted,
     MissionError,
+    MissionInterrupted,
     MissionReport,
     PickupApp,
 )
 from companion.mission.pickup import PickupPlan
 
 __all__ = [
+    "INTERRUPTED",
     "MISSION_FILES",
     "ControllerOpt",
     "check_mission_options",
@@ -145,7 +147,9 @@ async def fly_pickup(
     the figures; with ``mcap``, ``flight.mcap`` beside the CSV; with ``live_port``, the
     log's channels on a Foxglove WebSocket server there, 0: a free port).
 
-    Returns the report and the mission's failure (MissionError / MissionAborted) or None.
+    Returns the report and the mission's failure (MissionError / MissionAborted /
+    MissionInterrupted: the task was cancelled, as ``asyncio.run`` does on Ctrl-C, and the
+    arm's safe state, the log and the summary were still written) or None.
     Raises :class:`UsageError` when the vehicle or the bus cannot be reached.
     """
     if scenario.arm_bus is None:
@@ -216,6 +220,14 @@ async def fly_pickup(
                     failure = exc
                     report = app.report
                     event("failure", str(exc), app.t_s)
+                except asyncio.CancelledError:  # Ctrl-C: the runner cancels this task
+                    task = asyncio.current_task()
+                    if task is not None:
+                        task.uncancel()  # handled here: the clean-up's timeouts work again
+                    failure = MissionInterrupted(app.t_s)
+                    report = app.report
+                    report.outcome = "interrupted"
+                    event("failure", str(failure), app.t_s)
             finally:
                 writer.close()
                 if live is not None:
@@ -448,8 +460,16 @@ def run_mission(
     return finish_mission(report, failure, out)
 
 
+INTERRUPTED = 130
+"""Exit status of a mission the user stopped (Ctrl-C), as a shell reports SIGINT."""
+
+
 def finish_mission(report: MissionReport, failure: BaseException | None, out: Path) -> int:
-    """Print the report of a flown mission; the exit status (0 completed, 1 failed)."""
+    """Print the report of a flown mission; the exit status (0 completed, 1 failed,
+    :data:`INTERRUPTED` stopped by the user: one line, where the partial log is)."""
+    if isinstance(failure, MissionInterrupted):
+        typer.echo(f"stopped: {failure}; partial log and summary in {out}/", err=True)
+        return INTERRUPTED
     _print_report(report, failure)
     typer.echo(f"log, summary and figures: {out}/")
     return 0 if failure is None else 1

@@ -84,6 +84,7 @@ __all__ = [
     "SERVO_FAILURE_S",
     "MissionAborted",
     "MissionError",
+    "MissionInterrupted",
     "MissionReport",
     "PickupApp",
     "Stream",
@@ -96,6 +97,15 @@ class MissionError(RuntimeError):
 
 class MissionAborted(RuntimeError):
     """A failsafe ended the mission; the report says which."""
+
+
+class MissionInterrupted(RuntimeError):
+    """The user stopped the mission (Ctrl-C, SIGINT) at vehicle time ``t_s`` [s]; the
+    arm's safe state and the logs were still written."""
+
+    def __init__(self, t_s: float) -> None:
+        super().__init__(f"interrupted at t = {t_s:.2f} s")
+        self.t_s = t_s
 
 
 EventSink = Callable[[str, str, float], None]

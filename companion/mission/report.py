@@ -31,7 +31,7 @@ class MissionReport:
     nothing: nothing carried, flew home), ``payload_lost`` (the object left the gripper
     before the place point: carry stopped, flew home), ``beyond_authority`` (refused in the
     grasp or the lift: more thrust or servo torque than allowed; let go, flew home),
-    ``aborted`` (a failsafe ended it) or
+    ``aborted`` (a failsafe ended it), ``interrupted`` (the user stopped it: Ctrl-C) or
     ``failed`` (it could not start or go on)."""
     phases: list[tuple[float, str]] = field(default_factory=list)
     faults: list[dict[str, Any]] = field(default_factory=list)

@@ -187,6 +187,9 @@ def _start_ready(
         stderr=subprocess.STDOUT,
         text=True,
         env=env,
+        # its own session: a terminal's Ctrl-C reaches the caller alone, which puts the
+        # arm in its safe state over the simulator's bus before it stops the simulator
+        start_new_session=True,
     )
     lines: queue.Queue[str | None] = queue.Queue()
 

@@ -30,6 +30,8 @@ from __future__ import annotations
 
 import asyncio
 import selectors
+import signal
+import threading
 from collections.abc import Coroutine, Mapping
 from typing import Any, Protocol, TypeVar
 
@@ -158,12 +160,41 @@ class LockstepLoop(asyncio.SelectorEventLoop):
 
 def run_lockstep(sim: Lockstep, main: Coroutine[Any, Any, _T]) -> _T:
     """Run ``main`` to completion on a :class:`LockstepLoop` over ``sim``; the loop is
-    closed afterwards (its remaining tasks cancelled), as ``asyncio.run`` does."""
+    closed afterwards (its remaining tasks cancelled), as ``asyncio.run`` does. Ctrl-C
+    (SIGINT, in the main thread) also goes as ``asyncio.run`` takes it: the first cancels
+    ``main``'s task, which may finish its clean-up and return (a mission writes its logs
+    and summary); a task that ends cancelled, or a second Ctrl-C, raises
+    KeyboardInterrupt."""
     loop = LockstepLoop(sim)
+    task = loop.create_task(main)
+    interrupts = 0
+
+    def on_sigint(signum: int, frame: object) -> None:
+        nonlocal interrupts
+        interrupts += 1
+        if interrupts == 1 and not task.done():
+            task.cancel()
+            loop.call_soon_threadsafe(lambda: None)  # wake the loop
+            return
+        raise KeyboardInterrupt()
+
+    handled = (
+        threading.current_thread() is threading.main_thread()
+        and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    )
+    if handled:
+        signal.signal(signal.SIGINT, on_sigint)
     try:
         asyncio.set_event_loop(loop)
-        return loop.run_until_complete(main)
+        try:
+            return loop.run_until_complete(task)
+        except asyncio.CancelledError:
+            if interrupts:
+                raise KeyboardInterrupt() from None
+            raise
     finally:
+        if handled:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
         try:
             pending = [task for task in asyncio.all_tasks(loop) if not task.done()]
             for task in pending:
