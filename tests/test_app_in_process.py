@@ -354,3 +354,33 @@ def test_the_loop_blames_dropped_poses_on_who_held_them_up(monkeypatch):
         "1 dropped pose: companion",
     ]
     assert "waited 47.0 ms for a CPU; datagrams waited up to 47.0 ms" in notes[0][1]
+
+
+def test_the_streams_are_given_back_when_the_mission_is_cancelled():
+    """Ctrl-C cancels the app's task mid-flight: the streams changed at preflight are set
+    back to PX4's defaults on the way out (``OnboardStreams.restore``)."""
+    restored: list[str] = []
+
+    class Streams:
+        async def restore(self) -> None:
+            await asyncio.sleep(0)  # awaiting still works in the cancelled task
+            restored.append("restored")
+
+    async def body() -> None:
+        app = PickupApp(SCENARIO, PoseLink(ScriptedPoses(4000)), TwoJoints(), PLAN)
+        app.streams = Streams()  # type: ignore[assignment]
+        flying = asyncio.Event()
+
+        async def fly():
+            flying.set()
+            await asyncio.Event().wait()
+
+        app._fly = fly  # type: ignore[method-assign]
+        task = asyncio.create_task(app.run())
+        await flying.wait()
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+
+    asyncio.run(body())
+    assert restored == ["restored"]

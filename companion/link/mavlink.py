@@ -32,7 +32,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from companion.link.errors import LinkClosedError, LinkLostError, VehicleNotFoundError
 from companion.link.events import LinkLost, LinkRegained, VehicleDetected, VehicleId
 from companion.link.fanout import FanOut, Key, Subscription
-from companion.link.messages import CommandAck, MavlinkMessage, ParamValue
+from companion.link.messages import CommandAck, MavlinkMessage, MessageInterval, ParamValue
 from companion.link.px4_commands import Px4Commands
 from companion.link.setpoint import (
     ATTITUDE_ONLY_TYPE_MASK,
@@ -144,6 +144,7 @@ class MavlinkLink(Px4Commands):
         self.heartbeat_timeout_s = heartbeat_timeout_s
         self.telemetry_timeout_s = telemetry_timeout_s
         self.heartbeat_period_s = heartbeat_period_s
+        self.pose_from: PoseSource = pose_from
         self._decoder = TelemetryDecoder(pose_from)
         self._fanout = FanOut()
         self._transport: Transport | MemoryTransport | None = None
@@ -161,6 +162,8 @@ class MavlinkLink(Px4Commands):
         self._lost_at = 0.0
         self._sequence: dict[tuple[int, int], int] = {}
         self._counts: Counter[str] = Counter()
+        self._from_vehicle: Counter[int] = Counter()
+        """Messages received from the vehicle's system, per message id."""
         self._rejected: Counter[str] = Counter()
         self._command_locks: dict[int, asyncio.Lock] = {}
 
@@ -238,6 +241,10 @@ class MavlinkLink(Px4Commands):
         self, key: Literal["PARAM_VALUE"], /, *, maxsize: int = 64
     ) -> Subscription[ParamValue]: ...
     @overload
+    def subscribe(
+        self, key: Literal["MESSAGE_INTERVAL"], /, *, maxsize: int = 64
+    ) -> Subscription[MessageInterval]: ...
+    @overload
     def subscribe(self, key: str, /, *, maxsize: int = 64) -> Subscription[MavlinkMessage]: ...
     @overload
     def subscribe(self, *keys: Key, maxsize: int = 64) -> Subscription[object]: ...
@@ -307,6 +314,11 @@ class MavlinkLink(Px4Commands):
             unsent_frames=self._transport.unsent_frames if self._transport else 0,
             telemetry_rejected=dict(self._rejected),
         )
+
+    def messages_from_vehicle(self) -> dict[int, int]:
+        """How many messages of each id the vehicle's system sent since the link opened
+        (its heartbeats and what else came from its system id; a snapshot)."""
+        return dict(self._from_vehicle)
 
     def take_longest_socket_wait_s(self) -> float | None:
         """The longest a datagram waited in the socket, from its arrival to the reader's
@@ -445,6 +457,7 @@ class MavlinkLink(Px4Commands):
             self._heartbeat_vehicle_ms = self._decoder.time_boot_ms
         elif self._vehicle is None or src[0] != self._vehicle.system_id:
             return
+        self._from_vehicle[msg.get_msgId()] += 1
         try:
             samples = self._decoder.decode(msg)
         except Exception as exc:  # TelemetryError, or a field pymavlink left unusable

@@ -2,7 +2,8 @@
 
 pymavlink ships no type information, so its message objects are described here by what
 the companion reads of them. :class:`MavlinkMessage` is any message (its header); the
-others are the messages the command layer reads by field (COMMAND_ACK, PARAM_VALUE).
+others are the messages the command layer reads by field (COMMAND_ACK, PARAM_VALUE,
+MESSAGE_INTERVAL).
 ``MavlinkLink.subscribe`` and ``latest`` return these for a message-name key (see
 :class:`~companion.link.mavlink.MavlinkLink`); a new field read by name is a new protocol
 here, so that the type checker sees it.
@@ -12,7 +13,7 @@ from __future__ import annotations
 
 from typing import Protocol
 
-__all__ = ["CommandAck", "MavlinkMessage", "ParamValue"]
+__all__ = ["CommandAck", "MavlinkMessage", "MessageInterval", "ParamValue"]
 
 
 class MavlinkMessage(Protocol):
@@ -32,6 +33,10 @@ class MavlinkMessage(Protocol):
 
     def get_seq(self) -> int:
         """The sender's sequence number, 0..255."""
+        ...
+
+    def get_msgId(self) -> int:
+        """The MAVLink message id."""
         ...
 
 
@@ -56,3 +61,12 @@ class ParamValue(MavlinkMessage, Protocol):
     """MAV_PARAM_TYPE."""
     param_count: int
     param_index: int
+
+
+class MessageInterval(MavlinkMessage, Protocol):
+    """MESSAGE_INTERVAL (#244), the answer to MAV_CMD_GET_MESSAGE_INTERVAL."""
+
+    message_id: int
+    interval_us: int
+    """The stream's interval [us]; -1 not streamed (PX4 also says -1 for a stream sent on
+    every update, GPS_RAW_INT on its onboard link), 0 not available."""

@@ -38,7 +38,7 @@ from companion.link.errors import (
 )
 from companion.link.events import VehicleId
 from companion.link.fanout import Key, Subscription
-from companion.link.messages import CommandAck, MavlinkMessage, ParamValue
+from companion.link.messages import CommandAck, MavlinkMessage, MessageInterval, ParamValue
 
 __all__ = [
     "ARM_FORCE_MAGIC",
@@ -115,6 +115,10 @@ class Px4Commands(ABC):
     def subscribe(
         self, key: Literal["PARAM_VALUE"], /, *, maxsize: int = 64
     ) -> Subscription[ParamValue]: ...
+    @overload
+    def subscribe(
+        self, key: Literal["MESSAGE_INTERVAL"], /, *, maxsize: int = 64
+    ) -> Subscription[MessageInterval]: ...
     @abstractmethod
     def subscribe(self, *keys: Key, maxsize: int = 64) -> Subscription[object]: ...
 
@@ -254,6 +258,38 @@ class Px4Commands(ABC):
         interval_us = -1.0 if rate_hz == 0.0 else 1e6 / rate_hz
         params = (float(msg_id), interval_us)
         return await self.command_long(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, params, **kwargs)
+
+    async def default_message_interval(
+        self, msg_id: int, **kwargs: Unpack[CommandOptions]
+    ) -> CommandAck:
+        """MAV_CMD_SET_MESSAGE_INTERVAL with interval 0: message ``msg_id`` back at the
+        vehicle's default rate for this link (PX4: its link mode's, none for a message that
+        mode does not stream)."""
+        params = (float(msg_id), 0.0)
+        return await self.command_long(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, params, **kwargs)
+
+    async def get_message_interval(
+        self, msg_id: int, *, timeout_s: float = 0.5, attempts: int = 3
+    ) -> int:
+        """MAV_CMD_GET_MESSAGE_INTERVAL: the interval [us] the vehicle streams message
+        ``msg_id`` at on this link, from its MESSAGE_INTERVAL answer (sent before the
+        COMMAND_ACK); -1 not streamed (PX4: also a stream sent on every update). Raises
+        ``CommandDenied``, ``CommandTimeout``, or ``CommandTimeout`` as well when the ack
+        came without the MESSAGE_INTERVAL."""
+        command = mavlink2.MAV_CMD_GET_MESSAGE_INTERVAL
+        with self.subscribe("MESSAGE_INTERVAL", maxsize=16) as answers:
+            await self.command_long(
+                command, (float(msg_id),), timeout_s=timeout_s, attempts=attempts
+            )
+            try:
+                async with asyncio.timeout(timeout_s):
+                    while True:
+                        answer = await answers.get()
+                        if answer.message_id == msg_id:
+                            return int(answer.interval_us)
+            except TimeoutError:
+                name = _enum_name("MAV_CMD", command)
+                raise CommandTimeout(command, name, 1, timeout_s) from None
 
     # --- parameters ------------------------------------------------------------------
 

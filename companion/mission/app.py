@@ -12,9 +12,10 @@
 - the **arm task** (:class:`~companion.mission.arm_supervisor.ArmSupervisor`): after each cycle it
   writes that cycle's joint torques (and a gripper action), then reads the joints (one
   Sync Read): the setpoint never waits for the bus;
-- the **mission sequence**: preflight (:mod:`companion.mission.preflight`: streams, the
-  vehicle's parameters against the config, the pose rate against the gains, a global
-  origin; then the arm), then the flight as the pure state machine
+- the **mission sequence**: preflight (:mod:`companion.mission.preflight`: the streams read
+  asked and the others stopped, :mod:`companion.mission.streams`; the vehicle's parameters
+  against the config, the pose rate against the gains, a global origin; then the arm),
+  then the flight as the pure state machine
   :mod:`companion.mission.sequence` decides it (arm, PX4 take-off, the OFFBOARD handover,
   the pickup of :mod:`companion.mission.pickup`, PX4 landing and disarm, and each aborting
   fault's reactions): the app observes after every control cycle and carries out its
@@ -78,6 +79,7 @@ from companion.mission.sequence import (
     StreamTo,
 )
 from companion.mission.servo_check import torque_constant_sources
+from companion.mission.streams import OnboardStreams
 
 __all__ = [
     "BUS_FAILURES",
@@ -200,6 +202,11 @@ class PickupApp:
         self._mission_clock: tuple[float, float] | None = None
         """(process_time, perf_counter) [s] at the handover, for the CPU share of the
         mission."""
+        self._mission_messages: tuple[int, float] | None = None
+        """(messages received, vehicle time [s]) at the handover, for the link's rate over
+        the mission."""
+        self.streams = OnboardStreams(link, self._note)
+        """The link's streams: set at preflight, given back to PX4's defaults at the end."""
         self._faults: asyncio.Queue[FaultEvent] = asyncio.Queue()
         self.control.estimator.freeze()  # until the mission flies in OFFBOARD
         self._tick = asyncio.Condition()
@@ -257,6 +264,7 @@ class PickupApp:
         try:
             return await self._fly()
         finally:
+            await self.streams.restore()  # also after an abort or Ctrl-C
             scheduling.restore()
 
     async def _fly(self) -> MissionReport:
@@ -318,6 +326,7 @@ class PickupApp:
                 rate_hz=self.control_rate_hz,
                 q_stow=self.cycle.q_stow,
                 loop_period=self.cycle.loop_period,
+                streams=self.streams,
             )
             await check_arm(self.arm)
         except PreflightError as exc:
@@ -368,6 +377,10 @@ class PickupApp:
                 cpu0, wall0 = self._mission_clock
                 self.report.cpu_share = (time.process_time() - cpu0) / (time.perf_counter() - wall0)
                 self._mission_clock = None
+                received0, t0_s = self._mission_messages or (0, self.t_s)
+                if self.t_s > t0_s:
+                    received = self._link_messages() - received0
+                    self.report.link_messages_per_s = received / (self.t_s - t0_s)
 
     def _carry_out(self, command: Command) -> None:
         """A command of the sequence that takes no time."""
@@ -380,6 +393,7 @@ class PickupApp:
         elif isinstance(command, StartMission):
             self.cycle.start_mission()
             self._mission_clock = (time.process_time(), time.perf_counter())
+            self._mission_messages = (self._link_messages(), self.t_s)
         elif isinstance(command, Landed):
             self.report.landed = self.report.disarmed = True
         elif isinstance(command, OffboardLost):
@@ -420,6 +434,11 @@ class PickupApp:
         return self.cycle.observe(self.sequence.watches_height)
 
     # ---------------------------------------------------------------- helpers
+
+    def _link_messages(self) -> int:
+        """Messages received on the link so far (those outside pymavlink's dialect too)."""
+        stats = self.link.stats
+        return stats.messages_received + stats.unknown_messages
 
     async def _watch_link(self) -> None:
         """Raise link_lost when the link's watchdog reports a loss."""

@@ -37,6 +37,7 @@ from companion.link.telemetry import LandedState, VehiclePose, VehicleStatus
 from companion.mission.arm_supervisor import ArmSupervisor
 from companion.mission.loop_period import LoopPeriodMonitor
 from companion.mission.report import MissionReport
+from companion.mission.streams import OnboardStreams, read_streams
 from companion.mission.vehicle_params import OPTIONAL, REQUIRED, VehicleParams, contradictions
 
 __all__ = [
@@ -51,11 +52,6 @@ __all__ = [
 ]
 
 Note = Callable[[str, str], None]
-
-BATTERY_RATE_HZ = 20.0
-"""Rate asked of SYS_STATUS, the battery's voltage and current [Hz]: the thrust scale
-follows the voltage, which a grasp's load step drops at once (PX4's onboard link sends it
-at 5 Hz by default)."""
 
 
 class PreflightError(RuntimeError):
@@ -95,28 +91,37 @@ async def check_vehicle(
     rate_hz: float,
     q_stow: NDArray[np.float64],
     loop_period: LoopPeriodMonitor,
+    streams: OnboardStreams,
 ) -> LoopPeriodMonitor:
-    """The vehicle's checks before arming, in order: the streams asked (ODOMETRY at
-    ``rate_hz``, the battery's SYS_STATUS at :data:`BATTERY_RATE_HZ`), PX4's parameters
-    against the config (its MPC_THR_MIN becomes ``control``'s thrust floor), the pose rate
-    against the gains, on the ground, disarmed, a global origin, Hold, ready to arm.
-    Returns the loop's period watch for the measured pose rate (the loop runs at the rate
-    the stream arrives: PX4 publishes no faster than its estimator, whatever was asked)."""
-    await link.set_message_interval(mavlink2.MAVLINK_MSG_ID_ODOMETRY, rate_hz)
-    await link.set_message_interval(mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, 5.0)
-    await link.set_message_interval(mavlink2.MAVLINK_MSG_ID_SYS_STATUS, BATTERY_RATE_HZ)
-    params = await read_vehicle_params(link)
-    problems = contradictions(params, config)
-    for problem in problems[1:]:
-        note("preflight", problem)
-    if problems:
-        raise PreflightError(problems[0])
-    control.thrust = ThrustModel(control.thrust.max_thrust_n, params.thrust_min_relative)
-    report.vehicle_params = params.describe()
-    note("preflight", f"vehicle parameters: {report.vehicle_params}")
-    watch = await check_pose_rate(
-        link, control, report, note, rate_hz=rate_hz, q_stow=q_stow, loop_period=loop_period
-    )
+    """The vehicle's checks before arming, in order: the streams the companion reads
+    asked (:func:`~companion.mission.streams.read_streams`: the pose at ``rate_hz``, the
+    battery, the landed state), PX4's parameters against the config (its MPC_THR_MIN
+    becomes ``control``'s thrust floor), the pose rate against the gains, on the ground,
+    disarmed, a global origin, Hold, ready to arm. The streams it does not read are turned
+    off meanwhile (``streams``, which the caller restores at the end). Returns the loop's
+    period watch for the measured pose rate (the loop runs at the rate the stream
+    arrives: PX4 publishes no faster than its estimator, whatever was asked)."""
+    await streams.ask(read_streams(link.pose_from, rate_hz))
+    stopping = asyncio.create_task(streams.stop_unread(), name="stop-unread-streams")
+    try:
+        params = await read_vehicle_params(link)
+        problems = contradictions(params, config)
+        for problem in problems[1:]:
+            note("preflight", problem)
+        if problems:
+            raise PreflightError(problems[0])
+        control.thrust = ThrustModel(control.thrust.max_thrust_n, params.thrust_min_relative)
+        report.vehicle_params = params.describe()
+        note("preflight", f"vehicle parameters: {report.vehicle_params}")
+        watch = await check_pose_rate(
+            link, control, report, note, rate_hz=rate_hz, q_stow=q_stow, loop_period=loop_period
+        )
+    except BaseException:
+        stopping.cancel()
+        await asyncio.gather(stopping, return_exceptions=True)
+        raise
+    await stopping
+    report.streams = streams.describe()
     landed = link.latest(LandedState)
     if landed is not None and not landed.on_ground:
         raise PreflightError(f"the vehicle is not on the ground ({landed.name})")

@@ -77,6 +77,12 @@ class MissionReport:
     """The control thread's scheduling over the mission: ``SCHED_FIFO 50``, ``normal``."""
     cpu_share: float | None = None
     """Process CPU time / wall time over the OFFBOARD part (1.0 = one core)."""
+    link_messages_per_s: float | None = None
+    """Messages received on the MAVLink link per second of vehicle time over the OFFBOARD
+    part."""
+    streams: dict[str, Any] = field(default_factory=dict)
+    """The link's streams asked (``asked_hz``: name -> rate [Hz]) and turned off
+    (``stopped``) at preflight, given back to PX4's defaults at the end."""
     late_cycles: int = 0
     """Cycles later than 2.5 control periods (vehicle time); the estimator skipped them."""
     poses_dropped: int = 0
@@ -124,6 +130,8 @@ class MissionReport:
             "setpoint_cpu_us": _percentiles(self.setpoint_cpu_us),
             "scheduling": self.scheduling,
             "cpu_share_of_one_core": self.cpu_share,
+            "link_messages_per_s": self.link_messages_per_s,
+            "streams": self.streams,
             "late_cycles": self.late_cycles,
             "poses_dropped": self.poses_dropped,
             "late_cycles_by_cause": self.late_cycles_by_cause,
