@@ -1,6 +1,7 @@
 """The ``companion`` command line: what runs on the onboard computer.
 
-``check`` (a configuration), ``mission pickup``, ``arm`` (servo bus bring-up), ``plot``
+``check`` (a configuration; with ``--timing``, whether this computer keeps up with the
+control cycle), ``mission pickup``, ``arm`` (servo bus bring-up), ``plot``
 (figures of a flight log) and ``log info`` (what an MCAP flight log holds). The simulator's
 commands (``sim``, ``compare``, ``demo``) are ``sitl``'s. User mistakes print one line
 naming the file, the key and the reason and exit with status 2 (:mod:`companion.cli.usage`);
@@ -23,7 +24,8 @@ from companion.cli.arm import app as arm_app
 from companion.cli.entry import VersionOption, run
 from companion.cli.mission import mission_app
 from companion.cli.plot import plot as plot_command
-from companion.cli.usage import config_or_exit, fail
+from companion.cli.usage import check_range, config_or_exit, fail
+from companion.config import CompanionConfig
 
 app = typer.Typer(
     name="companion",
@@ -45,10 +47,30 @@ def _root(version: VersionOption = False) -> None:
 @app.command()
 def check(
     config: Annotated[Path, typer.Argument(help="Configuration TOML file to validate.")],
+    timing: Annotated[
+        bool,
+        typer.Option(
+            "--timing",
+            help="Also time the control cycle on this computer: replay a recorded flight's "
+            "inputs (750 cycles) through the filters, the control step, the setpoint's encoding "
+            "and the log row at --control-rate; exit 1 when the cycle's p99 takes more "
+            "than half the control period.",
+        ),
+    ] = False,
+    control_rate: Annotated[
+        float,
+        typer.Option(
+            help="Control loop rate for --timing [Hz]: PX4 sends ODOMETRY, which clocks "
+            "the loop, at its estimator's 125 Hz."
+        ),
+    ] = 125.0,
 ) -> None:
     """Validate the companion's part of a configuration file and print what it believes
-    (the simulator's sections are checked by ``sitl check``)."""
+    (the simulator's sections are checked by ``sitl check``); with ``--timing``, whether
+    this computer keeps up with the control cycle."""
     cfg = config_or_exit(config)
+    if timing:
+        check_range(control_rate, "--control-rate", 1.0, 1e9, "Hz", "a positive rate")
     table = Table(title=escape(f"{cfg.name}: {cfg.description}"), show_header=True)
     table.add_column("quantity")
     table.add_column("value", justify="right")
@@ -62,6 +84,38 @@ def check(
     out = Console()
     out.print(table)
     out.print(f"{config}: OK", markup=False, highlight=False)
+    if timing:
+        raise typer.Exit(_check_timing(cfg, control_rate, out))
+
+
+def _check_timing(cfg: CompanionConfig, rate_hz: float, out: Console) -> int:
+    """``check --timing``: the table and the verdict; the exit status (0: keeps up)."""
+    from companion.mission.timing_check import HEADROOM_LIMIT, PARTS, check_timing
+
+    result = check_timing(cfg, rate_hz)
+    table = Table(
+        title=escape(f"control cycle at {rate_hz:g} Hz ({result.scheduling})"), show_header=True
+    )
+    table.add_column("part")
+    for heading in ("p50 [us]", "p99 [us]", "p99 [% of period]"):
+        table.add_column(escape(heading), justify="right")
+    for part in PARTS:
+        p50, p99 = result.percentile_us(part, 50), result.percentile_us(part, 99)
+        share = 100.0 * p99 / result.period_us
+        table.add_row(part, f"{p50:.0f}", f"{p99:.0f}", f"{share:.1f}")
+    out.print(table)
+    if result.scheduling_note is not None:
+        typer.echo(f"note: {result.scheduling_note}")
+    headroom = max(0.0, 100.0 * result.headroom)
+    typer.echo(
+        f"headroom at the cycle's p99: {headroom:.0f} % of the {result.period_us:g} us control "
+        f"period (at least {100.0 * (1.0 - HEADROOM_LIMIT):.0f} % needed)"
+    )
+    if result.keeps_up:
+        typer.echo(result.verdict())
+        return 0
+    typer.echo(result.verdict(), err=True)
+    return 1
 
 
 log_app = typer.Typer(

@@ -1,0 +1,267 @@
+"""Whether this computer keeps up with the control cycle: ``companion check --timing``.
+
+Replays a recorded flight's inputs (:data:`RECORDING_PATH`: 750 cycles, 6 s of the default
+virtual pickup from the grasp on, the estimator running with the payload; made by
+``benchmarks/record_cycle_inputs.py``) through the flight's own parts, built from the
+user's configuration, one cycle per control period:
+
+- **filters**: the state filter's calls of the cycle, in its order
+  (:class:`~companion.estimation.state.StateAssembler`: predict, pose, velocity, body
+  rates, joints and their rates) and the battery voltage for the thrust scale;
+- **step**: :meth:`FlightControl.step <companion.control.flight.FlightControl.step>`
+  (estimator, control law, tilt and thrust mapping);
+- **setpoint**: SET_ATTITUDE_TARGET built as the link builds it (quaternion NED/FRD,
+  pymavlink's encoding, framing and CRC), written to nowhere;
+- **log**: the cycle's row into the flight log (``flight.csv`` and ``flight.mcap``, in a
+  temporary directory removed afterwards).
+
+The replay runs under the flight loop's scheduling (``flight.realtime_priority``:
+SCHED_FIFO where permitted, :func:`~companion.mission.scheduling.enter_real_time`), so
+that other processes delay it no more than they would delay the flight. Each part is
+timed with ``time.perf_counter``; the verdict is on the whole cycle's 99th percentile
+against half the control period (the other half is the link's, the arm task's
+and the event loop's: decoding the pose, the servo bus, the wake-ups). What the replay
+leaves out (the mission's logic, the link's reader, the servo bus) is the same on every
+computer, so the headroom it reports is an upper bound of what flight leaves.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from pymavlink.dialects.v20 import common as mavlink2
+
+from companion.config import CompanionConfig
+from companion.control.flight import FlightControl
+from companion.control.laws import DesiredState
+from companion.coordinates import JOINTS
+from companion.estimation.estimator import Skip
+from companion.estimation.state import StateAssembler
+from companion.link.setpoint import (
+    ATTITUDE_ONLY_TYPE_MASK,
+    attitude_target_ned_frd,
+    quaternion_from_euler_zyx,
+)
+from companion.logs.flightlog import CycleRecord
+from companion.logs.mcap_log import ArmGeometry, FlightLogWithMcap
+from companion.mission.scheduling import enter_real_time
+
+__all__ = [
+    "PARTS",
+    "RECORDING",
+    "RECORDING_PATH",
+    "SKIP_CODES",
+    "CycleInputs",
+    "TimingResult",
+    "check_timing",
+]
+
+RECORDING_PATH = Path(__file__).with_name("cycle_inputs.npz")
+"""The shipped recording (float32 arrays, one row per cycle; NaN: no such call)."""
+RECORDING = (
+    "predict_dt_s", "position_m", "euler_rad", "velocity_m_s", "omega_rad_s", "voltage_v",
+    "eta_rad", "eta_dot_rad_s", "joint_age_s", "step_dt_s", "qd", "qd_dot", "qd_ddot",
+    "applied", "skip",
+)  # fmt: skip
+"""The recording's arrays: the filter's inputs, the voltage, step's period [s], desired
+state, applied force (NaN row when unknown) and ``skip`` (0, else 1 + the index of the
+reason in :data:`SKIP_CODES`)."""
+SKIP_CODES: tuple[Skip, ...] = tuple(Skip)
+PARTS = ("filters", "step", "setpoint", "log", "cycle")
+"""The parts timed, the whole cycle last."""
+HEADROOM_LIMIT = 0.5
+"""The cycle's p99 may take at most this share of the control period."""
+
+
+class _Discard:
+    """A file that forgets what is written (the setpoint's bytes)."""
+
+    def write(self, data: bytes) -> int:
+        return len(data)
+
+
+@dataclass(frozen=True)
+class CycleInputs:
+    """A recording of the cycle's inputs (see :data:`RECORDING`), one row per cycle."""
+
+    arrays: dict[str, NDArray[np.float64]]
+
+    @classmethod
+    def load(cls, path: Path = RECORDING_PATH) -> CycleInputs:
+        with np.load(path) as data:
+            missing = set(RECORDING) - set(data.files)
+            if missing:
+                raise ValueError(f"{path}: no {sorted(missing)} in the recording")
+            return cls({key: np.asarray(data[key], dtype=np.float64) for key in RECORDING})
+
+    def __len__(self) -> int:
+        return len(self.arrays["step_dt_s"])
+
+
+@dataclass(frozen=True)
+class TimingResult:
+    """What the replay measured: each part's times per cycle [us], the rate checked, the
+    scheduling it ran under (and why not real-time, if not)."""
+
+    rate_hz: float
+    times_us: dict[str, NDArray[np.float64]]
+    scheduling: str = "normal"
+    scheduling_note: str | None = None
+
+    @property
+    def period_us(self) -> float:
+        return 1e6 / self.rate_hz
+
+    def percentile_us(self, part: str, q: float) -> float:
+        return float(np.percentile(self.times_us[part], q))
+
+    @property
+    def headroom(self) -> float:
+        """The share of the control period the cycle's p99 leaves free."""
+        return 1.0 - self.percentile_us("cycle", 99) / self.period_us
+
+    @property
+    def keeps_up(self) -> bool:
+        """The cycle's p99 takes at most :data:`HEADROOM_LIMIT` of the period."""
+        return self.percentile_us("cycle", 99) <= HEADROOM_LIMIT * self.period_us
+
+    def verdict(self) -> str:
+        """One line: the p99 cycle against the period."""
+        p99, period = self.percentile_us("cycle", 99), self.period_us
+        share = f"{100 * p99 / period:.0f} % of the {period:.0f} us control period"
+        if self.keeps_up:
+            return f"keeps up at {self.rate_hz:g} Hz: the cycle's p99 is {p99:.0f} us, {share}"
+        return (
+            f"too slow for {self.rate_hz:g} Hz: the cycle's p99 is {p99:.0f} us, {share} "
+            f"(at most {100 * HEADROOM_LIMIT:.0f} %); fly a lower --control-rate or a faster "
+            "computer"
+        )
+
+
+def _replay_one(
+    inputs: dict[str, NDArray[np.float64]],
+    i: int,
+    assembler: StateAssembler,
+    control: FlightControl,
+) -> None:
+    """The filter's calls of cycle ``i`` and the voltage (the filters part)."""
+    dt = inputs["predict_dt_s"][i]
+    if math.isfinite(dt):
+        assembler.predict(float(dt))
+    assembler.pose(inputs["position_m"][i], inputs["euler_rad"][i])
+    velocity = inputs["velocity_m_s"][i]
+    if math.isfinite(velocity[0]):
+        assembler.velocity(velocity)
+    omega = inputs["omega_rad_s"][i]
+    if math.isfinite(omega[0]):
+        assembler.body_rates(omega)
+    voltage = float(inputs["voltage_v"][i])
+    control.supply(voltage if math.isfinite(voltage) else None)
+    eta = inputs["eta_rad"][i]
+    if math.isfinite(eta[0]):
+        age = float(inputs["joint_age_s"][i])
+        assembler.joints(eta, age)
+        assembler.joint_rates(inputs["eta_dot_rad_s"][i], age)
+
+
+def check_timing(
+    config: CompanionConfig,
+    rate_hz: float,
+    *,
+    inputs: CycleInputs | None = None,
+    sleep: Callable[[float], None] = time.sleep,
+) -> TimingResult:
+    """Replay ``inputs`` (default: the shipped recording) through the parts built from
+    ``config``, one cycle per ``1 / rate_hz`` of wall time (cycles that overrun start the
+    next at once), under the flight loop's scheduling; returns each part's times. The
+    replay's numbers are the recording's (its own periods): the rate paces it and sets
+    the budget."""
+    if not rate_hz > 0.0:
+        raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+    recording = inputs or CycleInputs.load()
+    data = recording.arrays
+    n = len(recording)
+    control = FlightControl(config, "passivity")
+    control.estimator.resume()
+    assembler = StateAssembler.from_sensors(config.sensors)
+    mav = mavlink2.MAVLink(_Discard(), 1, mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER)
+    times = {part: np.zeros(n) for part in PARTS}
+    period_s = 1.0 / rate_hz
+    clock = time.perf_counter
+    with tempfile.TemporaryDirectory(prefix="companion-timing-") as tmp:
+        log = FlightLogWithMcap(Path(tmp) / "flight.csv", ArmGeometry.from_config(config))
+        log.open()
+        scheduling = enter_real_time(config.flight.realtime_priority)
+        try:
+            next_s = clock()
+            for i in range(n):
+                wait = next_s - clock()
+                if wait > 0.0:
+                    sleep(wait)
+                next_s = max(next_s + period_s, clock())
+                t0 = clock()
+                _replay_one(data, i, assembler, control)
+                t1 = clock()
+                out = None
+                step_dt = float(data["step_dt_s"][i])
+                if math.isfinite(step_dt) and assembler.ready:
+                    skip = int(data["skip"][i])
+                    applied = SKIP_CODES[skip - 1] if skip else data["applied"][i]
+                    desired = DesiredState(data["qd"][i], data["qd_dot"][i], data["qd_ddot"][i])
+                    out = control.step(step_dt, assembler.estimate, desired, applied)
+                t2 = clock()
+                if out is not None:
+                    sp = out.setpoint
+                    q = quaternion_from_euler_zyx(sp.roll_rad, sp.pitch_rad, sp.yaw_rad)
+                    q_ned, thrust = attitude_target_ned_frd(q, sp.thrust_relative)
+                    mav.send(
+                        mav.set_attitude_target_encode(
+                            i, 1, 1, ATTITUDE_ONLY_TYPE_MASK, q_ned, 0.0, 0.0, 0.0, thrust
+                        )
+                    )
+                t3 = clock()
+                if out is not None:
+                    state = assembler.estimate
+                    log.write(
+                        CycleRecord(
+                            t_vehicle_s=i * period_s,
+                            q=state.q,
+                            q_dot=state.q_dot,
+                            q_ddot=state.q_ddot,
+                            q_d=out.desired.q,
+                            theta_hat=out.estimate.theta,
+                            theta_excitation=out.estimate.excitation,
+                            theta_spread=out.estimate.spread,
+                            theta_confident=out.estimate.confident,
+                            theta_frozen=out.estimate.frozen,
+                            thrust_scale_hat=out.estimate.thrust_scale,
+                            tau=out.tau,
+                            setpoint=out.setpoint,
+                            servo_torque_cmd_n_m=out.tau[JOINTS],
+                            servo_torque_meas_n_m=out.tau[JOINTS],
+                            servo_position_rad=state.q[JOINTS],
+                            loop_period_ms=period_s * 1e3,
+                            setpoint_latency_us=(t3 - t0) * 1e6,
+                            cycle_latency_us=(t3 - t0) * 1e6,
+                            setpoint_cpu_us=(t3 - t0) * 1e6,
+                            px4_mode="OFFBOARD",
+                            armed=True,
+                            phase="lift",
+                        )
+                    )
+                t4 = clock()
+                for part, (a, b) in zip(
+                    PARTS, ((t0, t1), (t1, t2), (t2, t3), (t3, t4), (t0, t4)), strict=True
+                ):
+                    times[part][i] = (b - a) * 1e6
+        finally:
+            scheduling.restore()
+            log.close()
+    return TimingResult(rate_hz, times, scheduling.policy, scheduling.note)
