@@ -28,14 +28,17 @@ channel            schema                       content (one message per cycle u
 ``/estimate``      ``companion.Estimate``       theta_hat (m2, m3, m4, lc = m3/m2), the
                                                 confidence (excitation, spread, confident,
                                                 frozen), the thrust scale
-``/timing``        ``companion.Timing``         loop period [ms]; the wall-clock latencies
-                                                [us] when measured (absent keys otherwise)
+``/timing``        ``companion.Timing``         loop period [ms] (vehicle time); the live
+                                                view adds the wall-clock latencies [us] when
+                                                measured, the file keeps them out
 ``/events``        ``foxglove.Log``             one per event of ``LOG.events.csv``: name =
                                                 kind, message = detail; level ERROR for a
                                                 ``fault``, FATAL for a ``failure``, INFO else
 =================  ===========================  ==============================================
 
-A value that was not available that cycle (None, NaN) is ``null``. Simulator flights add
+A value that was not available that cycle (None, NaN) is ``null``. Nothing of the wall
+clock enters the file: the cycle's latencies and CPU time go to ``LOG.timing.csv``, so two
+identical flights on simulated time give the same ``LOG.mcap``, byte for byte. Simulator flights add
 ``/truth`` after the flight (:mod:`sitl.truth_mcap`), through :func:`start_writer`,
 :func:`register_channel` and :func:`pose_in_frame` here.
 
@@ -261,7 +264,8 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     ),
     "companion.Timing": _plain(
         "companion.Timing",
-        "Vehicle time since the previous cycle [ms]; wall-clock latencies [us] when measured",
+        "Vehicle time since the previous cycle [ms]; in the live view also the wall-clock "
+        "latencies [us] when measured (a flight log keeps them in LOG.timing.csv)",
         {
             "loop_period_ms": _NUMBER,
             "setpoint_latency_us": _NUMBER,
@@ -422,8 +426,11 @@ def _named(keys: Sequence[str], values: list[float] | None) -> dict[str, float |
     return {k: (v if math.isfinite(v) else None) for k, v in zip(keys, values, strict=True)}
 
 
-def cycle_messages(record: CycleRecord, geometry: ArmGeometry) -> list[tuple[str, dict]]:
-    """(topic, message) of one control cycle, in :data:`CHANNELS` order (pure)."""
+def cycle_messages(
+    record: CycleRecord, geometry: ArmGeometry, *, wall_clock: bool = True
+) -> list[tuple[str, dict]]:
+    """(topic, message) of one control cycle, in :data:`CHANNELS` order (pure); without
+    ``wall_clock`` ``/timing`` holds the loop period only (the file's)."""
     r = record
     ns = time_ns(r.t_vehicle_s)
     stamp = _stamp(ns)
@@ -485,10 +492,11 @@ def cycle_messages(record: CycleRecord, geometry: ArmGeometry) -> list[tuple[str
         )
     )
     timing: dict[str, Any] = {"timestamp": stamp, "loop_period_ms": _value(r.loop_period_ms)}
-    for key in ("setpoint_latency_us", "cycle_latency_us", "setpoint_cpu_us"):
-        value = _value(getattr(r, key))
-        if value is not None:
-            timing[key] = value
+    if wall_clock:
+        for key in ("setpoint_latency_us", "cycle_latency_us", "setpoint_cpu_us"):
+            value = _value(getattr(r, key))
+            if value is not None:
+                timing[key] = value
     out.append(("/timing", timing))
     return out
 
@@ -674,7 +682,7 @@ class McapLogWriter:
         if self._writer is None:
             raise FlightLogError(f"{self.path}: the log is not open")
         ns = time_ns(record.t_vehicle_s)
-        for topic, message in cycle_messages(record, self.geometry):
+        for topic, message in cycle_messages(record, self.geometry, wall_clock=False):
             self._add(topic, ns, message)
         self._last_ns = ns
 
