@@ -35,8 +35,8 @@ def test_the_flight_install_has_none_of_the_simulator(flight_install):
 
 def test_the_flight_install_imports_every_companion_module(flight_install):
     walk = (
-        "import importlib, pkgutil, companion, arm_driver\n"
-        "for pkg in (companion, arm_driver):\n"
+        "import importlib, pkgutil, companion, arm_driver, bytelink\n"
+        "for pkg in (companion, arm_driver, bytelink):\n"
         "    for m in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + '.'):\n"
         "        importlib.import_module(m.name)\n"
         "print(companion.__file__)"

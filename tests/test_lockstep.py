@@ -1,5 +1,5 @@
 """The lockstep loop and the in-memory channels it serves (``sitl.vehicle.lockstep``,
-``arm_driver.memory``), with a counting simulation instead of the vehicle."""
+``bytelink.memory``), with a counting simulation instead of the vehicle."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from arm_driver.dynamixel.transport import open_transport as open_serial
 from arm_driver.errors import CommunicationError
-from arm_driver.memory import attach, create_channel
+from bytelink.memory import attach, create_channel
 from companion.link.errors import LinkClosedError
 from companion.link.transport import open_transport
 from companion.link.url import parse_link_url

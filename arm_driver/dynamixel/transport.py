@@ -33,7 +33,7 @@ import os
 import serial
 
 from arm_driver.errors import CommunicationError
-from arm_driver.memory import MemoryEnd, attach, require_memory_loop
+from bytelink.memory import MemoryEnd, attach, require_memory_loop
 
 __all__ = [
     "BITS_PER_BYTE",
@@ -231,7 +231,7 @@ class SerialTransport:
 
 
 MEMORY_PREFIX = "memory:"
-"""A device named ``memory:NAME`` is the in-memory line ``NAME`` (:mod:`arm_driver.memory`)."""
+"""A device named ``memory:NAME`` is the in-memory line ``NAME`` (:mod:`bytelink.memory`)."""
 
 
 class MemorySerialTransport(SerialTransport):

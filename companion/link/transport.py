@@ -24,7 +24,7 @@ from typing import Any
 
 from pymavlink import mavutil
 
-from arm_driver.memory import MemoryEnd, attach, require_memory_loop
+from bytelink.memory import MemoryEnd, attach, require_memory_loop
 from companion.link.errors import LinkClosedError
 from companion.link.url import LinkUrl
 
@@ -135,7 +135,7 @@ def _enable_arrival_times(sock: socket.socket) -> bool:
 
 class MemoryTransport:
     """The in-memory link ``memory://NAME`` of a simulated vehicle in this process
-    (:mod:`arm_driver.memory`): one MAVLink datagram per chunk, the same interface as
+    (:mod:`bytelink.memory`): one MAVLink datagram per chunk, the same interface as
     :class:`Transport`; opened on the lockstep loop only."""
 
     def __init__(self, url: LinkUrl, end: MemoryEnd) -> None:

@@ -1,5 +1,5 @@
 """The vehicle's only I/O: one non-blocking UDP MAVLink 2 endpoint per link (or, for a
-flight on simulated time, one in-memory channel end: :mod:`arm_driver.memory`).
+flight on simulated time, one in-memory channel end: :mod:`bytelink.memory`).
 
 PX4 SITL opens its onboard/API link on local UDP 14580 sending to 127.0.0.1:14540 and its
 GCS link on local 18570 sending to 127.0.0.1:14550; :data:`ONBOARD_PORTS` and
@@ -35,7 +35,7 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from arm_driver.memory import MemoryEnd
+from bytelink.memory import MemoryEnd
 from companion.link.signing import SIGNING_KEY_FILE_LIMIT_BYTES
 from companion.user_files import UserFileError, read_small_file
 

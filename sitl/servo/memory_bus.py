@@ -3,7 +3,7 @@
 :class:`MemoryServoBus` is :class:`~sitl.servo.pty_server.PtyServoBus` for a flight on
 simulated time: the same servo models answer the same Protocol 2.0 bytes through the same
 :class:`~sitl.servo.responder.ServoResponder`, but over the in-memory line ``memory:NAME``
-(:mod:`arm_driver.memory`; the companion's bus opens ``dynamixel://memory:NAME``) and
+(:mod:`bytelink.memory`; the companion's bus opens ``dynamixel://memory:NAME``) and
 without a thread. The simulation calls :meth:`MemoryServoBus.serve` whenever the companion
 has written or time has advanced: instructions are carried out at once, and each reply is
 released once the simulation clock has passed its delay (Return Delay Time(9) plus the
@@ -19,7 +19,7 @@ from collections.abc import Mapping
 
 from arm_driver.dynamixel.stream import InstructionParser
 from arm_driver.errors import CommunicationError
-from arm_driver.memory import MemoryChannel, create_channel
+from bytelink.memory import MemoryChannel, create_channel
 from sitl.servo.responder import Faults, RespondingBus, ServoResponder
 from sitl.servo.xm430 import XM430Servo
 

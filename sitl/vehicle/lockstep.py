@@ -8,7 +8,7 @@ selector event loop with two parts replaced:
   ``asyncio.sleep``, ``asyncio.timeout_at`` and link or servo deadline of the flight code
   runs on simulated time, unchanged;
 - its selector (:class:`LockstepSelector`) watches in-memory channel ends
-  (:mod:`arm_driver.memory`) instead of file descriptors. When the loop would block (every
+  (:mod:`bytelink.memory`) instead of file descriptors. When the loop would block (every
   task of the companion waits for a message or a timer), the selector steps the
   simulation, one plant step at a time, until a message for the companion arrives or the
   earliest timer is due.
@@ -35,7 +35,7 @@ import threading
 from collections.abc import Coroutine, Mapping
 from typing import Any, Protocol, TypeVar
 
-from arm_driver.memory import end_for_fd
+from bytelink.memory import end_for_fd
 
 __all__ = ["Lockstep", "LockstepLoop", "LockstepSelector", "LockstepStall", "run_lockstep"]
 

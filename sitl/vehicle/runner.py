@@ -39,7 +39,7 @@ from typing import IO
 import numpy as np
 
 from arm_driver.joint import GripperConfig, JointConfig
-from arm_driver.memory import MemoryChannel, MemoryEnd, create_channel
+from bytelink.memory import MemoryChannel, MemoryEnd, create_channel
 from companion.config import arm_bus_configs
 from companion.coordinates import POSITION
 from companion.frames import ned_from_enu
@@ -171,7 +171,7 @@ class RunOptions:
     link, both ways (a radio or cable lost for a while)."""
     memory: str | None = None
     """Serve the links and the servo bus on in-memory channels ``NAME-onboard``,
-    ``NAME-gcs`` and ``NAME-servos`` (:mod:`arm_driver.memory`) instead of UDP and a pty:
+    ``NAME-gcs`` and ``NAME-servos`` (:mod:`bytelink.memory`) instead of UDP and a pty:
     a flight on simulated time in one process (:mod:`sitl.vehicle.lockstep`), stepped by its
     caller; ``None``: UDP and a pty, paced by :meth:`SitlVehicle.run`."""
     unix_time_at_boot_us: int | None = None
