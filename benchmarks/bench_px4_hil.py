@@ -39,7 +39,7 @@ from sitl.hil import HilOptions, Px4InTheLoop
 from sitl.px4_sitl.launcher import Px4Build
 from sitl.scenario import load_scenario
 from sitl.vehicle.launch import free_udp_port
-from sitl.vehicle.runner import LinkPorts, RunOptions
+from sitl.vehicle.options import LinkPorts, RunOptions
 
 CONFIG = Path(__file__).resolve().parent.parent / "configs" / "sitl_pickup.toml"
 ORIGIN = (47.397742, 8.545594, 488.0)

@@ -125,7 +125,8 @@ def _free_port() -> int:
 
 def _vehicle(speed: float):
     from sitl.scenario import load_scenario
-    from sitl.vehicle.runner import LinkPorts, RunOptions, SitlVehicle
+    from sitl.vehicle.options import LinkPorts, RunOptions
+    from sitl.vehicle.runner import SitlVehicle
 
     ports = LinkPorts(
         onboard_local=_free_port(),

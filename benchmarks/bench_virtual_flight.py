@@ -41,7 +41,8 @@ from companion.logs.mcap_log import McapLogWriter
 from companion.mission.cycle import ControlCycle
 from sitl.physics.rotor_plant import RotorPlant
 from sitl.scenario import load_scenario
-from sitl.vehicle.runner import RunOptions, SitlVehicle
+from sitl.vehicle.options import RunOptions
+from sitl.vehicle.runner import SitlVehicle
 from sitl.vehicle.virtual_flight import fly_virtual
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -27,7 +27,7 @@ from companion.estimation.state import StateAssembler
 from companion.mission.cycle import ControlCycle
 from companion.mission.timing_check import RECORDING, SKIP_CODES
 from sitl.demo_command import DemoCommand
-from sitl.vehicle.runner import RunOptions
+from sitl.vehicle.options import RunOptions
 from sitl.vehicle.virtual_flight import fly_virtual
 
 NAN3, NAN2, NAN8 = [math.nan] * 3, [math.nan] * 2, [math.nan] * 8

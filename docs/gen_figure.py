@@ -24,7 +24,7 @@ from companion.cli.mission import plan_for
 from companion.logs.flightlog import read_flight_log
 from sitl.flight_figures import truth_lines
 from sitl.scenario import load_scenario
-from sitl.vehicle.runner import RunOptions
+from sitl.vehicle.options import RunOptions
 from sitl.vehicle.virtual_flight import fly_virtual
 
 ROOT = Path(__file__).resolve().parent.parent

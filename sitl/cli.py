@@ -33,7 +33,8 @@ from sitl.physics import PlantError
 from sitl.px4_sitl.launcher import Px4NotReadyError
 from sitl.run_command import RunCommand
 from sitl.scenario import Scenario, load_scenario
-from sitl.vehicle.runner import RunStats, SitlVehicle
+from sitl.vehicle.options import RunStats
+from sitl.vehicle.runner import SitlVehicle
 
 app = typer.Typer(
     name="sitl",

@@ -446,7 +446,7 @@ def _fly_virtual(options: DemoCommand, scenario: Scenario, plan: PickupPlan, out
     """The demo on simulated time; the exit status (0 completed, 1 failed)."""
     from companion.cli.mission import UsageError, finish_mission
     from sitl.physics import PlantError
-    from sitl.vehicle.runner import RunOptions
+    from sitl.vehicle.options import RunOptions
     from sitl.vehicle.virtual_flight import fly_virtual
 
     run = RunOptions(

@@ -25,7 +25,8 @@ from sitl.physics.jsbsim import Wind
 from sitl.px4 import ParamError, SigningKeyError, load_signing_key
 from sitl.px4_sitl.launcher import Px4Build, Px4BuildError
 from sitl.scenario import MAX_DURATION_S, PayloadSlip, Scenario, load_scenario
-from sitl.vehicle.runner import LinkPorts, RunOptions, SitlVehicle, simulated_servo_ids
+from sitl.vehicle.options import LinkPorts, RunOptions
+from sitl.vehicle.runner import SitlVehicle, simulated_servo_ids
 
 __all__ = ["RunCommand"]
 

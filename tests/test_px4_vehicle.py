@@ -19,7 +19,7 @@ from companion.frames import euler_zyx_from_quaternion, quaternion_ned_frd_from_
 from sitl.physics.frames import quaternion_from_euler
 from sitl.px4 import PARAMETERS, Px4Mode, Px4Params, Px4Vehicle, VehicleMeasurement
 from sitl.px4.params import attitude_loop_params
-from sitl.px4.telemetry import StreamScheduler
+from sitl.px4.streams import StreamScheduler
 from sitl.scenario import load_scenario
 
 GCS = (255, 190)

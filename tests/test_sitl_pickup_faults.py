@@ -21,7 +21,8 @@ from companion.mission.carry_check import CarryThresholds, gripper_holds
 from sitl.physics import TruthPlant
 from sitl.scenario import load_scenario
 from sitl.servo import XM430Servo
-from sitl.vehicle.runner import RunOptions, build_world, world_settings
+from sitl.vehicle.options import RunOptions
+from sitl.vehicle.runner import build_world, world_settings
 from sitl.vehicle.world import World, WorldSettings
 
 PICKUP = Path(__file__).resolve().parents[1] / "configs" / "sitl_pickup.toml"

@@ -132,7 +132,8 @@ def vehicle_run() -> tuple[np.ndarray, np.ndarray]:
 
     from sitl.px4 import GeoReference, Px4Params, Px4Vehicle
     from sitl.vehicle.navigation import Navigation
-    from sitl.vehicle.runner import RunOptions, build_world
+    from sitl.vehicle.options import RunOptions
+    from sitl.vehicle.runner import build_world
 
     scenario = load_scenario(CONFIGS / "sitl_pickup.toml")
     options = RunOptions(seed=1, navigation="gps")

@@ -13,7 +13,8 @@ from pymavlink import mavutil
 
 from sitl.scenario import load_scenario
 from sitl.vehicle.launch import free_udp_port
-from sitl.vehicle.runner import LinkPorts, RunOptions, SitlVehicle
+from sitl.vehicle.options import LinkPorts, RunOptions
+from sitl.vehicle.runner import SitlVehicle
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 

@@ -23,7 +23,8 @@ from companion.mission.streams import (
 from sitl.px4_sitl.launcher import Px4Sitl
 from sitl.scenario import load_scenario
 from sitl.vehicle.lockstep import run_lockstep
-from sitl.vehicle.runner import RunOptions, SitlVehicle
+from sitl.vehicle.options import RunOptions
+from sitl.vehicle.runner import SitlVehicle
 
 ODOMETRY, ATTITUDE, GPS_RAW_INT = (
     M.MAVLINK_MSG_ID_ODOMETRY,

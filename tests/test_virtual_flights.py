@@ -23,7 +23,7 @@ from companion.cli.mission import plan_for
 from companion.logs.flightlog import read_flight_log
 from companion.logs.mcap_log import describe_mcap
 from sitl.scenario import Battery, PayloadSlip, Scenario, load_scenario
-from sitl.vehicle.runner import RunOptions
+from sitl.vehicle.options import RunOptions
 from sitl.vehicle.virtual_flight import fly_virtual
 
 ROOT = Path(__file__).parent.parent

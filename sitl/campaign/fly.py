@@ -32,7 +32,7 @@ from companion.mission.pickup import Phase, PickupPlan
 from companion.mission.report import MissionReport
 from sitl.campaign.flights import CRUISE_ALTITUDE_M, Flight, scenario_of
 from sitl.scenario import Scenario
-from sitl.vehicle.runner import RunOptions
+from sitl.vehicle.options import RunOptions
 from sitl.vehicle.virtual_flight import fly_virtual, normally_scheduled
 
 __all__ = [

@@ -6,10 +6,12 @@ its arm, gripper and payload object; the arm's servos stay on the emulated Dynam
 and the companion talks to PX4 as on the real vehicle. Modules:
 :mod:`~sitl.hil.airframe` (PX4's parameters of the scenario), :mod:`~sitl.hil.sensors`
 (IMU, magnetometer, barometer, GPS), :mod:`~sitl.hil.messages` (the simulator link's
-MAVLink), :mod:`~sitl.hil.link` (its TCP socket), :mod:`~sitl.hil.vehicle` (PX4, world and
-the lockstep loop). See ``docs/px4_in_the_loop.md``.
+MAVLink), :mod:`~sitl.hil.link` (its TCP socket), :mod:`~sitl.hil.options` (how to run
+it, what a run achieved), :mod:`~sitl.hil.boot` (PX4's way to ready),
+:mod:`~sitl.hil.vehicle` (PX4, world and the lockstep loop). See ``docs/px4_in_the_loop.md``.
 """
 
-from sitl.hil.vehicle import HilOptions, HilStats, Px4Exited, Px4InTheLoop
+from sitl.hil.options import HilOptions, HilStats
+from sitl.hil.vehicle import Px4Exited, Px4InTheLoop
 
 __all__ = ["HilOptions", "HilStats", "Px4Exited", "Px4InTheLoop"]

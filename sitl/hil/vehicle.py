@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 import threading
 import time
@@ -60,6 +59,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.hil.airframe import AUTOSTART, navigation_parameters, px4_parameters
+from sitl.hil.boot import Px4Boot, forward_log
 from sitl.hil.companion_relay import CompanionRelay
 from sitl.hil.link import SimulatorLink
 from sitl.hil.messages import (
@@ -69,6 +69,7 @@ from sitl.hil.messages import (
     motor_commands,
     vision_odometry,
 )
+from sitl.hil.options import HilOptions, HilStats
 from sitl.hil.sensors import (
     ACCEL_STD_M_S2,
     BARO_STD_PA,
@@ -82,7 +83,6 @@ from sitl.hil.sensors import (
 from sitl.physics.rotors import N_ROTORS
 from sitl.px4 import GeoReference, MavlinkEndpoint, Px4Mode
 from sitl.px4_sitl.launcher import (
-    Px4Build,
     Px4NotReadyError,
     Px4Ports,
     Px4Sitl,
@@ -91,18 +91,11 @@ from sitl.px4_sitl.launcher import (
 )
 from sitl.scenario import Scenario
 from sitl.stepping import WallPacer, step_loop
-from sitl.vehicle.launch import free_udp_port
-from sitl.vehicle.runner import (
-    LOCKSTEP_WAIT_S,
-    RunOptions,
-    RunStats,
-    build_world,
-    servo_faults,
-    truth_record,
-)
+from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions
+from sitl.vehicle.runner import build_world, servo_faults, truth_record
 from sitl.vehicle.sensors import PoseSensor
 
-__all__ = ["VALIDATED_SPEED", "HilOptions", "HilStats", "Px4Exited", "Px4InTheLoop"]
+__all__ = ["VALIDATED_SPEED", "Px4Exited", "Px4InTheLoop"]
 
 VALIDATED_SPEED = 2.0
 """The highest speed (simulated s per wall s) at which the pickup with PX4 in the loop and
@@ -113,8 +106,6 @@ centre-of-mass error by 2.5 of speed 1's standard deviations, and 2 cores reach 
 2.3x anyway (the whole command 1.7x against 2x's 1.6x)."""
 
 _SIMULATOR_WAITING = "Waiting for simulator to accept connection"
-_STARTUP_DONE = "Startup script returned successfully"
-_READY = "Ready for takeoff!"
 _SLOW_SENSORS_HZ = 50.0
 """Rate of the magnetometer and barometer samples in HIL_SENSOR [Hz]."""
 _ANSWER_TIMEOUT_S = 30.0
@@ -130,81 +121,10 @@ sends its poses faster than real time, and a companion that keeps up only at ``s
 drops them and sees long control periods in vehicle time (``loop_overrun``: the
 suspected cause of such faults that came with step-start lateness p99 of 0.2 s under the
 imitation's 0.25 s). In lockstep nothing needs the lost wall time back."""
-_ONBOARD_RATE_B_S = 4_000_000
-_MODE_LINK_RATE_B_S = 20_000
 
 
 class Px4Exited(RuntimeError):
     """PX4 stopped (or stopped answering) while flying; the message ends with its log."""
-
-
-@dataclass(frozen=True)
-class HilOptions:
-    """How to run PX4 (``sitl run --autopilot px4``).
-
-    Attributes
-    ----------
-    build
-        The PX4 SITL build (``PX4_SITL_DIR`` or ``--px4-dir``).
-    keep_dir
-        Keep PX4's working directory (``px4.log``, parameters, ULog) in this directory;
-        ``None``: a temporary directory, removed at the end.
-    gps
-        The GPS receiver with ``navigation="gps"`` (:data:`~sitl.hil.sensors.GPS_GRADES`).
-    ready_timeout_s
-        Longest wall time from starting PX4 until it is ready [s].
-    companion_lockstep
-        Relay PX4's onboard link through this process and hold PX4's clock after each
-        frame until the companion has answered the last pose
-        (:mod:`sitl.hil.companion_relay`): the companion's computing then takes no vehicle
-        time, on an idle or a busy machine. Off: the companion runs beside the lockstep.
-    nice
-        Lower this process's CPU priority by this much (``os.nice``) once PX4 has started
-        (PX4 keeps the normal priority: with PX4 niced as well, one GPS flight on a loaded
-        machine had EKF2 reset its yaw after take-off; the cause is not established). The
-        physics drive the lockstep
-        clock: when the CPU is short, slowing them costs only wall time. The companion (on
-        the same machine in SITL; on its own computer on the vehicle) cannot slow down: a
-        companion starved of CPU drops PX4's poses and sees long control periods in vehicle
-        time (``loop_overrun``). 0: leave the priority alone.
-    """
-
-    build: Px4Build
-    keep_dir: Path | None = None
-    gps: str = "standard"
-    ready_timeout_s: float = 120.0
-    companion_lockstep: bool = True
-    nice: int = 5
-
-    def __post_init__(self) -> None:
-        if self.gps not in GPS_GRADES:
-            raise ValueError(f"gps must be one of {sorted(GPS_GRADES)}, got {self.gps!r}")
-        if not 0 <= self.nice <= 19:
-            raise ValueError(f"nice must be 0-19, got {self.nice!r}")
-
-
-@dataclass
-class HilStats(RunStats):
-    """:class:`~sitl.vehicle.runner.RunStats` of a run with PX4, and where the wall time went."""
-
-    frames: int = 0
-    """IMU periods simulated."""
-    px4_wait_s: float = 0.0
-    """Wall time spent waiting for PX4's answers [s] (PX4 computing, or descheduled)."""
-    physics_s: float = 0.0
-    """Wall time in the world's steps (plant, servos, gripper, truth log) [s]."""
-    sensors_s: float = 0.0
-    """Wall time making and sending the sensor messages [s]."""
-    companion_holds: int = 0
-    """Frames PX4's clock was held for the companion's answer (companion lockstep)."""
-    companion_wait_s: float = 0.0
-    """Wall time PX4's clock was held for the companion [s]."""
-    companion_releases: int = 0
-    """Holds released because the companion did not answer in time (it stopped streaming)."""
-    boot_sim_s: float = 0.0
-    """Simulated time until PX4 was ready [s]."""
-    boot_wall_s: float = 0.0
-    """Wall time until PX4 was ready [s]."""
 
 
 class Px4InTheLoop:
@@ -420,7 +340,7 @@ class Px4InTheLoop:
             else (self.options.ports.onboard_local, self.options.ports.onboard_remote)
         )
         self._frame = _FrameLoop(
-            boot=_Boot(self.px4, self.options, onboard, self._mode_link_port()),
+            boot=Px4Boot(self.px4, self.options, onboard, self._mode_link_port()),
             truth_every=max(1, round(1.0 / (self.options.truth_rate_hz * self.world.dt_s))),
             silent=self.options.servo_silent,
             stop=stop,
@@ -517,7 +437,7 @@ class Px4InTheLoop:
             raise Px4Exited(f"PX4 exited:\n{self.px4.log_tail(15)}")
         if frame.ready:
             if frame.console is not None:
-                frame.log_offset = _forward_log(self.px4.log_path, frame.log_offset, frame.console)
+                frame.log_offset = forward_log(self.px4.log_path, frame.log_offset, frame.console)
             return False
         if frame.boot.advance():
             frame.ready = True
@@ -608,7 +528,7 @@ class _FrameLoop:
     its start), PX4's boot, the housekeeping's next wall-clock time, and the run's
     options."""
 
-    boot: _Boot
+    boot: Px4Boot
     truth_every: int
     """Plant steps between two truth lines."""
     silent: tuple[int, float] | None
@@ -630,87 +550,3 @@ class _FrameLoop:
     force: np.ndarray = field(default_factory=lambda: np.zeros(3))
     omega: np.ndarray = field(default_factory=lambda: np.zeros(3))
     commands: list[float] = field(default_factory=list)
-
-
-class _Boot:
-    """PX4's way to ready, advanced from the loop: start-up script done, then its links
-    moved onto the requested ports and the heartbeat link started (PX4 commands, in a
-    thread: they need PX4's lockstep clock to move), then "Ready for takeoff!"."""
-
-    def __init__(
-        self, px4: Px4Sitl, options: RunOptions, onboard: tuple[int, int], mode_port: int
-    ) -> None:
-        self._px4 = px4
-        self._options = options
-        self._onboard = onboard
-        self._mode_port = mode_port
-        self._thread: threading.Thread | None = None
-        self._error: BaseException | None = None
-        self.waiting_for = "its start-up script"
-
-    def advance(self) -> bool:
-        """True once PX4 is ready; raises Px4NotReadyError when a link does not start."""
-        if self._error is not None:
-            raise Px4NotReadyError(f"PX4 did not start its links: {self._error}")
-        text = self._px4.log_path.read_text(errors="replace")
-        if self._thread is None:
-            if _STARTUP_DONE in text:
-                self.waiting_for = "its links"
-                self._thread = threading.Thread(target=self._links, name="px4-links", daemon=True)
-                self._thread.start()
-            return False
-        if self._thread.is_alive():
-            return False
-        self.waiting_for = '"Ready for takeoff!"'
-        return _READY in text
-
-    def _links(self) -> None:
-        try:
-            for args in _link_commands(
-                self._px4.ports, self._options, self._onboard, self._mode_port
-            ):
-                self._px4.command("mavlink", *args, timeout_s=30.0)
-        except (subprocess.CalledProcessError, subprocess.TimeoutExpired) as exc:
-            self._error = exc
-
-
-def _link_commands(
-    ports: Px4Ports | None, options: RunOptions, onboard: tuple[int, int], mode_port: int
-) -> list[list[str]]:
-    """PX4 ``mavlink`` commands that move the onboard link of PX4 instance ``ports`` onto
-    ``onboard`` (local, remote: the companion's ports of ``options.ports``, or the
-    companion relay's) and the GCS link onto ``options.ports`` (when they differ), and
-    start the heartbeat link to ``mode_port``, with the flags of PX4's own
-    ``px4-rc.mavlink``."""
-    assert ports is not None
-    want = options.ports
-    commands: list[list[str]] = []
-    if onboard != (ports.onboard_local, ports.onboard_remote):
-        commands.append(["stop", "-u", str(ports.onboard_local)])
-        commands.append(
-            ["start", "-x", "-u", str(onboard[0]), "-r", str(_ONBOARD_RATE_B_S), "-f",
-             "-m", "onboard", "-o", str(onboard[1])]
-        )  # fmt: skip
-    if (want.gcs_local, want.gcs_remote) != (ports.gcs_local, 14550):
-        commands.append(["stop", "-u", str(ports.gcs_local)])
-        commands.append(
-            ["start", "-x", "-u", str(want.gcs_local), "-r", str(_ONBOARD_RATE_B_S), "-f",
-             "-o", str(want.gcs_remote)]
-        )  # fmt: skip
-    commands.append(
-        ["start", "-u", str(free_udp_port()), "-o", str(mode_port), "-m", "minimal",
-         "-r", str(_MODE_LINK_RATE_B_S)]
-    )  # fmt: skip
-    return commands
-
-
-def _forward_log(path: Path, offset: int, console: Callable[[str], None]) -> int:
-    """Hand the complete lines PX4 wrote after ``offset`` to ``console``; the new offset."""
-    with open(path, "rb") as log:
-        log.seek(offset)
-        data = log.read()
-    end = data.rfind(b"\n") + 1
-    for line in data[:end].decode(errors="replace").splitlines():
-        if line.strip():
-            console(line)
-    return offset + end

@@ -15,7 +15,9 @@ file with Cython into ``sitl.physics._integration_step`` (:mod:`companion.compil
 arithmetic is written as plain float operations (``x * x``, no ``**``, every sum in index
 order) so that both builds compute the same bits (tests/test_sitl_kernel.py compares
 them); the square root, the trigonometric functions, ``fmod`` and ``copysign`` are the C
-library's in both (Python's ``math`` calls them).
+library's in both (Python's ``math`` calls them). It is over 600 lines because a compiled
+twin is one source whose helpers the compiled build calls as C functions; split across
+modules they would be Python calls between two extensions.
 
 Frames and units: world ENU, body FLU, SI. A configuration ``x`` is Pinocchio's free-flyer
 layout ``[p (3, world), quaternion x, y, z, w (body to world), eta1, eta2]`` and a velocity

@@ -22,7 +22,8 @@ Modules: :mod:`~sitl.px4.vehicle` (message handling, the facade),
 :mod:`~sitl.px4.commander` (arming, modes, offboard, failsafe, return, landing),
 :mod:`~sitl.px4.position_control` (AUTO position loop),
 :mod:`~sitl.px4.hover_thrust` (PX4's hover thrust estimator),
-:mod:`~sitl.px4.telemetry` (streams, rates, NED / FRD messages),
+:mod:`~sitl.px4.streams` (streams, their rates per link and schedule),
+:mod:`~sitl.px4.telemetry` (the NED / FRD messages),
 :mod:`~sitl.px4.params` (parameter table and encoding), :mod:`~sitl.px4.modes`
 (custom_mode encoding), :mod:`~sitl.px4.geo` (flat-earth lat / lon),
 :mod:`~sitl.px4.measurement` (input), :mod:`~sitl.px4.endpoint` (UDP, signing).
@@ -47,7 +48,8 @@ from sitl.px4.params import (
     UnknownParamError,
     attitude_loop_params,
 )
-from sitl.px4.telemetry import GCS_RATES_HZ, ONBOARD_RATES_HZ, Home
+from sitl.px4.streams import GCS_RATES_HZ, ONBOARD_RATES_HZ
+from sitl.px4.telemetry import Home
 from sitl.px4.vehicle import FLIGHT_SW_VERSION, Px4Vehicle
 
 __all__ = [

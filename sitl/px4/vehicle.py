@@ -64,14 +64,8 @@ from sitl.px4.measurement import VehicleMeasurement
 from sitl.px4.modes import Px4Mode
 from sitl.px4.params import PARAMETERS, ParamError, Px4Params, UnknownParamError
 from sitl.px4.position_control import PositionTarget
-from sitl.px4.telemetry import (
-    GCS_RATES_HZ,
-    ONBOARD_RATES_HZ,
-    Home,
-    StreamScheduler,
-    TelemetryEncoder,
-    VehicleStatus,
-)
+from sitl.px4.streams import GCS_RATES_HZ, ONBOARD_RATES_HZ, StreamScheduler
+from sitl.px4.telemetry import Home, TelemetryEncoder, VehicleStatus
 
 __all__ = ["FLIGHT_SW_VERSION", "Outgoing", "Px4Vehicle"]
 

@@ -7,6 +7,8 @@ wall clock or in lockstep with the companion on simulated time.
 - :mod:`~sitl.vehicle.sensors`: sensor models (pose, gyro, joint encoders);
 - :mod:`~sitl.vehicle.runner`: the vehicle process: one clock driving world, autopilot,
   links, servo bus and logs (:class:`SitlVehicle`);
+- :mod:`~sitl.vehicle.options`: how a run of it is set up and what it achieved
+  (:class:`RunOptions`);
 - :mod:`~sitl.vehicle.lockstep`: the companion and the vehicle in one event loop on
   simulated time (:func:`run_lockstep`);
 - :mod:`~sitl.vehicle.virtual_flight`: a pickup on simulated time (:func:`fly_virtual`);
@@ -33,7 +35,7 @@ __all__ = [
 
 _HOME = {
     "Navigation": "sitl.vehicle.navigation",
-    "RunOptions": "sitl.vehicle.runner",
+    "RunOptions": "sitl.vehicle.options",
     "SitlNotReadyError": "sitl.vehicle.launch",
     "SitlVehicle": "sitl.vehicle.runner",
     "World": "sitl.vehicle.world",
@@ -49,7 +51,8 @@ if TYPE_CHECKING:
     from sitl.vehicle.launch import SitlNotReadyError, start_sih, start_sitl
     from sitl.vehicle.lockstep import run_lockstep
     from sitl.vehicle.navigation import Navigation
-    from sitl.vehicle.runner import RunOptions, SitlVehicle
+    from sitl.vehicle.options import RunOptions
+    from sitl.vehicle.runner import SitlVehicle
     from sitl.vehicle.virtual_flight import fly_virtual
     from sitl.vehicle.world import World, WorldSettings
 

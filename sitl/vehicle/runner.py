@@ -32,8 +32,6 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import IO
 
 import numpy as np
@@ -44,7 +42,7 @@ from companion.config import arm_bus_configs
 from companion.coordinates import POSITION
 from companion.frames import ned_from_enu
 from sitl.physics import Plant, make_plant
-from sitl.physics.jsbsim import GearGeometry, JsbsimPlant, Wind
+from sitl.physics.jsbsim import GearGeometry, JsbsimPlant
 from sitl.px4 import (
     GeoReference,
     MavlinkEndpoint,
@@ -56,14 +54,12 @@ from sitl.px4 import (
 from sitl.scenario import Scenario
 from sitl.servo import Faults, PtyServoBus, XM430Parameters, XM430Servo
 from sitl.servo.memory_bus import MemoryServoBus
-from sitl.stepping import LoopStats, WallPacer, step_loop
-from sitl.vehicle.navigation import ERROR_MODELS, Navigation
+from sitl.stepping import WallPacer, step_loop
+from sitl.vehicle.navigation import Navigation
+from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions, RunStats
 from sitl.vehicle.world import World, WorldSettings
 
 __all__ = [
-    "LinkPorts",
-    "RunOptions",
-    "RunStats",
     "SitlVehicle",
     "build_world",
     "simulated_servo_ids",
@@ -75,11 +71,6 @@ _SWITCH_INTERVAL_S = 2e-4
 """Interpreter switch interval while running [s] (the servo bus thread's reply latency)."""
 _MAX_LAG_S = 0.25
 """Wall-clock lag behind schedule [s] after which the schedule is re-based (overrun)."""
-LOCKSTEP_WAIT_S = 0.1
-"""With ``RunOptions.lockstep``: wall time the vehicle waits for the setpoint of a pose
-before it goes on without it (counted; the stream counts as stopped) [s]: well inside the
-companion's telemetry timeout (0.5 s), so that a stream the client stops on purpose (after
-the landing) costs one short wait, not a lost link."""
 _STREAMING_S = 0.1
 """With ``RunOptions.lockstep``: simulated time after a setpoint (:data:`_SETPOINTS`) during
 which the client counts as streaming (the vehicle waits for its setpoints) [s]."""
@@ -105,126 +96,6 @@ def simulated_servo_ids(scenario: Scenario) -> tuple[int, ...]:
         return (*(j.servo_id for j in DEFAULT_JOINTS), DEFAULT_GRIPPER.servo_id)
     joints, gripper = arm_bus_configs(scenario.arm_bus)
     return (*(j.servo_id for j in joints), (gripper or DEFAULT_GRIPPER).servo_id)
-
-
-@dataclass(frozen=True)
-class LinkPorts:
-    """UDP ports of the two MAVLink links, as PX4 SITL's defaults.
-
-    The onboard (API) link sends from ``onboard_local`` to ``host:onboard_remote``; the
-    ground-station link from ``gcs_local`` to ``host:gcs_remote``.
-    """
-
-    host: str = "127.0.0.1"
-    onboard_local: int = 14580
-    onboard_remote: int = 14540
-    gcs_local: int = 18570
-    gcs_remote: int = 14550
-
-
-@dataclass(frozen=True)
-class RunOptions:
-    """How to run the vehicle.
-
-    Attributes
-    ----------
-    speed
-        Simulation seconds per wall-clock second (> 0).
-    seed
-        Seed of the sensor noise.
-    noise
-        The estimator's errors (:mod:`sitl.vehicle.navigation`) or an exact estimate.
-    navigation
-        The estimator's aiding: ``mocap`` (external vision, motion capture indoors; no
-        global position until SET_GPS_GLOBAL_ORIGIN) or ``gps`` (GPS and baro).
-    ports
-        MAVLink UDP ports.
-    signing_key
-        32-byte MAVLink 2 signing key file; ``None``: signing off.
-    truth_log
-        JSON-lines ground-truth file, created (never overwritten); ``None``: none written.
-    truth_rate_hz
-        Truth-log lines per simulated second.
-    """
-
-    speed: float = 1.0
-    seed: int = 0
-    noise: bool = True
-    navigation: str = "mocap"
-    ports: LinkPorts = field(default_factory=LinkPorts)
-    signing_key: Path | None = None
-    truth_log: Path | None = None
-    truth_rate_hz: float = 50.0
-    physics: str = "pinocchio"
-    """Truth physics backend: ``pinocchio`` or ``jsbsim`` (``sitl.physics.make_plant``)."""
-    wind: Wind | None = None
-    """Steady wind and turbulence in place of the scenario's steady ``plant.wind_m_s``
-    (turbulence: JSBSim only)."""
-    servo_silent: tuple[int, float] | None = None
-    """Fault injection: (servo id, simulation time [s]) from which that servo carries out
-    instructions but never answers again (a broken TX line)."""
-    servo_reply_delay_s: float = 0.0
-    """Extra delay before every servo reply [s] (a USB-serial adapter's latency timer: an
-    FTDI chip's default is 16 ms): wall time on the pty bus, simulated time in memory."""
-    link_cut: tuple[float, float] | None = None
-    """Fault injection: (simulation time [s], duration [s]) of a silence of the onboard
-    link, both ways (a radio or cable lost for a while)."""
-    memory: str | None = None
-    """Serve the links and the servo bus on in-memory channels ``NAME-onboard``,
-    ``NAME-gcs`` and ``NAME-servos`` (:mod:`bytelink.memory`) instead of UDP and a pty:
-    a flight on simulated time in one process (:mod:`sitl.vehicle.lockstep`), stepped by its
-    caller; ``None``: UDP and a pty, paced by :meth:`SitlVehicle.run`."""
-    unix_time_at_boot_us: int | None = None
-    """The Unix time the autopilot booted at [us] (its SYSTEM_TIME); ``None``: now."""
-    lockstep: bool = False
-    """Step in lockstep with a client in another process (``sitl run --lockstep``): while
-    it streams setpoints (SET_ATTITUDE_TARGET, or SET_POSITION_TARGET_LOCAL_NED) on the
-    onboard link, the vehicle does not step past an
-    ODOMETRY until a setpoint stamped with that pose's time (``time_boot_ms``) is in and
-    the client has read the joints since (a Sync Read on the servo bus: the joint state of
-    the next cycle), and runs as fast as the two go; it waits at most
-    :data:`LOCKSTEP_WAIT_S` of wall time for each, then goes on (counted). Before the
-    stream starts and after it stops: at ``speed``."""
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.speed) and self.speed > 0.0):
-            raise ValueError(f"speed must be a positive factor, got {self.speed!r}")
-        if not (math.isfinite(self.truth_rate_hz) and self.truth_rate_hz > 0.0):
-            raise ValueError(f"truth_rate_hz must be positive, got {self.truth_rate_hz!r}")
-        if not (math.isfinite(self.servo_reply_delay_s) and 0.0 <= self.servo_reply_delay_s < 1.0):
-            raise ValueError(
-                f"servo_reply_delay_s must be 0 to 1 s, got {self.servo_reply_delay_s!r}"
-            )
-        if self.link_cut is not None and not (
-            all(math.isfinite(v) for v in self.link_cut) and self.link_cut[1] > 0.0
-        ):
-            raise ValueError(f"link_cut must be (time, positive duration), got {self.link_cut!r}")
-        if self.navigation not in ERROR_MODELS:
-            raise ValueError(
-                f"navigation must be one of {sorted(ERROR_MODELS)}, got {self.navigation!r}"
-            )
-
-
-@dataclass
-class RunStats(LoopStats):
-    """What one run achieved (printed by ``sitl run`` when it stops)."""
-
-    lockstep_waits: int = 0
-    """Poses after which the vehicle waited for the client's setpoint (``lockstep``)."""
-    lockstep_timeouts: int = 0
-    """Of those, the waits that ended without the setpoint after :data:`LOCKSTEP_WAIT_S`."""
-
-    @property
-    def real_time_factor(self) -> float:
-        """Simulated seconds per wall-clock second."""
-        return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else 0.0
-
-    def jitter_us(self) -> tuple[float, float]:
-        """Median and 99th percentile of the step-start lateness [us]."""
-        if not self.lateness_us:
-            return (0.0, 0.0)
-        arr = np.asarray(self.lateness_us)
-        return float(np.median(arr)), float(np.percentile(arr, 99))
 
 
 def _plant(scenario: Scenario, options: RunOptions) -> Plant:

@@ -28,7 +28,8 @@ from companion.mission.report import MissionReport
 from sitl.scenario import Scenario
 from sitl.truth_mcap import add_flight_truth
 from sitl.vehicle.lockstep import run_lockstep
-from sitl.vehicle.runner import RunOptions, SitlVehicle
+from sitl.vehicle.options import RunOptions
+from sitl.vehicle.runner import SitlVehicle
 
 __all__ = ["BOOT_UNIX_TIME_US", "fly_virtual", "normally_scheduled"]
 
