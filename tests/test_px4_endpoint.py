@@ -11,6 +11,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as M
 
+from bytelink.memory import attach, create_channel
 from sitl.px4 import MavlinkEndpoint, SigningKeyError, load_signing_key
 
 KEY = bytes(range(32))
@@ -194,3 +195,17 @@ def test_send_without_listener_is_counted_not_raised():
             endpoint.send(heartbeat())
             endpoint.receive()
         assert endpoint.counters["sent"] + endpoint.counters["send_error"] == 5
+
+
+def test_an_in_memory_end_is_heard_once_a_client_attaches_and_udp_always():
+    with create_channel("endpoint-heard") as channel:
+        with MavlinkEndpoint(0, 0, port=channel.server) as endpoint:
+            assert not endpoint.heard
+            endpoint.send(heartbeat())
+            assert endpoint.counters["unheard"] == 1 and not channel.client.readable
+            attach("endpoint-heard")
+            assert endpoint.heard
+            endpoint.send(heartbeat())
+            assert endpoint.counters["sent"] == 1 and channel.client.readable
+    with MavlinkEndpoint(0, free_port()) as udp:
+        assert udp.heard

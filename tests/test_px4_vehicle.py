@@ -19,7 +19,8 @@ from companion.frames import euler_zyx_from_quaternion, quaternion_ned_frd_from_
 from sitl.physics.frames import quaternion_from_euler
 from sitl.px4 import PARAMETERS, Px4Mode, Px4Params, Px4Vehicle, VehicleMeasurement
 from sitl.px4.params import attitude_loop_params
-from sitl.px4.streams import StreamScheduler
+from sitl.px4.streams import ONBOARD_RATES_HZ, StreamScheduler
+from sitl.px4.telemetry import TelemetryEncoder
 from sitl.scenario import load_scenario
 
 GCS = (255, 190)
@@ -443,6 +444,43 @@ def test_onboard_rates_over_simulated_time():
     for kind, n in expected.items():
         assert counts[("onboard", kind)] == n, kind
     assert counts[("gcs", "ATTITUDE")] == 100
+
+
+def test_nothing_is_built_for_a_link_no_one_hears_and_its_streams_keep_their_grid(monkeypatch):
+    builds = []
+    build = TelemetryEncoder.build
+
+    def counted(self, msg_id, now_s, m, status):
+        builds.append(msg_id)
+        return build(self, msg_id, now_s, m, status)
+
+    monkeypatch.setattr(TelemetryEncoder, "build", counted)
+
+    def telemetry(vehicle, t, m, unheard=()):
+        first = len(builds)
+        out = [(link, msg.to_dict()) for link, msg in vehicle.telemetry(t, m, unheard)]
+        return out, len(builds) - first
+
+    heard, deaf = new_vehicle("gps"), new_vehicle("gps")
+    alone = Px4Vehicle(Px4Params({}), aiding="gps", link_rates_hz={"onboard": ONBOARD_RATES_HZ})
+    alone.control(0.0, measurement())
+    built = {"heard": 0, "deaf": 0, "alone": 0}
+    m = None
+    for k in range(3000):
+        t = k * 1e-3
+        if k % 8 == 0 or m is None:
+            m = measurement(t)  # the estimator's grid
+        expected, n_heard = telemetry(heard, t, m)
+        if k < 2000:  # no one on the GCS link for 2 s: the onboard link's messages alone
+            got, n_deaf = telemetry(deaf, t, m, ("gcs",))
+            assert got == [(link, msg) for link, msg in expected if link == "onboard"], t
+            built["heard"] += n_heard
+            built["deaf"] += n_deaf
+            built["alone"] += telemetry(alone, t, m)[1]
+        else:  # then a listener: the GCS link's streams go on on their grid
+            assert telemetry(deaf, t, m)[0] == expected, t
+    # what a vehicle with the onboard link alone builds, less than for both links
+    assert built["deaf"] == built["alone"] < built["heard"], built
 
 
 def test_estimator_streams_go_out_on_the_estimator_grid_up_to_125_hz():

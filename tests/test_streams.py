@@ -9,6 +9,7 @@ import asyncio
 import pytest
 from pymavlink.dialects.v20 import common as M
 
+from bytelink.memory import attach
 from companion.link import MavlinkLink, VehiclePose
 from companion.mission.streams import (
     BATTERY_RATE_HZ,
@@ -147,6 +148,17 @@ def test_the_imitation_streams_only_what_is_read_then_its_defaults_again():
                                       M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
                                       M.MAVLINK_MSG_ID_HEARTBEAT}  # fmt: skip
     assert got["before"][M.MAVLINK_MSG_ID_CAMERA_TRIGGER] == -1  # not a stream here
+
+
+def test_the_imitation_builds_nothing_for_a_link_no_one_hears():
+    scenario = load_scenario("configs/sitl_pickup.toml")
+    with SitlVehicle(scenario, RunOptions(memory="unheard-test", seed=1)) as vehicle:
+        attach("unheard-test-onboard")  # the companion's link; no one on the GCS link
+        for _ in range(500):
+            vehicle.step()
+        onboard, gcs = vehicle.links["onboard"].counters, vehicle.links["gcs"].counters
+    assert onboard["sent"] > 100
+    assert gcs["sent"] == 0 and gcs["unheard"] == 0  # not even made to be dropped
 
 
 def test_px4_streams_only_what_is_read_then_its_defaults_again(px4_build):

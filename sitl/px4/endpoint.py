@@ -196,6 +196,13 @@ class MavlinkEndpoint:
             return self._local
         return self._sock.getsockname()
 
+    @property
+    def heard(self) -> bool:
+        """Someone may read what this endpoint sends: always on UDP (a datagram cannot
+        tell), on an in-memory channel once a client has attached its other end."""
+        port = self._port
+        return port is None or (port.peer is not None and port.peer.attached)
+
     # ----------------------------------------------------------------- I/O
 
     def send(self, msg: mavlink.MAVLink_message) -> None:
@@ -203,13 +210,14 @@ class MavlinkEndpoint:
 
         Send errors (e.g. ICMP port unreachable reported by the kernel while no client
         listens) are counted as ``send_error`` and dropped: the vehicle keeps flying. On an
-        in-memory channel nobody reads, the message is counted ``unheard`` and not encoded.
+        in-memory channel nobody reads (not :attr:`heard`), the message is counted
+        ``unheard`` and not encoded.
         """
         mav = self._require_open()
-        port = self._port
-        if port is not None and (port.peer is None or not port.peer.attached):
+        if not self.heard:
             self.counters["unheard"] += 1  # nobody reads the channel: not even packed
             return
+        port = self._port
         buf = msg.pack(mav)
         mav.seq = (mav.seq + 1) % 256
         try:

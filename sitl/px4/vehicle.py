@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from typing import ClassVar
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -210,9 +210,16 @@ class Px4Vehicle:
         self._commander.update(now_s, m)
         return self._commander.setpoint(now_s, m)
 
-    def telemetry(self, now_s: float, m: VehicleMeasurement) -> Outgoing:
+    def telemetry(
+        self, now_s: float, m: VehicleMeasurement, unheard: Collection[str] = ()
+    ) -> Outgoing:
         """Every stream message due at ``now_s`` [s] on each link (streams of the estimate
-        only when ``m`` is a new estimate), and GPS_GLOBAL_ORIGIN when the origin is new."""
+        only when ``m`` is a new estimate), and GPS_GLOBAL_ORIGIN when the origin is new.
+
+        Nothing is built for the links in ``unheard`` (no one listens on them): their
+        streams stay on their schedule, so that a listener who comes later gets them on
+        the same grid, but their messages are neither made nor returned.
+        """
         self._last = m
         now_us = round(now_s * 1e6)
         fresh = m.estimate_time_us != self._last_estimate_us
@@ -221,7 +228,10 @@ class Px4Vehicle:
         built: dict[int, mavlink.MAVLink_message | None] = {}
         out: Outgoing = []
         for link, scheduler in self._schedulers.items():
-            for msg_id in scheduler.due(now_us, fresh):
+            due = scheduler.due(now_us, fresh)
+            if link in unheard:
+                continue
+            for msg_id in due:
                 if msg_id not in built:
                     if status is None:
                         status = self._status()
@@ -232,7 +242,7 @@ class Px4Vehicle:
         if self._origin_pending and self._commander.origin is not None:
             self._origin_pending = False
             origin = self._encoder.gps_global_origin(self._commander.origin, now_s)
-            out += [(link, origin) for link in self.links]
+            out += [(link, origin) for link in self._schedulers if link not in unheard]
         return out
 
     def handle(self, msg: mavlink.MAVLink_message, link: str, now_s: float) -> Outgoing:

@@ -10,8 +10,9 @@ Every plant step (``1 / plant.rate_hz`` of simulation time) the runner
    (``None``: disarmed),
 3. steps the world under the servo bus lock (the bus thread reads and writes the same
    servo models),
-4. sends the telemetry due at this time, hands what PX4 would print to its console to the
-   caller and, at its rate, writes a truth-log line.
+4. sends the telemetry due at this time (built only for the links someone listens on: on
+   simulated time the GCS link usually has no one), hands what PX4 would print to its
+   console to the caller and, at its rate, writes a truth-log line.
 
 Time is simulation time everywhere (message rates, offboard loss, auto-disarm,
 ``time_boot_ms``); the wall clock only paces the loop at ``speed`` times real time. When
@@ -423,7 +424,8 @@ class SitlVehicle:
         with self.servo_bus.lock:
             world.step(setpoint)
         self._pose_sent_ms = None
-        for link_name, message in autopilot.telemetry(now_s, measurement):
+        unheard = [name for name, link in links.items() if not link.heard]
+        for link_name, message in autopilot.telemetry(now_s, measurement, unheard):
             if link_name != silent:
                 links[link_name].send(message)
                 if lockstep and link_name == "onboard" and message.get_type() == _ODOMETRY:
