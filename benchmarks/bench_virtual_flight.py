@@ -88,7 +88,7 @@ class Timed:
 PARTS: dict[str, tuple[type, str]] = {
     "vehicle steps": (SitlVehicle, "step"),
     "servo bus answers": (SitlVehicle, "serve"),
-    "truth plant steps": (RotorPlant, "step"),
+    "truth plant steps": (RotorPlant, "advance"),
     "MAVLink framing and CRC (pymavlink _pack, both sides)": (mavlink2.MAVLink_message, "_pack"),
     "MAVLink decoding (pymavlink parse_buffer, both sides)": (mavlink2.MAVLink, "parse_buffer"),
     "flight log CSV rows": (FlightLogWriter, "write"),

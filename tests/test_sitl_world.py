@@ -8,7 +8,7 @@ import pytest
 from arm_driver.dynamixel import control_table as ct
 from arm_driver.dynamixel import units
 from arm_driver.joint import GripperConfig, JointConfig
-from sitl.physics import AttitudeSetpoint, TruthPlant
+from sitl.physics import AttitudeSetpoint, PlantState, TruthPlant
 from sitl.scenario import load_scenario
 from sitl.servo import XM430Servo
 from sitl.vehicle.world import IDEAL_SUPPLY, World, WorldSettings
@@ -202,3 +202,34 @@ def test_jsbsim_plant_stands_on_its_own_gear_in_the_world():
     for _ in range(800):
         state = world.step(AttitudeSetpoint.from_euler(0.0, 0.0, 0.0, 0.7))
     assert not world.on_ground and state.q[2] > GEAR_M + 0.2
+
+
+def test_advancing_builds_no_truth_state_until_one_is_read_and_flies_the_same(monkeypatch):
+    built = []
+    from_lists = PlantState.from_lists
+
+    def counted(*args):
+        built.append(args[0])
+        return from_lists(*args)
+
+    monkeypatch.setattr(PlantState, "from_lists", counted)
+    stepped, _ = _world(object_at=(0.3, 0.0, 0.05))
+    advanced, _ = _world(object_at=(0.3, 0.0, 0.05))
+    climb = AttitudeSetpoint.from_euler(0.0, 0.02, 0.0, 0.7)
+    setpoints = [None] * 400 + [climb] * 400 + [None] * 2500  # stand, climb, fall, land
+    flew = False
+    for k, setpoint in enumerate(setpoints):
+        state = stepped.step(setpoint)
+        del built[:]
+        advanced.advance(setpoint)
+        assert built == []  # on the ground and in the air: nothing read, nothing built
+        if k % 97 == 0 or k == len(setpoints) - 1:
+            read = advanced.state
+            for field in ("q", "q_dot", "q_ddot", "quaternion_wxyz", "rotation_world_body"):
+                assert getattr(read, field).tobytes() == getattr(state, field).tobytes()
+            assert read.time_s == state.time_s == advanced.time_s
+            assert advanced.on_ground == stepped.on_ground
+            q, q_dot = advanced.plant.coordinates
+            assert list(q) == read.q.tolist() and list(q_dot) == read.q_dot.tolist()
+        flew = flew or not advanced.on_ground
+    assert flew and advanced.on_ground

@@ -259,8 +259,9 @@ class TruthPlant(RotorPlant):
         position_m: tuple[float, float, float],
         yaw_rad: float,
         arm_before: tuple[list[float], list[float], list[float]] | None = None,
-    ) -> PlantState:
-        """Pin the base level at ``position_m`` (world ENU [m]) and ``yaw_rad``, at rest.
+    ) -> None:
+        """Pin the base level at ``position_m`` (world ENU [m]) and ``yaw_rad``, at rest
+        (the new state is :attr:`state`, built when read).
 
         A rigid contact for a SITL's ground: the rotors keep their thrust, time goes on;
         the autopilot's integrators are cleared, as PX4 does while landed. Cheaper than
@@ -294,7 +295,6 @@ class TruthPlant(RotorPlant):
         if self.mode == "underactuated":
             self._autopilot.reset()
         self._update_kinematics()
-        return self.state
 
     # ---------------------------------------------------------------- payload
 

@@ -24,6 +24,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Protocol
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     import numpy as np
     from numpy.typing import ArrayLike, NDArray
 
@@ -116,6 +118,15 @@ class Plant(PlantCore, Protocol):
 
     def step(self, setpoint: AttitudeSetpoint, joint_torques_n_m: ArrayLike) -> PlantState:
         """Advance one step under an attitude/thrust setpoint and two servo torques [N m]."""
+        ...
+
+    def advance(self, setpoint: AttitudeSetpoint, joint_torques_n_m: ArrayLike) -> None:
+        """:meth:`step` without building the new state (read :attr:`state` when needed)."""
+        ...
+
+    @property
+    def coordinates(self) -> tuple[Sequence[float], Sequence[float]]:
+        """q and q_dot now (8 each), read without building the state."""
         ...
 
     @property

@@ -11,6 +11,7 @@ bodies (:meth:`RotorPlant._step_rotors`) and in where they keep the state
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -111,6 +112,14 @@ class RotorPlant:
         return self._state_cache
 
     @property
+    def coordinates(self) -> tuple[Sequence[float], Sequence[float]]:
+        """q and q_dot now (8 each, the order of :attr:`PlantState.q`): the floats the
+        state is made of, read without building it (for a host that needs a few of them
+        every step)."""
+        truth = self._truth()
+        return truth[0], truth[1]
+
+    @property
     def actuators(self) -> ActuatorState:
         """Actuator signals of the last step.
 
@@ -174,11 +183,16 @@ class RotorPlant:
         PlantDivergedError
             If the state became non-finite.
         """
+        self.advance(setpoint, joint_torques_n_m)
+        return self.state
+
+    def advance(self, setpoint: AttitudeSetpoint, joint_torques_n_m: ArrayLike) -> None:
+        """:meth:`step` without building the new state (read :attr:`state` when needed);
+        the same errors."""
         self._need_rotors("step() needs mode='underactuated'; use step_ideal() instead")
         joint = self._joint_torques(joint_torques_n_m)
         out = self._autopilot.update(self._quat, self._omega, setpoint)
         self._step_rotors(out.motor_commands, joint, out.rate_setpoint_rad_s, out.torque_normalized)
-        return self.state
 
     def step_motors(self, motor_commands: ArrayLike, joint_torques_n_m: ArrayLike) -> PlantState:
         """Advance one step under six motor commands and joint torques, for an autopilot
@@ -204,6 +218,12 @@ class RotorPlant:
         EulerSingularityError, PlantDivergedError
             As for :meth:`step`.
         """
+        self.advance_motors(motor_commands, joint_torques_n_m)
+        return self.state
+
+    def advance_motors(self, motor_commands: ArrayLike, joint_torques_n_m: ArrayLike) -> None:
+        """:meth:`step_motors` without building the new state (read :attr:`state` when
+        needed); the same errors."""
         self._need_rotors("step_motors() needs mode='underactuated'")
         arr = np.asarray(motor_commands, dtype=np.float64)
         if arr.shape != (N_ROTORS,) or not np.all(np.isfinite(arr)):
@@ -212,7 +232,6 @@ class RotorPlant:
             )
         joint = self._joint_torques(joint_torques_n_m)
         self._step_rotors(np.clip(arr, 0.0, 1.0).tolist(), joint, _UNKNOWN3, _UNKNOWN3)
-        return self.state
 
     def _joint_torques(self, joint_torques_n_m: ArrayLike) -> list[float]:
         """Two finite joint torques [N m] clipped to the servo limit (ValueError otherwise)."""

@@ -235,11 +235,11 @@ class Navigation:
     def measure(self, world: World) -> VehicleMeasurement:
         """The estimate at the world's current time: a new one when an estimator output
         time has passed since the last, else the last one (the same object)."""
-        state = world.state
-        now_us = round(state.time_s * 1e6)
+        now_us = round(world.time_s * 1e6)
         output_us = now_us - now_us % self._output_period_us
         if self._last is not None and output_us == self._last_output_us:
             return self._last
+        state = world.state
         if self._noise:
             gyro = self._gyro.sample(state.time_s, state.omega_body_rad_s)
             if gyro is not None:

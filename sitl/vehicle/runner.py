@@ -422,7 +422,7 @@ class SitlVehicle:
         measurement = self.navigation.measure(world)
         setpoint = autopilot.control(now_s, measurement)
         with self.servo_bus.lock:
-            world.step(setpoint)
+            world.advance(setpoint)
         self._pose_sent_ms = None
         unheard = [name for name, link in links.items() if not link.heard]
         for link_name, message in autopilot.telemetry(now_s, measurement, unheard):

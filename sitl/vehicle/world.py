@@ -1,6 +1,6 @@
 """The simulated world: truth plant, arm servos, gripper, payload object, ground and battery.
 
-Pure: no I/O, no clock, no threads. The SITL runner calls :meth:`World.step` once per
+Pure: no I/O, no clock, no threads. The SITL runner calls :meth:`World.advance` once per
 plant step (``1 / plant.rate_hz`` of simulation time) while holding the servo bus lock,
 because the servo models are also read and written by the bus thread.
 
@@ -56,7 +56,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from arm_driver.joint import GripperConfig, JointConfig
-from companion.coordinates import ETA1, ETA2, JOINTS, POSITION, PSI, X, Y, Z
+from companion.coordinates import ETA1, ETA2, POSITION, PSI, X, Y, Z
 from sitl.physics import AttitudeSetpoint, PlantState
 from sitl.physics.battery import REFERENCE_CELL_V, BatteryReading
 from sitl.physics.frames import quaternion_from_euler
@@ -308,58 +308,66 @@ class World:
         not left the ground [m] (None: not grasped, or carried)."""
         self.slipped_at_s: float | None = None
         """Simulation time the grasped object slipped out of the gripper [s], if it did."""
-        self._state = plant.reset(start_state(settings))
+        plant.reset(start_state(settings))
         self._motors_off = AttitudeSetpoint(quaternion_from_euler(0.0, 0.0, 0.0), 0.0)
 
     # ------------------------------------------------------------------ stepping
 
     @property
     def state(self) -> PlantState:
-        """The plant's current truth state."""
-        return self._state
+        """The plant's current truth state (built when read: :attr:`RotorPlant.state
+        <sitl.physics.rotor_plant.RotorPlant.state>`)."""
+        return self.plant.state
 
     @property
     def time_s(self) -> float:
         """Simulation time [s]."""
-        return self._state.time_s
+        return self.plant.time_s
 
     def step(self, setpoint: AttitudeSetpoint | None) -> PlantState:
         """Advance one plant step; ``None`` means disarmed (rotors commanded to zero thrust).
+        Returns the new state.
 
         Raises the plant's errors (:class:`~sitl.physics.PlantError`) if it diverges.
         """
+        self.advance(setpoint)
+        return self.plant.state
+
+    def advance(self, setpoint: AttitudeSetpoint | None) -> None:
+        """:meth:`step` without building the new state for the caller (the SITL's loop,
+        which reads :attr:`state` only when it needs it)."""
         flown = setpoint if setpoint is not None else self._motors_off
-        return self._step(lambda torques: self.plant.step(flown, torques))
+        self._step(lambda torques: self.plant.advance(flown, torques))
 
     def step_motors(self, motor_commands: Sequence[float]) -> PlantState:
         """Advance one plant step with six motor commands in [0, 1] held (rotor order of
         :mod:`sitl.physics.rotors`): an autopilot outside the simulation flies the
-        vehicle, the plant's own attitude loop does not run. Raises the plant's errors."""
-        return self._step(lambda torques: self.plant.step_motors(motor_commands, torques))
+        vehicle, the plant's own attitude loop does not run. Returns the new state; raises
+        the plant's errors."""
+        self._step(lambda torques: self.plant.advance_motors(motor_commands, torques))
+        return self.plant.state
 
-    def _step(self, plant_step: Callable[[FloatArray], PlantState]) -> PlantState:
+    def _step(self, plant_step: Callable[[FloatArray], None]) -> None:
         """Couple the servos to the joints, advance the plant with ``plant_step(joint
         torques)``, then the servos, battery, ground contact and payload."""
-        state = self._state
         dt = self.dt_s
         torques = self._torques
-        etas = state.q[JOINTS].tolist()
-        eta_rates = state.q_dot[JOINTS].tolist()
+        q, q_dot = self.plant.coordinates
+        etas = [float(q[ETA1]), float(q[ETA2])]
+        eta_rates = [float(q_dot[ETA1]), float(q_dot[ETA2])]
         for i, (config, servo) in enumerate(self._joints):
             servo.set_state(config.servo_angle_rad(etas[i]), config.direction * eta_rates[i])
             torques[i] = config.direction * servo.torque_n_m()
         if self._gripper_servo is not None and self.jaw is not None:
             self._gripper_servo.set_state(self.jaw.angle_rad, self.jaw.rate_rad_s)
             self.jaw.advance(self._gripper_servo.torque_n_m(), dt)
-        state = plant_step(torques)
+        plant_step(torques)
         for _, servo in self._joints:
             servo.step(dt)
         if self._gripper_servo is not None:
             self._gripper_servo.step(dt)
-        state = self._ground_contact(state, etas, eta_rates)
-        self._state = state
+        self._ground_contact(etas, eta_rates)
         self._update_payload()
-        return state
 
     @property
     def battery(self) -> BatteryReading:
@@ -368,26 +376,25 @@ class World:
         reading = self.plant.battery if self.plant.flies_rotors else None
         return IDEAL_SUPPLY if reading is None else reading
 
-    def _ground_contact(
-        self, state: PlantState, etas: list[float], eta_rates: list[float]
-    ) -> PlantState:
+    def _ground_contact(self, etas: list[float], eta_rates: list[float]) -> None:
         """Stand the base on the ground (see the module docstring); ``etas`` and
         ``eta_rates`` are the joints' angles and rates at the start of the step, which the
         arm takes again on the standing base under the step's torques."""
         height = self.settings.landing_gear_height_m
+        q, q_dot = self.plant.coordinates
         if self.plant.has_ground:  # the plant's own gear holds it (JSBSim)
-            self.on_ground = state.q[Z] <= height + _CONTACT_SLACK_M and abs(state.q_dot[Z]) < 0.1
-            return state
-        if state.q[Z] >= height:
+            self.on_ground = q[Z] <= height + _CONTACT_SLACK_M and abs(q_dot[Z]) < 0.1
+            return
+        if q[Z] >= height:
             self.on_ground = False
             self._ground_pose = None
-            return state
+            return
         self.on_ground = True
         if self._ground_pose is None:  # touch-down: stay where the gear met the ground
-            self._ground_pose = (float(state.q[X]), float(state.q[Y]), float(state.q[PSI]))
+            self._ground_pose = (float(q[X]), float(q[Y]), float(q[PSI]))
         x, y, yaw = self._ground_pose
         arm_before = (etas, eta_rates, self._torques.tolist())
-        return self.plant.hold_base((x, y, height), yaw, arm_before)
+        self.plant.hold_base((x, y, height), yaw, arm_before)
 
     # ------------------------------------------------------------------- payload
 
@@ -400,7 +407,8 @@ class World:
         return self._link2_point_m(self._jaw_at)
 
     def _link2_point_m(self, along_m: float) -> FloatArray:
-        q = self._state.q
+        state = self.plant.state
+        q = state.q
         e1, e2 = float(q[ETA1]), float(q[ETA2])
         arm_b = self._mount + np.array(
             [
@@ -409,7 +417,7 @@ class World:
                 self._l1 * math.sin(e1) + along_m * math.sin(e1 + e2),
             ]
         )
-        return q[POSITION] + self._state.rotation_world_body @ arm_b
+        return q[POSITION] + state.rotation_world_body @ arm_b
 
     @property
     def object_position_m(self) -> FloatArray | None:
@@ -431,9 +439,8 @@ class World:
                 if gap <= settings.grasp_tolerance_m:
                     self._lift_from_z = float(self.jaw_point_m()[2])
                     self.plant.attach_payload(share=0.0)  # the ground holds it still
-                    self._state = self.plant.state
                     self.grasps += 1
-                    self._grasped_at_s = self._state.time_s
+                    self._grasped_at_s = self.time_s
                     jaw.hold(True)
         elif not closed and self._was_closed and self.plant.payload_attached:
             self._drop()
@@ -446,10 +453,10 @@ class World:
         if (
             slip is not None
             and self.plant.payload_attached
-            and self._state.time_s - self._grasped_at_s >= slip
+            and self.time_s - self._grasped_at_s >= slip
         ):
             self._drop()
-            self.slipped_at_s = self._state.time_s
+            self.slipped_at_s = self.time_s
         self._was_closed = closed
 
     def _drop(self) -> None:
@@ -457,7 +464,6 @@ class World:
         the jaws hold nothing."""
         released = self.jaw_point_m()
         self.plant.detach_payload()
-        self._state = self.plant.state
         self._lift_from_z = None
         assert self._object_rest_z is not None
         released[2] = min(released[2], self._object_rest_z)
@@ -469,14 +475,14 @@ class World:
 
     def specific_force_flu_m_s2(self) -> FloatArray:
         """What an accelerometer on the base reads: R^T (a - g), body FLU [m/s^2]."""
-        state = self._state
+        state = self.plant.state
         accel = np.zeros(3) if self.on_ground else np.array(state.q_ddot[POSITION])
         accel[2] += self._gravity
         return state.rotation_world_body.T @ accel
 
     def truth(self) -> WorldTruth:
         """Ground truth now."""
-        state = self._state
+        state = self.plant.state
         theta = self.plant.true_theta
         return WorldTruth(
             time_s=state.time_s,
