@@ -20,12 +20,12 @@ def _command_line(module: str) -> Runner:
     """Run ``module.main()`` (a console script's entry point) in a subprocess, as a user
     would run the command."""
 
-    def run(*args: str) -> subprocess.CompletedProcess:
+    def run(*args: str, timeout: float = 600.0) -> subprocess.CompletedProcess:
         return subprocess.run(
             [sys.executable, "-c", f"from {module} import main; main()", *args],
             capture_output=True,
             text=True,
-            timeout=600,
+            timeout=timeout,
         )
 
     return run
