@@ -21,6 +21,7 @@ import gc
 import math
 import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -71,6 +72,52 @@ _MAX_JOINT_AGE_S = 0.05
 """Age [s] a joint state is fused with at most (a cycle that waited on the link)."""
 NOT_ARMED = object()
 """``ControlCycle.status_at_arm`` before the app armed the vehicle."""
+
+
+def cycle_record(
+    t_s: float,
+    state,
+    out: ControlOutput,
+    setpoint: AttitudeThrustSetpoint | None,
+    servos: tuple[Any, Any, Any],
+    timing: tuple[float, float | None, float, float | None],
+    *,
+    px4_mode: str,
+    armed: bool,
+    phase: str,
+    faults: list[str],
+) -> CycleRecord:
+    """One flight-log row of a control cycle at vehicle time ``t_s`` [s]: the filtered
+    ``state``, the step's ``out``, the ``setpoint`` sent (or None), ``servos`` (joint
+    torques commanded, measured [N m], positions [rad]) and ``timing`` (period [ms], pose
+    -> setpoint [us] or None, pose -> joint torques [us], CPU time to the setpoint [us] or
+    None); the flight and the onboard timing check build it alike."""
+    return CycleRecord(
+        t_vehicle_s=t_s,
+        q=state.q,
+        q_dot=state.q_dot,
+        q_ddot=state.q_ddot,
+        q_d=out.desired.q,
+        theta_hat=out.estimate.theta,
+        theta_excitation=out.estimate.excitation,
+        theta_spread=out.estimate.spread,
+        theta_confident=out.estimate.confident,
+        theta_frozen=out.estimate.frozen,
+        thrust_scale_hat=out.estimate.thrust_scale,
+        tau=out.tau,
+        setpoint=setpoint,
+        servo_torque_cmd_n_m=servos[0],
+        servo_torque_meas_n_m=servos[1],
+        servo_position_rad=servos[2],
+        loop_period_ms=timing[0],
+        setpoint_latency_us=timing[1],
+        cycle_latency_us=timing[2],
+        setpoint_cpu_us=timing[3],
+        px4_mode=px4_mode,
+        armed=armed,
+        phase=phase,
+        faults=faults,
+    )
 
 
 class ControlCycle:
@@ -663,27 +710,13 @@ class ControlCycle:
         torques = nan if joints is None else [joints[n].torque_n_m for n in names]
         positions = nan if joints is None else [joints[n].position_rad for n in names]
         self._log(
-            CycleRecord(
-                t_vehicle_s=t_s,
-                q=state.q,
-                q_dot=state.q_dot,
-                q_ddot=state.q_ddot,
-                q_d=out.desired.q,
-                theta_hat=out.estimate.theta,
-                theta_excitation=out.estimate.excitation,
-                theta_spread=out.estimate.spread,
-                theta_confident=out.estimate.confident,
-                theta_frozen=out.estimate.frozen,
-                thrust_scale_hat=out.estimate.thrust_scale,
-                tau=out.tau,
-                setpoint=sp,
-                servo_torque_cmd_n_m=tau_cmd,
-                servo_torque_meas_n_m=torques,
-                servo_position_rad=positions,
-                loop_period_ms=timing[0],
-                setpoint_latency_us=timing[1],
-                cycle_latency_us=timing[2],
-                setpoint_cpu_us=timing[3],
+            cycle_record(
+                t_s,
+                state,
+                out,
+                sp,
+                (tau_cmd, torques, positions),
+                timing,
                 px4_mode=self.mode() or "",
                 armed=self.armed(),
                 phase=phase,

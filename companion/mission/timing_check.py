@@ -49,8 +49,8 @@ from companion.link.setpoint import (
     attitude_target_ned_frd,
     quaternion_from_euler_zyx,
 )
-from companion.logs.flightlog import CycleRecord
 from companion.logs.mcap_log import ArmGeometry, FlightLogWithMcap
+from companion.mission.cycle import cycle_record
 from companion.mission.scheduling import enter_real_time
 
 __all__ = [
@@ -229,31 +229,19 @@ def check_timing(
                 t3 = clock()
                 if out is not None:
                     state = assembler.estimate
+                    latency_us = (t3 - t0) * 1e6
                     log.write(
-                        CycleRecord(
-                            t_vehicle_s=i * period_s,
-                            q=state.q,
-                            q_dot=state.q_dot,
-                            q_ddot=state.q_ddot,
-                            q_d=out.desired.q,
-                            theta_hat=out.estimate.theta,
-                            theta_excitation=out.estimate.excitation,
-                            theta_spread=out.estimate.spread,
-                            theta_confident=out.estimate.confident,
-                            theta_frozen=out.estimate.frozen,
-                            thrust_scale_hat=out.estimate.thrust_scale,
-                            tau=out.tau,
-                            setpoint=out.setpoint,
-                            servo_torque_cmd_n_m=out.tau[JOINTS],
-                            servo_torque_meas_n_m=out.tau[JOINTS],
-                            servo_position_rad=state.q[JOINTS],
-                            loop_period_ms=period_s * 1e3,
-                            setpoint_latency_us=(t3 - t0) * 1e6,
-                            cycle_latency_us=(t3 - t0) * 1e6,
-                            setpoint_cpu_us=(t3 - t0) * 1e6,
+                        cycle_record(
+                            i * period_s,
+                            state,
+                            out,
+                            out.setpoint,
+                            (out.tau[JOINTS], out.tau[JOINTS], state.q[JOINTS]),
+                            (period_s * 1e3, latency_us, latency_us, latency_us),
                             px4_mode="OFFBOARD",
                             armed=True,
                             phase="lift",
+                            faults=[],
                         )
                     )
                 t4 = clock()
