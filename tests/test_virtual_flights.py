@@ -111,19 +111,24 @@ def test_the_pickup_is_the_same_flight_at_any_load_and_meets_the_acceptance(tmp_
     c = read_flight_log(tmp_path / "idle" / "flight.csv").columns
     assert_calm_flight(c)
     assert carry_rms_m(c) < CARRY_RMS_BOUND_M
-    # The thrust scale is calibrated before the grasp (theta at the empty arm's values)
-    # and, while the payload is learnt, only carried on along the slope fitted over the
-    # calibration (a line in time, nearly flat: this battery does not sag).
+    # The thrust scale (true over believed thrust per command: a full 4S pack, 13-14 %
+    # above the rotors' reference voltage) is calibrated before the grasp with theta at
+    # the empty arm's values, then, while the payload is learnt, carried with the voltage
+    # the vehicle streams: from its initial 1 to within 2 % of the truth's over the second
+    # half of the approach and 1 % at its end, within 2 % through the lift's load step.
+    t_truth = np.array([r["t_s"] for r in truth])
+    s_truth = np.array([r["thrust_scale"] for r in truth])
     before = np.isin(c["phase"], ("to_object", "descend"))
     assert np.all(c["theta_hat_m2_kg"][before] == EMPTY_M2_KG)
     s = c["thrust_scale_hat"][before]
-    assert np.ptp(s) > 1e-4 and np.all(np.abs(s - 1.0) < 0.06) and abs(s[-1] - 1.0) < 0.02
+    truth_s = np.interp(c["t_vehicle_s"][before], t_truth, s_truth)
+    assert np.ptp(s) > 1e-4  # learnt from its initial 1
+    settled = s[len(s) // 2 :] / truth_s[len(s) // 2 :]
+    assert np.all(np.abs(settled - 1.0) < 0.02) and abs(settled[-1] - 1.0) < 0.01
     carried = np.isin(c["phase"], ("grasp", "lift"))
     assert np.ptp(c["theta_hat_m2_kg"][carried]) > 0.15
-    t, s = c["t_vehicle_s"][carried], c["thrust_scale_hat"][carried]
-    slope, level = np.polyfit(t - t[0], s, 1)
-    assert abs(slope) < 5e-4
-    np.testing.assert_allclose(s, level + slope * (t - t[0]), atol=1e-9)
+    truth_s = np.interp(c["t_vehicle_s"][carried], t_truth, s_truth)
+    np.testing.assert_allclose(c["thrust_scale_hat"][carried], truth_s, rtol=0.02)
 
 
 def test_the_adaptive_controller_keeps_half_the_error_of_each_baseline(tmp_path):
