@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 import os
 import struct
+import tempfile
 import threading
 import time
 from collections import Counter
@@ -383,9 +384,15 @@ class ImitationPeer(Peer):
         self.process: SitlProcess | None = None
 
     def start(self) -> None:
-        self.process = start_sitl(
-            IMITATION_CONFIG, "--navigation", self.navigation, "--seed", "1", speed=1.0
-        )
+        # PX4 SIH's thrust ignores the battery (its own simulator is held full): the
+        # imitation it is held against flies without the scenario's [plant.battery] too
+        text = IMITATION_CONFIG.read_text()
+        start = text.index("\n[plant.battery]")
+        end = text.index("\n[", start + 1)
+        self._config_dir = tempfile.TemporaryDirectory()
+        config = Path(self._config_dir.name) / IMITATION_CONFIG.name
+        config.write_text(text[:start] + text[end:])
+        self.process = start_sitl(config, "--navigation", self.navigation, "--seed", "1", speed=1.0)
         self.link = Link(self.process.onboard_port)
         self.link.heartbeat(timeout_s=20.0)
 
