@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import os
+import signal
 import socket
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
@@ -18,6 +21,7 @@ from sitl.px4_sitl.launcher import (
     Px4Ports,
     Px4Sitl,
     free_instance,
+    interrupts_held,
     release_instance,
 )
 from sitl.px4_sitl.sih import SihMismatchError, sih_parameters
@@ -128,3 +132,48 @@ def test_a_start_that_never_gets_ready_stops_px4_and_keeps_its_log(px4_build, tm
     assert not px4.alive()
     assert "px4 starting" in px4.log_path.read_text().lower()
     assert px4.log_path.parent.parent == tmp_path
+
+
+def test_an_interrupt_is_held_to_the_end_of_the_block_and_then_raised():
+    finished = False
+    with pytest.raises(KeyboardInterrupt):
+        with interrupts_held():
+            os.kill(os.getpid(), signal.SIGINT)
+            finished = True
+    assert finished
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # untouched: not Python's
+
+
+def test_interrupts_are_not_held_outside_the_main_thread():
+    seen: list[object] = []
+
+    def run() -> None:
+        with interrupts_held():
+            seen.append(signal.getsignal(signal.SIGINT))
+
+    worker = threading.Thread(target=run)
+    worker.start()
+    worker.join()
+    assert seen == [signal.default_int_handler]
+
+
+def test_an_interrupt_while_px4_is_being_spawned_leaves_it_known_and_stopped(
+    px4_build, monkeypatch
+):
+    """Ctrl-C landing inside ``Popen`` (after the fork): PX4 is still stopped by ``stop``."""
+    real_popen = subprocess.Popen
+
+    def interrupted_popen(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGINT)
+        return real_popen(*args, **kwargs)
+
+    monkeypatch.setattr(launcher.subprocess, "Popen", interrupted_popen)
+    px4 = Px4Sitl(px4_build)
+    with pytest.raises(KeyboardInterrupt):
+        px4.start(timeout_s=10.0)
+    monkeypatch.undo()
+    process = px4.process
+    assert process is not None  # known, so it can be stopped
+    px4.stop()
+    assert process.poll() is not None

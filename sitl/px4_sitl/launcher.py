@@ -37,8 +37,9 @@ import signal
 import socket
 import subprocess
 import tempfile
+import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
@@ -52,6 +53,7 @@ __all__ = [
     "Px4Ports",
     "Px4Sitl",
     "free_instance",
+    "interrupts_held",
     "release_instance",
 ]
 
@@ -74,6 +76,31 @@ class Px4BuildError(RuntimeError):
 
 class Px4NotReadyError(RuntimeError):
     """PX4 exited or did not report ready in time; the message ends with its log's tail."""
+
+
+@contextlib.contextmanager
+def interrupts_held() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM raised as ``KeyboardInterrupt`` until the block is done, then
+    raise it: a process started in the block is then known to whoever cleans up. Only in the
+    main thread, and only the signals whose handler is Python's default one."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    signums = [
+        signum
+        for signum in (signal.SIGINT, signal.SIGTERM)
+        if signal.getsignal(signum) is signal.default_int_handler
+    ]
+    held: list[int] = []
+    for signum in signums:
+        signal.signal(signum, lambda signum, _frame: held.append(signum))
+    try:
+        yield
+    finally:
+        for signum in signums:
+            signal.signal(signum, signal.default_int_handler)
+    if held:
+        raise KeyboardInterrupt()
 
 
 @dataclass(frozen=True)
@@ -342,15 +369,16 @@ class Px4Sitl:
         args = [str(bin_dir / "px4"), "-d", "-w", str(self.workdir / "run"), str(self.build.etc)]
         if ports.instance:
             args[1:1] = ["-i", str(ports.instance)]
-        self.process = subprocess.Popen(
-            args,
-            cwd=self.workdir,
-            env=self._environment(ports),
-            stdin=subprocess.DEVNULL,
-            stdout=self._log_file,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
-        )
+        with interrupts_held():  # an interrupt inside Popen would leak PX4 unstopped
+            self.process = subprocess.Popen(
+                args,
+                cwd=self.workdir,
+                env=self._environment(ports),
+                stdin=subprocess.DEVNULL,
+                stdout=self._log_file,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
         self.wait_for_log(self.ready_lines, timeout_s)
 
     def wait_for_log(self, lines: tuple[str, ...], timeout_s: float) -> None:
