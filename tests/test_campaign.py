@@ -85,6 +85,23 @@ def write_spec(tmp_path: Path, body: str, name: str = "spec.toml") -> Path:
             ("payload.position_m", "beyond link 2"),
         ),
         ('[[faults]]\nkind = "link_cut"\nat_s = 20.0\n', ("link_cut needs duration_s",)),
+        (
+            '[[faults]]\nkind = "link_cut"\nat_phase = "grab"\nduration_s = 2.0\n',
+            ("at_phase must be one of takeoff, to_object", "'grab'"),
+        ),
+        (
+            '[[faults]]\nkind = "link_cut"\nat_s = 2.0\nat_phase = "grasp"\nduration_s = 2.0\n',
+            ("either at_s or at_phase",),
+        ),
+        (
+            '[[faults]]\nkind = "servo_silent"\nservo_id = 2\nat_s = 2.0\noffset_s = 1.0\n',
+            ("offset_s is the time into at_phase",),
+        ),
+        (
+            'autopilots = ["px4"]\n[[faults]]\nkind = "servo_silent"\nservo_id = 2\n'
+            'at_phase = "lift"\n',
+            ("a fault at a mission phase flies on the imitation only",),
+        ),
         ('controllers = ["passivity", "pid"]\n', ("controllers",)),
         (
             "[bounds.passivity]\nmass_eror_pct = 3.0\n",

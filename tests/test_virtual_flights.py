@@ -22,7 +22,9 @@ from flight_checks import CARRY_RMS_BOUND_M, assert_calm_flight, carry_rms_m
 from companion.cli.mission import plan_for
 from companion.logs.flightlog import read_flight_log
 from companion.logs.mcap_log import describe_mcap
+from sitl.campaign.safety import judge
 from sitl.scenario import Battery, PayloadSlip, Scenario, load_scenario
+from sitl.vehicle.mission_phases import PhaseStart
 from sitl.vehicle.options import RunOptions
 from sitl.vehicle.virtual_flight import fly_virtual
 
@@ -289,6 +291,22 @@ def test_a_servo_that_stops_answering_makes_the_app_land(tmp_path):
     assert [f["fault"] for f in summary["faults"]][:1] == ["servo_bus"]
     assert summary["landed"] and summary["disarmed"]
     assert truth[-1]["on_ground"] and not truth[-1]["armed"]
+
+
+def test_a_link_cut_placed_at_the_grasp_starts_when_the_companion_says_it_grasps(tmp_path):
+    """A fault placed at a phase starts on the phase the companion tells on the onboard
+    link (STATUSTEXT), 0.5 s into it: the link is lost with the jaws closing, and the
+    flight ends safe by docs/faults.md's numbers."""
+    start = PhaseStart("grasp", 0.5)
+    failure, summary, truth = fly(tmp_path, SHORT, cruise_m=1.0, link_cut=(start, 2.0))
+    grasp_s = next(p["t_s"] for p in summary["phases"] if p["phase"] == "grasp")
+    assert failure is not None and not summary["completed"]
+    lost = summary["faults"][0]
+    assert lost["fault"] == "link_lost"
+    # stamped with the last pose before the cut (the cut starts 0.5 s into the grasp)
+    assert grasp_s + 0.45 < lost["t_s"] < grasp_s + 0.6
+    verdict = judge(truth, summary, PLACE_AT, float(truth[-1]["t_s"]))
+    assert verdict.safe, verdict.broken
 
 
 def test_sitl_demo_on_virtual_time_places_the_object_and_says_how_well(run_sitl, tmp_path):

@@ -36,7 +36,7 @@ import asyncio
 import gc
 import time
 from collections.abc import Callable
-from contextlib import closing
+from contextlib import closing, suppress
 
 import numpy as np
 
@@ -44,8 +44,9 @@ from arm_driver.bus import ArmBus
 from companion.config import CompanionConfig
 from companion.control.flight import FlightControl, FlightControllerName
 from companion.link import LinkLost, LinkRegained, MavlinkLink
-from companion.link.errors import CommandError, ParamError
+from companion.link.errors import CommandError, LinkClosedError, ParamError
 from companion.link.telemetry import VehiclePose, VehicleStatus
+from companion.mission.announce import announcement
 from companion.mission.arm_supervisor import BUS_FAILURES, SERVO_FAILURE_S, ArmSupervisor
 from companion.mission.cycle import ControlCycle, LogSink
 from companion.mission.failsafe import FailsafeMonitor, Fault, FaultEvent, Reaction
@@ -230,6 +231,10 @@ class PickupApp:
 
     def _note(self, kind: str, text: str) -> None:
         self._event(kind, text, self.t_s)
+        told = announcement(kind, text)
+        if told is not None:
+            with suppress(LinkClosedError):  # at the end: the log has it
+                self.link.send_message(self.link.mav.statustext_encode(*told))
 
     def _fault(self, fault: Fault, detail: str) -> None:
         event = self.failsafe.raise_fault(self.t_s, fault, detail)

@@ -31,7 +31,9 @@ from companion.logs.flightlog import read_flight_log
 from companion.mission.pickup import Phase, PickupPlan
 from companion.mission.report import MissionReport
 from sitl.campaign.flights import CRUISE_ALTITUDE_M, Flight, scenario_of
+from sitl.campaign.safety import judge
 from sitl.scenario import Scenario
+from sitl.vehicle.mission_phases import FaultStart, PhaseStart
 from sitl.vehicle.options import RunOptions
 from sitl.vehicle.virtual_flight import fly_virtual, normally_scheduled
 
@@ -68,11 +70,21 @@ def _percent(estimate: float | None, truth: float) -> float | None:
     return 100.0 * (estimate - truth) / truth
 
 
-def _carry_errors(flight_csv: Path) -> tuple[float | None, float | None]:
-    """(RMS, max) of the position error against the plan over the carry [m]."""
+def _read_log(flight_csv: Path) -> dict[str, np.ndarray] | None:
+    """The flight log's columns, or None when it is missing, empty or does not read."""
     if not flight_csv.exists() or flight_csv.stat().st_size == 0:
+        return None
+    try:
+        return read_flight_log(flight_csv).columns
+    except (OSError, ValueError):
+        return None
+
+
+def _carry_errors(c: dict[str, np.ndarray] | None) -> tuple[float | None, float | None]:
+    """(RMS, max) of the position error against the plan over the carry [m] (``c`` the
+    flight log's columns)."""
+    if c is None:
         return None, None
-    c = read_flight_log(flight_csv).columns
     rows = np.isin(c["phase"], CARRY_PHASES)
     if not rows.any():
         return None, None
@@ -92,13 +104,18 @@ def flight_row(
     out_dir: Path,
 ) -> dict[str, Any]:
     """The figures of a flown flight: outcome, estimate against the truth, placement, carry
-    errors, tilt, loop statistics (the timing columns are the caller's)."""
-    truth_lines = (out_dir / "truth.jsonl").read_text().splitlines()
-    last = json.loads(truth_lines[-1]) if truth_lines else {}
+    errors, tilt, loop statistics, and whether it ended safe
+    (:func:`sitl.campaign.safety.judge`; the timing columns are the caller's)."""
+    truth = [json.loads(line) for line in (out_dir / "truth.jsonl").read_text().splitlines()]
+    last = truth[-1] if truth else {}
     obj = last.get("object_position_m")
     place = flight.place_at_m
-    carry_rms, carry_max = _carry_errors(out_dir / "flight.csv")
-    latency = report.as_dict()["cycle_latency_us"] or {}
+    log = _read_log(out_dir / "flight.csv")
+    carry_rms, carry_max = _carry_errors(log)
+    summary = report.as_dict()
+    latency = summary["cycle_latency_us"] or {}
+    log_end_s = None if log is None or not len(log["t_vehicle_s"]) else log["t_vehicle_s"][-1]
+    verdict = judge(truth, summary, place, None if log_end_s is None else float(log_end_s))
     return {
         "status": "ok",
         "outcome": report.outcome,
@@ -128,6 +145,11 @@ def flight_row(
         "estimator_skipped_steps": report.estimator_skipped_steps,
         "cycle_latency_median_us": latency.get("median"),
         "cycle_latency_p99_us": latency.get("p99"),
+        "safe": int(verdict.safe),
+        "unsafe": "; ".join(verdict.broken) or None,
+        "end_state": verdict.end,
+        "touchdown_m_s": verdict.touchdown_m_s,
+        "payload_end": verdict.payload,
     }
 
 
@@ -181,14 +203,19 @@ def _work_dir() -> Path:
 def _run_options(flight: Flight, work: Path) -> RunOptions:
     """The imitation's run options: seed, motion capture, the truth log, the link faults."""
     fault = flight.fault
+    start: FaultStart | None = (
+        PhaseStart(fault.at_phase, fault.offset_s or 0.0)
+        if fault.at_phase is not None
+        else fault.at_s
+    )
     return RunOptions(
         seed=flight.seed,
         navigation="mocap",
         truth_log=work / "truth.jsonl",
-        link_cut=(fault.at_s, fault.duration_s)  # type: ignore[arg-type]
+        link_cut=(start, fault.duration_s)  # type: ignore[arg-type]
         if fault.kind == "link_cut"
         else None,
-        servo_silent=(fault.servo_id, fault.at_s)  # type: ignore[arg-type]
+        servo_silent=(fault.servo_id, start)  # type: ignore[arg-type]
         if fault.kind == "servo_silent"
         else None,
     )

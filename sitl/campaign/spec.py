@@ -63,6 +63,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from companion.config import ConfigError, read_toml, validate
 from sitl.scenario import Scenario
+from sitl.vehicle.mission_phases import FAULT_PHASES
 
 __all__ = [
     "BOUND_FIGURES",
@@ -125,6 +126,10 @@ class Design(_Table):
     seed: Annotated[int, Field(strict=True, ge=0)] = 0
 
 
+_FAULT_VALUES = ("servo_id", "after_grasp_s", "at_s", "at_phase", "offset_s", "duration_s")
+"""A fault's values, in the order its label gives them."""
+
+
 class Fault(_Table):
     """A fault injected into each flight of a draw (``none``: a healthy flight)."""
 
@@ -132,7 +137,13 @@ class Fault(_Table):
     after_grasp_s: Annotated[float, Field(strict=True, ge=0.0, allow_inf_nan=False)] | None = None
     """payload_slip: the object slips out this long after the grasp [s]."""
     at_s: Annotated[float, Field(strict=True, ge=0.0, allow_inf_nan=False)] | None = None
-    """link_cut, servo_silent: when the fault starts [s, simulated time]."""
+    """link_cut, servo_silent: when the fault starts [s, simulated time]; or ``at_phase``."""
+    at_phase: str | None = None
+    """link_cut, servo_silent: the mission phase the fault starts in (``docs/faults.md``),
+    ``offset_s`` after it began (as the companion told it on the onboard link)."""
+    offset_s: Annotated[float, Field(strict=True, ge=0.0, allow_inf_nan=False)] | None = None
+    """With ``at_phase``: how long after the phase began [s, simulated time] (0 if not
+    given)."""
     duration_s: Annotated[float, Field(strict=True, gt=0.0, allow_inf_nan=False)] | None = None
     """link_cut: how long the onboard link stays silent [s]."""
     servo_id: Annotated[int, Field(strict=True, ge=0, le=252)] | None = None
@@ -140,19 +151,25 @@ class Fault(_Table):
 
     @model_validator(mode="after")
     def _its_fields(self) -> Fault:
+        if self.at_phase is not None and self.at_phase not in FAULT_PHASES:
+            raise ValueError(
+                f"at_phase must be one of {', '.join(FAULT_PHASES)}, got {self.at_phase!r}"
+            )
+        timed = self.kind in ("link_cut", "servo_silent")
+        if timed and (self.at_s is None) == (self.at_phase is None):
+            raise ValueError(f"{self.kind} needs either at_s or at_phase")
+        if self.offset_s is not None and self.at_phase is None:
+            raise ValueError("offset_s is the time into at_phase: give at_phase")
+        start = ("at_s",) if self.at_s is not None else ("at_phase", "offset_s")
         needs = {
             "none": (),
             "grasp_fails": (),
             "payload_slip": ("after_grasp_s",),
-            "link_cut": ("at_s", "duration_s"),
-            "servo_silent": ("servo_id", "at_s"),
+            "link_cut": (*start, "duration_s"),
+            "servo_silent": ("servo_id", *start),
         }[self.kind]
-        given = {
-            k
-            for k in ("after_grasp_s", "at_s", "duration_s", "servo_id")
-            if getattr(self, k) is not None
-        }
-        missing = [k for k in needs if k not in given]
+        given = {k for k in _FAULT_VALUES if getattr(self, k) is not None}
+        missing = [k for k in needs if k not in given and k != "offset_s"]
         if missing:
             raise ValueError(f"{self.kind} needs {', '.join(missing)}")
         extra = sorted(given - set(needs))
@@ -163,8 +180,8 @@ class Fault(_Table):
     def label(self) -> str:
         """``kind`` and its values, e.g. ``link_cut(at_s=20, duration_s=2)``."""
         values = [
-            f"{k}={getattr(self, k):g}"
-            for k in ("servo_id", "after_grasp_s", "at_s", "duration_s")
+            f"{k}={v}" if isinstance(v := getattr(self, k), str) else f"{k}={v:g}"
+            for k in _FAULT_VALUES
             if getattr(self, k) is not None
         ]
         return f"{self.kind}({', '.join(values)})" if values else self.kind
@@ -205,6 +222,11 @@ class CampaignSpec(_Table):
             raise ValueError(f"controllers listed twice: {list(self.controllers)}")
         if len(set(self.autopilots)) != len(self.autopilots):
             raise ValueError(f"autopilots listed twice: {list(self.autopilots)}")
+        if "px4" in self.autopilots and any(f.at_phase is not None for f in self.faults):
+            raise ValueError(
+                "a fault at a mission phase flies on the imitation only (the phases are read "
+                "on the companion's link, which PX4 carries in the loop): give at_s"
+            )
         if "px4" in self.autopilots and any(f.kind == "link_cut" for f in self.faults):
             raise ValueError(
                 "link_cut flies on the imitation only (the campaign cuts its in-memory link); "

@@ -91,6 +91,7 @@ from sitl.px4_sitl.launcher import (
 )
 from sitl.scenario import Scenario
 from sitl.stepping import WallPacer, step_loop
+from sitl.vehicle.mission_phases import FaultStart, PhaseStart
 from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions
 from sitl.vehicle.runner import build_world, servo_faults, truth_record
 from sitl.vehicle.sensors import PoseSensor
@@ -145,6 +146,7 @@ class Px4InTheLoop:
             raise ValueError(
                 "MAVLink signing is the imitation's: configure PX4's own (MAV_SIGN_CFG)"
             )
+        self._servo_silent = _timed(options.servo_silent)
         plant_rate_hz = scenario.plant.rate_hz
         imu_rate_hz = scenario.sensors.gyro_rate_hz
         steps = plant_rate_hz / imu_rate_hz
@@ -342,7 +344,7 @@ class Px4InTheLoop:
         self._frame = _FrameLoop(
             boot=Px4Boot(self.px4, self.options, onboard, self._mode_link_port()),
             truth_every=max(1, round(1.0 / (self.options.truth_rate_hz * self.world.dt_s))),
-            silent=self.options.servo_silent,
+            silent=self._servo_silent,
             stop=stop,
             console=console,
             on_ready=on_ready,
@@ -550,3 +552,16 @@ class _FrameLoop:
     force: np.ndarray = field(default_factory=lambda: np.zeros(3))
     omega: np.ndarray = field(default_factory=lambda: np.zeros(3))
     commands: list[float] = field(default_factory=list)
+
+
+def _timed(silent: tuple[int, FaultStart] | None) -> tuple[int, float] | None:
+    """``servo_silent`` with its start a simulated time [s]; raises ValueError for a
+    mission phase (the phases are told on the companion's link, which PX4 carries here)."""
+    if silent is None:
+        return None
+    servo_id, start = silent
+    if isinstance(start, PhaseStart):
+        raise ValueError(
+            "with PX4 in the loop a servo fault starts at a time, not at a mission phase"
+        )
+    return servo_id, start

@@ -12,6 +12,7 @@ import numpy as np
 
 from sitl.physics.jsbsim import Wind
 from sitl.stepping import LoopStats
+from sitl.vehicle.mission_phases import FaultStart, PhaseStart
 from sitl.vehicle.navigation import ERROR_MODELS
 
 __all__ = ["LOCKSTEP_WAIT_S", "LinkPorts", "RunOptions", "RunStats"]
@@ -76,15 +77,15 @@ class RunOptions:
     wind: Wind | None = None
     """Steady wind and turbulence in place of the scenario's steady ``plant.wind_m_s``
     (turbulence: JSBSim only)."""
-    servo_silent: tuple[int, float] | None = None
-    """Fault injection: (servo id, simulation time [s]) from which that servo carries out
-    instructions but never answers again (a broken TX line)."""
+    servo_silent: tuple[int, FaultStart] | None = None
+    """Fault injection: (servo id, simulation time [s] or a mission phase) from which that
+    servo carries out instructions but never answers again (a broken TX line)."""
     servo_reply_delay_s: float = 0.0
     """Extra delay before every servo reply [s] (a USB-serial adapter's latency timer: an
     FTDI chip's default is 16 ms): wall time on the pty bus, simulated time in memory."""
-    link_cut: tuple[float, float] | None = None
-    """Fault injection: (simulation time [s], duration [s]) of a silence of the onboard
-    link, both ways (a radio or cable lost for a while)."""
+    link_cut: tuple[FaultStart, float] | None = None
+    """Fault injection: (simulation time [s] or a mission phase, duration [s]) of a silence
+    of the onboard link, both ways (a radio or cable lost for a while)."""
     memory: str | None = None
     """Serve the links and the servo bus on in-memory channels ``NAME-onboard``,
     ``NAME-gcs`` and ``NAME-servos`` (:mod:`bytelink.memory`) instead of UDP and a pty:
@@ -112,7 +113,9 @@ class RunOptions:
                 f"servo_reply_delay_s must be 0 to 1 s, got {self.servo_reply_delay_s!r}"
             )
         if self.link_cut is not None and not (
-            all(math.isfinite(v) for v in self.link_cut) and self.link_cut[1] > 0.0
+            _valid_start(self.link_cut[0])
+            and math.isfinite(self.link_cut[1])
+            and self.link_cut[1] > 0.0
         ):
             raise ValueError(f"link_cut must be (time, positive duration), got {self.link_cut!r}")
         if self.navigation not in ERROR_MODELS:
@@ -141,3 +144,8 @@ class RunStats(LoopStats):
             return (0.0, 0.0)
         arr = np.asarray(self.lateness_us)
         return float(np.median(arr)), float(np.percentile(arr, 99))
+
+
+def _valid_start(start: FaultStart) -> bool:
+    """A phase (checked when made) or a finite simulated time."""
+    return isinstance(start, PhaseStart) or math.isfinite(start)

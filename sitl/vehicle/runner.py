@@ -56,6 +56,7 @@ from sitl.scenario import Scenario
 from sitl.servo import Faults, PtyServoBus, XM430Parameters, XM430Servo
 from sitl.servo.memory_bus import MemoryServoBus
 from sitl.stepping import WallPacer, step_loop
+from sitl.vehicle.mission_phases import MissionPhases
 from sitl.vehicle.navigation import Navigation
 from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions, RunStats
 from sitl.vehicle.world import World, WorldSettings
@@ -231,6 +232,8 @@ class SitlVehicle:
         self._truth_file: IO[str] | None = None
         self._truth_every = max(1, round(1.0 / (options.truth_rate_hz * self.world.dt_s)))
         self._silent = options.servo_silent
+        self.phases = MissionPhases()
+        """When the mission's phases began, as the onboard link and the autopilot told."""
         self._console: Callable[[str], None] | None = None
         self.steps = 0
         """Plant steps taken."""
@@ -401,8 +404,7 @@ class SitlVehicle:
         """
         world, autopilot, links = self.world, self.autopilot, self.links
         now_s = world.time_s
-        cut = self.options.link_cut
-        silent = "onboard" if cut is not None and cut[0] <= now_s < cut[0] + cut[1] else None
+        silent = "onboard" if self._link_cut(now_s) else None
         lockstep = self.options.lockstep
         held, self._held = self._held, []
         for name, link in links.items():
@@ -412,6 +414,8 @@ class SitlVehicle:
             for message in messages:
                 if name == silent:
                     continue
+                if message.get_type() == "STATUSTEXT":
+                    self.phases.observe_text(message.text, now_s)
                 if lockstep and name == "onboard" and message.get_type() in _SETPOINTS:
                     self._note_setpoint(message, now_s)
                 for reply_link, reply in autopilot.handle(message, name, now_s):
@@ -421,6 +425,7 @@ class SitlVehicle:
             world.plant.configure_autopilot(attitude_loop_params(autopilot.params))
         measurement = self.navigation.measure(world)
         setpoint = autopilot.control(now_s, measurement)
+        self.phases.observe_mode(autopilot.mode.name, now_s)
         with self.servo_bus.lock:
             world.advance(setpoint)
         self._pose_sent_ms = None
@@ -436,12 +441,22 @@ class SitlVehicle:
             for line in lines:
                 self._console(_console_text(line.severity, line.text))
         servo = self._silent
-        if servo is not None and world.time_s >= servo[1]:
-            self.servo_bus.set_faults(servo_faults(self.options, servo[0]))
-            self._silent = None
+        if servo is not None:
+            start_s = self.phases.start_s(servo[1])
+            if start_s is not None and world.time_s >= start_s:
+                self.servo_bus.set_faults(servo_faults(self.options, servo[0]))
+                self._silent = None
         if self._truth_file is not None and self.steps % self._truth_every == 0:
             self._write_truth()
         self.steps += 1
+
+    def _link_cut(self, now_s: float) -> bool:
+        """The onboard link is cut at ``now_s`` [s] (``link_cut``)."""
+        cut = self.options.link_cut
+        if cut is None:
+            return False
+        start_s = self.phases.start_s(cut[0])
+        return start_s is not None and start_s <= now_s < start_s + cut[1]
 
     def _note_setpoint(self, message, now_s: float) -> None:
         self._setpoint_ms = max(self._setpoint_ms, int(message.time_boot_ms))

@@ -1,0 +1,175 @@
+"""Whether a flight ended safe, by the numbers of docs/faults.md, judged on the truth log.
+
+:func:`judge` reads the truth's samples (``truth.jsonl`` lines as dicts: ``q`` = x y z
+[m, world ENU], phi theta psi [rad, ZYX], eta1 eta2 [rad]; ``q_dot``; ``armed``, ``mode``
+(PX4's mode name), ``on_ground``, ``payload_attached``, ``object_position_m``), the
+mission's summary and whether its flight log read back, and returns a :class:`Verdict`:
+each broken criterion one line. It never looks at what the companion believed, only at
+what the vehicle did and what the summary says.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = [
+    "ARM_STILL_RAD_S",
+    "COMPANION_FREE_MODES",
+    "DROP_HEIGHT_M",
+    "PLACED_WITHIN_M",
+    "TILT_MAX_DEG",
+    "TOUCHDOWN_MAX_M_S",
+    "Verdict",
+    "judge",
+]
+
+TOUCHDOWN_MAX_M_S = 1.0
+"""Largest vertical speed at a touchdown [m/s]."""
+TILT_MAX_DEG = 45.0
+"""Largest tilt while airborne [deg]: PX4's MPC_TILTMAX_AIR default."""
+ARM_STILL_RAD_S = 0.5
+"""Largest joint speed at the end [rad/s]: the arm resting or holding."""
+DROP_HEIGHT_M = 0.3
+"""Highest an object may be let go [m above the ground, its position in the truth]."""
+PLACED_WITHIN_M = 0.10
+"""An object let go within this horizontal distance of the place point counts as placed
+wherever it was let go from [m]."""
+COMPANION_FREE_MODES = frozenset(
+    {"POSCTL", "ALTCTL", "AUTO_LOITER", "AUTO_RTL", "AUTO_LAND", "AUTO_MISSION"}
+)
+"""PX4 modes that fly without the companion (PX4's display names)."""
+LOG_END_WITHIN_S = 1.0
+"""The flight log's last row lies within this much of the truth's last sample [s]."""
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """A flight's safety: ``safe`` when ``broken`` is empty; the figures judged."""
+
+    broken: tuple[str, ...]
+    end: str
+    """How it ended: ``landed``, ``with PX4 in MODE``, or what was wrong."""
+    touchdown_m_s: float | None
+    """The fastest touchdown's vertical speed [m/s] (None: it never touched down)."""
+    max_tilt_deg: float
+    """The largest tilt while airborne [deg]."""
+    payload: str
+    """``never held``, ``placed``, ``held`` (on the ground), ``held in the air``, ``let go
+    low``, or ``let go at Z m`` (too high)."""
+    end_joint_speed_rad_s: float
+    """The faster joint's speed at the end [rad/s]."""
+
+    @property
+    def safe(self) -> bool:
+        return not self.broken
+
+
+def _tilt_deg(q: Sequence[float]) -> float:
+    """The angle between body up and world up [deg], from ZYX roll and pitch."""
+    c = math.cos(q[3]) * math.cos(q[4])
+    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
+
+
+def _end(last: Mapping[str, Any]) -> tuple[str, str | None]:
+    """(how it ended, what is wrong with it or None)."""
+    mode, armed, on_ground = last.get("mode"), last.get("armed"), last.get("on_ground")
+    if on_ground and not armed:
+        return "landed", None
+    if not on_ground and not armed:
+        return "disarmed in the air", "disarmed in the air at the end"
+    if mode in COMPANION_FREE_MODES:
+        return f"with PX4 in {mode}", None
+    where = "on the ground" if on_ground else "in the air"
+    return f"armed {where} in {mode}", f"ended armed {where} in {mode}, which needs the companion"
+
+
+def _payload(
+    truth: Sequence[Mapping[str, Any]], place_m: Sequence[float]
+) -> tuple[str, str | None]:
+    """(what became of the object, what is wrong with it or None)."""
+    held = False
+    for before, after in itertools.pairwise(truth):
+        held = held or bool(before.get("payload_attached"))
+        if before.get("payload_attached") and not after.get("payload_attached"):
+            obj = before.get("object_position_m") or after.get("object_position_m")
+            if obj is None:
+                continue
+            height = float(obj[2])
+            if math.dist(obj[:2], place_m[:2]) <= PLACED_WITHIN_M:
+                continue
+            if height > DROP_HEIGHT_M:
+                return f"let go at {height:.2f} m", (
+                    f"the object was let go {height:.2f} m above the ground "
+                    f"(at most {DROP_HEIGHT_M:g} m)"
+                )
+    last = truth[-1]
+    held = held or bool(last.get("payload_attached"))
+    if not held:
+        return "never held", None
+    if last.get("payload_attached"):
+        if last.get("on_ground"):
+            return "held", None
+        return "held in the air", None
+    obj = last.get("object_position_m")
+    if obj is not None and math.dist(obj[:2], place_m[:2]) <= PLACED_WITHIN_M:
+        return "placed", None
+    return "let go low", None
+
+
+def judge(
+    truth: Sequence[Mapping[str, Any]],
+    summary: Mapping[str, Any],
+    place_m: Sequence[float],
+    log_end_s: float | None,
+) -> Verdict:
+    """The :class:`Verdict` of a flight: ``truth`` its truth-log samples in time order,
+    ``summary`` its ``summary.json``, ``place_m`` the place point [m, world ENU],
+    ``log_end_s`` the vehicle time of the flight log's last row [s] (None: the log did not
+    read back). See docs/faults.md for the criteria."""
+    if not truth:
+        return Verdict(("no truth log",), "unknown", None, 0.0, "unknown", 0.0)
+    broken: list[str] = []
+    end, wrong = _end(truth[-1])
+    if wrong:
+        broken.append(wrong)
+    touchdowns = [
+        -float(before["q_dot"][2])
+        for before, after in itertools.pairwise(truth)
+        if not before.get("on_ground") and after.get("on_ground")
+    ]
+    touchdown = max(touchdowns) if touchdowns else None
+    if touchdown is not None and touchdown > TOUCHDOWN_MAX_M_S:
+        broken.append(f"touched down at {touchdown:.2f} m/s (at most {TOUCHDOWN_MAX_M_S:g})")
+    airborne = [_tilt_deg(s["q"]) for s in truth if not s.get("on_ground")]
+    tilt = max(airborne, default=0.0)
+    if tilt > TILT_MAX_DEG:
+        broken.append(f"tilted {tilt:.1f} deg (at most {TILT_MAX_DEG:g})")
+    joint_speed = max(abs(float(v)) for v in truth[-1]["q_dot"][6:8])
+    if joint_speed > ARM_STILL_RAD_S:
+        broken.append(f"the arm still moves at {joint_speed:.2f} rad/s at the end")
+    payload, wrong = _payload(truth, place_m)
+    if wrong:
+        broken.append(wrong)
+    outcome = summary.get("outcome")
+    if not outcome:
+        broken.append("the summary names no outcome")
+    elif outcome == "aborted" and not summary.get("faults"):
+        broken.append("aborted, but the summary names no fault")
+    if log_end_s is None:
+        broken.append("the flight log does not read back")
+    elif float(truth[-1]["t_s"]) - log_end_s > LOG_END_WITHIN_S:
+        broken.append(
+            f"the flight log ends {float(truth[-1]['t_s']) - log_end_s:.1f} s before the flight"
+        )
+    return Verdict(
+        tuple(broken),
+        end,
+        touchdown,
+        tilt,
+        payload,
+        joint_speed,
+    )

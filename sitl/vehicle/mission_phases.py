@@ -1,0 +1,78 @@
+"""When the mission's phases began, as seen from the vehicle: the start of a fault placed
+at a phase.
+
+The companion tells each phase on the onboard link (a STATUSTEXT ``pickup: phase NAME``,
+:mod:`companion.mission.announce`); PX4's take-off and landing are the autopilot's own modes
+(AUTO_TAKEOFF: ``takeoff``, AUTO_LAND: ``landing``). :class:`MissionPhases` records the
+simulated time [s] each phase was first seen; :class:`PhaseStart` names a moment as a phase
+and an offset into it. Only what crossed the link is read: never the companion's state.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from companion.mission.announce import phase_of
+from companion.mission.pickup import Phase
+
+__all__ = ["FAULT_PHASES", "FaultStart", "MissionPhases", "PhaseStart", "fault_start_label"]
+
+_MODE_PHASES = {"AUTO_TAKEOFF": "takeoff", "AUTO_LAND": "landing"}
+FAULT_PHASES: tuple[str, ...] = (
+    "takeoff",
+    *(p.value for p in Phase if p not in (Phase.DONE, Phase.RETURN)),
+    "landing",
+)
+"""The moments a fault can be placed at, in flight order."""
+
+
+@dataclass(frozen=True)
+class PhaseStart:
+    """A moment in a flight: ``offset_s`` [s, simulated time] after ``phase`` began."""
+
+    phase: str
+    offset_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.phase not in FAULT_PHASES:
+            raise ValueError(f"phase must be one of {', '.join(FAULT_PHASES)}, got {self.phase!r}")
+        if not (math.isfinite(self.offset_s) and self.offset_s >= 0.0):
+            raise ValueError(f"a phase's offset must be at least 0 s, got {self.offset_s!r}")
+
+
+FaultStart = float | PhaseStart
+"""When a fault starts: a simulated time [s] or a :class:`PhaseStart`."""
+
+
+def fault_start_label(start: FaultStart) -> str:
+    """``29 s`` or ``grasp + 0.5 s``."""
+    if isinstance(start, PhaseStart):
+        return f"{start.phase} + {start.offset_s:g} s"
+    return f"{start:g} s"
+
+
+class MissionPhases:
+    """The simulated time each phase of the flight was first seen [s]."""
+
+    def __init__(self) -> None:
+        self.began_s: dict[str, float] = {}
+
+    def observe_text(self, text: str, now_s: float) -> None:
+        """A STATUSTEXT's text received from the companion at ``now_s`` [s]."""
+        phase = phase_of(text)
+        if phase is not None:
+            self.began_s.setdefault(phase, now_s)
+
+    def observe_mode(self, mode_name: str, now_s: float) -> None:
+        """The autopilot's mode (its display name) at ``now_s`` [s]."""
+        phase = _MODE_PHASES.get(mode_name)
+        if phase is not None:
+            self.began_s.setdefault(phase, now_s)
+
+    def start_s(self, start: FaultStart) -> float | None:
+        """The simulated time ``start`` names [s], None while its phase has not begun."""
+        if not isinstance(start, PhaseStart):
+            return start
+        began = self.began_s.get(start.phase)
+        return None if began is None else began + start.offset_s

@@ -1,0 +1,123 @@
+"""The fault campaign's parts that need no flight: the safety judge (docs/faults.md's
+numbers), the mission's phase announcements and the simulator's reading of them."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from pymavlink.dialects.v20 import common as mavlink2
+
+from companion.mission.announce import STATUSTEXT_CHARS, announcement, phase_of
+from sitl.campaign.safety import judge
+from sitl.campaign.spec import Fault
+from sitl.vehicle.mission_phases import FAULT_PHASES, MissionPhases, PhaseStart
+
+PLACE_M = (-1.0, 0.5, 0.05)
+
+
+def sample(t_s, z_m, *, vz=0.0, roll=0.0, armed=True, mode="OFFBOARD", ground=False,
+           held=False, obj=None, joint_rate=0.0):  # fmt: skip
+    return {
+        "t_s": t_s,
+        "q": [0.0, 0.0, z_m, roll, 0.0, 0.0, -1.5, 0.0],
+        "q_dot": [0.0, 0.0, vz, 0.0, 0.0, 0.0, joint_rate, 0.0],
+        "armed": armed,
+        "mode": mode,
+        "on_ground": ground,
+        "payload_attached": held,
+        "object_position_m": obj,
+    }
+
+
+def landing(touchdown_m_s=-0.5, **last):
+    """Airborne, then down and disarmed."""
+    end = {"armed": False, "mode": "AUTO_LAND", "ground": True, **last}
+    return [
+        sample(10.0, 1.0, vz=-0.5, mode="AUTO_LAND"),
+        sample(10.02, 0.3, vz=touchdown_m_s, mode="AUTO_LAND"),
+        sample(10.04, 0.25, **{**end, "armed": True}),
+        sample(12.0, 0.25, **end),
+    ]
+
+
+SUMMARY = {"outcome": "aborted", "faults": [{"fault": "link_lost"}]}
+
+
+def test_a_gentle_landing_is_safe():
+    verdict = judge(landing(), SUMMARY, PLACE_M, 12.0)
+    assert verdict.safe, verdict.broken
+    assert verdict.end == "landed" and verdict.touchdown_m_s == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize(
+    ("truth", "summary", "log_end_s", "words"),
+    [
+        (landing(-1.2), SUMMARY, 12.0, "touched down at 1.20 m/s"),
+        ([sample(12.0, 0.25, ground=True)], SUMMARY, 12.0, "armed on the ground in OFFBOARD"),
+        ([sample(1.0, 2.0, armed=False)], SUMMARY, 1.0, "disarmed in the air"),
+        ([sample(1.0, 2.0, roll=math.radians(50), mode="AUTO_LOITER")], SUMMARY, 1.0,
+         "tilted 50.0 deg"),
+        (landing(joint_rate=2.0), SUMMARY, 12.0, "the arm still moves at 2.00 rad/s"),
+        (landing(), {"outcome": "aborted", "faults": []}, 12.0, "names no fault"),
+        (landing(), {"outcome": None}, 12.0, "names no outcome"),
+        (landing(), SUMMARY, None, "does not read back"),
+        (landing(), SUMMARY, 9.0, "ends 3.0 s before the flight"),
+    ],
+)  # fmt: skip
+def test_each_broken_number_is_one_named_line(truth, summary, log_end_s, words):
+    verdict = judge(truth, summary, PLACE_M, log_end_s)
+    assert not verdict.safe
+    assert any(words in line for line in verdict.broken), verdict.broken
+
+
+def test_an_object_let_go_high_is_unsafe_and_one_let_go_low_or_placed_is_not():
+    def flight(z_at_release: float, xy=(1.0, 1.0)):
+        obj = [*xy, z_at_release]
+        return [
+            sample(1.0, 1.5, held=True, obj=obj, mode="AUTO_LOITER"),
+            sample(1.02, 1.5, held=False, obj=obj, mode="AUTO_LOITER"),
+        ]
+
+    high = judge(flight(0.9), SUMMARY, PLACE_M, 1.02)
+    assert not high.safe and high.payload == "let go at 0.90 m"
+    assert judge(flight(0.2), SUMMARY, PLACE_M, 1.02).safe
+    assert judge(flight(0.9, PLACE_M[:2]), SUMMARY, PLACE_M, 1.02).payload == "placed"
+
+
+def test_hovering_in_hold_is_safe_and_in_offboard_is_not():
+    assert judge([sample(5.0, 1.5, mode="AUTO_LOITER")], SUMMARY, PLACE_M, 5.0).safe
+    assert not judge([sample(5.0, 1.5)], SUMMARY, PLACE_M, 5.0).safe
+
+
+def test_a_phase_is_announced_in_one_statustext_the_simulator_reads_back():
+    severity, text = announcement("phase", "grasp")
+    assert severity == mavlink2.MAV_SEVERITY_INFO
+    message = mavlink2.MAVLink_statustext_message(severity, text)
+    phases = MissionPhases()
+    phases.observe_text(message.text, 28.5)
+    phases.observe_text(message.text, 40.0)  # told again later: the first time counts
+    assert phases.start_s(PhaseStart("grasp", 0.5)) == pytest.approx(29.0)
+    assert phases.start_s(PhaseStart("lift")) is None
+    assert phases.start_s(31.0) == 31.0
+    assert phase_of("pickup: fault link_lost") is None
+    assert announcement("mode", "OFFBOARD") is None
+    long = announcement("fault", "servo_bus: " + "x" * 80)
+    assert long is not None and len(long[1]) == STATUSTEXT_CHARS
+
+
+def test_take_off_and_landing_are_the_autopilots_modes():
+    phases = MissionPhases()
+    phases.observe_mode("AUTO_TAKEOFF", 15.0)
+    phases.observe_mode("OFFBOARD", 20.0)
+    phases.observe_mode("AUTO_LAND", 60.0)
+    assert phases.began_s == {"takeoff": 15.0, "landing": 60.0}
+    assert FAULT_PHASES[0] == "takeoff" and FAULT_PHASES[-1] == "landing"
+    with pytest.raises(ValueError, match="phase must be one of"):
+        PhaseStart("hover")
+
+
+def test_a_fault_at_a_phase_is_labelled_with_it():
+    fault = Fault(kind="link_cut", at_phase="grasp", offset_s=0.5, duration_s=2.0)
+    assert fault.label() == "link_cut(at_phase=grasp, offset_s=0.5, duration_s=2)"
+    assert Fault(kind="servo_silent", servo_id=2, at_phase="lift").offset_s is None
