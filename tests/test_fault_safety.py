@@ -85,6 +85,20 @@ def test_an_object_let_go_high_is_unsafe_and_one_let_go_low_or_placed_is_not():
     assert judge(flight(0.9, PLACE_M[:2]), SUMMARY, PLACE_M, 1.02).payload == "placed"
 
 
+def test_an_object_slipping_out_of_closed_jaws_is_not_a_release():
+    obj = [1.0, 1.0, 1.2]
+    truth = [
+        {**sample(1.0, 1.5, held=False, obj=obj, mode="AUTO_LOITER"), "gripper_angle_rad": 0.7},
+        {**sample(1.2, 1.5, held=True, obj=obj, mode="AUTO_LOITER"), "gripper_angle_rad": -0.2},
+        {**sample(5.0, 1.5, held=True, obj=obj, mode="AUTO_LOITER"), "gripper_angle_rad": -0.2},
+        {**sample(5.02, 1.5, held=False, obj=obj, mode="AUTO_LOITER"), "gripper_angle_rad": -0.2},
+    ]
+    verdict = judge(truth, SUMMARY, PLACE_M, 5.02)
+    assert verdict.safe and verdict.payload == "slipped at 1.20 m"
+    truth[-1]["gripper_angle_rad"] = 0.7  # the jaws opened: let go from 1.2 m
+    assert not judge(truth, SUMMARY, PLACE_M, 5.02).safe
+
+
 def test_hovering_in_hold_is_safe_and_in_offboard_is_not():
     assert judge([sample(5.0, 1.5, mode="AUTO_LOITER")], SUMMARY, PLACE_M, 5.0).safe
     assert not judge([sample(5.0, 1.5)], SUMMARY, PLACE_M, 5.0).safe

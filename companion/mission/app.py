@@ -397,6 +397,7 @@ class PickupApp:
             self.cycle.start_servo_check()
         elif isinstance(command, StartMission):
             self.cycle.start_mission()
+            self._note("phase", self.mission.phase.value)  # the first: no change announces it
             self._mission_clock = (time.process_time(), time.perf_counter())
             self._mission_messages = (self._link_messages(), self.t_s)
         elif isinstance(command, Landed):

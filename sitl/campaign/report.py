@@ -17,6 +17,7 @@ import base64
 import html
 import io
 import math
+from collections import Counter
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -25,11 +26,13 @@ import numpy as np
 
 from sitl.campaign.spec import CampaignSpec
 from sitl.campaign.store import failed, refused
+from sitl.vehicle.mission_phases import FAULT_PHASES
 
 __all__ = [
     "BASELINES",
     "METRICS",
     "REPORT_FILES",
+    "fault_phase_table",
     "flown_by",
     "paired_flights",
     "percentile_rows",
@@ -324,6 +327,72 @@ def _failed(rows: Sequence[Row], axes: Sequence[str]) -> str:
     )
 
 
+def fault_phase_table(rows: Sequence[Row]) -> tuple[list[str], list[tuple[str, list[str]]]]:
+    """The fault x phase -> outcome table of the flights given a fault: (the phases, in
+    flight order, with ``at a time`` for faults given a time or none; per fault (its label
+    without the phase) one cell per phase: ``safe/flown`` and the outcomes with their
+    counts, empty where nothing was flown)."""
+    faulty = [r for r in rows if r.get("status") == "ok" and r.get("fault_kind") != "none"]
+    phases = [p for p in FAULT_PHASES if any(r.get("fault_phase") == p for r in faulty)]
+    if any(r.get("fault_phase") is None for r in faulty):
+        phases.append("at a time")
+    cells: dict[str, dict[str, list[Row]]] = {}
+    for r in faulty:
+        label = _without_phase(str(r["fault"]))
+        cells.setdefault(label, {}).setdefault(r.get("fault_phase") or "at a time", []).append(r)
+    table = []
+    for label in sorted(cells):
+        line = []
+        for phase in phases:
+            flown = cells[label].get(phase, [])
+            if not flown:
+                line.append("")
+                continue
+            outcomes = Counter(str(r.get("outcome")) for r in flown)
+            safe = sum(1 for r in flown if r.get("safe"))
+            text = ", ".join(f"{o} {n}" for o, n in sorted(outcomes.items()))
+            line.append(f"{safe}/{len(flown)} safe: {text}")
+        table.append((label, line))
+    return phases, table
+
+
+def _without_phase(label: str) -> str:
+    """A fault's label without its ``at_phase`` and ``offset_s`` values."""
+    kind, _, values = label.partition("(")
+    kept = [
+        v for v in values.rstrip(")").split(", ")
+        if v and not v.startswith(("at_phase=", "offset_s="))
+    ]  # fmt: skip
+    return f"{kind}({', '.join(kept)})" if kept else kind
+
+
+def _faults(rows: Sequence[Row], axes: Sequence[str]) -> str:
+    phases, table = fault_phase_table(rows)
+    if not table:
+        return "<p>No flight was given a fault.</p>"
+    judged = [r for r in rows if r.get("status") == "ok" and r.get("fault_kind") != "none"]
+    unsafe = [(r, html.escape(str(r.get("unsafe") or ""))) for r in judged if not r.get("safe")]
+    lines = [
+        f"<p>{len(judged) - len(unsafe)} of {len(judged)} flights given a fault ended safe by "
+        "docs/faults.md's numbers. Each cell: safe of flown, and the outcomes.</p>",
+        "<table><tr><th>fault</th>" + "".join(f"<th>{html.escape(p)}</th>" for p in phases)
+        + "</tr>",
+    ]  # fmt: skip
+    for label, line in table:
+        lines.append(
+            f"<tr><td>{html.escape(label)}</td>"
+            + "".join(f"<td>{html.escape(c)}</td>" for c in line)
+            + "</tr>"
+        )
+    lines.append("</table>")
+    if unsafe:
+        lines += [
+            f"<p>{len(unsafe)} flights ended unsafe:</p>",
+            _flight_table(unsafe, axes, "unsafe"),
+        ]
+    return "\n".join(lines)
+
+
 _STYLE = """
 body { font-family: sans-serif; margin: 2em; max-width: 1200px; }
 table { border-collapse: collapse; margin: 1em 0; font-size: 0.9em; display: block;
@@ -418,6 +487,7 @@ def write_report(
         parts.append(paired_table)
         if paired_png:
             parts.append(f"<img src='{paired_png}'>")
+    parts += ["<h2>Faults by phase: safe or not</h2>", _faults(rows, axes)]
     parts += ["<h2>Flights that did not complete</h2>", _failed(rows, axes)]
     parts += ["<h2>Payloads refused (beyond authority)</h2>", _refused(rows, axes)]
     if spec is not None and spec.bounds:

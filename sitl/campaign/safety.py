@@ -35,6 +35,8 @@ ARM_STILL_RAD_S = 0.5
 """Largest joint speed at the end [rad/s]: the arm resting or holding."""
 DROP_HEIGHT_M = 0.3
 """Highest an object may be let go [m above the ground, its position in the truth]."""
+JAWS_STILL_RAD = 0.05
+"""The gripper moved less than this since it closed on the object [rad]: still closed."""
 PLACED_WITHIN_M = 0.10
 """An object let go within this horizontal distance of the place point counts as placed
 wherever it was let go from [m]."""
@@ -59,7 +61,7 @@ class Verdict:
     """The largest tilt while airborne [deg]."""
     payload: str
     """``never held``, ``placed``, ``held`` (on the ground), ``held in the air``, ``let go
-    low``, or ``let go at Z m`` (too high)."""
+    low``, ``slipped at Z m`` (out of closed jaws), or ``let go at Z m`` (too high)."""
     end_joint_speed_rad_s: float
     """The faster joint's speed at the end [rad/s]."""
 
@@ -90,17 +92,24 @@ def _end(last: Mapping[str, Any]) -> tuple[str, str | None]:
 def _payload(
     truth: Sequence[Mapping[str, Any]], place_m: Sequence[float]
 ) -> tuple[str, str | None]:
-    """(what became of the object, what is wrong with it or None)."""
+    """(what became of the object, what is wrong with it or None). An object that left
+    jaws still closed as they closed on it slipped out (a fault of the world, not a
+    release): its height is not judged."""
     held = False
+    grasp_angle = None
     for before, after in itertools.pairwise(truth):
+        if after.get("payload_attached") and not before.get("payload_attached"):
+            grasp_angle = after.get("gripper_angle_rad")
         held = held or bool(before.get("payload_attached"))
         if before.get("payload_attached") and not after.get("payload_attached"):
-            obj = before.get("object_position_m") or after.get("object_position_m")
-            if obj is None:
+            obj = before.get("object_position_m")
+            if obj is None or math.dist(obj[:2], place_m[:2]) <= PLACED_WITHIN_M:
                 continue
             height = float(obj[2])
-            if math.dist(obj[:2], place_m[:2]) <= PLACED_WITHIN_M:
-                continue
+            angle = after.get("gripper_angle_rad")
+            if grasp_angle is not None and angle is not None:
+                if abs(angle - grasp_angle) < JAWS_STILL_RAD:
+                    return f"slipped at {height:.2f} m", None
             if height > DROP_HEIGHT_M:
                 return f"let go at {height:.2f} m", (
                     f"the object was let go {height:.2f} m above the ground "

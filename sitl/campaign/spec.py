@@ -35,6 +35,11 @@ Format (every key but ``name`` and ``scenario`` optional)::
     [[faults]]
     kind = "payload_slip"                    # grasp_fails; link_cut (at_s, duration_s);
     after_grasp_s = 2.5                      # servo_silent (servo_id, at_s)
+    [[faults]]
+    kind = "link_cut"                        # a fault at a phase instead of a time:
+    at_phase = "grasp"                       # takeoff, to_object ... to_home, landing
+    offset_s = 0.5                           # (docs/faults.md), this long into it
+    duration_s = 2.0
 
     [bounds.passivity]                       # per controller: a completed flight whose
     mass_error_pct = 3.0                     # |figure| exceeds one of these is outside the
