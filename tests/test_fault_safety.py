@@ -11,6 +11,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from companion.mission.announce import STATUSTEXT_CHARS, announcement, phase_of
 from sitl.campaign.safety import judge
 from sitl.campaign.spec import Fault
+from sitl.vehicle.link_faults import LinkFaults, LinkLoss, PilotTakeover
 from sitl.vehicle.mission_phases import FAULT_PHASES, MissionPhases, PhaseStart
 
 PLACE_M = (-1.0, 0.5, 0.05)
@@ -85,18 +86,22 @@ def test_an_object_let_go_high_is_unsafe_and_one_let_go_low_or_placed_is_not():
     assert judge(flight(0.9, PLACE_M[:2]), SUMMARY, PLACE_M, 1.02).payload == "placed"
 
 
-def test_an_object_slipping_out_of_closed_jaws_is_not_a_release():
+def test_an_object_slipping_out_of_closing_jaws_is_not_a_release():
     obj = [1.0, 1.0, 1.2]
-    truth = [
-        {**sample(1.0, 1.5, held=False, obj=obj, mode="AUTO_LOITER"), "gripper_angle_rad": 0.7},
-        {**sample(1.2, 1.5, held=True, obj=obj, mode="AUTO_LOITER"), "gripper_angle_rad": -0.2},
-        {**sample(5.0, 1.5, held=True, obj=obj, mode="AUTO_LOITER"), "gripper_angle_rad": -0.2},
-        {**sample(5.02, 1.5, held=False, obj=obj, mode="AUTO_LOITER"), "gripper_angle_rad": -0.2},
-    ]
-    verdict = judge(truth, SUMMARY, PLACE_M, 5.02)
-    assert verdict.safe and verdict.payload == "slipped at 1.20 m"
-    truth[-1]["gripper_angle_rad"] = 0.7  # the jaws opened: let go from 1.2 m
-    assert not judge(truth, SUMMARY, PLACE_M, 5.02).safe
+
+    def flight(jaws_after_rad: float) -> list[dict]:
+        return [
+            {**sample(1.0, 1.5, obj=obj, mode="AUTO_LOITER"), "gripper_angle_rad": 0.7},
+            {**sample(1.2, 1.5, held=True, obj=obj, mode="AUTO_LOITER"), "gripper_angle_rad": 0.0},
+            {**sample(5.0, 1.5, held=True, obj=obj, mode="AUTO_LOITER"), "gripper_angle_rad": 0.0},
+            {**sample(5.02, 1.5, obj=obj, mode="AUTO_LOITER"), "gripper_angle_rad": 0.0},
+            {**sample(5.2, 1.5, obj=obj, mode="AUTO_LOITER"), "gripper_angle_rad": jaws_after_rad},
+        ]
+
+    slipped = judge(flight(-0.26), SUMMARY, PLACE_M, 5.2)  # closing on nothing
+    assert slipped.safe and slipped.payload == "slipped at 1.20 m"
+    released = judge(flight(0.4), SUMMARY, PLACE_M, 5.2)  # opened: let go from 1.2 m
+    assert not released.safe and released.payload == "let go at 1.20 m"
 
 
 def test_hovering_in_hold_is_safe_and_in_offboard_is_not():
@@ -135,3 +140,26 @@ def test_a_fault_at_a_phase_is_labelled_with_it():
     fault = Fault(kind="link_cut", at_phase="grasp", offset_s=0.5, duration_s=2.0)
     assert fault.label() == "link_cut(at_phase=grasp, offset_s=0.5, duration_s=2)"
     assert Fault(kind="servo_silent", servo_id=2, at_phase="lift").offset_s is None
+
+
+def test_a_lossy_link_drops_its_fraction_and_only_while_it_lasts():
+    phases = MissionPhases()
+    faults = LinkFaults(phases, 3, loss=LinkLoss(PhaseStart("lift"), 5.0, 0.3))
+    assert not faults.drops("onboard", 10.0)  # the lift has not begun
+    phases.observe_text("pickup: phase lift", 10.0)
+    drops = [faults.drops("onboard", 12.0) for _ in range(4000)]
+    assert 0.27 < sum(drops) / len(drops) < 0.33
+    assert not faults.drops("gcs", 12.0) and not faults.drops("onboard", 15.0)
+
+
+def test_the_pilots_takeover_is_one_ground_station_mode_command():
+    faults = LinkFaults(MissionPhases(), 0, takeover=PilotTakeover(20.0, "AUTO_RTL"))
+    assert faults.takeover(19.99) is None
+    command = faults.takeover(20.0)
+    assert command is not None and command.get_type() == "COMMAND_LONG"
+    assert command.command == mavlink2.MAV_CMD_DO_SET_MODE
+    assert (command.param2, command.param3) == (4.0, 5.0)  # AUTO, RTL
+    assert (command.get_srcSystem(), command.get_srcComponent()) == (255, 190)
+    assert faults.takeover(21.0) is None  # once
+    with pytest.raises(ValueError, match="mode must be one of"):
+        PilotTakeover(20.0, "ACRO")

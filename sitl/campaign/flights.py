@@ -28,7 +28,7 @@ import tomlkit
 
 from companion.config import ConfigError, read_toml_document
 from sitl.campaign.design import sample_ranges
-from sitl.campaign.spec import CampaignSpec, Fault, KeyPath, parse_key
+from sitl.campaign.spec import LINK_FAULTS, CampaignSpec, Fault, KeyPath, parse_key
 from sitl.scenario import Scenario, parse_scenario
 
 __all__ = [
@@ -192,7 +192,7 @@ def replay_command(flight: Flight, out_dir: Path, spec_path: Path) -> str:
     point; a flight with a link fault, which ``sitl demo`` cannot inject, is replayed by
     ``sitl campaign SPEC --out OUT --replay ID``."""
     out = out_dir.resolve()
-    if flight.fault.kind in ("link_cut", "servo_silent"):
+    if flight.fault.kind in LINK_FAULTS:
         return shlex.join(
             ["sitl", "campaign", str(spec_path.resolve()), "--out", str(out), "--replay",
              flight.flight_id]

@@ -33,6 +33,7 @@ from companion.mission.report import MissionReport
 from sitl.campaign.flights import CRUISE_ALTITUDE_M, Flight, scenario_of
 from sitl.campaign.safety import judge
 from sitl.scenario import Scenario
+from sitl.vehicle.link_faults import LinkLoss, PilotTakeover
 from sitl.vehicle.mission_phases import FaultStart, PhaseStart
 from sitl.vehicle.options import RunOptions
 from sitl.vehicle.virtual_flight import fly_virtual, normally_scheduled
@@ -217,6 +218,12 @@ def _run_options(flight: Flight, work: Path) -> RunOptions:
         else None,
         servo_silent=(fault.servo_id, start)  # type: ignore[arg-type]
         if fault.kind == "servo_silent"
+        else None,
+        link_loss=LinkLoss(start, fault.duration_s, fault.drop_fraction)  # type: ignore[arg-type]
+        if fault.kind == "link_loss"
+        else None,
+        pilot_takeover=PilotTakeover(start, fault.mode)  # type: ignore[arg-type]
+        if fault.kind == "pilot_takeover"
         else None,
     )
 

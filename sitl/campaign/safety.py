@@ -36,7 +36,9 @@ ARM_STILL_RAD_S = 0.5
 DROP_HEIGHT_M = 0.3
 """Highest an object may be let go [m above the ground, its position in the truth]."""
 JAWS_STILL_RAD = 0.05
-"""The gripper moved less than this since it closed on the object [rad]: still closed."""
+"""The gripper opened by less than this after the object left [rad]: not a release."""
+RELEASE_LOOK_S = 0.3
+"""How long after the object left the gripper's motion is looked at [s]."""
 PLACED_WITHIN_M = 0.10
 """An object let go within this horizontal distance of the place point counts as placed
 wherever it was let go from [m]."""
@@ -89,27 +91,41 @@ def _end(last: Mapping[str, Any]) -> tuple[str, str | None]:
     return f"armed {where} in {mode}", f"ended armed {where} in {mode}, which needs the companion"
 
 
+def _opened(truth: Sequence[Mapping[str, Any]], grasp: int, release: int) -> bool:
+    """The jaws were opening when the object left them: from the grasp (sample ``grasp``,
+    the first attached) to :data:`RELEASE_LOOK_S` after the object left (sample
+    ``release``), the gripper moved back the way it came as it closed on the object."""
+    angles = [s.get("gripper_angle_rad") for s in truth]
+    before, held = angles[max(grasp - 1, 0)], angles[grasp]
+    t_end = float(truth[release]["t_s"]) + RELEASE_LOOK_S
+    later = [a for s, a in zip(truth[release:], angles[release:], strict=True)
+             if float(s["t_s"]) <= t_end]  # fmt: skip
+    if before is None or held is None or not later or later[-1] is None:
+        return True  # not known: judged as let go
+    closing = math.copysign(1.0, held - before)
+    return (later[-1] - held) * closing < -JAWS_STILL_RAD
+
+
 def _payload(
     truth: Sequence[Mapping[str, Any]], place_m: Sequence[float]
 ) -> tuple[str, str | None]:
     """(what became of the object, what is wrong with it or None). An object that left
-    jaws still closed as they closed on it slipped out (a fault of the world, not a
-    release): its height is not judged."""
+    jaws that were not opening slipped out (a fault of the world, not a release): its
+    height is not judged."""
     held = False
-    grasp_angle = None
-    for before, after in itertools.pairwise(truth):
+    grasp = 0
+    for i in range(1, len(truth)):
+        before, after = truth[i - 1], truth[i]
         if after.get("payload_attached") and not before.get("payload_attached"):
-            grasp_angle = after.get("gripper_angle_rad")
+            grasp = i
         held = held or bool(before.get("payload_attached"))
         if before.get("payload_attached") and not after.get("payload_attached"):
             obj = before.get("object_position_m")
             if obj is None or math.dist(obj[:2], place_m[:2]) <= PLACED_WITHIN_M:
                 continue
             height = float(obj[2])
-            angle = after.get("gripper_angle_rad")
-            if grasp_angle is not None and angle is not None:
-                if abs(angle - grasp_angle) < JAWS_STILL_RAD:
-                    return f"slipped at {height:.2f} m", None
+            if not _opened(truth, grasp, i):
+                return f"slipped at {height:.2f} m", None
             if height > DROP_HEIGHT_M:
                 return f"let go at {height:.2f} m", (
                     f"the object was let go {height:.2f} m above the ground "

@@ -34,7 +34,9 @@ Format (every key but ``name`` and ``scenario`` optional)::
     kind = "none"
     [[faults]]
     kind = "payload_slip"                    # grasp_fails; link_cut (at_s, duration_s);
-    after_grasp_s = 2.5                      # servo_silent (servo_id, at_s)
+    after_grasp_s = 2.5                      # servo_silent (servo_id, at_s); link_loss
+                                             # (at_s, duration_s, drop_fraction);
+                                             # pilot_takeover (at_s, mode = "POSCTL")
     [[faults]]
     kind = "link_cut"                        # a fault at a phase instead of a time:
     at_phase = "grasp"                       # takeoff, to_object ... to_home, landing
@@ -73,6 +75,7 @@ from sitl.vehicle.mission_phases import FAULT_PHASES
 __all__ = [
     "BOUND_FIGURES",
     "FAULT_KINDS",
+    "LINK_FAULTS",
     "PLACE_KEY",
     "Axis",
     "CampaignSpec",
@@ -83,9 +86,15 @@ __all__ = [
     "parse_key",
 ]
 
-FAULT_KINDS = ("none", "payload_slip", "grasp_fails", "link_cut", "servo_silent")
+FAULT_KINDS = (
+    "none", "payload_slip", "grasp_fails", "link_cut", "link_loss", "pilot_takeover",
+    "servo_silent",
+)  # fmt: skip
 """Faults a flight can be given: in the truth (``payload_slip``, ``grasp_fails``: the
-scenario's ``[world]``) or in the links (``link_cut``, ``servo_silent``: the run options)."""
+scenario's ``[world]``) or in the links (``link_cut``, ``link_loss``, ``pilot_takeover``,
+``servo_silent``: the run options)."""
+LINK_FAULTS = ("link_cut", "link_loss", "pilot_takeover", "servo_silent")
+"""The faults that start at a time or a phase, injected by the simulator's links."""
 BoundFigure = Literal[
     "mass_error_pct",
     "com_error_pct",
@@ -131,14 +140,20 @@ class Design(_Table):
     seed: Annotated[int, Field(strict=True, ge=0)] = 0
 
 
-_FAULT_VALUES = ("servo_id", "after_grasp_s", "at_s", "at_phase", "offset_s", "duration_s")
+_FAULT_VALUES = (
+    "servo_id", "mode", "after_grasp_s", "at_s", "at_phase", "offset_s", "duration_s",
+    "drop_fraction",
+)  # fmt: skip
 """A fault's values, in the order its label gives them."""
 
 
 class Fault(_Table):
     """A fault injected into each flight of a draw (``none``: a healthy flight)."""
 
-    kind: Literal["none", "payload_slip", "grasp_fails", "link_cut", "servo_silent"]
+    kind: Literal[
+        "none", "payload_slip", "grasp_fails", "link_cut", "link_loss", "pilot_takeover",
+        "servo_silent",
+    ]  # fmt: skip
     after_grasp_s: Annotated[float, Field(strict=True, ge=0.0, allow_inf_nan=False)] | None = None
     """payload_slip: the object slips out this long after the grasp [s]."""
     at_s: Annotated[float, Field(strict=True, ge=0.0, allow_inf_nan=False)] | None = None
@@ -150,7 +165,11 @@ class Fault(_Table):
     """With ``at_phase``: how long after the phase began [s, simulated time] (0 if not
     given)."""
     duration_s: Annotated[float, Field(strict=True, gt=0.0, allow_inf_nan=False)] | None = None
-    """link_cut: how long the onboard link stays silent [s]."""
+    """link_cut, link_loss: how long the onboard link stays silent or lossy [s]."""
+    drop_fraction: Annotated[float, Field(strict=True, gt=0.0, le=1.0)] | None = None
+    """link_loss: the fraction of the onboard link's messages dropped, both ways."""
+    mode: Literal["POSCTL", "ALTCTL", "AUTO_LOITER", "AUTO_RTL", "AUTO_LAND"] | None = None
+    """pilot_takeover: the PX4 mode the pilot switches to from the ground station."""
     servo_id: Annotated[int, Field(strict=True, ge=0, le=252)] | None = None
     """servo_silent: the servo that stops answering."""
 
@@ -160,7 +179,7 @@ class Fault(_Table):
             raise ValueError(
                 f"at_phase must be one of {', '.join(FAULT_PHASES)}, got {self.at_phase!r}"
             )
-        timed = self.kind in ("link_cut", "servo_silent")
+        timed = self.kind in LINK_FAULTS
         if timed and (self.at_s is None) == (self.at_phase is None):
             raise ValueError(f"{self.kind} needs either at_s or at_phase")
         if self.offset_s is not None and self.at_phase is None:
@@ -171,6 +190,8 @@ class Fault(_Table):
             "grasp_fails": (),
             "payload_slip": ("after_grasp_s",),
             "link_cut": (*start, "duration_s"),
+            "link_loss": (*start, "duration_s", "drop_fraction"),
+            "pilot_takeover": (*start, "mode"),
             "servo_silent": ("servo_id", *start),
         }[self.kind]
         given = {k for k in _FAULT_VALUES if getattr(self, k) is not None}
@@ -232,9 +253,12 @@ class CampaignSpec(_Table):
                 "a fault at a mission phase flies on the imitation only (the phases are read "
                 "on the companion's link, which PX4 carries in the loop): give at_s"
             )
-        if "px4" in self.autopilots and any(f.kind == "link_cut" for f in self.faults):
+        if "px4" in self.autopilots and any(
+            f.kind in ("link_cut", "link_loss", "pilot_takeover") for f in self.faults
+        ):
             raise ValueError(
-                "link_cut flies on the imitation only (the campaign cuts its in-memory link); "
+                "link_cut, link_loss and pilot_takeover fly on the imitation only (the "
+                "campaign acts on its in-memory links); "
                 "against PX4, tests/test_px4_flight.py cuts the UDP link"
             )
         return self

@@ -12,6 +12,7 @@ import numpy as np
 
 from sitl.physics.jsbsim import Wind
 from sitl.stepping import LoopStats
+from sitl.vehicle.link_faults import LinkLoss, PilotTakeover
 from sitl.vehicle.mission_phases import FaultStart, PhaseStart
 from sitl.vehicle.navigation import ERROR_MODELS
 
@@ -86,6 +87,11 @@ class RunOptions:
     link_cut: tuple[FaultStart, float] | None = None
     """Fault injection: (simulation time [s] or a mission phase, duration [s]) of a silence
     of the onboard link, both ways (a radio or cable lost for a while)."""
+    link_loss: LinkLoss | None = None
+    """Fault injection: a stretch of the onboard link dropping a fraction of its messages,
+    both ways (a weak radio)."""
+    pilot_takeover: PilotTakeover | None = None
+    """Fault injection: the pilot switching PX4's mode from the ground station."""
     memory: str | None = None
     """Serve the links and the servo bus on in-memory channels ``NAME-onboard``,
     ``NAME-gcs`` and ``NAME-servos`` (:mod:`bytelink.memory`) instead of UDP and a pty:

@@ -56,6 +56,7 @@ from sitl.scenario import Scenario
 from sitl.servo import Faults, PtyServoBus, XM430Parameters, XM430Servo
 from sitl.servo.memory_bus import MemoryServoBus
 from sitl.stepping import WallPacer, step_loop
+from sitl.vehicle.link_faults import LinkFaults
 from sitl.vehicle.mission_phases import MissionPhases
 from sitl.vehicle.navigation import Navigation
 from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions, RunStats
@@ -234,6 +235,14 @@ class SitlVehicle:
         self._silent = options.servo_silent
         self.phases = MissionPhases()
         """When the mission's phases began, as the onboard link and the autopilot told."""
+        self.link_faults = LinkFaults(
+            self.phases,
+            options.seed,
+            cut=options.link_cut,
+            loss=options.link_loss,
+            takeover=options.pilot_takeover,
+            autopilot_system_id=self.autopilot.system_id,
+        )
         self._console: Callable[[str], None] | None = None
         self.steps = 0
         """Plant steps taken."""
@@ -404,7 +413,7 @@ class SitlVehicle:
         """
         world, autopilot, links = self.world, self.autopilot, self.links
         now_s = world.time_s
-        silent = "onboard" if self._link_cut(now_s) else None
+        faults = self.link_faults
         lockstep = self.options.lockstep
         held, self._held = self._held, []
         for name, link in links.items():
@@ -412,7 +421,7 @@ class SitlVehicle:
             if name == "onboard" and held:
                 messages = held + messages
             for message in messages:
-                if name == silent:
+                if faults.drops(name, now_s):
                     continue
                 if message.get_type() == "STATUSTEXT":
                     self.phases.observe_text(message.text, now_s)
@@ -430,8 +439,12 @@ class SitlVehicle:
             world.advance(setpoint)
         self._pose_sent_ms = None
         unheard = [name for name, link in links.items() if not link.heard]
+        takeover = faults.takeover(now_s)
+        if takeover is not None:
+            for reply_link, reply in autopilot.handle(takeover, "gcs", now_s):
+                links[reply_link].send(reply)
         for link_name, message in autopilot.telemetry(now_s, measurement, unheard):
-            if link_name != silent:
+            if not faults.drops(link_name, now_s):
                 links[link_name].send(message)
                 if lockstep and link_name == "onboard" and message.get_type() == _ODOMETRY:
                     self._pose_sent_ms = message.time_usec // 1000
@@ -449,14 +462,6 @@ class SitlVehicle:
         if self._truth_file is not None and self.steps % self._truth_every == 0:
             self._write_truth()
         self.steps += 1
-
-    def _link_cut(self, now_s: float) -> bool:
-        """The onboard link is cut at ``now_s`` [s] (``link_cut``)."""
-        cut = self.options.link_cut
-        if cut is None:
-            return False
-        start_s = self.phases.start_s(cut[0])
-        return start_s is not None and start_s <= now_s < start_s + cut[1]
 
     def _note_setpoint(self, message, now_s: float) -> None:
         self._setpoint_ms = max(self._setpoint_ms, int(message.time_boot_ms))

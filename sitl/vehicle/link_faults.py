@@ -1,0 +1,128 @@
+"""Faults on the vehicle's MAVLink links, acted on the messages it receives and sends.
+
+- a cut (``RunOptions.link_cut``): the onboard link silent both ways for a while;
+- a lossy stretch (``link_loss``): each message on the onboard link, either way, dropped
+  with a probability, drawn from a generator of its own seeded by the run's seed (a flight
+  without this fault draws nothing from it, so its other noise is unchanged);
+- a pilot taking over (``pilot_takeover``): a mode switch arriving on the ground-station
+  link as QGroundControl sends it (COMMAND_LONG MAV_CMD_DO_SET_MODE from system 255,
+  component 190), which the autopilot handles as it handles any.
+
+Each starts at a simulated time or a mission phase (:mod:`sitl.vehicle.mission_phases`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
+
+from sitl.px4.modes import Px4Mode
+from sitl.vehicle.mission_phases import FaultStart, MissionPhases, PhaseStart
+
+__all__ = ["GCS_COMPONENT_ID", "GCS_SYSTEM_ID", "LinkFaults", "LinkLoss", "PilotTakeover"]
+
+GCS_SYSTEM_ID = 255
+"""QGroundControl's MAVLink system id."""
+GCS_COMPONENT_ID = mavlink2.MAV_COMP_ID_MISSIONPLANNER
+"""QGroundControl's component id (190)."""
+TAKEOVER_MODES = ("POSCTL", "ALTCTL", "AUTO_LOITER", "AUTO_RTL", "AUTO_LAND")
+"""The modes a pilot switches to."""
+
+
+def _valid_start(start: FaultStart) -> bool:
+    return isinstance(start, PhaseStart) or (math.isfinite(start) and start >= 0.0)
+
+
+@dataclass(frozen=True)
+class LinkLoss:
+    """``drop_fraction`` of the onboard link's messages dropped, both ways, for
+    ``duration_s`` [s] from ``start``."""
+
+    start: FaultStart
+    duration_s: float
+    drop_fraction: float
+
+    def __post_init__(self) -> None:
+        if not _valid_start(self.start):
+            raise ValueError(f"a link loss starts at a time >= 0 or a phase, got {self.start!r}")
+        if not (math.isfinite(self.duration_s) and self.duration_s > 0.0):
+            raise ValueError(f"a link loss lasts a positive time, got {self.duration_s!r}")
+        if not (math.isfinite(self.drop_fraction) and 0.0 < self.drop_fraction <= 1.0):
+            raise ValueError(f"drop_fraction must be in (0, 1], got {self.drop_fraction!r}")
+
+
+@dataclass(frozen=True)
+class PilotTakeover:
+    """At ``start``, the ground station asks for ``mode`` (PX4's display name)."""
+
+    start: FaultStart
+    mode: str = "POSCTL"
+
+    def __post_init__(self) -> None:
+        if not _valid_start(self.start):
+            raise ValueError(f"a takeover starts at a time >= 0 or a phase, got {self.start!r}")
+        if self.mode not in TAKEOVER_MODES:
+            raise ValueError(f"mode must be one of {', '.join(TAKEOVER_MODES)}, got {self.mode!r}")
+
+
+class LinkFaults:
+    """The link faults of a run: what is dropped, and the pilot's command when it is due."""
+
+    def __init__(
+        self,
+        phases: MissionPhases,
+        seed: int,
+        *,
+        cut: tuple[FaultStart, float] | None = None,
+        loss: LinkLoss | None = None,
+        takeover: PilotTakeover | None = None,
+        autopilot_system_id: int = 1,
+    ) -> None:
+        self._phases = phases
+        self._cut = cut
+        self._loss = loss
+        self._takeover = takeover
+        self._system_id = autopilot_system_id
+        self._rng = np.random.default_rng([seed, 0x10551])
+        self._gcs = mavlink2.MAVLink(None, GCS_SYSTEM_ID, GCS_COMPONENT_ID)
+
+    def _within(self, start: FaultStart, duration_s: float, now_s: float) -> bool:
+        start_s = self._phases.start_s(start)
+        return start_s is not None and start_s <= now_s < start_s + duration_s
+
+    def cut(self, now_s: float) -> bool:
+        """The onboard link is cut at ``now_s`` [s]."""
+        return self._cut is not None and self._within(*self._cut, now_s)
+
+    def drops(self, link: str, now_s: float) -> bool:
+        """Drop one message on ``link`` at ``now_s`` [s]: the link is cut, or lossy and the
+        draw says so."""
+        if link != "onboard":
+            return False
+        if self.cut(now_s):
+            return True
+        loss = self._loss
+        if loss is None or not self._within(loss.start, loss.duration_s, now_s):
+            return False
+        return bool(self._rng.random() < loss.drop_fraction)
+
+    def takeover(self, now_s: float) -> mavlink2.MAVLink_message | None:
+        """The ground station's mode command, once, when its time has come [s]."""
+        takeover = self._takeover
+        if takeover is None:
+            return None
+        start_s = self._phases.start_s(takeover.start)
+        if start_s is None or now_s < start_s:
+            return None
+        self._takeover = None
+        mode = Px4Mode[takeover.mode]
+        command = mavlink2.MAVLink_command_long_message(
+            self._system_id, 1, mavlink2.MAV_CMD_DO_SET_MODE, 0,
+            float(mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED),
+            float(mode.main_mode), float(mode.sub_mode), 0.0, 0.0, 0.0, 0.0,
+        )  # fmt: skip
+        (received,) = self._gcs.parse_buffer(command.pack(self._gcs))
+        return received
