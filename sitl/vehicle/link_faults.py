@@ -20,7 +20,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from sitl.px4.modes import Px4Mode
-from sitl.vehicle.mission_phases import FaultStart, MissionPhases, PhaseStart
+from sitl.vehicle.mission_phases import FaultStart, MissionPhases, valid_start
 
 __all__ = ["GCS_COMPONENT_ID", "GCS_SYSTEM_ID", "LinkFaults", "LinkLoss", "PilotTakeover"]
 
@@ -30,10 +30,6 @@ GCS_COMPONENT_ID = mavlink2.MAV_COMP_ID_MISSIONPLANNER
 """QGroundControl's component id (190)."""
 TAKEOVER_MODES = ("POSCTL", "ALTCTL", "AUTO_LOITER", "AUTO_RTL", "AUTO_LAND")
 """The modes a pilot switches to."""
-
-
-def _valid_start(start: FaultStart) -> bool:
-    return isinstance(start, PhaseStart) or (math.isfinite(start) and start >= 0.0)
 
 
 @dataclass(frozen=True)
@@ -46,7 +42,7 @@ class LinkLoss:
     drop_fraction: float
 
     def __post_init__(self) -> None:
-        if not _valid_start(self.start):
+        if not valid_start(self.start):
             raise ValueError(f"a link loss starts at a time >= 0 or a phase, got {self.start!r}")
         if not (math.isfinite(self.duration_s) and self.duration_s > 0.0):
             raise ValueError(f"a link loss lasts a positive time, got {self.duration_s!r}")
@@ -62,7 +58,7 @@ class PilotTakeover:
     mode: str = "POSCTL"
 
     def __post_init__(self) -> None:
-        if not _valid_start(self.start):
+        if not valid_start(self.start):
             raise ValueError(f"a takeover starts at a time >= 0 or a phase, got {self.start!r}")
         if self.mode not in TAKEOVER_MODES:
             raise ValueError(f"mode must be one of {', '.join(TAKEOVER_MODES)}, got {self.mode!r}")

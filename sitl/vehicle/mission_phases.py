@@ -16,7 +16,13 @@ from dataclasses import dataclass
 from companion.mission.announce import phase_of
 from companion.mission.pickup import Phase
 
-__all__ = ["FAULT_PHASES", "FaultStart", "MissionPhases", "PhaseStart", "fault_start_label"]
+__all__ = [
+    "FAULT_PHASES",
+    "FaultStart",
+    "MissionPhases",
+    "PhaseStart",
+    "valid_start",
+]
 
 _MODE_PHASES = {"AUTO_TAKEOFF": "takeoff", "AUTO_LAND": "landing"}
 FAULT_PHASES: tuple[str, ...] = (
@@ -45,11 +51,9 @@ FaultStart = float | PhaseStart
 """When a fault starts: a simulated time [s] or a :class:`PhaseStart`."""
 
 
-def fault_start_label(start: FaultStart) -> str:
-    """``29 s`` or ``grasp + 0.5 s``."""
-    if isinstance(start, PhaseStart):
-        return f"{start.phase} + {start.offset_s:g} s"
-    return f"{start:g} s"
+def valid_start(start: FaultStart) -> bool:
+    """A phase (checked when made) or a finite simulated time >= 0 [s]."""
+    return isinstance(start, PhaseStart) or (math.isfinite(start) and start >= 0.0)
 
 
 class MissionPhases:

@@ -13,7 +13,7 @@ import numpy as np
 from sitl.physics.jsbsim import Wind
 from sitl.stepping import LoopStats
 from sitl.vehicle.link_faults import LinkLoss, PilotTakeover
-from sitl.vehicle.mission_phases import FaultStart, PhaseStart
+from sitl.vehicle.mission_phases import FaultStart, valid_start
 from sitl.vehicle.navigation import ERROR_MODELS
 
 __all__ = ["LOCKSTEP_WAIT_S", "LinkPorts", "RunOptions", "RunStats"]
@@ -119,7 +119,7 @@ class RunOptions:
                 f"servo_reply_delay_s must be 0 to 1 s, got {self.servo_reply_delay_s!r}"
             )
         if self.link_cut is not None and not (
-            _valid_start(self.link_cut[0])
+            valid_start(self.link_cut[0])
             and math.isfinite(self.link_cut[1])
             and self.link_cut[1] > 0.0
         ):
@@ -150,8 +150,3 @@ class RunStats(LoopStats):
             return (0.0, 0.0)
         arr = np.asarray(self.lateness_us)
         return float(np.median(arr)), float(np.percentile(arr, 99))
-
-
-def _valid_start(start: FaultStart) -> bool:
-    """A phase (checked when made) or a finite simulated time."""
-    return isinstance(start, PhaseStart) or math.isfinite(start)
