@@ -27,7 +27,7 @@ SPEC = "configs/campaigns/faults.toml"
 def page(rows: list[dict], commit: str, machine: str) -> str:
     spec = load_spec(ROOT / SPEC)
     ok = [r for r in rows if r["status"] == "ok"]
-    judged = [r for r in ok if r.get("fault_kind") != "none"]
+    judged = [r for r in ok if r.get("fault_kind") not in (None, "none")]
     unsafe = [r for r in judged if not r.get("safe")]
     errors = len(rows) - len(ok)
     lines = [

@@ -6,10 +6,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Annotated
 
@@ -90,14 +91,24 @@ def _torque_cell(axis: int) -> Callable[[Authority], str]:
     return cell
 
 
+@contextlib.contextmanager
+def _signals_set(stop: threading.Event) -> Iterator[None]:
+    """SIGINT and SIGTERM set ``stop`` inside the block; the handlers before it after it
+    (the commands also run in-process, from tests and other commands)."""
+    signums = (signal.SIGINT, signal.SIGTERM)
+    previous = [signal.signal(signum, lambda *_: stop.set()) for signum in signums]
+    try:
+        yield
+    finally:
+        for signum, handler in zip(signums, previous, strict=True):
+            signal.signal(signum, handler)
+
+
 @app.command()
 @options_command(RunCommand)
 def run(options: RunCommand) -> None:
     """Run the simulated vehicle until interrupted (Ctrl-C) or --duration."""
     cfg, vehicle = options.vehicle()
-    stop = threading.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda *_: stop.set())
 
     def announce(where: dict[str, str]) -> None:
         typer.echo(
@@ -108,27 +119,29 @@ def run(options: RunCommand) -> None:
             typer.echo(f"  {key:<8} {value}")
         typer.echo("ready " + json.dumps(where), color=False)
 
-    stats: RunStats
-    try:
-        with vehicle:
-            if isinstance(vehicle, Px4InTheLoop):
-                stats = vehicle.run(
-                    stop, until_s=options.duration, console=typer.echo, on_ready=announce
-                )
-            else:
-                announce(vehicle.describe())
-                stats = vehicle.run(stop, until_s=options.duration, console=typer.echo)
-    except OSError as exc:
-        _fail(f"cannot open the vehicle's links: {exc}")
-    except PlantError as exc:
-        typer.echo(f"error: the simulated vehicle's physics failed: {exc}", err=True)
-        raise typer.Exit(1) from None
-    except (Px4NotReadyError, Px4Exited, SimulatorLinkError) as exc:
-        typer.echo(f"error: {exc}", err=True)
+    stop = threading.Event()
+    with _signals_set(stop):
+        stats: RunStats
+        try:
+            with vehicle:
+                if isinstance(vehicle, Px4InTheLoop):
+                    stats = vehicle.run(
+                        stop, until_s=options.duration, console=typer.echo, on_ready=announce
+                    )
+                else:
+                    announce(vehicle.describe())
+                    stats = vehicle.run(stop, until_s=options.duration, console=typer.echo)
+        except OSError as exc:
+            _fail(f"cannot open the vehicle's links: {exc}")
+        except PlantError as exc:
+            typer.echo(f"error: the simulated vehicle's physics failed: {exc}", err=True)
+            raise typer.Exit(1) from None
+        except (Px4NotReadyError, Px4Exited, SimulatorLinkError) as exc:
+            typer.echo(f"error: {exc}", err=True)
+            _kept(vehicle)
+            raise typer.Exit(1) from None
         _kept(vehicle)
-        raise typer.Exit(1) from None
-    _kept(vehicle)
-    typer.echo(_stopped(stats, options.lockstep))
+        typer.echo(_stopped(stats, options.lockstep))
 
 
 def _stopped(stats: RunStats, lockstep: bool) -> str:
@@ -208,9 +221,9 @@ def sih(
     except Px4NotReadyError as exc:  # every instance's ports taken
         _fail(f"{exc} (another PX4 or sitl is running?)")
     stop = threading.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM):  # until ready: stop the start-up too
-        signal.signal(signum, signal.default_int_handler)
-    try:
+    signums = (signal.SIGINT, signal.SIGTERM)
+    previous = [signal.signal(signum, signal.default_int_handler) for signum in signums]
+    try:  # until ready, an interrupt stops the start-up too
         host.start(ports)
     except KeyboardInterrupt:
         typer.echo("sitl: interrupted before PX4 was ready", err=True)
@@ -220,20 +233,22 @@ def sih(
     except Px4NotReadyError as exc:
         typer.echo(f"error: PX4 did not get ready: {exc}", err=True)
         raise typer.Exit(1) from None
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda *_: stop.set())
-    try:
-        where = host.describe()
-        typer.echo(
-            f"sitl: {cfg.name} on PX4 SIH (instance {ports.instance}, {navigation} navigation) "
-            f"at {speed_factor:g}x real time"
-        )
-        for key, value in where.items():
-            typer.echo(f"  {key:<8} {value}")
-        typer.echo("ready " + json.dumps(where), color=False)
-        failure = host.run(stop)
     finally:
-        kept = host.stop(keep=keep_log is not None)
+        for signum, handler in zip(signums, previous, strict=True):
+            signal.signal(signum, handler)
+    with _signals_set(stop):
+        try:
+            where = host.describe()
+            typer.echo(
+                f"sitl: {cfg.name} on PX4 SIH (instance {ports.instance}, {navigation} "
+                f"navigation) at {speed_factor:g}x real time"
+            )
+            for key, value in where.items():
+                typer.echo(f"  {key:<8} {value}")
+            typer.echo("ready " + json.dumps(where), color=False)
+            failure = host.run(stop)
+        finally:
+            kept = host.stop(keep=keep_log is not None)
     stand = host.stand
     typer.echo(
         f"sitl: stopped; arm stand ran {stand.time_s:.1f} s in {stand.steps} steps, "

@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 import pytest
+from pymavlink.dialects.v20 import common as mavlink2
 
 from arm_driver.bus import JointConfig, OperatingMode, open_bus
 from companion.config import load_config
@@ -54,6 +55,12 @@ class PoseLink:
 
     def __init__(self, poses: ScriptedPoses) -> None:
         self.poses = poses
+        self.mav = mavlink2.MAVLink(None, 1, mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER)
+        self.sent: list = []
+        """The messages the app sent (its STATUSTEXTs)."""
+
+    def send_message(self, msg) -> None:
+        self.sent.append(msg)
 
     @contextlib.contextmanager
     def subscribe(self, *keys, maxsize: int = 64):
@@ -182,6 +189,9 @@ def test_touching_the_ground_in_offboard_is_a_fault_flown_level_at_the_thrust_fl
     (event,) = app.failsafe.raised
     assert event.fault == Fault.GROUND_CONTACT and "take-off height" in event.detail
     assert Reaction.LEVEL_ON_GROUND in event.reactions and event.aborts
+    (told,) = link.sent  # the fault told on the link, for PX4's log and the ground station
+    assert told.get_type() == "STATUSTEXT" and told.severity == mavlink2.MAV_SEVERITY_WARNING
+    assert told.text.startswith("pickup: fault ground_contact: ")
     app.offboard.to(Stream.GROUND)
     sp = app.offboard.setpoint(out.setpoint, q, app.control.weight_n(), app.control.thrust)
     assert (sp.roll_rad, sp.pitch_rad, sp.yaw_rad) == (0.0, 0.0, 0.3)

@@ -134,7 +134,15 @@ def test_a_start_that_never_gets_ready_stops_px4_and_keeps_its_log(px4_build, tm
     assert px4.log_path.parent.parent == tmp_path
 
 
-def test_an_interrupt_is_held_to_the_end_of_the_block_and_then_raised():
+@pytest.fixture
+def python_sigint():
+    """SIGINT raised as KeyboardInterrupt (Python's default) for the test, then as before."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_an_interrupt_is_held_to_the_end_of_the_block_and_then_raised(python_sigint):
     finished = False
     with pytest.raises(KeyboardInterrupt):
         with interrupts_held():
@@ -142,10 +150,10 @@ def test_an_interrupt_is_held_to_the_end_of_the_block_and_then_raised():
             finished = True
     assert finished
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
-    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # untouched: not Python's
+    assert signal.getsignal(signal.SIGTERM) is not signal.default_int_handler  # untouched
 
 
-def test_interrupts_are_not_held_outside_the_main_thread():
+def test_interrupts_are_not_held_outside_the_main_thread(python_sigint):
     seen: list[object] = []
 
     def run() -> None:
@@ -159,7 +167,7 @@ def test_interrupts_are_not_held_outside_the_main_thread():
 
 
 def test_an_interrupt_while_px4_is_being_spawned_leaves_it_known_and_stopped(
-    px4_build, monkeypatch
+    px4_build, monkeypatch, python_sigint
 ):
     """Ctrl-C landing inside ``Popen`` (after the fork): PX4 is still stopped by ``stop``."""
     real_popen = subprocess.Popen

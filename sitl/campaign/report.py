@@ -332,7 +332,7 @@ def fault_phase_table(rows: Sequence[Row]) -> tuple[list[str], list[tuple[str, l
     flight order, with ``at a time`` for faults given a time or none; per fault (its label
     without the phase) one cell per phase: ``safe/flown`` and the outcomes with their
     counts, empty where nothing was flown)."""
-    faulty = [r for r in rows if r.get("status") == "ok" and r.get("fault_kind") != "none"]
+    faulty = [r for r in rows if r.get("status") == "ok" and _given_fault(r)]
     phases = [p for p in FAULT_PHASES if any(r.get("fault_phase") == p for r in faulty)]
     if any(r.get("fault_phase") is None for r in faulty):
         phases.append("at a time")
@@ -356,6 +356,12 @@ def fault_phase_table(rows: Sequence[Row]) -> tuple[list[str], list[tuple[str, l
     return phases, table
 
 
+def _given_fault(row: Row) -> bool:
+    """The flight was given a fault (rows written before faults had a kind column have
+    none: they are left out)."""
+    return row.get("fault_kind") not in (None, "none")
+
+
 def _without_phase(label: str) -> str:
     """A fault's label without its ``at_phase`` and ``offset_s`` values."""
     kind, _, values = label.partition("(")
@@ -370,7 +376,7 @@ def _faults(rows: Sequence[Row], axes: Sequence[str]) -> str:
     phases, table = fault_phase_table(rows)
     if not table:
         return "<p>No flight was given a fault.</p>"
-    judged = [r for r in rows if r.get("status") == "ok" and r.get("fault_kind") != "none"]
+    judged = [r for r in rows if r.get("status") == "ok" and _given_fault(r)]
     unsafe = [(r, html.escape(str(r.get("unsafe") or ""))) for r in judged if not r.get("safe")]
     lines = [
         f"<p>{len(judged) - len(unsafe)} of {len(judged)} flights given a fault ended safe by "
