@@ -28,6 +28,7 @@ from sitl.physics import (
 )
 from sitl.physics.articulation import build_articulation
 from sitl.physics.attitude_control import AttitudeLoopParams, Px4AttitudeLoop
+from sitl.physics.battery import LipoPack
 from sitl.physics.frames import (
     euler_from_rotation9,
     euler_rate_matrix_inverse9,
@@ -36,6 +37,7 @@ from sitl.physics.frames import (
 )
 from sitl.physics.integration import ArticulatedIntegrator, BodyWrench, GeneralizedForce
 from sitl.physics.rotors import (
+    RotorBank,
     RotorGeometry,
     SequentialDesaturationMixer,
     inverse_thrust_curve,
@@ -166,6 +168,85 @@ def test_the_integration_step_twin_is_its_python_source_bit_for_bit(integrator, 
     else:
         failures = {1, 2, 3, 4}
     assert statuses[0] > 100 and failures <= set(statuses), statuses
+
+
+@pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])
+@pytest.mark.parametrize("battery", [True, False])
+def test_the_rotor_step_twin_is_its_parts_and_its_python_source_bit_for_bit(
+    integrator, battery
+) -> None:
+    """GIVEN random states, rotor thrusts, commands and joint torques, and states whose step
+    fails WHEN the compiled twin and the Python source of sitl.physics.integration_step
+    each take the rotor plant's step in one call (rotor_step), and the compiled twin takes
+    it in parts (the pack's draw, the rotor wrench as a BodyWrench step, the rotors' lag)
+    THEN results, statuses, the rotors' and the pack's buffers have the same bits in all
+    three; a failed step leaves the rotors' thrusts as they were."""
+    model = build_articulation(PAPER).model
+    compiled = ArticulatedIntegrator(model, 1e-3, integrator)
+    source = ArticulatedIntegrator(model, 1e-3, integrator, compiled=False)
+    rotors = PAPER.vehicle.rotors
+    geometry = RotorGeometry.hexa_x(rotors.arm_length_m, rotors.yaw_moment_per_thrust_m)
+    rows = geometry.wrench_matrix()[:3].tolist()
+    drag, wind, max_thrust = (0.3, 0.2, 0.1), (1.0, -0.5, 0.2), 6.3
+    for integ in (compiled, source):
+        integ.set_rotor_wrench(rows, drag, wind, max_thrust)
+    rng = np.random.default_rng(11)
+    statuses: Counter[int] = Counter()
+    for i in range(120):
+        case = i % 5 if i < 60 else 0
+        x, u, r9, euler, qd, wi = _case(rng, case)
+        thrusts = rng.uniform(0.0, 6.0, 6).tolist()
+        commands = rng.uniform(0.0, 1.0, 6).tolist()
+        joint = rng.normal(0.0, 1.0, 2).tolist()
+        charge = float(rng.uniform(0.05, 1.0))
+        results = []
+        for integ in (compiled, source):
+            bank = RotorBank(max_thrust, 0.3, 0.025, 1e-3)
+            bank.reset(thrusts)
+            pack = LipoPack(4, 2.0, 0.05, charge) if battery else None
+            out = integ.rotor_step(
+                x,
+                u,
+                r9,
+                euler,
+                qd,
+                wi,
+                commands,
+                joint,
+                bank.buffer,
+                None if pack is None else pack.buffer,
+            )
+            results.append(
+                _bits((out, bank.buffer.tolist(), [] if pack is None else pack.buffer.tolist()))
+            )
+        bank = RotorBank(max_thrust, 0.3, 0.025, 1e-3)
+        bank.reset(thrusts)
+        pack = LipoPack(4, 2.0, 0.05, charge) if battery else None
+        if pack is not None:
+            pack.draw(bank.thrust_list_n, 1e-3)
+            bank.max_thrust_n = max_thrust * pack.thrust_factor
+        t = bank.thrust_list_n
+        torque = tuple(
+            row[0] * t[0]
+            + row[1] * t[1]
+            + row[2] * t[2]
+            + row[3] * t[3]
+            + row[4] * t[4]
+            + row[5] * t[5]
+            for row in rows
+        )
+        wrench = BodyWrench(sum(t), torque, drag, (joint[0], joint[1]), wind)  # type: ignore[arg-type]
+        out = compiled.step_kinematics(x, u, wrench, r9, euler, qd, wi)
+        if out[0] == 0:
+            bank.advance(commands)
+        else:
+            assert bank.thrust_list_n == thrusts
+        results.append(
+            _bits((out, bank.buffer.tolist(), [] if pack is None else pack.buffer.tolist()))
+        )
+        assert results[0] == results[1] == results[2]
+        statuses[out[0]] += 1
+    assert statuses[0] > 60 and {1, 3} <= set(statuses), statuses
 
 
 def test_the_acceleration_is_the_steps_q_ddot() -> None:

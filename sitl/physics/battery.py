@@ -17,15 +17,19 @@ A lithium-polymer pack of ``cells`` cells in series:
   ``V_ref = cells x`` :data:`REFERENCE_CELL_V`, at which ``vehicle.rotors
   .max_thrust_per_rotor_n`` (times ``plant.thrust_mismatch``) holds.
 
-The charge drawn is counted per step (coulomb counting). Pure: no I/O, no clock.
+The charge drawn is counted per step (coulomb counting). Pure: no I/O, no clock. The pack's
+constants and state are one float64 buffer whose arithmetic is the truth plant's compiled
+step's (:mod:`sitl.physics.integration_step`: :func:`~sitl.physics.integration_step.
+battery_draw`), which feeds the rotors from it inside its step.
 """
 
 from __future__ import annotations
 
-import bisect
-import math
 from dataclasses import dataclass
 from typing import Any
+
+from companion.compiled import twin
+from sitl.physics import integration_step
 
 __all__ = [
     "AVIONICS_POWER_W",
@@ -65,8 +69,8 @@ ROTOR_POWER_W_PER_N1_5 = 9.0
 AVIONICS_POWER_W = 5.0
 """Power the flight controller, companion and receivers draw [W]."""
 
-_SOC = tuple(point[0] for point in OCV_CURVE)
-_OCV = tuple(point[1] for point in OCV_CURVE)
+_STEP = twin(integration_step)
+"""The pack's arithmetic: :mod:`sitl.physics.integration_step`, compiled where built."""
 
 
 @dataclass(frozen=True)
@@ -106,11 +110,19 @@ class LipoPack:
         self.cells = cells
         self.capacity_ah = capacity_ah
         self.resistance_ohm = resistance_ohm
-        self.charge = start_charge
-        """State of charge now [-]."""
         self.reference_v = cells * REFERENCE_CELL_V
-        self.current_a = 0.0
-        self.voltage_v = self.open_circuit_v()
+        constants = (
+            cells,
+            capacity_ah,
+            resistance_ohm,
+            self.reference_v,
+            AVIONICS_POWER_W,
+            ROTOR_POWER_W_PER_N1_5,
+        )
+        self.buffer = integration_step.battery_buffer(constants, start_charge, OCV_CURVE)
+        """Constants and state, as :func:`~sitl.physics.integration_step.battery_buffer`
+        lays them out (the truth plant's step draws from it)."""
+        self.buffer[integration_step.BATTERY_VOLTAGE] = self.open_circuit_v()
 
     @classmethod
     def of(cls, section: Any) -> LipoPack | None:
@@ -120,12 +132,24 @@ class LipoPack:
             return None
         return cls(section.cells, section.capacity_ah, section.resistance_ohm, section.start_charge)
 
+    @property
+    def charge(self) -> float:
+        """State of charge now [-]."""
+        return self.buffer[integration_step.BATTERY_CHARGE]
+
+    @property
+    def voltage_v(self) -> float:
+        """Terminal voltage now [V] (the open-circuit voltage until the first draw)."""
+        return self.buffer[integration_step.BATTERY_VOLTAGE]
+
+    @property
+    def current_a(self) -> float:
+        """Current drawn over the last step [A] (0 until the first draw)."""
+        return self.buffer[integration_step.BATTERY_CURRENT]
+
     def open_circuit_v(self) -> float:
         """Pack voltage at rest at the present charge [V] (:data:`OCV_CURVE`)."""
-        soc = min(max(self.charge, 0.0), 1.0)
-        i = min(bisect.bisect_right(_SOC, soc), len(_SOC) - 1)
-        s0, s1, v0, v1 = _SOC[i - 1], _SOC[i], _OCV[i - 1], _OCV[i]
-        return self.cells * (v0 + (v1 - v0) * (soc - s0) / (s1 - s0))
+        return _STEP.open_circuit_v(self.buffer)
 
     @property
     def thrust_factor(self) -> float:
@@ -136,19 +160,10 @@ class LipoPack:
 
     def draw(self, rotor_thrusts_n: list[float], dt_s: float) -> None:
         """Feed the rotors producing ``rotor_thrusts_n`` [N] (and the avionics) for ``dt_s``
-        [s]: the terminal voltage and current under that load, then the charge drawn."""
-        power = AVIONICS_POWER_W
-        for thrust in rotor_thrusts_n:
-            if thrust > 0.0:
-                power += ROTOR_POWER_W_PER_N1_5 * thrust * math.sqrt(thrust)
-        ocv = self.open_circuit_v()
-        r = self.resistance_ohm
-        # V^2 - OCV V + P R = 0, the larger root; beyond the pack's maximum power
-        # (OCV^2 / 4R) the voltage collapses to OCV / 2
-        disc = ocv * ocv - 4.0 * power * r
-        self.voltage_v = 0.5 * (ocv + math.sqrt(disc)) if disc > 0.0 else 0.5 * ocv
-        self.current_a = power / self.voltage_v
-        self.charge = max(self.charge - self.current_a * dt_s / (3600.0 * self.capacity_ah), 0.0)
+        [s]: the terminal voltage and current under that load (V^2 - OCV V + P R = 0, the
+        larger root; beyond the pack's maximum power OCV^2 / 4R the voltage collapses to
+        OCV / 2), then the charge drawn."""
+        _STEP.battery_draw(self.buffer, rotor_thrusts_n, dt_s)
 
     def reading(self) -> BatteryReading:
         """The pack's terminal voltage, current and charge now."""

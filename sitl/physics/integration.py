@@ -40,6 +40,7 @@ step.
 from __future__ import annotations
 
 import functools
+from array import array
 from typing import Literal
 
 import numpy as np
@@ -223,6 +224,54 @@ class ArticulatedIntegrator:
             w_inv9,
             force.KIND,
             force.values,
+            self._aba,
+            self._work,
+        )
+
+    def set_rotor_wrench(
+        self,
+        rows: list[list[float]],
+        drag_n_s_m: tuple[float, float, float],
+        wind_m_s: tuple[float, float, float],
+        max_thrust_n: float,
+    ) -> None:
+        """The constants of :meth:`rotor_step`: the rotors' body torque per newton of
+        thrust (three rows of six) [N m / N], the world drag diagonal [N s/m], the steady
+        wind (world ENU) [m/s] and a rotor's full thrust at the battery's reference
+        voltage [N]."""
+        integration_step.set_rotor_wrench(self._work, rows, drag_n_s_m, wind_m_s, max_thrust_n)
+
+    def rotor_step(
+        self,
+        x: list[float],
+        u: list[float],
+        r: Rot9,
+        euler: tuple[float, float, float],
+        q_dot: list[float],
+        w_inv9: Rot9,
+        commands: list[float],
+        joint_torques_n_m: list[float],
+        rotors: array,
+        battery: array | None,
+    ) -> tuple:
+        """One step of the rotor plant (:func:`sitl.physics.integration_step.rotor_step`):
+        the ``battery`` buffer (None: an ideal supply) feeds the thrusts of the ``rotors``
+        buffer, which push with drag, wind and the joint torques (:meth:`set_rotor_wrench`)
+        over the step and then lag toward the six ``commands``. Returns as
+        :meth:`step_kinematics`."""
+        return self._step.rotor_step(
+            self.method == "rk4",
+            self.dt_s,
+            x,
+            u,
+            r,
+            euler,
+            q_dot,
+            w_inv9,
+            commands,
+            joint_torques_n_m,
+            rotors,
+            battery,
             self._aba,
             self._work,
         )

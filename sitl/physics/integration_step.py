@@ -10,6 +10,16 @@ hold on the ground, a payload change) and :func:`acceleration` (q_ddot at a stat
 step). The scheme is described in :mod:`sitl.physics.integration`; nothing here knows the
 arm's dynamics, which stay Pinocchio's (DESIGN.md section 6).
 
+The rotor plant's whole step is one call, :func:`rotor_step`: the battery feeding the
+rotors (the law of :mod:`sitl.physics.battery`), the rotors' wrench (total thrust along
+body z, the torque of the rotor geometry, drag on the velocity relative to the wind, the
+joint torques), the integration step and the rotors' lag toward the new commands (the law
+of :class:`~sitl.physics.rotors.RotorBank`). The rotors and the battery keep their state
+in float64 buffers of their own (:func:`rotor_buffer`, :func:`battery_buffer`), which
+their classes own and whose arithmetic is here alone (:func:`rotor_lag`,
+:func:`battery_draw`, :func:`open_circuit_v`); the wrench's constants are in the work
+buffer (:func:`set_rotor_wrench`).
+
 One source, two builds: this module runs as Python, and ``setup.py`` compiles the same
 file with Cython into ``sitl.physics._integration_step`` (:mod:`companion.compiled`); the
 arithmetic is written as plain float operations (``x * x``, no ``**``, every sum in index
@@ -88,12 +98,77 @@ _A = cython.declare(cython.Py_ssize_t, 221)  # ABA's result (8)
 _Q = cython.declare(cython.Py_ssize_t, 229)  # ABA's q (9), v (8), tau (8)
 _V = cython.declare(cython.Py_ssize_t, 238)
 _TAU = cython.declare(cython.Py_ssize_t, 246)
-_SIZE = cython.declare(cython.Py_ssize_t, 254)
+_WRENCH = cython.declare(cython.Py_ssize_t, 254)  # rotor torque rows x, y, z (6 each)
+_DRAG = cython.declare(cython.Py_ssize_t, 272)  # world drag diagonal (3)
+_WIND = cython.declare(cython.Py_ssize_t, 275)  # wind, world (3)
+_TMAX0 = cython.declare(cython.Py_ssize_t, 278)  # a rotor's full thrust at V_ref
+_CMD = cython.declare(cython.Py_ssize_t, 279)  # the motor commands (6)
+_SIZE = cython.declare(cython.Py_ssize_t, 285)
+
+# Offsets in a rotor bank's buffer (:func:`rotor_buffer`).
+_T = cython.declare(cython.Py_ssize_t, 0)  # each rotor's thrust now [N] (6)
+_TMAX = cython.declare(cython.Py_ssize_t, 6)  # a rotor's full thrust now [N]
+_FAC = cython.declare(cython.Py_ssize_t, 7)  # THR_MDL_FAC
+_DECAY = cython.declare(cython.Py_ssize_t, 8)  # exp(-dt / time constant)
+_N_ROTORS = cython.declare(cython.Py_ssize_t, 6)
+
+# Offsets in a battery's buffer (:func:`battery_buffer`).
+_B_CELLS = cython.declare(cython.Py_ssize_t, 0)  # cells in series
+_B_CAPACITY = cython.declare(cython.Py_ssize_t, 1)  # [A h]
+_B_RESISTANCE = cython.declare(cython.Py_ssize_t, 2)  # [ohm]
+_B_REFERENCE = cython.declare(cython.Py_ssize_t, 3)  # V_ref [V]
+_B_AVIONICS = cython.declare(cython.Py_ssize_t, 4)  # avionics power [W]
+_B_ROTOR_POWER = cython.declare(cython.Py_ssize_t, 5)  # rotor power per N^1.5 [W / N^1.5]
+_B_CHARGE = cython.declare(cython.Py_ssize_t, 6)  # state of charge [-]
+_B_VOLTAGE = cython.declare(cython.Py_ssize_t, 7)  # terminal voltage [V]
+_B_CURRENT = cython.declare(cython.Py_ssize_t, 8)  # current [A]
+_B_POINTS = cython.declare(cython.Py_ssize_t, 9)  # points of the OCV curve (n)
+_B_CURVE = cython.declare(cython.Py_ssize_t, 10)  # n states of charge, then n cell volts
+BATTERY_CHARGE = _B_CHARGE
+BATTERY_VOLTAGE = _B_VOLTAGE
+BATTERY_CURRENT = _B_CURRENT
+"""Where a battery buffer holds its state of charge, terminal voltage and current."""
+ROTOR_MAX_THRUST = _TMAX
+"""Where a rotor buffer holds a rotor's full thrust now (after the thrusts, 0 to 5)."""
 
 
 def work_buffer() -> array:
     """The float64 buffer one integrator's steps work in (zeros)."""
     return array("d", bytes(8 * _SIZE))
+
+
+def rotor_buffer(max_thrust_n: float, thr_mdl_fac: float, decay: float) -> array:
+    """A rotor bank's float64 buffer: six thrusts now [N] (zeros), a rotor's full thrust now
+    [N], THR_MDL_FAC, the lag's decay per step exp(-dt / time constant)."""
+    return array("d", [0.0] * 6 + [max_thrust_n, thr_mdl_fac, decay])
+
+
+def battery_buffer(constants, charge: float, curve) -> array:
+    """A battery's float64 buffer: its ``constants`` (cells, capacity [A h], resistance
+    [ohm], reference voltage [V], avionics power [W], rotor power per thrust^1.5
+    [W / N^1.5]), its state (``charge`` [-], terminal voltage [V] and current [A], both 0
+    until set) and its open-circuit curve ``curve`` ((state of charge, cell volts) points,
+    rising charge)."""
+    n = len(curve)
+    return array(
+        "d",
+        [*constants, charge, 0.0, 0.0, float(n)]
+        + [point[0] for point in curve]
+        + [point[1] for point in curve],
+    )
+
+
+def set_rotor_wrench(work, rows, drag, wind, max_thrust_n: float) -> None:
+    """The rotor step's constants into ``work``: the rotors' torque per thrust (``rows``,
+    three rows of six, body FLU [N m / N]), the world drag diagonal [N s/m], the wind (world
+    ENU [m/s]) and a rotor's full thrust at the battery's reference voltage [N]."""
+    for axis in range(3):
+        for i in range(6):
+            work[_WRENCH + 6 * axis + i] = rows[axis][i]
+    for i in range(3):
+        work[_DRAG + i] = drag[i]
+        work[_WIND + i] = wind[i]
+    work[_TMAX0] = max_thrust_n
 
 
 def aba_arguments(work) -> tuple:
@@ -492,6 +567,91 @@ def _q_ddot(w: cython.double[:], k: cython.Py_ssize_t):
     w[_QDD + 7] = w[k + 7]
 
 
+# ------------------------------------------------------------------ battery and rotors
+
+
+@cython.cfunc
+def _open_circuit_v(b: cython.double[:]) -> cython.double:
+    """Pack voltage at rest at the buffer's charge [V]: the cell curve, linear between its
+    points (the charge clipped to [0, 1]), times the cells."""
+    charge: cython.double = b[_B_CHARGE]
+    soc: cython.double = charge if not (0.0 > charge) else 0.0
+    soc = soc if not (1.0 < soc) else 1.0
+    n: cython.Py_ssize_t = cython.cast(cython.Py_ssize_t, b[_B_POINTS])
+    i: cython.Py_ssize_t = 0
+    while i < n and not (soc < b[_B_CURVE + i]):
+        i += 1
+    if i > n - 1:
+        i = n - 1
+    s0: cython.double = b[_B_CURVE + i - 1]
+    s1: cython.double = b[_B_CURVE + i]
+    v0: cython.double = b[_B_CURVE + n + i - 1]
+    v1: cython.double = b[_B_CURVE + n + i]
+    return b[_B_CELLS] * (v0 + (v1 - v0) * (soc - s0) / (s1 - s0))
+
+
+@cython.cfunc
+def _draw(b: cython.double[:], t: cython.double[:], n: cython.Py_ssize_t, dt: cython.double):
+    """Feed rotors producing thrusts t[0:n] [N] (and the avionics) for ``dt`` [s]: power
+    P = P_avionics + k sum T^1.5, terminal voltage the larger root of V^2 - OCV V + P R = 0
+    (OCV / 2 beyond the pack's maximum power OCV^2 / 4R), current P / V, then the charge
+    drawn, I dt / (3600 capacity), down to 0."""
+    i: cython.Py_ssize_t
+    power: cython.double = b[_B_AVIONICS]
+    thrust: cython.double
+    for i in range(n):
+        thrust = t[i]
+        if thrust > 0.0:
+            power += b[_B_ROTOR_POWER] * thrust * sqrt(thrust)
+    ocv: cython.double = _open_circuit_v(b)
+    r: cython.double = b[_B_RESISTANCE]
+    disc: cython.double = ocv * ocv - 4.0 * power * r
+    if disc > 0.0:
+        b[_B_VOLTAGE] = 0.5 * (ocv + sqrt(disc))
+    else:
+        b[_B_VOLTAGE] = 0.5 * ocv
+    b[_B_CURRENT] = power / b[_B_VOLTAGE]
+    charge: cython.double = b[_B_CHARGE] - b[_B_CURRENT] * dt / (3600.0 * b[_B_CAPACITY])
+    b[_B_CHARGE] = charge if not (0.0 > charge) else 0.0
+
+
+@cython.cfunc
+def _lag(rotors: cython.double[:], w: cython.double[:], c: cython.Py_ssize_t):
+    """Each rotor's thrust one step on toward the static thrust of its command w[c + i]
+    held: T+ = decay T + (1 - decay) T_max (f u^2 + (1 - f) u)."""
+    i: cython.Py_ssize_t
+    f: cython.double = rotors[_FAC]
+    t_max: cython.double = rotors[_TMAX]
+    decay: cython.double = rotors[_DECAY]
+    gain: cython.double = 1.0 - decay
+    u: cython.double
+    for i in range(_N_ROTORS):
+        u = w[c + i]
+        rotors[_T + i] = decay * rotors[_T + i] + gain * t_max * (f * u * u + (1.0 - f) * u)
+
+
+@cython.ccall
+def open_circuit_v(battery: cython.double[:]) -> cython.double:
+    """The battery buffer's pack voltage at rest at its charge [V]."""
+    return _open_circuit_v(battery)
+
+
+@cython.ccall
+def battery_draw(battery: cython.double[:], thrusts, dt: cython.double):
+    """The battery buffer fed the rotors producing ``thrusts`` [N] (a sequence of floats)
+    for ``dt`` [s] (see :func:`_draw`)."""
+    t: cython.double[:] = array("d", thrusts)
+    _draw(battery, t, len(thrusts), dt)
+
+
+@cython.ccall
+def rotor_lag(rotors: cython.double[:], commands, work: cython.double[:]):
+    """The rotor buffer's thrusts one step on under six ``commands`` in [0, 1] held
+    (``work``: an integrator's work buffer, :func:`work_buffer`)."""
+    _read(work, _CMD, commands, 6)
+    _lag(rotors, work, _CMD)
+
+
 # ------------------------------------------------------------------ Python floats in and out
 
 
@@ -520,15 +680,14 @@ def _tuple9(w: cython.double[:], o: cython.Py_ssize_t) -> tuple:
 
 
 @cython.cfunc
-def _read_state(w: cython.double[:], x, u, r9, euler, q_dot, w_inv9, kind: cython.int, force):
-    """A state as the plant keeps it, and a force, into the buffer."""
+def _read_state(w: cython.double[:], x, u, r9, euler, q_dot, w_inv9):
+    """A state as the plant keeps it into the buffer."""
     _read(w, _X, x, 9)
     _read(w, _U, u, 8)
     _read(w, _R, r9, 9)
     _read(w, _E, euler, 3)
     _read(w, _QD, q_dot, 8)
     _read(w, _WI, w_inv9, 9)
-    _read(w, _F, force, 8 if kind == GENERALIZED else 12)
 
 
 @cython.cfunc
@@ -549,6 +708,34 @@ def _kinematics_tuple(w: cython.double[:], u: cython.Py_ssize_t, q_ddot: cython.
     if q_ddot:
         return (0, x, velocity, _list(w, _QDD, 8), *tail)
     return (0, x, velocity, *tail)
+
+
+@cython.cfunc
+def _step_state(
+    w: cython.double[:], rk4: cython.bint, dt: cython.double, kind: cython.int, aba
+) -> cython.int:
+    """One step from the buffer's state under its force, then the new state's kinematics
+    and the step's q_ddot: OK, a failure of the step, or the failure + 2 of the new state
+    (non-finite 3, at the singularity 4)."""
+    w[_THETA] = 0.0
+    s: cython.int = _integrate(w, rk4, dt, kind, aba)
+    if s != _OK:
+        return s
+    _q_ddot(w, _K1)
+    s = _kinematics(w, _XN, _UN, _E)
+    if s != _OK:
+        return s + 2
+    return _OK
+
+
+@cython.cfunc
+def _step_result(w: cython.double[:], s: cython.int) -> tuple:
+    """What :func:`step` returns for the buffer's step of status ``s``."""
+    if s == _OK:
+        return _kinematics_tuple(w, _UN, True)
+    if s > SINGULAR:
+        return (s, w[_THETA], _list(w, _XN, 9), _list(w, _UN, 8), _list(w, _QDD, 8))
+    return (s, w[_THETA])
 
 
 @cython.ccall
@@ -575,16 +762,68 @@ def step(
     ``(status, theta)``; or ``(status + 2, theta, x+, u+, q_ddot)`` when the step was taken
     but the new state is non-finite (3) or at the singularity (4)."""
     w: cython.double[:] = work
-    _read_state(w, x, u, r9, euler, q_dot, w_inv9, kind, force)
-    w[_THETA] = 0.0
-    s: cython.int = _integrate(w, rk4, dt, kind, aba)
-    if s != _OK:
-        return (s, w[_THETA])
-    _q_ddot(w, _K1)
-    s = _kinematics(w, _XN, _UN, _E)
-    if s != _OK:
-        return (s + 2, w[_THETA], _list(w, _XN, 9), _list(w, _UN, 8), _list(w, _QDD, 8))
-    return _kinematics_tuple(w, _UN, True)
+    _read_state(w, x, u, r9, euler, q_dot, w_inv9)
+    _read(w, _F, force, 8 if kind == GENERALIZED else 12)
+    return _step_result(w, _step_state(w, rk4, dt, kind, aba))
+
+
+@cython.ccall
+def rotor_step(
+    rk4: cython.bint,
+    dt: cython.double,
+    x,
+    u,
+    r9,
+    euler,
+    q_dot,
+    w_inv9,
+    commands,
+    joint,
+    rotors: cython.double[:],
+    battery,
+    aba,
+    work: cython.double[:],
+) -> tuple:
+    """One step of the rotor plant from (x, u) (with its R, Euler angles, q_dot and W^-1).
+
+    The battery buffer (None: an ideal supply) feeds the thrusts of the rotor buffer, and a
+    rotor's full thrust becomes its full thrust at V_ref times (V / V_ref)^2; those thrusts
+    push (their sum along body z, the torque of the work buffer's rows, each sum in rotor
+    order), with the world drag -D (p_dot - w) and the two ``joint`` torques, held over the
+    step; when the step is whole the rotors lag toward the six ``commands``. Returns as
+    :func:`step`."""
+    w: cython.double[:] = work
+    t: cython.double[:] = rotors
+    i: cython.Py_ssize_t
+    _read_state(w, x, u, r9, euler, q_dot, w_inv9)
+    _read(w, _CMD, commands, 6)
+    b: cython.double[:]
+    ratio: cython.double
+    if battery is not None:
+        b = battery
+        _draw(b, t, _N_ROTORS, dt)
+        ratio = b[_B_VOLTAGE] / b[_B_REFERENCE]
+        t[_TMAX] = w[_TMAX0] * (ratio * ratio)
+    total: cython.double = 0.0
+    for i in range(_N_ROTORS):
+        total += t[_T + i]
+    w[_F] = total
+    axis: cython.Py_ssize_t
+    torque: cython.double
+    for axis in range(3):
+        torque = w[_WRENCH + 6 * axis] * t[_T]
+        for i in range(1, _N_ROTORS):
+            torque += w[_WRENCH + 6 * axis + i] * t[_T + i]
+        w[_F + 1 + axis] = torque
+    for i in range(3):
+        w[_F + 4 + i] = w[_DRAG + i]
+        w[_F + 9 + i] = w[_WIND + i]
+    w[_F + 7] = joint[0]
+    w[_F + 8] = joint[1]
+    s: cython.int = _step_state(w, rk4, dt, WRENCH, aba)
+    if s == _OK:
+        _lag(t, w, _CMD)
+    return _step_result(w, s)
 
 
 @cython.ccall
@@ -610,7 +849,8 @@ def acceleration(
     """Our q_ddot at (x, u) (with its R, Euler angles, q_dot and W^-1) under a force, no
     step: ``(0, q_ddot)`` or ``(status, theta)``."""
     w: cython.double[:] = work
-    _read_state(w, x, u, r9, euler, q_dot, w_inv9, kind, force)
+    _read_state(w, x, u, r9, euler, q_dot, w_inv9)
+    _read(w, _F, force, 8 if kind == GENERALIZED else 12)
     w[_THETA] = 0.0
     s: cython.int = _accelerations(w, _X, _U, _R, kind, aba, _K1)
     if s != _OK:

@@ -55,7 +55,7 @@ from sitl.physics.errors import (
     PlantModeError,
 )
 from sitl.physics.frames import euler_rate_matrix, quaternion_from_euler
-from sitl.physics.integration import ArticulatedIntegrator, BodyWrench, GeneralizedForce
+from sitl.physics.integration import ArticulatedIntegrator, GeneralizedForce
 from sitl.physics.rotor_plant import RotorPlant
 from sitl.physics.rotors import (
     N_ROTORS,
@@ -154,6 +154,7 @@ class TruthPlant(RotorPlant):
         self._max_thrust_n = self._rotors.max_thrust_n
         self._thrust_mismatch = scenario.plant.thrust_mismatch
         self._battery = LipoPack.of(scenario.plant.battery)
+        self._battery_buffer = None if self._battery is None else self._battery.buffer
         mixer = SequentialDesaturationMixer(self._geometry, rotors.max_thrust_per_rotor_n)
         self._autopilot = Px4AttitudeLoop.from_params(
             AttitudeLoopParams.from_config(scenario.plant.attitude_control, rotors.thr_mdl_fac),
@@ -165,6 +166,9 @@ class TruthPlant(RotorPlant):
         )
         self._wind: tuple[float, float, float] = tuple(  # type: ignore[assignment]
             float(w) for w in (scenario.plant.wind_m_s if wind_m_s is None else wind_m_s)
+        )
+        self._integrator.set_rotor_wrench(
+            self._rotor_wrench, self._drag, self._wind, self._max_thrust_n
         )
         self._servo_limit = scenario.plant.servo_torque_limit_n_m
         self._actuators: ActuatorState | None = None
@@ -438,22 +442,25 @@ class TruthPlant(RotorPlant):
         rate_setpoint_rad_s: tuple,
         torque_normalized: tuple,
     ) -> None:
-        """One integration step pushed by the rotors' lagged thrusts, whose lag then moves
+        """One step of the rotor plant in one call (:meth:`ArticulatedIntegrator.rotor_step
+        <sitl.physics.integration.ArticulatedIntegrator.rotor_step>`): the battery feeds the
+        rotors' lagged thrusts, which push with drag and wind, and whose lag then moves
         toward ``motor_commands``; records the actuator signals."""
-        self._feed_rotors()
         thrusts = self._rotors.thrust_list_n
-        t0, t1, t2, t3, t4, t5 = thrusts
-        wx, wy, wz = self._rotor_wrench
-        # each sum in index order, as sum() over the six products did
-        torque = (
-            wx[0] * t0 + wx[1] * t1 + wx[2] * t2 + wx[3] * t3 + wx[4] * t4 + wx[5] * t5,
-            wy[0] * t0 + wy[1] * t1 + wy[2] * t2 + wy[3] * t3 + wy[4] * t4 + wy[5] * t5,
-            wz[0] * t0 + wz[1] * t1 + wz[2] * t2 + wz[3] * t3 + wz[4] * t4 + wz[5] * t5,
+        self._take_step(
+            self._integrator.rotor_step(
+                self._x,
+                self._u,
+                self._R9,
+                self._euler,
+                self._qd_ours,
+                self._w_inv9,
+                motor_commands,
+                joint,
+                self._rotors.buffer,
+                self._battery_buffer,
+            )
         )
-        self._advance(
-            BodyWrench(sum(thrusts), torque, self._drag, (joint[0], joint[1]), self._wind)
-        )
-        self._rotors.advance(motor_commands)
         self._actuator_signals = (
             motor_commands,
             thrusts,
@@ -468,12 +475,18 @@ class TruthPlant(RotorPlant):
     # (sitl.physics.integration_step, compiled where built), which reads and returns them.
     # Row-major 9-tuples hold R and W^-1.
 
-    def _advance(self, force: GeneralizedForce | BodyWrench) -> None:
+    def _advance(self, force: GeneralizedForce) -> None:
         """One integration step under ``force`` (which also returns the new state's
         kinematics); records the step's q_ddot."""
-        out = self._integrator.step_kinematics(
-            self._x, self._u, force, self._R9, self._euler, self._qd_ours, self._w_inv9
+        self._take_step(
+            self._integrator.step_kinematics(
+                self._x, self._u, force, self._R9, self._euler, self._qd_ours, self._w_inv9
+            )
         )
+
+    def _take_step(self, out: tuple) -> None:
+        """The state after a step of the integrator (its result ``out``, see
+        ``step_kinematics``); raises the plant's errors for a failed one."""
         status = out[0]
         if status == 0:
             self._steps += 1

@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from companion.compiled import twin
-from sitl.physics import attitude_loop
+from sitl.physics import attitude_loop, integration_step
 
 __all__ = [
     "FIRST_ROTOR_AZIMUTH_RAD",
@@ -69,6 +69,9 @@ _SMALL = 1e-3
 
 _LOOP = twin(attitude_loop)
 """The allocation's arithmetic: :mod:`sitl.physics.attitude_loop`, compiled where built."""
+_STEP = twin(integration_step)
+"""The rotors' lag: :mod:`sitl.physics.integration_step`, compiled where built."""
+_MAX_THRUST = integration_step.ROTOR_MAX_THRUST
 
 
 def thrust_curve(u: ArrayLike, thr_mdl_fac: float) -> FloatArray:
@@ -153,33 +156,45 @@ class RotorBank:
     def __init__(
         self, max_thrust_n: float, thr_mdl_fac: float, time_constant_s: float, dt_s: float
     ) -> None:
-        self.max_thrust_n = float(max_thrust_n)
         self.thr_mdl_fac = float(thr_mdl_fac)
         self.time_constant_s = float(time_constant_s)
-        self._decay = math.exp(-dt_s / time_constant_s)
-        self._thrusts = [0.0] * N_ROTORS
+        decay = math.exp(-dt_s / time_constant_s)
+        self.buffer = integration_step.rotor_buffer(float(max_thrust_n), self.thr_mdl_fac, decay)
+        """Thrusts, full thrust, THR_MDL_FAC and decay, as
+        :func:`~sitl.physics.integration_step.rotor_buffer` lays them out (the truth
+        plant's step advances them)."""
+        self._work = integration_step.work_buffer()
+
+    @property
+    def max_thrust_n(self) -> float:
+        """A rotor's static thrust at u = 1 now [N] (the battery's voltage changes it)."""
+        return self.buffer[_MAX_THRUST]
+
+    @max_thrust_n.setter
+    def max_thrust_n(self, value: float) -> None:
+        self.buffer[_MAX_THRUST] = value
 
     @property
     def thrusts_n(self) -> FloatArray:
         """Thrust each rotor produces now [N], shape (6,) (a new array)."""
-        return np.array(self._thrusts)
+        return np.array(self.buffer[:N_ROTORS])
 
     @property
     def thrust_list_n(self) -> list[float]:
         """The same as a list of floats (a copy)."""
-        return list(self._thrusts)
+        return self.buffer[:N_ROTORS].tolist()
 
     @property
     def total_thrust_n(self) -> float:
         """Sum of the produced thrusts [N], added in rotor order (as numpy adds six)."""
-        return sum(self._thrusts)
+        return sum(self.buffer[:N_ROTORS])
 
     def reset(self, thrusts_n: ArrayLike) -> None:
         """Set the produced thrusts [N] (the lag states)."""
         t = np.asarray(thrusts_n, dtype=np.float64)
         if t.shape != (N_ROTORS,) or not np.all(np.isfinite(t)) or np.any(t < 0.0):
             raise ValueError(f"rotor thrusts must be 6 finite values >= 0 N, got {thrusts_n!r}")
-        self._thrusts = t.tolist()
+        self.buffer[:N_ROTORS] = array("d", t.tolist())
 
     def commanded_thrusts_n(self, commands: ArrayLike) -> FloatArray:
         """Static thrust [N] of commands u (clipped to [0, 1]), shape (6,)."""
@@ -188,12 +203,7 @@ class RotorBank:
 
     def advance(self, commands: list[float]) -> None:
         """Advance the lag by one step with the commands (6 floats in [0, 1]) held."""
-        f, t_max, decay = self.thr_mdl_fac, self.max_thrust_n, self._decay
-        gain = 1.0 - decay
-        self._thrusts = [
-            decay * t + gain * t_max * (f * u * u + (1.0 - f) * u)
-            for t, u in zip(self._thrusts, commands, strict=True)
-        ]
+        _STEP.rotor_lag(self.buffer, commands, self._work)
 
 
 @dataclass(frozen=True)
