@@ -234,13 +234,17 @@ class RotorPlant:
         self._step_rotors(np.clip(arr, 0.0, 1.0).tolist(), joint, _UNKNOWN3, _UNKNOWN3)
 
     def _joint_torques(self, joint_torques_n_m: ArrayLike) -> list[float]:
-        """Two finite joint torques [N m] clipped to the servo limit (ValueError otherwise)."""
-        joint_arr = np.asarray(joint_torques_n_m, dtype=np.float64)
-        if joint_arr.shape != (2,):
-            raise ValueError(
-                f"joint_torques_n_m must be 2 finite values, got {joint_torques_n_m!r}"
-            )
-        j1, j2 = joint_arr.tolist()
+        """Two finite joint torques [N m] clipped to the servo limit (ValueError otherwise);
+        a list or tuple of two is read without numpy (the per-step path)."""
+        if isinstance(joint_torques_n_m, (list, tuple)) and len(joint_torques_n_m) == 2:
+            j1, j2 = float(joint_torques_n_m[0]), float(joint_torques_n_m[1])
+        else:
+            joint_arr = np.asarray(joint_torques_n_m, dtype=np.float64)
+            if joint_arr.shape != (2,):
+                raise ValueError(
+                    f"joint_torques_n_m must be 2 finite values, got {joint_torques_n_m!r}"
+                )
+            j1, j2 = joint_arr.tolist()
         if not math.isfinite(j1 + j2):
             raise ValueError(
                 f"joint_torques_n_m must be 2 finite values, got {joint_torques_n_m!r}"

@@ -298,7 +298,7 @@ class World:
         )
         self._object_rest_z = None if self._object is None else float(self._object[2])
         self._was_closed = self.jaw.closed if self.jaw else False
-        self._torques = np.zeros(2)
+        self._torques = [0.0, 0.0]
         self.on_ground = True
         self._ground_pose: tuple[float, float, float] | None = None
         self.grasps = 0
@@ -347,7 +347,7 @@ class World:
         self._step(lambda torques: self.plant.advance_motors(motor_commands, torques))
         return self.plant.state
 
-    def _step(self, plant_step: Callable[[FloatArray], None]) -> None:
+    def _step(self, plant_step: Callable[[list[float]], None]) -> None:
         """Couple the servos to the joints, advance the plant with ``plant_step(joint
         torques)``, then the servos, battery, ground contact and payload."""
         dt = self.dt_s
@@ -393,7 +393,7 @@ class World:
         if self._ground_pose is None:  # touch-down: stay where the gear met the ground
             self._ground_pose = (float(q[X]), float(q[Y]), float(q[PSI]))
         x, y, yaw = self._ground_pose
-        arm_before = (etas, eta_rates, self._torques.tolist())
+        arm_before = (etas, eta_rates, list(self._torques))
         self.plant.hold_base((x, y, height), yaw, arm_before)
 
     # ------------------------------------------------------------------- payload
@@ -491,7 +491,7 @@ class World:
             payload_attached=self.plant.payload_attached,
             object_position_m=self.object_position_m,
             gripper_angle_rad=None if self.jaw is None else self.jaw.angle_rad,
-            joint_torques_n_m=self._torques.copy(),
+            joint_torques_n_m=np.array(self._torques),
             true_theta=(theta.m2_kg, theta.m3_kg_m, theta.m4_kg_m2),
         )
 
