@@ -33,8 +33,9 @@ The arithmetic is one module, :mod:`sitl.physics.integration_step`, which runs a
 and is compiled as it is into ``sitl.physics._integration_step`` (a compiled twin,
 :mod:`companion.compiled`): its floats, Pinocchio's ABA called back for every stage.
 :meth:`ArticulatedIntegrator.step_kinematics` steps with it and also returns the new
-state's kinematics; :meth:`ArticulatedIntegrator.acceleration` evaluates q_ddot without a
-step.
+state's kinematics; :meth:`ArticulatedIntegrator.rotor_step` is the rotor plant's whole step
+in the same call (the battery's draw, the rotor wrench, the step, the rotors' lag);
+:meth:`ArticulatedIntegrator.acceleration` evaluates q_ddot without a step.
 """
 
 from __future__ import annotations
