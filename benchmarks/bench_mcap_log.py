@@ -1,37 +1,42 @@
-"""What writing ``flight.mcap`` beside ``flight.csv`` costs the control loop per cycle.
+"""What the flight log costs the control loop per cycle, writer included.
 
 Writes the same records (a seeded random walk of every field, as a flight's values vary)
-three ways and prints per-cycle microseconds (median, 99th percentile, maximum) of the
-log call the control cycle makes, and the files' sizes:
+two ways and prints, per cycle, the wall time of the log call the control cycle makes
+(median, 99th percentile, maximum) and the process CPU time per cycle over the whole run
+(every thread of the process: foxglove-sdk's writer included), and the files' sizes:
 
-- ``csv``: :class:`companion.logs.flightlog.FlightLogWriter` alone (the CSV log);
-- ``mcap``: :class:`companion.logs.mcap_log.McapLogWriter` alone;
+- ``csv``: :class:`companion.logs.flightlog.FlightLogWriter` alone (the CSV files);
 - ``csv + mcap``: :class:`companion.logs.mcap_log.FlightLogWithMcap`, what the app runs.
 
-The maximum is a cycle that hands a buffer to the operating system: the CSV's every
-``flush_every_rows`` rows, the MCAP's when a chunk is full (compressed then). The log call
-comes after the setpoint and the joint torques are sent, so it delays neither; it spends
-the cycle's spare time.
+A call fills one row of the block of columns (:mod:`companion.logs.columns`); the call that
+fills the block writes it (to ``flight.columns``, and the MCAP messages of its cycles, one
+chunk): the maximum. The CPU per cycle is the log's share of the control cycle; the close
+writes ``flight.csv`` and ``flight.timing.csv`` from the columns after the flight. ``--write`` puts
+the table in ``docs/log_speed.md`` with the machine and the commit.
 
-Run: ``python benchmarks/bench_mcap_log.py [--cycles N]``.
+Run: ``python benchmarks/bench_mcap_log.py [--cycles N] [--write]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import platform
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from checkout import this_commit
 
 from companion.control.setpoints import AttitudeThrustSetpoint
 from companion.logs.flightlog import CycleRecord, FlightLogWriter
-from companion.logs.mcap_log import ArmGeometry, FlightLogWithMcap, McapLogWriter
+from companion.logs.mcap_log import ArmGeometry, FlightLogWithMcap
 
 GEOMETRY = ArmGeometry((0.0, 0.0, -0.08), 0.2, 0.2)
-PERIOD_S = 0.004
-"""A 250 Hz control loop's period [s]."""
+PERIOD_S = 0.008
+"""A 125 Hz control loop's period [s]."""
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def records(n: int, seed: int = 1) -> list[CycleRecord]:
@@ -87,53 +92,68 @@ def records(n: int, seed: int = 1) -> list[CycleRecord]:
     return out
 
 
-def measure(writer, rows: list[CycleRecord]) -> np.ndarray:
-    """Microseconds of each ``writer.write`` call."""
+def measure(writer, rows: list[CycleRecord]) -> tuple[np.ndarray, float, float]:
+    """Microseconds of each ``writer.write`` call (wall), the process CPU time per call
+    over the flight [us], and the process CPU time of the close [s] (the CSV written)."""
     durations = np.empty(len(rows))
     writer.open()
     try:
+        cpu0 = time.process_time_ns()
         for k, record in enumerate(rows):
             t0 = time.perf_counter_ns()
             writer.write(record)
             durations[k] = (time.perf_counter_ns() - t0) * 1e-3
+        cpu1 = time.process_time_ns()
     finally:
         writer.close()
-    return durations
+    cpu2 = time.process_time_ns()
+    return durations, (cpu1 - cpu0) * 1e-3 / len(rows), (cpu2 - cpu1) * 1e-9
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--cycles", type=int, default=10_000, help="cycles per writer")
+    parser.add_argument("--write", action="store_true", help="write docs/log_speed.md")
     args = parser.parse_args()
     rows = records(args.cycles)
-    print(f"{args.cycles} cycles per writer (a 250 Hz loop: {args.cycles * PERIOD_S:g} s)")
-    print(f"{'writer':<12} {'median':>9} {'p99':>9} {'max':>9}   files")
-    medians = {}
+    lines = [
+        f"{args.cycles} cycles per writer (a 125 Hz loop: {args.cycles * PERIOD_S:g} s)",
+        "",
+        "| writer | call median [us] | call p99 [us] | call max [us] | "
+        "process CPU per cycle [us] | close: CSV written [s] | files |",
+        "|---|---:|---:|---:|---:|---:|---|",
+    ]
     with tempfile.TemporaryDirectory() as tmp:
-        for name in ("csv", "mcap", "csv + mcap"):
+        for name in ("csv", "csv + mcap"):
             folder = Path(tmp) / name.replace(" + ", "_")
             folder.mkdir()
             log = folder / "flight.csv"
-            if name == "csv":
-                writer = FlightLogWriter(log)
-            elif name == "mcap":
-                writer = McapLogWriter(folder / "flight.mcap", GEOMETRY)
-            else:
-                writer = FlightLogWithMcap(log, GEOMETRY)
-            us = measure(writer, rows)
-            medians[name] = float(np.median(us))
+            writer = FlightLogWriter(log) if name == "csv" else FlightLogWithMcap(log, GEOMETRY)
+            us, cpu_us, close_s = measure(writer, rows)
             sizes = ", ".join(
                 f"{p.name} {p.stat().st_size / 1e6:.2f} MB" for p in sorted(folder.iterdir())
             )
-            print(
-                f"{name:<12} {np.median(us):>7.1f}us {np.percentile(us, 99):>7.1f}us "
-                f"{us.max():>7.1f}us   {sizes}"
+            lines.append(
+                f"| {name} | {np.median(us):.1f} | {np.percentile(us, 99):.1f} | "
+                f"{us.max():.1f} | {cpu_us:.1f} | {close_s:.2f} | {sizes} |"
             )
-    extra = medians["csv + mcap"] - medians["csv"]
-    print(
-        f"the MCAP adds {extra:.1f} us per cycle (median), "
-        f"{100 * extra * 1e-6 / PERIOD_S:.1f} % of a 250 Hz cycle"
-    )
+    print("\n".join(lines))
+    if args.write:
+        doc = [
+            "# The flight log's cost per control cycle",
+            "",
+            f"Written by `benchmarks/bench_mcap_log.py` on {platform.node()} "
+            f"({platform.machine()}, {os.cpu_count()} cores, Python "
+            f"{platform.python_version()}) at commit {this_commit()}. A call fills one row "
+            "of the block of columns; the call that fills a block writes it (the maximum). "
+            "The process CPU per cycle counts every thread (foxglove-sdk's writer "
+            "included): the log's share of the control cycle. The close writes the CSV "
+            "files from the columns, after the flight.",
+            "",
+            *lines,
+            "",
+        ]
+        (ROOT / "docs" / "log_speed.md").write_text("\n".join(doc))
 
 
 if __name__ == "__main__":

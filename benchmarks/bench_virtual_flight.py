@@ -91,8 +91,14 @@ PARTS: dict[str, tuple[type, str]] = {
     "truth plant steps": (RotorPlant, "advance"),
     "MAVLink framing and CRC (pymavlink _pack, both sides)": (mavlink2.MAVLink_message, "_pack"),
     "MAVLink decoding (pymavlink parse_buffer, both sides)": (mavlink2.MAVLink, "parse_buffer"),
-    "flight log CSV rows": (FlightLogWriter, "write"),
-    "flight log MCAP messages (a cycle's)": (McapLogWriter, "write"),
+    "flight log rows (FlightLogWriter.write: the row, and its blocks when full)": (
+        FlightLogWriter,
+        "write",
+    ),
+    "flight log MCAP messages (McapLogWriter.write_block: a block's)": (
+        McapLogWriter,
+        "write_block",
+    ),
     "control cycles (ControlCycle.run: sense, control, send, log)": (ControlCycle, "run"),
     "control steps (FlightControl.step)": (FlightControl, "step"),
 }

@@ -31,11 +31,12 @@ from typing import Any
 
 from companion.logs.mcap_log import (
     Q_KEYS,
-    SCHEMAS,
     THETA_KEYS,
     encode,
+    json_channel,
     merge_messages,
     pose_in_frame,
+    protobuf_channel,
     time_ns,
 )
 
@@ -49,7 +50,14 @@ TRUTH_SCHEMA: dict[str, Any] = {
     "description": "The simulator's truth: link 2's theta (payload included), q, contact",
     "type": "object",
     "properties": {
-        "timestamp": SCHEMAS["companion.State"]["properties"]["timestamp"],
+        "timestamp": {
+            "type": "object",
+            "title": "time",
+            "properties": {
+                "sec": {"type": "integer", "minimum": 0},
+                "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
+            },
+        },
         **{k: _NUMBER for k in THETA_KEYS},
         "q": {"type": "object", "properties": {k: _NUMBER for k in Q_KEYS}},
         "payload_attached": _FLAG,
@@ -73,14 +81,15 @@ def _finite(v: Any) -> float | None:
     return f if math.isfinite(f) else None
 
 
-def truth_messages(record: dict[str, Any]) -> tuple[int, list[tuple[str, dict[str, Any]]]]:
-    """(log time [ns], [(topic, message)]) of one truth-log line (pure)."""
+def truth_messages(record: dict[str, Any]) -> tuple[int, list[tuple[str, bytes]]]:
+    """(log time [ns], [(topic, encoded message)]) of one truth-log line (pure): ``/truth``
+    in JSON, ``/truth/pose`` in Protobuf as the flight's ``/vehicle/pose``."""
     ns = time_ns(float(record["t_s"]))
     q = [float(v) for v in record["q"]]
     m2, m3, m4 = (float(v) for v in record["true_theta"])
     obj = record.get("object_position_m")
     truth = {
-        "timestamp": pose_in_frame(q, ns)["timestamp"],
+        "timestamp": dict(zip(("sec", "nsec"), divmod(ns, 1_000_000_000), strict=True)),
         "m2_kg": _finite(m2),
         "m3_kg_m": _finite(m3),
         "m4_kg_m2": _finite(m4),
@@ -91,7 +100,7 @@ def truth_messages(record: dict[str, Any]) -> tuple[int, list[tuple[str, dict[st
         "armed": record.get("armed"),
         "object_position_m": None if obj is None else dict(zip("xyz", obj, strict=True)),
     }
-    messages: list[tuple[str, dict[str, Any]]] = [("/truth", truth)]
+    messages: list[tuple[str, bytes]] = [("/truth", encode(truth))]
     if all(math.isfinite(v) for v in q):
         messages.append(("/truth/pose", pose_in_frame(q, ns)))
     return ns, messages
@@ -108,7 +117,7 @@ def _truth_lines(truth_path: Path) -> Iterator[tuple[int, str, bytes]]:
                 return
             ns, messages = truth_messages(record)
             for topic, message in messages:
-                yield ns, topic, encode(message)
+                yield ns, topic, message
 
 
 def add_truth(mcap_path: str | Path, truth_path: str | Path) -> int:
@@ -119,8 +128,8 @@ def add_truth(mcap_path: str | Path, truth_path: str | Path) -> int:
     Raises ``ValueError`` if the MCAP already has a truth channel.
     """
     channels = {
-        topic: (name, TRUTH_SCHEMA if name == "sitl.Truth" else SCHEMAS[name])
-        for topic, name in TRUTH_CHANNELS.items()
+        "/truth": json_channel("sitl.Truth", TRUTH_SCHEMA),
+        "/truth/pose": protobuf_channel("foxglove.PoseInFrame"),
     }
     return merge_messages(mcap_path, channels, _truth_lines(Path(truth_path)))
 

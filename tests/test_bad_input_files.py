@@ -55,6 +55,7 @@ REQUIRED: dict[str, list[str]] = {
     ],
     "companion log info": [],
     "companion log add-ulog": [],
+    "companion log export": [],
     "sitl authority": [],
     "sitl run": [],
     "sitl campaign": ["--out", "campaign"],

@@ -15,12 +15,14 @@ from pathlib import Path
 
 import pytest
 
+from companion.logs.columns import read_columns
 from companion.logs.flightlog import read_flight_log
 
 
 def _demo_stopped_in_flight(out: Path, *clock: str) -> subprocess.CompletedProcess:
     """Start ``sitl demo`` into ``out``, send SIGINT once its flight log holds 200 rows
-    (the vehicle in the air), and wait for it (a hang fails after 120 s)."""
+    (the vehicle in the air; in flight the rows are in ``flight.columns``, ``flight.csv``
+    gets them at the close), and wait for it (a hang fails after 120 s)."""
     process = subprocess.Popen(
         [sys.executable, "-c", "from sitl.cli import main; main()", "demo", "--out", str(out),
          *clock],
@@ -31,10 +33,10 @@ def _demo_stopped_in_flight(out: Path, *clock: str) -> subprocess.CompletedProce
         # then ignores SIGINT for its children, and Python keeps an ignored SIGINT ignored)
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )  # fmt: skip
-    log = out / "flight.csv"
+    columns = out / "flight.columns"
     deadline = time.monotonic() + 300.0
     try:
-        while not (log.exists() and log.read_text().count("\n") > 200):
+        while not (columns.exists() and len(read_columns(columns)[0]) > 200):
             assert process.poll() is None, process.communicate()
             assert time.monotonic() < deadline, "the flight never started"
             time.sleep(0.2)
@@ -56,7 +58,8 @@ def _stopped_cleanly(done: subprocess.CompletedProcess, out: Path) -> None:
     summary = json.loads((out / "summary.json").read_text())
     assert summary["outcome"] == "interrupted" and not summary["completed"]
     assert summary["failure"].startswith("MissionInterrupted: interrupted at t = ")
-    assert len(read_flight_log(out / "flight.csv")) > 200
+    assert len(read_flight_log(out / "flight.csv")) > 200  # written at the close
+    assert not (out / "flight.columns").exists()
 
 
 def test_ctrl_c_on_simulated_time_stops_in_one_line_with_a_summary(tmp_path):

@@ -2,19 +2,28 @@
 
 import csv
 import math
+import signal
+import subprocess
+import sys
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
+from companion.cli.main import app
 from companion.control.setpoints import AttitudeThrustSetpoint
+from companion.logs.columns import read_columns
 from companion.logs.flightlog import (
     COLUMNS,
     TIMING_COLUMNS,
     CycleRecord,
     FlightLogError,
     FlightLogWriter,
+    columns_path,
     events_path,
+    export_columns,
     read_flight_log,
     timing_path,
 )
@@ -54,7 +63,7 @@ def record(i, mode="POSCTL", phase="takeoff", faults=()):
 def test_round_trip_is_exact(tmp_path):
     path = tmp_path / "flight.csv"
     records = [record(i) for i in range(5)]
-    with FlightLogWriter(path, flush_every_rows=2) as log:
+    with FlightLogWriter(path, block_rows=2) as log:
         for r in records:
             log.write(r)
     out = read_flight_log(path)
@@ -141,6 +150,7 @@ def test_missing_parts_are_empty_cells_read_as_nan(tmp_path):
     assert np.isnan(out["tau_x_n"][0]) and np.isnan(out["theta_hat_lc_m"][0])
     assert np.isnan(out["armed"][0])
     assert out["faults"][0] == ""
+    assert path.read_text().splitlines()[1].endswith(",,,,")  # mode, armed, phase, faults
 
 
 def test_mode_phase_and_fault_changes_become_events(tmp_path):
@@ -170,17 +180,25 @@ def test_mode_phase_and_fault_changes_become_events(tmp_path):
     assert read_flight_log(path)["faults"][3] == "servo_timeout;tilt_sat"
 
 
-def test_rows_reach_the_file_every_n_rows_before_close(tmp_path):
+def test_rows_reach_the_columns_a_block_at_a_time_and_the_csv_at_close(tmp_path):
     path = tmp_path / "flight.csv"
-    log = FlightLogWriter(path, flush_every_rows=3)
+    log = FlightLogWriter(path, block_rows=3)
     log.open()
-    for i in range(3):
+    log.write(record(0))
+    assert len(read_columns(columns_path(path))[0]) == 1  # its events (mode, phase) wrote it
+    for i in range(1, 3):
         log.write(record(i))
-    assert len(read_flight_log(path)) == 3  # flushed, still open
+    assert len(read_columns(columns_path(path))[0]) == 1  # in the block
     log.write(record(3))
+    assert len(read_columns(columns_path(path))[0]) == 4  # the full block, still open
+    log.write(record(4))
+    log.event("note", "an event writes the rows before it", 10.02)
+    assert len(read_columns(columns_path(path))[0]) == 5
+    assert len(read_flight_log(path)) == 0  # the CSV's header: its rows come at the close
     log.close()
     log.close()
-    assert len(read_flight_log(path)) == 4
+    assert len(read_flight_log(path)) == 5
+    assert not columns_path(path).exists()
     with pytest.raises(FlightLogError, match="not open"):
         log.write(record(5))
 
@@ -191,7 +209,69 @@ def test_bad_records_and_paths(tmp_path):
     with FlightLogWriter(tmp_path / "f.csv") as log, pytest.raises(FlightLogError, match="q must"):
         log.write(CycleRecord(t_vehicle_s=0.0, q=np.zeros(7)))
     with pytest.raises(ValueError):
-        FlightLogWriter(tmp_path / "g.csv", flush_every_rows=0)
+        FlightLogWriter(tmp_path / "g.csv", block_rows=0)
+
+
+KILLED_WRITER = """
+import os, signal, sys
+sys.path.insert(0, {tests!r})
+from test_flightlog import record
+from companion.logs.flightlog import FlightLogWriter
+log = FlightLogWriter({path!r}, block_rows=4)
+log.open()
+for i in range(10):
+    log.write(record(i))
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def test_a_kill_9_loses_at_most_the_last_block(tmp_path):
+    """A writer killed without a chance to close: ``companion log export`` writes the CSV
+    from the columns; the rows written before read back as written, only the rows of the
+    last, unwritten block are lost (the first row went out at once with its events, then
+    two blocks of 4, and the last row was in the block)."""
+    path = tmp_path / "flight.csv"
+    script = KILLED_WRITER.format(tests=str(Path(__file__).parent), path=str(path))
+    done = subprocess.run([sys.executable, "-c", script], check=False, timeout=60)
+    assert done.returncode == -signal.SIGKILL
+    assert len(read_flight_log(path)) == 0  # the header the flight wrote at its start
+    result = CliRunner().invoke(app, ["log", "export", str(columns_path(path))])
+    assert result.exit_code == 0, result.output
+    assert "9 rows" in result.output
+    out = read_flight_log(path)
+    assert len(out) == 9 and out.warnings == ()
+    np.testing.assert_array_equal(out["q_x_m"], [record(i).q[0] for i in range(9)])
+    np.testing.assert_array_equal(out["cycle_latency_us"], [1100.0 + i for i in range(9)])
+    assert [k for k in out.events["kind"]] == ["mode", "phase"]
+    with pytest.raises(FlightLogError, match="holds rows already"):
+        export_columns(columns_path(path))  # what was exported is not written over
+
+
+def test_a_columns_file_cut_in_a_record_reads_up_to_the_cut(tmp_path):
+    path = tmp_path / "flight.csv"
+    log = FlightLogWriter(path, block_rows=2)
+    log.open()
+    for i in range(5):
+        log.write(record(i))
+    cut = tmp_path / "cut.columns"
+    data = columns_path(path).read_bytes()
+    cut.write_bytes(data[:-7])  # the second block of two, cut
+    log.close()
+    rows, texts, warnings = read_columns(cut)
+    assert len(rows) == 3 and "POSCTL" in texts and "cut short" in warnings[0]
+    (tmp_path / "x.columns").write_bytes(b"t_vehicle_s\n")
+    with pytest.raises(FlightLogError, match="not a flight columns file"):
+        export_columns(tmp_path / "x.columns")
+
+
+def test_a_number_that_is_not_one_is_an_empty_cell(tmp_path):
+    path = tmp_path / "flight.csv"
+    with FlightLogWriter(path) as log:
+        log.write(replace(record(0), servo_torque_meas_n_m=(math.nan, 0.5)))
+    row = path.read_text().splitlines()[1].split(",")
+    assert row[COLUMNS.index("servo_tau_meas_eta1_n_m")] == ""
+    assert row[COLUMNS.index("servo_tau_meas_eta2_n_m")] == "0.5"
+    assert np.isnan(read_flight_log(path)["servo_tau_meas_eta1_n_m"][0])
 
 
 @pytest.mark.parametrize(

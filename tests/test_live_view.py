@@ -1,10 +1,12 @@
-"""The live view: the flight log's channels on a Foxglove WebSocket server, read by a
-WebSocket client speaking Foxglove's protocol as the Foxglove app does (subscribe by
-channel id, binary message frames)."""
+"""The live view: the flight log's channels on a Foxglove WebSocket server started on the
+MCAP writer's context, read by a WebSocket client speaking Foxglove's protocol as the
+Foxglove app does (subscribe by channel id, binary message frames, Protobuf messages decoded
+with the advertised schemas)."""
 
 from __future__ import annotations
 
 import asyncio
+import base64
 import json
 import math
 import queue
@@ -19,13 +21,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_mcap_log import decode
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed
 
 from companion.control.setpoints import AttitudeThrustSetpoint
 from companion.logs.flightlog import CycleRecord
 from companion.logs.live_view import LiveView, LiveViewError
-from companion.logs.mcap_log import CHANNELS, SCHEMAS, ArmGeometry, time_ns
+from companion.logs.mcap_log import CHANNELS, SCHEMAS, ArmGeometry, FlightLogWithMcap, time_ns
 
 ROOT = Path(__file__).parent.parent
 GEOMETRY = ArmGeometry((0.05, 0.0, -0.08), 0.2, 0.15)
@@ -51,7 +54,7 @@ def record(t: float) -> CycleRecord:
 
 class Client:
     """A Foxglove WebSocket client: the advertised channels, then every message of the
-    subscribed topics as (topic, log time [ns], decoded JSON)."""
+    subscribed topics as (topic, log time [ns], decoded message)."""
 
     def __init__(self, url: str, topics: tuple[str, ...]) -> None:
         self.url, self.topics = url, topics
@@ -82,7 +85,11 @@ class Client:
                         self.subscribed.set()
                 elif frame[0] == MESSAGE_DATA:
                     sub, log_ns = struct.unpack_from("<IQ", frame, 1)
-                    self.messages.append((by_subscription[sub], log_ns, json.loads(frame[13:])))
+                    topic = by_subscription[sub]
+                    channel = self.channels[topic]
+                    schema = base64.b64decode(channel["schema"])
+                    message = decode(channel["schemaName"], "protobuf", schema, frame[13:])
+                    self.messages.append((topic, log_ns, message))
 
     def _control(self, message: dict, by_subscription: dict[int, str]) -> None:
         if message["op"] == "advertise":
@@ -107,47 +114,58 @@ def read(url: str, topics: tuple[str, ...], seconds: float) -> tuple[Client, thr
 # -- the server on hand-made records -----------------------------------------------------
 
 
-def test_every_channel_is_advertised_with_its_schema_and_messages_arrive_stamped():
-    now = [0.0]
-    with LiveView(0, GEOMETRY, clock=lambda: now[0]) as live:
-        assert live.port > 0 and live.url == f"ws://127.0.0.1:{live.port}"
-        live.write(record(0.5))  # nobody listens: nothing is encoded
-        assert live.published == 0
-        client, thread = read(live.url, ("/tf", "/estimate", "/events"), 3.0)
-        assert client.subscribed.wait(5.0)
-        deadline = time.monotonic() + 5.0
-        while not client.messages and time.monotonic() < deadline:
-            live.write(record(1.0))
-            time.sleep(0.05)
-        assert live.published == 1  # the clock did not move: one cycle, however many written
-        now[0] += 1 / 30
-        live.write(record(1.004))
-        live.event("fault", "payload_lost: the payload slipped", 1.006)
-        time.sleep(0.5)
-        thread.join(timeout=0.1)
-    thread.join(timeout=5.0)
+def test_every_channel_is_advertised_with_its_schema_and_messages_arrive_stamped(tmp_path):
+    """The file's writer serves the live view: what a block of cycles writes to the file
+    reaches the client too, with the file's schemas."""
+    with FlightLogWithMcap(tmp_path / "flight.csv", GEOMETRY, block_rows=2) as log:
+        context = log.mcap.context
+        assert context is not None
+        with LiveView(0, context) as live:
+            assert live.port > 0 and live.url == f"ws://127.0.0.1:{live.port}"
+            client, thread = read(live.url, ("/tf", "/estimate", "/events"), 5.0)
+            assert client.subscribed.wait(5.0)
+            deadline = time.monotonic() + 5.0
+            while not client.topic("/events") and time.monotonic() < deadline:
+                log.event("probe", "until the server has taken the subscription", 0.5)
+                time.sleep(0.05)
+            log.write(record(1.0))  # with its events (mode, phase): written at once
+            log.write(record(1.004))
+            log.write(record(1.008))  # a full block of two
+            log.event("fault", "payload_lost: the payload slipped", 1.010)
+            deadline = time.monotonic() + 5.0
+            while client.topic("/events")[-1][1]["name"] != "fault" and (
+                time.monotonic() < deadline
+            ):
+                time.sleep(0.05)
+            thread.join(timeout=0.1)
+        thread.join(timeout=5.0)
     assert set(client.channels) == set(CHANNELS)
     for topic, channel in client.channels.items():
         assert channel["schemaName"] == CHANNELS[topic]
-        assert channel["encoding"] == "json" and channel["schemaEncoding"] == "jsonschema"
-        assert json.loads(channel["schema"]) == SCHEMAS[CHANNELS[topic]]
+        assert channel["encoding"] == "protobuf" and channel["schemaEncoding"] == "protobuf"
+        assert base64.b64decode(channel["schema"]) == SCHEMAS[CHANNELS[topic]]
     tf = client.topic("/tf")
-    assert [ns for ns, _ in tf] == [time_ns(1.0), time_ns(1.004)]
+    assert [ns for ns, _ in tf] == [time_ns(1.0), time_ns(1.004), time_ns(1.008)]
     base = tf[0][1]["transforms"][0]
     assert (base["parent_frame_id"], base["child_frame_id"]) == ("world", "base_link")
     assert base["translation"] == {"x": 1.0, "y": 2.0, "z": 3.0}
     assert client.topic("/estimate")[0][1]["lc_m"] == pytest.approx(0.1)
-    [(ns, event)] = client.topic("/events")
-    assert ns == time_ns(1.006) and event["level"] == 4  # ERROR: a fault
+    events = client.topic("/events")
+    assert [e["name"] for _, e in events if e["name"] != "probe"] == ["mode", "phase", "fault"]
+    ns, event = events[-1]
+    assert ns == time_ns(1.010) and event["level"] == 4  # ERROR: a fault
     assert event["message"] == "payload_lost: the payload slipped"
 
 
-def test_a_taken_port_and_a_bad_port_are_clear_errors():
-    with LiveView(0, GEOMETRY) as live:
-        with pytest.raises(LiveViewError, match=f"127.0.0.1:{live.port}"):
-            LiveView(live.port, GEOMETRY).open()
-    with pytest.raises(LiveViewError, match="0-65535"):
-        LiveView(70000, GEOMETRY)
+def test_a_taken_port_and_a_bad_port_are_clear_errors(tmp_path):
+    with FlightLogWithMcap(tmp_path / "flight.csv", GEOMETRY) as log:
+        context = log.mcap.context
+        assert context is not None
+        with LiveView(0, context) as live:
+            with pytest.raises(LiveViewError, match=f"127.0.0.1:{live.port}"):
+                LiveView(live.port, context).open()
+        with pytest.raises(LiveViewError, match="0-65535"):
+            LiveView(70000, context)
 
 
 def test_the_live_option_is_checked_before_anything_flies(run_sitl, tmp_path):
@@ -200,7 +218,7 @@ def test_a_client_watches_the_demo_while_it_flies(tmp_path):
     assert "mission completed" in output
     poses = client.topic("/vehicle/pose")
     assert len(poses) >= 10  # the flight, seen while it flew
-    assert len(poses) <= 30 * watched_s + 5  # at most 30 cycles per second of wall time
+    assert watched_s > 0.0
     times = [ns for ns, _ in poses]
     assert times == sorted(times) and times[-1] - times[0] > 30e9  # vehicle time, most of it
     heights = [m["pose"]["position"]["z"] for _, m in poses]

@@ -1,5 +1,7 @@
 """``flight.mcap`` (companion.logs.mcap_log, sitl.truth_mcap): one virtual pickup read back with
-the ``mcap`` reader against its own CSV log and truth, and the writer on hand-made records."""
+the ``mcap`` reader, its Protobuf messages decoded by ``google.protobuf`` with the schemas the
+file holds (Foxglove's as published in foxglove-sdk), against its own CSV log and truth, and
+the writer on hand-made records."""
 
 from __future__ import annotations
 
@@ -8,8 +10,11 @@ import json
 import math
 from pathlib import Path
 
+import foxglove
 import numpy as np
 import pytest
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from google.protobuf.message import Message
 from mcap.reader import make_reader
 from test_virtual_flights import SHORT, fly
 from typer.testing import CliRunner
@@ -20,17 +25,54 @@ from companion.frames import rotation_from_quaternion
 from companion.logs.flightlog import CycleRecord, FlightLogError, read_flight_log
 from companion.logs.mcap_log import (
     CHANNELS,
+    Q_KEYS,
     SCHEMAS,
     ArmGeometry,
     FlightLogWithMcap,
     McapLogWriter,
     describe_mcap,
 )
-from sitl.truth_mcap import TRUTH_CHANNELS, TRUTH_SCHEMA, add_truth
+from sitl.truth_mcap import TRUTH_CHANNELS, add_truth
 
 ALL_CHANNELS = {**CHANNELS, **TRUTH_CHANNELS}
 CYCLE_TOPICS = ("/tf", "/vehicle/pose", "/state", "/desired", "/estimate", "/timing")
 """Topics with one message per cycle of a flight (every cycle of a flight has its q)."""
+
+
+def as_dict(message: Message) -> dict:
+    """A decoded Protobuf message as a dict of every field (zeros included); a
+    ``google.protobuf.Timestamp`` as ``{"sec", "nsec"}``."""
+    if message.DESCRIPTOR.full_name == "google.protobuf.Timestamp":
+        return {"sec": message.seconds, "nsec": message.nanos}  # type: ignore[attr-defined]
+    out: dict = {}
+    for field in message.DESCRIPTOR.fields:
+        value = getattr(message, field.name)
+        if field.message_type is None:
+            out[field.name] = value
+        elif field.is_repeated:
+            out[field.name] = [as_dict(v) for v in value]
+        else:
+            out[field.name] = as_dict(value)
+    return out
+
+
+_CLASSES: dict[tuple[str, bytes], type[Message]] = {}
+
+
+def decode(schema_name: str, encoding: str, schema_data: bytes, data: bytes) -> dict:
+    """A message decoded by its schema: JSON, or Protobuf with the ``FileDescriptorSet`` of
+    its schema record."""
+    if encoding == "jsonschema":
+        return json.loads(data)
+    assert encoding == "protobuf", encoding
+    cls = _CLASSES.get((schema_name, schema_data))
+    if cls is None:
+        pool = descriptor_pool.DescriptorPool()
+        for file in descriptor_pb2.FileDescriptorSet.FromString(schema_data).file:
+            pool.Add(file)
+        cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema_name))
+        _CLASSES[(schema_name, schema_data)] = cls
+    return as_dict(cls.FromString(data))
 
 
 def read_mcap(path: Path) -> dict[str, list]:
@@ -52,7 +94,7 @@ def read_mcap(path: Path) -> dict[str, list]:
                     channel.message_encoding,
                     message.log_time,
                     message.publish_time,
-                    json.loads(message.data),
+                    decode(schema.name, schema.encoding, schema.data, message.data),
                 )
             )
     return out
@@ -63,39 +105,12 @@ def ns(t_s: float) -> int:
 
 
 def stamp_ns(message: dict) -> int:
-    """The Foxglove timestamp of a message (of its transforms' for FrameTransforms)."""
+    """The Foxglove timestamp of a message (of its transforms' for FrameTransforms; a
+    companion message has none: its log time is its time)."""
     stamps = [t["timestamp"] for t in message.get("transforms", [message])]
     values = {s["sec"] * 1_000_000_000 + s["nsec"] for s in stamps}
     assert len(values) == 1
     return values.pop()
-
-
-def conforms(value, schema: dict) -> bool:
-    """Whether ``value`` has only the fields ``schema`` names, of its types (the part of
-    JSON Schema these schemas use)."""
-    types = schema.get("type")
-    if "oneOf" in schema:
-        return any(value == option["const"] for option in schema["oneOf"])
-    allowed = types if isinstance(types, list) else [types]
-    kinds = {
-        "object": dict,
-        "array": list,
-        "string": str,
-        "boolean": bool,
-        "integer": int,
-        "number": (int, float),
-        "null": type(None),
-    }
-    if not any(isinstance(value, kinds[t]) for t in allowed if t is not None):
-        return False
-    if isinstance(value, bool) and "boolean" not in allowed:
-        return False
-    if isinstance(value, dict):
-        props = schema.get("properties", {})
-        return set(value) <= set(props) and all(conforms(v, props[k]) for k, v in value.items())
-    if isinstance(value, list):
-        return all(conforms(v, schema["items"]) for v in value)
-    return True
 
 
 def rot_zyx(phi: float, theta: float, psi: float) -> np.ndarray:
@@ -156,16 +171,36 @@ def test_two_identical_flights_give_the_same_mcap_bytes(flight, tmp_path):
     assert (again / "flight.mcap").read_bytes() == (out / "flight.mcap").read_bytes()
 
 
+PUBLISHED = {
+    "foxglove.FrameTransforms": foxglove.messages.FrameTransforms,
+    "foxglove.PoseInFrame": foxglove.messages.PoseInFrame,
+    "foxglove.Log": foxglove.messages.Log,
+}
+"""Foxglove's schemas as foxglove-sdk publishes them."""
+
+
 def test_every_channel_is_there_with_its_schema_and_encodings(flight):
-    _, _, _, mcap = flight
+    out, _, _, mcap = flight
     assert set(mcap) == set(ALL_CHANNELS)
-    schemas = {**SCHEMAS, "sitl.Truth": TRUTH_SCHEMA}
     for topic, name in ALL_CHANNELS.items():
         messages = mcap[topic]
         assert messages, topic
-        assert {(m[0], m[1], m[2]) for m in messages} == {(name, "jsonschema", "json")}
-        for m in messages[:: max(1, len(messages) // 50)]:
-            assert conforms(m[5], schemas[name]), (topic, m[5])
+        encodings = ("jsonschema", "json") if name == "sitl.Truth" else ("protobuf", "protobuf")
+        assert {(m[0], m[1], m[2]) for m in messages} == {(name, *encodings)}
+    # Foxglove's schemas are the published ones, byte for byte; the companion's decode to
+    # the fields their names promise (every message of the flight decoded in read_mcap).
+    with open(out / "flight.mcap", "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    schemas = {s.name: s.data for s in summary.schemas.values() if s.encoding == "protobuf"}
+    for name, published in PUBLISHED.items():
+        assert schemas[name] == published.get_schema().data == SCHEMAS[name], name
+    state = mcap["/state"][0][5]
+    assert list(state) == [f"{k}{s}" for s in ("", "_s") for k in Q_KEYS]
+    assert list(mcap["/estimate"][0][5]) == [
+        "m2_kg", "m3_kg_m", "m4_kg_m2", "lc_m", "excitation", "spread", "confident", "frozen",
+        "thrust_scale",
+    ]  # fmt: skip
 
 
 def test_one_message_per_cycle_at_the_csv_times(flight):
@@ -176,7 +211,9 @@ def test_one_message_per_cycle_at_the_csv_times(flight):
         messages = mcap[topic]
         times = [m[3] for m in messages]
         assert times == expected, topic
-        assert all(m[4] == m[3] == stamp_ns(m[5]) for m in messages), topic
+        assert all(m[4] == m[3] for m in messages), topic
+        if topic in ("/tf", "/vehicle/pose"):
+            assert all(m[3] == stamp_ns(m[5]) for m in messages), topic
         assert all(b > a for a, b in itertools.pairwise(times)), topic
     sent = ~np.isnan(log["sp_roll_rad"])
     setpoints = mcap["/setpoint"]
@@ -190,9 +227,7 @@ def test_one_message_per_cycle_at_the_csv_times(flight):
     assert [d["eta1_rad"] for d in desired] == list(log["qd_eta1_rad"])
     periods = [m[5]["loop_period_ms"] for m in mcap["/timing"]]
     csv_periods = log["loop_period_ms"]
-    assert [p if p is not None else math.nan for p in periods] == pytest.approx(
-        list(csv_periods), nan_ok=True
-    )
+    assert periods == pytest.approx(list(csv_periods), nan_ok=True)
     # The wall-clock latencies stay out of the file: they are in flight.timing.csv.
     for key in ("setpoint_latency_us", "cycle_latency_us", "setpoint_cpu_us"):
         assert not any(key in m[5] for m in mcap["/timing"]), key
@@ -292,7 +327,7 @@ def record(t: float, **parts) -> CycleRecord:
     return CycleRecord(t_vehicle_s=t, **{**base, **parts})
 
 
-def test_the_writer_writes_what_it_is_given_and_null_for_what_is_missing(tmp_path):
+def test_the_writer_writes_what_it_is_given_and_nan_for_what_is_missing(tmp_path):
     with FlightLogWithMcap(tmp_path / "flight.csv", GEOMETRY) as log:
         log.write(record(1.0))
         log.write(record(1.004, q=None, setpoint=None, theta_hat=None, loop_period_ms=None))
@@ -304,13 +339,13 @@ def test_the_writer_writes_what_it_is_given_and_null_for_what_is_missing(tmp_pat
     assert [m[3] for m in mcap["/setpoint"]] == [ns(1.0), ns(1.008), ns(1.012)]
     assert len(mcap["/estimate"]) == len(mcap["/state"]) == len(mcap["/timing"]) == 4
     missing = mcap["/estimate"][1][5]
-    assert missing["m2_kg"] is None and missing["lc_m"] is None
+    assert math.isnan(missing["m2_kg"]) and math.isnan(missing["lc_m"])
     assert mcap["/estimate"][0][5]["lc_m"] == pytest.approx(0.1)
-    assert mcap["/state"][2][5]["q"]["x_m"] is None
-    assert mcap["/timing"][1][5]["loop_period_ms"] is None
-    assert "setpoint_latency_us" not in mcap["/timing"][2][5]  # wall clock: timing.csv's
+    assert math.isnan(mcap["/state"][2][5]["x_m"])
+    assert math.isnan(mcap["/timing"][1][5]["loop_period_ms"])
+    assert list(mcap["/timing"][2][5]) == ["loop_period_ms"]  # wall clock: timing.csv's
     sp = mcap["/setpoint"][0][5]
-    assert (sp["roll_rad"], sp["thrust_n"], sp["tilt_saturated"]) == (0.1, 20.0, True)
+    assert (sp["roll_rad"], sp["thrust_n"], sp["tilt_saturated"]) == (0.1, 20.0, 1.0)
     # The events the CSV writer derives go to the MCAP too, with their level.
     events = [(m[5]["name"], m[5]["message"], m[5]["level"]) for m in mcap["/events"]]
     assert events == [
@@ -322,26 +357,28 @@ def test_the_writer_writes_what_it_is_given_and_null_for_what_is_missing(tmp_pat
     assert len(read_flight_log(tmp_path / "flight.csv").events["kind"]) == len(events)
 
 
-def test_the_arm_points_where_its_angles_say():
-    from companion.logs.mcap_log import frame_transforms
-
-    q = [0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -math.pi / 2, 0.0]  # straight down
-    down = chain(frame_transforms(q, GEOMETRY, 0)["transforms"], "gripper")
-    np.testing.assert_allclose(down, [0.05, 0.0, 1.0 - 0.08 - 0.35], atol=1e-12)
+def test_the_arm_points_where_its_angles_say(tmp_path):
+    down = [0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -math.pi / 2, 0.0]  # straight down
     q = [0.5, -0.5, 1.0, 0.2, -0.1, 1.2, -0.7, 0.4]
-    tf = frame_transforms(q, GEOMETRY, 0)["transforms"]
-    np.testing.assert_allclose(chain(tf, "gripper"), gripper_fk(q, GEOMETRY), atol=1e-12)
+    with FlightLogWithMcap(tmp_path / "flight.csv", GEOMETRY) as log:
+        log.write(record(1.0, q=np.array(down)))
+        log.write(record(1.004, q=np.array(q)))
+    tf = [m[5]["transforms"] for m in read_mcap(tmp_path / "flight.mcap")["/tf"]]
+    np.testing.assert_allclose(chain(tf[0], "gripper"), [0.05, 0.0, 1.0 - 0.08 - 0.35], atol=1e-12)
+    np.testing.assert_allclose(chain(tf[1], "gripper"), gripper_fk(q, GEOMETRY), atol=1e-12)
 
 
 def test_events_before_the_first_pose_take_the_last_time_and_bad_times_are_refused(tmp_path):
-    with McapLogWriter(tmp_path / "a.mcap", GEOMETRY) as log:
+    with FlightLogWithMcap(tmp_path / "a.csv", GEOMETRY) as log:
         log.event("preflight", "waiting", math.nan)
         log.write(record(2.0))
         log.event("loop", "late", math.nan)
         with pytest.raises(FlightLogError, match="not a time since boot"):
             log.write(record(-1.0))
-    times = [m[3] for m in read_mcap(tmp_path / "a.mcap")["/events"]]
+    mcap = read_mcap(tmp_path / "a.mcap")
+    times = [m[3] for m in mcap["/events"] if m[5]["name"] in ("preflight", "loop")]
     assert times == [0, ns(2.0)]
+    assert [m[3] for m in mcap["/state"]] == [ns(2.0)]  # the refused row is left out
 
 
 def test_a_log_is_never_overwritten_and_opens_once(tmp_path):
@@ -357,12 +394,12 @@ def test_a_log_is_never_overwritten_and_opens_once(tmp_path):
     writer.close()
     writer.close()
     with pytest.raises(FlightLogError, match="not open"):
-        writer.write(record(1.0))
+        writer.event("note", "after the close", 1.0)
 
 
 def test_info_counts_a_file_cut_by_a_crash_and_refuses_what_is_not_mcap(tmp_path):
     path = tmp_path / "flight.mcap"
-    with McapLogWriter(path, GEOMETRY) as log:
+    with FlightLogWithMcap(tmp_path / "flight.csv", GEOMETRY) as log:
         for k in range(2000):
             log.write(record(1.0 + 0.004 * k))
     whole = describe_mcap(path)
@@ -384,7 +421,7 @@ def test_info_counts_a_file_cut_by_a_crash_and_refuses_what_is_not_mcap(tmp_path
 
 def test_the_truth_merges_in_time_order_once(tmp_path):
     path = tmp_path / "flight.mcap"
-    with McapLogWriter(path, GEOMETRY) as log:
+    with FlightLogWithMcap(tmp_path / "flight.csv", GEOMETRY) as log:
         for k in range(10):
             log.write(record(1.0 + 0.004 * k))
     q = [1.0, 2.0, 3.0, 0.0, 0.0, 0.0, -1.5, 0.0]

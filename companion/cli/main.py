@@ -140,6 +140,22 @@ def log_info(
         typer.echo(line)
 
 
+@log_app.command("export")
+def log_export(
+    columns: Annotated[Path, typer.Argument(help="The columns a flight left (flight.columns).")],
+) -> None:
+    """Write flight.csv and flight.timing.csv from the flight.columns a flight left when it
+    did not close its log (a crash, kill -9, a power cut): every row up to the last block
+    written. A flight that closed its log wrote them itself and removed flight.columns."""
+    from companion.logs.flightlog import FlightLogError, export_columns
+
+    try:
+        rows = export_columns(columns)
+    except FlightLogError as exc:
+        fail(str(exc))
+    typer.echo(f"{columns.with_suffix('.csv')}: {rows} rows from {columns}")
+
+
 @log_app.command("add-ulog")
 def log_add_ulog(
     flight: Annotated[Path, typer.Argument(help="A flight's MCAP log (flight.mcap).")],

@@ -19,9 +19,8 @@ from __future__ import annotations
 import asyncio
 import json
 import math
-from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import numpy as np
 import typer
@@ -145,7 +144,8 @@ async def fly_pickup(
 ) -> tuple[MissionReport, BaseException | None]:
     """Open the link and the arm bus, fly, write log and summary (and, with ``figures``,
     the figures; with ``mcap``, ``flight.mcap`` beside the CSV; with ``live_port``, the
-    log's channels on a Foxglove WebSocket server there, 0: a free port).
+    MCAP's channels on a Foxglove WebSocket server there, 0: a free port, and
+    ``flight.mcap`` written, as its writer serves them).
 
     Returns the report and the mission's failure (MissionError / MissionAborted /
     MissionInterrupted: the task was cancelled, as ``asyncio.run`` does on Ctrl-C, and the
@@ -192,17 +192,17 @@ async def fly_pickup(
         try:
             writer = (
                 FlightLogWithMcap(log_path, ArmGeometry.from_config(scenario))
-                if mcap
+                if mcap or live_port is not None
                 else FlightLogWriter(log_path)
             )
             try:
                 writer.open()
             except FlightLogError as exc:
                 raise UsageError(str(exc)) from None
-            live = _open_live_view(live_port, scenario)
-            log, event = writer.write, writer.event
-            if live is not None:
-                log, event = _tee(writer.write, live.write), _tee(writer.event, live.event)
+            live = None
+            if live_port is not None and isinstance(writer, FlightLogWithMcap):
+                live = _open_live_view(live_port, writer)
+            event = writer.event
             try:
                 app = PickupApp(
                     scenario,
@@ -211,7 +211,7 @@ async def fly_pickup(
                     plan,
                     controller=controller,
                     control_rate_hz=control_rate_hz,
-                    log=log,
+                    log=writer.write,
                     event=event,
                 )
                 try:
@@ -245,28 +245,19 @@ async def fly_pickup(
     return report, failure
 
 
-def _open_live_view(port: int | None, scenario: CompanionConfig) -> LiveView | None:
-    """The live view on ``port`` (None: none), open and announced; UsageError when it
-    cannot start."""
-    if port is None:
-        return None
-    live = LiveView(port, ArmGeometry.from_config(scenario))
+def _open_live_view(port: int, writer: FlightLogWithMcap) -> LiveView:
+    """The live view of ``writer``'s MCAP on ``port``, open and announced; UsageError when
+    it cannot start."""
+    context = writer.mcap.context
+    assert context is not None  # the writer is open
+    live = LiveView(port, context)
     try:
         live.open()
     except LiveViewError as exc:
+        writer.close()
         raise UsageError(f"--live: {exc}") from None
     typer.echo(f"live view: {live.url} (Foxglove: Open connection)")
     return live
-
-
-def _tee(*sinks: Callable[..., None]) -> Callable[..., None]:
-    """One callable that calls each of ``sinks`` with the same arguments, in order."""
-
-    def call(*args: Any) -> None:
-        for sink in sinks:
-            sink(*args)
-
-    return call
 
 
 def draw_figures(log_path: Path, out_dir: Path, truth: TruthLines | None = None) -> list[Path]:
@@ -315,7 +306,8 @@ LiveOpt = Annotated[
         "--live",
         metavar="PORT",
         help="Serve the flight log's channels live to Foxglove on ws://127.0.0.1:PORT "
-        "(8765 is Foxglove's default; 0: any free port), at most 30 Hz.",
+        "(8765 is Foxglove's default; 0: any free port), every cycle, a block of "
+        "cycles at a time (0.2 s at 125 Hz).",
     ),
 ]
 

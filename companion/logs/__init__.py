@@ -1,10 +1,13 @@
 """The flight's records: the CSV flight log, its MCAP twin, PX4's ULog merged into it and
 the live view.
 
-- :mod:`~companion.logs.flightlog`: one CSV row per control cycle, the events and the
-  timing beside it (:class:`FlightLogWriter`, :func:`read_flight_log`);
-- :mod:`~companion.logs.mcap_log`: the same cycles and events as MCAP with Foxglove's
-  schemas (:class:`FlightLogWithMcap`, :func:`describe_mcap`);
+- :mod:`~companion.logs.columns`: a cycle's row in preallocated binary columns, and the
+  columns file the flight writes them to a block at a time;
+- :mod:`~companion.logs.flightlog`: one CSV row per control cycle (written from the
+  columns), the events and the timing beside it (:class:`FlightLogWriter`,
+  :func:`read_flight_log`);
+- :mod:`~companion.logs.mcap_log`: the same cycles and events as MCAP, Protobuf under
+  Foxglove's schemas (:class:`FlightLogWithMcap`, :func:`describe_mcap`);
 - :mod:`~companion.logs.ulog_mcap`: PX4's ULog merged into the MCAP (:func:`add_ulog`);
 - :mod:`~companion.logs.live_view`: the MCAP's channels served live to Foxglove
   (:class:`LiveView`).

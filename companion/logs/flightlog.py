@@ -1,4 +1,5 @@
-"""Flight log: one CSV row per control cycle, a CSV of events and a CSV of timing beside it.
+"""Flight log: one CSV row per control cycle, a CSV of events and a CSV of timing beside it,
+written from binary columns (:mod:`companion.logs.columns`).
 
 Format
 ------
@@ -7,7 +8,7 @@ cycle; it opens as is in pandas (``pd.read_csv``), spreadsheets and
 :func:`read_flight_log`. Column names carry their SI unit (``x_m``, ``thrust_rel``);
 frames are ours (world ENU, body FLU, ZYX Euler angles, DESIGN.md section 2). Numbers are
 written exactly (Python's shortest round-trip repr); an empty cell is a value that was
-not available that cycle (read back as NaN); flags are 0 / 1.
+not available that cycle or not a number (NaN; read back as NaN); flags are 0 / 1.
 
 =================================  =========================================================
 columns                            content
@@ -56,13 +57,20 @@ Kinds written by the writer itself: ``mode`` (PX4 mode changed; detail ``OLD->NE
 ``phase`` (mission phase changed), ``fault`` / ``fault_cleared`` (a fault name appeared in
 / left ``faults``); the application adds its own with :meth:`FlightLogWriter.event`.
 
-Timing
-------
-Writing never waits on the disk for long: a row is formatted (tens of microseconds) into
-a 1 MiB user-space buffer; every ``flush_every_rows`` rows (default 250, one second at
-250 Hz) and at each event the buffer is handed to the operating system (a copy into the
-page cache, well under a millisecond, no fsync). :meth:`FlightLogWriter.close` flushes and
-fsyncs. A crash loses at most the last ``flush_every_rows`` rows.
+Writing and crashes
+-------------------
+A control cycle formats nothing: it writes its numbers into the next row of a
+preallocated block of columns (:mod:`companion.logs.columns`: float64, flags 0 / 1, text
+as codes). Every :data:`BLOCK_ROWS` rows (0.2 s at 125 Hz), in the cycle that fills the
+block, and before each event, the block goes in one write to ``LOG.columns`` (binary, in
+the way of PX4's ULog) and is handed to the operating system (no fsync); events go to
+``LOG.events.csv`` at once. :meth:`FlightLogWriter.close` writes the last block, then the
+rows of ``LOG.csv`` and ``LOG.timing.csv`` from the columns (exact decimal text is the
+costly part, about 45 us a row: it is done once, after the flight), fsyncs and removes
+``LOG.columns``. A crash or a ``kill -9`` loses at most the rows of the block not yet
+written (:data:`BLOCK_ROWS`); what was written stays readable: ``LOG.csv`` holds its
+header, ``LOG.columns`` the rows, and :func:`export_columns` (``companion log export``)
+writes the CSV files from it.
 """
 
 from __future__ import annotations
@@ -80,6 +88,15 @@ from typing import IO, TYPE_CHECKING, Any, BinaryIO
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from companion.logs import columns
+from companion.logs.columns import (
+    ColumnsError,
+    ColumnsFile,
+    LogColumns,
+    fsync,
+    read_columns,
+    write_csv,
+)
 from companion.user_files import UserFileError, open_regular_file
 
 if TYPE_CHECKING:
@@ -93,66 +110,21 @@ __all__ = [
     "FlightLog",
     "FlightLogError",
     "FlightLogWriter",
+    "columns_path",
     "events_path",
-    "format_row",
-    "format_timing_row",
+    "export_columns",
+    "fill_row",
     "read_flight_log",
     "timing_path",
 ]
 
-Q_NAMES = ("x", "y", "z", "phi", "theta", "psi", "eta1", "eta2")
-_Q_UNITS = ("m", "m", "m", "rad", "rad", "rad", "rad", "rad")
-_TAU_UNITS = ("n", "n", "n", "n_m", "n_m", "n_m", "n_m", "n_m")
-_JOINTS = ("eta1", "eta2")
-
-_THETA = ("theta_hat_m2_kg", "theta_hat_m3_kg_m", "theta_hat_m4_kg_m2", "theta_hat_lc_m")
-_SETPOINT = (
-    "sp_roll_rad",
-    "sp_pitch_rad",
-    "sp_yaw_rad",
-    "sp_thrust_n",
-    "thrust_rel",
-    "sp_tilt_saturated",
-    "sp_thrust_saturated",
-)
-TEXT_COLUMNS = ("px4_mode", "phase", "faults")
-"""Columns holding text; every other column is numeric."""
-
-COLUMNS: tuple[str, ...] = (
-    "t_vehicle_s",
-    *(f"q_{n}_{u}" for n, u in zip(Q_NAMES, _Q_UNITS, strict=True)),
-    *(f"qdot_{n}_{u}_s" for n, u in zip(Q_NAMES, _Q_UNITS, strict=True)),
-    *(f"qddot_{n}_{u}_s2" for n, u in zip(Q_NAMES, _Q_UNITS, strict=True)),
-    *(f"qd_{n}_{u}" for n, u in zip(Q_NAMES, _Q_UNITS, strict=True)),
-    *_THETA,
-    "theta_excitation",
-    "theta_spread",
-    "theta_confident",
-    "theta_frozen",
-    "thrust_scale_hat",
-    *(f"tau_{n}_{u}" for n, u in zip(Q_NAMES, _TAU_UNITS, strict=True)),
-    *_SETPOINT,
-    *(f"servo_tau_cmd_{j}_n_m" for j in _JOINTS),
-    *(f"servo_tau_meas_{j}_n_m" for j in _JOINTS),
-    *(f"servo_pos_{j}_rad" for j in _JOINTS),
-    "loop_period_ms",
-    "px4_mode",
-    "armed",
-    "phase",
-    "faults",
-)
-"""Every column of ``LOG.csv``, in file order."""
-
-TIMING_COLUMNS: tuple[str, ...] = (
-    "t_vehicle_s",
-    "t_wall_s",
-    "setpoint_latency_us",
-    "cycle_latency_us",
-    "setpoint_cpu_us",
-)
-"""Every column of ``LOG.timing.csv``, in file order."""
-
+Q_NAMES = columns.Q_NAMES
+TEXT_COLUMNS = columns.TEXT_COLUMNS
+COLUMNS = columns.COLUMNS
+TIMING_COLUMNS = columns.TIMING_COLUMNS
 EVENT_COLUMNS = ("t_vehicle_s", "kind", "detail")
+BLOCK_ROWS = 25
+"""Rows per block (0.2 s at 125 Hz): what a crash can lose at most."""
 
 
 class FlightLogError(Exception):
@@ -169,6 +141,12 @@ def timing_path(log_path: str | Path) -> Path:
     """``flight.csv`` -> ``flight.timing.csv``."""
     path = Path(log_path)
     return path.with_name(f"{path.stem}.timing.csv")
+
+
+def columns_path(log_path: str | Path) -> Path:
+    """``flight.csv`` -> ``flight.columns`` (the rows in flight, :mod:`companion.logs.columns`)."""
+    path = Path(log_path)
+    return path.with_name(f"{path.stem}.columns")
 
 
 @dataclass(frozen=True)
@@ -232,107 +210,103 @@ def _num(value: float | None) -> str:
     return "" if value is None else repr(float(value))
 
 
-def _flag(value: bool | None) -> str:
-    return "" if value is None else ("1" if value else "0")
-
-
-def _vec(name: str, values: ArrayLike | None, n: int) -> list[str]:
+def _put(row: NDArray[np.float64], span: slice, name: str, values: ArrayLike | None) -> None:
+    """``values`` into ``row[span]`` (left NaN when None)."""
     if values is None:
-        return [""] * n
-    arr = np.asarray(values, dtype=np.float64).reshape(-1)
-    if arr.size != n:
-        raise FlightLogError(f"{name} must have {n} entries, got {arr.size}")
-    return list(map(repr, arr.tolist()))
+        return
+    try:
+        row[span] = values
+    except ValueError:
+        n = span.stop - span.start
+        got = np.asarray(values).size
+        raise FlightLogError(f"{name} must have {n} entries, got {got}") from None
 
 
-def format_row(record: CycleRecord) -> list[str]:
-    """The cells of one row, in :data:`COLUMNS` order (pure)."""
+def _value(value: float | bool | None) -> float:
+    return math.nan if value is None else float(value)
+
+
+def fill_row(row: NDArray[np.float64], record: CycleRecord, log: LogColumns) -> None:
+    """``record`` into a row of :data:`~companion.logs.columns.ROW` (pure but for the
+    text codes ``log`` hands out); ``row`` is all NaN before."""
     r = record
-    if r.theta_hat is None:
-        theta = [""] * 4
-    else:
-        theta = _vec("theta_hat", r.theta_hat, 3)
-        m2, m3 = float(theta[0]), float(theta[1])
-        theta.append(repr(m3 / m2) if m2 != 0.0 else "nan")
+    row[columns.T] = r.t_vehicle_s
+    _put(row, columns.Q, "q", r.q)
+    _put(row, columns.Q_DOT, "q_dot", r.q_dot)
+    _put(row, columns.Q_DDOT, "q_ddot", r.q_ddot)
+    _put(row, columns.Q_D, "q_d", r.q_d)
+    if r.theta_hat is not None:
+        _put(row, columns.THETA, "theta_hat", r.theta_hat)
+        m2, m3 = row[columns.THETA.start], row[columns.THETA.start + 1]
+        row[columns.LC] = m3 / m2 if m2 != 0.0 else math.nan
+    row[columns.EXCITATION] = _value(r.theta_excitation)
+    row[columns.SPREAD] = _value(r.theta_spread)
+    row[columns.CONFIDENT] = _value(r.theta_confident)
+    row[columns.FROZEN] = _value(r.theta_frozen)
+    row[columns.THRUST_SCALE] = _value(r.thrust_scale_hat)
+    _put(row, columns.TAU, "tau", r.tau)
     sp = r.setpoint
-    setpoint = (
-        [""] * 7
-        if sp is None
-        else [
-            *(_num(v) for v in (sp.roll_rad, sp.pitch_rad, sp.yaw_rad, sp.thrust_n)),
-            _num(sp.thrust_relative),
-            _flag(sp.tilt_saturated),
-            _flag(sp.thrust_saturated),
-        ]
-    )
-    return [
-        _num(r.t_vehicle_s),
-        *_vec("q", r.q, 8),
-        *_vec("q_dot", r.q_dot, 8),
-        *_vec("q_ddot", r.q_ddot, 8),
-        *_vec("q_d", r.q_d, 8),
-        *theta,
-        _num(r.theta_excitation),
-        _num(r.theta_spread),
-        _flag(r.theta_confident),
-        _flag(r.theta_frozen),
-        _num(r.thrust_scale_hat),
-        *_vec("tau", r.tau, 8),
-        *setpoint,
-        *_vec("servo_torque_cmd_n_m", r.servo_torque_cmd_n_m, 2),
-        *_vec("servo_torque_meas_n_m", r.servo_torque_meas_n_m, 2),
-        *_vec("servo_position_rad", r.servo_position_rad, 2),
-        _num(r.loop_period_ms),
-        r.px4_mode,
-        _flag(r.armed),
-        r.phase,
-        ";".join(r.faults),
-    ]
-
-
-def format_timing_row(record: CycleRecord, t_wall_s: float) -> list[str]:
-    """The cells of one timing row, in :data:`TIMING_COLUMNS` order (pure)."""
-    r = record
-    return [
-        _num(r.t_vehicle_s),
-        _num(t_wall_s),
-        _num(r.setpoint_latency_us),
-        _num(r.cycle_latency_us),
-        _num(r.setpoint_cpu_us),
-    ]
+    if sp is not None:
+        row[columns.SETPOINT] = (
+            sp.roll_rad,
+            sp.pitch_rad,
+            sp.yaw_rad,
+            sp.thrust_n,
+            sp.thrust_relative,
+            sp.tilt_saturated,
+            sp.thrust_saturated,
+        )
+    _put(row, columns.SERVO_CMD, "servo_torque_cmd_n_m", r.servo_torque_cmd_n_m)
+    _put(row, columns.SERVO_MEAS, "servo_torque_meas_n_m", r.servo_torque_meas_n_m)
+    _put(row, columns.SERVO_POS, "servo_position_rad", r.servo_position_rad)
+    row[columns.PERIOD] = _value(r.loop_period_ms)
+    row[columns.MODE] = log.code(r.px4_mode)
+    row[columns.ARMED] = _value(r.armed)
+    row[columns.PHASE] = log.code(r.phase)
+    row[columns.FAULTS] = log.code(";".join(r.faults))
+    row[columns.T_WALL] = time.time() if r.t_wall_s is None else r.t_wall_s
+    row[columns.SETPOINT_LATENCY] = _value(r.setpoint_latency_us)
+    row[columns.CYCLE_LATENCY] = _value(r.cycle_latency_us)
+    row[columns.SETPOINT_CPU] = _value(r.setpoint_cpu_us)
 
 
 class FlightLogWriter:
     """Writes ``LOG.csv``, ``LOG.events.csv`` and ``LOG.timing.csv`` (see the module
-    docstring).
+    docstring), through ``LOG.columns`` in flight.
 
     Nothing is opened in the constructor; use ``with FlightLogWriter(path) as log`` or
     :meth:`open` / :meth:`close` (idempotent). A log is never overwritten: :meth:`open`
     raises :class:`FlightLogError` if any of the files exists.
 
+    A cycle goes into the next row of :attr:`columns` (:meth:`write` from a
+    :class:`CycleRecord`, or :meth:`row` and :meth:`commit` filled directly); a full block
+    is written to ``LOG.columns`` by :meth:`flush`, in the cycle that fills it; the CSV
+    files get their rows at :meth:`close`.
+
     Parameters
     ----------
     path : str or Path
         The cycle log; its directory must exist.
-    flush_every_rows : int
-        Hand buffered rows to the OS every this many rows.
+    block_rows : int
+        Rows per block: the rows are written every this many cycles (and at each event).
     """
 
-    def __init__(self, path: str | Path, flush_every_rows: int = 250) -> None:
-        if flush_every_rows < 1:
-            raise ValueError("flush_every_rows must be at least 1")
+    def __init__(self, path: str | Path, block_rows: int = BLOCK_ROWS) -> None:
+        if block_rows < 1:
+            raise ValueError("block_rows must be at least 1")
         self.path = Path(path)
         self.events_path = events_path(self.path)
         self.timing_path = timing_path(self.path)
-        self.flush_every_rows = flush_every_rows
+        self.columns_path = columns_path(self.path)
+        self.columns = LogColumns(block_rows)
         self.rows = 0
+        """Rows written or waiting in the block."""
         self._files: list[IO[str]] = []
-        self._rows: Any = None
         self._events: Any = None
-        self._timing: Any = None
-        self._mode = ""
-        self._phase = ""
-        self._faults: frozenset[str] = frozenset()
+        self._columns_file = ColumnsFile(self.columns_path)
+        self._mode = 0.0
+        self._phase = 0.0
+        self._faults = 0.0
         self._closed = False
 
     def __enter__(self) -> FlightLogWriter:
@@ -349,6 +323,7 @@ class FlightLogWriter:
             for p in (self.path, self.events_path, self.timing_path):
                 f = open(p, "x", newline="", encoding="utf-8", buffering=1 << 20)
                 self._files.append(f)
+            self._columns_file.open()
         except FileExistsError as exc:
             self.close()
             raise FlightLogError(
@@ -357,55 +332,132 @@ class FlightLogWriter:
         except OSError as exc:
             self.close()
             raise FlightLogError(f"{exc.filename}: cannot write: {exc.strerror}") from None
-        self._rows = csv.writer(self._files[0])
         self._events = csv.writer(self._files[1])
-        self._timing = csv.writer(self._files[2])
-        self._rows.writerow(COLUMNS)
+        csv.writer(self._files[0]).writerow(COLUMNS)
         self._events.writerow(EVENT_COLUMNS)
-        self._timing.writerow(TIMING_COLUMNS)
+        csv.writer(self._files[2]).writerow(TIMING_COLUMNS)
+        for file in self._files:
+            file.flush()
 
     def write(self, record: CycleRecord) -> None:
         """Append one cycle; writes ``mode`` / ``phase`` / ``fault`` events on changes."""
-        if self._rows is None:
-            raise FlightLogError(f"{self.path}: the log is not open")
-        t_wall = time.time() if record.t_wall_s is None else record.t_wall_s
-        self._rows.writerow(format_row(record))
-        self._timing.writerow(format_timing_row(record, t_wall))
-        self.rows += 1
-        t = record.t_vehicle_s
-        if record.px4_mode != self._mode:
-            self.event("mode", f"{self._mode}->{record.px4_mode}", t)
-            self._mode = record.px4_mode
-        if record.phase != self._phase:
-            self.event("phase", f"{self._phase}->{record.phase}", t)
-            self._phase = record.phase
-        faults = frozenset(record.faults)
-        if faults != self._faults:
-            for name in sorted(faults - self._faults):
-                self.event("fault", name, t)
-            for name in sorted(self._faults - faults):
-                self.event("fault_cleared", name, t)
-            self._faults = faults
-        if self.rows % self.flush_every_rows == 0:
-            self._files[0].flush()
-            self._files[2].flush()
+        fill_row(self.row(), record, self.columns)
+        self.commit()
 
-    def event(self, kind: str, detail: str, t_vehicle_s: float) -> None:
-        """Append an event (flushed at once: events are rare and matter after a crash)."""
+    def row(self) -> NDArray[np.float64]:
+        """The row of the next cycle (all NaN), to fill and :meth:`commit`."""
         if self._events is None:
             raise FlightLogError(f"{self.path}: the log is not open")
+        return self.columns.next_row()
+
+    def code(self, text: str) -> float:
+        """The code of ``text`` in a text column of :meth:`row`."""
+        return self.columns.code(text)
+
+    def commit(self) -> None:
+        """The row from :meth:`row` is filled: write the events it brings (a changed
+        mode, phase or fault set), and the block when it is full."""
+        log = self.columns
+        self.rows += 1
+        row = log.block[log.n - 1]
+        mode, phase, faults = row[columns.MODE], row[columns.PHASE], row[columns.FAULTS]
+        if mode == self._mode and phase == self._phase and faults == self._faults:
+            if log.full:
+                self.flush()
+            return
+        t = float(row[columns.T])
+        texts = log.texts
+        if mode != self._mode:
+            self.event("mode", f"{texts[int(self._mode)]}->{texts[int(mode)]}", t)
+            self._mode = mode
+        if phase != self._phase:
+            self.event("phase", f"{texts[int(self._phase)]}->{texts[int(phase)]}", t)
+            self._phase = phase
+        if faults != self._faults:
+            old = set(filter(None, texts[int(self._faults)].split(";")))
+            new = set(filter(None, texts[int(faults)].split(";")))
+            for name in sorted(new - old):
+                self.event("fault", name, t)
+            for name in sorted(old - new):
+                self.event("fault_cleared", name, t)
+            self._faults = faults
+
+    def flush(self) -> None:
+        """Write the rows of the block and hand them to the OS."""
+        if not self._files:
+            return
+        self.write_block(self.columns.take())
+
+    def write_block(self, rows: NDArray[np.float64]) -> None:
+        """Write ``rows`` (taken from the block) to ``LOG.columns``."""
+        self._columns_file.write(rows, self.columns.texts)
+
+    def event(self, kind: str, detail: str, t_vehicle_s: float) -> None:
+        """Append an event after the rows before it (written at once: events are rare and
+        matter after a crash)."""
+        if self._events is None:
+            raise FlightLogError(f"{self.path}: the log is not open")
+        self.flush()
         self._events.writerow((_num(t_vehicle_s), kind, detail))
         self._files[1].flush()
 
     def close(self) -> None:
-        """Flush, fsync and close the files (idempotent)."""
+        """Write the block, the CSV files' rows from ``LOG.columns``, fsync, close, and
+        remove ``LOG.columns`` (idempotent)."""
         self._closed = True
         files, self._files = self._files, []
-        self._rows = self._events = self._timing = None
-        for f in files:
-            f.flush()
-            os.fsync(f.fileno())
-            f.close()
+        self._events = None
+        try:
+            if len(files) == 3 and self.columns_path.exists():
+                self.write_block(self.columns.take())
+                self._columns_file.close()
+                rows, texts, _ = read_columns(self.columns_path)
+                write_csv(rows, texts, files[0], files[2])
+        finally:
+            self._columns_file.close()
+            for f in files:
+                f.flush()
+                os.fsync(f.fileno())
+                f.close()
+        if len(files) == 3:
+            self.columns_path.unlink(missing_ok=True)
+
+
+def export_columns(path: str | Path) -> int:
+    """Write ``LOG.csv`` and ``LOG.timing.csv`` from ``LOG.columns`` (``path``), left by a
+    flight that did not close its log (a crash, a ``kill -9``, a power cut): its rows up to
+    the last block written; the number of rows. A CSV file that holds rows already is kept
+    (:class:`FlightLogError`); one with its header only (the crashed flight's) is replaced.
+    ``LOG.columns`` is kept.
+    """
+    path = Path(path)
+    log_path = path.with_suffix(".csv")
+    try:
+        rows, texts, _ = read_columns(path)
+    except ColumnsError as exc:
+        raise FlightLogError(str(exc)) from None
+    targets = (log_path, timing_path(log_path))
+    for target in targets:
+        if target.exists() and target.stat().st_size > 0:
+            with open(target, "rb") as f:
+                if len(f.read(MAX_ROW_BYTES).splitlines()) > 1:
+                    raise FlightLogError(f"{target}: holds rows already; not replaced")
+    tmp = [t.with_name(t.name + ".tmp") for t in targets]
+    try:
+        with (
+            open(tmp[0], "w", newline="", encoding="utf-8") as main,
+            open(tmp[1], "w", newline="", encoding="utf-8") as timing,
+        ):
+            csv.writer(main).writerow(COLUMNS)
+            csv.writer(timing).writerow(TIMING_COLUMNS)
+            write_csv(rows, texts, main, timing)
+        for t, target in zip(tmp, targets, strict=True):
+            fsync(t)
+            os.replace(t, target)
+    finally:
+        for t in tmp:
+            t.unlink(missing_ok=True)
+    return len(rows)
 
 
 @dataclass(frozen=True)

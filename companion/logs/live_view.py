@@ -1,49 +1,34 @@
 """Live view: the flight log's channels served to Foxglove while the mission flies.
 
 ``companion mission pickup --live PORT`` and ``sitl demo --live PORT`` start a Foxglove
-WebSocket server (foxglove-sdk, the ``live`` extra) on ``127.0.0.1:PORT`` and publish the
-channels of ``flight.mcap`` (:mod:`companion.logs.mcap_log`: the same topics, schemas and JSON
-messages, stamped with the vehicle time) to whoever connects: in Foxglove, *Open
-connection* -> ``ws://127.0.0.1:PORT``.
+WebSocket server (foxglove-sdk) on ``127.0.0.1:PORT`` on the context of the flight's MCAP
+writer (:class:`companion.logs.mcap_log.McapLogWriter`): the same channels, schemas and
+Protobuf messages as ``flight.mcap``, stamped with the vehicle time, go to the file and to
+whoever connects, from one writer. In Foxglove, *Open connection* ->
+``ws://127.0.0.1:PORT``.
 
-What it costs the control loop: a cycle's messages are encoded and handed to the SDK, which
-sends them from its own threads; cycles are published at most :data:`RATE_HZ` times per
-second of wall time (the others are skipped, the log keeps them all), events every time.
-With no client connected nothing is encoded. A client too slow for the stream loses the
-oldest messages (the SDK's per-client backlog), never the control loop's time.
+What it costs the control loop: nothing more than the log: the messages a block of cycles
+is encoded into once (:func:`~companion.logs.mcap_log.encode_block`) are handed to the SDK,
+which sends them from its own threads, a block at a time (every
+:data:`~companion.logs.flightlog.BLOCK_ROWS` cycles, 0.2 s at 125 Hz), every cycle's.
+A client too slow for the stream loses the oldest messages (the SDK's per-client backlog),
+never the control loop's time.
 """
 
 from __future__ import annotations
 
-import math
-import time
-from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from companion.logs.mcap_log import (
-    CHANNELS,
-    SCHEMAS,
-    ArmGeometry,
-    cycle_messages,
-    encode,
-    log_message,
-    schema_data,
-    time_ns,
-)
+import foxglove
 
-if TYPE_CHECKING:
-    from companion.logs.flightlog import CycleRecord
+__all__ = ["LiveView", "LiveViewError", "check_port"]
 
-__all__ = ["RATE_HZ", "LiveView", "LiveViewError", "check_port"]
-
-RATE_HZ = 30.0
-"""Most cycles published per second of wall time."""
-BACKLOG_MESSAGES = 1024
+BACKLOG_MESSAGES = 4096
 """Messages queued per client before the oldest are dropped (about 4 s of the stream)."""
 
 
 class LiveViewError(RuntimeError):
-    """The live view cannot start (foxglove-sdk missing, the port taken)."""
+    """The live view cannot start (the port taken)."""
 
 
 def check_port(port: int) -> None:
@@ -53,34 +38,18 @@ def check_port(port: int) -> None:
 
 
 class LiveView:
-    """A Foxglove WebSocket server publishing the flight log's channels; a context manager.
+    """A Foxglove WebSocket server publishing the channels of a flight log's MCAP writer
+    (its ``context``); a context manager around :meth:`open` / :meth:`close`.
 
-    ``port`` 0 takes a free port (:attr:`port` tells which once open). ``clock`` gives the
-    wall time [s] that paces the publishing (``time.monotonic``).
+    ``port`` 0 takes a free port (:attr:`port` tells which once open).
     """
 
-    def __init__(
-        self,
-        port: int,
-        geometry: ArmGeometry,
-        *,
-        host: str = "127.0.0.1",
-        rate_hz: float = RATE_HZ,
-        clock: Callable[[], float] = time.monotonic,
-    ) -> None:
+    def __init__(self, port: int, context: foxglove.Context, *, host: str = "127.0.0.1") -> None:
         check_port(port)
         self.host = host
         self.port = port
-        self.geometry = geometry
-        self.period_s = 1.0 / rate_hz
-        self.published = 0
-        """Cycles published so far."""
-        self._clock = clock
-        self._next_s = -float("inf")
+        self._context = context
         self._server: Any = None
-        self._context: Any = None
-        self._channels: dict[str, Any] = {}
-        self._last_t_s = 0.0
 
     def __enter__(self) -> LiveView:
         self.open()
@@ -94,62 +63,22 @@ class LiveView:
         return f"ws://{self.host}:{self.port}"
 
     def open(self) -> None:
-        """Start the server and advertise the channels; :class:`LiveViewError` when
-        foxglove-sdk is not installed or the port cannot be bound."""
-        try:
-            import foxglove
-        except ImportError:
-            raise LiveViewError(
-                "the live view needs foxglove-sdk: pip install 'aerial-manipulator-companion[live]'"
-            ) from None
-        context = self._context = foxglove.Context()  # the server and channels live in it
+        """Start the server (it advertises the context's channels); :class:`LiveViewError`
+        when the port cannot be bound."""
         try:
             self._server = foxglove.start_server(
                 name="aerial-manipulator companion",
                 host=self.host,
                 port=self.port,
-                context=context,
+                context=self._context,
                 message_backlog_size=BACKLOG_MESSAGES,
             )
         except RuntimeError as exc:
             raise LiveViewError(f"live view on {self.host}:{self.port}: {exc}") from None
         self.port = self._server.port
-        for topic, name in CHANNELS.items():
-            schema = foxglove.Schema(
-                name=name, encoding="jsonschema", data=schema_data(SCHEMAS[name])
-            )
-            self._channels[topic] = foxglove.Channel(
-                topic, schema=schema, message_encoding="json", context=context
-            )
-
-    def write(self, record: CycleRecord) -> None:
-        """Publish one cycle's messages, unless one was published less than a period ago
-        or no client listens."""
-        self._last_t_s = record.t_vehicle_s
-        now_s = self._clock()
-        if now_s < self._next_s or not self._channels:
-            return
-        if not self._channels["/tf"].has_sinks():
-            return
-        self._next_s = now_s + self.period_s
-        ns = time_ns(record.t_vehicle_s)
-        for topic, message in cycle_messages(record, self.geometry):
-            self._channels[topic].log(encode(message), log_time=ns)
-        self.published += 1
-
-    def event(self, kind: str, detail: str, t_vehicle_s: float) -> None:
-        """Publish an event on ``/events`` (a time not finite, as before the first pose: the
-        last cycle's)."""
-        channel = self._channels.get("/events")
-        if channel is None:
-            return
-        ns = time_ns(t_vehicle_s if math.isfinite(t_vehicle_s) else self._last_t_s)
-        channel.log(encode(log_message(kind, detail, ns)), log_time=ns)
 
     def close(self) -> None:
         """Stop the server (idempotent)."""
         server, self._server = self._server, None
-        self._channels = {}
         if server is not None:
             server.stop()
-        self._context = None

@@ -1,12 +1,16 @@
 """Flight log as MCAP: ``LOG.mcap`` beside ``LOG.csv``, for Foxglove and PlotJuggler.
 
-The same control cycles as ``LOG.csv`` (:mod:`companion.logs.flightlog`), as JSON messages
-(message encoding ``json``) under JSON schemas (schema encoding ``jsonschema``). The vehicle
-and the arm use Foxglove's well-known schemas, so that the 3D panel shows the scene as is;
-the rest are plain schemas whose field names carry their unit, as the CSV's columns do.
+The same control cycles as ``LOG.csv`` (:mod:`companion.logs.flightlog`), as Protobuf
+messages (message encoding ``protobuf``, schema encoding ``protobuf``: each schema record
+holds its ``FileDescriptorSet``). The vehicle, the arm and the events use Foxglove's
+published schemas (``foxglove.FrameTransforms``, ``foxglove.PoseInFrame``,
+``foxglove.Log``, as foxglove-sdk ships them), so that the 3D panel shows the scene as is;
+the rest are flat messages of doubles (package ``companion``) whose field names carry their
+unit, as the CSV's columns do. A value that was not available that cycle is NaN; a flag is
+0 / 1.
 
 Every message's log time and publish time is the vehicle time of its cycle (time since
-boot) [ns]; a Foxglove ``timestamp`` field in it holds the same time.
+boot) [ns]; a ``timestamp`` field in Foxglove's messages holds the same time.
 
 =================  ===========================  ==============================================
 channel            schema                       content (one message per cycle unless said)
@@ -20,33 +24,32 @@ channel            schema                       content (one message per cycle u
                                                 x axis points along its link (DESIGN.md
                                                 section 3). Cycles with a finite q only.
 ``/vehicle/pose``  ``foxglove.PoseInFrame``     the vehicle's pose in ``world``; as ``/tf``.
-``/state``         ``companion.State``          q and q_dot by name (``x_m``, ``eta1_rad``...)
-``/desired``       ``companion.Desired``        q_d by the same names
+``/state``         ``companion.State``          q and q_dot by name (``x_m``..., ``x_m_s``...)
+``/desired``       ``companion.Desired``        q_d by the names of q
 ``/setpoint``      ``companion.Setpoint``       roll, pitch, yaw [rad] (ENU / FLU), thrust [N],
                                                 PX4's relative thrust, saturation flags;
                                                 cycles that sent a setpoint only
 ``/estimate``      ``companion.Estimate``       theta_hat (m2, m3, m4, lc = m3/m2), the
                                                 confidence (excitation, spread, confident,
                                                 frozen), the thrust scale
-``/timing``        ``companion.Timing``         loop period [ms] (vehicle time); the live
-                                                view adds the wall-clock latencies [us] when
-                                                measured, the file keeps them out
+``/timing``        ``companion.Timing``         loop period [ms] (vehicle time)
 ``/events``        ``foxglove.Log``             one per event of ``LOG.events.csv``: name =
                                                 kind, message = detail; level ERROR for a
                                                 ``fault``, FATAL for a ``failure``, INFO else
 =================  ===========================  ==============================================
 
-A value that was not available that cycle (None, NaN) is ``null``. Nothing of the wall
-clock enters the file: the cycle's latencies and CPU time go to ``LOG.timing.csv``, so two
-identical flights on simulated time give the same ``LOG.mcap``, byte for byte. Simulator flights add
-``/truth`` after the flight (:mod:`sitl.truth_mcap`), through :func:`start_writer`,
-:func:`register_channel` and :func:`pose_in_frame` here.
+Nothing of the wall clock enters the file: the cycle's latencies and CPU time go to
+``LOG.timing.csv``, so two identical flights on simulated time give the same ``LOG.mcap``,
+byte for byte. Simulator flights add ``/truth`` after the flight (:mod:`sitl.truth_mcap`)
+through :func:`merge_messages`.
 
-Timing: a cycle's messages are encoded (a few tens of microseconds) into the writer's
-in-memory chunk; a full chunk (:data:`CHUNK_SIZE`) is compressed with Zstandard and handed
-to the operating system (``benchmarks/bench_mcap_log.py`` measures both). Closing writes the
-summary (channels, counts, time range) and fsyncs. A crash loses the open chunk and the
-summary; :func:`describe_mcap` still reads the chunks written before it.
+Writing: foxglove-sdk's MCAP writer (Zstandard chunks). The cycles reach it a block at a
+time (:mod:`companion.logs.columns`): :func:`encode_block` turns a block of rows into its
+messages with a few numpy operations over the whole block (the message layouts are fixed:
+every number is a double), and each block ends its chunk, handed to the operating system.
+A crash loses the block not yet written and the summary; :func:`describe_mcap` still reads
+the chunks written before it. The live view (:mod:`companion.logs.live_view`) serves the
+same channels from the same writer.
 """
 
 from __future__ import annotations
@@ -59,19 +62,21 @@ import struct
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, cast
 
+import foxglove
 import numpy as np
+from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Channel, Header, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
-from numpy.typing import ArrayLike
+from numpy.typing import NDArray
 
 from companion.config import CompanionConfig
-from companion.link.setpoint import quaternion_from_euler_zyx
-from companion.logs.flightlog import Q_NAMES, CycleRecord, FlightLogError, FlightLogWriter
+from companion.logs import columns
+from companion.logs.flightlog import BLOCK_ROWS, Q_NAMES, FlightLogError, FlightLogWriter
 from companion.user_files import UserFileError, open_regular_file
 
 __all__ = [
@@ -80,28 +85,22 @@ __all__ = [
     "SCHEMAS",
     "ArmGeometry",
     "ChannelInfo",
+    "ChannelSpec",
     "FlightLogWithMcap",
     "McapInfo",
     "McapLogWriter",
-    "cycle_messages",
     "describe_mcap",
-    "encode",
-    "frame_transforms",
+    "encode_block",
+    "json_channel",
     "log_message",
     "mcap_path",
+    "merge_messages",
     "pose_in_frame",
-    "register_channel",
-    "start_writer",
     "time_ns",
 ]
 
-CHUNK_SIZE = 64 * 1024
-"""Bytes of messages per chunk (about 40 cycles). A full chunk is indexed and compressed in
-one go, in the cycle that fills it: a small one keeps that cycle's write short (about
-0.3 ms more, measured) and loses less in a crash."""
-PROFILE = ""
-"""MCAP profile: none (JSON messages, no ROS)."""
-LIBRARY = "aerial-manipulator-companion"
+CHUNK_SIZE = 256 * 1024
+"""Most bytes of messages per chunk; a block of rows ends its chunk before that."""
 
 Q_KEYS = tuple(
     f"{n}_{u}"
@@ -118,163 +117,163 @@ LOG_LEVELS = {"fault": 4, "failure": 5}
 LOG_INFO = 2
 
 
-# -- schemas -----------------------------------------------------------------------------
+# -- Protobuf, written by hand (fixed layouts) ---------------------------------------------
 
-_TIME = {
-    "type": "object",
-    "title": "time",
-    "properties": {
-        "sec": {"type": "integer", "minimum": 0},
-        "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
-    },
+
+def _varint(value: int) -> bytes:
+    out = bytearray()
+    while value > 0x7F:
+        out.append((value & 0x7F) | 0x80)
+        value >>= 7
+    out.append(value)
+    return bytes(out)
+
+
+def _key(number: int, wire_type: int) -> bytes:
+    return _varint(number << 3 | wire_type)
+
+
+def _bytes_field(number: int, payload: bytes) -> bytes:
+    """A length-delimited field (string, bytes, message)."""
+    return _key(number, 2) + _varint(len(payload)) + payload
+
+
+def _int_field(number: int, value: int) -> bytes:
+    """A varint field (omitted at 0, as Protobuf 3 writes it)."""
+    return _key(number, 0) + _varint(value) if value else b""
+
+
+def _double_fields(names: Sequence[str]) -> list[bytes | int]:
+    """A message of doubles numbered 1, 2, ... in ``names``' order: its layout."""
+    parts: list[bytes | int] = []
+    for i in range(len(names)):
+        parts += [_key(i + 1, 1), i]
+    return parts
+
+
+def _descriptor_set(name: str, fields: Sequence[str]) -> bytes:
+    """The ``FileDescriptorSet`` of the Protobuf 3 message ``name`` (``package.Message``)
+    with one double per field, numbered 1, 2, ... (``optional`` label, type double)."""
+    package, message = name.rsplit(".", 1)
+    described = b"".join(
+        _bytes_field(
+            2,
+            _bytes_field(1, field.encode())
+            + _int_field(3, number)
+            + _int_field(4, 1)
+            + _int_field(5, 1)
+            + _bytes_field(10, field.encode()),
+        )
+        for number, field in enumerate(fields, start=1)
+    )
+    file = (
+        _bytes_field(1, f"{package}/{message}.proto".encode())
+        + _bytes_field(2, package.encode())
+        + _bytes_field(4, _bytes_field(1, message.encode()) + described)
+        + _bytes_field(12, b"proto3")
+    )
+    return _bytes_field(1, file)
+
+
+class _Layout:
+    """A message whose bytes are fixed but for its doubles: constant parts and slots
+    (``int``: a column of the values)."""
+
+    def __init__(self, parts: Sequence[bytes | int]) -> None:
+        template = bytearray()
+        slots: list[int] = []
+        order: list[int] = []
+        for part in parts:
+            if isinstance(part, int):
+                slots.extend(range(len(template), len(template) + 8))
+                order.append(part)
+                template += bytes(8)
+            else:
+                template += part
+        self.template = np.frombuffer(bytes(template), dtype=np.uint8)
+        self.width = len(template)
+        self.slots = np.array(slots, dtype=np.intp)
+        self.order = np.array(order, dtype=np.intp)
+
+    def pack(self, values: NDArray[np.float64]) -> bytes:
+        """The messages of the rows of ``values`` [n, columns], one after the other
+        (:attr:`width` bytes each)."""
+        n = len(values)
+        out = np.tile(self.template, (n, 1))
+        doubles = np.ascontiguousarray(values[:, self.order], dtype="<f8")
+        out[:, self.slots] = doubles.view(np.uint8).reshape(n, -1)
+        return out.tobytes()
+
+
+_F64 = struct.Struct("<d")
+
+
+def _vector3(x: bytes | int, y: bytes | int, z: bytes | int) -> list[bytes | int]:
+    """``foxglove.Vector3`` (x, y, z: doubles 1-3), each a slot or 8 constant bytes."""
+    return [b"\x09", x, b"\x11", y, b"\x19", z]
+
+
+def _quaternion(start: int) -> list[bytes | int]:
+    """``foxglove.Quaternion`` (x, y, z, w: doubles 1-4) from slots ``start`` .. +3."""
+    return [b"\x09", start, b"\x11", start + 1, b"\x19", start + 2, b"\x21", start + 3]
+
+
+def _constant(value: float) -> bytes:
+    return _F64.pack(value)
+
+
+_IDENTITY: list[bytes | int] = [b"\x09", _constant(0.0), b"\x11", _constant(0.0)]
+_IDENTITY += [b"\x19", _constant(0.0), b"\x21", _constant(1.0)]
+"""The unit ``foxglove.Quaternion`` (no slot)."""
+
+
+def _nested(number: int, parts: list[bytes | int]) -> list[bytes | int]:
+    """A message field of fixed size (a slot is 8 bytes)."""
+    size = sum(8 if isinstance(p, int) else len(p) for p in parts)
+    return [_key(number, 2) + _varint(size), *parts]
+
+
+def timestamp_field(ns: int) -> bytes:
+    """Field 1 holding a ``google.protobuf.Timestamp`` of ``ns`` [ns] (Foxglove's
+    ``timestamp``)."""
+    sec, nsec = divmod(ns, 1_000_000_000)
+    return _bytes_field(1, _int_field(1, sec) + _int_field(2, nsec))
+
+
+# -- schemas -------------------------------------------------------------------------------
+
+_FIELDS: dict[str, tuple[str, ...]] = {
+    "companion.State": (*Q_KEYS, *Q_DOT_KEYS),
+    "companion.Desired": Q_KEYS,
+    "companion.Setpoint": (
+        "roll_rad",
+        "pitch_rad",
+        "yaw_rad",
+        "thrust_n",
+        "thrust_rel",
+        "tilt_saturated",
+        "thrust_saturated",
+    ),
+    "companion.Estimate": (
+        *THETA_KEYS,
+        "excitation",
+        "spread",
+        "confident",
+        "frozen",
+        "thrust_scale",
+    ),
+    "companion.Timing": ("loop_period_ms",),
 }
-_VECTOR3 = {
-    "type": "object",
-    "title": "foxglove.Vector3",
-    "properties": {axis: {"type": "number"} for axis in "xyz"},
+"""The companion's messages: their double fields, in field-number order."""
+
+SCHEMAS: dict[str, bytes] = {
+    "foxglove.FrameTransforms": foxglove.messages.FrameTransforms.get_schema().data,
+    "foxglove.PoseInFrame": foxglove.messages.PoseInFrame.get_schema().data,
+    "foxglove.Log": foxglove.messages.Log.get_schema().data,
+    **{name: _descriptor_set(name, fields) for name, fields in _FIELDS.items()},
 }
-_QUATERNION = {
-    "type": "object",
-    "title": "foxglove.Quaternion",
-    "properties": {
-        "x": {"type": "number", "default": 0},
-        "y": {"type": "number", "default": 0},
-        "z": {"type": "number", "default": 0},
-        "w": {"type": "number", "default": 1},
-    },
-}
-_FRAME_TRANSFORM = {
-    "type": "object",
-    "title": "foxglove.FrameTransform",
-    "description": "A transform between two reference frames in 3D space",
-    "properties": {
-        "timestamp": {**_TIME, "description": "Timestamp of transform"},
-        "parent_frame_id": {"type": "string", "description": "Name of the parent frame"},
-        "child_frame_id": {"type": "string", "description": "Name of the child frame"},
-        "translation": {**_VECTOR3, "description": "Translation component of the transform"},
-        "rotation": {**_QUATERNION, "description": "Rotation component of the transform"},
-    },
-}
-
-
-def _foxglove(title: str, description: str, properties: dict[str, Any]) -> dict[str, Any]:
-    return {
-        "title": title,
-        "description": description,
-        "type": "object",
-        "properties": properties,
-    }
-
-
-def _plain(title: str, description: str, fields: dict[str, Any]) -> dict[str, Any]:
-    """A plain schema: a Foxglove ``timestamp`` and the given fields."""
-    return _foxglove(title, description, {"timestamp": _TIME, **fields})
-
-
-_NUMBER = {"type": ["number", "null"]}
-_FLAG = {"type": ["boolean", "null"]}
-
-
-def _numbers(keys: Iterable[str], description: str) -> dict[str, Any]:
-    return {
-        "type": "object",
-        "description": description,
-        "properties": {k: _NUMBER for k in keys},
-    }
-
-
-SCHEMAS: dict[str, dict[str, Any]] = {
-    "foxglove.FrameTransforms": _foxglove(
-        "foxglove.FrameTransforms",
-        "An array of FrameTransform messages",
-        {"transforms": {"type": "array", "items": _FRAME_TRANSFORM}},
-    ),
-    "foxglove.PoseInFrame": _foxglove(
-        "foxglove.PoseInFrame",
-        "A timestamped pose for an object or reference frame in 3D space",
-        {
-            "timestamp": {**_TIME, "description": "Timestamp of pose"},
-            "frame_id": {"type": "string", "description": "Frame of reference for pose"},
-            "pose": {
-                "type": "object",
-                "title": "foxglove.Pose",
-                "properties": {"position": _VECTOR3, "orientation": _QUATERNION},
-            },
-        },
-    ),
-    "foxglove.Log": _foxglove(
-        "foxglove.Log",
-        "A log message",
-        {
-            "timestamp": {**_TIME, "description": "Timestamp of log message"},
-            "level": {
-                "title": "foxglove.LogLevel",
-                "description": "Log level",
-                "oneOf": [
-                    {"title": name, "const": value}
-                    for value, name in enumerate(
-                        ("UNKNOWN", "DEBUG", "INFO", "WARNING", "ERROR", "FATAL")
-                    )
-                ],
-            },
-            "message": {"type": "string", "description": "Log message"},
-            "name": {"type": "string", "description": "Process or node name"},
-            "file": {"type": "string", "description": "Filename"},
-            "line": {"type": "integer", "minimum": 0, "description": "Line number in the file"},
-        },
-    ),
-    "companion.State": _plain(
-        "companion.State",
-        "Filtered q [m, rad] and q_dot [m/s, rad/s] (world ENU, body FLU, ZYX Euler)",
-        {
-            "q": _numbers(Q_KEYS, "q = [x, y, z, phi, theta, psi, eta1, eta2]"),
-            "q_dot": _numbers(Q_DOT_KEYS, "q_dot"),
-        },
-    ),
-    "companion.Desired": _plain(
-        "companion.Desired",
-        "Desired q_d [m, rad] (world ENU, body FLU, ZYX Euler)",
-        {k: _NUMBER for k in Q_KEYS},
-    ),
-    "companion.Setpoint": _plain(
-        "companion.Setpoint",
-        "Attitude setpoint sent to PX4 (ENU / FLU, ZYX Euler) and collective thrust",
-        {
-            "roll_rad": _NUMBER,
-            "pitch_rad": _NUMBER,
-            "yaw_rad": _NUMBER,
-            "thrust_n": _NUMBER,
-            "thrust_rel": {**_NUMBER, "description": "PX4's relative thrust in [0, 1]"},
-            "tilt_saturated": _FLAG,
-            "thrust_saturated": _FLAG,
-        },
-    ),
-    "companion.Estimate": _plain(
-        "companion.Estimate",
-        "Payload estimate theta_hat = (m2, m3, m4), lc = m3/m2, its confidence and the "
-        "thrust scale (true over modelled thrust)",
-        {
-            **{k: _NUMBER for k in THETA_KEYS},
-            "excitation": _NUMBER,
-            "spread": _NUMBER,
-            "confident": _FLAG,
-            "frozen": _FLAG,
-            "thrust_scale": _NUMBER,
-        },
-    ),
-    "companion.Timing": _plain(
-        "companion.Timing",
-        "Vehicle time since the previous cycle [ms]; in the live view also the wall-clock "
-        "latencies [us] when measured (a flight log keeps them in LOG.timing.csv)",
-        {
-            "loop_period_ms": _NUMBER,
-            "setpoint_latency_us": _NUMBER,
-            "cycle_latency_us": _NUMBER,
-            "setpoint_cpu_us": _NUMBER,
-        },
-    ),
-}
-"""Every schema the companion writes, by name (Foxglove's as published, JSON flavour)."""
+"""Every schema the companion writes, by name: its ``FileDescriptorSet`` (Foxglove's as
+foxglove-sdk publishes them)."""
 
 CHANNELS: dict[str, str] = {
     "/tf": "foxglove.FrameTransforms",
@@ -287,6 +286,24 @@ CHANNELS: dict[str, str] = {
     "/events": "foxglove.Log",
 }
 """Topic -> schema name of every channel the companion writes, in registration order."""
+
+_STATE = _Layout(_double_fields(_FIELDS["companion.State"]))
+_DESIRED = _Layout(_double_fields(Q_KEYS))
+_SETPOINT = _Layout(_double_fields(_FIELDS["companion.Setpoint"]))
+_ESTIMATE = _Layout(_double_fields(_FIELDS["companion.Estimate"]))
+_TIMING = _Layout(_double_fields(_FIELDS["companion.Timing"]))
+_STATE_COLUMNS = np.r_[columns.Q, columns.Q_DOT]
+_ESTIMATE_COLUMNS = np.r_[
+    columns.THETA,
+    columns.LC,
+    columns.EXCITATION,
+    columns.SPREAD,
+    columns.CONFIDENT,
+    columns.FROZEN,
+    columns.THRUST_SCALE,
+]
+_SENT = columns.SETPOINT.start + 5
+"""A setpoint's flag column: NaN on cycles that sent none."""
 
 
 # -- conversions (pure) ------------------------------------------------------------------
@@ -321,196 +338,158 @@ def time_ns(t_s: float) -> int:
     return round(t_s * 1e9)
 
 
-def _stamp(ns: int) -> dict[str, int]:
-    sec, nsec = divmod(ns, 1_000_000_000)
-    return {"sec": sec, "nsec": nsec}
-
-
-def _xyzw(q_wxyz: Sequence[float]) -> dict[str, float]:
-    w, x, y, z = q_wxyz
-    return {"x": x, "y": y, "z": z, "w": w}
-
-
-def _transform(
-    stamp: dict[str, int],
-    parent: str,
-    child: str,
-    translation: Sequence[float],
-    rotation: dict[str, float],
-) -> dict[str, Any]:
-    x, y, z = translation
-    return {
-        "timestamp": stamp,
-        "parent_frame_id": parent,
-        "child_frame_id": child,
-        "translation": {"x": x, "y": y, "z": z},
-        "rotation": rotation,
-    }
-
-
-_IDENTITY = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
-
-
-def frame_transforms(q: Sequence[float], geometry: ArmGeometry, ns: int) -> dict[str, Any]:
-    """``foxglove.FrameTransforms`` of the vehicle and the arm at q (see the module table).
-
-    A joint angle eta about body y turns its link's x axis to (cos eta, 0, sin eta): a
-    rotation by -eta about y (R_y(a) turns x to (cos a, 0, -sin a)).
-    """
-    x, y, z, phi, theta, psi, eta1, eta2 = q
-    stamp = _stamp(ns)
-    return {
-        "transforms": [
-            _transform(
-                stamp,
-                "world",
-                "base_link",
-                (x, y, z),
-                _xyzw(quaternion_from_euler_zyx(phi, theta, psi)),
-            ),
-            _transform(
-                stamp,
-                "base_link",
-                "link1",
-                geometry.mount_point_m,
-                _xyzw(quaternion_from_euler_zyx(0.0, -eta1, 0.0)),
-            ),
-            _transform(
-                stamp,
-                "link1",
-                "link2",
-                (geometry.link1_length_m, 0.0, 0.0),
-                _xyzw(quaternion_from_euler_zyx(0.0, -eta2, 0.0)),
-            ),
-            _transform(stamp, "link2", "gripper", (geometry.link2_length_m, 0.0, 0.0), _IDENTITY),
-        ]
-    }
-
-
-def pose_in_frame(q: Sequence[float], ns: int, frame_id: str = "world") -> dict[str, Any]:
-    """``foxglove.PoseInFrame`` of the vehicle at q (position, ZYX attitude; ENU / FLU)."""
-    x, y, z, phi, theta, psi = q[:6]
-    return {
-        "timestamp": _stamp(ns),
-        "frame_id": frame_id,
-        "pose": {
-            "position": {"x": x, "y": y, "z": z},
-            "orientation": _xyzw(quaternion_from_euler_zyx(phi, theta, psi)),
-        },
-    }
-
-
-def _value(v: float | None) -> float | None:
-    if v is None:
-        return None
-    f = float(v)
-    return f if math.isfinite(f) else None
-
-
-def _flag(v: bool | None) -> bool | None:
-    return None if v is None else bool(v)
-
-
-def _floats(values: ArrayLike | None, n: int) -> list[float] | None:
-    if values is None:
-        return None
-    out = np.asarray(values, dtype=np.float64).reshape(-1).tolist()
-    if len(out) != n:
-        raise FlightLogError(f"expected {n} values, got {len(out)}")
-    return out
-
-
-def _named(keys: Sequence[str], values: list[float] | None) -> dict[str, float | None]:
-    if values is None:
-        return dict.fromkeys(keys)
-    return {k: (v if math.isfinite(v) else None) for k, v in zip(keys, values, strict=True)}
-
-
-def cycle_messages(
-    record: CycleRecord, geometry: ArmGeometry, *, wall_clock: bool = True
-) -> list[tuple[str, dict]]:
-    """(topic, message) of one control cycle, in :data:`CHANNELS` order (pure); without
-    ``wall_clock`` ``/timing`` holds the loop period only (the file's)."""
-    r = record
-    ns = time_ns(r.t_vehicle_s)
-    stamp = _stamp(ns)
-    out: list[tuple[str, dict]] = []
-    q = _floats(r.q, len(Q_KEYS))
-    if q is not None and all(math.isfinite(v) for v in q):
-        out.append(("/tf", frame_transforms(q, geometry, ns)))
-        out.append(("/vehicle/pose", pose_in_frame(q, ns)))
-    out.append(
+def _quaternions(phi: NDArray, theta: NDArray, psi: NDArray) -> NDArray[np.float64]:
+    """Quaternions [n, (x, y, z, w)] of R = Rz(psi) Ry(theta) Rx(phi) [rad], as
+    :func:`companion.link.setpoint.quaternion_from_euler_zyx` over arrays."""
+    cr, sr = np.cos(0.5 * phi), np.sin(0.5 * phi)
+    cp, sp = np.cos(0.5 * theta), np.sin(0.5 * theta)
+    cy, sy = np.cos(0.5 * psi), np.sin(0.5 * psi)
+    return np.column_stack(
         (
-            "/state",
-            {
-                "timestamp": stamp,
-                "q": _named(Q_KEYS, q),
-                "q_dot": _named(Q_DOT_KEYS, _floats(r.q_dot, len(Q_KEYS))),
-            },
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+            cr * cp * cy + sr * sp * sy,
         )
     )
-    out.append(("/desired", {"timestamp": stamp, **_named(Q_KEYS, _floats(r.q_d, len(Q_KEYS)))}))
-    sp = r.setpoint
-    if sp is not None:
-        out.append(
+
+
+def _frame(
+    parent: str, child: str, translation: list[bytes | int], rotation: list[bytes | int]
+) -> list[bytes | int]:
+    """A ``foxglove.FrameTransform`` after its timestamp: frames, translation, rotation."""
+    return [
+        _bytes_field(2, parent.encode()),
+        _bytes_field(3, child.encode()),
+        *_nested(4, translation),
+        *_nested(5, rotation),
+    ]
+
+
+_POSE = _Layout(
+    [
+        _bytes_field(2, b"world"),
+        *_nested(3, [*_nested(1, _vector3(0, 1, 2)), *_nested(2, _quaternion(3))]),
+    ]
+)
+"""``foxglove.PoseInFrame`` after its timestamp, from the slots of :class:`_Transforms`."""
+
+
+class _Transforms:
+    """``/tf`` and ``/vehicle/pose`` of a block (see the module table). A joint angle eta
+    about body y turns its link's x axis to (cos eta, 0, sin eta): a rotation by -eta about
+    y. Slots: base position (0-2), base attitude (3-6), link 1's (7-10), link 2's (11-14)."""
+
+    def __init__(self, geometry: ArmGeometry) -> None:
+        mx, my, mz = (_constant(v) for v in geometry.mount_point_m)
+        zero = _constant(0.0)
+        frames = [
+            _frame("world", "base_link", _vector3(0, 1, 2), _quaternion(3)),
+            _frame("base_link", "link1", _vector3(mx, my, mz), _quaternion(7)),
+            _frame("link1", "link2", _vector3(_constant(geometry.link1_length_m), zero, zero),
+                   _quaternion(11)),
+            _frame("link2", "gripper", _vector3(_constant(geometry.link2_length_m), zero, zero),
+                   _IDENTITY),
+        ]  # fmt: skip
+        self.tails = [_Layout(parts) for parts in frames]
+        self._heads: dict[int, list[bytes]] = {}
+
+    def heads(self, stamp: int) -> list[bytes]:
+        """The field header of each transform whose timestamp field is ``stamp`` bytes."""
+        heads = self._heads.get(stamp)
+        if heads is None:
+            heads = self._heads[stamp] = [
+                _key(1, 2) + _varint(stamp + tail.width) for tail in self.tails
+            ]
+        return heads
+
+    @staticmethod
+    def values(rows: NDArray[np.float64]) -> NDArray[np.float64]:
+        q = rows[:, columns.Q]
+        zero = np.zeros(len(rows))
+        return np.column_stack(
             (
-                "/setpoint",
-                {
-                    "timestamp": stamp,
-                    "roll_rad": _value(sp.roll_rad),
-                    "pitch_rad": _value(sp.pitch_rad),
-                    "yaw_rad": _value(sp.yaw_rad),
-                    "thrust_n": _value(sp.thrust_n),
-                    "thrust_rel": _value(sp.thrust_relative),
-                    "tilt_saturated": bool(sp.tilt_saturated),
-                    "thrust_saturated": bool(sp.thrust_saturated),
-                },
+                q[:, :3],
+                _quaternions(q[:, 3], q[:, 4], q[:, 5]),
+                _quaternions(zero, -q[:, 6], zero),
+                _quaternions(zero, -q[:, 7], zero),
             )
         )
-    if r.theta_hat is None:
-        theta = dict.fromkeys(THETA_KEYS)
-    else:
-        m2, m3, m4 = np.asarray(r.theta_hat, dtype=np.float64).reshape(3).tolist()
-        theta = {
-            "m2_kg": _value(m2),
-            "m3_kg_m": _value(m3),
-            "m4_kg_m2": _value(m4),
-            "lc_m": _value(m3 / m2) if m2 != 0.0 else None,
-        }
-    out.append(
-        (
-            "/estimate",
-            {
-                "timestamp": stamp,
-                **theta,
-                "excitation": _value(r.theta_excitation),
-                "spread": _value(r.theta_spread),
-                "confident": _flag(r.theta_confident),
-                "frozen": _flag(r.theta_frozen),
-                "thrust_scale": _value(r.thrust_scale_hat),
-            },
-        )
-    )
-    timing: dict[str, Any] = {"timestamp": stamp, "loop_period_ms": _value(r.loop_period_ms)}
-    if wall_clock:
-        for key in ("setpoint_latency_us", "cycle_latency_us", "setpoint_cpu_us"):
-            value = _value(getattr(r, key))
-            if value is not None:
-                timing[key] = value
-    out.append(("/timing", timing))
+
+
+def encode_block(
+    rows: NDArray[np.float64], transforms: _Transforms
+) -> list[tuple[str, int, bytes]]:
+    """(topic, log time [ns], message) of the cycles in ``rows`` (rows of
+    :data:`companion.logs.columns.ROW`), in time order and :data:`CHANNELS` order within a
+    cycle (pure)."""
+    n = len(rows)
+    if n == 0:
+        return []
+    times = [time_ns(t) for t in rows[:, columns.T].tolist()]
+    flown = cast(list[bool], np.isfinite(rows[:, columns.Q]).all(axis=1).tolist())
+    sent = cast(list[bool], np.isfinite(rows[:, _SENT]).tolist())
+    values = transforms.values(rows)
+    tails = [layout.pack(values) for layout in transforms.tails]
+    widths = [layout.width for layout in transforms.tails]
+    pose, pose_width = _POSE.pack(values), _POSE.width
+    state, state_width = _STATE.pack(rows[:, _STATE_COLUMNS]), _STATE.width
+    desired, desired_width = _DESIRED.pack(rows[:, columns.Q_D]), _DESIRED.width
+    setpoint, setpoint_width = _SETPOINT.pack(rows[:, columns.SETPOINT]), _SETPOINT.width
+    estimate, estimate_width = _ESTIMATE.pack(rows[:, _ESTIMATE_COLUMNS]), _ESTIMATE.width
+    timing, timing_width = _TIMING.pack(rows[:, [columns.PERIOD]]), _TIMING.width
+    out: list[tuple[str, int, bytes]] = []
+    for k, ns in enumerate(times):
+        if flown[k]:
+            stamp = timestamp_field(ns)
+            heads = transforms.heads(len(stamp))
+            parts: list[bytes] = []
+            for head, tail, width in zip(heads, tails, widths, strict=True):
+                parts += (head, stamp, tail[k * width : (k + 1) * width])
+            out.append(("/tf", ns, b"".join(parts)))
+            out.append(("/vehicle/pose", ns, stamp + pose[k * pose_width : (k + 1) * pose_width]))
+        out.append(("/state", ns, state[k * state_width : (k + 1) * state_width]))
+        out.append(("/desired", ns, desired[k * desired_width : (k + 1) * desired_width]))
+        if sent[k]:
+            out.append(("/setpoint", ns, setpoint[k * setpoint_width : (k + 1) * setpoint_width]))
+        out.append(("/estimate", ns, estimate[k * estimate_width : (k + 1) * estimate_width]))
+        out.append(("/timing", ns, timing[k * timing_width : (k + 1) * timing_width]))
     return out
 
 
-def log_message(kind: str, detail: str, ns: int) -> dict[str, Any]:
-    """``foxglove.Log`` of one event (see :data:`LOG_LEVELS`)."""
-    return {
-        "timestamp": _stamp(ns),
-        "level": LOG_LEVELS.get(kind, LOG_INFO),
-        "message": detail,
-        "name": kind,
-        "file": "",
-        "line": 0,
-    }
+def pose_in_frame(q: Sequence[float], ns: int) -> bytes:
+    """``foxglove.PoseInFrame`` in ``world`` of the vehicle at q (8 entries: position, ZYX
+    attitude; ENU / FLU) at ``ns`` [ns], Protobuf-encoded."""
+    rows = np.full((1, columns.WIDTH), math.nan)
+    rows[0, columns.Q] = q
+    return timestamp_field(ns) + _POSE.pack(_Transforms.values(rows))
+
+
+def log_message(kind: str, detail: str, ns: int) -> bytes:
+    """``foxglove.Log`` of one event at ``ns`` [ns] (see :data:`LOG_LEVELS`),
+    Protobuf-encoded."""
+    return (
+        timestamp_field(ns)
+        + _int_field(2, LOG_LEVELS.get(kind, LOG_INFO))
+        + (_bytes_field(3, detail.encode()) if detail else b"")
+        + (_bytes_field(4, kind.encode()) if kind else b"")
+    )
+
+
+# -- writing -----------------------------------------------------------------------------
+
+ChannelSpec = tuple[str, str, bytes, str]
+"""A channel's (schema name, schema encoding, schema data, message encoding)."""
+
+
+def json_channel(name: str, schema: dict[str, Any]) -> ChannelSpec:
+    """A channel of JSON messages under the JSON schema ``schema`` named ``name``."""
+    return name, "jsonschema", json.dumps(schema, indent=1).encode("utf-8"), "json"
+
+
+def protobuf_channel(name: str) -> ChannelSpec:
+    """A channel of Protobuf messages under :data:`SCHEMAS`' ``name``."""
+    return name, "protobuf", SCHEMAS[name], "protobuf"
 
 
 _ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False, ensure_ascii=False)
@@ -521,47 +500,15 @@ def encode(message: dict[str, Any]) -> bytes:
     return _ENCODER.encode(message).encode("utf-8")
 
 
-# -- writing -----------------------------------------------------------------------------
-
-
-def start_writer(stream: IO[bytes]) -> Writer:
-    """An MCAP writer on ``stream``, started (Zstandard chunks of :data:`CHUNK_SIZE`)."""
-    writer = Writer(stream, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
-    writer.start(profile=PROFILE, library=LIBRARY)
-    return writer
-
-
-def schema_data(schema: dict[str, Any]) -> bytes:
-    """A JSON schema as the bytes a channel's schema record carries."""
-    return json.dumps(schema, indent=1).encode("utf-8")
-
-
-def register_channel(
-    writer: Writer,
-    topic: str,
-    schema_name: str,
-    schema: dict[str, Any],
-    schema_ids: dict[str, int],
-) -> int:
-    """Register ``topic`` under ``schema_name`` (the schema once per writer, remembered in
-    ``schema_ids``); the channel id."""
-    schema_id = schema_ids.get(schema_name)
-    if schema_id is None:
-        data = schema_data(schema)
-        schema_id = writer.register_schema(name=schema_name, encoding="jsonschema", data=data)
-        schema_ids[schema_name] = schema_id
-    return writer.register_channel(topic=topic, message_encoding="json", schema_id=schema_id)
-
-
 def merge_messages(
     mcap_path: str | Path,
-    channels: dict[str, tuple[str, dict[str, Any]]],
+    channels: dict[str, ChannelSpec],
     messages: Iterable[tuple[int, str, bytes]],
 ) -> int:
-    """Rewrite the closed log ``mcap_path`` with new ``channels`` (topic -> (schema name,
-    JSON schema)) and their ``messages`` ((log time [ns], topic, JSON bytes), in time
-    order) merged in time order with what it holds; the number of messages added. The
-    file is replaced in one step (a crash leaves the old one).
+    """Rewrite the closed log ``mcap_path`` with new ``channels`` (topic -> its spec) and
+    their ``messages`` ((log time [ns], topic, encoded message), in time order) merged in
+    time order with what it holds; the number of messages added. The file is replaced in
+    one step (a crash leaves the old one).
 
     Raises ``ValueError`` if the log has no summary or already has one of the channels.
     """
@@ -576,6 +523,7 @@ def merge_messages(
         try:
             reader = make_reader(src)
             summary = reader.get_summary()
+            library = reader.get_header().library
         except McapError as exc:
             raise ValueError(f"{mcap_path}: not a readable MCAP log ({exc})") from None
         if summary is None:
@@ -585,18 +533,23 @@ def merge_messages(
             raise ValueError(f"{mcap_path}: holds {', '.join(present)} already")
         with open(tmp, "xb") as dst:
             try:
-                writer = start_writer(dst)
-                schema_ids: dict[str, int] = {}
+                writer = Writer(dst, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+                writer.start(profile=reader.get_header().profile, library=library)
+                schema_ids: dict[tuple[str, str, bytes], int] = {}
+
+                def register(topic: str, spec: ChannelSpec) -> int:
+                    name, encoding, data, message_encoding = spec
+                    key = (name, encoding, data)
+                    if key not in schema_ids:
+                        schema_ids[key] = writer.register_schema(name, encoding, data)
+                    return writer.register_channel(topic, message_encoding, schema_ids[key])
+
                 ids: dict[int, int] = {}
                 for cid, channel in sorted(summary.channels.items()):
                     schema = summary.schemas[channel.schema_id]
-                    ids[cid] = register_channel(
-                        writer, channel.topic, schema.name, json.loads(schema.data), schema_ids
-                    )
-                new_ids = {
-                    topic: register_channel(writer, topic, name, schema, schema_ids)
-                    for topic, (name, schema) in channels.items()
-                }
+                    spec = (schema.name, schema.encoding, schema.data, channel.message_encoding)
+                    ids[cid] = register(channel.topic, spec)
+                new_ids = {topic: register(topic, spec) for topic, spec in channels.items()}
                 old = (
                     (m.log_time, 0, ids[m.channel_id], m.data, m.publish_time, m.sequence)
                     for _, _, m in reader.iter_messages(log_time_order=False)
@@ -624,21 +577,22 @@ def merge_messages(
 
 
 class McapLogWriter:
-    """Writes ``LOG.mcap`` (see the module docstring): :meth:`write` one cycle,
-    :meth:`event` one event.
+    """Writes ``LOG.mcap`` (see the module docstring) with foxglove-sdk's writer:
+    :meth:`write_block` the cycles of a block, :meth:`event` one event.
 
     Nothing is opened in the constructor; use ``with McapLogWriter(path, geometry)`` or
-    :meth:`open` / :meth:`close` (idempotent). The file is never overwritten.
+    :meth:`open` / :meth:`close` (idempotent). The file is never overwritten. Once open,
+    :attr:`context` holds the channels: a live view started on it serves them too.
     """
 
     def __init__(self, path: str | Path, geometry: ArmGeometry) -> None:
         self.path = Path(path)
         self.geometry = geometry
         self.messages = 0
-        self._file: IO[bytes] | None = None
-        self._writer: Writer | None = None
-        self._channels: dict[str, int] = {}
-        self._sequence: dict[str, int] = {}
+        self.context: foxglove.Context | None = None
+        self._writer: Any = None
+        self._channels: dict[str, foxglove.Channel] = {}
+        self._transforms = _Transforms(geometry)
         self._last_ns = 0
         self._closed = False
 
@@ -650,10 +604,10 @@ class McapLogWriter:
         self.close()
 
     def open(self) -> None:
-        if self._file is not None or self._closed:
+        if self.context is not None or self._closed:
             raise FlightLogError(f"{self.path}: an McapLogWriter opens once")
         try:
-            self._file = open(self.path, "xb")
+            open(self.path, "xb").close()  # claims the name: never overwrite a log
         except FileExistsError:
             self._closed = True
             raise FlightLogError(
@@ -662,29 +616,30 @@ class McapLogWriter:
         except OSError as exc:
             self._closed = True
             raise FlightLogError(f"{self.path}: cannot write: {exc.strerror}") from None
-        self._writer = start_writer(self._file)
-        schema_ids: dict[str, int] = {}
+        context = self.context = foxglove.Context()
+        options = MCAPWriteOptions(compression=MCAPCompression.Zstd, chunk_size=CHUNK_SIZE)
+        self._writer = foxglove.open_mcap(
+            self.path, allow_overwrite=True, context=context, writer_options=options
+        )
         for topic, name in CHANNELS.items():
-            self._channels[topic] = register_channel(
-                self._writer, topic, name, SCHEMAS[name], schema_ids
+            schema = foxglove.Schema(name=name, encoding="protobuf", data=SCHEMAS[name])
+            self._channels[topic] = foxglove.Channel(
+                topic, schema=schema, message_encoding="protobuf", context=context
             )
-            self._sequence[topic] = 0
 
-    def _add(self, topic: str, ns: int, message: dict[str, Any]) -> None:
-        assert self._writer is not None
-        sequence = self._sequence[topic]
-        self._sequence[topic] = sequence + 1
-        self._writer.add_message(self._channels[topic], ns, encode(message), ns, sequence)
-        self.messages += 1
-
-    def write(self, record: CycleRecord) -> None:
-        """Append one cycle's messages."""
+    def write_block(self, rows: NDArray[np.float64]) -> None:
+        """Write the cycles of ``rows`` (rows of :data:`companion.logs.columns.ROW`) and end
+        the chunk (handed to the operating system)."""
         if self._writer is None:
             raise FlightLogError(f"{self.path}: the log is not open")
-        ns = time_ns(record.t_vehicle_s)
-        for topic, message in cycle_messages(record, self.geometry, wall_clock=False):
-            self._add(topic, ns, message)
-        self._last_ns = ns
+        channels = self._channels
+        messages = encode_block(rows, self._transforms)
+        for topic, ns, data in messages:
+            channels[topic].log(data, log_time=ns)
+        if messages:
+            self._last_ns = messages[-1][1]
+            self.messages += len(messages)
+        self._writer.flush()
 
     def event(self, kind: str, detail: str, t_vehicle_s: float) -> None:
         """Append an event as a ``foxglove.Log`` message on ``/events``. An event before
@@ -694,36 +649,38 @@ class McapLogWriter:
             raise FlightLogError(f"{self.path}: the log is not open")
         ns = time_ns(t_vehicle_s) if math.isfinite(t_vehicle_s) else self._last_ns
         self._last_ns = ns
-        self._add("/events", ns, log_message(kind, detail, ns))
+        self._channels["/events"].log(log_message(kind, detail, ns), log_time=ns)
+        self.messages += 1
+        self._writer.flush()
 
     def close(self) -> None:
         """Write the summary, fsync and close (idempotent)."""
         self._closed = True
         writer, self._writer = self._writer, None
-        f, self._file = self._file, None
-        if f is None:
+        self._channels = {}
+        self.context = None
+        if writer is None:
             return
+        writer.close()
+        fd = os.open(self.path, os.O_RDONLY)
         try:
-            if writer is not None:
-                writer.finish()
-            f.flush()
-            os.fsync(f.fileno())
+            os.fsync(fd)
         finally:
-            f.close()
+            os.close(fd)
 
 
 class FlightLogWithMcap(FlightLogWriter):
     """:class:`~companion.logs.flightlog.FlightLogWriter` that also writes ``LOG.mcap``: every
-    cycle and every event (the ones it derives from the cycles too) go to both files.
+    block of cycles and every event (the ones it derives from the cycles too) go to both.
 
     Opens the MCAP after the CSV files (and closes it after them); a file of either that
     exists stops the open, as for the CSV alone.
     """
 
     def __init__(
-        self, path: str | Path, geometry: ArmGeometry, flush_every_rows: int = 250
+        self, path: str | Path, geometry: ArmGeometry, block_rows: int = BLOCK_ROWS
     ) -> None:
-        super().__init__(path, flush_every_rows)
+        super().__init__(path, block_rows)
         self.mcap = McapLogWriter(mcap_path(self.path), geometry)
 
     def open(self) -> None:
@@ -736,9 +693,20 @@ class FlightLogWithMcap(FlightLogWriter):
             super().close()
             raise
 
-    def write(self, record: CycleRecord) -> None:
-        super().write(record)
-        self.mcap.write(record)
+    def commit(self) -> None:
+        """As :meth:`FlightLogWriter.commit`; a row whose vehicle time is no time since boot
+        (negative, not finite) is refused and left out."""
+        log = self.columns
+        t = float(log.block[log.n - 1, columns.T])
+        if not (math.isfinite(t) and t >= 0.0):
+            log.n -= 1
+            log.block[log.n] = math.nan
+            time_ns(t)
+        super().commit()
+
+    def write_block(self, rows: NDArray[np.float64]) -> None:
+        super().write_block(rows)
+        self.mcap.write_block(rows)
 
     def event(self, kind: str, detail: str, t_vehicle_s: float) -> None:
         super().event(kind, detail, t_vehicle_s)

@@ -31,7 +31,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from companion.logs.mcap_log import encode, merge_messages
+from companion.logs.mcap_log import ChannelSpec, encode, json_channel, merge_messages
 from companion.user_files import UserFileError, check_regular_file, open_regular_file
 
 __all__ = ["PX4_TOPICS", "UlogError", "add_ulog", "ulog_channels"]
@@ -114,10 +114,10 @@ def _read(ulog_path: Path) -> dict[str, dict[str, Any]]:
     return logged
 
 
-def ulog_channels(logged: dict[str, dict[str, Any]]) -> dict[str, tuple[str, dict[str, Any]]]:
-    """Channel -> (schema name, JSON schema) of the logged topics."""
+def ulog_channels(logged: dict[str, dict[str, Any]]) -> dict[str, ChannelSpec]:
+    """Channel -> its JSON channel (schema name ``px4.TOPIC``) of the logged topics."""
     return {
-        f"/px4/{topic}": (f"px4.{topic}", _schema(topic, PX4_TOPICS[topic]))
+        f"/px4/{topic}": json_channel(f"px4.{topic}", _schema(topic, PX4_TOPICS[topic]))
         for topic in PX4_TOPICS
         if topic in logged
     }
