@@ -71,9 +71,9 @@ def record(cycles: int) -> dict[str, np.ndarray]:
 
     run = ControlCycle.run
 
-    def cycle_run(self, pose, received, received_cpu):
+    def cycle_run(self, pose, received, received_cpu, received_process):
         rows.append(_blank())
-        out = run(self, pose, received, received_cpu)
+        out = run(self, pose, received, received_cpu, received_process)
         rows[-1]["phase"] = self.mission.phase.value if self.offboard.flying else ""
         return out
 

@@ -464,6 +464,7 @@ class PickupApp:
                 pose = await poses.get()
                 received = time.perf_counter()
                 received_cpu = time.thread_time()
+                received_process = time.process_time()
                 dropped = poses.dropped - self.report.poses_dropped
                 self.report.poses_dropped = poses.dropped
                 late = self.loop_period.late_cycles
@@ -471,7 +472,7 @@ class PickupApp:
                     self.cycle.collecting = gc.isenabled()
                     gc.disable()  # _cycle enables it again once the setpoint is sent
                     try:
-                        self.cycle.run(pose, received, received_cpu)
+                        self.cycle.run(pose, received, received_cpu, received_process)
                     finally:
                         if self.cycle.collecting:
                             gc.enable()

@@ -295,9 +295,12 @@ class ControlCycle:
             f"to {ms(gap.socket_wait_s)} in the socket)",
         )
 
-    def run(self, pose: VehiclePose, received: float, received_cpu: float) -> None:
+    def run(
+        self, pose: VehiclePose, received: float, received_cpu: float, received_process: float
+    ) -> None:
         """One control cycle on a new pose (see the module docstring), taken off the link
-        at ``received`` (perf_counter) and ``received_cpu`` (thread_time) [s]."""
+        at ``received`` (perf_counter), ``received_cpu`` (thread_time) and
+        ``received_process`` (process_time) [s]."""
         if pose.time_usec <= self._t_us:
             return
         self._t_us = pose.time_usec
@@ -364,6 +367,7 @@ class ControlCycle:
         phase = command.phase.value if command else self.offboard.stream.value
         timing = (dt * 1e3, setpoint_us, cycle_us, setpoint_cpu_us)
         self._log_row(t_s, state, out, sp, joints, phase, tau_cmd, timing)
+        self.report.cycle_cpu_us.append((time.process_time() - received_process) * 1e6)
 
     def _setpoints(
         self, q: FloatArray, out: ControlOutput, desired: DesiredState

@@ -73,6 +73,9 @@ class MissionReport:
     setpoint_cpu_us: list[float] = field(default_factory=list)
     """The control thread's CPU time over the same span [us] (the rest: waiting for a
     core)."""
+    cycle_cpu_us: list[float] = field(default_factory=list)
+    """The process's CPU time from the pose taken from the link to the cycle's log row
+    written, per cycle that logged one [us]: every thread (the log's writer included)."""
     scheduling: str | None = None
     """The control thread's scheduling over the mission: ``SCHED_FIFO 50``, ``normal``."""
     cpu_share: float | None = None
@@ -128,6 +131,7 @@ class MissionReport:
             "cycle_latency_us": _percentiles(self.cycle_latency_us),
             "setpoint_latency_us": _percentiles(self.setpoint_latency_us),
             "setpoint_cpu_us": _percentiles(self.setpoint_cpu_us),
+            "cycle_cpu_us": _percentiles(self.cycle_cpu_us),
             "scheduling": self.scheduling,
             "cpu_share_of_one_core": self.cpu_share,
             "link_messages_per_s": self.link_messages_per_s,
