@@ -307,7 +307,7 @@ LiveOpt = Annotated[
         metavar="PORT",
         help="Serve the flight log's channels live to Foxglove on ws://127.0.0.1:PORT "
         "(8765 is Foxglove's default; 0: any free port), every cycle, a block of "
-        "cycles at a time (0.2 s at 125 Hz).",
+        "cycles at a time (80 ms at 125 Hz).",
     ),
 ]
 

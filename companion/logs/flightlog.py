@@ -61,7 +61,7 @@ Writing and crashes
 -------------------
 A control cycle formats nothing: it writes its numbers into the next row of a
 preallocated block of columns (:mod:`companion.logs.columns`: float64, flags 0 / 1, text
-as codes). Every :data:`BLOCK_ROWS` rows (0.2 s at 125 Hz), in the cycle that fills the
+as codes). Every :data:`BLOCK_ROWS` rows (80 ms at 125 Hz), in the cycle that fills the
 block, and before each event, the block goes in one write to ``LOG.columns`` (binary, in
 the way of PX4's ULog) and is handed to the operating system (no fsync); events go to
 ``LOG.events.csv`` at once. :meth:`FlightLogWriter.close` writes the last block, then the
@@ -123,8 +123,8 @@ TEXT_COLUMNS = columns.TEXT_COLUMNS
 COLUMNS = columns.COLUMNS
 TIMING_COLUMNS = columns.TIMING_COLUMNS
 EVENT_COLUMNS = ("t_vehicle_s", "kind", "detail")
-BLOCK_ROWS = 25
-"""Rows per block (0.2 s at 125 Hz): what a crash can lose at most."""
+BLOCK_ROWS = 10
+"""Rows per block (80 ms at 125 Hz): what a crash can lose at most."""
 
 
 class FlightLogError(Exception):

@@ -10,7 +10,7 @@ whoever connects, from one writer. In Foxglove, *Open connection* ->
 What it costs the control loop: nothing more than the log: the messages a block of cycles
 is encoded into once (:func:`~companion.logs.mcap_log.encode_block`) are handed to the SDK,
 which sends them from its own threads, a block at a time (every
-:data:`~companion.logs.flightlog.BLOCK_ROWS` cycles, 0.2 s at 125 Hz), every cycle's.
+:data:`~companion.logs.flightlog.BLOCK_ROWS` cycles, 80 ms at 125 Hz), every cycle's.
 A client too slow for the stream loses the oldest messages (the SDK's per-client backlog),
 never the control loop's time.
 """

@@ -43,7 +43,8 @@ Nothing of the wall clock enters the file: the cycle's latencies and CPU time go
 byte for byte. Simulator flights add ``/truth`` after the flight (:mod:`sitl.truth_mcap`)
 through :func:`merge_messages`.
 
-Writing: foxglove-sdk's MCAP writer (Zstandard chunks). The cycles reach it a block at a
+Writing: foxglove-sdk's MCAP writer (LZ4 chunks: a third of Zstandard's CPU time per
+chunk, files 15 % larger). The cycles reach it a block at a
 time (:mod:`companion.logs.columns`): :func:`encode_block` turns a block of rows into its
 messages with a few numpy operations over the whole block (the message layouts are fixed:
 every number is a double), and each block ends its chunk, handed to the operating system.
@@ -227,10 +228,14 @@ _IDENTITY += [b"\x19", _constant(0.0), b"\x21", _constant(1.0)]
 """The unit ``foxglove.Quaternion`` (no slot)."""
 
 
+def _width(parts: Sequence[bytes | int]) -> int:
+    """Bytes of a layout's parts (a slot is 8)."""
+    return sum(8 if isinstance(p, int) else len(p) for p in parts)
+
+
 def _nested(number: int, parts: list[bytes | int]) -> list[bytes | int]:
     """A message field of fixed size (a slot is 8 bytes)."""
-    size = sum(8 if isinstance(p, int) else len(p) for p in parts)
-    return [_key(number, 2) + _varint(size), *parts]
+    return [_key(number, 2) + _varint(_width(parts)), *parts]
 
 
 def timestamp_field(ns: int) -> bytes:
@@ -287,11 +292,6 @@ CHANNELS: dict[str, str] = {
 }
 """Topic -> schema name of every channel the companion writes, in registration order."""
 
-_STATE = _Layout(_double_fields(_FIELDS["companion.State"]))
-_DESIRED = _Layout(_double_fields(Q_KEYS))
-_SETPOINT = _Layout(_double_fields(_FIELDS["companion.Setpoint"]))
-_ESTIMATE = _Layout(_double_fields(_FIELDS["companion.Estimate"]))
-_TIMING = _Layout(_double_fields(_FIELDS["companion.Timing"]))
 _STATE_COLUMNS = np.r_[columns.Q, columns.Q_DOT]
 _ESTIMATE_COLUMNS = np.r_[
     columns.THETA,
@@ -366,13 +366,34 @@ def _frame(
     ]
 
 
-_POSE = _Layout(
-    [
-        _bytes_field(2, b"world"),
-        *_nested(3, [*_nested(1, _vector3(0, 1, 2)), *_nested(2, _quaternion(3))]),
-    ]
-)
+_POSE_PARTS: list[bytes | int] = [
+    _bytes_field(2, b"world"),
+    *_nested(3, [*_nested(1, _vector3(0, 1, 2)), *_nested(2, _quaternion(3))]),
+]
 """``foxglove.PoseInFrame`` after its timestamp, from the slots of :class:`_Transforms`."""
+_POSE = _Layout(_POSE_PARTS)
+
+
+def _shift(parts: Sequence[bytes | int], offset: int) -> list[bytes | int]:
+    """``parts`` with their slots ``offset`` columns further."""
+    return [p + offset if isinstance(p, int) else p for p in parts]
+
+
+_CYCLE_COLUMNS = np.r_[
+    _STATE_COLUMNS, columns.Q_D, columns.SETPOINT, _ESTIMATE_COLUMNS, columns.PERIOD
+]
+"""The row's columns in the companion's messages, after the transforms' 15 slots."""
+_CYCLE_DOUBLES = [
+    (_double_fields(_FIELDS[name]), 15 + start)
+    for name, start in (
+        ("companion.State", 0),
+        ("companion.Desired", 16),
+        ("companion.Setpoint", 24),
+        ("companion.Estimate", 31),
+        ("companion.Timing", 40),
+    )
+]
+"""The companion's messages' layouts and where their slots start in a cycle's values."""
 
 
 class _Transforms:
@@ -391,7 +412,18 @@ class _Transforms:
             _frame("link2", "gripper", _vector3(_constant(geometry.link2_length_m), zero, zero),
                    _IDENTITY),
         ]  # fmt: skip
-        self.tails = [_Layout(parts) for parts in frames]
+        self._tails = [_width(parts) for parts in frames]
+        messages = [
+            *frames,
+            _POSE_PARTS,
+            *(_shift(layout, offset) for layout, offset in _CYCLE_DOUBLES),
+        ]
+        self.cycle = _Layout([part for parts in messages for part in parts])
+        """A cycle's messages but the timestamps, one after the other: the four
+        transforms' tails, the pose's, then ``/state`` ... ``/timing``."""
+        widths = [_width(parts) for parts in messages]
+        self.offsets = [sum(widths[:i]) for i in range(len(widths) + 1)]
+        """Where each of :attr:`cycle`'s messages starts (and the last ends) [bytes]."""
         self._heads: dict[int, list[bytes]] = {}
 
     def heads(self, stamp: int) -> list[bytes]:
@@ -399,21 +431,24 @@ class _Transforms:
         heads = self._heads.get(stamp)
         if heads is None:
             heads = self._heads[stamp] = [
-                _key(1, 2) + _varint(stamp + tail.width) for tail in self.tails
+                _key(1, 2) + _varint(stamp + tail) for tail in self._tails
             ]
         return heads
 
     @staticmethod
     def values(rows: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The slots of the transforms [n, 15] of ``rows``: base position, the base's,
+        link 1's and link 2's quaternions."""
+        n = len(rows)
         q = rows[:, columns.Q]
-        zero = np.zeros(len(rows))
+        zero = np.zeros(n)
+        quaternions = _quaternions(
+            np.concatenate((q[:, 3], zero, zero)),
+            np.concatenate((q[:, 4], -q[:, 6], -q[:, 7])),
+            np.concatenate((q[:, 5], zero, zero)),
+        )
         return np.column_stack(
-            (
-                q[:, :3],
-                _quaternions(q[:, 3], q[:, 4], q[:, 5]),
-                _quaternions(zero, -q[:, 6], zero),
-                _quaternions(zero, -q[:, 7], zero),
-            )
+            (q[:, :3], quaternions[:n], quaternions[n : 2 * n], quaternions[2 * n :])
         )
 
 
@@ -422,38 +457,41 @@ def encode_block(
 ) -> list[tuple[str, int, bytes]]:
     """(topic, log time [ns], message) of the cycles in ``rows`` (rows of
     :data:`companion.logs.columns.ROW`), in time order and :data:`CHANNELS` order within a
-    cycle (pure)."""
+    cycle (pure). The fixed parts of a cycle's messages are packed in one go over the
+    block; a row adds its timestamps."""
     n = len(rows)
     if n == 0:
         return []
     times = [time_ns(t) for t in rows[:, columns.T].tolist()]
     flown = cast(list[bool], np.isfinite(rows[:, columns.Q]).all(axis=1).tolist())
     sent = cast(list[bool], np.isfinite(rows[:, _SENT]).tolist())
-    values = transforms.values(rows)
-    tails = [layout.pack(values) for layout in transforms.tails]
-    widths = [layout.width for layout in transforms.tails]
-    pose, pose_width = _POSE.pack(values), _POSE.width
-    state, state_width = _STATE.pack(rows[:, _STATE_COLUMNS]), _STATE.width
-    desired, desired_width = _DESIRED.pack(rows[:, columns.Q_D]), _DESIRED.width
-    setpoint, setpoint_width = _SETPOINT.pack(rows[:, columns.SETPOINT]), _SETPOINT.width
-    estimate, estimate_width = _ESTIMATE.pack(rows[:, _ESTIMATE_COLUMNS]), _ESTIMATE.width
-    timing, timing_width = _TIMING.pack(rows[:, [columns.PERIOD]]), _TIMING.width
+    values = np.column_stack((transforms.values(rows), rows[:, _CYCLE_COLUMNS]))
+    blob = transforms.cycle.pack(values)
+    width = transforms.cycle.width
+    o = transforms.offsets
     out: list[tuple[str, int, bytes]] = []
+    add = out.append
     for k, ns in enumerate(times):
+        cycle = blob[k * width : (k + 1) * width]
         if flown[k]:
             stamp = timestamp_field(ns)
-            heads = transforms.heads(len(stamp))
-            parts: list[bytes] = []
-            for head, tail, width in zip(heads, tails, widths, strict=True):
-                parts += (head, stamp, tail[k * width : (k + 1) * width])
-            out.append(("/tf", ns, b"".join(parts)))
-            out.append(("/vehicle/pose", ns, stamp + pose[k * pose_width : (k + 1) * pose_width]))
-        out.append(("/state", ns, state[k * state_width : (k + 1) * state_width]))
-        out.append(("/desired", ns, desired[k * desired_width : (k + 1) * desired_width]))
+            h0, h1, h2, h3 = transforms.heads(len(stamp))
+            tf = b"".join(
+                (
+                    h0, stamp, cycle[o[0] : o[1]],
+                    h1, stamp, cycle[o[1] : o[2]],
+                    h2, stamp, cycle[o[2] : o[3]],
+                    h3, stamp, cycle[o[3] : o[4]],
+                )
+            )  # fmt: skip
+            add(("/tf", ns, tf))
+            add(("/vehicle/pose", ns, stamp + cycle[o[4] : o[5]]))
+        add(("/state", ns, cycle[o[5] : o[6]]))
+        add(("/desired", ns, cycle[o[6] : o[7]]))
         if sent[k]:
-            out.append(("/setpoint", ns, setpoint[k * setpoint_width : (k + 1) * setpoint_width]))
-        out.append(("/estimate", ns, estimate[k * estimate_width : (k + 1) * estimate_width]))
-        out.append(("/timing", ns, timing[k * timing_width : (k + 1) * timing_width]))
+            add(("/setpoint", ns, cycle[o[7] : o[8]]))
+        add(("/estimate", ns, cycle[o[8] : o[9]]))
+        add(("/timing", ns, cycle[o[9] : o[10]]))
     return out
 
 
@@ -617,7 +655,7 @@ class McapLogWriter:
             self._closed = True
             raise FlightLogError(f"{self.path}: cannot write: {exc.strerror}") from None
         context = self.context = foxglove.Context()
-        options = MCAPWriteOptions(compression=MCAPCompression.Zstd, chunk_size=CHUNK_SIZE)
+        options = MCAPWriteOptions(compression=MCAPCompression.Lz4, chunk_size=CHUNK_SIZE)
         self._writer = foxglove.open_mcap(
             self.path, allow_overwrite=True, context=context, writer_options=options
         )
