@@ -240,6 +240,7 @@ def test_px4s_ulog_joins_the_flight_log_on_one_time_axis(pickup, tmp_path):
 
     import numpy as np
     from mcap.reader import make_reader
+    from test_mcap_log import decode
 
     flight = pickup
     mcap = tmp_path / "flight.mcap"
@@ -253,13 +254,13 @@ def test_px4s_ulog_joins_the_flight_log_on_one_time_axis(pickup, tmp_path):
     assert done.returncode == 0, done.stdout + done.stderr
     ours, px4 = [], []
     with open(mcap, "rb") as f:
-        for _, channel, message in make_reader(f).iter_messages(
+        for schema, channel, message in make_reader(f).iter_messages(
             topics=["/state", "/px4/vehicle_local_position", "/px4/vehicle_attitude_setpoint"]
         ):
-            data = json.loads(message.data)
-            if channel.topic == "/state":
-                q = data["q"]
-                ours.append((message.log_time, q["x_m"], q["y_m"], q["z_m"]))
+            assert schema is not None
+            data = decode(schema.name, schema.encoding, schema.data, message.data)
+            if channel.topic == "/state":  # Protobuf, flat: q by name
+                ours.append((message.log_time, data["x_m"], data["y_m"], data["z_m"]))
             elif channel.topic == "/px4/vehicle_local_position":
                 px4.append((message.log_time, data["y"], data["x"], -data["z"]))
     assert len(ours) > 5000 and len(px4) > 5000, (len(ours), len(px4))
