@@ -56,14 +56,19 @@ def page(rows: list[dict], commit: str, machine: str) -> str:
     if not unsafe:
         lines.append("None.")
     else:
-        lines.append("| fault | payload [kg @ m] | outcome | broken | replay |")
-        lines.append("|---|---|---|---|---|")
+        lines += [
+            f"Each flies alone with `sitl campaign {SPEC} --out OUT --replay ID` (its log and "
+            "figures in `OUT/replay/ID`).",
+            "",
+            "| fault | payload [kg @ m] | outcome | broken | ID |",
+            "|---|---|---|---|---|",
+        ]
         for r in sorted(unsafe, key=lambda r: str(r["fault"])):
             lines.append(
                 f"| `{r['fault']}` | {r['payload.mass_kg']:g} @ {r['payload.position_m']:g} "
-                f"| {r['outcome']} | {r['unsafe']} | `{r['replay']}` |"
+                f"| {r['outcome']} | {r['unsafe']} | `{r['flight_id']}` |"
             )
-    touchdowns = [r["touchdown_m_s"] for r in ok if r.get("touchdown_m_s") is not None]
+    touchdowns = [max(0.0, r["touchdown_m_s"]) for r in ok if r.get("touchdown_m_s") is not None]
     if touchdowns:
         lines += [
             "",
