@@ -92,16 +92,24 @@ def _torque_cell(axis: int) -> Callable[[Authority], str]:
 
 
 @contextlib.contextmanager
-def _signals_set(stop: threading.Event) -> Iterator[None]:
-    """SIGINT and SIGTERM set ``stop`` inside the block; the handlers before it after it
-    (the commands also run in-process, from tests and other commands)."""
+def _signals_handled(handler: Callable[..., object]) -> Iterator[None]:
+    """SIGINT and SIGTERM go to ``handler`` inside the block; the handlers before it after
+    it (the commands also run in-process, from tests and other commands)."""
     signums = (signal.SIGINT, signal.SIGTERM)
-    previous = [signal.signal(signum, lambda *_: stop.set()) for signum in signums]
+    previous = [signal.signal(signum, handler) for signum in signums]
     try:
         yield
     finally:
-        for signum, handler in zip(signums, previous, strict=True):
-            signal.signal(signum, handler)
+        for signum, before in zip(signums, previous, strict=True):
+            signal.signal(signum, before)
+
+
+def _print_ready(title: str, where: dict[str, str]) -> None:
+    """The title line, where to connect, and the machine-readable ``ready`` line."""
+    typer.echo(title)
+    for key, value in where.items():
+        typer.echo(f"  {key:<8} {value}")
+    typer.echo("ready " + json.dumps(where), color=False)
 
 
 @app.command()
@@ -111,16 +119,14 @@ def run(options: RunCommand) -> None:
     cfg, vehicle = options.vehicle()
 
     def announce(where: dict[str, str]) -> None:
-        typer.echo(
+        _print_ready(
             f"sitl: {cfg.name} on {options.physics} physics flown by {options.flown_by}, "
-            f"{options.navigation} navigation, at {options.speed:g}x real time"
+            f"{options.navigation} navigation, at {options.speed:g}x real time",
+            where,
         )
-        for key, value in where.items():
-            typer.echo(f"  {key:<8} {value}")
-        typer.echo("ready " + json.dumps(where), color=False)
 
     stop = threading.Event()
-    with _signals_set(stop):
+    with _signals_handled(lambda *_: stop.set()):
         stats: RunStats
         try:
             with vehicle:
@@ -221,10 +227,9 @@ def sih(
     except Px4NotReadyError as exc:  # every instance's ports taken
         _fail(f"{exc} (another PX4 or sitl is running?)")
     stop = threading.Event()
-    signums = (signal.SIGINT, signal.SIGTERM)
-    previous = [signal.signal(signum, signal.default_int_handler) for signum in signums]
     try:  # until ready, an interrupt stops the start-up too
-        host.start(ports)
+        with _signals_handled(signal.default_int_handler):
+            host.start(ports)
     except KeyboardInterrupt:
         typer.echo("sitl: interrupted before PX4 was ready", err=True)
         raise typer.Exit(1) from None
@@ -233,19 +238,13 @@ def sih(
     except Px4NotReadyError as exc:
         typer.echo(f"error: PX4 did not get ready: {exc}", err=True)
         raise typer.Exit(1) from None
-    finally:
-        for signum, handler in zip(signums, previous, strict=True):
-            signal.signal(signum, handler)
-    with _signals_set(stop):
+    with _signals_handled(lambda *_: stop.set()):
         try:
-            where = host.describe()
-            typer.echo(
+            _print_ready(
                 f"sitl: {cfg.name} on PX4 SIH (instance {ports.instance}, {navigation} "
-                f"navigation) at {speed_factor:g}x real time"
+                f"navigation) at {speed_factor:g}x real time",
+                host.describe(),
             )
-            for key, value in where.items():
-                typer.echo(f"  {key:<8} {value}")
-            typer.echo("ready " + json.dumps(where), color=False)
             failure = host.run(stop)
         finally:
             kept = host.stop(keep=keep_log is not None)
