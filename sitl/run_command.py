@@ -25,6 +25,7 @@ from sitl.physics.jsbsim import Wind
 from sitl.px4 import ParamError, SigningKeyError, load_signing_key
 from sitl.px4_sitl.launcher import Px4Build, Px4BuildError
 from sitl.scenario import MAX_DURATION_S, PayloadSlip, Scenario, load_scenario
+from sitl.vehicle.mission_phases import FAULT_PHASES, FaultStart, PhaseStart
 from sitl.vehicle.options import LinkPorts, RunOptions
 from sitl.vehicle.runner import SitlVehicle, simulated_servo_ids
 
@@ -81,7 +82,10 @@ class RunCommand:
     ] = 0.0
     servo_silent: Annotated[
         str | None,
-        typer.Option(help="Fault injection 'ID@T': servo ID stops answering at T [s, sim time]."),
+        typer.Option(
+            help="Fault injection 'ID@T': servo ID stops answering at T [s, sim time]; or "
+            "'ID@PHASE+S': S seconds into a mission phase (e.g. 2@takeoff+8, 1@grasp)."
+        ),
     ] = None
     servo_reply_delay_ms: Annotated[
         float,
@@ -282,20 +286,31 @@ def _pickup_faults(
     return cfg.model_copy(update={"world": cfg.world.model_copy(update=update)})
 
 
-def _servo_fault(text: str, servo_ids: tuple[int, ...]) -> tuple[int, float]:
-    """``--servo-silent ID@SECONDS`` as (servo id, simulated time [s]): a servo of the
-    simulated bus (``servo_ids``) and a time within the longest run."""
+def _servo_fault(text: str, servo_ids: tuple[int, ...]) -> tuple[int, FaultStart]:
+    """``--servo-silent ID@SECONDS`` or ``ID@PHASE[+SECONDS]`` as (servo id, start): a servo
+    of the simulated bus (``servo_ids``) and a simulated time within the longest run [s],
+    or a moment into a mission phase (:data:`~sitl.vehicle.mission_phases.FAULT_PHASES`)."""
     servo, _, at = text.partition("@")
+    phase, plus, offset = at.partition("+")
     try:
-        servo_id, at_s = int(servo), float(at)
-    except ValueError:
-        fail(f"--servo-silent needs ID@SECONDS, e.g. 2@30, got {text!r}")
+        servo_id = int(servo)
+        start: FaultStart
+        if phase in FAULT_PHASES:
+            start = PhaseStart(phase, float(offset) if plus else 0.0)
+        else:
+            start = float(at)
+    except ValueError as error:
+        fail(
+            f"--servo-silent needs ID@SECONDS or ID@PHASE+SECONDS (phases: "
+            f"{', '.join(FAULT_PHASES)}), e.g. 2@30 or 2@takeoff+8, got {text!r}"
+            + (f": {error}" if phase in FAULT_PHASES else "")
+        )
     if servo_id not in servo_ids:
         ids = ", ".join(str(i) for i in servo_ids)
         fail(f"--servo-silent {text}: no servo {servo_id} on the simulated bus (its ids: {ids})")
-    if not (math.isfinite(at_s) and 0.0 <= at_s <= MAX_DURATION_S):
+    if isinstance(start, float) and not (math.isfinite(start) and 0.0 <= start <= MAX_DURATION_S):
         fail(
             f"--servo-silent {text}: the time must lie in [0, {MAX_DURATION_S:g}] s of "
-            f"simulated time, got {at_s:g}"
+            f"simulated time, got {start:g}"
         )
-    return servo_id, at_s
+    return servo_id, start

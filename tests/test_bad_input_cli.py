@@ -531,6 +531,9 @@ def test_sitl_run_servo_reply_delay_out_of_range(value):
         ("2@nan", ("--servo-silent 2@nan", "[0, 3600] s", "got nan")),
         ("2@-3", ("--servo-silent 2@-3", "[0, 3600] s", "got -3")),
         ("2@1e9", ("--servo-silent 2@1e9", "[0, 3600] s")),
+        ("2@hover+3", ("--servo-silent", "ID@PHASE+SECONDS", "takeoff, to_object")),
+        ("2@grasp+soon", ("--servo-silent", "ID@PHASE+SECONDS", "got '2@grasp+soon'")),
+        ("2@grasp+-1", ("--servo-silent", "offset must be at least 0 s")),
     ],
 )
 def test_sitl_run_servo_silent_out_of_range(value, words):

@@ -549,8 +549,11 @@ def _rows_when(out: Path, at_least: int, process: subprocess.Popen, timeout_s: f
     while time.monotonic() < deadline:
         assert process.poll() is None, "the campaign ended early"
         if (out / "results.sqlite").exists():
-            with sqlite3.connect(out / "results.sqlite") as db:
-                have = db.execute("SELECT COUNT(*) FROM flights").fetchone()[0]
+            try:
+                with sqlite3.connect(out / "results.sqlite") as db:
+                    have = db.execute("SELECT COUNT(*) FROM flights").fetchone()[0]
+            except sqlite3.OperationalError:  # the file made, its table not yet
+                have = 0
             if have >= at_least:
                 return have
         time.sleep(0.2)

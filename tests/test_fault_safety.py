@@ -11,6 +11,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from companion.mission.announce import STATUSTEXT_CHARS, announcement, phase_of
 from sitl.campaign.safety import judge
 from sitl.campaign.spec import Fault
+from sitl.hil.vehicle import _timed
 from sitl.vehicle.link_faults import LinkFaults, LinkLoss, PilotTakeover
 from sitl.vehicle.mission_phases import FAULT_PHASES, MissionPhases, PhaseStart
 
@@ -134,6 +135,14 @@ def test_take_off_and_landing_are_the_autopilots_modes():
     assert FAULT_PHASES[0] == "takeoff" and FAULT_PHASES[-1] == "landing"
     with pytest.raises(ValueError, match="phase must be one of"):
         PhaseStart("hover")
+
+
+def test_with_px4_in_the_loop_a_servo_fault_starts_at_a_time_or_px4s_own_phases():
+    assert _timed((2, 29.0)) == (2, 29.0)
+    assert _timed((2, PhaseStart("takeoff", 8.0))) == (2, PhaseStart("takeoff", 8.0))
+    assert _timed((1, PhaseStart("landing"))) == (1, PhaseStart("landing"))
+    with pytest.raises(ValueError, match="not at the mission phase 'grasp'"):
+        _timed((2, PhaseStart("grasp", 0.5)))
 
 
 def test_a_fault_at_a_phase_is_labelled_with_it():

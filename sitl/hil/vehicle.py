@@ -91,7 +91,7 @@ from sitl.px4_sitl.launcher import (
 )
 from sitl.scenario import Scenario
 from sitl.stepping import WallPacer, step_loop
-from sitl.vehicle.mission_phases import FaultStart, PhaseStart
+from sitl.vehicle.mission_phases import PX4_PHASES, FaultStart, MissionPhases, PhaseStart
 from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions
 from sitl.vehicle.runner import build_world, servo_faults, truth_record
 from sitl.vehicle.sensors import PoseSensor
@@ -209,6 +209,8 @@ class Px4InTheLoop:
         self._commands = [0.0] * N_ROTORS
         self.armed = False
         self.mode: str | None = None
+        self.phases = MissionPhases()
+        """When PX4's take-off and landing began (from its modes)."""
         """PX4's flight mode from its last heartbeat (a :class:`~sitl.px4.Px4Mode` name)."""
         self._lockstep = False
         self._truth_interval_us = 0
@@ -395,7 +397,8 @@ class Px4InTheLoop:
         frame.force += world.specific_force_flu_m_s2()
         frame.omega += state.omega_body_rad_s
         silent = frame.silent
-        if silent is not None and world.time_s >= silent[1]:
+        start_s = None if silent is None else self.phases.start_s(silent[1])
+        if silent is not None and start_s is not None and world.time_s >= start_s:
             self.servo_bus.set_faults(servo_faults(self.options, silent[0]))
             frame.silent = None
         if self._truth_file is not None and frame.steps % frame.truth_every == 0:
@@ -521,6 +524,8 @@ class Px4InTheLoop:
             if message.get_type() == "HEARTBEAT" and message.autopilot == mavlink.MAV_AUTOPILOT_PX4:
                 mode = Px4Mode.from_custom_mode(message.custom_mode)
                 self.mode = None if mode is None else mode.name
+                if self.mode is not None:
+                    self.phases.observe_mode(self.mode, self.world.time_s)
 
 
 @dataclass
@@ -533,8 +538,8 @@ class _FrameLoop:
     boot: Px4Boot
     truth_every: int
     """Plant steps between two truth lines."""
-    silent: tuple[int, float] | None
-    """The servo to silence and when [s] (``servo_silent``), until done."""
+    silent: tuple[int, FaultStart] | None
+    """The servo to silence and when (``servo_silent``), until done."""
     stop: threading.Event
     console: Callable[[str], None] | None
     on_ready: Callable[[dict[str, str]], None] | None
@@ -554,14 +559,16 @@ class _FrameLoop:
     commands: list[float] = field(default_factory=list)
 
 
-def _timed(silent: tuple[int, FaultStart] | None) -> tuple[int, float] | None:
-    """``servo_silent`` with its start a simulated time [s]; raises ValueError for a
-    mission phase (the phases are told on the companion's link, which PX4 carries here)."""
+def _timed(silent: tuple[int, FaultStart] | None) -> tuple[int, FaultStart] | None:
+    """``servo_silent`` checked for PX4 in the loop: a simulated time [s], or PX4's own
+    take-off or landing (its modes, read from its heartbeats); raises ValueError for the
+    companion's phases (told on the companion's link, which PX4 carries here)."""
     if silent is None:
         return None
     servo_id, start = silent
-    if isinstance(start, PhaseStart):
+    if isinstance(start, PhaseStart) and start.phase not in PX4_PHASES:
         raise ValueError(
-            "with PX4 in the loop a servo fault starts at a time, not at a mission phase"
+            f"with PX4 in the loop a servo fault starts at a time or at PX4's "
+            f"{' or '.join(PX4_PHASES)}, not at the mission phase {start.phase!r}"
         )
     return servo_id, start

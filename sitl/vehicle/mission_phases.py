@@ -18,6 +18,7 @@ from companion.mission.pickup import Phase
 
 __all__ = [
     "FAULT_PHASES",
+    "PX4_PHASES",
     "FaultStart",
     "MissionPhases",
     "PhaseStart",
@@ -25,6 +26,8 @@ __all__ = [
 ]
 
 _MODE_PHASES = {"AUTO_TAKEOFF": "takeoff", "AUTO_LAND": "landing"}
+PX4_PHASES: tuple[str, ...] = tuple(_MODE_PHASES.values())
+"""The moments that are the autopilot's own modes, not told by the companion."""
 FAULT_PHASES: tuple[str, ...] = (
     "takeoff",
     *(p.value for p in Phase if p not in (Phase.DONE, Phase.RETURN)),
