@@ -682,3 +682,36 @@ def test_takeoff_spools_up_then_ramps_the_thrust_from_zero(vehicle):
     assert thrusts[0.8] == 0.0  # spooling up
     assert thrusts[1.024] < 0.02  # the ramp starts at no thrust
     assert 0.0 < thrusts[1.6] < thrusts[2.0] < thrusts[2.4]  # and rises
+
+
+def test_a_land_while_climbing_follows_px4s_jerk_limited_descent():
+    """Land commanded while climbing at 2.6 m/s: the descent setpoint moves as PX4's AUTO
+    trajectory does (measured on the PX4 build, SIH hexacopter: the climb stopped 1.15 s
+    after the command and the descent was at 0.69 m/s 2.7 s after it, never beyond
+    0.75 m/s). On an ideal vehicle that flies the acceleration it is asked for, the
+    setpoint never overshoots MPC_LAND_SPEED and never changes acceleration faster than
+    MPC_JERK_AUTO."""
+    from types import SimpleNamespace
+
+    from sitl.px4.position_control import PositionController, PositionTarget
+
+    params = Px4Params()
+    control = PositionController(params)
+    land = PositionTarget(0.0, 0.0, None, 0.0, climb_m_s=-params["MPC_LAND_SPEED"], smoothed=True)
+    dt, up, climb = 0.004, 3.0, 2.6
+    climbs, setpoints = [], []
+    for _ in range(int(4.0 / dt)):
+        m = SimpleNamespace(position_enu_m=np.array([0.0, 0.0, up]),
+                            velocity_enu_m_s=np.array([0.0, 0.0, climb]))  # fmt: skip
+        control.update(land, m, dt)
+        climb += 9.80665 * (control.thrust_up / control.hover_thrust - 1.0) * dt
+        up += climb * dt
+        climbs.append(climb)
+        setpoints.append(control.smoothed_climb)
+    stopped_s = next(i for i, c in enumerate(climbs) if c <= 0.0) * dt
+    assert 0.9 <= stopped_s <= 1.5
+    assert climbs[int(2.7 / dt)] == pytest.approx(-0.7, abs=0.02)
+    assert min(climbs) >= -0.75
+    accelerations = np.array([a for _, a in setpoints])
+    assert np.max(np.abs(np.diff(accelerations))) <= params["MPC_JERK_AUTO"] * dt + 1e-12
+    assert np.min(accelerations) >= -params["MPC_ACC_DOWN_MAX"] - 1e-12

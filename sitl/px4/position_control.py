@@ -20,7 +20,15 @@ in ENU (the cascade is frame covariant, so PX4's per-axis gains carry over):
    so that the thrust does not jump (PX4 ``updateHoverThrust``);
 4. attitude: the thrust axis and the held yaw give roll and pitch (ZYX Euler angles).
 
-No jerk-limited trajectory smoothing and no velocity D term (PX4's MPC_XY_VEL_D_ACC): the
+A target whose climb is ``smoothed`` (the descents of AUTO.LAND and Return) reaches its
+vertical velocity as PX4's AUTO flight task does (``FlightTaskAuto``'s jerk-limited
+trajectory, ``VelocitySmoothing``): the velocity setpoint moves with at most MPC_JERK_AUTO
+jerk and MPC_ACC_DOWN_MAX (going down) or MPC_ACC_UP_MAX (going up) acceleration, starting
+from the measured velocity and the last acceleration setpoint, and its acceleration is
+the feed-forward. Measured on the PX4 build (SIH hexacopter, a Land commanded while
+climbing at 2.6 m/s): the climb stops in about 1.2 s and the descent reaches 0.7 m/s 1.5 s
+later, without overshoot; a stepped setpoint overshoots under a heavy payload. Position
+targets are not smoothed, and there is no velocity D term (PX4's MPC_XY_VEL_D_ACC): the
 gains are PX4's defaults, not tuned to this vehicle.
 """
 
@@ -60,6 +68,9 @@ class PositionTarget:
         Horizontal velocity feed-forward (east, north) [m/s].
     acceleration_m_s2 : (float, float, float)
         Acceleration feed-forward (east, north, up) [m/s^2].
+    smoothed : bool
+        ``climb_m_s`` is reached through PX4's jerk-limited trajectory (a target without a
+        height in the AUTO modes), not stepped to.
     """
 
     east_m: float
@@ -70,6 +81,7 @@ class PositionTarget:
     climb_limit_m_s: float = math.inf
     velocity_m_s: tuple[float, float] = (0.0, 0.0)
     acceleration_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    smoothed: bool = False
 
 
 class PositionController:
@@ -89,6 +101,9 @@ class PositionController:
         self._integral = [0.0, 0.0, 0.0]
         self._hover: float | None = None
         self._acc_up_m_s2 = 0.0
+        self._climb: tuple[float, float] | None = None
+        """The smoothed climb: velocity [m/s] and acceleration [m/s^2], up; None when the
+        last target was not smoothed."""
         self.thrust_up = 0.0
         """Vertical component of the last relative thrust setpoint [-] (the hover thrust
         estimator's input)."""
@@ -108,16 +123,22 @@ class PositionController:
         p = self._params
         return min(max(p["MPC_THR_HOVER"], p["MPC_THR_MIN"]), p["MPC_THR_MAX"])
 
-    def set_hover_thrust(self, hover: float | None) -> None:
-        """Fly with hover thrust ``hover`` (None: MPC_THR_HOVER), moving the vertical
-        integral so that the thrust of the last setpoint is kept (PX4
-        ``PositionControl::updateHoverThrust``)."""
+    def set_hover_thrust(self, hover: float | None, keep_thrust: bool = True) -> None:
+        """Fly with hover thrust ``hover`` (None: MPC_THR_HOVER); ``keep_thrust`` moves the
+        vertical integral so that the thrust of the last setpoint is kept (PX4
+        ``PositionControl::updateHoverThrust``; not while another setpoint flies)."""
         previous = self.hover_thrust
         self._hover = hover
         new = self.hover_thrust
-        if new != previous:
+        if keep_thrust and new != previous:
             g, a = self._g, self._acc_up_m_s2
             self._integral[2] += (a + g) * previous / new - g - a
+
+    @property
+    def smoothed_climb(self) -> tuple[float, float] | None:
+        """The jerk-limited climb setpoint: velocity [m/s] and acceleration [m/s^2], up;
+        None while the target is not smoothed."""
+        return self._climb
 
     @property
     def integral_m_s2(self) -> tuple[float, float, float]:
@@ -145,7 +166,12 @@ class PositionController:
         if horizontal > p["MPC_XY_VEL_MAX"]:
             scale = p["MPC_XY_VEL_MAX"] / horizontal
             vx, vy = vx * scale, vy * scale
-        vz = target.climb_m_s
+        vz, az_ff = target.climb_m_s, target.acceleration_m_s2[2]
+        if target.smoothed and target.up_m is None:
+            vz, smoothed_az = self._smooth_climb(vz, vel[2], dt_s)
+            az_ff += smoothed_az
+        else:
+            self._climb = None
         if target.up_m is not None:
             vz += p["MPC_Z_P"] * (target.up_m - pos[2])
         up_limit = min(p["MPC_Z_VEL_MAX_UP"], target.climb_limit_m_s)
@@ -160,9 +186,33 @@ class PositionController:
                 max(self._integral[i] + gains_i[i] * errors[i] * dt_s, -INTEGRAL_LIMIT_M_S2),
                 INTEGRAL_LIMIT_M_S2,
             )
-            acc.append(target.acceleration_m_s2[i] + gains_p[i] * errors[i] + self._integral[i])
+            feed_forward = az_ff if i == 2 else target.acceleration_m_s2[i]
+            acc.append(feed_forward + gains_p[i] * errors[i] + self._integral[i])
         self._acc_up_m_s2 = acc[2]
         return self._attitude(acc, target.yaw_rad, p["MPC_THR_MIN"] if flying else 0.0)
+
+    def _smooth_climb(self, goal_m_s: float, climb_m_s: float, dt_s: float) -> tuple[float, float]:
+        """One step of the jerk-limited climb toward ``goal_m_s`` [m/s, up]: the velocity
+        setpoint [m/s] and its acceleration [m/s^2]. It starts from the measured climb
+        ``climb_m_s`` and the last acceleration setpoint; the acceleration heads for the
+        largest from which MPC_JERK_AUTO still brings it to zero at the goal."""
+        p = self._params
+        jerk = p["MPC_JERK_AUTO"]
+        if self._climb is None:
+            limit = (-p["MPC_ACC_DOWN_MAX"], p["MPC_ACC_UP_MAX"])
+            self._climb = (climb_m_s, min(max(self._acc_up_m_s2, limit[0]), limit[1]))
+        v, a = self._climb
+        gap = goal_m_s - v
+        step = jerk * dt_s
+        if abs(gap) <= 0.5 * step * dt_s and abs(a) <= step:
+            self._climb = (goal_m_s, 0.0)  # there within this step: no chatter about it
+            return self._climb
+        most = p["MPC_ACC_UP_MAX"] if gap > 0.0 else p["MPC_ACC_DOWN_MAX"]
+        wanted = math.copysign(min(most, math.sqrt(2.0 * jerk * abs(gap))), gap)
+        a += min(max(wanted - a, -step), step)
+        v += a * dt_s
+        self._climb = (v, a)
+        return v, a
 
     def _attitude(self, acc: list[float], yaw_rad: float, thrust_min: float) -> AttitudeSetpoint:
         """Thrust axis, tilt limit and collective thrust of an ENU acceleration setpoint."""
