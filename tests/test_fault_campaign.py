@@ -17,14 +17,16 @@ SPEC = Path(__file__).parent.parent / "configs" / "campaigns" / "faults.toml"
 LIGHT = {"payload.mass_kg": 0.10, "payload.position_m": 0.10}
 HEAVY_AT_JAWS = {"payload.mass_kg": 0.42, "payload.position_m": 0.17}
 SLICE = (
-    ("link_cut(at_phase=grasp, offset_s=0.5, duration_s=2)", LIGHT),
+    ("link_cut(at_phase=grasp, offset_s=0.5, duration_s=2)", HEAVY_AT_JAWS),
+    ("servo_silent(servo_id=1, at_phase=to_place, offset_s=0.5)", HEAVY_AT_JAWS),
     ("link_cut(at_phase=to_place, offset_s=0.5, duration_s=10)", LIGHT),
     ("servo_silent(servo_id=2, at_phase=lift, offset_s=0.5)", HEAVY_AT_JAWS),
     ("payload_slip(after_grasp_s=10)", HEAVY_AT_JAWS),
     ("link_loss(at_phase=to_place, offset_s=0.5, duration_s=5, drop_fraction=0.3)", LIGHT),
     ("pilot_takeover(mode=AUTO_RTL, at_phase=excite, offset_s=0.5)", LIGHT),
 )
-"""Faults of the matrix that end safe; docs/faults.md lists those that do not yet."""
+"""Faults of the matrix that end safe. The first two touched down at 1.09 and 1.32 m/s
+before the imitation's Land flew a heavy payload as PX4 does (docs/fault_campaign.md)."""
 
 pytestmark = pytest.mark.slow
 
