@@ -149,7 +149,7 @@ def test_scenario_keys_reach_the_world_and_the_servo_truth(tmp_path):
     world, _, joints, _ = build_world(scenario, RunOptions())
     believed = joints[0].torque_constant_n_m_per_a
     # The servo's truth is 10 % stronger per amp than the companion's config.
-    servo = world._joints[0][1]
+    servo = world._servos[0]
     assert servo.parameters.torque_constant_n_m_per_a == pytest.approx(1.1 * believed)
     assert world_settings(load_scenario(PICKUP)).payload_slip_after_s is None
 

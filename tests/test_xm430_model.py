@@ -347,9 +347,9 @@ SETUPS = {
 
 @pytest.mark.parametrize("setup", SETUPS)
 def test_the_compiled_step_is_the_python_step_bit_for_bit(setup: str) -> None:
-    """set_state and step, compiled and in Python, over 3 s of a moving shaft with a time
-    step that changes: the same control table and loop state after every call (the
-    watchdog trips, the overload shuts down, the profile ramps)."""
+    """set_state (or couple, every other step) and step, compiled and in Python, over 3 s
+    of a moving shaft with a time step that changes: the same control table and loop state
+    after every call (the watchdog trips, the overload shuts down, the profile ramps)."""
     rng = random.Random(setup)
     fast, slow = _twins(0.3)
     for servo in (fast, slow):
@@ -366,9 +366,13 @@ def test_the_compiled_step_is_the_python_step_bit_for_bit(setup: str) -> None:
         rate += rng.gauss(0.0, 0.3)
         angle += rate * 1e-3
         dt = 1e-3 if i < 2000 else 2e-3
-        for servo in (fast, slow):
-            servo.set_state(angle, rate)
-        assert fast.torque_n_m() == slow.torque_n_m()
+        if i % 2:
+            torque = fast.couple(angle, rate)
+            assert torque == slow.couple(angle, rate) == fast.torque_n_m()
+        else:
+            for servo in (fast, slow):
+                servo.set_state(angle, rate)
+            assert fast.torque_n_m() == slow.torque_n_m()
         for servo in (fast, slow):
             servo.step(dt)
         assert fast.commanded_current_a() == slow.commanded_current_a()
@@ -386,6 +390,8 @@ def test_the_compiled_step_refuses_what_python_refuses() -> None:
             servo.set_state(math.nan, 0.0)
         with pytest.raises(ValueError):
             servo.set_state(1e12, 0.0)
+        with pytest.raises(ValueError):
+            servo.couple(0.0, math.inf)
         with pytest.raises(ValueError):
             servo.step(-1e-3)
     _same(fast, slow)

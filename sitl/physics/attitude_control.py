@@ -385,8 +385,19 @@ class Px4AttitudeLoop:
         setpoint: AttitudeSetpoint,
     ) -> ControllerOutput:
         """Motor commands for measured attitude ``q_wxyz`` and body rate ``rate_rad_s`` (FLU)."""
-        rate, relative = self.rate, self._relative
-        commands, rate_sp, torque = _LOOP.attitude_loop(
+        commands, rate_sp, torque = self.commands(q_wxyz, rate_rad_s, setpoint)
+        return ControllerOutput(commands, self._relative.tolist(), rate_sp, torque, setpoint.thrust)
+
+    def commands(
+        self,
+        q_wxyz: tuple[float, float, float, float],
+        rate_rad_s: tuple[float, float, float],
+        setpoint: AttitudeSetpoint,
+    ) -> tuple[list[float], tuple[float, float, float], tuple[float, float, float]]:
+        """:meth:`update`'s motor commands, body-rate setpoint (FLU) [rad/s] and normalized
+        torques, without building its :class:`ControllerOutput` (the plant's step)."""
+        rate = self.rate
+        return _LOOP.attitude_loop(
             q_wxyz,
             rate_rad_s,
             setpoint.quaternion_wxyz,
@@ -397,6 +408,5 @@ class Px4AttitudeLoop:
             self.mixer._constants,
             self._saturation,
             self.thr_mdl_fac,
-            relative,
+            self._relative,
         )
-        return ControllerOutput(commands, relative.tolist(), rate_sp, torque, setpoint.thrust)

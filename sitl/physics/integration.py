@@ -156,6 +156,8 @@ class ArticulatedIntegrator:
         self._step = _STEP if compiled else integration_step
         self._work = integration_step.work_buffer()
         self._q, self._v, self._tau = integration_step.aba_arguments(self._work)
+        self._zero_a = np.zeros(8)
+        """Zero accelerations for :meth:`fixed_base_joint_accelerations`' RNEA (never written)."""
         self.set_model(model)
 
     def set_model(self, model: pin.Model) -> None:
@@ -186,12 +188,14 @@ class ArticulatedIntegrator:
         acts on the base rows only.
         """
         self._q[:] = x
-        self._v[:] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, *eta_dot)
+        v = self._v
+        v[:6] = 0.0
+        v[6], v[7] = eta_dot
         m = pin.crba(self.model, self._data, self._q)  # upper triangle filled
-        h = pin.rnea(self.model, self._data, self._q, self._v, np.zeros(8))
-        a11, a12, a22 = m[6, 6], m[6, 7], m[7, 7]
-        b1 = joint_torques_n_m[0] - h[6]
-        b2 = joint_torques_n_m[1] - h[7]
+        h = pin.rnea(self.model, self._data, self._q, v, self._zero_a)
+        a11, a12, a22 = m.item(6, 6), m.item(6, 7), m.item(7, 7)
+        b1 = joint_torques_n_m[0] - h.item(6)
+        b2 = joint_torques_n_m[1] - h.item(7)
         det = a11 * a22 - a12 * a12
         return ((a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det)
 

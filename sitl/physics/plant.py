@@ -54,7 +54,7 @@ from sitl.physics.errors import (
     PlantError,
     PlantModeError,
 )
-from sitl.physics.frames import euler_rate_matrix, quaternion_from_euler
+from sitl.physics.frames import Rot9, euler_rate_matrix, quaternion_from_euler
 from sitl.physics.integration import ArticulatedIntegrator, GeneralizedForce
 from sitl.physics.rotor_plant import RotorPlant
 from sitl.physics.rotors import (
@@ -101,6 +101,13 @@ class TruthPlant(RotorPlant):
 
     has_ground = False
     """This plant flies in free space: a SITL adds the ground (see :meth:`hold_base`)."""
+    _R9: Rot9
+    """R (body FLU to world ENU) now, row-major."""
+    _w_inv9: Rot9
+    """W(Phi)^-1 now (body rate to Euler-angle rates), row-major."""
+    _q_ours: list[float]
+    _qd_ours: list[float]
+    """q and q_dot now (DESIGN.md section 2)."""
 
     @property
     def flies_rotors(self) -> bool:
@@ -447,20 +454,36 @@ class TruthPlant(RotorPlant):
         rotors' lagged thrusts, which push with drag and wind, and whose lag then moves
         toward ``motor_commands``; records the actuator signals."""
         thrusts = self._rotors.thrust_list_n
-        self._take_step(
-            self._integrator.rotor_step(
+        out = self._integrator.rotor_step(
+            self._x,
+            self._u,
+            self._R9,
+            self._euler,
+            self._qd_ours,
+            self._w_inv9,
+            motor_commands,
+            joint,
+            self._rotors.buffer,
+            self._battery_buffer,
+        )
+        if out[0] == 0:  # _take_step's usual case, unpacked in one go
+            self._steps += 1
+            (
+                _,
                 self._x,
                 self._u,
+                self._qdd,
+                self._quat,
                 self._R9,
                 self._euler,
-                self._qd_ours,
                 self._w_inv9,
-                motor_commands,
-                joint,
-                self._rotors.buffer,
-                self._battery_buffer,
-            )
-        )
+                self._omega,
+                self._q_ours,
+                self._qd_ours,
+            ) = out
+            self._state_cache = None
+        else:
+            self._take_step(out)
         self._actuator_signals = (
             motor_commands,
             thrusts,

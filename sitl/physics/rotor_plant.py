@@ -191,8 +191,8 @@ class RotorPlant:
         the same errors."""
         self._need_rotors("step() needs mode='underactuated'; use step_ideal() instead")
         joint = self._joint_torques(joint_torques_n_m)
-        out = self._autopilot.update(self._quat, self._omega, setpoint)
-        self._step_rotors(out.motor_commands, joint, out.rate_setpoint_rad_s, out.torque_normalized)
+        commands, rate_sp, torque = self._autopilot.commands(self._quat, self._omega, setpoint)
+        self._step_rotors(commands, joint, rate_sp, torque)
 
     def step_motors(self, motor_commands: ArrayLike, joint_torques_n_m: ArrayLike) -> PlantState:
         """Advance one step under six motor commands and joint torques, for an autopilot

@@ -176,6 +176,11 @@ class CanActuator:
         """Torque applied to the joint now [N m], counter-clockwise positive."""
         return self._torque_n_m if self.output_enabled else 0.0
 
+    def couple(self, angle_rad: float, rate_rad_s: float) -> float:
+        """:meth:`set_state`, then :meth:`torque_n_m` [N m]."""
+        self.set_state(angle_rad, rate_rad_s)
+        return self.torque_n_m()
+
     def commanded_torque_n_m(self) -> float:
         """Torque the active command asks for now [N m], clamped (0 when not enabled)."""
         if not self.output_enabled:

@@ -133,6 +133,9 @@ class ServoJoint(Protocol):
     def torque_n_m(self) -> float:
         """Torque the servo applies to the joint now [N m], counter-clockwise positive."""
 
+    def couple(self, angle_rad: float, rate_rad_s: float) -> float:
+        """:meth:`set_state`, then :meth:`torque_n_m` [N m] (once per plant step)."""
+
     def step(self, dt_s: float) -> None:
         """Advance the servo's control loops by ``dt_s`` [s]."""
 
@@ -449,6 +452,10 @@ class XM430Servo:
         """Output torque [N m]: torque constant x present current (0 with torque off)
         minus the gearbox's viscous friction."""
         return self._physics.torque_n_m(self.table, self._loop, self._params)
+
+    def couple(self, angle_rad: float, rate_rad_s: float) -> float:
+        """:meth:`set_state`, then :meth:`torque_n_m` [N m], in one call of the loop."""
+        return self._physics.couple(self.table, self._loop, self._params, angle_rad, rate_rad_s)
 
     def commanded_current_a(self) -> float:
         """Current the active control mode asks for now [A], clamped to the limits."""

@@ -180,6 +180,29 @@ def set_state(
     """Present Position(132) and Present Velocity(128) from the shaft's angle [rad] and rate
     [rad/s]. ValueError (and nothing changed) for a value that is not finite or does not
     fit its 32-bit entry."""
+    _set_state(table, loop, angle_rad, rate_rad_s)
+
+
+def couple(
+    table: cython.uchar[:],
+    loop: cython.double[:],
+    params: cython.double[:],
+    angle_rad: cython.double,
+    rate_rad_s: cython.double,
+) -> cython.double:
+    """:func:`set_state`, then :func:`torque_n_m` [N m]: a physics joint's exchange with its
+    servo at the start of a plant step, in one call."""
+    _set_state(table, loop, angle_rad, rate_rad_s)
+    return _torque(table, loop, params)
+
+
+@cython.cfunc
+def _set_state(
+    table: cython.uchar[:],
+    loop: cython.double[:],
+    angle_rad: cython.double,
+    rate_rad_s: cython.double,
+) -> cython.int:
     ticks: cython.longlong = _CENTER_TICKS + _units(
         angle_rad,
         _RAD_PER_TICK,
@@ -194,6 +217,7 @@ def set_state(
     loop[L_RATE] = rate_rad_s
     _put(table, _PRESENT_VELOCITY, 4, velocity)
     _put(table, _PRESENT_POSITION, 4, ticks)
+    return 0
 
 
 @cython.cfunc
@@ -244,6 +268,13 @@ def torque_n_m(
 ) -> cython.double:
     """Output torque [N m]: torque constant x present current (0 with torque off) minus the
     gearbox's viscous friction."""
+    return _torque(table, loop, params)
+
+
+@cython.cfunc
+def _torque(
+    table: cython.uchar[:], loop: cython.double[:], params: cython.double[:]
+) -> cython.double:
     friction: cython.double = params[_P_FRICTION] * loop[L_RATE]
     if table[_TORQUE_ENABLE] != 1:
         return -friction

@@ -49,7 +49,7 @@ Simplifications, all stated here:
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -273,8 +273,15 @@ class World:
             raise ValueError(f"the arm has 2 joints, got {len(joints)} servos")
         self.plant = plant
         self.settings = settings
-        self._joints = list(joints)
+        self._couplings = [(c.zero_offset_rad, c.direction, servo) for c, servo in joints]
+        """(zero offset [rad], direction, servo) of eta1 and eta2: shaft angle = zero offset
+        + direction * eta (:meth:`JointConfig.servo_angle_rad
+        <arm_driver.joint.JointConfig.servo_angle_rad>`)."""
         self._gripper_servo = gripper[1] if gripper else None
+        self._servos = [servo for _, servo in joints] + ([gripper[1]] if gripper else [])
+        """Every servo, stepped in this order after the plant."""
+        self._arm_start: tuple[list[float], list[float]] = ([0.0, 0.0], [0.0, 0.0])
+        """(eta [rad], eta_dot [rad/s]) at the start of the step being taken."""
         self.jaw = (
             GripperJaw(gripper[0], closure_on_object=settings.jaw_closure_on_object)
             if gripper
@@ -336,37 +343,43 @@ class World:
     def advance(self, setpoint: AttitudeSetpoint | None) -> None:
         """:meth:`step` without building the new state for the caller (the SITL's loop,
         which reads :attr:`state` only when it needs it)."""
-        flown = setpoint if setpoint is not None else self._motors_off
-        self._step(lambda torques: self.plant.advance(flown, torques))
+        torques = self._couple()
+        self.plant.advance(setpoint if setpoint is not None else self._motors_off, torques)
+        self._settle()
 
     def step_motors(self, motor_commands: Sequence[float]) -> PlantState:
         """Advance one plant step with six motor commands in [0, 1] held (rotor order of
         :mod:`sitl.physics.rotors`): an autopilot outside the simulation flies the
         vehicle, the plant's own attitude loop does not run. Returns the new state; raises
         the plant's errors."""
-        self._step(lambda torques: self.plant.advance_motors(motor_commands, torques))
+        torques = self._couple()
+        self.plant.advance_motors(motor_commands, torques)
+        self._settle()
         return self.plant.state
 
-    def _step(self, plant_step: Callable[[list[float]], None]) -> None:
-        """Couple the servos to the joints, advance the plant with ``plant_step(joint
-        torques)``, then the servos, battery, ground contact and payload."""
-        dt = self.dt_s
-        torques = self._torques
+    def _couple(self) -> list[float]:
+        """The start of a step: each joint servo gets its shaft's angle and rate, the jaw
+        moves under the gripper servo; returns the joint torques [N m] the plant applies
+        over the step (the joints' angles and rates are kept for :meth:`_settle`)."""
         q, q_dot = self.plant.coordinates
-        etas = [float(q[ETA1]), float(q[ETA2])]
-        eta_rates = [float(q_dot[ETA1]), float(q_dot[ETA2])]
-        for i, (config, servo) in enumerate(self._joints):
-            servo.set_state(config.servo_angle_rad(etas[i]), config.direction * eta_rates[i])
-            torques[i] = config.direction * servo.torque_n_m()
-        if self._gripper_servo is not None and self.jaw is not None:
-            self._gripper_servo.set_state(self.jaw.angle_rad, self.jaw.rate_rad_s)
-            self.jaw.advance(self._gripper_servo.torque_n_m(), dt)
-        plant_step(torques)
-        for _, servo in self._joints:
+        e1, e2 = float(q[ETA1]), float(q[ETA2])
+        r1, r2 = float(q_dot[ETA1]), float(q_dot[ETA2])
+        self._arm_start = ([e1, e2], [r1, r2])
+        (zero1, sign1, servo1), (zero2, sign2, servo2) = self._couplings
+        torques = self._torques
+        torques[0] = sign1 * servo1.couple(zero1 + sign1 * e1, sign1 * r1)
+        torques[1] = sign2 * servo2.couple(zero2 + sign2 * e2, sign2 * r2)
+        gripper, jaw = self._gripper_servo, self.jaw
+        if gripper is not None and jaw is not None:
+            jaw.advance(gripper.couple(jaw.angle_rad, jaw.rate_rad_s), self.dt_s)
+        return torques
+
+    def _settle(self) -> None:
+        """The end of a step: the servos' loops advance, then ground contact and payload."""
+        dt = self.dt_s
+        for servo in self._servos:
             servo.step(dt)
-        if self._gripper_servo is not None:
-            self._gripper_servo.step(dt)
-        self._ground_contact(etas, eta_rates)
+        self._ground_contact(*self._arm_start)
         self._update_payload()
 
     @property
