@@ -195,6 +195,11 @@ class Px4Vehicle:
         """The offboard setpoint stream is fresher than COM_OF_LOSS_T at ``now_s`` [s]."""
         return self._commander.offboard_alive(now_s)
 
+    @property
+    def console_waiting(self) -> bool:
+        """:meth:`console` has lines to give."""
+        return bool(self._commander.console)
+
     def console(self) -> list[ConsoleLine]:
         """The console lines since the last call (PX4 prints these to its log)."""
         lines = list(self._commander.console)

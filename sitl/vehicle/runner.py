@@ -47,6 +47,7 @@ from sitl.physics.jsbsim import GearGeometry, JsbsimPlant
 from sitl.px4 import (
     GeoReference,
     MavlinkEndpoint,
+    Px4Mode,
     Px4Params,
     Px4Vehicle,
     attitude_loop_params,
@@ -262,6 +263,8 @@ class SitlVehicle:
         self._setpoint_ms = -1
         """``time_boot_ms`` of the latest setpoint received (:data:`_SETPOINTS`)."""
         self._streaming_until_s = -math.inf
+        self._mode_seen: Px4Mode | None = None
+        """The autopilot's mode at the last step (:attr:`phases` sees each change)."""
         self._open = False
 
     def _make_links(self) -> dict[str, MavlinkEndpoint]:
@@ -434,7 +437,10 @@ class SitlVehicle:
             world.plant.configure_autopilot(attitude_loop_params(autopilot.params))
         measurement = self.navigation.measure(world)
         setpoint = autopilot.control(now_s, measurement)
-        self.phases.observe_mode(autopilot.mode.name, now_s)
+        mode = autopilot.mode
+        if mode is not self._mode_seen:  # a phase begins with a mode, not in it
+            self._mode_seen = mode
+            self.phases.observe_mode(mode.name, now_s)
         with self.servo_bus.lock:
             world.advance(setpoint)
         self._pose_sent_ms = None
@@ -449,10 +455,11 @@ class SitlVehicle:
                 if lockstep and link_name == "onboard" and message.get_type() == _ODOMETRY:
                     self._pose_sent_ms = message.time_usec // 1000
                     self._reads_at_pose = self.servo_bus.sync_reads
-        lines = autopilot.console()
-        if lines and self._console is not None:
-            for line in lines:
-                self._console(_console_text(line.severity, line.text))
+        if autopilot.console_waiting:
+            lines = autopilot.console()
+            if self._console is not None:
+                for line in lines:
+                    self._console(_console_text(line.severity, line.text))
         servo = self._silent
         if servo is not None:
             start_s = self.phases.start_s(servo[1])
