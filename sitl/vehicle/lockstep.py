@@ -35,7 +35,7 @@ import threading
 from collections.abc import Coroutine, Mapping
 from typing import Any, Protocol, TypeVar
 
-from bytelink.memory import end_for_fd
+from bytelink.memory import MemoryEnd, end_for_fd
 
 __all__ = ["Lockstep", "LockstepLoop", "LockstepSelector", "LockstepStall", "run_lockstep"]
 
@@ -76,6 +76,9 @@ class LockstepSelector(selectors.BaseSelector):
         self._sim = sim
         self._max_idle_s = max_idle_s
         self._keys: dict[int, selectors.SelectorKey] = {}
+        self._readers: list[tuple[selectors.SelectorKey, MemoryEnd]] = []
+        """The registered keys watched for reading, each with its open end (an end
+        closed since has an empty inbox for good, and its descriptor is never reused)."""
 
     def register(self, fileobj: Any, events: int, data: Any = None) -> selectors.SelectorKey:
         fd = fileobj if isinstance(fileobj, int) else fileobj.fileno()
@@ -88,25 +91,32 @@ class LockstepSelector(selectors.BaseSelector):
             raise KeyError(f"{fileobj!r} is already registered")
         key = selectors.SelectorKey(fileobj, fd, events, data)
         self._keys[fd] = key
+        self._watch()
         return key
 
     def unregister(self, fileobj: Any) -> selectors.SelectorKey:
         fd = fileobj if isinstance(fileobj, int) else fileobj.fileno()
-        return self._keys.pop(fd)
+        key = self._keys.pop(fd)
+        self._watch()
+        return key
+
+    def _watch(self) -> None:
+        """:attr:`_readers` from the keys now."""
+        self._readers = []
+        for fd, key in self._keys.items():
+            end = end_for_fd(fd)
+            if end is not None and key.events & selectors.EVENT_READ:
+                self._readers.append((key, end))
 
     def get_map(self) -> Mapping[Any, selectors.SelectorKey]:
         return self._keys
 
     def close(self) -> None:
         self._keys.clear()
+        self._readers = []
 
     def _ready(self) -> list[tuple[selectors.SelectorKey, int]]:
-        ready = []
-        for fd, key in self._keys.items():
-            end = end_for_fd(fd)
-            if end is not None and end.readable and key.events & selectors.EVENT_READ:
-                ready.append((key, selectors.EVENT_READ))
-        return ready
+        return [(key, selectors.EVENT_READ) for key, end in self._readers if end.readable]
 
     def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
         """What is readable now; if nothing and ``timeout`` allows, step the simulation
