@@ -171,6 +171,7 @@ def _units(
     return n
 
 
+@cython.ccall
 def set_state(
     table: cython.uchar[:],
     loop: cython.double[:],
@@ -180,29 +181,6 @@ def set_state(
     """Present Position(132) and Present Velocity(128) from the shaft's angle [rad] and rate
     [rad/s]. ValueError (and nothing changed) for a value that is not finite or does not
     fit its 32-bit entry."""
-    _set_state(table, loop, angle_rad, rate_rad_s)
-
-
-def couple(
-    table: cython.uchar[:],
-    loop: cython.double[:],
-    params: cython.double[:],
-    angle_rad: cython.double,
-    rate_rad_s: cython.double,
-) -> cython.double:
-    """:func:`set_state`, then :func:`torque_n_m` [N m]: a physics joint's exchange with its
-    servo at the start of a plant step, in one call."""
-    _set_state(table, loop, angle_rad, rate_rad_s)
-    return _torque(table, loop, params)
-
-
-@cython.cfunc
-def _set_state(
-    table: cython.uchar[:],
-    loop: cython.double[:],
-    angle_rad: cython.double,
-    rate_rad_s: cython.double,
-) -> cython.int:
     ticks: cython.longlong = _CENTER_TICKS + _units(
         angle_rad,
         _RAD_PER_TICK,
@@ -217,7 +195,19 @@ def _set_state(
     loop[L_RATE] = rate_rad_s
     _put(table, _PRESENT_VELOCITY, 4, velocity)
     _put(table, _PRESENT_POSITION, 4, ticks)
-    return 0
+
+
+def couple(
+    table: cython.uchar[:],
+    loop: cython.double[:],
+    params: cython.double[:],
+    angle_rad: cython.double,
+    rate_rad_s: cython.double,
+) -> cython.double:
+    """:func:`set_state`, then :func:`torque_n_m` [N m]: a physics joint's exchange with its
+    servo at the start of a plant step, in one call."""
+    set_state(table, loop, angle_rad, rate_rad_s)
+    return torque_n_m(table, loop, params)
 
 
 @cython.cfunc
@@ -263,18 +253,12 @@ def command_a(
     return _command(table, loop, params, limit_a, loop[L_PROFILE], loop[L_HOLD], tripped)
 
 
+@cython.ccall
 def torque_n_m(
     table: cython.uchar[:], loop: cython.double[:], params: cython.double[:]
 ) -> cython.double:
     """Output torque [N m]: torque constant x present current (0 with torque off) minus the
     gearbox's viscous friction."""
-    return _torque(table, loop, params)
-
-
-@cython.cfunc
-def _torque(
-    table: cython.uchar[:], loop: cython.double[:], params: cython.double[:]
-) -> cython.double:
     friction: cython.double = params[_P_FRICTION] * loop[L_RATE]
     if table[_TORQUE_ENABLE] != 1:
         return -friction
