@@ -114,6 +114,12 @@ class TruthPlant(RotorPlant):
         """The underactuated mode: the rotors move the vehicle (the ideal mode takes tau)."""
         return self.mode == "underactuated"
 
+    @property
+    def coordinates(self) -> tuple[list[float], list[float]]:
+        """q and q_dot now (:attr:`RotorPlant.coordinates
+        <sitl.physics.rotor_plant.RotorPlant.coordinates>`), the plant's own lists."""
+        return self._q_ours, self._qd_ours
+
     def _truth(self) -> tuple:
         return (
             self._q_ours,

@@ -243,6 +243,8 @@ class MavlinkEndpoint:
         mav = self._require_open()
         out: list[mavlink.MAVLink_message] = []
         if self._port is not None:
+            if not self._port.readable:  # nothing waiting: the usual step
+                return out
             for _ in range(max_datagrams):
                 data = self._port.receive()
                 if not data:

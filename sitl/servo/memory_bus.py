@@ -85,14 +85,20 @@ class MemoryServoBus(RespondingBus):
     def __exit__(self, *exc_info: object) -> None:
         self.stop()
 
+    @property
+    def idle(self) -> bool:
+        """:meth:`serve` has nothing to do: no instruction written since, no reply waiting
+        (the usual plant step), or the line is stopped."""
+        channel = self._channel
+        return channel is None or (not channel.server.readable and not self._pending)
+
     def serve(self, now_s: float) -> None:
         """Carry out the instructions written since the last call, at simulation time
         ``now_s`` [s], and put on the line every reply whose time has come."""
-        if self._channel is None:
+        if self.idle:
             return
+        assert self._channel is not None
         end = self._channel.server
-        if not end.readable and not self._pending:  # the usual step: nothing to do
-            return
         data = end.receive_all()
         if data:
             self._parser.feed(data)

@@ -513,8 +513,9 @@ class SitlVehicle:
     def serve(self) -> None:
         """Answer the servo instructions written on the in-memory bus, now (the pty bus
         answers from its own thread)."""
-        if isinstance(self.servo_bus, MemoryServoBus):
-            self.servo_bus.serve(self.world.time_s)
+        bus = self.servo_bus
+        if isinstance(bus, MemoryServoBus) and not bus.idle:
+            bus.serve(self.world.time_s)
 
     def flush_truth(self) -> None:
         """Hand the truth log's buffered lines to the operating system."""

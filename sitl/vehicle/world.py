@@ -192,6 +192,10 @@ class GripperJaw:
         on_object = opened + closure_on_object * (closed - opened)
         self._object_stops = (min(opened, on_object), max(opened, on_object))
         self._low, self._high = self._empty_stops
+        self._middle = 0.5 * (opened + closed)
+        """The middle of the travel [rad]."""
+        self._closing = closed - opened
+        """The travel toward the closed position [rad] (its sign: the closing direction)."""
         self._inertia = inertia_kg_m2
         self._friction = friction_n_m_s
         self.angle_rad = opened
@@ -210,9 +214,7 @@ class GripperJaw:
     @property
     def closed(self) -> bool:
         """Past the middle of the travel toward the closed position."""
-        middle = 0.5 * (self.config.open_position_rad + self.config.closed_position_rad)
-        closing = self.config.closed_position_rad - self.config.open_position_rad
-        return (self.angle_rad - middle) * closing > 0.0
+        return (self.angle_rad - self._middle) * self._closing > 0.0
 
     def advance(self, torque_n_m: float, dt_s: float) -> None:
         """Semi-implicit Euler step under the servo's torque [N m] for ``dt_s`` [s]."""
