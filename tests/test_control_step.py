@@ -28,6 +28,7 @@ from companion.control.laws import DesiredState
 from companion.control.setpoints import ThrustModel
 from companion.estimation.estimator import Skip
 from companion.estimation.filters import FilteredState
+from companion.estimation.inputs import DelayedInputs, delay_cycles
 from sitl.scenario import parse_scenario
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
@@ -148,6 +149,69 @@ def test_the_step_twin_is_its_python_source_bit_for_bit(case: str, monkeypatch) 
         seen["trim"] += bool(np.any(np.abs(fast.trim.force_n) == fast.trim.limit))
         seen["substep"] += dt * fast.tilt.w > 0.1
     assert all(count > 0 for count in seen.values()), seen
+
+
+@pytest.mark.parametrize("delay_s", [0.004, 0.012, 0.05, 0.2])
+@pytest.mark.parametrize("build", ["twin", "python"])
+def test_the_steps_delay_line_is_delayed_inputs_bit_for_bit(
+    delay_s: float, build: str, monkeypatch
+) -> None:
+    """GIVEN a FlightControl whose step keeps the estimator's delay line (n = 3, 8, 33, 133
+    cycles of the first 1.5 ms period: numpy's sum of the periods sequential, in blocks of
+    eight, and split beyond 128 values)
+    and the same step without a delay fed :class:`DelayedInputs` as the step's reference
+    did WHEN seeded cycles of irregular periods with skips and a restart of the line run
+    THEN outputs and the whole state have the same bits."""
+    data = tomllib.loads((CONFIGS / "sitl_pickup.toml").read_text())
+    data["estimator"]["acceleration_delay_s"] = delay_s
+    with_line = parse_scenario(data).beliefs
+    data["estimator"]["acceleration_delay_s"] = 0.0
+    without = parse_scenario(data).beliefs
+    module = twin(control_step) if build == "twin" else control_step
+    line_step = control_over(module, with_line, "passivity", "paper", monkeypatch)
+    fed_step = control_over(module, without, "passivity", "paper", monkeypatch)
+    assert line_step._compiled is not None and fed_step._compiled is not None
+    line: DelayedInputs | None = None
+    rng = np.random.default_rng(5)
+    skips = list(Skip)
+    q = np.array([0.0, 0.0, 1.5, 0.0, 0.0, 0.3, -1.2, 0.4])
+    for i in range(800):
+        q = q + rng.normal(0.0, 0.01, 8)
+        state = FilteredState(q.copy(), rng.normal(0.0, 0.5, 8), rng.normal(0.0, 2.0, 8))
+        desired = DesiredState(q + rng.normal(0.0, 0.1, 8), np.zeros(8), np.zeros(8))
+        dt = 0.0015 if i == 0 else 0.004 if i % 7 else float(rng.uniform(0.001, 0.03))
+        applied: np.ndarray | Skip = (
+            skips[rng.integers(len(skips))]
+            if rng.integers(10) == 0
+            else line_step.applied_force(q, float(rng.uniform(10.0, 20.0)), rng.normal(0, 0.3, 2))
+        )
+        if i == 450:
+            line_step.restart_estimator_inputs()
+            assert line is not None
+            line.reset()
+        if line is None:
+            line = DelayedInputs(delay_cycles(delay_s, dt))
+        inputs = line.push(dt, state.q, state.q_dot, applied)
+        fed = Skip.WARMING_UP if inputs is None else applied
+        results = []
+        for control, tau, given in ((line_step, applied, None), (fed_step, fed, inputs)):
+            assert control._compiled is not None
+            tau_out, setpoint, estimate, _, _ = control._compiled.step(
+                dt, state.q, state.q_dot, state.q_ddot, desired, tau, given
+            )
+            values = [tau_out, [getattr(setpoint, f) for f in setpoint.__dataclass_fields__]]
+            values += [estimate.theta, estimate.excitation, estimate.spread]
+            results.append([b for v in values for b in bits(v)] + bits(own_state(control)))
+        assert results[0] == results[1], f"cycle {i}"
+    assert line_step.estimator.skipped == fed_step.estimator.skipped
+
+
+def own_state(control: FlightControl) -> np.ndarray:
+    """The compiled state before the windows but the delay line's counters."""
+    assert control._compiled is not None
+    layout = control._compiled.layout
+    line = [layout[f"State.delay_{name}"][0] for name in ("count", "head")]
+    return np.delete(control._compiled.state[: layout["State.ring"][0]], line)
 
 
 def stacked_state(rng: np.random.Generator, n: int) -> np.ndarray:

@@ -39,7 +39,7 @@ from companion.estimation.estimator import (
     RlsEstimator,
     Skip,
 )
-from companion.estimation.inputs import EstimatorInputs
+from companion.estimation.inputs import EstimatorInputs, delay_cycles
 
 __all__ = ["CompiledStep", "frozen_record", "skip_and_force"]
 
@@ -296,6 +296,7 @@ class CompiledStep:
         compensate_thrust: bool = False,
         measured_rows: tuple[int, ...] = (),
         attitude_inverse: AttitudeLoopInverse | None = None,
+        estimator_delay_s: float = 0.0,
     ) -> None:
         if not self.supports(controller, estimator):
             raise TypeError("the compiled step runs eq. tau2 with the paper or RLS estimator")
@@ -303,8 +304,11 @@ class CompiledStep:
         self._module = module
         self.layout: dict[str, tuple[int, int]] = dict(module.LAYOUT)
         monitor = estimator.monitor
-        window = monitor._window_samples
+        self._window = window = monitor._window_samples
         self._work = module.work(window)
+        self.estimator_delay_s = estimator_delay_s
+        """The estimator's delay behind the controller [s]: the step keeps the delay line
+        (:mod:`companion.estimation.inputs`), its length set by the first cycle's period."""
         self.params, self.state, self._out = module.blocks(self._work)
         at = {name[4:]: offset for name, (offset, _) in self.layout.items() if name[:4] == "Out."}
         self._scalars = tuple(
@@ -403,6 +407,13 @@ class CompiledStep:
             if attitude_inverse is None
             else _backed(attitude_inverse, _CompiledAttitudeInverse, self)
         )
+        self._bound: list[_Backed] = [
+            obj
+            for obj in (self.estimator, self.estimator.monitor, self.tilt, self.trim)
+            + (() if self.attitude_inverse is None else (self.attitude_inverse,))
+            if isinstance(obj, _Backed)
+        ]
+        """The objects whose state attributes read and write the buffer."""
         self.thrust = thrust
         self.tilt_max_rad = tilt_max_rad
 
@@ -415,6 +426,21 @@ class CompiledStep:
 
     def _set(self, buffer: FloatArray, name: str, value: float) -> None:
         buffer[self.layout[name][0]] = value
+
+    def _start_delay_line(self, n: int) -> None:
+        """A buffer with a delay line of n cycles after the windows, the values so far
+        copied into it and every backed object bound to it."""
+        old = self._work[0]
+        self._work = self._module.work(self._window, n)
+        self._work[0][: len(old)] = old
+        self.params, self.state, self._out = self._module.blocks(self._work)
+        self._set(self.params, "Params.delay_n", n)
+        for obj in self._bound:
+            obj._bind(self)
+
+    def restart_delay_line(self) -> None:
+        """Forget the delay line's cycles: the estimator skips the cycles it refills."""
+        self._set(self.state, "State.delay_count", 0.0)
 
     @property
     def thrust(self) -> ThrustModel:
@@ -458,7 +484,10 @@ class CompiledStep:
         """One cycle: (tau, setpoint, estimate, theta used, desired with the tilt
         reference), as :meth:`FlightControl.step <companion.control.flight.FlightControl.step>`;
         the estimator runs on ``estimator_inputs`` (q, q_dot, q_ddot, applied force) if
-        given, else on this cycle's."""
+        given, else on the delay line's (:attr:`estimator_delay_s`) or this cycle's."""
+        if estimator_inputs is None and self.estimator_delay_s > 0.0:
+            if self.params[self.layout["Params.delay_n"][0]] == 0.0:
+                self._start_delay_line(delay_cycles(self.estimator_delay_s, dt_s))
         skip, tau = skip_and_force(applied_tau)
         args: tuple[Any, ...] = (q, q_dot, q_ddot, desired.q, desired.q_dot, desired.q_ddot, tau)
         extra: tuple[Any, ...] = ()

@@ -225,6 +225,7 @@ class FlightControl:
                 self.compensate_thrust,
                 () if self._unactuated is None else tuple(self._unactuated.tolist()),
                 self.attitude_inverse,
+                self.estimator_delay_s,
             )
             self.estimator = self._compiled.estimator
             self.attitude_inverse = self._compiled.attitude_inverse
@@ -352,13 +353,8 @@ class FlightControl:
     ) -> ControlOutput:
         q, q_dot, q_ddot = state.q, state.q_dot, state.q_ddot
         if self._compiled is not None:
-            inputs = None
-            if self.estimator_delay_s > 0.0:
-                inputs = self._delayed_inputs(dt_s, q, q_dot, applied_tau)
-                if inputs is None:
-                    applied_tau = Skip.WARMING_UP  # the estimator's only input
             tau, setpoint, estimate, theta_hat, reference = self._compiled.step(
-                dt_s, q, q_dot, q_ddot, desired, applied_tau, inputs
+                dt_s, q, q_dot, q_ddot, desired, applied_tau
             )
             return frozen_record(
                 ControlOutput,
@@ -461,7 +457,9 @@ class FlightControl:
         """Forget the estimator's delay line (``acceleration_delay_s``): the state estimate
         jumped (a navigation reset), so a central difference across the jump would be a
         spike. The estimator skips the cycles it takes to refill."""
-        if self._delayed is not None:
+        if self._compiled is not None:
+            self._compiled.restart_delay_line()
+        elif self._delayed is not None:
             self._delayed.reset()
 
     def _delayed_inputs(
