@@ -52,9 +52,9 @@ def check(
         typer.Option(
             "--timing",
             help="Also time the control cycle on this computer: replay a recorded flight's "
-            "inputs (750 cycles) through the filters, the control step, the setpoint's encoding "
-            "and the log row at --control-rate; exit 1 when the cycle's p99 takes more "
-            "than half the control period.",
+            "inputs (750 cycles) through the pose's decoding, the filters, the control step, "
+            "the setpoint's encoding and the log row at --control-rate; exit 1 when the "
+            "cycle's p99 takes more than half the control period.",
         ),
     ] = False,
     control_rate: Annotated[

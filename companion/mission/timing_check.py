@@ -5,6 +5,9 @@ virtual pickup from the grasp on, the estimator running with the payload; made b
 ``benchmarks/record_cycle_inputs.py``) through the flight's own parts, built from the
 user's configuration, one cycle per control period:
 
+- **sense**: the cycle's ODOMETRY (made from the recording before the replay) parsed by
+  pymavlink and decoded into the pose, its ZYX angles taken (what the link's reader and
+  the cycle do with a pose);
 - **filters**: the state filter's calls of the cycle, in its order
   (:class:`~companion.estimation.state.StateAssembler`: predict, pose, velocity, body
   rates, joints and their rates) and the battery voltage for the thrust scale;
@@ -20,7 +23,7 @@ SCHED_FIFO where permitted, :func:`~companion.mission.scheduling.enter_real_time
 that other processes delay it no more than they would delay the flight. Each part is
 timed with ``time.perf_counter``; the verdict is on the whole cycle's 99th percentile
 against half the control period (the other half is the link's, the arm task's
-and the event loop's: decoding the pose, the servo bus, the wake-ups). What the replay
+and the event loop's: the other messages, the servo bus, the wake-ups). What the replay
 leaves out (the mission's logic, the link's reader, the servo bus) is the same on every
 computer, so the headroom it reports is an upper bound of what flight leaves.
 """
@@ -44,11 +47,13 @@ from companion.control.laws import DesiredState
 from companion.coordinates import JOINTS
 from companion.estimation.estimator import Skip
 from companion.estimation.state import StateAssembler
+from companion.frames import ned_from_enu, quaternion_ned_frd_from_enu_flu
 from companion.link.setpoint import (
     ATTITUDE_ONLY_TYPE_MASK,
     attitude_target_ned_frd,
     quaternion_from_euler_zyx,
 )
+from companion.link.telemetry import TelemetryDecoder, VehiclePose
 from companion.logs.mcap_log import ArmGeometry, FlightLogWithMcap
 from companion.mission.cycle import cycle_record
 from companion.mission.scheduling import enter_real_time
@@ -74,7 +79,7 @@ RECORDING = (
 state, applied force (NaN row when unknown) and ``skip`` (0, else 1 + the index of the
 reason in :data:`SKIP_CODES`)."""
 SKIP_CODES: tuple[Skip, ...] = tuple(Skip)
-PARTS = ("filters", "step", "setpoint", "log", "cycle")
+PARTS = ("sense", "filters", "step", "setpoint", "log", "cycle")
 """The parts timed, the whole cycle last."""
 HEADROOM_LIMIT = 0.5
 """The cycle's p99 may take at most this share of the control period."""
@@ -145,6 +150,34 @@ class TimingResult:
         )
 
 
+def odometry_frames(inputs: dict[str, NDArray[np.float64]], period_s: float) -> list[bytes]:
+    """Each cycle's ODOMETRY as PX4 sends it (NED / FRD, MAVLink 2 frame) from the
+    recording's position and ZYX angles (ENU / FLU) at ``period_s`` [s] apart."""
+    mav = mavlink2.MAVLink(_Discard(), 1, 1)
+    frames = []
+    unknown = [math.nan] * 21
+    for i, (position, euler) in enumerate(
+        zip(inputs["position_m"], inputs["euler_rad"], strict=True)
+    ):
+        q_ned = quaternion_ned_frd_from_enu_flu(quaternion_from_euler_zyx(*euler))
+        x, y, z = ned_from_enu(position)
+        message = mav.odometry_encode(
+            int(1e6 + i * period_s * 1e6), mavlink2.MAV_FRAME_LOCAL_NED,
+            mavlink2.MAV_FRAME_BODY_FRD, x, y, z, q_ned, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+            unknown, unknown,
+        )  # fmt: skip
+        frames.append(bytes(message.pack(mav)))
+    return frames
+
+
+def _sense(frame: bytes, mav: mavlink2.MAVLink, decoder: TelemetryDecoder) -> None:
+    """One ODOMETRY's bytes to the pose's position and ZYX angles (the sense part)."""
+    for message in mav.parse_buffer(frame) or ():
+        for sample in decoder.decode(message):
+            if isinstance(sample, VehiclePose):
+                sample.euler_zyx_rad()
+
+
 def _replay_one(
     inputs: dict[str, NDArray[np.float64]],
     i: int,
@@ -194,6 +227,9 @@ def check_timing(
     mav = mavlink2.MAVLink(_Discard(), 1, mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER)
     times = {part: np.zeros(n) for part in PARTS}
     period_s = 1.0 / rate_hz
+    frames = odometry_frames(data, period_s)
+    reader = mavlink2.MAVLink(_Discard(), 255, 0)
+    decoder = TelemetryDecoder()
     clock = time.perf_counter
     with tempfile.TemporaryDirectory(prefix="companion-timing-") as tmp:
         log = FlightLogWithMcap(Path(tmp) / "flight.csv", ArmGeometry.from_config(config))
@@ -206,6 +242,8 @@ def check_timing(
                 if wait > 0.0:
                     sleep(wait)
                 next_s = max(next_s + period_s, clock())
+                ts = clock()
+                _sense(frames[i], reader, decoder)
                 t0 = clock()
                 _replay_one(data, i, assembler, control)
                 t1 = clock()
@@ -229,7 +267,7 @@ def check_timing(
                 t3 = clock()
                 if out is not None:
                     state = assembler.estimate
-                    latency_us = (t3 - t0) * 1e6
+                    latency_us = (t3 - ts) * 1e6
                     log.write(
                         cycle_record(
                             i * period_s,
@@ -246,7 +284,9 @@ def check_timing(
                     )
                 t4 = clock()
                 for part, (a, b) in zip(
-                    PARTS, ((t0, t1), (t1, t2), (t2, t3), (t3, t4), (t0, t4)), strict=True
+                    PARTS,
+                    ((ts, t0), (t0, t1), (t1, t2), (t2, t3), (t3, t4), (ts, t4)),
+                    strict=True,
                 ):
                     times[part][i] = (b - a) * 1e6
         finally:
