@@ -211,7 +211,7 @@ async def fly_pickup(
                     plan,
                     controller=controller,
                     control_rate_hz=control_rate_hz,
-                    log=writer.write,
+                    log=writer,
                     event=event,
                 )
                 try:

@@ -48,7 +48,7 @@ from companion.link.errors import CommandError, LinkClosedError, ParamError
 from companion.link.telemetry import VehiclePose, VehicleStatus
 from companion.mission.announce import announcement
 from companion.mission.arm_supervisor import BUS_FAILURES, SERVO_FAILURE_S, ArmSupervisor
-from companion.mission.cycle import ControlCycle, LogSink
+from companion.mission.cycle import ControlCycle, CycleLog
 from companion.mission.failsafe import FailsafeMonitor, Fault, FaultEvent, Reaction
 from companion.mission.loop_period import CycleWindow, LoopPeriodMonitor
 from companion.mission.offboard import Offboard, Stream
@@ -136,7 +136,8 @@ class PickupApp:
         Rate of the ODOMETRY stream asked of PX4 [Hz]; the loop runs at the rate that
         arrives (measured at preflight, the gains checked for it).
     log, event
-        Where each cycle's row and each event (kind, text, vehicle time [s]) go.
+        Where each cycle's row (a flight log's row to fill and commit; None: none) and each
+        event (kind, text, vehicle time [s]) go.
     """
 
     def __init__(
@@ -148,7 +149,7 @@ class PickupApp:
         *,
         controller: FlightControllerName = "passivity",
         control_rate_hz: float = 250.0,
-        log: LogSink | None = None,
+        log: CycleLog | None = None,
         event: EventSink | None = None,
         takeoff_timeout_s: float = 30.0,
         land_timeout_s: float = 60.0,
@@ -197,7 +198,7 @@ class PickupApp:
             note=self._note,
             fault=self._fault,
             on_fault=self._on_fault,
-            log=log or (lambda row: None),
+            log=log,
         )
         """What the control loop does on each pose."""
         self._mission_clock: tuple[float, float] | None = None

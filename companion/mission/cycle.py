@@ -20,8 +20,8 @@ from __future__ import annotations
 import gc
 import math
 import time
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,7 +43,7 @@ from companion.link.telemetry import (
     VehiclePose,
     VehicleStatus,
 )
-from companion.logs.flightlog import CycleRecord
+from companion.logs import columns
 from companion.mission.arm_supervisor import ArmSupervisor
 from companion.mission.authority import (
     AuthorityLimits,
@@ -61,11 +61,27 @@ from companion.mission.report import FlightFigures, MissionReport, carrying
 from companion.mission.sequence import Observation
 from companion.mission.servo_check import MIN_POSES, ServoCheck, check_poses, fit_servo_check
 
-__all__ = ["ControlCycle"]
+__all__ = ["ControlCycle", "CycleLog", "log_cycle"]
 
 FloatArray = NDArray[np.float64]
-LogSink = Callable[[CycleRecord], None]
-"""Where each cycle's row goes."""
+
+
+_Pair = Sequence[float] | FloatArray
+"""The two joints' values."""
+
+
+class CycleLog(Protocol):
+    """Where each cycle's row goes: a row of :data:`~companion.logs.columns.ROW` to fill,
+    the codes of its texts, and the commit of the filled row
+    (:class:`~companion.logs.flightlog.FlightLogWriter`)."""
+
+    def row(self) -> FloatArray: ...
+
+    def code(self, text: str) -> float: ...
+
+    def commit(self) -> None: ...
+
+
 _HOLD_WINDOW_S = 3.0
 """Vehicle time of PX4's hold before the handover the horizontal bias is taken over [s]."""
 _MAX_JOINT_AGE_S = 0.05
@@ -74,50 +90,54 @@ NOT_ARMED = object()
 """``ControlCycle.status_at_arm`` before the app armed the vehicle."""
 
 
-def cycle_record(
+def log_cycle(
+    log: CycleLog,
     t_s: float,
     state,
     out: ControlOutput,
     setpoint: AttitudeThrustSetpoint | None,
-    servos: tuple[Any, Any, Any],
+    servos: tuple[_Pair, _Pair, _Pair],
     timing: tuple[float, float | None, float, float | None],
     *,
     px4_mode: str,
     armed: bool,
     phase: str,
-    faults: list[str],
-) -> CycleRecord:
-    """One flight-log row of a control cycle at vehicle time ``t_s`` [s]: the filtered
-    ``state``, the step's ``out``, the ``setpoint`` sent (or None), ``servos`` (joint
-    torques commanded, measured [N m], positions [rad]) and ``timing`` (period [ms], pose
-    -> setpoint [us] or None, pose -> joint torques [us], CPU time to the setpoint [us] or
-    None); the flight and the onboard timing check build it alike."""
-    return CycleRecord(
-        t_vehicle_s=t_s,
-        q=state.q,
-        q_dot=state.q_dot,
-        q_ddot=state.q_ddot,
-        q_d=out.desired.q,
-        theta_hat=out.estimate.theta,
-        theta_excitation=out.estimate.excitation,
-        theta_spread=out.estimate.spread,
-        theta_confident=out.estimate.confident,
-        theta_frozen=out.estimate.frozen,
-        thrust_scale_hat=out.estimate.thrust_scale,
-        tau=out.tau,
-        setpoint=setpoint,
-        servo_torque_cmd_n_m=servos[0],
-        servo_torque_meas_n_m=servos[1],
-        servo_position_rad=servos[2],
-        loop_period_ms=timing[0],
-        setpoint_latency_us=timing[1],
-        cycle_latency_us=timing[2],
-        setpoint_cpu_us=timing[3],
-        px4_mode=px4_mode,
-        armed=armed,
-        phase=phase,
-        faults=faults,
-    )
+    faults: Sequence[str],
+) -> None:
+    """One flight-log row of a control cycle at vehicle time ``t_s`` [s], filled in place
+    and committed: the filtered ``state``, the step's ``out``, the ``setpoint`` sent (or
+    None), ``servos`` (joint torques commanded, measured [N m], positions [rad]) and
+    ``timing`` (period [ms], pose -> setpoint [us] or None, pose -> joint torques [us], CPU
+    time to the setpoint [us] or None); the flight and the onboard timing check log alike,
+    the same numbers :func:`~companion.logs.flightlog.fill_row` writes of a record."""
+    row = log.row()
+    row[columns.T] = t_s
+    row[columns.Q] = state.q
+    row[columns.Q_DOT] = state.q_dot
+    row[columns.Q_DDOT] = state.q_ddot
+    row[columns.Q_D] = out.desired.q
+    estimate = out.estimate
+    m2, m3, m4 = estimate.theta.tolist()
+    row[columns.THETA.start : columns.THRUST_SCALE + 1] = (
+        m2, m3, m4, m3 / m2 if m2 != 0.0 else math.nan, estimate.excitation, estimate.spread,
+        estimate.confident, estimate.frozen, estimate.thrust_scale,
+    )  # fmt: skip
+    row[columns.TAU] = out.tau
+    if setpoint is not None:
+        sp = setpoint
+        row[columns.SETPOINT] = (
+            sp.roll_rad, sp.pitch_rad, sp.yaw_rad, sp.thrust_n, sp.thrust_relative,
+            sp.tilt_saturated, sp.thrust_saturated,
+        )  # fmt: skip
+    (c1, c2), (m1, m2_), (p1, p2) = servos
+    period_ms, setpoint_us, cycle_us, setpoint_cpu_us = timing
+    row[columns.SERVO_CMD.start :] = (
+        c1, c2, m1, m2_, p1, p2, period_ms, log.code(px4_mode), armed, log.code(phase),
+        log.code(";".join(faults)), time.time(),
+        math.nan if setpoint_us is None else setpoint_us, cycle_us,
+        math.nan if setpoint_cpu_us is None else setpoint_cpu_us,
+    )  # fmt: skip
+    log.commit()
 
 
 class ControlCycle:
@@ -138,7 +158,7 @@ class ControlCycle:
         The loop's period watch (replaced once preflight has measured the pose rate).
     ground_z, note, fault, on_fault, log
         The ground height [m] taken before arming; where events, raised faults, raised
-        fault events and rows go.
+        fault events and rows go (None: no rows).
     """
 
     def __init__(
@@ -158,7 +178,7 @@ class ControlCycle:
         note: Callable[[str, str], None],
         fault: Callable[[Fault, str], None],
         on_fault: Callable[[FaultEvent], None],
-        log: LogSink,
+        log: CycleLog | None,
     ) -> None:
         self.config = config
         self.link = link
@@ -184,6 +204,8 @@ class ControlCycle:
             flight.nav_invalid_hold_s,
         )
         self.hold_bias = HoldBias(_HOLD_WINDOW_S)
+        self._empty_m2_kg = config.nominal_theta.m2_kg
+        """m2 of the empty link 2 [kg]."""
         self.carry = CarryWatch(
             CarryThresholds(
                 flight.gripper_margin_rad, flight.gripper_current_a, flight.carry_mass_margin_kg
@@ -648,7 +670,7 @@ class ControlCycle:
         """The payload ``out`` estimates: m2 over the empty link 2's [kg] (0: no output yet)."""
         if out is None:
             return 0.0
-        return float(out.estimate.theta[0]) - self.config.nominal_theta.m2_kg
+        return float(out.estimate.theta[0]) - self._empty_m2_kg
 
     def _on_bound(self, out: ControlOutput) -> bool:
         low, high = self.config.estimator.m2_bounds_kg
@@ -709,23 +731,24 @@ class ControlCycle:
         """One row of the flight log; ``timing`` is (period [ms], pose -> setpoint sent
         [us] or None, pose -> joint torques handed over [us], CPU time up to the setpoint
         [us] or None)."""
+        if self._log is None:
+            return
         names = self.arm.names
         nan = [math.nan] * len(names)
         torques = nan if joints is None else [joints[n].torque_n_m for n in names]
         positions = nan if joints is None else [joints[n].position_rad for n in names]
-        self._log(
-            cycle_record(
-                t_s,
-                state,
-                out,
-                sp,
-                (tau_cmd, torques, positions),
-                timing,
-                px4_mode=self.mode() or "",
-                armed=self.armed(),
-                phase=phase,
-                faults=[e.fault.value for e in self.failsafe.raised],
-            )
+        log_cycle(
+            self._log,
+            t_s,
+            state,
+            out,
+            sp,
+            (tau_cmd, torques, positions),
+            timing,
+            px4_mode=self.mode() or "",
+            armed=self.armed(),
+            phase=phase,
+            faults=[e.fault.value for e in self.failsafe.raised],
         )
 
     def finish_report(self) -> None:

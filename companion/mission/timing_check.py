@@ -55,7 +55,7 @@ from companion.link.setpoint import (
 )
 from companion.link.telemetry import TelemetryDecoder, VehiclePose
 from companion.logs.mcap_log import ArmGeometry, FlightLogWithMcap
-from companion.mission.cycle import cycle_record
+from companion.mission.cycle import log_cycle
 from companion.mission.scheduling import enter_real_time
 
 __all__ = [
@@ -268,19 +268,18 @@ def check_timing(
                 if out is not None:
                     state = assembler.estimate
                     latency_us = (t3 - ts) * 1e6
-                    log.write(
-                        cycle_record(
-                            i * period_s,
-                            state,
-                            out,
-                            out.setpoint,
-                            (out.tau[JOINTS], out.tau[JOINTS], state.q[JOINTS]),
-                            (period_s * 1e3, latency_us, latency_us, latency_us),
-                            px4_mode="OFFBOARD",
-                            armed=True,
-                            phase="lift",
-                            faults=[],
-                        )
+                    log_cycle(
+                        log,
+                        i * period_s,
+                        state,
+                        out,
+                        out.setpoint,
+                        (out.tau[JOINTS], out.tau[JOINTS], state.q[JOINTS]),
+                        (period_s * 1e3, latency_us, latency_us, latency_us),
+                        px4_mode="OFFBOARD",
+                        armed=True,
+                        phase="lift",
+                        faults=[],
                     )
                 t4 = clock()
                 for part, (a, b) in zip(
