@@ -240,9 +240,15 @@ def _nested(number: int, parts: list[bytes | int]) -> list[bytes | int]:
 
 def timestamp_field(ns: int) -> bytes:
     """Field 1 holding a ``google.protobuf.Timestamp`` of ``ns`` [ns] (Foxglove's
-    ``timestamp``)."""
+    ``timestamp``): seconds (field 1) and nanoseconds (field 2), each omitted at 0; the
+    Timestamp is at most 12 bytes, so its length is one byte."""
     sec, nsec = divmod(ns, 1_000_000_000)
-    return _bytes_field(1, _int_field(1, sec) + _int_field(2, nsec))
+    body = (b"\x08" + _varint(sec) if sec else b"") + (b"\x10" + _varint(nsec) if nsec else b"")
+    return b"\x0a" + _LENGTH[len(body)] + body
+
+
+_LENGTH = [bytes((n,)) for n in range(128)]
+"""The varint of a length below 128: one byte."""
 
 
 # -- schemas -------------------------------------------------------------------------------
@@ -338,19 +344,17 @@ def time_ns(t_s: float) -> int:
     return round(t_s * 1e9)
 
 
-def _quaternions(phi: NDArray, theta: NDArray, psi: NDArray) -> NDArray[np.float64]:
-    """Quaternions [n, (x, y, z, w)] of R = Rz(psi) Ry(theta) Rx(phi) [rad], as
-    :func:`companion.link.setpoint.quaternion_from_euler_zyx` over arrays."""
-    cr, sr = np.cos(0.5 * phi), np.sin(0.5 * phi)
-    cp, sp = np.cos(0.5 * theta), np.sin(0.5 * theta)
-    cy, sy = np.cos(0.5 * psi), np.sin(0.5 * psi)
-    return np.column_stack(
-        (
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-            cr * cp * cy + sr * sp * sy,
-        )
+def _quaternion_parts(angles: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
+    """(x, y, z, w) of the quaternions of R = Rz(psi) Ry(theta) Rx(phi) with ``angles``
+    [3, n] = (phi, theta, psi) [rad], as :func:`companion.link.setpoint.quaternion_from_euler_zyx`
+    over arrays (one cosine and one sine of all half angles)."""
+    half = 0.5 * angles
+    (cr, cp, cy), (sr, sp, sy) = np.cos(half), np.sin(half)
+    return (
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+        cr * cp * cy + sr * sp * sy,
     )
 
 
@@ -438,18 +442,21 @@ class _Transforms:
     @staticmethod
     def values(rows: NDArray[np.float64]) -> NDArray[np.float64]:
         """The slots of the transforms [n, 15] of ``rows``: base position, the base's,
-        link 1's and link 2's quaternions."""
+        link 1's and link 2's quaternions (:func:`_quaternion_parts` of the three at once)."""
         n = len(rows)
         q = rows[:, columns.Q]
-        zero = np.zeros(n)
-        quaternions = _quaternions(
-            np.concatenate((q[:, 3], zero, zero)),
-            np.concatenate((q[:, 4], -q[:, 6], -q[:, 7])),
-            np.concatenate((q[:, 5], zero, zero)),
-        )
-        return np.column_stack(
-            (q[:, :3], quaternions[:n], quaternions[n : 2 * n], quaternions[2 * n :])
-        )
+        angles = np.zeros((3, 3 * n))  # phi, theta, psi of the base, link 1, link 2
+        angles[0, :n] = q[:, 3]
+        angles[1, :n] = q[:, 4]
+        angles[1, n : 2 * n] = -q[:, 6]
+        angles[1, 2 * n :] = -q[:, 7]
+        angles[2, :n] = q[:, 5]
+        x, y, z, w = _quaternion_parts(angles)
+        out = np.empty((n, 15))
+        out[:, :3] = q[:, :3]
+        for j, part in enumerate((x, y, z, w)):
+            out[:, 3 + j : 15 : 4] = part.reshape(3, n).T
+        return out
 
 
 def encode_block(
@@ -468,30 +475,31 @@ def encode_block(
     values = np.column_stack((transforms.values(rows), rows[:, _CYCLE_COLUMNS]))
     blob = transforms.cycle.pack(values)
     width = transforms.cycle.width
-    o = transforms.offsets
     out: list[tuple[str, int, bytes]] = []
     add = out.append
-    for k, ns in enumerate(times):
-        cycle = blob[k * width : (k + 1) * width]
-        if flown[k]:
+    o0, o1, o2, o3, o4, o5, o6, o7, o8, o9, o10 = transforms.offsets
+    heads = transforms.heads
+    start = 0
+    for ns, is_flown, is_sent in zip(times, flown, sent, strict=True):
+        cycle = blob[start : start + width]
+        start += width
+        if is_flown:
             stamp = timestamp_field(ns)
-            h0, h1, h2, h3 = transforms.heads(len(stamp))
+            h0, h1, h2, h3 = heads(len(stamp))
             tf = b"".join(
                 (
-                    h0, stamp, cycle[o[0] : o[1]],
-                    h1, stamp, cycle[o[1] : o[2]],
-                    h2, stamp, cycle[o[2] : o[3]],
-                    h3, stamp, cycle[o[3] : o[4]],
+                    h0, stamp, cycle[o0:o1], h1, stamp, cycle[o1:o2],
+                    h2, stamp, cycle[o2:o3], h3, stamp, cycle[o3:o4],
                 )
             )  # fmt: skip
             add(("/tf", ns, tf))
-            add(("/vehicle/pose", ns, stamp + cycle[o[4] : o[5]]))
-        add(("/state", ns, cycle[o[5] : o[6]]))
-        add(("/desired", ns, cycle[o[6] : o[7]]))
-        if sent[k]:
-            add(("/setpoint", ns, cycle[o[7] : o[8]]))
-        add(("/estimate", ns, cycle[o[8] : o[9]]))
-        add(("/timing", ns, cycle[o[9] : o[10]]))
+            add(("/vehicle/pose", ns, stamp + cycle[o4:o5]))
+        add(("/state", ns, cycle[o5:o6]))
+        add(("/desired", ns, cycle[o6:o7]))
+        if is_sent:
+            add(("/setpoint", ns, cycle[o7:o8]))
+        add(("/estimate", ns, cycle[o8:o9]))
+        add(("/timing", ns, cycle[o9:o10]))
     return out
 
 
@@ -630,6 +638,9 @@ class McapLogWriter:
         self.context: foxglove.Context | None = None
         self._writer: Any = None
         self._channels: dict[str, foxglove.Channel] = {}
+        self._log: dict[str, Any] = {}
+        """Per topic, its channel's ``base.log(data, log_time, sink_id)``: what
+        ``Channel.log`` calls for bytes, without its checks of the message's type."""
         self._transforms = _Transforms(geometry)
         self._last_ns = 0
         self._closed = False
@@ -661,19 +672,20 @@ class McapLogWriter:
         )
         for topic, name in CHANNELS.items():
             schema = foxglove.Schema(name=name, encoding="protobuf", data=SCHEMAS[name])
-            self._channels[topic] = foxglove.Channel(
+            channel = self._channels[topic] = foxglove.Channel(
                 topic, schema=schema, message_encoding="protobuf", context=context
             )
+            self._log[topic] = channel.base.log
 
     def write_block(self, rows: NDArray[np.float64]) -> None:
         """Write the cycles of ``rows`` (rows of :data:`companion.logs.columns.ROW`) and end
         the chunk (handed to the operating system)."""
         if self._writer is None:
             raise FlightLogError(f"{self.path}: the log is not open")
-        channels = self._channels
+        log = self._log
         messages = encode_block(rows, self._transforms)
         for topic, ns, data in messages:
-            channels[topic].log(data, log_time=ns)
+            log[topic](data, ns, None)
         if messages:
             self._last_ns = messages[-1][1]
             self.messages += len(messages)
@@ -696,6 +708,7 @@ class McapLogWriter:
         self._closed = True
         writer, self._writer = self._writer, None
         self._channels = {}
+        self._log = {}
         self.context = None
         if writer is None:
             return
