@@ -9,8 +9,10 @@ when the twin is built; the Python classes stay the reference the twin is tested
 What the step keeps between cycles, what is fixed and the outputs of the last cycle live
 in one float64 buffer (:func:`control_step.work <companion.control.control_step.work>`):
 ``CompiledStep.state`` and ``CompiledStep.params`` are numpy arrays over its blocks, their
-fields at the offsets of ``control_step.LAYOUT``. The estimator, the excitation monitor,
-the tilt reference and the trim the flight app and the offline simulator hold are
+fields at the offsets of ``control_step.LAYOUT``. The estimator's delay line and the
+battery's thrust scale (its voltage filter and hand-off of s) run in the step too. The
+estimator, the excitation monitor, the tilt reference, the trim and the thrust scale the
+flight app and the offline simulator hold are
 subclasses of the Python ones whose state attributes read and write those arrays
 (:class:`_Field`), so ``freeze``, ``reset``, ``tilt.reset``, ``trim.start`` and every read
 of ``theta``, ``qhat``, ``skipped`` act on the compiled state, with the Python methods
@@ -40,6 +42,7 @@ from companion.estimation.estimator import (
     Skip,
 )
 from companion.estimation.inputs import EstimatorInputs, delay_cycles
+from companion.estimation.thrust_supply import SupplyScale
 
 __all__ = ["CompiledStep", "frozen_record", "skip_and_force"]
 
@@ -81,7 +84,8 @@ def frozen_record(cls: type[_R], **fields: Any) -> _R:
 class _Field:
     """An attribute stored in a float64 buffer of the instance (``_params`` or
     ``_state``) at the offset of a field of ``control_step.LAYOUT``: a float, a bool, or
-    (``shape`` given) an array, returned as a copy or (``view``) as a writable view."""
+    (``shape`` given) an array, returned as a copy or (``view``) as a writable view; an
+    ``optional`` float is None where the buffer holds NaN."""
 
     def __init__(
         self,
@@ -90,12 +94,14 @@ class _Field:
         kind: type = float,
         shape: tuple[int, ...] | None = None,
         view: bool = False,
+        optional: bool = False,
     ) -> None:
         self.buffer = buffer
         self.field = field
         self.kind = kind
         self.shape = shape
         self.view = view
+        self.optional = optional
 
     def _slot(self, obj: Any) -> tuple[FloatArray, int, int]:
         buf = getattr(obj, self.buffer)
@@ -107,7 +113,8 @@ class _Field:
             return self
         buf, offset, _ = self._slot(obj)
         if self.shape is None:
-            return self.kind(buf[offset])
+            value = buf[offset]
+            return None if self.optional and math.isnan(value) else self.kind(value)
         n = math.prod(self.shape)
         values = buf[offset : offset + n].reshape(self.shape)
         return values if self.view else values.copy()
@@ -115,7 +122,7 @@ class _Field:
     def __set__(self, obj: Any, value: Any) -> None:
         buf, offset, _ = self._slot(obj)
         if self.shape is None:
-            buf[offset] = float(value)
+            buf[offset] = math.nan if self.optional and value is None else float(value)
         else:
             n = math.prod(self.shape)
             buf[offset : offset + n] = np.asarray(value, dtype=np.float64).reshape(n)
@@ -241,6 +248,24 @@ class _CompiledAttitudeInverse(_Backed, AttitudeLoopInverse):
         raise TypeError("the compiled control step computes the attitude offset")
 
 
+class _CompiledSupply(_Backed, SupplyScale):
+    """The battery's thrust scale whose voltage filter and hand-off of s to the estimator
+    the compiled step runs; its fit, its calibration samples and its read-outs stay here."""
+
+    exponent = _Field("_params", "Params.supply_exponent")
+    filter_s = _Field("_params", "Params.supply_filter_s")
+    _measured = _Field("_state", "State.supply_measured", optional=True)
+    voltage_v = _Field("_state", "State.supply_v", optional=True)
+    level = _Field("_state", "State.supply_level", optional=True)
+    calibration_v = _Field("_state", "State.supply_cal_v", optional=True)
+
+    def before(self, dt: float, estimator: Estimator) -> None:
+        """Before a step: fit k if a calibration just ended (the step filters the voltage
+        and hands the estimator s)."""
+        if estimator.scale is not None and not estimator.calibrating and self._samples:
+            self.fit()
+
+
 _ESTIMATOR_STATE = (
     *("theta", "frozen", "thrust_scale", "scale_held", "calibrating", "compensation_scale"),
     "skipped",
@@ -252,6 +277,7 @@ _STATE_ATTRIBUTES = {
     _CompiledTilt: ("w", "x", "v", "a"),
     _CompiledTrim: ("gain", "limit", "force_n"),
     _CompiledAttitudeInverse: ("torque_n_m", "integral"),
+    _CompiledSupply: ("exponent", "filter_s", "_measured", "voltage_v", "level", "calibration_v"),
 }
 """Per class, the attributes moved into the buffers."""
 _DROPPED = ("_m2", "_lc", "_since_sample", "_samples")
@@ -266,7 +292,7 @@ def _backed(obj: Any, cls: type[Any], step: CompiledStep) -> Any:
     for name in _STATE_ATTRIBUTES[cls]:
         if name in attributes:
             setattr(new, name, attributes.pop(name))
-    for name in _DROPPED:
+    for name in _DROPPED if cls is _CompiledMonitor else ():
         attributes.pop(name, None)
     new.__dict__.update(attributes)
     return new
@@ -297,6 +323,7 @@ class CompiledStep:
         measured_rows: tuple[int, ...] = (),
         attitude_inverse: AttitudeLoopInverse | None = None,
         estimator_delay_s: float = 0.0,
+        supply: SupplyScale | None = None,
     ) -> None:
         if not self.supports(controller, estimator):
             raise TypeError("the compiled step runs eq. tau2 with the paper or RLS estimator")
@@ -407,10 +434,16 @@ class CompiledStep:
             if attitude_inverse is None
             else _backed(attitude_inverse, _CompiledAttitudeInverse, self)
         )
+        self.supply: SupplyScale | None = None
+        """The battery's thrust scale around the step, or None."""
+        if supply is not None:
+            self._set(self.params, "Params.supply_on", 1.0)
+            self.supply = _backed(supply, _CompiledSupply, self)
         self._bound: list[_Backed] = [
             obj
             for obj in (self.estimator, self.estimator.monitor, self.tilt, self.trim)
             + (() if self.attitude_inverse is None else (self.attitude_inverse,))
+            + (() if self.supply is None else (self.supply,))
             if isinstance(obj, _Backed)
         ]
         """The objects whose state attributes read and write the buffer."""

@@ -56,7 +56,19 @@ from array import array
 
 import cython
 import numpy as np
-from cython.cimports.libc.math import ceil, copysign, cos, fabs, fmod, isfinite, isinf, sin, sqrt
+from cython.cimports.libc.math import (
+    ceil,
+    copysign,
+    cos,
+    fabs,
+    fmod,
+    isfinite,
+    isinf,
+    isnan,
+    pow,
+    sin,
+    sqrt,
+)
 
 from companion.model import _mcg
 
@@ -142,7 +154,10 @@ _P_FF_TORQUE = cython.declare(cython.Py_ssize_t, 158)
 _P_FF_MAX = cython.declare(cython.Py_ssize_t, 160)  # offset limits [rad]
 _P_FF_TF = cython.declare(cython.Py_ssize_t, 162)  # torque filter's time constant [s]
 _P_DELAY_N = cython.declare(cython.Py_ssize_t, 163)  # the delay line's n (0: none)
-PARAMS_SIZE = cython.declare(cython.Py_ssize_t, 164)
+_P_SUPPLY_ON = cython.declare(cython.Py_ssize_t, 164)  # 1: SupplyScale carries s
+_P_SUPPLY_FILTER_S = cython.declare(cython.Py_ssize_t, 165)  # its voltage low-pass [s]
+_P_SUPPLY_EXPONENT = cython.declare(cython.Py_ssize_t, 166)  # n of (V / V_cal)^n
+PARAMS_SIZE = cython.declare(cython.Py_ssize_t, 167)
 """Values of the parameters' block."""
 
 # The outputs (offsets in the buffer).
@@ -242,8 +257,12 @@ _S_FF_TORQUE_F = cython.declare(cython.Py_ssize_t, _STATE + 59)  # low-passed to
 _S_FF_INT = cython.declare(cython.Py_ssize_t, _STATE + 61)  # AttitudeLoopInverse (2)
 _S_DELAY_COUNT = cython.declare(cython.Py_ssize_t, _STATE + 63)  # cycles in the delay line
 _S_DELAY_HEAD = cython.declare(cython.Py_ssize_t, _STATE + 64)  # its next entry
-_S_RING = cython.declare(cython.Py_ssize_t, _STATE + 65)  # m2 window, then lc window
-STATE_SIZE = cython.declare(cython.Py_ssize_t, 65)
+_S_SUPPLY_MEASURED = cython.declare(cython.Py_ssize_t, _STATE + 65)  # SupplyScale [V]
+_S_SUPPLY_V = cython.declare(cython.Py_ssize_t, _STATE + 66)  # low-passed voltage [V]
+_S_SUPPLY_LEVEL = cython.declare(cython.Py_ssize_t, _STATE + 67)  # k [-]
+_S_SUPPLY_CAL_V = cython.declare(cython.Py_ssize_t, _STATE + 68)  # V_cal [V] (NaN: none)
+_S_RING = cython.declare(cython.Py_ssize_t, _STATE + 69)  # m2 window, then lc window
+STATE_SIZE = cython.declare(cython.Py_ssize_t, 69)
 """Values of the state's block before the monitor's two windows and the delay line."""
 _DL_WIDTH = cython.declare(cython.Py_ssize_t, 26)
 """Values of one cycle in the delay line (after the windows, 2n + 1 cycles): q, q_dot, the
@@ -304,6 +323,9 @@ LAYOUT = {
     "Params.ff_max": (_P_FF_MAX, 2),
     "Params.ff_tf": (_P_FF_TF, 1),
     "Params.delay_n": (_P_DELAY_N, 1),
+    "Params.supply_on": (_P_SUPPLY_ON, 1),
+    "Params.supply_filter_s": (_P_SUPPLY_FILTER_S, 1),
+    "Params.supply_exponent": (_P_SUPPLY_EXPONENT, 1),
     "State.theta": (_S_THETA - _STATE, 3),
     "State.frozen": (_S_FROZEN - _STATE, 1),
     "State.thrust_scale": (_S_THRUST_SCALE - _STATE, 1),
@@ -332,6 +354,10 @@ LAYOUT = {
     "State.ff_int": (_S_FF_INT - _STATE, 2),
     "State.delay_count": (_S_DELAY_COUNT - _STATE, 1),
     "State.delay_head": (_S_DELAY_HEAD - _STATE, 1),
+    "State.supply_measured": (_S_SUPPLY_MEASURED - _STATE, 1),
+    "State.supply_v": (_S_SUPPLY_V - _STATE, 1),
+    "State.supply_level": (_S_SUPPLY_LEVEL - _STATE, 1),
+    "State.supply_cal_v": (_S_SUPPLY_CAL_V - _STATE, 1),
     "State.ring": (_S_RING - _STATE, 0),
     "Out.tau": (_O_TAU - _OUT, 8),
     "Out.roll": (_O_ROLL - _OUT, 1),
@@ -934,11 +960,36 @@ def _pieces(
 
 
 @cython.cfunc
+def _supply_before(b: cython.p_double, dt: cython.double) -> cython.int:
+    """:meth:`SupplyScale.before <companion.estimation.thrust_supply.SupplyScale.before>`
+    but its fit (Python's, before the step): the voltage low-passed over ``dt`` [s]; outside
+    a calibration, s = k (V / V_cal)^n handed to the estimator, clipped, and held.
+    FloatingPointError for a non-finite s (the voltage filtered, nothing else changed)."""
+    measured: cython.double = b[_S_SUPPLY_MEASURED]
+    v: cython.double = b[_S_SUPPLY_V]
+    if not isnan(measured):
+        a: cython.double = dt / (b[_P_SUPPLY_FILTER_S] + dt)
+        b[_S_SUPPLY_V] = measured if isnan(v) else v + a * (measured - v)
+    if b[_P_HAS_SCALE] == 0.0 or b[_S_CALIBRATING] != 0.0 or isnan(b[_S_SUPPLY_LEVEL]):
+        return 0
+    factor: cython.double = 1.0
+    if not isnan(b[_S_SUPPLY_CAL_V]) and not isnan(b[_S_SUPPLY_V]):
+        factor = pow(b[_S_SUPPLY_V] / b[_S_SUPPLY_CAL_V], b[_P_SUPPLY_EXPONENT])
+    s: cython.double = _clip_scale(b, b[_S_SUPPLY_LEVEL] * factor)
+    b[_S_THRUST_SCALE] = s
+    b[_S_S_COMP] = s
+    b[_S_SCALE_HELD] = 1.0
+    return 0
+
+
+@cython.cfunc
 def _control_step(
     b: cython.p_double, step_work: tuple, delayed: cython.bint, dt: cython.double, skip: cython.int
 ) -> cython.int:
     """One step on the buffer's inputs; the estimator's are an earlier cycle's (at
     I_EQ..; ``skip`` is theirs then) if ``delayed``."""
+    if b[_P_SUPPLY_ON] != 0.0:
+        _supply_before(b, dt)
     n: cython.Py_ssize_t = cython.cast(cython.Py_ssize_t, b[_P_N_ROWS])
     r: cython.Py_ssize_t
     i: cython.Py_ssize_t

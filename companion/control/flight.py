@@ -226,9 +226,11 @@ class FlightControl:
                 () if self._unactuated is None else tuple(self._unactuated.tolist()),
                 self.attitude_inverse,
                 self.estimator_delay_s,
+                self.supply_scale,
             )
             self.estimator = self._compiled.estimator
             self.attitude_inverse = self._compiled.attitude_inverse
+            self.supply_scale = self._compiled.supply
             self.tilt = self._compiled.tilt
             self.trim = self._compiled.trim
 

@@ -19,9 +19,11 @@ The uncertainty of s (relative): the standard error of k, its samples' correlati
 times the log of the voltage ratio: ``sd(s)/s = sqrt((sd(k)/k)^2 + (sd(n) ln(V/V_cal))^2)``.
 
 :meth:`SupplyScale.before` and :meth:`SupplyScale.after` go around each estimator step
-(compiled or not: they read and write only its ``calibrating``, ``thrust_scale``,
-``compensation_scale``, ``scale_held`` and ``scale``). Pure: no I/O, no clock; times are the
-sum of the control periods handed in [s].
+(they read and write only its ``calibrating``, ``thrust_scale``, ``compensation_scale``,
+``scale_held`` and ``scale``); on the compiled control step the step itself runs
+:meth:`~SupplyScale.before`'s voltage filter and hand-off of s, on the scale's state in its
+buffer (:mod:`companion.control.compiled_step`), and only the fit stays here. Pure: no I/O,
+no clock; times are the sum of the control periods handed in [s].
 """
 
 from __future__ import annotations
