@@ -286,6 +286,35 @@ def test_the_filter_functions_twin_is_their_python_source_bit_for_bit() -> None:
     assert rejected >= 150
 
 
+@pytest.mark.parametrize("build", ["twin", "python"])
+def test_the_filter_product_leaving_out_zeros_is_the_whole_sum(build: str) -> None:
+    """GIVEN sparse A (exact zeros of both signs, as the filter's F, Q and G have) and
+    stacked states with zeros, negative values and, in some, an infinity or a NaN WHEN
+    predict forms A X THEN every value has the bits of the whole sum over k in order,
+    begun at 0.0 (the NaN of 0 x inf included)."""
+    module = twin(control_step) if build == "twin" else control_step
+    rng = np.random.default_rng(9)
+    for i in range(200):
+        n = int(rng.integers(1, 9))
+        a = rng.normal(0.0, 1.0, (17, 17)) * (rng.random((17, 17)) < 0.3)
+        a[rng.random((17, 17)) < 0.1] = -0.0
+        x = rng.normal(0.0, 1.0, (17, n)) * (rng.random((17, n)) < 0.7)
+        x[rng.random((17, n)) < 0.05] = -0.0
+        if i % 7 == 0:
+            x[int(rng.integers(17)), int(rng.integers(n))] = [math.inf, -math.inf, math.nan][i % 3]
+        expected = np.empty((17, n))
+        for r in range(17):
+            for c in range(n):
+                acc = 0.0
+                for k in range(17):
+                    acc += float(a[r, k]) * float(x[k, c])
+                expected[r, c] = acc
+        got = np.empty_like(x)
+        with np.errstate(invalid="ignore"):  # 0 x inf in the Python build's numpy floats
+            module.predict(a, x, got)
+        assert bits(got) == bits(expected), f"case {i}"
+
+
 def test_the_step_refuses_what_it_cannot_read_as_8_float64_values(monkeypatch) -> None:
     """GIVEN the default scenario's step over the compiled twin and over its Python source
     WHEN an input is 7 values, a 2 x 4 array or a value with no buffer (and, for the

@@ -1337,6 +1337,51 @@ def _wrap_angle(a: cython.double) -> cython.double:
 
 
 @cython.cfunc
+@cython.locals(x=_Matrix)
+def _product(
+    a: cython.p_double, rows: cython.Py_ssize_t, x, n: cython.Py_ssize_t, out: cython.p_double
+) -> cython.int:
+    """out[n r + c] = sum over k of a[17 r + k] x[k, c] (a: rows x 17, row-major), each
+    sum in k's order. Where X is finite the exact zeros of a are left out: a product 0 x
+    is a signed zero, and a sum begun at +0.0 is the same with or without it (it never
+    becomes -0.0), so the bits are those of the whole sum; a non-finite X (0 x inf is NaN)
+    takes every term."""
+    i: cython.Py_ssize_t
+    k: cython.Py_ssize_t
+    c: cython.Py_ssize_t
+    j: cython.Py_ssize_t
+    acc: cython.double
+    finite: cython.bint = True
+    for k in range(_N_STACK):
+        for c in range(n):
+            finite = finite and isfinite(x[k, c])
+    if not finite:
+        for i in range(rows):
+            for c in range(n):
+                acc = 0.0
+                for k in range(_N_STACK):
+                    acc += a[_N_STACK * i + k] * x[k, c]
+                out[n * i + c] = acc
+        return 0
+    at = cython.declare(cython.Py_ssize_t[17])  # the nonzero terms of a row of a
+    value = cython.declare(cython.double[17])
+    m: cython.Py_ssize_t
+    for i in range(rows):
+        m = 0
+        for k in range(_N_STACK):
+            if a[_N_STACK * i + k] != 0.0:
+                at[m] = k
+                value[m] = a[_N_STACK * i + k]
+                m += 1
+        for c in range(n):
+            acc = 0.0
+            for j in range(m):
+                acc += value[j] * x[at[j], c]
+            out[n * i + c] = acc
+    return 0
+
+
+@cython.cfunc
 def _fuse_columns(
     x: cython.double[:, ::1], n: cython.Py_ssize_t, g: cython.p_double, wrap: tuple
 ) -> cython.int:
@@ -1347,15 +1392,8 @@ def _fuse_columns(
     w = cython.declare(cython.double[200])
     i: cython.Py_ssize_t
     c: cython.Py_ssize_t
-    k: cython.Py_ssize_t
     cc: cython.Py_ssize_t
-    acc: cython.double
-    for i in range(25):
-        for c in range(n):
-            acc = 0.0
-            for k in range(_N_STACK):
-                acc += g[_N_STACK * i + k] * x[k, c]
-            w[n * i + c] = acc
+    _product(g, 25, x, n, w)
     total: cython.double = 0.0
     for c in range(n):
         total += w[c]
@@ -1517,10 +1555,12 @@ def predict(A, X, X_next) -> None:
     i: cython.Py_ssize_t
     c: cython.Py_ssize_t
     k: cython.Py_ssize_t
-    acc: cython.double
+    flat = cython.declare(cython.double[289])
+    ys = cython.declare(cython.double[136])
+    for i in range(_N_STACK):
+        for k in range(_N_STACK):
+            flat[_N_STACK * i + k] = a[i, k]
+    _product(flat, _N_STACK, x, n, ys)
     for i in range(_N_STACK):
         for c in range(n):
-            acc = 0.0
-            for k in range(_N_STACK):
-                acc += a[i, k] * x[k, c]
-            y[i, c] = acc
+            y[i, c] = ys[n * i + c]
