@@ -42,6 +42,9 @@ compares them). The builds differ only in how they reach the data (the ``cython.
 branches): the compiled build takes the buffer's and the inputs' addresses through the
 buffer protocol and calls the model's C function through its capsule, so that a step
 creates no Python object; the Python build indexes the arrays and calls ``_mcg.mcg``.
+The module is long (about 1,500 lines) because it is one compilation unit: its parts
+share the buffer's offsets, the float rules and the filter's product as C functions that
+call each other without Python, which a split across twins would lose.
 
 Everything one step keeps between calls, everything fixed and its scratch live in one
 float64 buffer (``array("d")``) built by :func:`work`: the parameters, the outputs, the
