@@ -312,6 +312,23 @@ def test_a_link_cut_placed_at_the_grasp_starts_when_the_companion_says_it_grasps
     assert verdict.safe, verdict.broken
 
 
+def test_a_long_link_cut_leaves_the_arm_held_by_the_servos_watchdog(tmp_path):
+    """The link silent for 10 s from 0.5 s into to_object: the control loop gets no pose,
+    so it commands the servos no more; PX4 returns and lands. The servos' Bus Watchdog
+    (the config's watchdog_ms, flown by the simulated bus as on the vehicle) stops the
+    joints, which would otherwise keep their last goal current and spin the arm past its
+    limits on the ground; when the link is back, the app enables the torque again."""
+    start = PhaseStart("to_object", 0.5)
+    failure, summary, truth = fly(tmp_path, SCENARIO, link_cut=(start, 10.0))
+    assert failure is not None and not summary["completed"]
+    assert summary["faults"][0]["fault"] == "link_lost"
+    verdict = judge(truth, summary, PLACE_AT, float(truth[-1]["t_s"]))
+    assert verdict.safe, verdict.broken
+    assert max(abs(q) for r in truth for q in r["q"][6:8]) < 3.2  # within the joints' reach
+    events = (tmp_path / "flight.events.csv").read_text()
+    assert "servo watchdog 100 ms): torque enabled again" in events
+
+
 def test_sitl_demo_on_virtual_time_places_the_object_and_says_how_well(run_sitl, tmp_path):
     """The command a user runs: the default pickup on simulated time, its log, figures and
     the estimate against the truth; the option's mistakes are one line each."""

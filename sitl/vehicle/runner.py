@@ -34,6 +34,7 @@ import threading
 import time
 from collections.abc import Callable
 from typing import IO
+from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
@@ -336,7 +337,7 @@ class SitlVehicle:
                 "onboard": f"memory {memory}-onboard",
                 "gcs": f"memory {memory}-gcs",
                 "connect": f"memory://{memory}-onboard",
-                "arm_bus": f"dynamixel://{self.servo_bus.device}?baud=1000000",
+                "arm_bus": f"dynamixel://{self.servo_bus.device}?baud=1000000{self._watchdog}",
             }
         onboard, gcs = (
             self._bound_port("onboard", p.onboard_local),
@@ -347,8 +348,22 @@ class SitlVehicle:
             "gcs": f"udp {p.host}:{gcs} -> {p.host}:{p.gcs_remote}",
             "connect": f"udpin://0.0.0.0:{p.onboard_remote}",
             # The emulator answers from a Python thread: allow for scheduling delays.
-            "arm_bus": f"dynamixel://{self.servo_bus.device}?baud=1000000&timeout_margin_ms=20",
+            "arm_bus": (
+                f"dynamixel://{self.servo_bus.device}?baud=1000000&timeout_margin_ms=20"
+                f"{self._watchdog}"
+            ),
         }
+
+    @property
+    def _watchdog(self) -> str:
+        """The scenario's servo Bus Watchdog as a bus URL option (``&watchdog_ms=N``; empty
+        without one): the simulated servos fly with the watchdog the vehicle's config
+        arms, so a companion that stops talking to them meets what it would in flight."""
+        section = self.scenario.arm_bus
+        if section is None:
+            return ""
+        found = parse_qs(urlsplit(section.url).query).get("watchdog_ms")
+        return "" if not found else f"&watchdog_ms={found[-1]}"
 
     def _bound_port(self, link: str, configured: int) -> int:
         """The local port ``link`` is bound to (the free one chosen for 0), once open."""
