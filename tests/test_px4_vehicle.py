@@ -7,6 +7,7 @@ tests/px4_conformance.py for the scenarios that judge both against each other).
 import math
 import os
 import struct
+from types import SimpleNamespace
 
 os.environ.setdefault("MAVLINK20", "1")
 
@@ -19,6 +20,7 @@ from companion.frames import euler_zyx_from_quaternion, quaternion_ned_frd_from_
 from sitl.physics.frames import quaternion_from_euler
 from sitl.px4 import PARAMETERS, Px4Mode, Px4Params, Px4Vehicle, VehicleMeasurement
 from sitl.px4.params import attitude_loop_params
+from sitl.px4.position_control import PositionController, PositionTarget
 from sitl.px4.streams import ONBOARD_RATES_HZ, StreamScheduler
 from sitl.px4.telemetry import TelemetryEncoder
 from sitl.scenario import load_scenario
@@ -691,10 +693,6 @@ def test_a_land_while_climbing_follows_px4s_jerk_limited_descent():
     0.75 m/s). On an ideal vehicle that flies the acceleration it is asked for, the
     setpoint never overshoots MPC_LAND_SPEED and never changes acceleration faster than
     MPC_JERK_AUTO."""
-    from types import SimpleNamespace
-
-    from sitl.px4.position_control import PositionController, PositionTarget
-
     params = Px4Params()
     control = PositionController(params)
     land = PositionTarget(0.0, 0.0, None, 0.0, climb_m_s=-params["MPC_LAND_SPEED"], smoothed=True)

@@ -34,11 +34,11 @@ import threading
 import time
 from collections.abc import Callable
 from typing import IO
-from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
 from arm_driver.joint import GripperConfig, JointConfig
+from arm_driver.url import parse_bus_url
 from bytelink.memory import MemoryChannel, MemoryEnd, create_channel
 from companion.config import arm_bus_configs
 from companion.coordinates import POSITION
@@ -362,8 +362,8 @@ class SitlVehicle:
         section = self.scenario.arm_bus
         if section is None:
             return ""
-        found = parse_qs(urlsplit(section.url).query).get("watchdog_ms")
-        return "" if not found else f"&watchdog_ms={found[-1]}"
+        watchdog_ms = parse_bus_url(section.url).options.get("watchdog_ms")
+        return "" if watchdog_ms is None else f"&watchdog_ms={watchdog_ms}"
 
     def _bound_port(self, link: str, configured: int) -> int:
         """The local port ``link`` is bound to (the free one chosen for 0), once open."""
