@@ -5,8 +5,8 @@ The XM430 servo's per-step physics (``sitl.servo.xm430_loop``: one servo's ``set
 the PX4-like attitude loop (``sitl.physics.attitude_loop``: one
 ``Px4AttitudeLoop.update`` of the default scenario's loop at a tilted attitude) and the
 truth plant's integration step (``sitl.physics.integration_step``: one
-``ArticulatedIntegrator.step_kinematics`` of the default scenario's model under a rotor
-wrench, semi-implicit Euler and RK4) and the companion's control step
+``ArticulatedIntegrator.step`` of the default scenario's model under a rotor wrench,
+semi-implicit Euler and RK4, the state in its buffer) and the companion's control step
 (``companion.control.control_step``: one ``CompiledStep.step`` of the default scenario's
 controller, RLS estimator with the attitude feed-forward). Prints the best of
 ``--repeat`` runs of ``--calls`` calls, for the compiled twin and for the Python source::
@@ -33,9 +33,7 @@ from sitl.physics import attitude_control, attitude_loop, integration_step, roto
 from sitl.physics.articulation import build_articulation
 from sitl.physics.attitude_control import AttitudeLoopParams, AttitudeSetpoint, Px4AttitudeLoop
 from sitl.physics.frames import (
-    euler_rate_matrix_inverse9,
     quaternion_from_euler,
-    rotation9_from_quaternion,
 )
 from sitl.physics.integration import ArticulatedIntegrator, BodyWrench, IntegratorMethod
 from sitl.physics.rotors import RotorGeometry, SequentialDesaturationMixer
@@ -85,8 +83,8 @@ def attitude_loop_us(compiled: bool, calls: int, repeat: int) -> float:
 
 
 def integration_step_us(method: IntegratorMethod, compiled: bool, calls: int, repeat: int) -> float:
-    """Microseconds per ArticulatedIntegrator.step_kinematics (the sitl_pickup.toml model,
-    1 kHz) from a tilted, moving state under a hover wrench."""
+    """Microseconds per ArticulatedIntegrator.step (the sitl_pickup.toml model, 1 kHz) on
+    from a tilted, moving state under a hover wrench without torque."""
     scenario = load_scenario(ROOT / "configs" / "sitl_pickup.toml")
     integrator = ArticulatedIntegrator(
         build_articulation(scenario).model, 1e-3, method, compiled=compiled
@@ -95,11 +93,10 @@ def integration_step_us(method: IntegratorMethod, compiled: bool, calls: int, re
     w, qx, qy, qz = quaternion_from_euler(phi, theta, psi).tolist()
     x = [0.1, 0.2, 1.0, qx, qy, qz, w, 0.3, -0.4]
     u = [0.1, -0.05, 0.02, 0.01, 0.02, -0.03, 0.2, -0.1]
-    r9 = rotation9_from_quaternion(w, qx, qy, qz)
-    w_inv9 = euler_rate_matrix_inverse9(phi, theta)
-    force = BodyWrench(20.0, (0.01, -0.02, 0.003), (0.3, 0.3, 0.5), (0.1, -0.05))
+    assert integrator.load(x, u, (phi, theta, psi)) == 0
+    force = BodyWrench(20.0, (0.0, 0.0, 0.0), (0.3, 0.3, 0.5), (0.1, -0.05))
     seconds = timeit.repeat(
-        lambda: integrator.step_kinematics(x, u, force, r9, (phi, theta, psi), u, w_inv9),
+        lambda: integrator.step(force),
         number=calls,
         repeat=repeat,
     )
@@ -148,11 +145,11 @@ def main() -> None:
         ("XM430 servo, set_state + step + torque_n_m per servo and plant step", servo_step_us),
         ("PX4-like attitude loop, Px4AttitudeLoop.update per plant step", attitude_loop_us),
         (
-            "Integration step, semi-implicit Euler, step_kinematics per plant step",
+            "Integration step, semi-implicit Euler, ArticulatedIntegrator.step per plant step",
             functools.partial(integration_step_us, "semi_implicit_euler"),
         ),
         (
-            "Integration step, RK4, step_kinematics per plant step",
+            "Integration step, RK4, ArticulatedIntegrator.step per plant step",
             functools.partial(integration_step_us, "rk4"),
         ),
         ("Companion control step, CompiledStep.step per control cycle", control_step_us),

@@ -3,8 +3,9 @@
 
 Each is one source built twice: the two builds agree bit for bit on random states and
 inputs, failures included. The step is reached through its public caller,
-``ArticulatedIntegrator`` (compiled or not), and its kinematics is checked against the
-frames functions; ``Px4AttitudeLoop.update`` agrees with its parts called one by one.
+``ArticulatedIntegrator`` (compiled or not), whose state lives in its work buffer (the
+fields of ``integration_step.LAYOUT``), and its kinematics is checked against the frames
+functions; ``Px4AttitudeLoop.update`` agrees with its parts called one by one.
 """
 
 from __future__ import annotations
@@ -106,6 +107,22 @@ def _bits(values) -> list:
     return [values if isinstance(values, int) else float(values).hex()]
 
 
+def _place(integ: ArticulatedIntegrator, state) -> None:
+    """The state (x, u, R, Euler angles, q_dot, W^-1) into the integrator's buffer, its
+    other fields zero."""
+    values = dict(zip(("x", "u", "rotation", "euler", "q_dot", "w_inv"), state, strict=True))
+    for name, (offset, size) in integration_step.LAYOUT.items():
+        integ.work[offset : offset + size] = array("d", values.get(name, [0.0] * size))
+
+
+def _fields(integ: ArticulatedIntegrator) -> dict[str, list[float]]:
+    """The state's fields in the integrator's buffer."""
+    return {
+        name: integ.work[offset : offset + size].tolist()
+        for name, (offset, size) in integration_step.LAYOUT.items()
+    }
+
+
 def _python_kinematics(x, u, euler_previous):
     """TruthPlant's kinematics by the frames functions, as the step returns them."""
     px, py, pz, qx, qy, qz, qw, e1, e2 = x
@@ -132,9 +149,10 @@ def _flat(values) -> np.ndarray:
 def test_the_integration_step_twin_is_its_python_source_bit_for_bit(integrator, kind) -> None:
     """GIVEN random states and forces, and states whose step fails in each way WHEN the
     compiled twin and the Python source of sitl.physics.integration_step each step, evaluate
-    q_ddot without a step and the kinematics of the state THEN every result and status has
-    the same bits; the step's q_ddot is the acceleration's, and the kinematics of a random
-    state's step is the frames functions' to 1e-12."""
+    q_ddot without a step and load the state with its kinematics THEN every status and the
+    states in their work buffers have the same bits; the step's q_ddot is the
+    acceleration's, and the kinematics of a random state's step is the frames functions' to
+    1e-12."""
     assert twin_reason(integration_step) is None, twin_reason(integration_step)
     model = build_articulation(PAPER).model
     compiled = ArticulatedIntegrator(model, 1e-3, integrator)
@@ -145,22 +163,32 @@ def test_the_integration_step_twin_is_its_python_source_bit_for_bit(integrator, 
     statuses: Counter[int] = Counter()
     for i in range(200):
         case = i % 5 if i < 100 else 0
-        x, u, r9, euler, qd, wi = _case(rng, case)
+        state = _case(rng, case)
+        x, u, _, euler, _, _ = state
         force = _force(rng, kind, held=case in (1, 2))
         results = []
         for integ in (compiled, source):
-            out = integ.step_kinematics(x, u, force, r9, euler, qd, wi)
-            a = integ.acceleration(x, u, force, r9, euler, qd, wi)
-            k = integ.kinematics(x, u, euler)
-            results.append(_bits((out, a, k)))
+            _place(integ, state)
+            out = integ.step(force)
+            stepped = _fields(integ)
+            _place(integ, state)
+            a = integ.acceleration(force)
+            accelerated = _fields(integ)
+            _place(integ, state)
+            k = integ.load(x, u, euler)
+            loaded = _fields(integ)
+            results.append(_bits((out, *stepped.values(), a, *accelerated.values(), k)))
+            results[-1] += _bits(list(loaded.values()))
         assert results[0] == results[1]
-        statuses[out[0]] += 1
-        if out[0] == 0:
-            assert _bits(a) == _bits((0, out[3]))
+        statuses[out] += 1
+        if out == 0:
+            assert _bits(accelerated["acceleration"]) == _bits(stepped["q_ddot"])
         if case == 0:
-            expected = _python_kinematics(out[1], out[2], euler)
-            expected.insert(2, out[3])
-            np.testing.assert_allclose(_flat(out[1:]), _flat(expected), rtol=0, atol=TOL)
+            expected = _python_kinematics(stepped["x"], stepped["u"], euler)
+            names = ("x", "u", None, "rotation", "euler", "w_inv", None, "q", "q_dot")
+            got = [stepped[n] for n in names if n is not None]
+            want = [v for n, v in zip(names, expected, strict=True) if n is not None]
+            np.testing.assert_allclose(_flat(got), _flat(want), rtol=0, atol=TOL)
     if kind == "wrench":
         failures = {1, 3, 4}  # a wrench is defined at any pitch
     elif integrator == "rk4":
@@ -179,11 +207,12 @@ def test_the_rotor_step_twin_is_its_parts_and_its_python_source_bit_for_bit(
     fails WHEN the compiled twin and the Python source of sitl.physics.integration_step
     each take the rotor plant's step in one call (rotor_step), and the compiled twin takes
     it in parts (the pack's draw, the rotor wrench as a BodyWrench step, the rotors' lag)
-    THEN results, statuses, the rotors' and the pack's buffers have the same bits in all
-    three; a failed step leaves the rotors' thrusts as they were."""
+    THEN statuses, the states in the work buffers, the rotors' and the pack's buffers have
+    the same bits in all three; a failed step leaves the rotors' thrusts as they were."""
     model = build_articulation(PAPER).model
     compiled = ArticulatedIntegrator(model, 1e-3, integrator)
     source = ArticulatedIntegrator(model, 1e-3, integrator, compiled=False)
+    parts = ArticulatedIntegrator(model, 1e-3, integrator)
     rotors = PAPER.vehicle.rotors
     geometry = RotorGeometry.hexa_x(rotors.arm_length_m, rotors.yaw_moment_per_thrust_m)
     rows = geometry.wrench_matrix()[:3].tolist()
@@ -194,7 +223,7 @@ def test_the_rotor_step_twin_is_its_parts_and_its_python_source_bit_for_bit(
     statuses: Counter[int] = Counter()
     for i in range(120):
         case = i % 5 if i < 60 else 0
-        x, u, r9, euler, qd, wi = _case(rng, case)
+        state = _case(rng, case)
         thrusts = rng.uniform(0.0, 6.0, 6).tolist()
         commands = rng.uniform(0.0, 1.0, 6).tolist()
         joint = rng.normal(0.0, 1.0, 2).tolist()
@@ -204,20 +233,19 @@ def test_the_rotor_step_twin_is_its_parts_and_its_python_source_bit_for_bit(
             bank = RotorBank(max_thrust, 0.3, 0.025, 1e-3)
             bank.reset(thrusts)
             pack = LipoPack(4, 2.0, 0.05, charge) if battery else None
+            _place(integ, state)
             out = integ.rotor_step(
-                x,
-                u,
-                r9,
-                euler,
-                qd,
-                wi,
-                commands,
-                joint,
-                bank.buffer,
-                None if pack is None else pack.buffer,
+                commands, joint, bank.buffer, None if pack is None else pack.buffer
             )
             results.append(
-                _bits((out, bank.buffer.tolist(), [] if pack is None else pack.buffer.tolist()))
+                _bits(
+                    (
+                        out,
+                        *_fields(integ).values(),
+                        bank.buffer.tolist(),
+                        [] if pack is None else pack.buffer.tolist(),
+                    )
+                )
             )
         bank = RotorBank(max_thrust, 0.3, 0.025, 1e-3)
         bank.reset(thrusts)
@@ -236,16 +264,24 @@ def test_the_rotor_step_twin_is_its_parts_and_its_python_source_bit_for_bit(
             for row in rows
         )
         wrench = BodyWrench(sum(t), torque, drag, (joint[0], joint[1]), wind)  # type: ignore[arg-type]
-        out = compiled.step_kinematics(x, u, wrench, r9, euler, qd, wi)
-        if out[0] == 0:
+        _place(parts, state)
+        out = parts.step(wrench)
+        if out == 0:
             bank.advance(commands)
         else:
             assert bank.thrust_list_n == thrusts
         results.append(
-            _bits((out, bank.buffer.tolist(), [] if pack is None else pack.buffer.tolist()))
+            _bits(
+                (
+                    out,
+                    *_fields(parts).values(),
+                    bank.buffer.tolist(),
+                    [] if pack is None else pack.buffer.tolist(),
+                )
+            )
         )
         assert results[0] == results[1] == results[2]
-        statuses[out[0]] += 1
+        statuses[out] += 1
     assert statuses[0] > 60 and {1, 3} <= set(statuses), statuses
 
 

@@ -32,10 +32,13 @@ of the body rate, quaternion <- quaternion * exp(h omega / 2).
 The arithmetic is one module, :mod:`sitl.physics.integration_step`, which runs as Python
 and is compiled as it is into ``sitl.physics._integration_step`` (a compiled twin,
 :mod:`companion.compiled`): its floats, Pinocchio's ABA called back for every stage.
-:meth:`ArticulatedIntegrator.step_kinematics` steps with it and also returns the new
-state's kinematics; :meth:`ArticulatedIntegrator.rotor_step` is the rotor plant's whole step
-in the same call (the battery's draw, the rotor wrench, the step, the rotors' lag);
-:meth:`ArticulatedIntegrator.acceleration` evaluates q_ddot without a step.
+The state lives in the integrator's work buffer (:attr:`ArticulatedIntegrator.work`, the
+fields of :data:`~sitl.physics.integration_step.LAYOUT`):
+:meth:`ArticulatedIntegrator.step` steps it there and leaves the new state's kinematics
+beside it; :meth:`ArticulatedIntegrator.rotor_step` is the rotor plant's whole step in the
+same call (the battery's draw, the rotor wrench, the step, the rotors' lag);
+:meth:`ArticulatedIntegrator.load` puts a state in; :meth:`ArticulatedIntegrator.acceleration`
+evaluates q_ddot without a step.
 """
 
 from __future__ import annotations
@@ -49,7 +52,7 @@ import pinocchio as pin
 
 from companion.compiled import twin
 from sitl.physics import integration_step
-from sitl.physics.frames import Rot9, rotation9_from_quaternion
+from sitl.physics.frames import rotation9_from_quaternion
 
 __all__ = ["ArticulatedIntegrator", "BodyWrench", "GeneralizedForce", "IntegratorMethod"]
 
@@ -199,38 +202,29 @@ class ArticulatedIntegrator:
         det = a11 * a22 - a12 * a12
         return ((a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det)
 
-    def step_kinematics(
-        self,
-        x: list[float],
-        u: list[float],
-        force: GeneralizedForce | BodyWrench,
-        r: Rot9,
-        euler: tuple[float, float, float],
-        q_dot: list[float],
-        w_inv9: Rot9,
-    ) -> tuple:
-        """One step from (x, u), and the kinematics of the result.
+    @property
+    def work(self) -> array:
+        """The float64 buffer the steps work in, the state among it
+        (:data:`sitl.physics.integration_step.LAYOUT`)."""
+        return self._work
 
-        ``r``, ``euler`` (ZYX [rad]), ``q_dot`` (ours) and ``w_inv9`` (W(Phi)^-1) are those
-        of (x, u), as the plant keeps them. Returns ``(0, x+ (quaternion renormalized), u+,
-        q_ddot of the step, quaternion wxyz, R9, euler, W^-1 9, omega, q, q_dot)`` of the
-        new state; on failure ``(status, theta)``: 1 non-finite accelerations or body rate,
-        2 the force's W(Phi) singular at pitch theta [rad]; or ``(3 or 4, theta, x+, u+,
-        q_ddot)`` when the new state itself is non-finite (3) or at the singularity (4).
-        """
+    def load(
+        self, x: list[float], u: list[float], euler_previous: tuple[float, float, float]
+    ) -> int:
+        """Make (x, u) the state with its kinematics: the quaternion renormalized (w >= 0),
+        phi and psi unwrapped next to ``euler_previous``; the last step's q_ddot is kept.
+        Returns 0, or 1 (non-finite) / 2 (W(Phi) singular, the pitch in the ``theta``
+        field) with the state unchanged."""
+        return self._step.load(x, u, euler_previous, self._work)
+
+    def step(self, force: GeneralizedForce | BodyWrench) -> int:
+        """One step from the state under ``force``; the new state with its kinematics and
+        the step's q_ddot become the state. Returns 0; on failure 1 non-finite
+        accelerations or body rate, 2 the force's W(Phi) singular at the pitch in the
+        ``theta`` field (the state unchanged); 3 or 4 when the new state itself is
+        non-finite (3) or at the singularity (4) (then only x, u and q_ddot are new)."""
         return self._step.step(
-            self.method == "rk4",
-            self.dt_s,
-            x,
-            u,
-            r,
-            euler,
-            q_dot,
-            w_inv9,
-            force.KIND,
-            force.values,
-            self._aba,
-            self._work,
+            self.method == "rk4", self.dt_s, force.KIND, force.values, self._aba, self._work
         )
 
     def set_rotor_wrench(
@@ -248,31 +242,19 @@ class ArticulatedIntegrator:
 
     def rotor_step(
         self,
-        x: list[float],
-        u: list[float],
-        r: Rot9,
-        euler: tuple[float, float, float],
-        q_dot: list[float],
-        w_inv9: Rot9,
         commands: list[float],
         joint_torques_n_m: list[float],
         rotors: array,
         battery: array | None,
-    ) -> tuple:
-        """One step of the rotor plant (:func:`sitl.physics.integration_step.rotor_step`):
-        the ``battery`` buffer (None: an ideal supply) feeds the thrusts of the ``rotors``
-        buffer, which push with drag, wind and the joint torques (:meth:`set_rotor_wrench`)
-        over the step and then lag toward the six ``commands``. Returns as
-        :meth:`step_kinematics`."""
+    ) -> int:
+        """One step of the rotor plant from the state
+        (:func:`sitl.physics.integration_step.rotor_step`): the ``battery`` buffer (None: an
+        ideal supply) feeds the thrusts of the ``rotors`` buffer, which push with drag,
+        wind and the joint torques (:meth:`set_rotor_wrench`) over the step and then lag
+        toward the six ``commands``. Returns as :meth:`step`."""
         return self._step.rotor_step(
             self.method == "rk4",
             self.dt_s,
-            x,
-            u,
-            r,
-            euler,
-            q_dot,
-            w_inv9,
             commands,
             joint_torques_n_m,
             rotors,
@@ -281,27 +263,20 @@ class ArticulatedIntegrator:
             self._work,
         )
 
-    def acceleration(
-        self,
-        x: list[float],
-        u: list[float],
-        force: GeneralizedForce | BodyWrench,
-        r: Rot9,
-        euler: tuple[float, float, float],
-        q_dot: list[float],
-        w_inv9: Rot9,
-    ) -> tuple:
-        """Our q_ddot at (x, u) under ``force``, no step (the state's kinematics as for
-        :meth:`step_kinematics`): ``(0, q_ddot)``, or ``(status, theta)`` as there."""
-        return self._step.acceleration(
-            x, u, r, euler, q_dot, w_inv9, force.KIND, force.values, self._aba, self._work
-        )
+    def acceleration(self, force: GeneralizedForce | BodyWrench) -> int:
+        """Our q_ddot at the state under ``force``, no step, into the ``acceleration``
+        field: 0, or 1 / 2 as for :meth:`step`."""
+        return self._step.acceleration(force.KIND, force.values, self._aba, self._work)
 
-    def kinematics(
-        self, x: list[float], u: list[float], euler_previous: tuple[float, float, float]
-    ) -> tuple:
-        """The plant's kinematics of (x, u), phi and psi unwrapped next to
-        ``euler_previous``: ``(0, x (quaternion renormalized, w >= 0), u, quaternion wxyz,
-        R9, euler, W^-1 9, omega, q, q_dot)``, or ``(status, theta)`` as for
-        :meth:`step_kinematics`."""
-        return self._step.kinematics(x, u, euler_previous, self._work)
+    def coordinates(self) -> tuple[list[float], list[float]]:
+        """q and q_dot of the state (new lists of 8)."""
+        return self._step.coordinates(self._work)
+
+    def attitude(self) -> tuple[tuple[float, float, float, float], tuple[float, float, float]]:
+        """(quaternion wxyz (body FLU to world ENU), omega (body FLU) [rad/s]) of the state."""
+        return self._step.attitude(self._work)
+
+    def truth(self) -> tuple:
+        """(q, q_dot, q_ddot (lists of 8), quaternion wxyz, R row-major 9, omega) of the
+        state."""
+        return self._step.truth(self._work)

@@ -5,10 +5,10 @@ What :class:`~sitl.physics.integration.ArticulatedIntegrator` and
 semi-implicit Euler or RK4 on the configuration manifold under a generalized force or a
 body wrench, the accelerations by Pinocchio's own compiled ABA, called back through
 Python and never re-implemented here, then the kinematics of the new state and the step's
-q_ddot), :func:`kinematics` (the plant's kinematics of a state alone: after a reset, a
-hold on the ground, a payload change) and :func:`acceleration` (q_ddot at a state, no
-step). The scheme is described in :mod:`sitl.physics.integration`; nothing here knows the
-arm's dynamics, which stay Pinocchio's (DESIGN.md section 6).
+q_ddot), :func:`load` (a state put in with its kinematics: after a reset, a hold on the
+ground, a payload change) and :func:`acceleration` (q_ddot at the state, no step). The
+scheme is described in :mod:`sitl.physics.integration`; nothing here knows the arm's
+dynamics, which stay Pinocchio's (DESIGN.md section 6).
 
 The rotor plant's whole step is one call, :func:`rotor_step`: the battery feeding the
 rotors (the law of :mod:`sitl.physics.battery`), the rotors' wrench (total thrust along
@@ -31,19 +31,25 @@ modules they would be Python calls between two extensions.
 
 Frames and units: world ENU, body FLU, SI. A configuration ``x`` is Pinocchio's free-flyer
 layout ``[p (3, world), quaternion x, y, z, w (body to world), eta1, eta2]`` and a velocity
-``u = [p_dot (3, world), omega (3, body), eta1_dot, eta2_dot]``; the returned quaternions
-are ``[w, x, y, z]``. R (body to world) and W(Phi)^-1 are row-major 9-tuples, Euler angles
+``u = [p_dot (3, world), omega (3, body), eta1_dot, eta2_dot]``; quaternions handed out
+are ``[w, x, y, z]``. R (body to world) and W(Phi)^-1 are row-major 9 floats, Euler angles
 ZYX (phi, theta, psi) [rad] with phi and psi unwrapped next to the previous ones.
+
+The plant's state lives in one float64 buffer (``array("d")``) the integrator owns, built
+by :func:`work_buffer`: the fields of :data:`LAYOUT` (x, u and their kinematics, the last
+step's q_ddot), beside the steps' scratch. The steps read the state there and leave the
+new one there; nothing is copied between Python lists and the buffer per step, and
+Python reads the fields only when asked (:func:`coordinates`, :func:`attitude`,
+:func:`truth`). ABA reads its q, v and tau in the same buffer (:func:`aba_arguments`:
+numpy arrays over it).
 
 A force is a kind and its floats: :data:`GENERALIZED` (our tau, 8 floats, conjugate to
 q = [p, phi, theta, psi, eta]) or :data:`WRENCH` (thrust along body z, body torque (3),
-world drag diagonal (3), joint torques (2), wind (3): 12 floats). Every step works in one
-float64 buffer (``array("d")``) the integrator owns, built by :func:`work_buffer`; ABA
-reads its q, v and tau in that buffer (:func:`aba_arguments`: numpy arrays over it).
+world drag diagonal (3), joint torques (2), wind (3): 12 floats).
 
-Return conventions: a result is ``(0, ...)``; a failure ``(1, 0.0)`` for non-finite
-accelerations or a non-finite state, ``(2, theta)`` for W(Phi) singular at pitch theta
-(|cos(theta)| < 1e-6).
+Statuses: 0 for a step or state that is whole; DIVERGED (1) for non-finite accelerations
+or state, SINGULAR (2) for W(Phi) singular (|cos(theta)| < 1e-6, the pitch theta in the
+buffer's ``theta`` field); a step whose new state cannot be reported returns these + 2.
 """
 
 from array import array
@@ -86,7 +92,7 @@ _RS = cython.declare(cython.Py_ssize_t, 131)  # a stage's R (9)
 _FWI = cython.declare(cython.Py_ssize_t, 140)  # the generalized force's W^-1 (9)
 _XN = cython.declare(cython.Py_ssize_t, 149)  # the step's x+ (9)
 _UN = cython.declare(cython.Py_ssize_t, 158)  # its u+ (8)
-_QDD = cython.declare(cython.Py_ssize_t, 166)  # the step's q_ddot (8)
+_QDD = cython.declare(cython.Py_ssize_t, 166)  # its q_ddot, the last step's (8)
 _KX = cython.declare(cython.Py_ssize_t, 174)  # kinematics: x, quaternion renormalized (9)
 _KR = cython.declare(cython.Py_ssize_t, 183)  # R (9)
 _KE = cython.declare(cython.Py_ssize_t, 192)  # Euler angles (3)
@@ -103,7 +109,25 @@ _DRAG = cython.declare(cython.Py_ssize_t, 272)  # world drag diagonal (3)
 _WIND = cython.declare(cython.Py_ssize_t, 275)  # wind, world (3)
 _TMAX0 = cython.declare(cython.Py_ssize_t, 278)  # a rotor's full thrust at V_ref
 _CMD = cython.declare(cython.Py_ssize_t, 279)  # the motor commands (6)
-_SIZE = cython.declare(cython.Py_ssize_t, 285)
+_QO = cython.declare(cython.Py_ssize_t, 285)  # the state's q (8)
+_ACC = cython.declare(cython.Py_ssize_t, 293)  # q_ddot at the state, no step (8)
+_SIZE = cython.declare(cython.Py_ssize_t, 301)
+
+LAYOUT = {
+    "x": (_X, 9),
+    "u": (_U, 8),
+    "rotation": (_R, 9),
+    "euler": (_E, 3),
+    "q": (_QO, 8),
+    "q_dot": (_QD, 8),
+    "w_inv": (_WI, 9),
+    "q_ddot": (_QDD, 8),
+    "acceleration": (_ACC, 8),
+    "theta": (_THETA, 1),
+}
+"""The plant's state in the work buffer, field -> (offset, length): Pinocchio's x and u,
+R (row-major), the Euler angles, our q and q_dot, W(Phi)^-1 (row-major), the last step's
+q_ddot; the q_ddot of :func:`acceleration`; the pitch of a failure at the singularity."""
 
 # Offsets in a rotor bank's buffer (:func:`rotor_buffer`).
 _T = cython.declare(cython.Py_ssize_t, 0)  # each rotor's thrust now [N] (6)
@@ -539,8 +563,8 @@ def _kinematics(
 
 
 @cython.cfunc
-def _q_ddot(w: cython.double[:], k: cython.Py_ssize_t):
-    """Our q_ddot into the buffer's QDD from du/dt w[k:k + 8] at the buffer's state (its
+def _q_ddot(w: cython.double[:], k: cython.Py_ssize_t, out: cython.Py_ssize_t):
+    """Our q_ddot into w[out:out + 8] from du/dt w[k:k + 8] at the buffer's state (its
     Euler angles, q_dot and W^-1): Phi_ddot = W^-1 (omega_dot - W_dot Phi_dot)."""
     phi: cython.double = w[_E]
     theta: cython.double = w[_E + 1]
@@ -557,14 +581,14 @@ def _q_ddot(w: cython.double[:], k: cython.Py_ssize_t):
     d0: cython.double = w[k + 3] - c0
     d1: cython.double = w[k + 4] - c1
     d2: cython.double = w[k + 5] - c2
-    w[_QDD] = w[k]
-    w[_QDD + 1] = w[k + 1]
-    w[_QDD + 2] = w[k + 2]
-    w[_QDD + 3] = d0 + w[_WI + 1] * d1 + w[_WI + 2] * d2
-    w[_QDD + 4] = w[_WI + 4] * d1 + w[_WI + 5] * d2
-    w[_QDD + 5] = w[_WI + 7] * d1 + w[_WI + 8] * d2
-    w[_QDD + 6] = w[k + 6]
-    w[_QDD + 7] = w[k + 7]
+    w[out] = w[k]
+    w[out + 1] = w[k + 1]
+    w[out + 2] = w[k + 2]
+    w[out + 3] = d0 + w[_WI + 1] * d1 + w[_WI + 2] * d2
+    w[out + 4] = w[_WI + 4] * d1 + w[_WI + 5] * d2
+    w[out + 5] = w[_WI + 7] * d1 + w[_WI + 8] * d2
+    w[out + 6] = w[k + 6]
+    w[out + 7] = w[k + 7]
 
 
 # ------------------------------------------------------------------ battery and rotors
@@ -652,7 +676,23 @@ def rotor_lag(rotors: cython.double[:], commands, work: cython.double[:]):
     _lag(rotors, work, _CMD)
 
 
-# ------------------------------------------------------------------ Python floats in and out
+# ------------------------------------------------------------------ the state in the buffer
+
+
+@cython.cfunc
+def _commit(w: cython.double[:], u: cython.Py_ssize_t):
+    """The buffer's kinematics (K block) with the velocity w[u:u + 8] become its state."""
+    i: cython.Py_ssize_t
+    for i in range(9):
+        w[_X + i] = w[_KX + i]
+        w[_R + i] = w[_KR + i]
+        w[_WI + i] = w[_KWI + i]
+    for i in range(8):
+        w[_U + i] = w[u + i]
+        w[_QO + i] = w[_KQ + i]
+        w[_QD + i] = w[_KQD + i]
+    for i in range(3):
+        w[_E + i] = w[_KE + i]
 
 
 @cython.cfunc
@@ -674,117 +714,70 @@ def _list(w: cython.double[:], o: cython.Py_ssize_t, n: cython.Py_ssize_t) -> li
 
 
 @cython.cfunc
-def _tuple9(w: cython.double[:], o: cython.Py_ssize_t) -> tuple:
-    """w[o:o + 9] as a tuple of floats."""
-    return (w[o], w[o + 1], w[o + 2], w[o + 3], w[o + 4], w[o + 5], w[o + 6], w[o + 7], w[o + 8])
-
-
-@cython.cfunc
-def _read_state(w: cython.double[:], x, u, r9, euler, q_dot, w_inv9):
-    """A state as the plant keeps it into the buffer."""
-    _read(w, _X, x, 9)
-    _read(w, _U, u, 8)
-    _read(w, _R, r9, 9)
-    _read(w, _E, euler, 3)
-    _read(w, _QD, q_dot, 8)
-    _read(w, _WI, w_inv9, 9)
-
-
-@cython.cfunc
-def _kinematics_tuple(w: cython.double[:], u: cython.Py_ssize_t, q_ddot: cython.bint) -> tuple:
-    """(0, x, u, [q_ddot,] quaternion wxyz, R9, euler, W^-1 9, omega, q, q_dot) of the
-    buffer's kinematics (the velocity at offset ``u``)."""
-    x = _list(w, _KX, 9)
-    velocity = _list(w, u, 8)
-    tail = (
-        (w[_KX + 6], w[_KX + 3], w[_KX + 4], w[_KX + 5]),
-        _tuple9(w, _KR),
-        (w[_KE], w[_KE + 1], w[_KE + 2]),
-        _tuple9(w, _KWI),
-        (w[u + 3], w[u + 4], w[u + 5]),
-        _list(w, _KQ, 8),
-        _list(w, _KQD, 8),
-    )
-    if q_ddot:
-        return (0, x, velocity, _list(w, _QDD, 8), *tail)
-    return (0, x, velocity, *tail)
-
-
-@cython.cfunc
 def _step_state(
     w: cython.double[:], rk4: cython.bint, dt: cython.double, kind: cython.int, aba
 ) -> cython.int:
-    """One step from the buffer's state under its force, then the new state's kinematics
-    and the step's q_ddot: OK, a failure of the step, or the failure + 2 of the new state
-    (non-finite 3, at the singularity 4)."""
+    """One step from the buffer's state under its force; the new state, its kinematics and
+    the step's q_ddot become the buffer's state. Returns OK, a failure of the step (the
+    state unchanged), or the failure + 2 of the new state (non-finite 3, at the singularity
+    4: only x, u and q_ddot are the new state's)."""
     w[_THETA] = 0.0
     s: cython.int = _integrate(w, rk4, dt, kind, aba)
     if s != _OK:
         return s
-    _q_ddot(w, _K1)
+    _q_ddot(w, _K1, _QDD)
     s = _kinematics(w, _XN, _UN, _E)
+    i: cython.Py_ssize_t
     if s != _OK:
+        for i in range(9):
+            w[_X + i] = w[_XN + i]
+        for i in range(8):
+            w[_U + i] = w[_UN + i]
         return s + 2
+    _commit(w, _UN)
     return _OK
 
 
-@cython.cfunc
-def _step_result(w: cython.double[:], s: cython.int) -> tuple:
-    """What :func:`step` returns for the buffer's step of status ``s``."""
+@cython.ccall
+def load(x, u, euler_previous, work: cython.double[:]) -> cython.int:
+    """Put the state (x, u) in the buffer with its kinematics (the quaternion renormalized,
+    w >= 0, Euler angles unwrapped next to ``euler_previous``); the q_ddot kept. Returns OK,
+    or DIVERGED / SINGULAR (pitch to the buffer's theta) with the buffer's state unchanged."""
+    w: cython.double[:] = work
+    _read(w, _KE, euler_previous, 3)
+    _read(w, _XN, x, 9)
+    _read(w, _UN, u, 8)
+    w[_THETA] = 0.0
+    s: cython.int = _kinematics(w, _XN, _UN, _KE)
     if s == _OK:
-        return _kinematics_tuple(w, _UN, True)
-    if s > SINGULAR:
-        return (s, w[_THETA], _list(w, _XN, 9), _list(w, _UN, 8), _list(w, _QDD, 8))
-    return (s, w[_THETA])
+        _commit(w, _UN)
+    return s
 
 
 @cython.ccall
 def step(
-    rk4: cython.bint,
-    dt: cython.double,
-    x,
-    u,
-    r9,
-    euler,
-    q_dot,
-    w_inv9,
-    kind: cython.int,
-    force,
-    aba,
-    work: cython.double[:],
-) -> tuple:
-    """One step of ``dt`` [s] (RK4 if ``rk4``, else semi-implicit Euler) from (x, u) with
-    its R, Euler angles, our q_dot and W^-1, under a force held over the step; ``aba()``
-    returns Pinocchio's ABA of the buffer's q, v, tau (:func:`aba_arguments`).
-
-    Returns ``(0, x+ (quaternion renormalized), u+, q_ddot of the step, quaternion wxyz,
-    R9, euler, W^-1 9, omega, q, q_dot)`` of the new state; a failure of the step
-    ``(status, theta)``; or ``(status + 2, theta, x+, u+, q_ddot)`` when the step was taken
-    but the new state is non-finite (3) or at the singularity (4)."""
+    rk4: cython.bint, dt: cython.double, kind: cython.int, force, aba, work: cython.double[:]
+) -> cython.int:
+    """One step of ``dt`` [s] (RK4 if ``rk4``, else semi-implicit Euler) from the buffer's
+    state under a force held over the step; ``aba()`` returns Pinocchio's ABA of the
+    buffer's q, v, tau (:func:`aba_arguments`). Returns as :func:`_step_state`."""
     w: cython.double[:] = work
-    _read_state(w, x, u, r9, euler, q_dot, w_inv9)
     _read(w, _F, force, 8 if kind == GENERALIZED else 12)
-    return _step_result(w, _step_state(w, rk4, dt, kind, aba))
+    return _step_state(w, rk4, dt, kind, aba)
 
 
 @cython.ccall
 def rotor_step(
     rk4: cython.bint,
     dt: cython.double,
-    x,
-    u,
-    r9,
-    euler,
-    q_dot,
-    w_inv9,
     commands,
     joint,
     rotors: cython.double[:],
     battery,
     aba,
     work: cython.double[:],
-) -> tuple:
-    """One step of the rotor plant from (x, u) (with its R, Euler angles, q_dot and W^-1).
+) -> cython.int:
+    """One step of the rotor plant from the buffer's state.
 
     The battery buffer (None: an ideal supply) feeds the thrusts of the rotor buffer, and a
     rotor's full thrust becomes its full thrust at V_ref times (V / V_ref)^2; those thrusts
@@ -795,7 +788,6 @@ def rotor_step(
     w: cython.double[:] = work
     t: cython.double[:] = rotors
     i: cython.Py_ssize_t
-    _read_state(w, x, u, r9, euler, q_dot, w_inv9)
     _read(w, _CMD, commands, 6)
     b: cython.double[:]
     ratio: cython.double
@@ -823,37 +815,58 @@ def rotor_step(
     s: cython.int = _step_state(w, rk4, dt, WRENCH, aba)
     if s == _OK:
         _lag(t, w, _CMD)
-    return _step_result(w, s)
+    return s
 
 
 @cython.ccall
-def kinematics(x, u, euler_previous, work: cython.double[:]) -> tuple:
-    """The plant's kinematics of (x, u), Euler angles unwrapped next to ``euler_previous``:
-    ``(0, x (quaternion renormalized), u, quaternion wxyz, R9, euler, W^-1 9, omega, q,
-    q_dot)``, or ``(status, theta)``."""
+def acceleration(kind: cython.int, force, aba, work: cython.double[:]) -> cython.int:
+    """Our q_ddot at the buffer's state under a force, no step, into its ``acceleration``
+    field: OK, or DIVERGED / SINGULAR (pitch to the buffer's theta)."""
     w: cython.double[:] = work
-    _read(w, _X, x, 9)
-    _read(w, _U, u, 8)
-    _read(w, _E, euler_previous, 3)
-    w[_THETA] = 0.0
-    s: cython.int = _kinematics(w, _X, _U, _E)
-    if s != _OK:
-        return (s, w[_THETA])
-    return _kinematics_tuple(w, _U, False)
-
-
-@cython.ccall
-def acceleration(
-    x, u, r9, euler, q_dot, w_inv9, kind: cython.int, force, aba, work: cython.double[:]
-) -> tuple:
-    """Our q_ddot at (x, u) (with its R, Euler angles, q_dot and W^-1) under a force, no
-    step: ``(0, q_ddot)`` or ``(status, theta)``."""
-    w: cython.double[:] = work
-    _read_state(w, x, u, r9, euler, q_dot, w_inv9)
     _read(w, _F, force, 8 if kind == GENERALIZED else 12)
     w[_THETA] = 0.0
     s: cython.int = _accelerations(w, _X, _U, _R, kind, aba, _K1)
-    if s != _OK:
-        return (s, w[_THETA])
-    _q_ddot(w, _K1)
-    return (0, _list(w, _QDD, 8))
+    if s == _OK:
+        _q_ddot(w, _K1, _ACC)
+    return s
+
+
+@cython.ccall
+def coordinates(work: cython.double[:]) -> tuple:
+    """(q, q_dot) of the buffer's state, two lists of 8 floats."""
+    return (_list(work, _QO, 8), _list(work, _QD, 8))
+
+
+@cython.ccall
+def attitude(work: cython.double[:]) -> tuple:
+    """(quaternion wxyz (body FLU to world ENU), omega (body FLU) [rad/s]) of the buffer's
+    state, two tuples of floats."""
+    w: cython.double[:] = work
+    return ((w[_X + 6], w[_X + 3], w[_X + 4], w[_X + 5]), (w[_U + 3], w[_U + 4], w[_U + 5]))
+
+
+@cython.ccall
+def truth(work: cython.double[:]) -> tuple:
+    """(q, q_dot, q_ddot (lists of 8), quaternion wxyz, R row-major 9, omega (tuples)) of the
+    buffer's state."""
+    w: cython.double[:] = work
+    rotation = (
+        w[_R],
+        w[_R + 1],
+        w[_R + 2],
+        w[_R + 3],
+        w[_R + 4],
+        w[_R + 5],
+        w[_R + 6],
+        w[_R + 7],
+        w[_R + 8],
+    )
+    quaternion, omega = attitude(w)
+    return (
+        _list(w, _QO, 8),
+        _list(w, _QD, 8),
+        _list(w, _QDD, 8),
+        quaternion,
+        rotation,
+        omega,
+    )

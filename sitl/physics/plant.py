@@ -54,7 +54,7 @@ from sitl.physics.errors import (
     PlantError,
     PlantModeError,
 )
-from sitl.physics.frames import Rot9, euler_rate_matrix, quaternion_from_euler
+from sitl.physics.frames import euler_rate_matrix, quaternion_from_euler
 from sitl.physics.integration import ArticulatedIntegrator, GeneralizedForce
 from sitl.physics.rotor_plant import RotorPlant
 from sitl.physics.rotors import (
@@ -101,13 +101,8 @@ class TruthPlant(RotorPlant):
 
     has_ground = False
     """This plant flies in free space: a SITL adds the ground (see :meth:`hold_base`)."""
-    _R9: Rot9
-    """R (body FLU to world ENU) now, row-major."""
-    _w_inv9: Rot9
-    """W(Phi)^-1 now (body rate to Euler-angle rates), row-major."""
-    _q_ours: list[float]
-    _qd_ours: list[float]
-    """q and q_dot now (DESIGN.md section 2)."""
+    _coordinates: tuple[list[float], list[float]] | None
+    """q and q_dot of the state, once read (None: not read since it changed)."""
 
     @property
     def flies_rotors(self) -> bool:
@@ -117,19 +112,19 @@ class TruthPlant(RotorPlant):
     @property
     def coordinates(self) -> tuple[list[float], list[float]]:
         """q and q_dot now (:attr:`RotorPlant.coordinates
-        <sitl.physics.rotor_plant.RotorPlant.coordinates>`), the plant's own lists."""
-        return self._q_ours, self._qd_ours
+        <sitl.physics.rotor_plant.RotorPlant.coordinates>`): lists read from the state's
+        buffer once per state."""
+        if self._coordinates is None:
+            self._coordinates = self._integrator.coordinates()
+        return self._coordinates
 
     def _truth(self) -> tuple:
-        return (
-            self._q_ours,
-            self._qd_ours,
-            self._qdd,
-            self._quat,
-            self._R9,
-            self._omega,
-            self._payload_attached,
-        )
+        return (*self._integrator.truth(), self._payload_attached)
+
+    def _attitude(
+        self,
+    ) -> tuple[tuple[float, float, float, float], tuple[float, float, float]]:
+        return self._integrator.attitude()
 
     def __init__(
         self,
@@ -187,11 +182,11 @@ class TruthPlant(RotorPlant):
         self._actuators: ActuatorState | None = None
         self._actuator_signals: tuple = ()
 
-        self._x = pin.neutral(self._model).tolist()
-        self._u = [0.0] * N_Q
-        self._qdd = [0.0] * N_Q
-        self._euler = (0.0, 0.0, 0.0)
+        self._work = self._integrator.work
+        """The state (x, u, their kinematics, the last step's q_ddot) in the integrator's
+        buffer (:data:`~sitl.physics.integration_step.LAYOUT`)."""
         self._state_cache: PlantState | None = None
+        self._coordinates = None
         self._steps = 0
         self._t0 = 0.0
         if payload_attached:
@@ -248,14 +243,15 @@ class TruthPlant(RotorPlant):
         qd_arr = np.zeros(N_Q) if q_dot is None else np.array(_vector(q_dot, "q_dot"))
         phi, theta, psi = (float(a) for a in q_arr[3:6])
         w, x, y, z = quaternion_from_euler(phi, theta, psi).tolist()
-        self._x = [*q_arr[0:3].tolist(), x, y, z, w, *q_arr[6:8].tolist()]
         omega = euler_rate_matrix(phi, theta) @ qd_arr[3:6]
-        self._u = [*qd_arr[0:3].tolist(), *omega.tolist(), *qd_arr[6:8].tolist()]
-        self._euler = (phi, theta, psi)
-        self._qdd = [0.0] * N_Q
+        self._load(
+            [*q_arr[0:3].tolist(), x, y, z, w, *q_arr[6:8].tolist()],
+            [*qd_arr[0:3].tolist(), *omega.tolist(), *qd_arr[6:8].tolist()],
+            (phi, theta, psi),
+            [0.0] * N_Q,
+        )
         self._steps = 0
         self._t0 = float(time_s)
-        self._update_kinematics()
         if self.mode == "underactuated":
             if rotor_thrusts_n is None:
                 each = self.total_mass_kg * self.gravity_m_s2 / N_ROTORS
@@ -263,7 +259,7 @@ class TruthPlant(RotorPlant):
             else:
                 thrusts = np.asarray(rotor_thrusts_n, dtype=np.float64)
             self._rotors.reset(thrusts)
-            self._autopilot.reset(self._omega)
+            self._autopilot.reset(self._attitude()[1])
             commands = inverse_thrust_curve(
                 np.clip(thrusts / self._rotors.max_thrust_n, 0.0, 1.0), self._rotors.thr_mdl_fac
             )
@@ -294,10 +290,10 @@ class TruthPlant(RotorPlant):
         on the base each step, pump the joints.
         """
         half = 0.5 * yaw_rad
-        x = self._x
-        x[0:7] = (*position_m, 0.0, 0.0, math.sin(half), math.cos(half))
-        self._u[0:6] = (0.0,) * 6
-        self._euler = (0.0, 0.0, yaw_rad)
+        work = self._work
+        x = [*position_m, 0.0, 0.0, math.sin(half), math.cos(half), work[_X + 7], work[_X + 8]]
+        u = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, work[_U + 6], work[_U + 7]]
+        q_ddot = None
         if arm_before is not None:
             eta, eta_dot, torques = arm_before
             x[7:9] = eta
@@ -307,11 +303,11 @@ class TruthPlant(RotorPlant):
             )
             rate1, rate2 = eta_dot[0] + self.dt_s * dd1, eta_dot[1] + self.dt_s * dd2
             x[7:9] = (eta[0] + self.dt_s * rate1, eta[1] + self.dt_s * rate2)
-            self._u[6:8] = (rate1, rate2)
-            self._qdd = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, dd1, dd2]
+            u[6:8] = (rate1, rate2)
+            q_ddot = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, dd1, dd2]
         if self.mode == "underactuated":
             self._autopilot.reset()
-        self._update_kinematics()
+        self._load(x, u, (0.0, 0.0, yaw_rad), q_ddot)
 
     # ---------------------------------------------------------------- payload
 
@@ -330,18 +326,19 @@ class TruthPlant(RotorPlant):
         """
         if self._payload_attached:
             raise PlantError("payload is already attached")
-        q, v = self._integrator.pinocchio_state(self._x, self._u)
+        x, euler = self._field("x"), tuple(self._field("euler"))
+        q, v = self._integrator.pinocchio_state(x, self._field("u"))
         momentum = self._mass_matrix(q) @ v
         self._set_payload(True, min(max(share, 0.0), 1.0))
         v = np.linalg.solve(self._mass_matrix(q), momentum).tolist()
-        r = self._R9
-        self._u = [
+        r = self._field("rotation")
+        u = [
             r[0] * v[0] + r[1] * v[1] + r[2] * v[2],
             r[3] * v[0] + r[4] * v[1] + r[5] * v[2],
             r[6] * v[0] + r[7] * v[1] + r[8] * v[2],
             *v[3:8],
         ]
-        self._update_kinematics()
+        self._load(x, u, euler)  # type: ignore[arg-type]
 
     def set_payload_share(self, share: float) -> None:
         """Link 2 carries ``share`` (clipped to 0-1) of the grasped payload's inertia, the
@@ -389,13 +386,13 @@ class TruthPlant(RotorPlant):
     @property
     def kinetic_energy_j(self) -> float:
         """Kinetic energy 1/2 v^T M v, armature included [J]."""
-        q, v = self._integrator.pinocchio_state(self._x, self._u)
+        q, v = self._integrator.pinocchio_state(self._field("x"), self._field("u"))
         return 0.5 * float(v @ self._mass_matrix(q) @ v)
 
     @property
     def potential_energy_j(self) -> float:
         """Gravitational potential energy, zero at world z = 0 [J]."""
-        q = np.array(self._x)
+        q = np.array(self._field("x"))
         return float(pin.computePotentialEnergy(self._model, self._model.createData(), q))
 
     def _mass_matrix(self, q: FloatArray) -> FloatArray:
@@ -410,19 +407,11 @@ class TruthPlant(RotorPlant):
         Pure rigid-body dynamics (no drag, no actuators), valid in both modes:
         M(q) q_ddot + C q_dot + G = tau.
         """
-        out = self._integrator.acceleration(
-            self._x,
-            self._u,
-            GeneralizedForce(_vector(tau, "tau")),
-            self._R9,
-            self._euler,
-            self._qd_ours,
-            self._w_inv9,
-        )
-        if out[0] == 0:
-            return np.array(out[1])
-        if out[0] == _SINGULAR:
-            raise EulerSingularityError(out[1])
+        status = self._integrator.acceleration(GeneralizedForce(_vector(tau, "tau")))
+        if status == 0:
+            return np.array(self._field("acceleration"))
+        if status == _SINGULAR:
+            raise EulerSingularityError(self._work[_THETA])
         raise PlantDivergedError(self.time_s)
 
     def step_ideal(self, tau: ArrayLike) -> PlantState:
@@ -460,36 +449,11 @@ class TruthPlant(RotorPlant):
         rotors' lagged thrusts, which push with drag and wind, and whose lag then moves
         toward ``motor_commands``; records the actuator signals."""
         thrusts = self._rotors.thrust_list_n
-        out = self._integrator.rotor_step(
-            self._x,
-            self._u,
-            self._R9,
-            self._euler,
-            self._qd_ours,
-            self._w_inv9,
-            motor_commands,
-            joint,
-            self._rotors.buffer,
-            self._battery_buffer,
+        self._took_step(
+            self._integrator.rotor_step(
+                motor_commands, joint, self._rotors.buffer, self._battery_buffer
+            )
         )
-        if out[0] == 0:  # _take_step's usual case, unpacked in one go
-            self._steps += 1
-            (
-                _,
-                self._x,
-                self._u,
-                self._qdd,
-                self._quat,
-                self._R9,
-                self._euler,
-                self._w_inv9,
-                self._omega,
-                self._q_ours,
-                self._qd_ours,
-            ) = out
-            self._state_cache = None
-        else:
-            self._take_step(out)
         self._actuator_signals = (
             motor_commands,
             thrusts,
@@ -500,59 +464,68 @@ class TruthPlant(RotorPlant):
         self._actuators = None
 
     # -------------------------------------------------------------- internals
-    # The per-step path works on Python floats (lists, tuples) around the integration step
-    # (sitl.physics.integration_step, compiled where built), which reads and returns them.
-    # Row-major 9-tuples hold R and W^-1.
+    # The state lives in the integrator's work buffer (sitl.physics.integration_step,
+    # compiled where built): its steps read and write it there; Python reads its fields
+    # only when asked (coordinates, state, the ground's hold, a payload change).
 
     def _advance(self, force: GeneralizedForce) -> None:
-        """One integration step under ``force`` (which also returns the new state's
-        kinematics); records the step's q_ddot."""
-        self._take_step(
-            self._integrator.step_kinematics(
-                self._x, self._u, force, self._R9, self._euler, self._qd_ours, self._w_inv9
-            )
-        )
+        """One integration step under ``force``; records the step's q_ddot."""
+        self._took_step(self._integrator.step(force))
 
-    def _take_step(self, out: tuple) -> None:
-        """The state after a step of the integrator (its result ``out``, see
-        ``step_kinematics``); raises the plant's errors for a failed one."""
-        status = out[0]
+    def _took_step(self, status: int) -> None:
+        """Count a step of the integrator that ended with ``status`` (see
+        :meth:`ArticulatedIntegrator.step`); raises the plant's errors for a failed one."""
+        self._state_cache = None
+        self._coordinates = None
         if status == 0:
             self._steps += 1
-            self._set_kinematics(out[3:])
-            self._x, self._u, self._qdd = out[1], out[2], out[3]
             return
         if status == _DIVERGED:
             raise PlantDivergedError(self.time_s)
         if status == _SINGULAR:
-            raise EulerSingularityError(out[1])
+            raise EulerSingularityError(self._work[_THETA])
         # the step was taken, the new state cannot be reported
-        self._x, self._u, self._qdd = out[2], out[3], out[4]
         self._steps += 1
         if status == _SINGULAR + 2:
-            raise EulerSingularityError(out[1])
+            raise EulerSingularityError(self._work[_THETA])
         raise PlantDivergedError(self.time_s)
 
-    def _update_kinematics(self) -> None:
-        """Renormalize the quaternion and cache R, Euler angles, W^-1 and our q, q_dot."""
-        out = self._integrator.kinematics(self._x, self._u, self._euler)
-        if out[0] == _SINGULAR:
-            raise EulerSingularityError(out[1])
-        if out[0] != 0:
+    def _load(
+        self,
+        x: list[float],
+        u: list[float],
+        euler_previous: tuple[float, float, float],
+        q_ddot: list[float] | None = None,
+    ) -> None:
+        """Make (x, u) the state (its kinematics next to ``euler_previous``), with
+        ``q_ddot`` (None: the last one kept); raises the plant's errors for one that cannot
+        be reported."""
+        status = self._integrator.load(x, u, euler_previous)
+        if status == _SINGULAR:
+            raise EulerSingularityError(self._work[_THETA])
+        if status != 0:
             raise PlantDivergedError(self.time_s)
-        self._x, self._u = out[1], out[2]
-        self._set_kinematics(out[2:])
-
-    def _set_kinematics(self, k: tuple) -> None:
-        """Cache (quaternion, R9, euler, W^-1, omega, q, q_dot) from ``k[1:8]``."""
-        _, self._quat, self._R9, self._euler, self._w_inv9, self._omega, q, qd = k
-        self._q_ours, self._qd_ours = q, qd
+        if q_ddot is not None:
+            for i in range(N_Q):
+                self._work[_QDD + i] = q_ddot[i]
         self._state_cache = None
+        self._coordinates = None
+
+    def _field(self, name: str) -> list[float]:
+        """A field of the state (:data:`~sitl.physics.integration_step.LAYOUT`) as a list."""
+        offset, size = integration_step.LAYOUT[name]
+        return self._work[offset : offset + size].tolist()
 
 
 _DIVERGED = integration_step.DIVERGED
 _SINGULAR = integration_step.SINGULAR
-"""Failure codes of the integration step and kinematics (see ``step_kinematics``)."""
+"""Failure codes of the integration step and the state's kinematics (see
+:meth:`ArticulatedIntegrator.step <sitl.physics.integration.ArticulatedIntegrator.step>`)."""
+_X = integration_step.LAYOUT["x"][0]
+_U = integration_step.LAYOUT["u"][0]
+_QDD = integration_step.LAYOUT["q_ddot"][0]
+_THETA = integration_step.LAYOUT["theta"][0]
+"""Offsets of the state's fields read or written one float at a time."""
 
 
 def _vector(values: ArrayLike, name: str) -> list[float]:

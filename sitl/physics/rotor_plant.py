@@ -32,7 +32,7 @@ _UNKNOWN3 = (math.nan, math.nan, math.nan)
 class RotorPlant:
     """Base of the rotor-driven truth plants (module docstring). A subclass sets ``dt_s``,
     ``_t0``, ``_steps``, ``_rotors``, ``_autopilot``, ``_servo_limit`` and the caches, and
-    implements :meth:`_truth` and :meth:`_step_rotors`."""
+    implements :meth:`_truth`, :meth:`_attitude` and :meth:`_step_rotors`."""
 
     dt_s: float
     _t0: float
@@ -48,10 +48,6 @@ class RotorPlant:
     _state_cache: PlantState | None
     _actuators: ActuatorState | None
     _actuator_signals: tuple
-    _quat: tuple[float, float, float, float]
-    """The attitude quaternion now, [w, x, y, z] (ENU/FLU)."""
-    _omega: tuple[float, float, float]
-    """The body rate now [rad/s] (FLU)."""
 
     @property
     def flies_rotors(self) -> bool:
@@ -64,6 +60,12 @@ class RotorPlant:
 
     def _truth(self) -> tuple:
         """(q, q_dot, q_ddot, quaternion, R row-major 9, omega body, payload attached) now."""
+        raise NotImplementedError
+
+    def _attitude(
+        self,
+    ) -> tuple[tuple[float, float, float, float], tuple[float, float, float]]:
+        """(attitude quaternion [w, x, y, z] (ENU/FLU), body rate (FLU) [rad/s]) now."""
         raise NotImplementedError
 
     def _step_rotors(
@@ -191,7 +193,8 @@ class RotorPlant:
         the same errors."""
         self._need_rotors("step() needs mode='underactuated'; use step_ideal() instead")
         joint = self._joint_torques(joint_torques_n_m)
-        commands, rate_sp, torque = self._autopilot.commands(self._quat, self._omega, setpoint)
+        quaternion, omega = self._attitude()
+        commands, rate_sp, torque = self._autopilot.commands(quaternion, omega, setpoint)
         self._step_rotors(commands, joint, rate_sp, torque)
 
     def step_motors(self, motor_commands: ArrayLike, joint_torques_n_m: ArrayLike) -> PlantState:

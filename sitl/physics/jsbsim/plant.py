@@ -266,6 +266,11 @@ class JsbsimPlant(RotorPlant):
             self._grasped,
         )
 
+    def _attitude(
+        self,
+    ) -> tuple[tuple[float, float, float, float], tuple[float, float, float]]:
+        return self._quat, self._omega
+
     @property
     def height_above_ground_m(self) -> float:
         """JSBSim's height of the CG above the ground [m]."""
