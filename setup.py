@@ -19,7 +19,6 @@ ROOT = Path(__file__).resolve().parent
 TWINS = (
     "companion.control.control_step",
     "sitl.servo.xm430_loop",
-    "sitl.physics.attitude_loop",
     "sitl.physics.integration_step",
 )
 """Modules written once in Python and also built compiled."""

@@ -2,7 +2,7 @@
 
 The XM430 servo's per-step physics (``sitl.servo.xm430_loop``: one servo's ``set_state``,
 ``step`` and ``torque_n_m``, as the plant calls them for every servo at every 1 kHz step),
-the PX4-like attitude loop (``sitl.physics.attitude_loop``: one
+the PX4-like attitude loop (in ``sitl.physics.integration_step``: one
 ``Px4AttitudeLoop.update`` of the default scenario's loop at a tilted attitude) and the
 truth plant's integration step (``sitl.physics.integration_step``: one
 ``ArticulatedIntegrator.step`` of the default scenario's model under a rotor wrench,
@@ -29,7 +29,7 @@ from companion.control import control_step
 from companion.control.compiled_step import CompiledStep
 from companion.control.flight import FlightControl
 from companion.control.laws import DesiredState, PassivityController
-from sitl.physics import attitude_control, attitude_loop, integration_step, rotors
+from sitl.physics import attitude_control, integration_step, rotors
 from sitl.physics.articulation import build_articulation
 from sitl.physics.attitude_control import AttitudeLoopParams, AttitudeSetpoint, Px4AttitudeLoop
 from sitl.physics.frames import (
@@ -70,15 +70,15 @@ def attitude_loop_us(compiled: bool, calls: int, repeat: int) -> float:
     loop = Px4AttitudeLoop.from_params(params, mixer, 1e-3)
     q = AttitudeSetpoint.from_euler(0.1, -0.05, 0.2, 0.5).quaternion_wxyz.tolist()
     setpoint = AttitudeSetpoint.from_euler(0.05, 0.02, 0.1, 0.45)
-    module = attitude_loop if not compiled else attitude_control._LOOP
-    saved = attitude_control._LOOP, rotors._LOOP
-    attitude_control._LOOP = rotors._LOOP = module
+    module = integration_step if not compiled else attitude_control._LOOP
+    saved = attitude_control._LOOP, rotors._STEP
+    attitude_control._LOOP = rotors._STEP = module
     try:
         seconds = timeit.repeat(
             lambda: loop.update(q, (0.1, -0.2, 0.05), setpoint), number=calls, repeat=repeat
         )
     finally:
-        attitude_control._LOOP, rotors._LOOP = saved
+        attitude_control._LOOP, rotors._STEP = saved
     return min(seconds) / calls * 1e6
 
 
@@ -137,7 +137,7 @@ def main() -> None:
     parser.add_argument("--calls", type=int, default=50_000)
     parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args()
-    for module in (xm430_loop, attitude_loop, integration_step, control_step):
+    for module in (xm430_loop, integration_step, control_step):
         reason = twin_reason(module)
         if reason is not None:
             raise SystemExit(f"bench_compiled_twins: {reason}")

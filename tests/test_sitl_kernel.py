@@ -1,5 +1,5 @@
-"""The truth plant's compiled twins against their Python source: the integration step
-(``sitl.physics.integration_step``) and the attitude loop (``sitl.physics.attitude_loop``).
+"""The truth plant's compiled twin against its Python source: the vehicle's step
+(``sitl.physics.integration_step``: the attitude loop, the rotors, the integration step).
 
 Each is one source built twice: the two builds agree bit for bit on random states and
 inputs, failures included. The step is reached through its public caller,
@@ -24,7 +24,6 @@ from sitl.physics import (
     EulerSingularityError,
     PlantDivergedError,
     TruthPlant,
-    attitude_loop,
     integration_step,
 )
 from sitl.physics.articulation import build_articulation
@@ -270,11 +269,13 @@ def test_the_rotor_step_twin_is_its_parts_and_its_python_source_bit_for_bit(
             bank.advance(commands)
         else:
             assert bank.thrust_list_n == thrusts
+        fields = _fields(parts)
+        fields.update(commands=commands, thrusts=t, joint_torques=joint)
         results.append(
             _bits(
                 (
                     out,
-                    *_fields(parts).values(),
+                    *fields.values(),
                     bank.buffer.tolist(),
                     [] if pack is None else pack.buffer.tolist(),
                 )
@@ -283,6 +284,64 @@ def test_the_rotor_step_twin_is_its_parts_and_its_python_source_bit_for_bit(
         assert results[0] == results[1] == results[2]
         statuses[out] += 1
     assert statuses[0] > 60 and {1, 3} <= set(statuses), statuses
+
+
+@pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])
+def test_the_vehicle_step_twin_is_the_loop_then_the_rotor_step_bit_for_bit(integrator) -> None:
+    """GIVEN random states, attitude setpoints (many saturating the mixer), joint torques
+    and loops with random THR_MDL_FAC WHEN the compiled twin and the Python source each
+    take the vehicle's step in one call (vehicle_step), and the compiled twin takes it in
+    parts (Px4AttitudeLoop.commands at the state's attitude and body rate, then rotor_step)
+    THEN statuses, the states and the actuator signals in the work buffers, the loops'
+    buffers, the rotors' and the pack's buffers have the same bits in all three."""
+    model = build_articulation(PAPER).model
+    integrators = [
+        ArticulatedIntegrator(model, 1e-3, integrator),
+        ArticulatedIntegrator(model, 1e-3, integrator, compiled=False),
+        ArticulatedIntegrator(model, 1e-3, integrator),
+    ]
+    rotors = PAPER.vehicle.rotors
+    geometry = RotorGeometry.hexa_x(rotors.arm_length_m, rotors.yaw_moment_per_thrust_m)
+    for integ in integrators:
+        integ.set_rotor_wrench(
+            geometry.wrench_matrix()[:3].tolist(), (0.3, 0.2, 0.1), (1.0, -0.5, 0.2), 6.3
+        )
+    rng = np.random.default_rng(13)
+    statuses: Counter[int] = Counter()
+    saturated = 0
+    for i in range(150):
+        case = i % 5 if i < 50 else 0
+        state = _case(rng, case)
+        thrusts = rng.uniform(0.0, 6.0, 6).tolist()
+        joint = rng.normal(0.0, 1.0, 2).tolist()
+        setpoint = AttitudeSetpoint.from_euler(*rng.uniform(-1.5, 1.5, 3), rng.uniform(0, 1))
+        seed = int(rng.integers(1 << 30))
+        charge = float(rng.uniform(0.05, 1.0))
+        results = []
+        for k, integ in enumerate(integrators):
+            loop = _loop(np.random.default_rng(seed))
+            bank = RotorBank(6.3, 0.3, 0.025, 1e-3)
+            bank.reset(thrusts)
+            pack = LipoPack(4, 2.0, 0.05, charge)
+            _place(integ, state)
+            if k < 2:
+                out = integ.vehicle_step(setpoint, joint, loop, bank.buffer, pack.buffer)
+                _, _, _, rate_sp, torque = integ.actuator_signals()
+            else:
+                commands, rate_sp, torque = loop.commands(*integ.attitude(), setpoint)
+                out = integ.rotor_step(commands, joint, bank.buffer, pack.buffer)
+            fields = _fields(integ)
+            fields["rate_setpoint"] = list(rate_sp)  # rotor_step leaves them as they were
+            fields["torque"] = list(torque)
+            buffers = [b.tolist() for b in loop.buffers]
+            results.append(
+                _bits((out, *fields.values(), *buffers, bank.buffer.tolist(), pack.buffer.tolist()))
+            )
+        assert results[0] == results[1] == results[2]
+        statuses[out] += 1
+        saturated += any(loop.buffers[4])
+    assert statuses[0] > 100 and {1, 3} <= set(statuses), statuses
+    assert saturated > 20, saturated
 
 
 def test_the_acceleration_is_the_steps_q_ddot() -> None:
@@ -308,11 +367,12 @@ def _loop(rng: np.random.Generator) -> Px4AttitudeLoop:
 
 def test_the_attitude_loop_twin_is_its_python_source_bit_for_bit() -> None:
     """GIVEN the same loop's constants and state twice WHEN the compiled twin and the Python
-    source of sitl.physics.attitude_loop each run 2000 steps of random attitudes, rates and
-    setpoints (many saturating) THEN commands, relative thrusts, rate setpoints, torques,
-    the rate controller's state and the saturation flags have the same bits."""
-    assert twin_reason(attitude_loop) is None, twin_reason(attitude_loop)
-    compiled = twin(attitude_loop)
+    source of the attitude loop in sitl.physics.integration_step each run 2000 steps of
+    random attitudes, rates and setpoints (many saturating) THEN commands, relative
+    thrusts, rate setpoints, torques, the rate controller's state and the saturation flags
+    have the same bits."""
+    assert twin_reason(integration_step) is None, twin_reason(integration_step)
+    compiled = twin(integration_step)
     rng = np.random.default_rng(5)
     saturated = 0
     for _ in range(10):
@@ -323,7 +383,7 @@ def test_the_attitude_loop_twin_is_its_python_source_bit_for_bit() -> None:
             rate = tuple(rng.normal(0.0, 2.0, 3).tolist())
             setpoint = AttitudeSetpoint.from_euler(*rng.uniform(-1.5, 1.5, 3), rng.uniform(0, 1))
             bits = []
-            for module, loop in zip((compiled, attitude_loop), loops, strict=True):
+            for module, loop in zip((compiled, integration_step), loops, strict=True):
                 relative = array("d", [0.0] * 6)
                 commands, rate_sp, torque = module.attitude_loop(
                     q,

@@ -52,6 +52,7 @@ import pinocchio as pin
 
 from companion.compiled import twin
 from sitl.physics import integration_step
+from sitl.physics.attitude_control import AttitudeSetpoint, Px4AttitudeLoop
 from sitl.physics.frames import rotation9_from_quaternion
 
 __all__ = ["ArticulatedIntegrator", "BodyWrench", "GeneralizedForce", "IntegratorMethod"]
@@ -262,6 +263,44 @@ class ArticulatedIntegrator:
             self._aba,
             self._work,
         )
+
+    def vehicle_step(
+        self,
+        setpoint: AttitudeSetpoint,
+        joint_torques_n_m: list[float],
+        autopilot: Px4AttitudeLoop,
+        rotors: array,
+        battery: array | None,
+    ) -> int:
+        """One step of the vehicle from the state in one call
+        (:func:`sitl.physics.integration_step.vehicle_step`): the ``autopilot``'s loop at the
+        state's attitude and body rate turns ``setpoint`` into motor commands, then
+        :meth:`rotor_step`; the commands, the thrusts, the joint torques and the loop's
+        signals stay in the buffer (:meth:`actuator_signals`). Returns as :meth:`step`."""
+        att, rate, rate_state, mixer, saturation, relative = autopilot.buffers
+        return self._step.vehicle_step(
+            self.method == "rk4",
+            self.dt_s,
+            setpoint.quaternion_wxyz,
+            setpoint.thrust,
+            joint_torques_n_m,
+            att,
+            rate,
+            rate_state,
+            mixer,
+            saturation,
+            autopilot.thr_mdl_fac,
+            relative,
+            rotors,
+            battery,
+            self._aba,
+            self._work,
+        )
+
+    def actuator_signals(self) -> tuple:
+        """(motor commands, rotor thrusts [N], joint torques [N m], rate setpoint [rad/s],
+        normalized torques) of the last :meth:`vehicle_step`."""
+        return self._step.actuator_signals(self._work)
 
     def acceleration(self, force: GeneralizedForce | BodyWrench) -> int:
         """Our q_ddot at the state under ``force``, no step, into the ``acceleration``

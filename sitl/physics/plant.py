@@ -45,6 +45,7 @@ from sitl.physics import integration_step
 from sitl.physics.articulation import ETA2_JOINT, build_articulation, theta_of
 from sitl.physics.attitude_control import (
     AttitudeLoopParams,
+    AttitudeSetpoint,
     Px4AttitudeLoop,
 )
 from sitl.physics.battery import LipoPack
@@ -180,7 +181,8 @@ class TruthPlant(RotorPlant):
         )
         self._servo_limit = scenario.plant.servo_torque_limit_n_m
         self._actuators: ActuatorState | None = None
-        self._actuator_signals: tuple = ()
+        self._actuator_signals: tuple | None = ()
+        """The actuator signals of the last step, or None: in the state's buffer."""
 
         self._work = self._integrator.work
         """The state (x, u, their kinematics, the last step's q_ddot) in the integrator's
@@ -436,6 +438,27 @@ class TruthPlant(RotorPlant):
             raise PlantModeError("step_ideal() needs mode='ideal'; use step() instead")
         self._advance(GeneralizedForce(_vector(tau, "tau")))
         return self.state
+
+    def advance(self, setpoint: AttitudeSetpoint, joint_torques_n_m: ArrayLike) -> None:
+        """:meth:`RotorPlant.advance <sitl.physics.rotor_plant.RotorPlant.advance>` in one
+        compiled call (:meth:`ArticulatedIntegrator.vehicle_step
+        <sitl.physics.integration.ArticulatedIntegrator.vehicle_step>`): the attitude loop on
+        the state's attitude and body rate, the battery, the rotors and the integration
+        step; the actuator signals stay in the state's buffer until read."""
+        self._need_rotors("step() needs mode='underactuated'; use step_ideal() instead")
+        joint = self._joint_torques(joint_torques_n_m)
+        self._took_step(
+            self._integrator.vehicle_step(
+                setpoint, joint, self._autopilot, self._rotors.buffer, self._battery_buffer
+            )
+        )
+        self._actuator_signals = None
+        self._actuators = None
+
+    def _signals(self) -> tuple:
+        if self._actuator_signals is None:
+            return self._integrator.actuator_signals()
+        return self._actuator_signals
 
     def _step_rotors(
         self,

@@ -47,7 +47,8 @@ class RotorPlant:
     _servo_limit: float
     _state_cache: PlantState | None
     _actuators: ActuatorState | None
-    _actuator_signals: tuple
+    _actuator_signals: tuple | None
+    """The actuator signals of the last step (None: kept where :meth:`_signals` reads them)."""
 
     @property
     def flies_rotors(self) -> bool:
@@ -61,6 +62,12 @@ class RotorPlant:
     def _truth(self) -> tuple:
         """(q, q_dot, q_ddot, quaternion, R row-major 9, omega body, payload attached) now."""
         raise NotImplementedError
+
+    def _signals(self) -> tuple:
+        """(motor commands, rotor thrusts [N], joint torques [N m], rate setpoint [rad/s],
+        normalized torques) of the last step."""
+        assert self._actuator_signals is not None
+        return self._actuator_signals
 
     def _attitude(
         self,
@@ -132,7 +139,7 @@ class RotorPlant:
         """
         self._need_rotors("actuator signals exist only in underactuated mode")
         if self._actuators is None:
-            self._actuators = ActuatorState.from_signals(self._actuator_signals)
+            self._actuators = ActuatorState.from_signals(self._signals())
         return self._actuators
 
     def configure_autopilot(self, params: AttitudeLoopParams) -> None:

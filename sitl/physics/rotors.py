@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from companion.compiled import twin
-from sitl.physics import attitude_loop, integration_step
+from sitl.physics import integration_step
 
 __all__ = [
     "FIRST_ROTOR_AZIMUTH_RAD",
@@ -67,10 +67,9 @@ MINIMUM_YAW_MARGIN = 0.15
 _SMALL = 1e-3
 """PX4 zeroes allocation entries below this magnitude and ignores them when counting."""
 
-_LOOP = twin(attitude_loop)
-"""The allocation's arithmetic: :mod:`sitl.physics.attitude_loop`, compiled where built."""
 _STEP = twin(integration_step)
-"""The rotors' lag: :mod:`sitl.physics.integration_step`, compiled where built."""
+"""The allocation's and the rotors' lag's arithmetic: :mod:`sitl.physics.integration_step`,
+compiled where built."""
 _MAX_THRUST = integration_step.ROTOR_MAX_THRUST
 
 
@@ -258,7 +257,7 @@ class SequentialDesaturationMixer:
         mix[np.abs(mix) < _SMALL] = 0.0
         self._mix = mix
         self._scale = scale
-        self._constants = attitude_loop.mixer_constants(
+        self._constants = integration_step.mixer_constants(
             mix[:, 0].tolist(),
             mix[:, 1].tolist(),
             mix[:, 2].tolist(),
@@ -286,7 +285,7 @@ class SequentialDesaturationMixer:
         torque = tuple(float(c) for c in torque_normalized)
         u = array("d", [0.0] * N_ROTORS)
         flags = array("d", [0.0] * 6)
-        _LOOP.mix(self._constants, torque, float(thrust_normalized), u, flags)
+        _STEP.mix(self._constants, torque, float(thrust_normalized), u, flags)
         return MixerOutput(
             relative_thrusts=u.tolist(),
             saturation_positive=(flags[0] != 0.0, flags[1] != 0.0, flags[2] != 0.0),
