@@ -39,7 +39,7 @@ from companion.control.flight import FlightControl
 from companion.logs.flightlog import FlightLogWriter
 from companion.logs.mcap_log import McapLogWriter
 from companion.mission.cycle import ControlCycle
-from sitl.physics.rotor_plant import RotorPlant
+from sitl.physics.plant import TruthPlant
 from sitl.scenario import load_scenario
 from sitl.vehicle.options import RunOptions
 from sitl.vehicle.runner import SitlVehicle
@@ -88,7 +88,7 @@ class Timed:
 PARTS: dict[str, tuple[type, str]] = {
     "vehicle steps": (SitlVehicle, "step"),
     "servo bus answers": (SitlVehicle, "serve"),
-    "truth plant steps": (RotorPlant, "advance"),
+    "truth plant steps": (TruthPlant, "advance"),
     "MAVLink framing and CRC (pymavlink _pack, both sides)": (mavlink2.MAVLink_message, "_pack"),
     "MAVLink decoding (pymavlink parse_buffer, both sides)": (mavlink2.MAVLink, "parse_buffer"),
     "flight log rows (FlightLogWriter.write: the row, and its blocks when full)": (

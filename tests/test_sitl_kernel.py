@@ -293,7 +293,8 @@ def test_the_vehicle_step_twin_is_the_loop_then_the_rotor_step_bit_for_bit(integ
     take the vehicle's step in one call (vehicle_step), and the compiled twin takes it in
     parts (Px4AttitudeLoop.commands at the state's attitude and body rate, then rotor_step)
     THEN statuses, the states and the actuator signals in the work buffers, the loops'
-    buffers, the rotors' and the pack's buffers have the same bits in all three."""
+    buffers, the rotors' and the pack's buffers have the same bits in all three; the joint
+    torques are clipped to the servos' limit, and a NaN one changes nothing."""
     model = build_articulation(PAPER).model
     integrators = [
         ArticulatedIntegrator(model, 1e-3, integrator),
@@ -302,10 +303,12 @@ def test_the_vehicle_step_twin_is_the_loop_then_the_rotor_step_bit_for_bit(integ
     ]
     rotors = PAPER.vehicle.rotors
     geometry = RotorGeometry.hexa_x(rotors.arm_length_m, rotors.yaw_moment_per_thrust_m)
+    limit = 0.8
     for integ in integrators:
         integ.set_rotor_wrench(
             geometry.wrench_matrix()[:3].tolist(), (0.3, 0.2, 0.1), (1.0, -0.5, 0.2), 6.3
         )
+        integ.set_servo_limit(limit)
     rng = np.random.default_rng(13)
     statuses: Counter[int] = Counter()
     saturated = 0
@@ -314,6 +317,8 @@ def test_the_vehicle_step_twin_is_the_loop_then_the_rotor_step_bit_for_bit(integ
         state = _case(rng, case)
         thrusts = rng.uniform(0.0, 6.0, 6).tolist()
         joint = rng.normal(0.0, 1.0, 2).tolist()
+        if i == 7:
+            joint[1] = math.nan
         setpoint = AttitudeSetpoint.from_euler(*rng.uniform(-1.5, 1.5, 3), rng.uniform(0, 1))
         seed = int(rng.integers(1 << 30))
         charge = float(rng.uniform(0.05, 1.0))
@@ -327,9 +332,12 @@ def test_the_vehicle_step_twin_is_the_loop_then_the_rotor_step_bit_for_bit(integ
             if k < 2:
                 out = integ.vehicle_step(setpoint, joint, loop, bank.buffer, pack.buffer)
                 _, _, _, rate_sp, torque = integ.actuator_signals()
+            elif i == 7:
+                out, rate_sp, torque = 5, (0.0,) * 3, (0.0,) * 3  # nothing done
             else:
                 commands, rate_sp, torque = loop.commands(*integ.attitude(), setpoint)
-                out = integ.rotor_step(commands, joint, bank.buffer, pack.buffer)
+                clipped = [min(max(j, -limit), limit) for j in joint]
+                out = integ.rotor_step(commands, clipped, bank.buffer, pack.buffer)
             fields = _fields(integ)
             fields["rate_setpoint"] = list(rate_sp)  # rotor_step leaves them as they were
             fields["torque"] = list(torque)

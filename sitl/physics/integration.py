@@ -241,6 +241,11 @@ class ArticulatedIntegrator:
         voltage [N]."""
         integration_step.set_rotor_wrench(self._work, rows, drag_n_s_m, wind_m_s, max_thrust_n)
 
+    def set_servo_limit(self, limit_n_m: float) -> None:
+        """The servos' torque limit [N m]: :meth:`vehicle_step` clips the joint torques to
+        +-limit (none until set)."""
+        integration_step.set_servo_limit(self._work, limit_n_m)
+
     def rotor_step(
         self,
         commands: list[float],
@@ -273,10 +278,12 @@ class ArticulatedIntegrator:
         battery: array | None,
     ) -> int:
         """One step of the vehicle from the state in one call
-        (:func:`sitl.physics.integration_step.vehicle_step`): the ``autopilot``'s loop at the
+        (:func:`sitl.physics.integration_step.vehicle_step`): the joint torques clipped to
+        the servos' limit (:meth:`set_servo_limit`), the ``autopilot``'s loop at the
         state's attitude and body rate turns ``setpoint`` into motor commands, then
         :meth:`rotor_step`; the commands, the thrusts, the joint torques and the loop's
-        signals stay in the buffer (:meth:`actuator_signals`). Returns as :meth:`step`."""
+        signals stay in the buffer (:meth:`actuator_signals`). Returns as :meth:`step`, or
+        5 for joint torques that are not finite (nothing changed)."""
         att, rate, rate_state, mixer, saturation, relative = autopilot.buffers
         return self._step.vehicle_step(
             self.method == "rk4",

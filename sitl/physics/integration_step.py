@@ -65,7 +65,8 @@ world drag diagonal (3), joint torques (2), wind (3): 12 floats).
 
 Statuses: 0 for a step or state that is whole; DIVERGED (1) for non-finite accelerations
 or state, SINGULAR (2) for W(Phi) singular (|cos(theta)| < 1e-6, the pitch theta in the
-buffer's ``theta`` field); a step whose new state cannot be reported returns these + 2.
+buffer's ``theta`` field); a step whose new state cannot be reported returns these + 2;
+BAD_JOINT_TORQUES (5) for joint torques that are not finite (nothing stepped).
 """
 
 from array import array
@@ -95,6 +96,8 @@ DIVERGED = cython.declare(cython.int, 1)
 """A failure's status: non-finite accelerations, body rate or state."""
 SINGULAR = cython.declare(cython.int, 2)
 """A failure's status: W(Phi) singular at the failure's pitch theta."""
+BAD_JOINT_TORQUES = cython.declare(cython.int, 5)
+"""A failure's status: joint torques that are not finite (nothing stepped)."""
 _COS_THETA_MIN = cython.declare(cython.double, 1e-6)
 _TWO_PI = cython.declare(cython.double, 2.0 * 3.141592653589793)
 
@@ -142,7 +145,8 @@ _THR = cython.declare(cython.Py_ssize_t, 301)  # the rotors' thrusts over the la
 _JT = cython.declare(cython.Py_ssize_t, 307)  # the joint torques of the last step (2)
 _RSP = cython.declare(cython.Py_ssize_t, 309)  # the attitude loop's rate setpoint (3)
 _TQ = cython.declare(cython.Py_ssize_t, 312)  # its normalized torques (3)
-_SIZE = cython.declare(cython.Py_ssize_t, 315)
+_JLIM = cython.declare(cython.Py_ssize_t, 315)  # the servos' torque limit [N m]
+_SIZE = cython.declare(cython.Py_ssize_t, 316)
 
 LAYOUT = {
     "x": (_X, 9),
@@ -196,8 +200,16 @@ ROTOR_MAX_THRUST = _TMAX
 
 
 def work_buffer() -> array:
-    """The float64 buffer one integrator's steps work in (zeros)."""
-    return array("d", bytes(8 * _SIZE))
+    """The float64 buffer one integrator's steps work in (zeros, no servo torque limit)."""
+    work = array("d", bytes(8 * _SIZE))
+    work[_JLIM] = float("inf")
+    return work
+
+
+def set_servo_limit(work, limit_n_m: float) -> None:
+    """The servos' torque limit [N m] into ``work``: :func:`vehicle_step` clips the joint
+    torques to +-limit."""
+    work[_JLIM] = limit_n_m
 
 
 def rotor_buffer(max_thrust_n: float, thr_mdl_fac: float, decay: float) -> array:
@@ -1258,13 +1270,19 @@ def vehicle_step(
     work: cython.double[:],
 ) -> cython.int:
     """One step of the vehicle under an attitude setpoint (quaternion wxyz, relative
-    collective ``thrust``) and two ``joint`` torques [N m]: the attitude loop
-    (:func:`attitude_loop`, on the loop's buffers) at the buffer's attitude and body rate
-    gives the motor commands, then :func:`rotor_step`; the loop's rate setpoint, torques
-    and commands stay in the buffer (:data:`LAYOUT`). Returns as :func:`step`."""
+    collective ``thrust``) and two ``joint`` torques [N m], clipped to the servos' limit
+    (:func:`set_servo_limit`): the attitude loop (:func:`attitude_loop`, on the loop's
+    buffers) at the buffer's attitude and body rate gives the motor commands, then
+    :func:`rotor_step`; the loop's rate setpoint, torques and commands stay in the buffer
+    (:data:`LAYOUT`). Returns as :func:`step`, or BAD_JOINT_TORQUES (nothing changed)."""
     w: cython.double[:] = work
     i: cython.Py_ssize_t
-    _read(w, _JT, joint, 2)
+    j1: cython.double = joint[0]
+    j2: cython.double = joint[1]
+    if not isfinite(j1 + j2):
+        return BAD_JOINT_TORQUES
+    w[_JT] = _clip(j1, -w[_JLIM], w[_JLIM])
+    w[_JT + 1] = _clip(j2, -w[_JLIM], w[_JLIM])
     rate_sp = rate_setpoint((w[_X + 6], w[_X + 3], w[_X + 4], w[_X + 5]), q_setpoint_wxyz, att)
     torque = rate_update((w[_U + 3], w[_U + 4], w[_U + 5]), rate_sp, rate, state, saturation)
     mix(m, torque, thrust, relative, saturation)

@@ -180,6 +180,7 @@ class TruthPlant(RotorPlant):
             self._rotor_wrench, self._drag, self._wind, self._max_thrust_n
         )
         self._servo_limit = scenario.plant.servo_torque_limit_n_m
+        self._integrator.set_servo_limit(self._servo_limit)
         self._actuators: ActuatorState | None = None
         self._actuator_signals: tuple | None = ()
         """The actuator signals of the last step, or None: in the state's buffer."""
@@ -444,14 +445,18 @@ class TruthPlant(RotorPlant):
         compiled call (:meth:`ArticulatedIntegrator.vehicle_step
         <sitl.physics.integration.ArticulatedIntegrator.vehicle_step>`): the attitude loop on
         the state's attitude and body rate, the battery, the rotors and the integration
-        step; the actuator signals stay in the state's buffer until read."""
+        step, the joint torques clipped there; the actuator signals stay in the state's
+        buffer until read."""
         self._need_rotors("step() needs mode='underactuated'; use step_ideal() instead")
-        joint = self._joint_torques(joint_torques_n_m)
-        self._took_step(
-            self._integrator.vehicle_step(
-                setpoint, joint, self._autopilot, self._rotors.buffer, self._battery_buffer
-            )
+        joint = joint_torques_n_m
+        if not (isinstance(joint, (list, tuple)) and len(joint) == 2):
+            joint = self._joint_torques(joint)  # any other array_like, checked here
+        status = self._integrator.vehicle_step(
+            setpoint, joint, self._autopilot, self._rotors.buffer, self._battery_buffer
         )
+        if status == _BAD_JOINT_TORQUES:
+            self._joint_torques(joint)  # raises its ValueError
+        self._took_step(status)
         self._actuator_signals = None
         self._actuators = None
 
@@ -542,6 +547,7 @@ class TruthPlant(RotorPlant):
 
 _DIVERGED = integration_step.DIVERGED
 _SINGULAR = integration_step.SINGULAR
+_BAD_JOINT_TORQUES = integration_step.BAD_JOINT_TORQUES
 """Failure codes of the integration step and the state's kinematics (see
 :meth:`ArticulatedIntegrator.step <sitl.physics.integration.ArticulatedIntegrator.step>`)."""
 _X = integration_step.LAYOUT["x"][0]
