@@ -18,8 +18,7 @@ from setuptools import Extension, setup
 ROOT = Path(__file__).resolve().parent
 TWINS = (
     "companion.control.control_step",
-    "sitl.servo.xm430_loop",
-    "sitl.physics.integration_step",
+    "sitl.vehicle_step",
 )
 """Modules written once in Python and also built compiled."""
 

@@ -1,10 +1,10 @@
 """The compiled twins against their Python source: time per call of what runs every step.
 
-The XM430 servo's per-step physics (``sitl.servo.xm430_loop``: one servo's ``set_state``,
+The XM430 servo's per-step physics (in ``sitl.vehicle_step``: one servo's ``set_state``,
 ``step`` and ``torque_n_m``, as the plant calls them for every servo at every 1 kHz step),
-the PX4-like attitude loop (in ``sitl.physics.integration_step``: one
+the PX4-like attitude loop (in ``sitl.vehicle_step``: one
 ``Px4AttitudeLoop.update`` of the default scenario's loop at a tilted attitude) and the
-truth plant's integration step (``sitl.physics.integration_step``: one
+truth plant's integration step (``sitl.vehicle_step``: one
 ``ArticulatedIntegrator.step`` of the default scenario's model under a rotor wrench,
 semi-implicit Euler and RK4, the state in its buffer) and the companion's control step
 (``companion.control.control_step``: one ``CompiledStep.step`` of the default scenario's
@@ -29,7 +29,8 @@ from companion.control import control_step
 from companion.control.compiled_step import CompiledStep
 from companion.control.flight import FlightControl
 from companion.control.laws import DesiredState, PassivityController
-from sitl.physics import attitude_control, integration_step, rotors
+from sitl import vehicle_step
+from sitl.physics import attitude_control, rotors
 from sitl.physics.articulation import build_articulation
 from sitl.physics.attitude_control import AttitudeLoopParams, AttitudeSetpoint, Px4AttitudeLoop
 from sitl.physics.frames import (
@@ -38,7 +39,6 @@ from sitl.physics.frames import (
 from sitl.physics.integration import ArticulatedIntegrator, BodyWrench, IntegratorMethod
 from sitl.physics.rotors import RotorGeometry, SequentialDesaturationMixer
 from sitl.scenario import load_scenario
-from sitl.servo import xm430_loop
 from sitl.servo.xm430 import XM430Servo
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -70,7 +70,7 @@ def attitude_loop_us(compiled: bool, calls: int, repeat: int) -> float:
     loop = Px4AttitudeLoop.from_params(params, mixer, 1e-3)
     q = AttitudeSetpoint.from_euler(0.1, -0.05, 0.2, 0.5).quaternion_wxyz.tolist()
     setpoint = AttitudeSetpoint.from_euler(0.05, 0.02, 0.1, 0.45)
-    module = integration_step if not compiled else attitude_control._LOOP
+    module = vehicle_step if not compiled else attitude_control._LOOP
     saved = attitude_control._LOOP, rotors._STEP
     attitude_control._LOOP = rotors._STEP = module
     try:
@@ -137,7 +137,7 @@ def main() -> None:
     parser.add_argument("--calls", type=int, default=50_000)
     parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args()
-    for module in (xm430_loop, integration_step, control_step):
+    for module in (vehicle_step, control_step):
         reason = twin_reason(module)
         if reason is not None:
             raise SystemExit(f"bench_compiled_twins: {reason}")

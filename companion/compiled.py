@@ -1,7 +1,7 @@
 """Compiled twins: a module written once in Python, and the same file compiled.
 
-``setup.py`` compiles each module it lists in ``TWINS`` (say ``sitl.servo.xm430_loop``)
-with Cython into ``_<name>`` beside it (``sitl.servo._xm430_loop``), which carries the
+``setup.py`` compiles each module it lists in ``TWINS`` (say ``sitl.vehicle_step``)
+with Cython into ``_<name>`` beside it (``sitl._vehicle_step``), which carries the
 SHA-256 of the source it was built from. :func:`twin` gives the compiled module while it
 was built from the source as it is now, and otherwise the Python module itself: a twin
 that is not built (a checkout without ``pip install .``) or stale (the source edited

@@ -1,10 +1,10 @@
 """The truth plant's compiled twin against its Python source: the vehicle's step
-(``sitl.physics.integration_step``: the attitude loop, the rotors, the integration step).
+(``sitl.vehicle_step``: the attitude loop, the rotors, the integration step).
 
 Each is one source built twice: the two builds agree bit for bit on random states and
 inputs, failures included. The step is reached through its public caller,
 ``ArticulatedIntegrator`` (compiled or not), whose state lives in its work buffer (the
-fields of ``integration_step.LAYOUT``), and its kinematics is checked against the frames
+fields of ``vehicle_step.LAYOUT``), and its kinematics is checked against the frames
 functions; ``Px4AttitudeLoop.update`` agrees with its parts called one by one.
 """
 
@@ -18,13 +18,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from arm_driver.dynamixel import control_table as ct
 from companion.compiled import twin, twin_reason
+from sitl import vehicle_step
 from sitl.physics import (
     AttitudeSetpoint,
     EulerSingularityError,
     PlantDivergedError,
     TruthPlant,
-    integration_step,
 )
 from sitl.physics.articulation import build_articulation
 from sitl.physics.attitude_control import AttitudeLoopParams, Px4AttitudeLoop
@@ -43,6 +44,7 @@ from sitl.physics.rotors import (
     inverse_thrust_curve,
 )
 from sitl.scenario import load_scenario
+from sitl.servo import XM430Servo
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 PAPER = load_scenario(CONFIGS / "paper_sim.toml")
@@ -107,10 +109,12 @@ def _bits(values) -> list:
 
 
 def _place(integ: ArticulatedIntegrator, state) -> None:
-    """The state (x, u, R, Euler angles, q_dot, W^-1) into the integrator's buffer, its
-    other fields zero."""
+    """The state (x, u, R, Euler angles, q_dot, W^-1, and q) into the integrator's buffer,
+    its other fields zero."""
     values = dict(zip(("x", "u", "rotation", "euler", "q_dot", "w_inv"), state, strict=True))
-    for name, (offset, size) in integration_step.LAYOUT.items():
+    x, euler = values["x"], values["euler"]
+    values["q"] = [*x[0:3], *euler, x[7], x[8]]
+    for name, (offset, size) in vehicle_step.LAYOUT.items():
         integ.work[offset : offset + size] = array("d", values.get(name, [0.0] * size))
 
 
@@ -118,7 +122,7 @@ def _fields(integ: ArticulatedIntegrator) -> dict[str, list[float]]:
     """The state's fields in the integrator's buffer."""
     return {
         name: integ.work[offset : offset + size].tolist()
-        for name, (offset, size) in integration_step.LAYOUT.items()
+        for name, (offset, size) in vehicle_step.LAYOUT.items()
     }
 
 
@@ -147,17 +151,17 @@ def _flat(values) -> np.ndarray:
 @pytest.mark.parametrize("kind", ["generalized", "wrench"])
 def test_the_integration_step_twin_is_its_python_source_bit_for_bit(integrator, kind) -> None:
     """GIVEN random states and forces, and states whose step fails in each way WHEN the
-    compiled twin and the Python source of sitl.physics.integration_step each step, evaluate
+    compiled twin and the Python source of sitl.vehicle_step each step, evaluate
     q_ddot without a step and load the state with its kinematics THEN every status and the
     states in their work buffers have the same bits; the step's q_ddot is the
     acceleration's, and the kinematics of a random state's step is the frames functions' to
     1e-12."""
-    assert twin_reason(integration_step) is None, twin_reason(integration_step)
+    assert twin_reason(vehicle_step) is None, twin_reason(vehicle_step)
     model = build_articulation(PAPER).model
     compiled = ArticulatedIntegrator(model, 1e-3, integrator)
     source = ArticulatedIntegrator(model, 1e-3, integrator, compiled=False)
-    assert compiled._step is twin(integration_step) is not integration_step
-    assert source._step is integration_step
+    assert compiled._step is twin(vehicle_step) is not vehicle_step
+    assert source._step is vehicle_step
     rng = np.random.default_rng(7)
     statuses: Counter[int] = Counter()
     for i in range(200):
@@ -203,7 +207,7 @@ def test_the_rotor_step_twin_is_its_parts_and_its_python_source_bit_for_bit(
     integrator, battery
 ) -> None:
     """GIVEN random states, rotor thrusts, commands and joint torques, and states whose step
-    fails WHEN the compiled twin and the Python source of sitl.physics.integration_step
+    fails WHEN the compiled twin and the Python source of sitl.vehicle_step
     each take the rotor plant's step in one call (rotor_step), and the compiled twin takes
     it in parts (the pack's draw, the rotor wrench as a BodyWrench step, the rotors' lag)
     THEN statuses, the states in the work buffers, the rotors' and the pack's buffers have
@@ -352,6 +356,59 @@ def test_the_vehicle_step_twin_is_the_loop_then_the_rotor_step_bit_for_bit(integ
     assert saturated > 20, saturated
 
 
+@pytest.mark.parametrize("direction", [1, -1])
+def test_the_vehicle_step_couples_the_joint_servos_as_they_couple_themselves(direction) -> None:
+    """GIVEN random states and two XM430s holding positions WHEN the compiled twin and the
+    Python source take the vehicle's step coupled to the servos (shaft = zero offset +
+    direction * eta), and the compiled twin takes it under the torques of the servos' own
+    couple THEN statuses, the work buffers, the servos' control tables and loops have the
+    same bits in all three; the buffer keeps the joints' angles and rates at the start of
+    the step and the servos' torques."""
+    model = build_articulation(PAPER).model
+    integrators = [
+        ArticulatedIntegrator(model, 1e-3, "semi_implicit_euler"),
+        ArticulatedIntegrator(model, 1e-3, "semi_implicit_euler", compiled=False),
+        ArticulatedIntegrator(model, 1e-3, "semi_implicit_euler"),
+    ]
+    zeros = (0.3, -0.2)
+    for integ in integrators:
+        integ.set_servo_limit(0.8)
+        integ.set_joint_servos([(zeros[0], direction), (zeros[1], direction)])
+    rng = np.random.default_rng(17)
+    for _ in range(60):
+        state = _case(rng, 0)
+        setpoint = AttitudeSetpoint.from_euler(*rng.uniform(-0.5, 0.5, 3), rng.uniform(0, 1))
+        goals = rng.uniform(-1.0, 1.0, 2)
+        results = []
+        for k, integ in enumerate(integrators):
+            servos = [XM430Servo(i + 1, angle_rad=float(goals[i])) for i in range(2)]
+            for servo in servos:
+                servo.write(ct.TORQUE_ENABLE.address, b"\x01")
+            loop = _loop(np.random.default_rng(5))
+            bank = RotorBank(6.3, 0.3, 0.025, 1e-3)
+            _place(integ, state)
+            eta, eta_dot = state[0][7:9], state[1][6:8]
+            if k < 2:
+                buffers = (*servos[0].physics_buffers, *servos[1].physics_buffers)
+                out = integ.vehicle_step(setpoint, None, loop, bank.buffer, None, buffers)
+            else:
+                torques = [
+                    direction * s.couple(z + direction * e, direction * r)
+                    for s, z, e, r in zip(servos, zeros, eta, eta_dot, strict=True)
+                ]
+                out = integ.vehicle_step(setpoint, torques, loop, bank.buffer, None)
+            fields = _fields(integ)
+            if k == 2:
+                fields.update(arm_start=[*eta, *eta_dot], servo_torques=torques)
+            else:
+                assert fields["arm_start"] == [*eta, *eta_dot]
+            tables = [bytes(s.table) for s in servos]
+            tables += _bits([s.physics_buffers[1].tolist() for s in servos])
+            results.append(_bits((out, *fields.values(), bank.buffer.tolist())) + tables)
+        assert results[0] == results[1] == results[2]
+        assert out == 0
+
+
 def test_the_acceleration_is_the_steps_q_ddot() -> None:
     """GIVEN a plant in motion WHEN q_ddot is evaluated under tau, then a step taken under
     it THEN the step's q_ddot is that q_ddot, bit for bit."""
@@ -375,12 +432,12 @@ def _loop(rng: np.random.Generator) -> Px4AttitudeLoop:
 
 def test_the_attitude_loop_twin_is_its_python_source_bit_for_bit() -> None:
     """GIVEN the same loop's constants and state twice WHEN the compiled twin and the Python
-    source of the attitude loop in sitl.physics.integration_step each run 2000 steps of
+    source of the attitude loop in sitl.vehicle_step each run 2000 steps of
     random attitudes, rates and setpoints (many saturating) THEN commands, relative
     thrusts, rate setpoints, torques, the rate controller's state and the saturation flags
     have the same bits."""
-    assert twin_reason(integration_step) is None, twin_reason(integration_step)
-    compiled = twin(integration_step)
+    assert twin_reason(vehicle_step) is None, twin_reason(vehicle_step)
+    compiled = twin(vehicle_step)
     rng = np.random.default_rng(5)
     saturated = 0
     for _ in range(10):
@@ -391,7 +448,7 @@ def test_the_attitude_loop_twin_is_its_python_source_bit_for_bit() -> None:
             rate = tuple(rng.normal(0.0, 2.0, 3).tolist())
             setpoint = AttitudeSetpoint.from_euler(*rng.uniform(-1.5, 1.5, 3), rng.uniform(0, 1))
             bits = []
-            for module, loop in zip((compiled, integration_step), loops, strict=True):
+            for module, loop in zip((compiled, vehicle_step), loops, strict=True):
                 relative = array("d", [0.0] * 6)
                 commands, rate_sp, torque = module.attitude_loop(
                     q,

@@ -12,12 +12,12 @@ from arm_driver.dynamixel import units
 from arm_driver.dynamixel.protocol import Instruction, InstructionPacket
 from arm_driver.errors import HardwareErrorStatus, StatusError
 from companion.compiled import twin_reason
+from sitl import vehicle_step
 from sitl.servo import (
     EXAMPLE_TORQUE_CONSTANT_N_M_PER_A,
     ServoJoint,
     XM430Parameters,
     XM430Servo,
-    xm430_loop,
 )
 
 
@@ -314,10 +314,10 @@ def test_tripped_position_mode_holds_the_angle_where_it_stopped() -> None:
 
 def _twins(angle_rad: float) -> tuple[XM430Servo, XM430Servo]:
     """The same servo twice: the physics' compiled twin and its Python source."""
-    assert twin_reason(xm430_loop) is None, twin_reason(xm430_loop)
+    assert twin_reason(vehicle_step) is None, twin_reason(vehicle_step)
     fast = XM430Servo(3, angle_rad=angle_rad)
     slow = XM430Servo(3, angle_rad=angle_rad, compiled=False)
-    assert fast._physics is not xm430_loop and slow._physics is xm430_loop
+    assert fast._physics is not vehicle_step and slow._physics is vehicle_step
     return fast, slow
 
 

@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from companion.compiled import twin
-from sitl.physics import integration_step
+from sitl import vehicle_step
 from sitl.physics.frames import quaternion_from_euler
 from sitl.physics.rotors import SequentialDesaturationMixer
 from sitl.scenario import AttitudeControl as AttitudeControlConfig
@@ -62,8 +62,8 @@ Vec3 = tuple[float, float, float]
 
 _I_FACTOR_RATE_RAD_S = math.radians(400.0)
 """PX4: the I gain fades to zero as the rate error approaches 400 deg/s."""
-_LOOP = twin(integration_step)
-"""The loop's arithmetic: :mod:`sitl.physics.integration_step`, compiled where built."""
+_LOOP = twin(vehicle_step)
+"""The loop's arithmetic: :mod:`sitl.vehicle_step`, compiled where built."""
 
 
 @dataclass(frozen=True)
@@ -199,7 +199,7 @@ class AttitudeController:
         self.yaw_weight = min(max(float(yaw_weight), 0.0), 1.0)
         if self.yaw_weight > 1e-4:
             gains[2] /= self.yaw_weight
-        self._constants = integration_step.attitude_constants(
+        self._constants = vehicle_step.attitude_constants(
             gains, self.yaw_weight, [float(r) for r in rate_max_rad_s]
         )
 
@@ -235,7 +235,7 @@ class RateController:
         dt_s: float,
     ) -> None:
         self._dt = float(dt_s)
-        self._state = integration_step.rate_state((0.0, 0.0, 0.0))
+        self._state = vehicle_step.rate_state((0.0, 0.0, 0.0))
         """Integrators, previous rates, filtered angular accelerations."""
         self.set_gains(rate_p, rate_i, rate_d, integrator_limit, d_cutoff_hz)
 
@@ -249,7 +249,7 @@ class RateController:
     ) -> None:
         """New gains, limits and D cutoff (as the constructor's); the integrators and the
         acceleration filter keep their state, as PX4's on a parameter change."""
-        self._constants = integration_step.rate_constants(
+        self._constants = vehicle_step.rate_constants(
             [float(g) for g in rate_p],
             [float(g) for g in rate_i],
             [float(g) for g in rate_d],
@@ -262,16 +262,16 @@ class RateController:
     @property
     def integral(self) -> FloatArray:
         """Integrator states [normalized torque], shape (3,) (a new array)."""
-        return np.array(integration_step.rate_integral(self._state))
+        return np.array(vehicle_step.rate_integral(self._state))
 
     @property
     def angular_acceleration_estimate(self) -> FloatArray:
         """Filtered angular acceleration used by the D term [rad/s^2], shape (3,)."""
-        return np.array(integration_step.rate_acceleration(self._state))
+        return np.array(vehicle_step.rate_acceleration(self._state))
 
     def reset(self, rate_rad_s: Iterable[float] = (0.0, 0.0, 0.0)) -> None:
         """Zero the integrators and the acceleration filter; start from body rate ``rate_rad_s``."""
-        self._state = integration_step.rate_state([float(r) for r in rate_rad_s])
+        self._state = vehicle_step.rate_state([float(r) for r in rate_rad_s])
 
     def update(
         self,
@@ -321,7 +321,7 @@ class Px4AttitudeLoop:
     """Attitude P -> rate PID -> mixer -> THR_MDL_FAC linearization, one :meth:`update` per
     plant step.
 
-    :meth:`update` is :func:`sitl.physics.integration_step.attitude_loop` (compiled where its
+    :meth:`update` is :func:`sitl.vehicle_step.attitude_loop` (compiled where its
     twin is built) on the constants of the three parts and the state of :attr:`rate` (its
     integrators and filter, updated in place). Change gains through :meth:`configure`.
     """
@@ -381,7 +381,7 @@ class Px4AttitudeLoop:
     @property
     def buffers(self) -> tuple[array, array, array, array, array, array]:
         """The loop's float64 buffers in the order the vehicle's step takes them
-        (:func:`sitl.physics.integration_step.vehicle_step`): the attitude controller's and
+        (:func:`sitl.vehicle_step.vehicle_step`): the attitude controller's and
         the rate controller's constants, the rate controller's state, the mixer's
         constants, the saturation flags and the relative thrusts (the last two written)."""
         rate = self.rate

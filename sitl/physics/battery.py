@@ -19,7 +19,7 @@ A lithium-polymer pack of ``cells`` cells in series:
 
 The charge drawn is counted per step (coulomb counting). Pure: no I/O, no clock. The pack's
 constants and state are one float64 buffer whose arithmetic is the truth plant's compiled
-step's (:mod:`sitl.physics.integration_step`: :func:`~sitl.physics.integration_step.
+step's (:mod:`sitl.vehicle_step`: :func:`~sitl.vehicle_step.
 battery_draw`), which feeds the rotors from it inside its step.
 """
 
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from companion.compiled import twin
-from sitl.physics import integration_step
+from sitl import vehicle_step
 
 __all__ = [
     "AVIONICS_POWER_W",
@@ -69,8 +69,8 @@ ROTOR_POWER_W_PER_N1_5 = 9.0
 AVIONICS_POWER_W = 5.0
 """Power the flight controller, companion and receivers draw [W]."""
 
-_STEP = twin(integration_step)
-"""The pack's arithmetic: :mod:`sitl.physics.integration_step`, compiled where built."""
+_STEP = twin(vehicle_step)
+"""The pack's arithmetic: :mod:`sitl.vehicle_step`, compiled where built."""
 
 
 @dataclass(frozen=True)
@@ -119,10 +119,10 @@ class LipoPack:
             AVIONICS_POWER_W,
             ROTOR_POWER_W_PER_N1_5,
         )
-        self.buffer = integration_step.battery_buffer(constants, start_charge, OCV_CURVE)
-        """Constants and state, as :func:`~sitl.physics.integration_step.battery_buffer`
+        self.buffer = vehicle_step.battery_buffer(constants, start_charge, OCV_CURVE)
+        """Constants and state, as :func:`~sitl.vehicle_step.battery_buffer`
         lays them out (the truth plant's step draws from it)."""
-        self.buffer[integration_step.BATTERY_VOLTAGE] = self.open_circuit_v()
+        self.buffer[vehicle_step.BATTERY_VOLTAGE] = self.open_circuit_v()
 
     @classmethod
     def of(cls, section: Any) -> LipoPack | None:
@@ -135,17 +135,17 @@ class LipoPack:
     @property
     def charge(self) -> float:
         """State of charge now [-]."""
-        return self.buffer[integration_step.BATTERY_CHARGE]
+        return self.buffer[vehicle_step.BATTERY_CHARGE]
 
     @property
     def voltage_v(self) -> float:
         """Terminal voltage now [V] (the open-circuit voltage until the first draw)."""
-        return self.buffer[integration_step.BATTERY_VOLTAGE]
+        return self.buffer[vehicle_step.BATTERY_VOLTAGE]
 
     @property
     def current_a(self) -> float:
         """Current drawn over the last step [A] (0 until the first draw)."""
-        return self.buffer[integration_step.BATTERY_CURRENT]
+        return self.buffer[vehicle_step.BATTERY_CURRENT]
 
     def open_circuit_v(self) -> float:
         """Pack voltage at rest at the present charge [V] (:data:`OCV_CURVE`)."""

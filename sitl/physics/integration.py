@@ -29,11 +29,11 @@ stage from a held input (see :class:`GeneralizedForce`, :class:`BodyWrench`):
 The retraction x (+) h u moves p and eta linearly and the attitude by the exact exponential
 of the body rate, quaternion <- quaternion * exp(h omega / 2).
 
-The arithmetic is one module, :mod:`sitl.physics.integration_step`, which runs as Python
-and is compiled as it is into ``sitl.physics._integration_step`` (a compiled twin,
+The arithmetic is one module, :mod:`sitl.vehicle_step`, which runs as Python
+and is compiled as it is into ``sitl._vehicle_step`` (a compiled twin,
 :mod:`companion.compiled`): its floats, Pinocchio's ABA called back for every stage.
 The state lives in the integrator's work buffer (:attr:`ArticulatedIntegrator.work`, the
-fields of :data:`~sitl.physics.integration_step.LAYOUT`):
+fields of :data:`~sitl.vehicle_step.LAYOUT`):
 :meth:`ArticulatedIntegrator.step` steps it there and leaves the new state's kinematics
 beside it; :meth:`ArticulatedIntegrator.rotor_step` is the rotor plant's whole step in the
 same call (the battery's draw, the rotor wrench, the step, the rotors' lag);
@@ -51,7 +51,7 @@ import numpy as np
 import pinocchio as pin
 
 from companion.compiled import twin
-from sitl.physics import integration_step
+from sitl import vehicle_step
 from sitl.physics.attitude_control import AttitudeSetpoint, Px4AttitudeLoop
 from sitl.physics.frames import rotation9_from_quaternion
 
@@ -59,8 +59,8 @@ __all__ = ["ArticulatedIntegrator", "BodyWrench", "GeneralizedForce", "Integrato
 
 IntegratorMethod = Literal["semi_implicit_euler", "rk4"]
 
-_STEP = twin(integration_step)
-"""The step's arithmetic: :mod:`sitl.physics.integration_step`, compiled where built."""
+_STEP = twin(vehicle_step)
+"""The step's arithmetic: :mod:`sitl.vehicle_step`, compiled where built."""
 
 
 class GeneralizedForce:
@@ -71,7 +71,7 @@ class GeneralizedForce:
     """
 
     __slots__ = ("tau",)
-    KIND = integration_step.GENERALIZED
+    KIND = vehicle_step.GENERALIZED
     """The step's tag of this force."""
 
     def __init__(self, tau: list[float]) -> None:
@@ -105,7 +105,7 @@ class BodyWrench:
     """
 
     __slots__ = ("drag_n_s_m", "joint_torques_n_m", "thrust_n", "torque_n_m", "wind_m_s")
-    KIND = integration_step.WRENCH
+    KIND = vehicle_step.WRENCH
     """The step's tag of this force."""
 
     def __init__(
@@ -146,7 +146,7 @@ class ArticulatedIntegrator:
     method : {"semi_implicit_euler", "rk4"}
         See the module docstring.
     compiled : bool
-        Step with the compiled twin of :mod:`sitl.physics.integration_step` where it is
+        Step with the compiled twin of :mod:`sitl.vehicle_step` where it is
         built (False: its Python source).
     """
 
@@ -157,9 +157,9 @@ class ArticulatedIntegrator:
             raise ValueError(f"unknown integrator {method!r}")
         self.dt_s = float(dt_s)
         self.method: IntegratorMethod = method
-        self._step = _STEP if compiled else integration_step
-        self._work = integration_step.work_buffer()
-        self._q, self._v, self._tau = integration_step.aba_arguments(self._work)
+        self._step = _STEP if compiled else vehicle_step
+        self._work = vehicle_step.work_buffer()
+        self._q, self._v, self._tau = vehicle_step.aba_arguments(self._work)
         self._zero_a = np.zeros(8)
         """Zero accelerations for :meth:`fixed_base_joint_accelerations`' RNEA (never written)."""
         self.set_model(model)
@@ -206,7 +206,7 @@ class ArticulatedIntegrator:
     @property
     def work(self) -> array:
         """The float64 buffer the steps work in, the state among it
-        (:data:`sitl.physics.integration_step.LAYOUT`)."""
+        (:data:`sitl.vehicle_step.LAYOUT`)."""
         return self._work
 
     def load(
@@ -239,12 +239,18 @@ class ArticulatedIntegrator:
         thrust (three rows of six) [N m / N], the world drag diagonal [N s/m], the steady
         wind (world ENU) [m/s] and a rotor's full thrust at the battery's reference
         voltage [N]."""
-        integration_step.set_rotor_wrench(self._work, rows, drag_n_s_m, wind_m_s, max_thrust_n)
+        vehicle_step.set_rotor_wrench(self._work, rows, drag_n_s_m, wind_m_s, max_thrust_n)
+
+    def set_joint_servos(self, couplings: list[tuple[float, float]]) -> None:
+        """(zero offset [rad], direction +1 or -1) of eta1's and eta2's servos: shaft angle
+        = zero offset + direction * eta (for :meth:`vehicle_step` coupled to them)."""
+        (zero1, direction1), (zero2, direction2) = couplings
+        vehicle_step.set_joint_servos(self._work, zero1, direction1, zero2, direction2)
 
     def set_servo_limit(self, limit_n_m: float) -> None:
         """The servos' torque limit [N m]: :meth:`vehicle_step` clips the joint torques to
         +-limit (none until set)."""
-        integration_step.set_servo_limit(self._work, limit_n_m)
+        vehicle_step.set_servo_limit(self._work, limit_n_m)
 
     def rotor_step(
         self,
@@ -254,7 +260,7 @@ class ArticulatedIntegrator:
         battery: array | None,
     ) -> int:
         """One step of the rotor plant from the state
-        (:func:`sitl.physics.integration_step.rotor_step`): the ``battery`` buffer (None: an
+        (:func:`sitl.vehicle_step.rotor_step`): the ``battery`` buffer (None: an
         ideal supply) feeds the thrusts of the ``rotors`` buffer, which push with drag,
         wind and the joint torques (:meth:`set_rotor_wrench`) over the step and then lag
         toward the six ``commands``. Returns as :meth:`step`."""
@@ -272,18 +278,24 @@ class ArticulatedIntegrator:
     def vehicle_step(
         self,
         setpoint: AttitudeSetpoint,
-        joint_torques_n_m: list[float],
+        joint_torques_n_m: list[float] | None,
         autopilot: Px4AttitudeLoop,
         rotors: array,
         battery: array | None,
+        servos: tuple | None = None,
     ) -> int:
         """One step of the vehicle from the state in one call
-        (:func:`sitl.physics.integration_step.vehicle_step`): the joint torques clipped to
+        (:func:`sitl.vehicle_step.vehicle_step`): the joint torques clipped to
         the servos' limit (:meth:`set_servo_limit`), the ``autopilot``'s loop at the
         state's attitude and body rate turns ``setpoint`` into motor commands, then
         :meth:`rotor_step`; the commands, the thrusts, the joint torques and the loop's
         signals stay in the buffer (:meth:`actuator_signals`). Returns as :meth:`step`, or
-        5 for joint torques that are not finite (nothing changed)."""
+        5 for joint torques that are not finite (nothing changed).
+
+        ``joint_torques_n_m`` None: the joint servos' torques, the servos (``servos``: the
+        control table, loop and parameters of eta1's servo, then of eta2's) coupled first
+        to the state's joint angles and rates (:meth:`set_joint_servos`); the buffer keeps
+        those (``arm_start``) and the servos' torques (``servo_torques``)."""
         att, rate, rate_state, mixer, saturation, relative = autopilot.buffers
         return self._step.vehicle_step(
             self.method == "rk4",
@@ -291,6 +303,7 @@ class ArticulatedIntegrator:
             setpoint.quaternion_wxyz,
             setpoint.thrust,
             joint_torques_n_m,
+            servos,
             att,
             rate,
             rate_state,

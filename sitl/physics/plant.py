@@ -41,7 +41,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from companion.config import Theta
 from companion.coordinates import N_Q
-from sitl.physics import integration_step
+from sitl import vehicle_step
 from sitl.physics.articulation import ETA2_JOINT, build_articulation, theta_of
 from sitl.physics.attitude_control import (
     AttitudeLoopParams,
@@ -181,13 +181,15 @@ class TruthPlant(RotorPlant):
         )
         self._servo_limit = scenario.plant.servo_torque_limit_n_m
         self._integrator.set_servo_limit(self._servo_limit)
+        self._servo_buffers: tuple | None = None
+        """The joint servos' physics buffers (:meth:`couple_servos`)."""
         self._actuators: ActuatorState | None = None
         self._actuator_signals: tuple | None = ()
         """The actuator signals of the last step, or None: in the state's buffer."""
 
         self._work = self._integrator.work
         """The state (x, u, their kinematics, the last step's q_ddot) in the integrator's
-        buffer (:data:`~sitl.physics.integration_step.LAYOUT`)."""
+        buffer (:data:`~sitl.vehicle_step.LAYOUT`)."""
         self._state_cache: PlantState | None = None
         self._coordinates = None
         self._steps = 0
@@ -460,6 +462,41 @@ class TruthPlant(RotorPlant):
         self._actuator_signals = None
         self._actuators = None
 
+    def couple_servos(self, couplings: list[tuple[float, float, tuple]]) -> None:
+        """Couple the joint servos to the joints for :meth:`advance_coupled`: for eta1 and
+        eta2, (zero offset [rad], direction +1 or -1, the servo's physics buffers
+        (:attr:`XM430Servo.physics_buffers <sitl.servo.XM430Servo.physics_buffers>`)); shaft
+        angle = zero offset + direction * eta."""
+        self._integrator.set_joint_servos([(zero, sign) for zero, sign, _ in couplings])
+        self._servo_buffers = tuple(b for _, _, buffers in couplings for b in buffers)
+
+    def advance_coupled(self, setpoint: AttitudeSetpoint) -> None:
+        """:meth:`advance` with the joint torques of the servos coupled in
+        (:meth:`couple_servos`): each is given its joint's angle and rate now and applies
+        its torque, in the same compiled call; the same errors, and the servos'
+        ValueError for an angle or rate they cannot hold."""
+        self._need_rotors("step() needs mode='underactuated'; use step_ideal() instead")
+        status = self._integrator.vehicle_step(
+            setpoint,
+            None,
+            self._autopilot,
+            self._rotors.buffer,
+            self._battery_buffer,
+            self._servo_buffers,
+        )
+        if status == _BAD_JOINT_TORQUES:
+            self._joint_torques(self._field("servo_torques"))  # raises its ValueError
+        self._took_step(status)
+        self._actuator_signals = None
+        self._actuators = None
+
+    @property
+    def coupled_arm(self) -> tuple[list[float], list[float], list[float]]:
+        """(eta [rad], eta_dot [rad/s], the servos' torques on the joints before the limit
+        [N m]) at the start of the last :meth:`advance_coupled`."""
+        arm = self._field("arm_start")
+        return arm[0:2], arm[2:4], self._field("servo_torques")
+
     def _signals(self) -> tuple:
         if self._actuator_signals is None:
             return self._integrator.actuator_signals()
@@ -492,7 +529,7 @@ class TruthPlant(RotorPlant):
         self._actuators = None
 
     # -------------------------------------------------------------- internals
-    # The state lives in the integrator's work buffer (sitl.physics.integration_step,
+    # The state lives in the integrator's work buffer (sitl.vehicle_step,
     # compiled where built): its steps read and write it there; Python reads its fields
     # only when asked (coordinates, state, the ground's hold, a payload change).
 
@@ -540,20 +577,20 @@ class TruthPlant(RotorPlant):
         self._coordinates = None
 
     def _field(self, name: str) -> list[float]:
-        """A field of the state (:data:`~sitl.physics.integration_step.LAYOUT`) as a list."""
-        offset, size = integration_step.LAYOUT[name]
+        """A field of the state (:data:`~sitl.vehicle_step.LAYOUT`) as a list."""
+        offset, size = vehicle_step.LAYOUT[name]
         return self._work[offset : offset + size].tolist()
 
 
-_DIVERGED = integration_step.DIVERGED
-_SINGULAR = integration_step.SINGULAR
-_BAD_JOINT_TORQUES = integration_step.BAD_JOINT_TORQUES
+_DIVERGED = vehicle_step.DIVERGED
+_SINGULAR = vehicle_step.SINGULAR
+_BAD_JOINT_TORQUES = vehicle_step.BAD_JOINT_TORQUES
 """Failure codes of the integration step and the state's kinematics (see
 :meth:`ArticulatedIntegrator.step <sitl.physics.integration.ArticulatedIntegrator.step>`)."""
-_X = integration_step.LAYOUT["x"][0]
-_U = integration_step.LAYOUT["u"][0]
-_QDD = integration_step.LAYOUT["q_ddot"][0]
-_THETA = integration_step.LAYOUT["theta"][0]
+_X = vehicle_step.LAYOUT["x"][0]
+_U = vehicle_step.LAYOUT["u"][0]
+_QDD = vehicle_step.LAYOUT["q_ddot"][0]
+_THETA = vehicle_step.LAYOUT["theta"][0]
 """Offsets of the state's fields read or written one float at a time."""
 
 

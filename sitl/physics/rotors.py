@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from companion.compiled import twin
-from sitl.physics import integration_step
+from sitl import vehicle_step
 
 __all__ = [
     "FIRST_ROTOR_AZIMUTH_RAD",
@@ -67,10 +67,10 @@ MINIMUM_YAW_MARGIN = 0.15
 _SMALL = 1e-3
 """PX4 zeroes allocation entries below this magnitude and ignores them when counting."""
 
-_STEP = twin(integration_step)
-"""The allocation's and the rotors' lag's arithmetic: :mod:`sitl.physics.integration_step`,
+_STEP = twin(vehicle_step)
+"""The allocation's and the rotors' lag's arithmetic: :mod:`sitl.vehicle_step`,
 compiled where built."""
-_MAX_THRUST = integration_step.ROTOR_MAX_THRUST
+_MAX_THRUST = vehicle_step.ROTOR_MAX_THRUST
 
 
 def thrust_curve(u: ArrayLike, thr_mdl_fac: float) -> FloatArray:
@@ -158,11 +158,11 @@ class RotorBank:
         self.thr_mdl_fac = float(thr_mdl_fac)
         self.time_constant_s = float(time_constant_s)
         decay = math.exp(-dt_s / time_constant_s)
-        self.buffer = integration_step.rotor_buffer(float(max_thrust_n), self.thr_mdl_fac, decay)
+        self.buffer = vehicle_step.rotor_buffer(float(max_thrust_n), self.thr_mdl_fac, decay)
         """Thrusts, full thrust, THR_MDL_FAC and decay, as
-        :func:`~sitl.physics.integration_step.rotor_buffer` lays them out (the truth
+        :func:`~sitl.vehicle_step.rotor_buffer` lays them out (the truth
         plant's step advances them)."""
-        self._work = integration_step.work_buffer()
+        self._work = vehicle_step.work_buffer()
 
     @property
     def max_thrust_n(self) -> float:
@@ -257,7 +257,7 @@ class SequentialDesaturationMixer:
         mix[np.abs(mix) < _SMALL] = 0.0
         self._mix = mix
         self._scale = scale
-        self._constants = integration_step.mixer_constants(
+        self._constants = vehicle_step.mixer_constants(
             mix[:, 0].tolist(),
             mix[:, 1].tolist(),
             mix[:, 2].tolist(),

@@ -73,7 +73,7 @@ from arm_driver.dynamixel.instructions import encode_int
 from arm_driver.dynamixel.protocol import InstructionPacket
 from arm_driver.errors import HardwareErrorStatus, StatusError
 from companion.compiled import twin
-from sitl.servo import xm430_loop
+from sitl import vehicle_step
 
 __all__ = [
     "EXAMPLE_TORQUE_CONSTANT_N_M_PER_A",
@@ -212,7 +212,8 @@ class ServoReply:
 
 
 class _LoopValue:
-    """One float of :attr:`XM430Servo._loop`, the loops' state (:mod:`sitl.servo.xm430_loop`)."""
+    """One float of :attr:`XM430Servo._loop`, the loops' state (the servos' part of
+    :mod:`sitl.vehicle_step`)."""
 
     def __init__(self, index: int) -> None:
         self.index = index
@@ -228,8 +229,9 @@ class XM430Servo:
     """One simulated XM430-W350; implements :class:`ServoJoint`.
 
     The per-step physics (:meth:`set_state`, :meth:`step`, :meth:`torque_n_m`,
-    :meth:`commanded_current_a`) is :mod:`sitl.servo.xm430_loop` on the control table and
-    :attr:`_loop`, compiled where its twin is built from it (``compiled``).
+    :meth:`commanded_current_a`) is the servos' part of :mod:`sitl.vehicle_step` on the
+    control table and :attr:`_loop`, compiled where its twin is built from it
+    (``compiled``).
 
     Parameters
     ----------
@@ -240,19 +242,19 @@ class XM430Servo:
     angle_rad
         Initial shaft angle [rad] (0 at tick 2048); Goal Position starts there.
     compiled
-        Use the compiled twin of :mod:`sitl.servo.xm430_loop` where it is built (False:
+        Use the compiled twin of :mod:`sitl.vehicle_step` where it is built (False:
         its Python source).
     """
 
-    _angle_rad = _LoopValue(xm430_loop.L_ANGLE)
-    _rate_rad_s = _LoopValue(xm430_loop.L_RATE)
-    _current_a = _LoopValue(xm430_loop.L_CURRENT)
-    _lag_dt_s = _LoopValue(xm430_loop.L_LAG_DT)
-    _lag = _LoopValue(xm430_loop.L_LAG)
-    _overload_s = _LoopValue(xm430_loop.L_OVERLOAD)
-    _silent_s = _LoopValue(xm430_loop.L_SILENT)
-    _hold_rad = _LoopValue(xm430_loop.L_HOLD)
-    _profile_rad = _LoopValue(xm430_loop.L_PROFILE)
+    _angle_rad = _LoopValue(vehicle_step.L_ANGLE)
+    _rate_rad_s = _LoopValue(vehicle_step.L_RATE)
+    _current_a = _LoopValue(vehicle_step.L_CURRENT)
+    _lag_dt_s = _LoopValue(vehicle_step.L_LAG_DT)
+    _lag = _LoopValue(vehicle_step.L_LAG)
+    _overload_s = _LoopValue(vehicle_step.L_OVERLOAD)
+    _silent_s = _LoopValue(vehicle_step.L_SILENT)
+    _hold_rad = _LoopValue(vehicle_step.L_HOLD)
+    _profile_rad = _LoopValue(vehicle_step.L_PROFILE)
 
     def __init__(
         self,
@@ -265,10 +267,10 @@ class XM430Servo:
         if not 0 <= servo_id <= 252:
             raise ValueError(f"servo id {servo_id} out of range (0-252)")
         self._parameters = parameters if parameters is not None else XM430Parameters()
-        self._loop = array("d", [0.0] * xm430_loop.LOOP_SIZE)
-        self._physics = twin(xm430_loop, compiled)
+        self._loop = array("d", [0.0] * vehicle_step.SERVO_LOOP_SIZE)
+        self._physics = twin(vehicle_step, compiled)
         p = self._parameters
-        self._params = xm430_loop.loop_parameters(
+        self._params = vehicle_step.servo_parameters(
             p.torque_constant_n_m_per_a,
             p.current_time_constant_s,
             p.position_kp_a_per_rad,
@@ -446,26 +448,35 @@ class XM430Servo:
     def set_state(self, angle_rad: float, rate_rad_s: float) -> None:
         """Present Position(132) and Present Velocity(128) from the shaft's angle [rad] and
         rate [rad/s]."""
-        self._physics.set_state(self.table, self._loop, angle_rad, rate_rad_s)
+        self._physics.servo_set_state(self.table, self._loop, angle_rad, rate_rad_s)
 
     def torque_n_m(self) -> float:
         """Output torque [N m]: torque constant x present current (0 with torque off)
         minus the gearbox's viscous friction."""
-        return self._physics.torque_n_m(self.table, self._loop, self._params)
+        return self._physics.servo_torque_n_m(self.table, self._loop, self._params)
 
     def couple(self, angle_rad: float, rate_rad_s: float) -> float:
         """:meth:`set_state`, then :meth:`torque_n_m` [N m], in one call of the loop."""
-        return self._physics.couple(self.table, self._loop, self._params, angle_rad, rate_rad_s)
+        return self._physics.servo_couple(
+            self.table, self._loop, self._params, angle_rad, rate_rad_s
+        )
+
+    @property
+    def physics_buffers(self) -> tuple[bytearray, array, array]:
+        """(control table, loop state, parameters): the buffers the per-step physics works
+        on, for a compiled step that couples the servo itself
+        (:func:`sitl.vehicle_step.vehicle_step`)."""
+        return self.table, self._loop, self._params
 
     def commanded_current_a(self) -> float:
         """Current the active control mode asks for now [A], clamped to the limits."""
-        return self._physics.command_a(self.table, self._loop, self._params)
+        return self._physics.servo_command_a(self.table, self._loop, self._params)
 
     def step(self, dt_s: float) -> None:
         """Advance the bus watchdog, the current loop and the overload detector by ``dt_s`` [s]."""
-        if self._physics.step(self.table, self._loop, self._params, dt_s):
+        if self._physics.servo_step(self.table, self._loop, self._params, dt_s):
             self.inject_hardware_error(HardwareErrorStatus.OVERLOAD)
-            self._physics.write_current(self.table, self._loop)
+            self._physics.servo_write_current(self.table, self._loop)
 
 
 _BUS_WATCHDOG = ct.BUS_WATCHDOG.address

@@ -282,8 +282,19 @@ class World:
         self._gripper_servo = gripper[1] if gripper else None
         self._servos = [servo for _, servo in joints] + ([gripper[1]] if gripper else [])
         """Every servo, stepped in this order after the plant."""
-        self._arm_start: tuple[list[float], list[float]] = ([0.0, 0.0], [0.0, 0.0])
-        """(eta [rad], eta_dot [rad/s]) at the start of the step being taken."""
+        self._arm_start: tuple[list[float], list[float]] | None = ([0.0, 0.0], [0.0, 0.0])
+        """(eta [rad], eta_dot [rad/s]) at the start of the step being taken (None: the
+        plant coupled the joint servos itself and keeps them, :meth:`_arm_before`)."""
+        buffers = [getattr(servo, "physics_buffers", None) for _, servo in joints]
+        self._coupled = hasattr(plant, "advance_coupled") and None not in buffers
+        """The plant couples the joint servos within its own step (an XM430 each)."""
+        if self._coupled:
+            plant.couple_servos(
+                [
+                    (c.zero_offset_rad, c.direction, b)
+                    for (c, _), b in zip(joints, buffers, strict=True)
+                ]
+            )
         self.jaw = (
             GripperJaw(gripper[0], closure_on_object=settings.jaw_closure_on_object)
             if gripper
@@ -344,9 +355,16 @@ class World:
 
     def advance(self, setpoint: AttitudeSetpoint | None) -> None:
         """:meth:`step` without building the new state for the caller (the SITL's loop,
-        which reads :attr:`state` only when it needs it)."""
-        torques = self._couple()
-        self.plant.advance(setpoint if setpoint is not None else self._motors_off, torques)
+        which reads :attr:`state` only when it needs it). The joint servos are coupled in
+        the plant's own step where it can (:meth:`TruthPlant.advance_coupled
+        <sitl.physics.TruthPlant.advance_coupled>`), the gripper here first."""
+        setpoint = setpoint if setpoint is not None else self._motors_off
+        if self._coupled:
+            self._couple_gripper()
+            self._arm_start = None
+            self.plant.advance_coupled(setpoint)
+        else:
+            self.plant.advance(setpoint, self._couple())
         self._settle()
 
     def step_motors(self, motor_commands: Sequence[float]) -> PlantState:
@@ -371,17 +389,28 @@ class World:
         torques = self._torques
         torques[0] = sign1 * servo1.couple(zero1 + sign1 * e1, sign1 * r1)
         torques[1] = sign2 * servo2.couple(zero2 + sign2 * e2, sign2 * r2)
+        self._couple_gripper()
+        return torques
+
+    def _couple_gripper(self) -> None:
+        """The jaw moves under the gripper servo over the step (none without a gripper)."""
         gripper, jaw = self._gripper_servo, self.jaw
         if gripper is not None and jaw is not None:
             jaw.advance(gripper.couple(jaw.angle_rad, jaw.rate_rad_s), self.dt_s)
-        return torques
+
+    def _arm_before(self) -> tuple[list[float], list[float], list[float]]:
+        """(eta [rad], eta_dot [rad/s], the servos' torques on the joints [N m]) at the
+        start of the last step."""
+        if self._arm_start is None:
+            return self.plant.coupled_arm
+        return (*self._arm_start, list(self._torques))
 
     def _settle(self) -> None:
         """The end of a step: the servos' loops advance, then ground contact and payload."""
         dt = self.dt_s
         for servo in self._servos:
             servo.step(dt)
-        self._ground_contact(*self._arm_start)
+        self._ground_contact()
         self._update_payload()
 
     @property
@@ -391,10 +420,10 @@ class World:
         reading = self.plant.battery if self.plant.flies_rotors else None
         return IDEAL_SUPPLY if reading is None else reading
 
-    def _ground_contact(self, etas: list[float], eta_rates: list[float]) -> None:
-        """Stand the base on the ground (see the module docstring); ``etas`` and
-        ``eta_rates`` are the joints' angles and rates at the start of the step, which the
-        arm takes again on the standing base under the step's torques."""
+    def _ground_contact(self) -> None:
+        """Stand the base on the ground (see the module docstring); the arm takes the step
+        again on the standing base from its angles and rates at the start of the step,
+        under the step's torques (:meth:`_arm_before`)."""
         height = self.settings.landing_gear_height_m
         q, q_dot = self.plant.coordinates
         if self.plant.has_ground:  # the plant's own gear holds it (JSBSim)
@@ -408,8 +437,7 @@ class World:
         if self._ground_pose is None:  # touch-down: stay where the gear met the ground
             self._ground_pose = (float(q[X]), float(q[Y]), float(q[PSI]))
         x, y, yaw = self._ground_pose
-        arm_before = (etas, eta_rates, list(self._torques))
-        self.plant.hold_base((x, y, height), yaw, arm_before)
+        self.plant.hold_base((x, y, height), yaw, self._arm_before())
 
     # ------------------------------------------------------------------- payload
 
@@ -506,7 +534,7 @@ class World:
             payload_attached=self.plant.payload_attached,
             object_position_m=self.object_position_m,
             gripper_angle_rad=None if self.jaw is None else self.jaw.angle_rad,
-            joint_torques_n_m=np.array(self._torques),
+            joint_torques_n_m=np.array(self._arm_before()[2]),
             true_theta=(theta.m2_kg, theta.m3_kg_m, theta.m4_kg_m2),
         )
 
