@@ -165,7 +165,9 @@ _JLIM = cython.declare(cython.Py_ssize_t, 315)  # the servos' torque limit [N m]
 _ARM = cython.declare(cython.Py_ssize_t, 316)  # eta (2), eta_dot (2) at a coupled step's start
 _ST = cython.declare(cython.Py_ssize_t, 320)  # the joint servos' torques on the joints (2)
 _JMAP = cython.declare(cython.Py_ssize_t, 322)  # zero offset [rad], direction of each (2 x 2)
-_SIZE = cython.declare(cython.Py_ssize_t, 326)
+_OVL = cython.declare(cython.Py_ssize_t, 326)  # a joint servo's overload timer ran out (2)
+_STEPPED = cython.declare(cython.Py_ssize_t, 328)  # the coupled step was taken (1)
+_SIZE = cython.declare(cython.Py_ssize_t, 329)
 
 LAYOUT = {
     "x": (_X, 9),
@@ -185,6 +187,8 @@ LAYOUT = {
     "torque": (_TQ, 3),
     "arm_start": (_ARM, 4),
     "servo_torques": (_ST, 2),
+    "servo_overloads": (_OVL, 2),
+    "stepped": (_STEPPED, 1),
 }
 """The plant's state in the work buffer, field -> (offset, length): Pinocchio's x and u,
 R (row-major), the Euler angles, our q and q_dot, W(Phi)^-1 (row-major), the last step's
@@ -193,7 +197,9 @@ last rotor step's actuator signals: motor commands in [0, 1], the rotors' thrust
 over it [N], the joint torques [N m], and of :func:`vehicle_step` the attitude loop's
 body-rate setpoint (FLU) [rad/s] and normalized torques; of a step coupled to the joint
 servos, the joints' angles [rad] and rates [rad/s] at its start and the servos' torques on
-the joints before the limit [N m]."""
+the joints before the limit [N m], whether each servo's overload timer ran out in its step
+after the plant's (1.0, see :func:`servo_step`), and whether the plant's step was taken
+(1.0: a servo's error after it leaves the new state)."""
 
 # Offsets in a rotor bank's buffer (:func:`rotor_buffer`).
 _T = cython.declare(cython.Py_ssize_t, 0)  # each rotor's thrust now [N] (6)
@@ -1366,6 +1372,7 @@ def servo_torque_n_m(
     return params[_P_TORQUE_CONSTANT] * loop[L_CURRENT] - friction
 
 
+@cython.ccall
 def servo_step(
     table: cython.uchar[:], loop: cython.double[:], params: cython.double[:], dt_s: cython.double
 ) -> cython.bint:
@@ -1639,11 +1646,14 @@ def vehicle_step(
     ``joint`` None: the joint torques are the joint servos' (``servos``: the control
     table, loop and parameters of eta1's servo, then of eta2's, see
     :func:`servo_couple`), each coupled first to its joint's angle and rate now
-    (:func:`set_joint_servos`); the buffer keeps those and the servos' torques."""
+    (:func:`set_joint_servos`), and after a whole step their loops advance by ``dt``
+    (:func:`servo_step`); the buffer keeps the angles, rates and torques, and the
+    servos' overloads."""
     w: cython.double[:] = work
     i: cython.Py_ssize_t
     j1: cython.double
     j2: cython.double
+    w[_STEPPED] = 0.0
     if joint is None:
         for i in range(2):
             w[_ARM + i] = w[_QO + 6 + i]
@@ -1667,7 +1677,12 @@ def vehicle_step(
         w[_TQ + i] = torque[i]
     for i in range(6):
         w[_CMD + i] = motor_command(relative[i], thr_mdl_fac)
-    return _rotor_step(w, rk4, dt, rotors, battery, aba)
+    s: cython.int = _rotor_step(w, rk4, dt, rotors, battery, aba)
+    if joint is None and s == _OK:
+        w[_STEPPED] = 1.0
+        w[_OVL] = 1.0 if servo_step(servos[0], servos[1], servos[2], dt) else 0.0
+        w[_OVL + 1] = 1.0 if servo_step(servos[3], servos[4], servos[5], dt) else 0.0
+    return s
 
 
 @cython.ccall

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from arm_driver.dynamixel import control_table as ct
+from arm_driver.errors import HardwareErrorStatus
 from companion.compiled import twin, twin_reason
 from sitl import vehicle_step
 from sitl.physics import (
@@ -47,6 +48,7 @@ from sitl.scenario import load_scenario
 from sitl.servo import XM430Servo
 
 CONFIGS = Path(__file__).parent.parent / "configs"
+_OVERLOADS = vehicle_step.LAYOUT["servo_overloads"][0]
 PAPER = load_scenario(CONFIGS / "paper_sim.toml")
 TOL = 1e-12
 
@@ -361,9 +363,10 @@ def test_the_vehicle_step_couples_the_joint_servos_as_they_couple_themselves(dir
     """GIVEN random states and two XM430s holding positions WHEN the compiled twin and the
     Python source take the vehicle's step coupled to the servos (shaft = zero offset +
     direction * eta), and the compiled twin takes it under the torques of the servos' own
-    couple THEN statuses, the work buffers, the servos' control tables and loops have the
-    same bits in all three; the buffer keeps the joints' angles and rates at the start of
-    the step and the servos' torques."""
+    couple and their own step after it THEN statuses, the work buffers, the servos' control
+    tables and loops have the same bits in all three; the buffer keeps the joints' angles
+    and rates at the start of the step, the servos' torques and overloads (some servos
+    pushing at their overload current for longer than their overload time)."""
     model = build_articulation(PAPER).model
     integrators = [
         ArticulatedIntegrator(model, 1e-3, "semi_implicit_euler"),
@@ -375,15 +378,18 @@ def test_the_vehicle_step_couples_the_joint_servos_as_they_couple_themselves(dir
         integ.set_servo_limit(0.8)
         integ.set_joint_servos([(zeros[0], direction), (zeros[1], direction)])
     rng = np.random.default_rng(17)
+    overloads_seen = 0
     for _ in range(60):
         state = _case(rng, 0)
         setpoint = AttitudeSetpoint.from_euler(*rng.uniform(-0.5, 0.5, 3), rng.uniform(0, 1))
         goals = rng.uniform(-1.0, 1.0, 2)
+        overload_s = rng.choice([0.0, 5.0])
         results = []
         for k, integ in enumerate(integrators):
             servos = [XM430Servo(i + 1, angle_rad=float(goals[i])) for i in range(2)]
             for servo in servos:
                 servo.write(ct.TORQUE_ENABLE.address, b"\x01")
+                servo._overload_s = float(overload_s)  # as if it had pushed that long
             loop = _loop(np.random.default_rng(5))
             bank = RotorBank(6.3, 0.3, 0.025, 1e-3)
             _place(integ, state)
@@ -391,15 +397,25 @@ def test_the_vehicle_step_couples_the_joint_servos_as_they_couple_themselves(dir
             if k < 2:
                 buffers = (*servos[0].physics_buffers, *servos[1].physics_buffers)
                 out = integ.vehicle_step(setpoint, None, loop, bank.buffer, None, buffers)
+                overloads = integ.work[_OVERLOADS : _OVERLOADS + 2].tolist()
+                for servo, flag in zip(servos, overloads, strict=True):
+                    if flag:
+                        servo.overloaded()
             else:
                 torques = [
                     direction * s.couple(z + direction * e, direction * r)
                     for s, z, e, r in zip(servos, zeros, eta, eta_dot, strict=True)
                 ]
                 out = integ.vehicle_step(setpoint, torques, loop, bank.buffer, None)
+                for servo in servos:
+                    servo.step(1e-3)
             fields = _fields(integ)
             if k == 2:
+                overloaded = [
+                    float(bool(s.hardware_error & HardwareErrorStatus.OVERLOAD)) for s in servos
+                ]
                 fields.update(arm_start=[*eta, *eta_dot], servo_torques=torques)
+                fields.update(servo_overloads=overloaded, stepped=[1.0])
             else:
                 assert fields["arm_start"] == [*eta, *eta_dot]
             tables = [bytes(s.table) for s in servos]
@@ -407,6 +423,8 @@ def test_the_vehicle_step_couples_the_joint_servos_as_they_couple_themselves(dir
             results.append(_bits((out, *fields.values(), bank.buffer.tolist())) + tables)
         assert results[0] == results[1] == results[2]
         assert out == 0
+        overloads_seen += any(s.hardware_error for s in servos)
+    assert overloads_seen > 5
 
 
 def test_the_acceleration_is_the_steps_q_ddot() -> None:

@@ -470,25 +470,40 @@ class TruthPlant(RotorPlant):
         self._integrator.set_joint_servos([(zero, sign) for zero, sign, _ in couplings])
         self._servo_buffers = tuple(b for _, _, buffers in couplings for b in buffers)
 
-    def advance_coupled(self, setpoint: AttitudeSetpoint) -> None:
+    def advance_coupled(self, setpoint: AttitudeSetpoint) -> bool:
         """:meth:`advance` with the joint torques of the servos coupled in
         (:meth:`couple_servos`): each is given its joint's angle and rate now and applies
-        its torque, in the same compiled call; the same errors, and the servos'
-        ValueError for an angle or rate they cannot hold."""
+        its torque, and after the step their loops advance over it, in the same compiled
+        call. True when a servo's overload timer ran out (:attr:`coupled_overloads`: the
+        caller sets its Overload bit). The same errors, and the servos' ValueError for an
+        angle, a rate or a current they cannot hold."""
         self._need_rotors("step() needs mode='underactuated'; use step_ideal() instead")
-        status = self._integrator.vehicle_step(
-            setpoint,
-            None,
-            self._autopilot,
-            self._rotors.buffer,
-            self._battery_buffer,
-            self._servo_buffers,
-        )
+        work = self._work
+        try:
+            status = self._integrator.vehicle_step(
+                setpoint,
+                None,
+                self._autopilot,
+                self._rotors.buffer,
+                self._battery_buffer,
+                self._servo_buffers,
+            )
+        except ValueError:
+            if work[_STEPPED]:  # a servo failed after the plant's step
+                self._took_step(0)
+            raise
         if status == _BAD_JOINT_TORQUES:
             self._joint_torques(self._field("servo_torques"))  # raises its ValueError
         self._took_step(status)
         self._actuator_signals = None
         self._actuators = None
+        return work[_OVERLOADS] + work[_OVERLOADS + 1] != 0.0
+
+    @property
+    def coupled_overloads(self) -> list[bool]:
+        """Whether each joint servo's overload timer ran out in the last
+        :meth:`advance_coupled`."""
+        return [flag != 0.0 for flag in self._field("servo_overloads")]
 
     @property
     def coupled_arm(self) -> tuple[list[float], list[float], list[float]]:
@@ -591,6 +606,8 @@ _X = vehicle_step.LAYOUT["x"][0]
 _U = vehicle_step.LAYOUT["u"][0]
 _QDD = vehicle_step.LAYOUT["q_ddot"][0]
 _THETA = vehicle_step.LAYOUT["theta"][0]
+_STEPPED = vehicle_step.LAYOUT["stepped"][0]
+_OVERLOADS = vehicle_step.LAYOUT["servo_overloads"][0]
 """Offsets of the state's fields read or written one float at a time."""
 
 

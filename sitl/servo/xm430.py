@@ -475,8 +475,14 @@ class XM430Servo:
     def step(self, dt_s: float) -> None:
         """Advance the bus watchdog, the current loop and the overload detector by ``dt_s`` [s]."""
         if self._physics.servo_step(self.table, self._loop, self._params, dt_s):
-            self.inject_hardware_error(HardwareErrorStatus.OVERLOAD)
-            self._physics.servo_write_current(self.table, self._loop)
+            self.overloaded()
+
+    def overloaded(self) -> None:
+        """The overload timer ran out in the last step (taken here or by a compiled step on
+        :attr:`physics_buffers`): set the Overload bit, with its shutdown, and write
+        Present Current."""
+        self.inject_hardware_error(HardwareErrorStatus.OVERLOAD)
+        self._physics.servo_write_current(self.table, self._loop)
 
 
 _BUS_WATCHDOG = ct.BUS_WATCHDOG.address

@@ -60,7 +60,7 @@ from companion.coordinates import ETA1, ETA2, POSITION, PSI, X, Y, Z
 from sitl.physics import AttitudeSetpoint, PlantState
 from sitl.physics.battery import REFERENCE_CELL_V, BatteryReading
 from sitl.physics.frames import quaternion_from_euler
-from sitl.servo import ServoJoint
+from sitl.servo import ServoJoint, XM430Servo
 
 __all__ = [
     "CLEAR_M",
@@ -282,19 +282,25 @@ class World:
         self._gripper_servo = gripper[1] if gripper else None
         self._servos = [servo for _, servo in joints] + ([gripper[1]] if gripper else [])
         """Every servo, stepped in this order after the plant."""
+        self._gripper_servos = [gripper[1]] if gripper else []
+        """The gripper's servo (the one the World steps after a coupled step)."""
         self._arm_start: tuple[list[float], list[float]] | None = ([0.0, 0.0], [0.0, 0.0])
         """(eta [rad], eta_dot [rad/s]) at the start of the step being taken (None: the
         plant coupled the joint servos itself and keeps them, :meth:`_arm_before`)."""
-        buffers = [getattr(servo, "physics_buffers", None) for _, servo in joints]
-        self._coupled = hasattr(plant, "advance_coupled") and None not in buffers
-        """The plant couples the joint servos within its own step (an XM430 each)."""
-        if self._coupled:
+        self._coupled_servos = [s for _, s in joints if isinstance(s, XM430Servo)]
+        """The joint servos, when the plant couples them within its own step (an XM430
+        each, a plant with :meth:`TruthPlant.advance_coupled
+        <sitl.physics.TruthPlant.advance_coupled>`); else empty."""
+        if not hasattr(plant, "advance_coupled") or len(self._coupled_servos) != 2:
+            self._coupled_servos = []
+        else:
             plant.couple_servos(
                 [
-                    (c.zero_offset_rad, c.direction, b)
-                    for (c, _), b in zip(joints, buffers, strict=True)
+                    (c.zero_offset_rad, c.direction, s.physics_buffers)
+                    for (c, _), s in zip(joints, self._coupled_servos, strict=True)
                 ]
             )
+        self._coupled = bool(self._coupled_servos)
         self.jaw = (
             GripperJaw(gripper[0], closure_on_object=settings.jaw_closure_on_object)
             if gripper
@@ -362,7 +368,11 @@ class World:
         if self._coupled:
             self._couple_gripper()
             self._arm_start = None
-            self.plant.advance_coupled(setpoint)
+            if self.plant.advance_coupled(setpoint):
+                overloads = self.plant.coupled_overloads
+                for servo, over in zip(self._coupled_servos, overloads, strict=True):
+                    if over:
+                        servo.overloaded()
         else:
             self.plant.advance(setpoint, self._couple())
         self._settle()
@@ -406,9 +416,10 @@ class World:
         return (*self._arm_start, list(self._torques))
 
     def _settle(self) -> None:
-        """The end of a step: the servos' loops advance, then ground contact and payload."""
+        """The end of a step: the servos' loops advance (those the plant's step has not
+        advanced), then ground contact and payload."""
         dt = self.dt_s
-        for servo in self._servos:
+        for servo in self._servos if self._arm_start is not None else self._gripper_servos:
             servo.step(dt)
         self._ground_contact()
         self._update_payload()
