@@ -6,7 +6,8 @@ simulated duration, the wall and CPU time, the real-time factor (simulated / wal
 pickups per hour per core (3600 / CPU seconds per pickup); then the split of the wall time
 between the simulated vehicle's steps, the servo bus's answers and the rest (the
 companion, its links and the event loop), and the first flight part by part (the
-vehicle's steps, the truth plant's, pymavlink's encoding and decoding on both sides, the
+vehicle's steps, the world's within them, the truth plant's with the joint servos,
+pymavlink's encoding and decoding on both sides, the
 flight log's CSV rows and MCAP messages, the control cycles and steps) against the wall
 time a pickup at 30x real time may take. ``--profile`` adds cProfile's 25 most expensive
 functions (the profile itself slows the flight down about twice). ``--write`` puts the
@@ -44,6 +45,7 @@ from sitl.scenario import load_scenario
 from sitl.vehicle.options import RunOptions
 from sitl.vehicle.runner import SitlVehicle
 from sitl.vehicle.virtual_flight import fly_virtual
+from sitl.vehicle.world import World
 
 ROOT = Path(__file__).resolve().parent.parent
 PLACE_AT = (-1.0, 0.5, 0.05)
@@ -88,7 +90,11 @@ class Timed:
 PARTS: dict[str, tuple[type, str]] = {
     "vehicle steps": (SitlVehicle, "step"),
     "servo bus answers": (SitlVehicle, "serve"),
-    "truth plant steps": (TruthPlant, "advance"),
+    "world steps (World.advance: the servos, the plant, ground and payload)": (
+        World,
+        "advance",
+    ),
+    "truth plant steps (and the joint servos)": (TruthPlant, "advance_coupled"),
     "MAVLink framing and CRC (pymavlink _pack, both sides)": (mavlink2.MAVLink_message, "_pack"),
     "MAVLink decoding (pymavlink parse_buffer, both sides)": (mavlink2.MAVLink, "parse_buffer"),
     "flight log rows (FlightLogWriter.write: the row, and its blocks when full)": (
