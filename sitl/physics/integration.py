@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import functools
 from array import array
+from collections.abc import Sequence
 from typing import Literal
 
 import numpy as np
@@ -278,7 +279,7 @@ class ArticulatedIntegrator:
     def vehicle_step(
         self,
         setpoint: AttitudeSetpoint,
-        joint_torques_n_m: list[float] | None,
+        joint_torques_n_m: Sequence[float] | None,
         autopilot: Px4AttitudeLoop,
         rotors: array,
         battery: array | None,

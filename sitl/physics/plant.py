@@ -28,11 +28,17 @@ Integration: fixed step at ``plant.rate_hz`` (>= 1 kHz) with ``plant.integrator`
 semi-implicit Euler or RK4 on the configuration manifold (quaternion base), inputs held
 over the step; see :mod:`sitl.physics.integration` for the scheme and its energy
 behaviour (tested in tests/test_sitl_physics.py).
+
+The state lives in the vehicle step's buffer (:mod:`sitl.vehicle_step`), and the plant is
+its one Python host: every way into it (reset, the ground's hold, a payload change, the
+ideal and the rotor steps, the step coupled to the joint servos) is here, which takes the
+module a little over 600 lines; split, the buffer would be handed across classes.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Literal
 
 import numpy as np
@@ -445,22 +451,14 @@ class TruthPlant(RotorPlant):
     def advance(self, setpoint: AttitudeSetpoint, joint_torques_n_m: ArrayLike) -> None:
         """:meth:`RotorPlant.advance <sitl.physics.rotor_plant.RotorPlant.advance>` in one
         compiled call (:meth:`ArticulatedIntegrator.vehicle_step
-        <sitl.physics.integration.ArticulatedIntegrator.vehicle_step>`): the attitude loop on
-        the state's attitude and body rate, the battery, the rotors and the integration
-        step, the joint torques clipped there; the actuator signals stay in the state's
-        buffer until read."""
-        self._need_rotors("step() needs mode='underactuated'; use step_ideal() instead")
+        <sitl.physics.integration.ArticulatedIntegrator.vehicle_step>`): the attitude loop,
+        the battery, the rotors and the integration step, the joint torques clipped there;
+        the actuator signals stay in the state's buffer until read."""
         joint = joint_torques_n_m
-        if not (isinstance(joint, (list, tuple)) and len(joint) == 2):
-            joint = self._joint_torques(joint)  # any other array_like, checked here
-        status = self._integrator.vehicle_step(
-            setpoint, joint, self._autopilot, self._rotors.buffer, self._battery_buffer
-        )
-        if status == _BAD_JOINT_TORQUES:
-            self._joint_torques(joint)  # raises its ValueError
-        self._took_step(status)
-        self._actuator_signals = None
-        self._actuators = None
+        if isinstance(joint, (list, tuple)) and len(joint) == 2:
+            self._vehicle_step(setpoint, joint)
+        else:  # any other array_like, checked here
+            self._vehicle_step(setpoint, self._joint_torques(joint))
 
     def couple_servos(self, couplings: list[tuple[float, float, tuple]]) -> None:
         """Couple the joint servos to the joints for :meth:`advance_coupled`: for eta1 and
@@ -470,40 +468,16 @@ class TruthPlant(RotorPlant):
         self._integrator.set_joint_servos([(zero, sign) for zero, sign, _ in couplings])
         self._servo_buffers = tuple(b for _, _, buffers in couplings for b in buffers)
 
-    def advance_coupled(self, setpoint: AttitudeSetpoint) -> bool:
+    def advance_coupled(self, setpoint: AttitudeSetpoint) -> tuple[bool, bool] | None:
         """:meth:`advance` with the joint torques of the servos coupled in
         (:meth:`couple_servos`): each is given its joint's angle and rate now and applies
         its torque, and after the step their loops advance over it, in the same compiled
-        call. True when a servo's overload timer ran out (:attr:`coupled_overloads`: the
-        caller sets its Overload bit). The same errors, and the servos' ValueError for an
-        angle, a rate or a current they cannot hold."""
-        self._need_rotors("step() needs mode='underactuated'; use step_ideal() instead")
-        work = self._work
-        try:
-            status = self._integrator.vehicle_step(
-                setpoint,
-                None,
-                self._autopilot,
-                self._rotors.buffer,
-                self._battery_buffer,
-                self._servo_buffers,
-            )
-        except ValueError:
-            if work[_STEPPED]:  # a servo failed after the plant's step
-                self._took_step(0)
-            raise
-        if status == _BAD_JOINT_TORQUES:
-            self._joint_torques(self._field("servo_torques"))  # raises its ValueError
-        self._took_step(status)
-        self._actuator_signals = None
-        self._actuators = None
-        return work[_OVERLOADS] + work[_OVERLOADS + 1] != 0.0
-
-    @property
-    def coupled_overloads(self) -> list[bool]:
-        """Whether each joint servo's overload timer ran out in the last
-        :meth:`advance_coupled`."""
-        return [flag != 0.0 for flag in self._field("servo_overloads")]
+        call. Returns None, or whether each servo's overload timer ran out (the caller sets
+        its Overload bit). The same errors, and the servos' ValueError for an angle, a
+        rate or a current they cannot hold."""
+        self._vehicle_step(setpoint, None)
+        first, second = self._work[_OVERLOADS], self._work[_OVERLOADS + 1]
+        return None if first + second == 0.0 else (first != 0.0, second != 0.0)
 
     @property
     def coupled_arm(self) -> tuple[list[float], list[float], list[float]]:
@@ -511,6 +485,29 @@ class TruthPlant(RotorPlant):
         [N m]) at the start of the last :meth:`advance_coupled`."""
         arm = self._field("arm_start")
         return arm[0:2], arm[2:4], self._field("servo_torques")
+
+    def _vehicle_step(self, setpoint: AttitudeSetpoint, joint: Sequence[float] | None) -> None:
+        """The vehicle's step under ``joint`` torques, or (None) the coupled servos'."""
+        self._need_rotors("step() needs mode='underactuated'; use step_ideal() instead")
+        work = self._work
+        try:
+            status = self._integrator.vehicle_step(
+                setpoint,
+                joint,
+                self._autopilot,
+                self._rotors.buffer,
+                self._battery_buffer,
+                None if joint is not None else self._servo_buffers,
+            )
+        except ValueError:
+            if work[_STEPPED]:  # a servo failed after the plant's step
+                self._took_step(0)
+            raise
+        if status == _BAD_JOINT_TORQUES:  # raises its ValueError
+            self._joint_torques(self._field("servo_torques") if joint is None else joint)
+        self._took_step(status)
+        self._actuator_signals = None
+        self._actuators = None
 
     def _signals(self) -> tuple:
         if self._actuator_signals is None:

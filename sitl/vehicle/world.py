@@ -368,8 +368,8 @@ class World:
         if self._coupled:
             self._couple_gripper()
             self._arm_start = None
-            if self.plant.advance_coupled(setpoint):
-                overloads = self.plant.coupled_overloads
+            overloads = self.plant.advance_coupled(setpoint)
+            if overloads is not None:
                 for servo, over in zip(self._coupled_servos, overloads, strict=True):
                     if over:
                         servo.overloaded()
