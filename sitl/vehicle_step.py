@@ -165,9 +165,22 @@ _JLIM = cython.declare(cython.Py_ssize_t, 315)  # the servos' torque limit [N m]
 _ARM = cython.declare(cython.Py_ssize_t, 316)  # eta (2), eta_dot (2) at a coupled step's start
 _ST = cython.declare(cython.Py_ssize_t, 320)  # the joint servos' torques on the joints (2)
 _JMAP = cython.declare(cython.Py_ssize_t, 322)  # zero offset [rad], direction of each (2 x 2)
-_OVL = cython.declare(cython.Py_ssize_t, 326)  # a joint servo's overload timer ran out (2)
-_STEPPED = cython.declare(cython.Py_ssize_t, 328)  # the coupled step was taken (1)
-_SIZE = cython.declare(cython.Py_ssize_t, 329)
+_OVL = cython.declare(cython.Py_ssize_t, 326)  # a coupled servo's overload timer ran out (3)
+_STEPPED = cython.declare(cython.Py_ssize_t, 329)  # the coupled step was taken (1)
+_SIZE = cython.declare(cython.Py_ssize_t, 330)
+
+# Offsets in a gripper jaw's buffer (:func:`jaw_buffer`).
+_J_ANGLE = cython.declare(cython.Py_ssize_t, 0)  # the jaw shaft's angle [rad]
+_J_RATE = cython.declare(cython.Py_ssize_t, 1)  # its rate [rad/s]
+_J_LOW = cython.declare(cython.Py_ssize_t, 2)  # the lower stop [rad]
+_J_HIGH = cython.declare(cython.Py_ssize_t, 3)  # the upper stop [rad]
+_J_INERTIA = cython.declare(cython.Py_ssize_t, 4)  # [kg m^2]
+_J_FRICTION = cython.declare(cython.Py_ssize_t, 5)  # viscous [N m s/rad]
+JAW_ANGLE = _J_ANGLE
+JAW_RATE = _J_RATE
+JAW_LOW = _J_LOW
+JAW_HIGH = _J_HIGH
+"""Where a jaw's buffer holds its angle, rate and stops."""
 
 LAYOUT = {
     "x": (_X, 9),
@@ -187,7 +200,7 @@ LAYOUT = {
     "torque": (_TQ, 3),
     "arm_start": (_ARM, 4),
     "servo_torques": (_ST, 2),
-    "servo_overloads": (_OVL, 2),
+    "servo_overloads": (_OVL, 3),
     "stepped": (_STEPPED, 1),
 }
 """The plant's state in the work buffer, field -> (offset, length): Pinocchio's x and u,
@@ -233,6 +246,12 @@ def work_buffer() -> array:
     work = array("d", bytes(8 * _SIZE))
     work[_JLIM] = float("inf")
     return work
+
+
+def jaw_buffer(angle_rad: float, low_rad: float, high_rad: float, inertia, friction) -> array:
+    """A gripper jaw's float64 buffer: its shaft's angle [rad], rate (0) [rad/s], stops
+    [rad], inertia [kg m^2] and viscous friction [N m s/rad]."""
+    return array("d", [angle_rad, 0.0, low_rad, high_rad, inertia, friction])
 
 
 def set_joint_servos(work, zero1: float, direction1: float, zero2: float, direction2: float):
@@ -1599,6 +1618,24 @@ def rotor_step(
 
 
 @cython.cfunc
+def _jaw_advance(jaw: cython.double[:], torque_n_m: cython.double, dt: cython.double):
+    """Semi-implicit Euler step of the jaw's shaft under the gripper servo's torque [N m]
+    for ``dt`` [s], stopped (rate 0) at the stops."""
+    accel: cython.double = (torque_n_m - jaw[_J_FRICTION] * jaw[_J_RATE]) / jaw[_J_INERTIA]
+    jaw[_J_RATE] = jaw[_J_RATE] + accel * dt
+    jaw[_J_ANGLE] = jaw[_J_ANGLE] + jaw[_J_RATE] * dt
+    if jaw[_J_ANGLE] <= jaw[_J_LOW] or jaw[_J_ANGLE] >= jaw[_J_HIGH]:
+        jaw[_J_ANGLE] = _clip(jaw[_J_ANGLE], jaw[_J_LOW], jaw[_J_HIGH])
+        jaw[_J_RATE] = 0.0
+
+
+@cython.ccall
+def jaw_advance(jaw: cython.double[:], torque_n_m: cython.double, dt: cython.double):
+    """The jaw's buffer one step of ``dt`` [s] on under the gripper servo's torque [N m]."""
+    _jaw_advance(jaw, torque_n_m, dt)
+
+
+@cython.cfunc
 def _couple(
     w: cython.double[:],
     table: cython.uchar[:],
@@ -1648,11 +1685,14 @@ def vehicle_step(
     :func:`servo_couple`), each coupled first to its joint's angle and rate now
     (:func:`set_joint_servos`), and after a whole step their loops advance by ``dt``
     (:func:`servo_step`); the buffer keeps the angles, rates and torques, and the
-    servos' overloads."""
+    servos' overloads. With a gripper (``servos`` then also its servo's table, loop and
+    parameters, and the jaw's buffer), the gripper's servo is coupled to the jaw, which
+    moves under it (:func:`jaw_advance`) before the step, and its loop advances after."""
     w: cython.double[:] = work
     i: cython.Py_ssize_t
     j1: cython.double
     j2: cython.double
+    jaw: cython.double[:]
     w[_STEPPED] = 0.0
     if joint is None:
         for i in range(2):
@@ -1662,6 +1702,10 @@ def vehicle_step(
         w[_ST] = j1
         j2 = _couple(w, servos[3], servos[4], servos[5], 1)
         w[_ST + 1] = j2
+        if len(servos) > 6:
+            jaw = servos[9]
+            servo_set_state(servos[6], servos[7], jaw[_J_ANGLE], jaw[_J_RATE])
+            _jaw_advance(jaw, servo_torque_n_m(servos[6], servos[7], servos[8]), dt)
     else:
         j1 = joint[0]
         j2 = joint[1]
@@ -1682,6 +1726,9 @@ def vehicle_step(
         w[_STEPPED] = 1.0
         w[_OVL] = 1.0 if servo_step(servos[0], servos[1], servos[2], dt) else 0.0
         w[_OVL + 1] = 1.0 if servo_step(servos[3], servos[4], servos[5], dt) else 0.0
+        w[_OVL + 2] = 0.0
+        if len(servos) > 6:
+            w[_OVL + 2] = 1.0 if servo_step(servos[6], servos[7], servos[8], dt) else 0.0
     return s
 
 

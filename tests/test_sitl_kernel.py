@@ -20,6 +20,7 @@ import pytest
 
 from arm_driver.dynamixel import control_table as ct
 from arm_driver.errors import HardwareErrorStatus
+from arm_driver.joint import GripperConfig
 from companion.compiled import twin, twin_reason
 from sitl import vehicle_step
 from sitl.physics import (
@@ -46,6 +47,7 @@ from sitl.physics.rotors import (
 )
 from sitl.scenario import load_scenario
 from sitl.servo import XM430Servo
+from sitl.vehicle.world import GripperJaw
 
 CONFIGS = Path(__file__).parent.parent / "configs"
 _OVERLOADS = vehicle_step.LAYOUT["servo_overloads"][0]
@@ -359,14 +361,16 @@ def test_the_vehicle_step_twin_is_the_loop_then_the_rotor_step_bit_for_bit(integ
 
 
 @pytest.mark.parametrize("direction", [1, -1])
-def test_the_vehicle_step_couples_the_joint_servos_as_they_couple_themselves(direction) -> None:
-    """GIVEN random states and two XM430s holding positions WHEN the compiled twin and the
-    Python source take the vehicle's step coupled to the servos (shaft = zero offset +
-    direction * eta), and the compiled twin takes it under the torques of the servos' own
-    couple and their own step after it THEN statuses, the work buffers, the servos' control
-    tables and loops have the same bits in all three; the buffer keeps the joints' angles
-    and rates at the start of the step, the servos' torques and overloads (some servos
-    pushing at their overload current for longer than their overload time)."""
+def test_the_vehicle_step_couples_the_servos_as_they_couple_themselves(direction) -> None:
+    """GIVEN random states, two joint XM430s and a gripper XM430 with its jaw, holding
+    positions WHEN the compiled twin and the Python source take the vehicle's step coupled
+    to the servos (shaft = zero offset + direction * eta; the gripper's on the jaw), and
+    the compiled twin takes it under the torques of the servos' own couple, the jaw moved
+    by its own advance, and the servos' own steps after it THEN statuses, the work buffers,
+    the servos' control tables and loops and the jaws have the same bits in all three; the
+    buffer keeps the joints' angles and rates at the start of the step, the servos' torques
+    and overloads (some servos pushing at their overload current for longer than their
+    overload time)."""
     model = build_articulation(PAPER).model
     integrators = [
         ArticulatedIntegrator(model, 1e-3, "semi_implicit_euler"),
@@ -382,11 +386,12 @@ def test_the_vehicle_step_couples_the_joint_servos_as_they_couple_themselves(dir
     for _ in range(60):
         state = _case(rng, 0)
         setpoint = AttitudeSetpoint.from_euler(*rng.uniform(-0.5, 0.5, 3), rng.uniform(0, 1))
-        goals = rng.uniform(-1.0, 1.0, 2)
+        goals = rng.uniform(-1.0, 1.0, 3)
         overload_s = rng.choice([0.0, 5.0])
         results = []
         for k, integ in enumerate(integrators):
-            servos = [XM430Servo(i + 1, angle_rad=float(goals[i])) for i in range(2)]
+            servos = [XM430Servo(i + 1, angle_rad=float(goals[i])) for i in range(3)]
+            jaw = GripperJaw(GripperConfig(3, open_position_rad=0.8, closed_position_rad=-0.25))
             for servo in servos:
                 servo.write(ct.TORQUE_ENABLE.address, b"\x01")
                 servo._overload_s = float(overload_s)  # as if it had pushed that long
@@ -395,17 +400,19 @@ def test_the_vehicle_step_couples_the_joint_servos_as_they_couple_themselves(dir
             _place(integ, state)
             eta, eta_dot = state[0][7:9], state[1][6:8]
             if k < 2:
-                buffers = (*servos[0].physics_buffers, *servos[1].physics_buffers)
-                out = integ.vehicle_step(setpoint, None, loop, bank.buffer, None, buffers)
-                overloads = integ.work[_OVERLOADS : _OVERLOADS + 2].tolist()
+                buffers = [b for servo in servos for b in servo.physics_buffers]
+                buffers.append(jaw.buffer)
+                out = integ.vehicle_step(setpoint, None, loop, bank.buffer, None, tuple(buffers))
+                overloads = integ.work[_OVERLOADS : _OVERLOADS + 3].tolist()
                 for servo, flag in zip(servos, overloads, strict=True):
                     if flag:
                         servo.overloaded()
             else:
                 torques = [
                     direction * s.couple(z + direction * e, direction * r)
-                    for s, z, e, r in zip(servos, zeros, eta, eta_dot, strict=True)
+                    for s, z, e, r in zip(servos, zeros, eta, eta_dot, strict=False)
                 ]
+                jaw.advance(servos[2].couple(jaw.angle_rad, jaw.rate_rad_s), 1e-3)
                 out = integ.vehicle_step(setpoint, torques, loop, bank.buffer, None)
                 for servo in servos:
                     servo.step(1e-3)
@@ -419,7 +426,7 @@ def test_the_vehicle_step_couples_the_joint_servos_as_they_couple_themselves(dir
             else:
                 assert fields["arm_start"] == [*eta, *eta_dot]
             tables = [bytes(s.table) for s in servos]
-            tables += _bits([s.physics_buffers[1].tolist() for s in servos])
+            tables += _bits([s.physics_buffers[1].tolist() for s in servos] + [jaw.buffer.tolist()])
             results.append(_bits((out, *fields.values(), bank.buffer.tolist())) + tables)
         assert results[0] == results[1] == results[2]
         assert out == 0

@@ -460,24 +460,32 @@ class TruthPlant(RotorPlant):
         else:  # any other array_like, checked here
             self._vehicle_step(setpoint, self._joint_torques(joint))
 
-    def couple_servos(self, couplings: list[tuple[float, float, tuple]]) -> None:
+    def couple_servos(
+        self, couplings: list[tuple[float, float, tuple]], gripper: tuple | None = None
+    ) -> None:
         """Couple the joint servos to the joints for :meth:`advance_coupled`: for eta1 and
         eta2, (zero offset [rad], direction +1 or -1, the servo's physics buffers
         (:attr:`XM430Servo.physics_buffers <sitl.servo.XM430Servo.physics_buffers>`)); shaft
-        angle = zero offset + direction * eta."""
+        angle = zero offset + direction * eta. ``gripper``: the gripper servo's physics
+        buffers and its jaw's buffer (``GripperJaw.buffer``), coupled to each other."""
         self._integrator.set_joint_servos([(zero, sign) for zero, sign, _ in couplings])
-        self._servo_buffers = tuple(b for _, _, buffers in couplings for b in buffers)
+        buffers = tuple(b for _, _, servo in couplings for b in servo)
+        self._servo_buffers = buffers + (() if gripper is None else tuple(gripper))
 
-    def advance_coupled(self, setpoint: AttitudeSetpoint) -> tuple[bool, bool] | None:
+    def advance_coupled(self, setpoint: AttitudeSetpoint) -> tuple[bool, bool, bool] | None:
         """:meth:`advance` with the joint torques of the servos coupled in
         (:meth:`couple_servos`): each is given its joint's angle and rate now and applies
         its torque, and after the step their loops advance over it, in the same compiled
-        call. Returns None, or whether each servo's overload timer ran out (the caller sets
-        its Overload bit). The same errors, and the servos' ValueError for an angle, a
+        call (and the gripper's servo with its jaw, if coupled). Returns None, or whether
+        each servo's (eta1's, eta2's, the gripper's) overload timer ran out (the caller
+        sets its Overload bit). The same errors, and the servos' ValueError for an angle, a
         rate or a current they cannot hold."""
         self._vehicle_step(setpoint, None)
-        first, second = self._work[_OVERLOADS], self._work[_OVERLOADS + 1]
-        return None if first + second == 0.0 else (first != 0.0, second != 0.0)
+        work = self._work
+        first, second, third = work[_OVERLOADS], work[_OVERLOADS + 1], work[_OVERLOADS + 2]
+        if first + second + third == 0.0:
+            return None
+        return (first != 0.0, second != 0.0, third != 0.0)
 
     @property
     def coupled_arm(self) -> tuple[list[float], list[float], list[float]]:

@@ -56,7 +56,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from arm_driver.joint import GripperConfig, JointConfig
+from companion.compiled import twin
 from companion.coordinates import ETA1, ETA2, POSITION, PSI, X, Y, Z
+from sitl import vehicle_step
 from sitl.physics import AttitudeSetpoint, PlantState
 from sitl.physics.battery import REFERENCE_CELL_V, BatteryReading
 from sitl.physics.frames import quaternion_from_euler
@@ -92,6 +94,10 @@ CLEAR_M = 0.05
 [m]: below it, a vehicle that sinks back sets the object down again."""
 
 FloatArray = NDArray[np.float64]
+_STEP = twin(vehicle_step)
+"""The jaw's arithmetic: :mod:`sitl.vehicle_step`, compiled where built."""
+_JAW_ANGLE, _JAW_RATE = vehicle_step.JAW_ANGLE, vehicle_step.JAW_RATE
+_JAW_LOW, _JAW_HIGH = vehicle_step.JAW_LOW, vehicle_step.JAW_HIGH
 
 
 @dataclass(frozen=True)
@@ -191,25 +197,37 @@ class GripperJaw:
         self._empty_stops = (min(opened, closed), max(opened, closed))
         on_object = opened + closure_on_object * (closed - opened)
         self._object_stops = (min(opened, on_object), max(opened, on_object))
-        self._low, self._high = self._empty_stops
         self._middle = 0.5 * (opened + closed)
         """The middle of the travel [rad]."""
         self._closing = closed - opened
         """The travel toward the closed position [rad] (its sign: the closing direction)."""
-        self._inertia = inertia_kg_m2
-        self._friction = friction_n_m_s
-        self.angle_rad = opened
-        self.rate_rad_s = 0.0
+        self.buffer = vehicle_step.jaw_buffer(
+            opened, *self._empty_stops, inertia_kg_m2, friction_n_m_s
+        )
+        """The shaft's angle and rate, its stops and constants
+        (:func:`sitl.vehicle_step.jaw_buffer`): the vehicle's step may advance it itself."""
         self.holding = False
         """An object is between the jaws: they stop on it, short of the closed stop."""
+
+    @property
+    def angle_rad(self) -> float:
+        """The jaw shaft's angle [rad]."""
+        return self.buffer[_JAW_ANGLE]
+
+    @property
+    def rate_rad_s(self) -> float:
+        """The jaw shaft's rate [rad/s]."""
+        return self.buffer[_JAW_RATE]
 
     def hold(self, holding: bool) -> None:
         """An object between the jaws (they stop on it) or none (they close fully)."""
         self.holding = holding
-        self._low, self._high = self._object_stops if holding else self._empty_stops
-        if not self._low <= self.angle_rad <= self._high:
-            self.angle_rad = min(max(self.angle_rad, self._low), self._high)
-            self.rate_rad_s = 0.0
+        low, high = self._object_stops if holding else self._empty_stops
+        jaw = self.buffer
+        jaw[_JAW_LOW], jaw[_JAW_HIGH] = low, high
+        if not low <= jaw[_JAW_ANGLE] <= high:
+            jaw[_JAW_ANGLE] = min(max(jaw[_JAW_ANGLE], low), high)
+            jaw[_JAW_RATE] = 0.0
 
     @property
     def closed(self) -> bool:
@@ -218,12 +236,7 @@ class GripperJaw:
 
     def advance(self, torque_n_m: float, dt_s: float) -> None:
         """Semi-implicit Euler step under the servo's torque [N m] for ``dt_s`` [s]."""
-        accel = (torque_n_m - self._friction * self.rate_rad_s) / self._inertia
-        self.rate_rad_s += accel * dt_s
-        self.angle_rad += self.rate_rad_s * dt_s
-        if self.angle_rad <= self._low or self.angle_rad >= self._high:
-            self.angle_rad = min(max(self.angle_rad, self._low), self._high)
-            self.rate_rad_s = 0.0
+        _STEP.jaw_advance(self.buffer, torque_n_m, dt_s)
 
 
 @dataclass(frozen=True)
@@ -282,30 +295,22 @@ class World:
         self._gripper_servo = gripper[1] if gripper else None
         self._servos = [servo for _, servo in joints] + ([gripper[1]] if gripper else [])
         """Every servo, stepped in this order after the plant."""
-        self._gripper_servos = [gripper[1]] if gripper else []
-        """The gripper's servo (the one the World steps after a coupled step)."""
         self._arm_start: tuple[list[float], list[float]] | None = ([0.0, 0.0], [0.0, 0.0])
         """(eta [rad], eta_dot [rad/s]) at the start of the step being taken (None: the
         plant coupled the joint servos itself and keeps them, :meth:`_arm_before`)."""
-        self._coupled_servos = [s for _, s in joints if isinstance(s, XM430Servo)]
-        """The joint servos, when the plant couples them within its own step (an XM430
-        each, a plant with :meth:`TruthPlant.advance_coupled
-        <sitl.physics.TruthPlant.advance_coupled>`); else empty."""
-        if not hasattr(plant, "advance_coupled") or len(self._coupled_servos) != 2:
-            self._coupled_servos = []
-        else:
-            plant.couple_servos(
-                [
-                    (c.zero_offset_rad, c.direction, s.physics_buffers)
-                    for (c, _), s in zip(joints, self._coupled_servos, strict=True)
-                ]
-            )
-        self._coupled = bool(self._coupled_servos)
         self.jaw = (
             GripperJaw(gripper[0], closure_on_object=settings.jaw_closure_on_object)
             if gripper
             else None
         )
+        self._coupled_servos = self._couple_in_plant(joints, gripper)
+        """The servos the plant couples within its own step (an XM430 each, a plant with
+        :meth:`TruthPlant.advance_coupled <sitl.physics.TruthPlant.advance_coupled>`):
+        the joints', and the gripper's (with the jaw) if it is an XM430; else none."""
+        self._coupled = bool(self._coupled_servos)
+        self._gripper_coupled = len(self._coupled_servos) == 3
+        self._settled_servos = [s for s in self._servos if s not in self._coupled_servos]
+        """The servos the World steps after a coupled step."""
         self.dt_s = 1.0 / plant.rate_hz
         scenario = plant.scenario
         self._mount = np.array(scenario.arm.mount_point_m, dtype=np.float64)
@@ -337,6 +342,26 @@ class World:
         plant.reset(start_state(settings))
         self._motors_off = AttitudeSetpoint(quaternion_from_euler(0.0, 0.0, 0.0), 0.0)
 
+    def _couple_in_plant(
+        self,
+        joints: Sequence[tuple[JointConfig, ServoJoint]],
+        gripper: tuple[GripperConfig, ServoJoint] | None,
+    ) -> list[XM430Servo]:
+        """Couple the servos to the plant's own step where it can; returns those coupled."""
+        servos = [s for _, s in joints if isinstance(s, XM430Servo)]
+        if not hasattr(self.plant, "advance_coupled") or len(servos) != 2:
+            return []
+        gripper_buffers = None
+        if gripper is not None and isinstance(gripper[1], XM430Servo) and self.jaw is not None:
+            servos.append(gripper[1])
+            gripper_buffers = (*gripper[1].physics_buffers, self.jaw.buffer)
+        couplings = [
+            (c.zero_offset_rad, c.direction, s.physics_buffers)
+            for (c, _), s in zip(joints, servos[:2], strict=True)
+        ]
+        self.plant.couple_servos(couplings, gripper_buffers)
+        return servos
+
     # ------------------------------------------------------------------ stepping
 
     @property
@@ -363,14 +388,16 @@ class World:
         """:meth:`step` without building the new state for the caller (the SITL's loop,
         which reads :attr:`state` only when it needs it). The joint servos are coupled in
         the plant's own step where it can (:meth:`TruthPlant.advance_coupled
-        <sitl.physics.TruthPlant.advance_coupled>`), the gripper here first."""
+        <sitl.physics.TruthPlant.advance_coupled>`), with the gripper and its jaw when it
+        is an XM430 too (else here, first)."""
         setpoint = setpoint if setpoint is not None else self._motors_off
         if self._coupled:
-            self._couple_gripper()
+            if not self._gripper_coupled:
+                self._couple_gripper()
             self._arm_start = None
             overloads = self.plant.advance_coupled(setpoint)
-            if overloads is not None:
-                for servo, over in zip(self._coupled_servos, overloads, strict=True):
+            if overloads is not None:  # the gripper's flag is False when not coupled
+                for servo, over in zip(self._coupled_servos, overloads, strict=False):
                     if over:
                         servo.overloaded()
         else:
@@ -419,7 +446,7 @@ class World:
         """The end of a step: the servos' loops advance (those the plant's step has not
         advanced), then ground contact and payload."""
         dt = self.dt_s
-        for servo in self._servos if self._arm_start is not None else self._gripper_servos:
+        for servo in self._servos if self._arm_start is not None else self._settled_servos:
             servo.step(dt)
         self._ground_contact()
         self._update_payload()
