@@ -1692,20 +1692,33 @@ def vehicle_step(
     i: cython.Py_ssize_t
     j1: cython.double
     j2: cython.double
+    # the servos' buffers, each taken once (t: control table, l: loop, p: parameters)
+    t1: cython.uchar[:]
+    l1: cython.double[:]
+    p1: cython.double[:]
+    t2: cython.uchar[:]
+    l2: cython.double[:]
+    p2: cython.double[:]
+    t3: cython.uchar[:]
+    l3: cython.double[:]
+    p3: cython.double[:]
     jaw: cython.double[:]
+    gripper: cython.bint = False
     w[_STEPPED] = 0.0
     if joint is None:
+        t1, l1, p1, t2, l2, p2 = servos[0], servos[1], servos[2], servos[3], servos[4], servos[5]
         for i in range(2):
             w[_ARM + i] = w[_QO + 6 + i]
             w[_ARM + 2 + i] = w[_QD + 6 + i]
-        j1 = _couple(w, servos[0], servos[1], servos[2], 0)
+        j1 = _couple(w, t1, l1, p1, 0)
         w[_ST] = j1
-        j2 = _couple(w, servos[3], servos[4], servos[5], 1)
+        j2 = _couple(w, t2, l2, p2, 1)
         w[_ST + 1] = j2
-        if len(servos) > 6:
-            jaw = servos[9]
-            servo_set_state(servos[6], servos[7], jaw[_J_ANGLE], jaw[_J_RATE])
-            _jaw_advance(jaw, servo_torque_n_m(servos[6], servos[7], servos[8]), dt)
+        gripper = len(servos) > 6
+        if gripper:
+            t3, l3, p3, jaw = servos[6], servos[7], servos[8], servos[9]
+            servo_set_state(t3, l3, jaw[_J_ANGLE], jaw[_J_RATE])
+            _jaw_advance(jaw, servo_torque_n_m(t3, l3, p3), dt)
     else:
         j1 = joint[0]
         j2 = joint[1]
@@ -1724,11 +1737,11 @@ def vehicle_step(
     s: cython.int = _rotor_step(w, rk4, dt, rotors, battery, aba)
     if joint is None and s == _OK:
         w[_STEPPED] = 1.0
-        w[_OVL] = 1.0 if servo_step(servos[0], servos[1], servos[2], dt) else 0.0
-        w[_OVL + 1] = 1.0 if servo_step(servos[3], servos[4], servos[5], dt) else 0.0
+        w[_OVL] = 1.0 if servo_step(t1, l1, p1, dt) else 0.0
+        w[_OVL + 1] = 1.0 if servo_step(t2, l2, p2, dt) else 0.0
         w[_OVL + 2] = 0.0
-        if len(servos) > 6:
-            w[_OVL + 2] = 1.0 if servo_step(servos[6], servos[7], servos[8], dt) else 0.0
+        if gripper:
+            w[_OVL + 2] = 1.0 if servo_step(t3, l3, p3, dt) else 0.0
     return s
 
 
