@@ -383,6 +383,30 @@ class ArmBus(abc.ABC):
                 )
         await self._transact(self._write_positions_hook, commands)
 
+    async def hold_in_place(self) -> dict[str, JointState]:
+        """Make the joints hold where they are on the servos' own position loop: torque off,
+        a position mode (current-based where the backend has it, the current limited by
+        each joint's torque limit), goal = the present angles within the joints' limits,
+        torque on. The arm is limp for the few transactions this takes. Returns the joint
+        states read for the goal. A position-mode joint is left holding by :meth:`close`."""
+        await self.disable_torque()
+        based = OperatingMode.CURRENT_BASED_POSITION
+        await self.set_operating_mode(
+            based if based in self.supported_modes else OperatingMode.POSITION
+        )
+        states = await self.read_joint_states()
+        await self.write_joint_positions(
+            {
+                joint.name: min(
+                    max(states[joint.name].position_rad, joint.position_min_rad),
+                    joint.position_max_rad,
+                )
+                for joint in self.joints
+            }
+        )
+        await self.enable_torque()
+        return states
+
     async def read_joint_states(self) -> dict[str, JointState]:
         """Every joint's position, velocity and torque, read in one transaction."""
         return await self._transact(self._read_states_hook)

@@ -567,3 +567,30 @@ def test_watchdog_stays_off_in_position_mode_and_needs_firmware_38(sim: PtyServo
             pass
 
     run(body)
+
+
+def test_hold_in_place_leaves_the_joints_holding_where_they_are_after_the_close(
+    sim: PtyServoBus,
+) -> None:
+    async def body() -> dict[str, float]:
+        url = f"dynamixel://{sim.device}?timeout_margin_ms=50&watchdog_ms=100"
+        async with open_bus(url, JOINTS, gripper=GRIPPER) as bus:
+            await bus.set_operating_mode(OperatingMode.CURRENT)
+            await bus.enable_torque()
+            assert watchdogs(sim) == {1: 5, 2: 5, 3: 0}
+            states = await bus.hold_in_place()
+            assert bus.operating_mode is OperatingMode.CURRENT_BASED_POSITION
+            assert bus.torque_enabled is True
+            return {name: state.position_rad for name, state in states.items()}
+
+    held = run(body)
+    with sim.lock:
+        for joint in JOINTS:
+            servo = sim.servos[joint.servo_id]
+            assert servo.get(ct.OPERATING_MODE) == ct.OperatingMode.CURRENT_BASED_POSITION
+            assert servo.torque_enabled  # the close leaves a position-mode joint holding
+            assert servo.get(ct.BUS_WATCHDOG) == 0  # no watchdog to stop it
+            goal = servo.get(ct.GOAL_POSITION)
+            assert abs(goal - servo.get(ct.PRESENT_POSITION)) <= 1
+            angle = joint.joint_angle_rad(units.ticks_to_rad(goal))
+            assert angle == pytest.approx(held[joint.name], abs=2e-3)

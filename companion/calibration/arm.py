@@ -187,7 +187,7 @@ async def measure(url: str, joints: Sequence[JointConfig], rng: np.random.Genera
                 )
         mode, torque = arm.operating_mode, arm.torque_enabled
         try:
-            await _hold_here(arm, joints)
+            await arm.hold_in_place()
             readings = await _run(arm, joints, rng)
             await _ramp(arm, joints, start, TRANSIT_SPEED_RAD_S, rng)
         except BaseException as error:
@@ -195,21 +195,6 @@ async def measure(url: str, joints: Sequence[JointConfig], rng: np.random.Genera
             raise
         await _restore(arm, joints, start, mode, torque)
         return readings
-
-
-async def _hold_here(arm: DynamixelBus, joints: Sequence[JointConfig]) -> None:
-    """Torque off, current-based position mode, goal = the present angles (within the
-    limits: the limp arm may have slipped past one), torque on."""
-    await arm.disable_torque()
-    await arm.set_operating_mode(OperatingMode.CURRENT_BASED_POSITION)
-    states = await arm.read_joint_states()
-    await arm.write_joint_positions(
-        {
-            j.name: min(max(states[j.name].position_rad, j.position_min_rad), j.position_max_rad)
-            for j in joints
-        }
-    )
-    await arm.enable_torque()
 
 
 async def _run(

@@ -17,7 +17,8 @@
   against the config, the pose rate against the gains, a global origin; then the arm),
   then the flight as the pure state machine
   :mod:`companion.mission.sequence` decides it (arm, PX4 take-off, the OFFBOARD handover,
-  the pickup of :mod:`companion.mission.pickup`, PX4 landing and disarm, and each aborting
+  the pickup of :mod:`companion.mission.pickup`, PX4 landing and disarm (then the joints
+  hold their pose on the servos' position loop), and each aborting
   fault's reactions): the app observes after every control cycle and carries out its
   commands.
 
@@ -315,6 +316,8 @@ class PickupApp:
             for task in (control, arm, watch):
                 task.cancel()
             await asyncio.gather(control, arm, watch, return_exceptions=True)
+            if self.report.landed and self.report.disarmed:
+                await self.arm.hold_after_landing()
             self.cycle.finish_report()
 
     # ------------------------------------------------------------- preflight

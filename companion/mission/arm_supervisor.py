@@ -25,6 +25,9 @@ With the servos' Bus Watchdog armed (``watchdog_ms``), a bus silent for most of 
 timeout (a lost MAVLink link pauses the loop) has stopped the current-mode joints, which
 then refuse torque without a word: the task enables them again first.
 
+After the landing (:meth:`ArmSupervisor.hold_after_landing`) the joints hold their pose
+on the servos' position loop: the mission's end leaves the arm holding, not falling.
+
 Time: ages, read periods and the bus's silence are measured on the running event loop's
 clock (``loop.time()``): the monotonic clock in flight, the simulation's in a flight on
 simulated time (:mod:`sitl.vehicle.lockstep`).
@@ -264,6 +267,22 @@ class ArmSupervisor:
             f"bus silent for {silent_s * 1e3:.0f} ms (servo watchdog "
             f"{watchdog_s * 1e3:.0f} ms): torque enabled again",
         )
+
+    async def hold_after_landing(self) -> None:
+        """On the landed, disarmed vehicle, once the arm task has stopped: the joints hold
+        their pose on the servos' own position loop (:meth:`ArmBus.hold_in_place`), which
+        the bus's close leaves holding. A limp arm would fall from its stowed pose onto
+        the ground and the landing gear (measured in the SITL: 2.0-2.8 rad/s 0.5 s after
+        the torque went off). A lost bus, or a failure here, leaves the close's safe
+        state (limp), noted."""
+        if self.failed:
+            return
+        try:
+            await self.bus.hold_in_place()
+        except ArmDriverError as exc:
+            self._note("servo", f"joints not set to hold after the landing ({exc}): limp")
+            return
+        self._note("servo", "landed: the joints hold their pose on the servos' position loop")
 
     async def _read_gripper(self) -> None:
         """Read the gripper's state if its period is over; failures counted, a bus that
