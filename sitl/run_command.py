@@ -26,7 +26,7 @@ from sitl.px4 import ParamError, SigningKeyError, load_signing_key
 from sitl.px4_sitl.launcher import Px4Build, Px4BuildError
 from sitl.scenario import MAX_DURATION_S, PayloadSlip, Scenario, load_scenario
 from sitl.vehicle.mission_phases import FAULT_PHASES, FaultStart, PhaseStart
-from sitl.vehicle.options import LinkPorts, RunOptions
+from sitl.vehicle.options import SERVO_ERRORS, LinkPorts, RunOptions, ServoError
 from sitl.vehicle.runner import SitlVehicle, simulated_servo_ids
 
 __all__ = ["RunCommand"]
@@ -85,6 +85,15 @@ class RunCommand:
         typer.Option(
             help="Fault injection 'ID@T': servo ID stops answering at T [s, sim time]; or "
             "'ID@PHASE+S': S seconds into a mission phase (e.g. 2@takeoff+8, 1@grasp)."
+        ),
+    ] = None
+    servo_error: Annotated[
+        str | None,
+        typer.Option(
+            help="Fault injection 'ID:ERROR@T' or 'ID:ERROR@PHASE+S': servo ID detects a "
+            "hardware error as an XM430 does: the alert bit, and torque off for overload, "
+            "overheating and electrical_shock (Shutdown's default), not for input_voltage and "
+            "motor_encoder (e.g. 1:overheating@to_place+2)."
         ),
     ] = None
     servo_reply_delay_ms: Annotated[
@@ -159,6 +168,9 @@ class RunCommand:
         silent = None
         if self.servo_silent is not None:
             silent = _servo_fault(self.servo_silent, simulated_servo_ids(cfg))
+        error = None
+        if self.servo_error is not None:
+            error = _servo_error(self.servo_error, simulated_servo_ids(cfg))
         if not (
             math.isfinite(self.servo_reply_delay_ms) and 0.0 <= self.servo_reply_delay_ms < 1000.0
         ):
@@ -180,6 +192,7 @@ class RunCommand:
                 signing_key=self.signing_key,
                 truth_log=self.truth_log,
                 servo_silent=silent,
+                servo_error=error,
                 servo_reply_delay_s=self.servo_reply_delay_ms * 1e-3,
                 physics=self.physics,
                 wind=air,
@@ -286,10 +299,14 @@ def _pickup_faults(
     return cfg.model_copy(update={"world": cfg.world.model_copy(update=update)})
 
 
-def _servo_fault(text: str, servo_ids: tuple[int, ...]) -> tuple[int, FaultStart]:
-    """``--servo-silent ID@SECONDS`` or ``ID@PHASE[+SECONDS]`` as (servo id, start): a servo
-    of the simulated bus (``servo_ids``) and a simulated time within the longest run [s],
-    or a moment into a mission phase (:data:`~sitl.vehicle.mission_phases.FAULT_PHASES`)."""
+def _servo_fault(
+    text: str, servo_ids: tuple[int, ...], option: str = "--servo-silent", shown: str = ""
+) -> tuple[int, FaultStart]:
+    """``ID@SECONDS`` or ``ID@PHASE[+SECONDS]`` (``option``'s value, ``shown`` as the user
+    gave it) as (servo id, start): a servo of the simulated bus (``servo_ids``) and a
+    simulated time within the longest run [s], or a moment into a mission phase
+    (:data:`~sitl.vehicle.mission_phases.FAULT_PHASES`)."""
+    shown = shown or text
     servo, _, at = text.partition("@")
     phase, plus, offset = at.partition("+")
     try:
@@ -301,16 +318,37 @@ def _servo_fault(text: str, servo_ids: tuple[int, ...]) -> tuple[int, FaultStart
             start = float(at)
     except ValueError as error:
         fail(
-            f"--servo-silent needs ID@SECONDS or ID@PHASE+SECONDS (phases: "
-            f"{', '.join(FAULT_PHASES)}), e.g. 2@30 or 2@takeoff+8, got {text!r}"
+            f"{option} needs {_FORMS[option]} (phases: {', '.join(FAULT_PHASES)}), "
+            f"e.g. {_EXAMPLES[option]}, got {shown!r}"
             + (f": {error}" if phase in FAULT_PHASES else "")
         )
     if servo_id not in servo_ids:
         ids = ", ".join(str(i) for i in servo_ids)
-        fail(f"--servo-silent {text}: no servo {servo_id} on the simulated bus (its ids: {ids})")
+        fail(f"{option} {shown}: no servo {servo_id} on the simulated bus (its ids: {ids})")
     if isinstance(start, float) and not (math.isfinite(start) and 0.0 <= start <= MAX_DURATION_S):
         fail(
-            f"--servo-silent {text}: the time must lie in [0, {MAX_DURATION_S:g}] s of "
+            f"{option} {shown}: the time must lie in [0, {MAX_DURATION_S:g}] s of "
             f"simulated time, got {start:g}"
         )
     return servo_id, start
+
+
+_FORMS = {
+    "--servo-silent": "ID@SECONDS or ID@PHASE+SECONDS",
+    "--servo-error": "ID:ERROR@SECONDS or ID:ERROR@PHASE+SECONDS",
+}
+_EXAMPLES = {"--servo-silent": "2@30 or 2@takeoff+8", "--servo-error": "1:overheating@grasp+0.5"}
+
+
+def _servo_error(text: str, servo_ids: tuple[int, ...]) -> ServoError:
+    """``--servo-error ID:ERROR@START`` as a :class:`ServoError` (an error of
+    :data:`SERVO_ERRORS`, the start as ``--servo-silent``'s)."""
+    servo, _, rest = text.partition(":")
+    error, at, start = rest.partition("@")
+    if error not in SERVO_ERRORS or not at:
+        fail(
+            f"--servo-error needs {_FORMS['--servo-error']} (errors: "
+            f"{', '.join(SERVO_ERRORS)}), e.g. {_EXAMPLES['--servo-error']}, got {text!r}"
+        )
+    servo_id, when = _servo_fault(f"{servo}@{start}", servo_ids, "--servo-error", text)
+    return ServoError(servo_id, error, when)

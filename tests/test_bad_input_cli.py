@@ -540,6 +540,20 @@ def test_sitl_run_servo_silent_out_of_range(value, words):
     one_error(sitl("run", "--config", PICKUP, "--servo-silent", value), *words)
 
 
+@pytest.mark.parametrize(
+    ("value", "words"),
+    [
+        ("1@grasp", ("--servo-error", "ID:ERROR@PHASE+SECONDS", "overheating", "got '1@grasp'")),
+        ("1:melted@grasp", ("--servo-error", "errors: overload, overheating")),
+        ("9:overload@grasp", ("--servo-error 9:overload@grasp", "no servo 9", "1, 2, 3")),
+        ("1:overload@-2", ("--servo-error 1:overload@-2", "[0, 3600] s", "got -2")),
+        ("1:overload@hover", ("--servo-error", "ID:ERROR@PHASE+SECONDS", "'1:overload@hover'")),
+    ],
+)
+def test_sitl_run_servo_error_out_of_range(value, words):
+    one_error(sitl("run", "--config", PICKUP, "--servo-error", value), *words)
+
+
 @pytest.mark.parametrize("speed", ["-1", "0", "nan", "inf"])
 def test_sitl_run_speed_is_blamed_not_the_config(speed):
     line = one_error(sitl("run", "--config", PICKUP, "--speed", speed), "--speed", "positive")

@@ -102,6 +102,14 @@ def write_spec(tmp_path: Path, body: str, name: str = "spec.toml") -> Path:
             'at_phase = "lift"\n',
             ("a fault at a mission phase flies on the imitation only",),
         ),
+        (
+            '[[faults]]\nkind = "servo_error"\nservo_id = 1\nat_phase = "lift"\n',
+            ("servo_error needs error",),
+        ),
+        (
+            '[[faults]]\nkind = "servo_error"\nservo_id = 1\nerror = "melted"\nat_s = 9.0\n',
+            ("error", "'overload'"),
+        ),
         ('controllers = ["passivity", "pid"]\n', ("controllers",)),
         (
             "[bounds.passivity]\nmass_eror_pct = 3.0\n",

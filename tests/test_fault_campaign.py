@@ -22,6 +22,7 @@ SLICE = (
     ("servo_silent(servo_id=1, at_phase=to_place, offset_s=0.5)", HEAVY_AT_JAWS),
     ("link_cut(at_phase=to_place, offset_s=0.5, duration_s=10)", LIGHT),
     ("servo_silent(servo_id=2, at_phase=lift, offset_s=0.5)", HEAVY_AT_JAWS),
+    ("servo_error(servo_id=1, error=overheating, at_phase=to_place, offset_s=0.5)", HEAVY_AT_JAWS),
     ("payload_slip(after_grasp_s=10)", HEAVY_AT_JAWS),
     ("link_loss(at_phase=landing, offset_s=0.5, duration_s=5, drop_fraction=0.3)", HEAVY),
     ("pilot_takeover(mode=AUTO_RTL, at_phase=excite, offset_s=0.5)", LIGHT),
@@ -37,7 +38,7 @@ def test_the_shipped_matrix_has_every_fault_at_every_phase():
     flights = expand(load_spec(SPEC), SPEC)
     assert len(flights) >= 200
     phased = {(f.fault.kind, f.fault.at_phase) for f in flights if f.fault.at_phase}
-    assert len(phased) == 4 * 12  # link_cut, link_loss, pilot_takeover, servo_silent
+    assert len(phased) == 5 * 12  # link_cut, link_loss, pilot_takeover, servo_silent, servo_error
 
 
 @pytest.mark.parametrize(("label", "payload"), SLICE)

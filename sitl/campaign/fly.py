@@ -35,7 +35,7 @@ from sitl.campaign.safety import judge
 from sitl.scenario import Scenario
 from sitl.vehicle.link_faults import LinkLoss, PilotTakeover
 from sitl.vehicle.mission_phases import FaultStart, PhaseStart
-from sitl.vehicle.options import RunOptions
+from sitl.vehicle.options import RunOptions, ServoError
 from sitl.vehicle.virtual_flight import fly_virtual, normally_scheduled
 
 __all__ = [
@@ -219,6 +219,9 @@ def _run_options(flight: Flight, work: Path) -> RunOptions:
         servo_silent=(fault.servo_id, start)  # type: ignore[arg-type]
         if fault.kind == "servo_silent"
         else None,
+        servo_error=ServoError(fault.servo_id, fault.error, start)  # type: ignore[arg-type]
+        if fault.kind == "servo_error"
+        else None,
         link_loss=LinkLoss(start, fault.duration_s, fault.drop_fraction)  # type: ignore[arg-type]
         if fault.kind == "link_loss"
         else None,
@@ -254,6 +257,8 @@ def _fly_px4(
     fault = flight.fault
     if fault.kind == "servo_silent":
         extra += ["--servo-silent", f"{fault.servo_id}@{fault.at_s:g}"]
+    if fault.kind == "servo_error":
+        extra += ["--servo-error", f"{fault.servo_id}:{fault.error}@{fault.at_s:g}"]
     sitl = start_sitl(
         config,
         *extra,

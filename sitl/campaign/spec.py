@@ -88,12 +88,12 @@ __all__ = [
 
 FAULT_KINDS = (
     "none", "payload_slip", "grasp_fails", "link_cut", "link_loss", "pilot_takeover",
-    "servo_silent",
+    "servo_silent", "servo_error",
 )  # fmt: skip
 """Faults a flight can be given: in the truth (``payload_slip``, ``grasp_fails``: the
 scenario's ``[world]``) or in the links (``link_cut``, ``link_loss``, ``pilot_takeover``,
-``servo_silent``: the run options)."""
-LINK_FAULTS = ("link_cut", "link_loss", "pilot_takeover", "servo_silent")
+``servo_silent``, ``servo_error``: the run options)."""
+LINK_FAULTS = ("link_cut", "link_loss", "pilot_takeover", "servo_silent", "servo_error")
 """The faults that start at a time or a phase, injected by the simulator's links."""
 BoundFigure = Literal[
     "mass_error_pct",
@@ -141,8 +141,8 @@ class Design(_Table):
 
 
 _FAULT_VALUES = (
-    "servo_id", "mode", "after_grasp_s", "at_s", "at_phase", "offset_s", "duration_s",
-    "drop_fraction",
+    "servo_id", "error", "mode", "after_grasp_s", "at_s", "at_phase", "offset_s",
+    "duration_s", "drop_fraction",
 )  # fmt: skip
 """A fault's values, in the order its label gives them."""
 
@@ -152,14 +152,15 @@ class Fault(_Table):
 
     kind: Literal[
         "none", "payload_slip", "grasp_fails", "link_cut", "link_loss", "pilot_takeover",
-        "servo_silent",
+        "servo_silent", "servo_error",
     ]  # fmt: skip
     after_grasp_s: Annotated[float, Field(strict=True, ge=0.0, allow_inf_nan=False)] | None = None
     """payload_slip: the object slips out this long after the grasp [s]."""
     at_s: Annotated[float, Field(strict=True, ge=0.0, allow_inf_nan=False)] | None = None
-    """link_cut, servo_silent: when the fault starts [s, simulated time]; or ``at_phase``."""
+    """link_cut, link_loss, pilot_takeover, servo_silent, servo_error: when the fault starts
+    [s, simulated time]; or ``at_phase``."""
     at_phase: str | None = None
-    """link_cut, servo_silent: the mission phase the fault starts in (``docs/faults.md``),
+    """The fault's mission phase instead (``docs/faults.md``),
     ``offset_s`` after it began (as the companion told it on the onboard link)."""
     offset_s: Annotated[float, Field(strict=True, ge=0.0, allow_inf_nan=False)] | None = None
     """With ``at_phase``: how long after the phase began [s, simulated time] (0 if not
@@ -171,7 +172,12 @@ class Fault(_Table):
     mode: Literal["POSCTL", "ALTCTL", "AUTO_LOITER", "AUTO_RTL", "AUTO_LAND"] | None = None
     """pilot_takeover: the PX4 mode the pilot switches to from the ground station."""
     servo_id: Annotated[int, Field(strict=True, ge=0, le=252)] | None = None
-    """servo_silent: the servo that stops answering."""
+    """servo_silent, servo_error: the servo that stops answering, or detects the error."""
+    error: Literal[
+        "overload", "overheating", "input_voltage", "electrical_shock", "motor_encoder"
+    ] | None = None  # fmt: skip
+    """servo_error: the hardware error the servo detects (Hardware Error Status(70); torque
+    off for overload, overheating and electrical shock, the XM430's Shutdown default)."""
 
     @model_validator(mode="after")
     def _its_fields(self) -> Fault:
@@ -193,6 +199,7 @@ class Fault(_Table):
             "link_loss": (*start, "duration_s", "drop_fraction"),
             "pilot_takeover": (*start, "mode"),
             "servo_silent": ("servo_id", *start),
+            "servo_error": ("servo_id", "error", *start),
         }[self.kind]
         given = {k for k in _FAULT_VALUES if getattr(self, k) is not None}
         missing = [k for k in needs if k not in given and k != "offset_s"]

@@ -92,8 +92,8 @@ from sitl.px4_sitl.launcher import (
 from sitl.scenario import Scenario
 from sitl.stepping import WallPacer, step_loop
 from sitl.vehicle.mission_phases import PX4_PHASES, FaultStart, MissionPhases, PhaseStart
-from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions
-from sitl.vehicle.runner import build_world, servo_faults, truth_record
+from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions, ServoError
+from sitl.vehicle.runner import build_world, inject_servo_error, servo_faults, truth_record
 from sitl.vehicle.sensors import PoseSensor
 
 __all__ = ["VALIDATED_SPEED", "Px4Exited", "Px4InTheLoop"]
@@ -147,6 +147,8 @@ class Px4InTheLoop:
                 "MAVLink signing is the imitation's: configure PX4's own (MAV_SIGN_CFG)"
             )
         self._servo_silent = _timed(options.servo_silent)
+        if options.servo_error is not None:
+            _timed((options.servo_error.servo_id, options.servo_error.start))
         plant_rate_hz = scenario.plant.rate_hz
         imu_rate_hz = scenario.sensors.gyro_rate_hz
         steps = plant_rate_hz / imu_rate_hz
@@ -347,6 +349,7 @@ class Px4InTheLoop:
             boot=Px4Boot(self.px4, self.options, onboard, self._mode_link_port()),
             truth_every=max(1, round(1.0 / (self.options.truth_rate_hz * self.world.dt_s))),
             silent=self._servo_silent,
+            servo_error=self.options.servo_error,
             stop=stop,
             console=console,
             on_ready=on_ready,
@@ -401,6 +404,11 @@ class Px4InTheLoop:
         if silent is not None and start_s is not None and world.time_s >= start_s:
             self.servo_bus.set_faults(servo_faults(self.options, silent[0]))
             frame.silent = None
+        error = frame.servo_error
+        start_s = None if error is None else self.phases.start_s(error.start)
+        if error is not None and start_s is not None and world.time_s >= start_s:
+            inject_servo_error(self.servo_bus, error)
+            frame.servo_error = None
         if self._truth_file is not None and frame.steps % frame.truth_every == 0:
             self._truth_file.write(json.dumps(truth_record(world, self.armed, self.mode)) + "\n")
         frame.steps += 1
@@ -540,6 +548,8 @@ class _FrameLoop:
     """Plant steps between two truth lines."""
     silent: tuple[int, FaultStart] | None
     """The servo to silence and when (``servo_silent``), until done."""
+    servo_error: ServoError | None
+    """The servo error to inject and when (``servo_error``), until done."""
     stop: threading.Event
     console: Callable[[str], None] | None
     on_ready: Callable[[dict[str, str]], None] | None

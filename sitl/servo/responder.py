@@ -21,6 +21,7 @@ given rate (seeded generator), extra reply delay.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -160,6 +161,8 @@ class RespondingBus:
     it (the pty bus and the in-memory bus)."""
 
     _responder: ServoResponder
+    lock: threading.Lock
+    """Held around the servos' steps and answers; hold it to change a servo from outside."""
 
     @property
     def servos(self) -> dict[int, XM430Servo]:

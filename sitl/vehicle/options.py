@@ -10,13 +10,23 @@ from pathlib import Path
 
 import numpy as np
 
+from arm_driver.errors import HardwareErrorStatus
 from sitl.physics.jsbsim import Wind
 from sitl.stepping import LoopStats
 from sitl.vehicle.link_faults import LinkLoss, PilotTakeover
 from sitl.vehicle.mission_phases import FaultStart, valid_start
 from sitl.vehicle.navigation import ERROR_MODELS
 
-__all__ = ["LOCKSTEP_WAIT_S", "LinkPorts", "RunOptions", "RunStats"]
+__all__ = ["LOCKSTEP_WAIT_S", "SERVO_ERRORS", "LinkPorts", "RunOptions", "RunStats", "ServoError"]
+
+SERVO_ERRORS: dict[str, HardwareErrorStatus] = {
+    "overload": HardwareErrorStatus.OVERLOAD,
+    "overheating": HardwareErrorStatus.OVERHEATING,
+    "input_voltage": HardwareErrorStatus.INPUT_VOLTAGE,
+    "electrical_shock": HardwareErrorStatus.ELECTRICAL_SHOCK,
+    "motor_encoder": HardwareErrorStatus.MOTOR_ENCODER,
+}
+"""A servo's hardware errors by name (bits of Hardware Error Status(70))."""
 
 LOCKSTEP_WAIT_S = 0.1
 """With ``RunOptions.lockstep``: wall time the vehicle waits for the setpoint of a pose
@@ -38,6 +48,32 @@ class LinkPorts:
     onboard_remote: int = 14540
     gcs_local: int = 18570
     gcs_remote: int = 14550
+
+
+@dataclass(frozen=True)
+class ServoError:
+    """Fault injection: servo ``servo_id`` detects the hardware error ``error`` (a name of
+    :data:`SERVO_ERRORS`) at ``start`` and acts as an XM430 does: the bit in Hardware Error
+    Status(70), the alert bit in every status packet after, and torque off where its
+    Shutdown(63) has the bit (the factory default: overheating, electrical shock,
+    overload), until it is rebooted."""
+
+    servo_id: int
+    error: str
+    start: FaultStart
+
+    def __post_init__(self) -> None:
+        if self.error not in SERVO_ERRORS:
+            raise ValueError(f"error must be one of {', '.join(SERVO_ERRORS)}, got {self.error!r}")
+        if not valid_start(self.start):
+            raise ValueError(
+                f"a servo error starts at a time >= 0 s or a phase, got {self.start!r}"
+            )
+
+    @property
+    def bits(self) -> HardwareErrorStatus:
+        """The error's bit of Hardware Error Status(70)."""
+        return SERVO_ERRORS[self.error]
 
 
 @dataclass(frozen=True)
@@ -81,6 +117,8 @@ class RunOptions:
     servo_silent: tuple[int, FaultStart] | None = None
     """Fault injection: (servo id, simulation time [s] or a mission phase) from which that
     servo carries out instructions but never answers again (a broken TX line)."""
+    servo_error: ServoError | None = None
+    """Fault injection: a servo's hardware error (overload, overheating, ...) and when."""
     servo_reply_delay_s: float = 0.0
     """Extra delay before every servo reply [s] (a USB-serial adapter's latency timer: an
     FTDI chip's default is 16 ms): wall time on the pty bus, simulated time in memory."""

@@ -57,11 +57,12 @@ from sitl.px4 import (
 from sitl.scenario import Scenario
 from sitl.servo import Faults, PtyServoBus, XM430Parameters, XM430Servo
 from sitl.servo.memory_bus import MemoryServoBus
+from sitl.servo.responder import RespondingBus
 from sitl.stepping import WallPacer, step_loop
 from sitl.vehicle.link_faults import LinkFaults
 from sitl.vehicle.mission_phases import MissionPhases
 from sitl.vehicle.navigation import Navigation
-from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions, RunStats
+from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions, RunStats, ServoError
 from sitl.vehicle.world import World, WorldSettings
 
 __all__ = [
@@ -172,6 +173,12 @@ def servo_faults(options: RunOptions, silent_id: int | None = None) -> Faults:
     return Faults(silent_ids=silent, reply_delay_s=options.servo_reply_delay_s)
 
 
+def inject_servo_error(servo_bus: RespondingBus, fault: ServoError) -> None:
+    """Servo ``fault.servo_id`` of ``servo_bus`` detects ``fault``'s hardware error now."""
+    with servo_bus.lock:
+        servo_bus.servos[fault.servo_id].inject_hardware_error(fault.bits)
+
+
 def world_settings(scenario: Scenario) -> WorldSettings:
     """World settings of a scenario (``[world]``), or defaults: standing at the origin."""
     world = scenario.world
@@ -235,6 +242,7 @@ class SitlVehicle:
         self._truth_file: IO[str] | None = None
         self._truth_every = max(1, round(1.0 / (options.truth_rate_hz * self.world.dt_s)))
         self._silent = options.servo_silent
+        self._servo_error = options.servo_error
         self.phases = MissionPhases()
         """When the mission's phases began, as the onboard link and the autopilot told."""
         self.link_faults = LinkFaults(
@@ -481,6 +489,12 @@ class SitlVehicle:
             if start_s is not None and world.time_s >= start_s:
                 self.servo_bus.set_faults(servo_faults(self.options, servo[0]))
                 self._silent = None
+        error = self._servo_error
+        if error is not None:
+            start_s = self.phases.start_s(error.start)
+            if start_s is not None and world.time_s >= start_s:
+                inject_servo_error(self.servo_bus, error)
+                self._servo_error = None
         if self._truth_file is not None and self.steps % self._truth_every == 0:
             self._write_truth()
         self.steps += 1
