@@ -15,6 +15,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field
 
+from arm_driver.url import parse_bus_url
 from companion.config import (
     CompanionConfig,
     ConfigError,
@@ -49,6 +50,7 @@ __all__ = [
     "WorldSection",
     "load_scenario",
     "parse_scenario",
+    "servo_watchdog_option",
 ]
 
 MIN_PLANT_RATE_HZ = 1000.0
@@ -332,3 +334,13 @@ def load_scenario(path: str | Path) -> Scenario:
         If the file cannot be read, is not TOML, or does not validate.
     """
     return parse_scenario(read_toml(path), str(path))
+
+
+def servo_watchdog_option(cfg: Scenario) -> str:
+    """The scenario's servo Bus Watchdog as a bus URL option (``&watchdog_ms=N``; empty
+    without one): the simulated servos fly with the watchdog the vehicle's config arms, so
+    a companion that stops talking to them meets what it would in flight."""
+    if cfg.arm_bus is None:
+        return ""
+    watchdog_ms = parse_bus_url(cfg.arm_bus.url).options.get("watchdog_ms")
+    return "" if watchdog_ms is None else f"&watchdog_ms={watchdog_ms}"

@@ -89,7 +89,8 @@ from sitl.px4_sitl.launcher import (
     free_instance,
     release_instance,
 )
-from sitl.scenario import Scenario
+from sitl.scenario import Scenario, servo_watchdog_option
+from sitl.servo.pty_server import REPLY_SWITCH_INTERVAL_S
 from sitl.stepping import WallPacer, step_loop
 from sitl.vehicle.mission_phases import PX4_PHASES, FaultStart, MissionPhases, PhaseStart
 from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions, ServoError
@@ -113,8 +114,6 @@ _ANSWER_TIMEOUT_S = 30.0
 """Longest wall time PX4 may take to answer one HIL_SENSOR once in lockstep [s]."""
 _HOUSEKEEPING_S = 0.1
 """Wall time between looks at PX4's log and heartbeats [s]."""
-_SWITCH_INTERVAL_S = 2e-4
-"""Interpreter switch interval while running [s] (the servo bus thread's reply latency)."""
 _MAX_LAG_S = 0.02
 """Wall-clock lag behind schedule [s] after which the schedule is re-based (overrun)
 instead of caught up. Catching up means running faster than ``speed``: PX4 follows and
@@ -304,7 +303,10 @@ class Px4InTheLoop:
             "gcs": f"udp {p.host}:{p.gcs_local} -> {p.host}:{p.gcs_remote}",
             "connect": f"udpin://0.0.0.0:{p.onboard_remote}",
             # The emulator answers from a Python thread: allow for scheduling delays.
-            "arm_bus": f"dynamixel://{self.servo_bus.device}?baud=1000000&timeout_margin_ms=20",
+            "arm_bus": (
+                f"dynamixel://{self.servo_bus.device}?baud=1000000&timeout_margin_ms=20"
+                f"{servo_watchdog_option(self.scenario)}"
+            ),
             "px4_log": str(self.px4.log_path),
             "simulator": f"tcp 127.0.0.1:{self.ports.simulator_tcp} "
             f"(PX4 instance {self.ports.instance}, airframe {AUTOSTART})",
@@ -337,7 +339,7 @@ class Px4InTheLoop:
 
     def _run(self, stop, until_s, console, on_ready) -> HilStats:
         assert self.px4 is not None and self._link is not None
-        sys.setswitchinterval(_SWITCH_INTERVAL_S)
+        sys.setswitchinterval(REPLY_SWITCH_INTERVAL_S)
         self.stats = stats = HilStats()
         relay = self._relay
         onboard = (

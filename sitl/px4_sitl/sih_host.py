@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -36,8 +37,9 @@ from sitl.px4_sitl.launcher import (
 )
 from sitl.px4_sitl.mocap import DEFAULT_ORIGIN, MocapFeeder, mocap_parameters, sih_origin
 from sitl.px4_sitl.sih import sih_parameters
-from sitl.scenario import Scenario
+from sitl.scenario import Scenario, servo_watchdog_option
 from sitl.servo.arm_stand import ArmStand
+from sitl.servo.pty_server import REPLY_SWITCH_INTERVAL_S
 from sitl.vehicle.launch import free_udp_port
 
 __all__ = ["NAVIGATION_MODES", "STARTUP_DONE", "SihHost"]
@@ -139,6 +141,7 @@ class SihHost:
             self.px4.start(self._timeout_s)
             if self.feeder is not None:
                 self._start_mocap(self.px4, self.feeder)
+            sys.setswitchinterval(REPLY_SWITCH_INTERVAL_S)
             self.stand.start()
         except BaseException:
             self.stop(keep=True)
@@ -167,7 +170,10 @@ class SihHost:
             "gcs": f"udp 127.0.0.1:{p.gcs_local} -> 127.0.0.1:14550",
             "connect": p.connect_url,
             # The emulator answers from a Python thread: allow for scheduling delays.
-            "arm_bus": f"dynamixel://{self.stand.device}?baud=1000000&timeout_margin_ms=20",
+            "arm_bus": (
+                f"dynamixel://{self.stand.device}?baud=1000000&timeout_margin_ms=20"
+                f"{servo_watchdog_option(self.scenario)}"
+            ),
             "px4_log": str(self.px4.log_path),
         }
         if self.feeder is not None:

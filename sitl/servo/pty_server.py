@@ -40,8 +40,12 @@ from arm_driver.errors import CommunicationError
 from sitl.servo.responder import Faults, RespondingBus, ServoResponder
 from sitl.servo.xm430 import XM430Servo
 
-__all__ = ["Faults", "PtyServoBus"]
+__all__ = ["REPLY_SWITCH_INTERVAL_S", "Faults", "PtyServoBus"]
 
+REPLY_SWITCH_INTERVAL_S = 2e-4
+"""Interpreter switch interval [s] for a process whose pty bus thread answers beside a busy
+Python thread (a plant stepped at 1 kHz): at Python's default of 5 ms the reply waits for
+the interpreter lock for longer than a client's 20 ms margin on a loaded machine."""
 _MAX_STEP_S = 0.1
 """Largest wall-time gap the servo loops are advanced by at once [s]."""
 _IDLE_STEP_S = 0.005

@@ -38,7 +38,6 @@ from typing import IO
 import numpy as np
 
 from arm_driver.joint import GripperConfig, JointConfig
-from arm_driver.url import parse_bus_url
 from bytelink.memory import MemoryChannel, MemoryEnd, create_channel
 from companion.config import arm_bus_configs
 from companion.coordinates import POSITION
@@ -54,7 +53,7 @@ from sitl.px4 import (
     attitude_loop_params,
     load_signing_key,
 )
-from sitl.scenario import Scenario
+from sitl.scenario import Scenario, servo_watchdog_option
 from sitl.servo import Faults, PtyServoBus, XM430Parameters, XM430Servo
 from sitl.servo.memory_bus import MemoryServoBus
 from sitl.servo.responder import RespondingBus
@@ -345,7 +344,7 @@ class SitlVehicle:
                 "onboard": f"memory {memory}-onboard",
                 "gcs": f"memory {memory}-gcs",
                 "connect": f"memory://{memory}-onboard",
-                "arm_bus": f"dynamixel://{self.servo_bus.device}?baud=1000000{self._watchdog}",
+                "arm_bus": f"dynamixel://{self.servo_bus.device}?baud=1000000{servo_watchdog_option(self.scenario)}",
             }
         onboard, gcs = (
             self._bound_port("onboard", p.onboard_local),
@@ -358,20 +357,9 @@ class SitlVehicle:
             # The emulator answers from a Python thread: allow for scheduling delays.
             "arm_bus": (
                 f"dynamixel://{self.servo_bus.device}?baud=1000000&timeout_margin_ms=20"
-                f"{self._watchdog}"
+                f"{servo_watchdog_option(self.scenario)}"
             ),
         }
-
-    @property
-    def _watchdog(self) -> str:
-        """The scenario's servo Bus Watchdog as a bus URL option (``&watchdog_ms=N``; empty
-        without one): the simulated servos fly with the watchdog the vehicle's config
-        arms, so a companion that stops talking to them meets what it would in flight."""
-        section = self.scenario.arm_bus
-        if section is None:
-            return ""
-        watchdog_ms = parse_bus_url(section.url).options.get("watchdog_ms")
-        return "" if watchdog_ms is None else f"&watchdog_ms={watchdog_ms}"
 
     def _bound_port(self, link: str, configured: int) -> int:
         """The local port ``link`` is bound to (the free one chosen for 0), once open."""
