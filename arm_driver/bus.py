@@ -193,6 +193,9 @@ class ArmBus(abc.ABC):
         self._mode: OperatingMode | None = None
         self._torque: bool | None = None
         self._lock = asyncio.Lock()
+        self.retried_replies = 0
+        """Damaged replies (CRC, framing) the backend asked for again; 0 for a backend that
+        does not retry."""
 
     # -- properties ---------------------------------------------------------------------
 

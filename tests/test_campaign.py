@@ -119,7 +119,7 @@ def write_spec(tmp_path: Path, body: str, name: str = "spec.toml") -> Path:
         ('autopilots = ["px5"]\n', ("autopilots", "'imitation' or 'px4'")),
         (
             'autopilots = ["px4"]\n[[faults]]\nkind = "link_cut"\nat_s = 20.0\nduration_s = 2.0\n',
-            ("link_cut, link_loss and pilot_takeover fly on the imitation only",),
+            ("link_cut, link_loss, pilot_takeover and bus_corruption fly on the imitation only",),
         ),
     ],
 )

@@ -23,7 +23,10 @@ SLICE = (
     ("link_cut(at_phase=to_place, offset_s=0.5, duration_s=10)", LIGHT),
     ("servo_silent(servo_id=2, at_phase=lift, offset_s=0.5)", HEAVY_AT_JAWS),
     ("servo_error(servo_id=1, error=overheating, at_phase=to_place, offset_s=0.5)", HEAVY_AT_JAWS),
-    ("payload_slip(after_grasp_s=10)", HEAVY_AT_JAWS),
+    (
+        "bus_corruption(at_phase=excite, offset_s=0.5, duration_s=5, corrupt_fraction=0.3)",
+        HEAVY_AT_JAWS,
+    ),
     ("link_loss(at_phase=landing, offset_s=0.5, duration_s=5, drop_fraction=0.3)", HEAVY),
     ("pilot_takeover(mode=AUTO_RTL, at_phase=excite, offset_s=0.5)", LIGHT),
 )
@@ -38,7 +41,7 @@ def test_the_shipped_matrix_has_every_fault_at_every_phase():
     flights = expand(load_spec(SPEC), SPEC)
     assert len(flights) >= 200
     phased = {(f.fault.kind, f.fault.at_phase) for f in flights if f.fault.at_phase}
-    assert len(phased) == 5 * 12  # link_cut, link_loss, pilot_takeover, servo_silent, servo_error
+    assert len(phased) == 6 * 12  # the six kinds that start at a phase, at each of 12
 
 
 @pytest.mark.parametrize(("label", "payload"), SLICE)
@@ -53,5 +56,7 @@ def test_a_fault_of_the_matrix_ends_safe(label, payload):
     assert row["safe"] == 1, row["unsafe"]
     if label.startswith("link_loss"):  # 30 % lost for 5 s: ridden through
         assert row["completed"] == 1 and row["late_cycles"] > 0
+    elif label.startswith("bus_corruption"):  # 30 % of the replies: asked again
+        assert row["completed"] == 1 and row["servo_retries"] > 50
     else:  # each of the others ends the pickup, named
         assert row["outcome"] != "completed"

@@ -356,6 +356,7 @@ class DynamixelBus(ArmBus):
                 if attempt == self._crc_retries:
                     error.add_note(f"gave up after {attempt + 1} attempt(s)")
                     raise
+                self.retried_replies += 1
         raise AssertionError("unreachable")
 
     async def _exchange_once(

@@ -319,6 +319,8 @@ class PickupApp:
             if self.report.landed and self.report.disarmed:
                 await self.arm.hold_after_landing()
             self.cycle.finish_report()
+            self.report.servo_retries = self.arm.bus.retried_replies
+            self.report.servo_failures = self.arm.failed_transactions
 
     # ------------------------------------------------------------- preflight
 

@@ -124,6 +124,8 @@ class ArmSupervisor:
         """The bus is lost: nothing is written any more (its safe state applies)."""
         self._safe_applied = False
         self._failures = 0
+        self.failed_transactions = 0
+        """Joint and gripper transactions that failed, in all (a lost bus's included)."""
         self._failing_since = math.nan
         self._joints: dict[str, JointState] | None = None
         self._read_s = math.nan
@@ -323,6 +325,7 @@ class ArmSupervisor:
 
     def _failed_once(self, exc: ArmDriverError) -> None:
         self._failures += 1
+        self.failed_transactions += 1
         now = self._vehicle_time()
         if math.isnan(self._failing_since):
             self._failing_since = now

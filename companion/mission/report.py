@@ -97,6 +97,10 @@ class MissionReport:
     companion, host, blocked, arrival, unknown)."""
     poses_dropped_by_cause: dict[str, int] = field(default_factory=dict)
     """Dropped poses by who held them up, as ``late_cycles_by_cause``."""
+    servo_retries: int = 0
+    """Damaged servo replies (CRC, framing) asked for again by the arm bus."""
+    servo_failures: int = 0
+    """Servo bus transactions that failed (timed out, or damaged past the retries)."""
     longest_period_ms: float | None = None
     """Longest vehicle-time gap between two control cycles [ms]."""
     estimator_skipped_steps: int = 0
@@ -140,6 +144,8 @@ class MissionReport:
             "poses_dropped": self.poses_dropped,
             "late_cycles_by_cause": self.late_cycles_by_cause,
             "poses_dropped_by_cause": self.poses_dropped_by_cause,
+            "servo_retries": self.servo_retries,
+            "servo_failures": self.servo_failures,
             "longest_period_ms": self.longest_period_ms,
             "estimator_skipped_steps": self.estimator_skipped_steps,
             "estimator_skipped_by_reason": self.estimator_skipped,

@@ -36,6 +36,7 @@ from sitl.scenario import Scenario
 from sitl.vehicle.link_faults import LinkLoss, PilotTakeover
 from sitl.vehicle.mission_phases import FaultStart, PhaseStart
 from sitl.vehicle.options import RunOptions, ServoError
+from sitl.vehicle.servo_bus_faults import BusCorruption
 from sitl.vehicle.virtual_flight import fly_virtual, normally_scheduled
 
 __all__ = [
@@ -142,6 +143,8 @@ def flight_row(
         "control_cycles": report.control_cycles,
         "late_cycles": report.late_cycles,
         "poses_dropped": report.poses_dropped,
+        "servo_retries": report.servo_retries,
+        "servo_failures": report.servo_failures,
         "longest_period_ms": report.longest_period_ms,
         "estimator_skipped_steps": report.estimator_skipped_steps,
         "cycle_latency_median_us": latency.get("median"),
@@ -221,6 +224,9 @@ def _run_options(flight: Flight, work: Path) -> RunOptions:
         else None,
         servo_error=ServoError(fault.servo_id, fault.error, start)  # type: ignore[arg-type]
         if fault.kind == "servo_error"
+        else None,
+        bus_corruption=BusCorruption(start, fault.duration_s, fault.corrupt_fraction)  # type: ignore[arg-type]
+        if fault.kind == "bus_corruption"
         else None,
         link_loss=LinkLoss(start, fault.duration_s, fault.drop_fraction)  # type: ignore[arg-type]
         if fault.kind == "link_loss"

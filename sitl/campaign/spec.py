@@ -88,12 +88,14 @@ __all__ = [
 
 FAULT_KINDS = (
     "none", "payload_slip", "grasp_fails", "link_cut", "link_loss", "pilot_takeover",
-    "servo_silent", "servo_error",
+    "servo_silent", "servo_error", "bus_corruption",
 )  # fmt: skip
 """Faults a flight can be given: in the truth (``payload_slip``, ``grasp_fails``: the
 scenario's ``[world]``) or in the links (``link_cut``, ``link_loss``, ``pilot_takeover``,
-``servo_silent``, ``servo_error``: the run options)."""
-LINK_FAULTS = ("link_cut", "link_loss", "pilot_takeover", "servo_silent", "servo_error")
+``servo_silent``, ``servo_error``, ``bus_corruption``: the run options)."""
+LINK_FAULTS = (
+    "link_cut", "link_loss", "pilot_takeover", "servo_silent", "servo_error", "bus_corruption",
+)  # fmt: skip
 """The faults that start at a time or a phase, injected by the simulator's links."""
 BoundFigure = Literal[
     "mass_error_pct",
@@ -142,7 +144,7 @@ class Design(_Table):
 
 _FAULT_VALUES = (
     "servo_id", "error", "mode", "after_grasp_s", "at_s", "at_phase", "offset_s",
-    "duration_s", "drop_fraction",
+    "duration_s", "drop_fraction", "corrupt_fraction",
 )  # fmt: skip
 """A fault's values, in the order its label gives them."""
 
@@ -152,7 +154,7 @@ class Fault(_Table):
 
     kind: Literal[
         "none", "payload_slip", "grasp_fails", "link_cut", "link_loss", "pilot_takeover",
-        "servo_silent", "servo_error",
+        "servo_silent", "servo_error", "bus_corruption",
     ]  # fmt: skip
     after_grasp_s: Annotated[float, Field(strict=True, ge=0.0, allow_inf_nan=False)] | None = None
     """payload_slip: the object slips out this long after the grasp [s]."""
@@ -166,9 +168,12 @@ class Fault(_Table):
     """With ``at_phase``: how long after the phase began [s, simulated time] (0 if not
     given)."""
     duration_s: Annotated[float, Field(strict=True, gt=0.0, allow_inf_nan=False)] | None = None
-    """link_cut, link_loss: how long the onboard link stays silent or lossy [s]."""
+    """link_cut, link_loss, bus_corruption: how long the onboard link stays silent or lossy,
+    or the servo bus's replies corrupted [s]."""
     drop_fraction: Annotated[float, Field(strict=True, gt=0.0, le=1.0)] | None = None
     """link_loss: the fraction of the onboard link's messages dropped, both ways."""
+    corrupt_fraction: Annotated[float, Field(strict=True, gt=0.0, le=1.0)] | None = None
+    """bus_corruption: the fraction of the servos' replies sent with a broken CRC."""
     mode: Literal["POSCTL", "ALTCTL", "AUTO_LOITER", "AUTO_RTL", "AUTO_LAND"] | None = None
     """pilot_takeover: the PX4 mode the pilot switches to from the ground station."""
     servo_id: Annotated[int, Field(strict=True, ge=0, le=252)] | None = None
@@ -200,6 +205,7 @@ class Fault(_Table):
             "pilot_takeover": (*start, "mode"),
             "servo_silent": ("servo_id", *start),
             "servo_error": ("servo_id", "error", *start),
+            "bus_corruption": (*start, "duration_s", "corrupt_fraction"),
         }[self.kind]
         given = {k for k in _FAULT_VALUES if getattr(self, k) is not None}
         missing = [k for k in needs if k not in given and k != "offset_s"]
@@ -261,11 +267,12 @@ class CampaignSpec(_Table):
                 "on the companion's link, which PX4 carries in the loop): give at_s"
             )
         if "px4" in self.autopilots and any(
-            f.kind in ("link_cut", "link_loss", "pilot_takeover") for f in self.faults
+            f.kind in ("link_cut", "link_loss", "pilot_takeover", "bus_corruption")
+            for f in self.faults
         ):
             raise ValueError(
-                "link_cut, link_loss and pilot_takeover fly on the imitation only (the "
-                "campaign acts on its in-memory links); "
+                "link_cut, link_loss, pilot_takeover and bus_corruption fly on the imitation "
+                "only (the campaign acts on its in-memory links); "
                 "against PX4, tests/test_px4_flight.py cuts the UDP link"
             )
         return self

@@ -79,6 +79,8 @@ COLUMNS: tuple[tuple[str, str], ...] = (
     ("control_cycles", "INTEGER"),
     ("late_cycles", "INTEGER"),
     ("poses_dropped", "INTEGER"),
+    ("servo_retries", "INTEGER"),
+    ("servo_failures", "INTEGER"),
     ("longest_period_ms", "REAL"),
     ("estimator_skipped_steps", "INTEGER"),
     ("cycle_latency_median_us", "REAL"),

@@ -92,10 +92,11 @@ from sitl.px4_sitl.launcher import (
 from sitl.scenario import Scenario, servo_watchdog_option
 from sitl.servo.pty_server import REPLY_SWITCH_INTERVAL_S
 from sitl.stepping import WallPacer, step_loop
-from sitl.vehicle.mission_phases import PX4_PHASES, FaultStart, MissionPhases, PhaseStart
-from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions, ServoError
-from sitl.vehicle.runner import build_world, inject_servo_error, servo_faults, truth_record
+from sitl.vehicle.mission_phases import PX4_PHASES, MissionPhases, PhaseStart
+from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions
+from sitl.vehicle.runner import build_world, truth_record
 from sitl.vehicle.sensors import PoseSensor
+from sitl.vehicle.servo_bus_faults import ServoBusFaults
 
 __all__ = ["VALIDATED_SPEED", "Px4Exited", "Px4InTheLoop"]
 
@@ -145,9 +146,7 @@ class Px4InTheLoop:
             raise ValueError(
                 "MAVLink signing is the imitation's: configure PX4's own (MAV_SIGN_CFG)"
             )
-        self._servo_silent = _timed(options.servo_silent)
-        if options.servo_error is not None:
-            _timed((options.servo_error.servo_id, options.servo_error.start))
+        _check_servo_fault_starts(options)
         plant_rate_hz = scenario.plant.rate_hz
         imu_rate_hz = scenario.sensors.gyro_rate_hz
         steps = plant_rate_hz / imu_rate_hz
@@ -210,9 +209,10 @@ class Px4InTheLoop:
         self._commands = [0.0] * N_ROTORS
         self.armed = False
         self.mode: str | None = None
+        """PX4's flight mode from its last heartbeat (a :class:`~sitl.px4.Px4Mode` name)."""
         self.phases = MissionPhases()
         """When PX4's take-off and landing began (from its modes)."""
-        """PX4's flight mode from its last heartbeat (a :class:`~sitl.px4.Px4Mode` name)."""
+        self.servo_faults = ServoBusFaults(options, self.phases)
         self._lockstep = False
         self._truth_interval_us = 0
         self._next_truth_us = 0
@@ -350,8 +350,6 @@ class Px4InTheLoop:
         self._frame = _FrameLoop(
             boot=Px4Boot(self.px4, self.options, onboard, self._mode_link_port()),
             truth_every=max(1, round(1.0 / (self.options.truth_rate_hz * self.world.dt_s))),
-            silent=self._servo_silent,
-            servo_error=self.options.servo_error,
             stop=stop,
             console=console,
             on_ready=on_ready,
@@ -401,16 +399,7 @@ class Px4InTheLoop:
             state = world.step_motors(frame.commands)
         frame.force += world.specific_force_flu_m_s2()
         frame.omega += state.omega_body_rad_s
-        silent = frame.silent
-        start_s = None if silent is None else self.phases.start_s(silent[1])
-        if silent is not None and start_s is not None and world.time_s >= start_s:
-            self.servo_bus.set_faults(servo_faults(self.options, silent[0]))
-            frame.silent = None
-        error = frame.servo_error
-        start_s = None if error is None else self.phases.start_s(error.start)
-        if error is not None and start_s is not None and world.time_s >= start_s:
-            inject_servo_error(self.servo_bus, error)
-            frame.servo_error = None
+        self.servo_faults.update(world.time_s, self.servo_bus)
         if self._truth_file is not None and frame.steps % frame.truth_every == 0:
             self._truth_file.write(json.dumps(truth_record(world, self.armed, self.mode)) + "\n")
         frame.steps += 1
@@ -548,10 +537,6 @@ class _FrameLoop:
     boot: Px4Boot
     truth_every: int
     """Plant steps between two truth lines."""
-    silent: tuple[int, FaultStart] | None
-    """The servo to silence and when (``servo_silent``), until done."""
-    servo_error: ServoError | None
-    """The servo error to inject and when (``servo_error``), until done."""
     stop: threading.Event
     console: Callable[[str], None] | None
     on_ready: Callable[[dict[str, str]], None] | None
@@ -571,16 +556,19 @@ class _FrameLoop:
     commands: list[float] = field(default_factory=list)
 
 
-def _timed(silent: tuple[int, FaultStart] | None) -> tuple[int, FaultStart] | None:
-    """``servo_silent`` checked for PX4 in the loop: a simulated time [s], or PX4's own
-    take-off or landing (its modes, read from its heartbeats); raises ValueError for the
-    companion's phases (told on the companion's link, which PX4 carries here)."""
-    if silent is None:
-        return None
-    servo_id, start = silent
-    if isinstance(start, PhaseStart) and start.phase not in PX4_PHASES:
-        raise ValueError(
-            f"with PX4 in the loop a servo fault starts at a time or at PX4's "
-            f"{' or '.join(PX4_PHASES)}, not at the mission phase {start.phase!r}"
-        )
-    return servo_id, start
+def _check_servo_fault_starts(options: RunOptions) -> None:
+    """The servo bus faults' starts checked for PX4 in the loop: a simulated time [s], or
+    PX4's own take-off or landing (its modes, read from its heartbeats); raises ValueError
+    for the companion's phases (told on the companion's link, which PX4 carries here)."""
+    error, corruption = options.servo_error, options.bus_corruption
+    starts = [
+        options.servo_silent[1] if options.servo_silent else None,
+        error.start if error else None,
+        corruption.start if corruption else None,
+    ]
+    for start in starts:
+        if isinstance(start, PhaseStart) and start.phase not in PX4_PHASES:
+            raise ValueError(
+                f"with PX4 in the loop a servo fault starts at a time or at PX4's "
+                f"{' or '.join(PX4_PHASES)}, not at the mission phase {start.phase!r}"
+            )

@@ -60,10 +60,6 @@ class MemoryServoBus(RespondingBus):
         """The device a client opens: ``memory:NAME``."""
         return f"memory:{self.name}"
 
-    def set_faults(self, faults: Faults) -> None:
-        """Replace the injected faults (re-seeds the corruption generator)."""
-        self._responder.set_faults(faults)
-
     def start(self) -> str:
         """Create the in-memory line; return the device name."""
         if self._channel is not None:

@@ -92,11 +92,6 @@ class PtyServoBus(RespondingBus):
             raise RuntimeError("the simulated bus is not started")
         return self._device
 
-    def set_faults(self, faults: Faults) -> None:
-        """Replace the injected faults (re-seeds the corruption generator)."""
-        with self.lock:
-            self._responder.set_faults(faults)
-
     def start(self) -> str:
         """Open the pty pair and start serving; return the slave device path."""
         if self._thread is not None:

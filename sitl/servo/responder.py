@@ -169,6 +169,11 @@ class RespondingBus:
         """The servo models by id."""
         return self._responder.servos
 
+    def set_faults(self, faults: Faults) -> None:
+        """Replace the injected faults (re-seeds the corruption generator)."""
+        with self.lock:
+            self._responder.set_faults(faults)
+
     @property
     def corrupted_replies(self) -> int:
         """Replies sent with a corrupted CRC."""

@@ -54,14 +54,14 @@ from sitl.px4 import (
     load_signing_key,
 )
 from sitl.scenario import Scenario, servo_watchdog_option
-from sitl.servo import Faults, PtyServoBus, XM430Parameters, XM430Servo
+from sitl.servo import PtyServoBus, XM430Parameters, XM430Servo
 from sitl.servo.memory_bus import MemoryServoBus
-from sitl.servo.responder import RespondingBus
 from sitl.stepping import WallPacer, step_loop
 from sitl.vehicle.link_faults import LinkFaults
 from sitl.vehicle.mission_phases import MissionPhases
 from sitl.vehicle.navigation import Navigation
-from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions, RunStats, ServoError
+from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions, RunStats
+from sitl.vehicle.servo_bus_faults import ServoBusFaults, bus_faults
 from sitl.vehicle.world import World, WorldSettings
 
 __all__ = [
@@ -152,10 +152,10 @@ def build_world(
     servo_bus: PtyServoBus | MemoryServoBus
     if options.memory is not None:
         servo_bus = MemoryServoBus(
-            servos, faults=servo_faults(options), name=f"{options.memory}-servos"
+            servos, faults=bus_faults(options), name=f"{options.memory}-servos"
         )
     else:
-        servo_bus = PtyServoBus(servos, faults=servo_faults(options), step_servos=False)
+        servo_bus = PtyServoBus(servos, faults=bus_faults(options), step_servos=False)
     world = World(
         _plant(scenario, options),
         [(j, servos[j.servo_id]) for j in joints],
@@ -163,19 +163,6 @@ def build_world(
         world_settings(scenario),
     )
     return world, servo_bus, list(joints), gripper
-
-
-def servo_faults(options: RunOptions, silent_id: int | None = None) -> Faults:
-    """The servo bus's faults: the run's reply delay, and servo ``silent_id`` silent once
-    ``servo_silent``'s time has come."""
-    silent = frozenset() if silent_id is None else frozenset({silent_id})
-    return Faults(silent_ids=silent, reply_delay_s=options.servo_reply_delay_s)
-
-
-def inject_servo_error(servo_bus: RespondingBus, fault: ServoError) -> None:
-    """Servo ``fault.servo_id`` of ``servo_bus`` detects ``fault``'s hardware error now."""
-    with servo_bus.lock:
-        servo_bus.servos[fault.servo_id].inject_hardware_error(fault.bits)
 
 
 def world_settings(scenario: Scenario) -> WorldSettings:
@@ -240,10 +227,9 @@ class SitlVehicle:
         """The two MAVLink links, ``onboard`` and ``gcs`` (made when opened)."""
         self._truth_file: IO[str] | None = None
         self._truth_every = max(1, round(1.0 / (options.truth_rate_hz * self.world.dt_s)))
-        self._silent = options.servo_silent
-        self._servo_error = options.servo_error
         self.phases = MissionPhases()
         """When the mission's phases began, as the onboard link and the autopilot told."""
+        self.servo_faults = ServoBusFaults(options, self.phases)
         self.link_faults = LinkFaults(
             self.phases,
             options.seed,
@@ -471,18 +457,7 @@ class SitlVehicle:
             if self._console is not None:
                 for line in lines:
                     self._console(_console_text(line.severity, line.text))
-        servo = self._silent
-        if servo is not None:
-            start_s = self.phases.start_s(servo[1])
-            if start_s is not None and world.time_s >= start_s:
-                self.servo_bus.set_faults(servo_faults(self.options, servo[0]))
-                self._silent = None
-        error = self._servo_error
-        if error is not None:
-            start_s = self.phases.start_s(error.start)
-            if start_s is not None and world.time_s >= start_s:
-                inject_servo_error(self.servo_bus, error)
-                self._servo_error = None
+        self.servo_faults.update(world.time_s, self.servo_bus)
         if self._truth_file is not None and self.steps % self._truth_every == 0:
             self._write_truth()
         self.steps += 1

@@ -1,0 +1,119 @@
+"""Faults on the vehicle's servo bus, each started at a simulated time or a mission phase
+(:mod:`sitl.vehicle.mission_phases`):
+
+- a servo gone silent (``RunOptions.servo_silent``): it carries out instructions but never
+  answers again (a broken TX line);
+- a servo's hardware error (``servo_error``): the bit in its Hardware Error Status(70),
+  with the shutdown its Shutdown(63) selects
+  (:meth:`sitl.servo.xm430.XM430Servo.inject_hardware_error`);
+- corrupted replies for a while (``bus_corruption``): each reply's CRC broken with a
+  probability (electrical noise on the line), drawn from the responder's generator seeded
+  by the run's seed (a flight without this fault draws nothing from it).
+
+Hosts (the imitation's :class:`~sitl.vehicle.runner.SitlVehicle`, PX4 in the loop) call
+:meth:`ServoBusFaults.update` after every plant step; it touches the bus only when a fault
+starts or ends.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from sitl.servo import Faults
+from sitl.servo.responder import RespondingBus
+from sitl.vehicle.mission_phases import FaultStart, MissionPhases, valid_start
+
+if TYPE_CHECKING:
+    from sitl.vehicle.options import RunOptions
+
+__all__ = ["BusCorruption", "ServoBusFaults", "bus_faults"]
+
+
+@dataclass(frozen=True)
+class BusCorruption:
+    """``corrupt_fraction`` of the servos' replies sent with a broken CRC for
+    ``duration_s`` [s] from ``start``."""
+
+    start: FaultStart
+    duration_s: float
+    corrupt_fraction: float
+
+    def __post_init__(self) -> None:
+        if not valid_start(self.start):
+            raise ValueError(f"a corruption starts at a time >= 0 or a phase, got {self.start!r}")
+        if not (math.isfinite(self.duration_s) and self.duration_s > 0.0):
+            raise ValueError(f"a corruption lasts a positive time, got {self.duration_s!r}")
+        if not (math.isfinite(self.corrupt_fraction) and 0.0 < self.corrupt_fraction <= 1.0):
+            raise ValueError(f"corrupt_fraction must be in (0, 1], got {self.corrupt_fraction!r}")
+
+
+def bus_faults(
+    options: RunOptions, silent_id: int | None = None, corrupt_fraction: float = 0.0
+) -> Faults:
+    """The servo bus's faults: the run's reply delay, servo ``silent_id`` silent, replies
+    corrupted at ``corrupt_fraction``, the corruption drawn from the run's seed."""
+    return Faults(
+        silent_ids=frozenset() if silent_id is None else frozenset({silent_id}),
+        crc_corruption_rate=corrupt_fraction,
+        reply_delay_s=options.servo_reply_delay_s,
+        seed=options.seed,
+    )
+
+
+class ServoBusFaults:
+    """The servo bus faults of a run (``options``: a :class:`~sitl.vehicle.options.RunOptions`),
+    started when their moment comes in ``phases``."""
+
+    def __init__(self, options: RunOptions, phases: MissionPhases) -> None:
+        self._options = options
+        self._phases = phases
+        self._silent: tuple[int, FaultStart] | None = options.servo_silent
+        self._error = options.servo_error
+        self._corruption: BusCorruption | None = options.bus_corruption
+        self._silent_id: int | None = None
+        self._corrupting = False
+        self.pending = self._any_pending()
+        """Some fault has yet to start or end (else :meth:`update` returns at once)."""
+
+    def faults(self) -> Faults:
+        """The bus's faults now (:func:`bus_faults`)."""
+        corruption = self._corruption
+        fraction = corruption.corrupt_fraction if corruption and self._corrupting else 0.0
+        return bus_faults(self._options, self._silent_id, fraction)
+
+    def update(self, now_s: float, bus: RespondingBus) -> None:
+        """Start or end what is due at simulated time ``now_s`` [s] on ``bus``."""
+        if not self.pending:
+            return
+        changed = False
+        silent = self._silent
+        if silent is not None and self._due(silent[1], now_s):
+            self._silent_id, self._silent = silent[0], None
+            changed = True
+        error = self._error
+        if error is not None and self._due(error.start, now_s):
+            with bus.lock:
+                bus.servos[error.servo_id].inject_hardware_error(error.bits)
+            self._error = None
+        corruption = self._corruption
+        if corruption is not None and self._due(corruption.start, now_s):
+            start_s = self._phases.start_s(corruption.start)
+            assert start_s is not None
+            active = now_s < start_s + corruption.duration_s
+            if active != self._corrupting:
+                self._corrupting = active
+                changed = True
+            if not active:
+                self._corruption = None
+        if changed:
+            bus.set_faults(self.faults())
+        self.pending = self._any_pending()
+
+    def _due(self, start: FaultStart, now_s: float) -> bool:
+        start_s = self._phases.start_s(start)
+        return start_s is not None and now_s >= start_s
+
+    def _any_pending(self) -> bool:
+        return self._silent is not None or self._error is not None or self._corruption is not None
