@@ -11,9 +11,13 @@ from pymavlink.dialects.v20 import common as mavlink2
 from companion.mission.announce import STATUSTEXT_CHARS, announcement, phase_of
 from sitl.campaign.safety import judge
 from sitl.campaign.spec import Fault
-from sitl.hil.vehicle import _timed
+from sitl.hil.vehicle import _check_servo_fault_starts
+from sitl.servo import XM430Servo
+from sitl.servo.memory_bus import MemoryServoBus
 from sitl.vehicle.link_faults import LinkFaults, LinkLoss, PilotTakeover
 from sitl.vehicle.mission_phases import FAULT_PHASES, MissionPhases, PhaseStart
+from sitl.vehicle.options import RunOptions, ServoError
+from sitl.vehicle.servo_bus_faults import BusCorruption, ServoBusFaults
 
 PLACE_M = (-1.0, 0.5, 0.05)
 
@@ -138,11 +142,46 @@ def test_take_off_and_landing_are_the_autopilots_modes():
 
 
 def test_with_px4_in_the_loop_a_servo_fault_starts_at_a_time_or_px4s_own_phases():
-    assert _timed((2, 29.0)) == (2, 29.0)
-    assert _timed((2, PhaseStart("takeoff", 8.0))) == (2, PhaseStart("takeoff", 8.0))
-    assert _timed((1, PhaseStart("landing"))) == (1, PhaseStart("landing"))
-    with pytest.raises(ValueError, match="not at the mission phase 'grasp'"):
-        _timed((2, PhaseStart("grasp", 0.5)))
+    for start in (29.0, PhaseStart("takeoff", 8.0), PhaseStart("landing")):
+        _check_servo_fault_starts(RunOptions(servo_silent=(2, start)))
+        _check_servo_fault_starts(RunOptions(servo_error=ServoError(1, "overload", start)))
+        _check_servo_fault_starts(RunOptions(bus_corruption=BusCorruption(start, 5.0, 0.3)))
+    grasp = PhaseStart("grasp", 0.5)
+    for options in (
+        RunOptions(servo_silent=(2, grasp)),
+        RunOptions(servo_error=ServoError(1, "overheating", grasp)),
+        RunOptions(bus_corruption=BusCorruption(grasp, 5.0, 0.3)),
+    ):
+        with pytest.raises(ValueError, match="not at the mission phase 'grasp'"):
+            _check_servo_fault_starts(options)
+
+
+def test_the_servo_bus_faults_start_at_their_phase_and_the_corruption_ends():
+    bus = MemoryServoBus({i: XM430Servo(i) for i in (1, 2, 3)}, name="servo-faults-test")
+    phases = MissionPhases()
+    options = RunOptions(
+        seed=4,
+        servo_silent=(2, PhaseStart("lift")),
+        servo_error=ServoError(1, "overheating", PhaseStart("lift", 1.0)),
+        bus_corruption=BusCorruption(PhaseStart("excite"), 5.0, 0.3),
+    )
+    faults = ServoBusFaults(options, phases)
+    faults.update(10.0, bus)  # no phase yet: nothing
+    assert bus._responder.faults.silent_ids == frozenset() and not bus.servos[1].hardware_error
+    phases.observe_text("pickup: phase lift", 20.0)
+    faults.update(20.0, bus)
+    assert bus._responder.faults.silent_ids == {2} and not bus.servos[1].hardware_error
+    faults.update(21.0, bus)
+    assert bus.servos[1].hardware_error and not bus.servos[1].torque_enabled
+    phases.observe_text("pickup: phase excite", 30.0)
+    faults.update(30.0, bus)
+    assert bus._responder.faults.crc_corruption_rate == 0.3
+    assert bus._responder.faults.silent_ids == {2} and bus._responder.faults.seed == 4
+    faults.update(34.9, bus)
+    assert bus._responder.faults.crc_corruption_rate == 0.3 and faults.pending
+    faults.update(35.0, bus)
+    assert bus._responder.faults.crc_corruption_rate == 0.0 and not faults.pending
+    assert bus._responder.faults.silent_ids == {2}
 
 
 def test_a_fault_at_a_phase_is_labelled_with_it():
