@@ -18,7 +18,7 @@ import pytest
 
 from sitl.campaign.store import refused
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.background]
 
 SPEC = Path(__file__).resolve().parents[1] / "configs" / "campaigns" / "envelope_sample.toml"
 

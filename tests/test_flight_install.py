@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.background]
 
 SIMULATOR_ONLY = ("pinocchio", "jsbsim", "mavsdk", "sympy")
 
