@@ -241,6 +241,11 @@ class SitlVehicle:
         self._console: Callable[[str], None] | None = None
         self.steps = 0
         """Plant steps taken."""
+        self._first_step_wall_s = self._last_step_wall_s = 0.0
+        """Wall-clock times (``time.perf_counter``) [s] at the start of the first step and
+        the end of the last: a measurement, never an input of the flight."""
+        self._first_step_sim_s = 0.0
+        """Simulation time at the start of the first step [s]."""
         self._lockstep_waits = 0
         self._lockstep_timeouts = 0
         """Of :meth:`run`'s steps, those after which the vehicle waited for a lockstep
@@ -413,6 +418,8 @@ class SitlVehicle:
         """
         world, autopilot, links = self.world, self.autopilot, self.links
         now_s = world.time_s
+        if not self.steps:
+            self._first_step_wall_s, self._first_step_sim_s = time.perf_counter(), now_s
         faults = self.link_faults
         lockstep = self.options.lockstep
         held, self._held = self._held, []
@@ -461,6 +468,18 @@ class SitlVehicle:
         if self._truth_file is not None and self.steps % self._truth_every == 0:
             self._write_truth()
         self.steps += 1
+        self._last_step_wall_s = time.perf_counter()
+
+    def flight_times(self) -> dict[str, float]:
+        """The flight's simulated and wall-clock seconds from the start of the first plant
+        step to the end of the last (``flight_sim_s``, ``flight_wall_s``; 0 before a
+        step)."""
+        if not self.steps:
+            return {"flight_sim_s": 0.0, "flight_wall_s": 0.0}
+        return {
+            "flight_sim_s": round(self.world.time_s - self._first_step_sim_s, 6),
+            "flight_wall_s": round(self._last_step_wall_s - self._first_step_wall_s, 6),
+        }
 
     def _note_setpoint(self, message, now_s: float) -> None:
         self._setpoint_ms = max(self._setpoint_ms, int(message.time_boot_ms))

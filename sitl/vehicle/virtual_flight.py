@@ -16,6 +16,7 @@ simulated time its latency does not matter, and a campaign's workers must share 
 from __future__ import annotations
 
 import itertools
+import json
 import os
 from dataclasses import replace
 from pathlib import Path
@@ -64,7 +65,8 @@ def fly_virtual(
     """Fly one pickup on simulated time; write the flight log, summary (and figures) into
     ``out_dir`` and, with ``options.truth_log``, the truth (also into ``flight.mcap``; with
     ``mcap`` off no MCAP is written: a campaign's flights, about 10 % faster; ``live_port``:
-    the live view, as ``fly_pickup``'s).
+    the live view, as ``fly_pickup``'s). The summary also gets the flight's simulated and
+    wall seconds, first plant step to the last (``flight_sim_s``, ``flight_wall_s``).
 
     Returns the mission's report and its failure (None: completed), as
     :func:`~companion.cli.mission.fly_pickup`. ``options.speed`` is not used (nothing
@@ -97,4 +99,15 @@ def fly_virtual(
             ),
         )
     add_flight_truth(out_dir, options.truth_log)  # the truth log is closed now
+    _add_flight_times(out_dir / "summary.json", vehicle.flight_times())
     return result
+
+
+def _add_flight_times(summary: Path, times: dict[str, float]) -> None:
+    """The flight's simulated and wall seconds (:meth:`SitlVehicle.flight_times`) added to
+    the mission's ``summary`` (JSON; nothing when the mission wrote none)."""
+    if not summary.exists():
+        return
+    record = json.loads(summary.read_text())
+    record.update(times)
+    summary.write_text(json.dumps(record, indent=2) + "\n")
