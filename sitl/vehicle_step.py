@@ -45,17 +45,24 @@ Velocity(128) and Present Position(132)), :func:`servo_step` (the bus watchdog, 
 velocity profile, the position/current command, the supply's voltage limit, the current
 loop's lag, the overload timer and Present Current(126)), :func:`servo_command_a`,
 :func:`servo_torque_n_m`; :func:`vehicle_step` couples the two joint servos itself
-(:func:`set_joint_servos`), so the emulator's bytes are those of the same step. ``round``
-and ``math.expm1`` stay Python's calls in the compiled build.
+(:func:`set_joint_servos`) and the gripper's servo to its jaw (:func:`jaw_buffer`,
+:func:`jaw_advance`), so the emulator's bytes are those of the same step. ``round`` and
+``math.expm1`` stay Python's calls in the compiled build.
 
 One source, two builds: this module runs as Python, and ``setup.py`` compiles the same
 file with Cython into ``sitl._vehicle_step`` (:mod:`companion.compiled`); the
 arithmetic is written as plain float operations (``x * x``, no ``**``, every sum in index
 order) so that both builds compute the same bits (tests/test_sitl_kernel.py compares
 them); the square root, the trigonometric functions, ``fmod`` and ``copysign`` are the C
-library's in both (Python's ``math`` calls them). It is over 600 lines because a compiled
-twin is one source whose helpers the compiled build calls as C functions; split across
-modules they would be Python calls between two extensions.
+library's in both (Python's ``math`` calls them).
+
+Why one module of more than 600 lines (sitl/'s rule: none without a reason): a twin is
+one source whose parts the compiled build calls as C functions (``cython.cfunc``, inlined
+where marked). :func:`vehicle_step` calls the attitude loop, the servos' steps, the jaw,
+the rotors and battery and the integrator, each of which calls the shared helpers
+(``_rotation9``, ``_clip``, the control table's fields); split into several twins, each
+of those calls would cross between two extension modules through Python, on every plant
+step, which is what this module exists to remove.
 
 Frames and units: world ENU, body FLU, SI. A configuration ``x`` is Pinocchio's free-flyer
 layout ``[p (3, world), quaternion x, y, z, w (body to world), eta1, eta2]`` and a velocity
