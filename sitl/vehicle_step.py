@@ -46,8 +46,9 @@ velocity profile, the position/current command, the supply's voltage limit, the 
 loop's lag, the overload timer and Present Current(126)), :func:`servo_command_a`,
 :func:`servo_torque_n_m`; :func:`vehicle_step` couples the two joint servos itself
 (:func:`set_joint_servos`) and the gripper's servo to its jaw (:func:`jaw_buffer`,
-:func:`jaw_advance`), so the emulator's bytes are those of the same step. ``round`` and
-``math.expm1`` stay Python's calls in the compiled build.
+:func:`jaw_advance`), so the emulator's bytes are those of the same step. A value's
+rounding to its entry's units is Python's ``round`` (half to even) in float arithmetic, C
+in the compiled build; ``math.expm1`` stays Python's call (once per step size).
 
 One source, two builds: this module runs as Python, and ``setup.py`` compiles the same
 file with Cython into ``sitl._vehicle_step`` (:mod:`companion.compiled`); the
@@ -100,6 +101,7 @@ from cython.cimports.libc.math import (
     copysign,
     cos,
     fabs,
+    floor,
     fmod,
     isfinite,
     sin,
@@ -1296,12 +1298,16 @@ def _units(
     what: str,
 ) -> cython.longlong:
     """round(value / unit) as Python rounds it (half to even), within [low, high]."""
-    if not math.isfinite(value):
+    if not isfinite(value):
         raise ValueError(f"{what} {value} is not finite")
-    n = round(value / unit)
+    x: cython.double = value / unit
+    n: cython.double = floor(x)
+    rest: cython.double = x - n  # exact, or (-1 < x < 0) rounded on the right side of 0.5
+    if rest > 0.5 or (rest == 0.5 and fmod(n, 2.0) != 0.0):
+        n += 1.0
     if not low <= n <= high:
-        raise ValueError(f"{what} {value}: {n} is outside [{low}, {high}]")
-    return n
+        raise ValueError(f"{what} {value}: {int(n)} is outside [{low}, {high}]")
+    return cython.cast(cython.longlong, n)
 
 
 @cython.ccall
@@ -1459,6 +1465,7 @@ def servo_step(
     return False
 
 
+@cython.ccall
 def servo_write_current(table: cython.uchar[:], loop: cython.double[:]) -> None:
     """Present Current(126) from the loop's current (0 A with torque off)."""
     if table[_TORQUE_ENABLE] != 1:
