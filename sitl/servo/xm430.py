@@ -385,7 +385,11 @@ class XM430Servo:
         error = self._check(new)
         if error:
             return self._reply(error)
-        if self.hardware_error and new[ct.TORQUE_ENABLE.address] and not self.torque_enabled:
+        if (
+            self.table[_HARDWARE_ERROR]
+            and new[ct.TORQUE_ENABLE.address]
+            and not self.torque_enabled
+        ):
             return self._reply(StatusError.RESULT_FAIL)  # only a Reboot re-enables torque
         self.table[:] = new
         return self._reply(0)
@@ -427,7 +431,7 @@ class XM430Servo:
         return self._reply(StatusError.INSTRUCTION)
 
     def _reply(self, error: int, params: bytes = b"") -> ServoReply:
-        return ServoReply(int(error), params, alert=bool(self.hardware_error))
+        return ServoReply(int(error), params, alert=self.table[_HARDWARE_ERROR] != 0)
 
     def _check(self, new: bytearray) -> int:
         mode = new[ct.OPERATING_MODE.address]
@@ -486,6 +490,8 @@ class XM430Servo:
 
 
 _BUS_WATCHDOG = ct.BUS_WATCHDOG.address
+_HARDWARE_ERROR = ct.HARDWARE_ERROR_STATUS.address
+"""Hardware Error Status(70), one byte: any bit set is the Alert of every reply."""
 _TRIPPED = ct.BUS_WATCHDOG_TRIPPED & 0xFF
 _GOAL_VALUES = range(100, ct.GOAL_POSITION.end)
 """Goal PWM(100) .. Goal Position(116): read-only while the bus watchdog is tripped."""
