@@ -64,7 +64,11 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.physics import AttitudeSetpoint
-from sitl.physics.frames import euler_from_rotation, rotation_from_quaternion
+from sitl.physics.frames import (
+    euler_from_rotation,
+    rotation9_from_quaternion,
+    rotation_from_quaternion,
+)
 from sitl.px4.geo import GeoReference
 from sitl.px4.hover_thrust import HoverThrustEstimator
 from sitl.px4.measurement import VehicleMeasurement
@@ -355,7 +359,7 @@ class Commander:
             self._attitude_offboard = True
             if fresh:
                 self._last_estimate_us = m.estimate_time_us
-                up = float(rotation_from_quaternion(sp.quaternion_wxyz)[2, 2])
+                up = rotation9_from_quaternion(*(float(c) for c in sp.quaternion_wxyz))[8]
                 self._estimate_hover_thrust(now_s, dt, m, sp.thrust * up)
             return sp
         if self._attitude_offboard:
