@@ -7,7 +7,7 @@ paced at the control rate, under the flight loop's scheduling), ``--repeat`` tim
 prints per part the median and 99th percentile [us] over all cycles (wall time under the
 flight loop's scheduling; the summary.json of a demo has the cycle's CPU time):
 
-- ``sense``: the cycle's ODOMETRY parsed by pymavlink and decoded into the pose;
+- ``sense``: the cycle's ODOMETRY read from its frame and decoded into the pose;
 - ``filters``: the state filter's calls and the battery voltage;
 - ``step``: ``FlightControl.step`` (the compiled step and what runs around it);
 - ``setpoint``: SET_ATTITUDE_TARGET built and encoded;

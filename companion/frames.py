@@ -20,13 +20,16 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
     "enu_from_ned",
+    "enu_from_ned_floats",
     "euler_enu_flu_from_ned_frd",
     "euler_ned_frd_from_enu_flu",
     "euler_zyx_from_quaternion",
     "flu_from_frd",
+    "flu_from_frd_floats",
     "frd_from_flu",
     "ned_from_enu",
     "quaternion_enu_flu_from_ned_frd",
+    "quaternion_enu_flu_from_ned_frd_floats",
     "quaternion_ned_frd_from_enu_flu",
     "rotation_from_quaternion",
 ]
@@ -48,19 +51,28 @@ def ned_from_enu(v_enu: ArrayLike) -> FloatArray:
 
 def enu_from_ned(v_ned: ArrayLike) -> FloatArray:
     """A world vector from NED into ENU (inverse of :func:`ned_from_enu`)."""
-    n, e, d = np.asarray(v_ned, dtype=np.float64)
-    return np.array([e, n, -d])
+    return np.array(enu_from_ned_floats(*np.asarray(v_ned, dtype=np.float64)))
+
+
+def enu_from_ned_floats(n: float, e: float, d: float) -> tuple[float, float, float]:
+    """:func:`enu_from_ned` of a vector's three components, as a tuple (the link's
+    decoders, once per message: no array)."""
+    return (e, n, -d)
 
 
 def frd_from_flu(v_flu: ArrayLike) -> FloatArray:
     """A body vector (angular rate [rad/s], specific force [m/s^2], ...) from FLU into FRD."""
-    x, y, z = np.asarray(v_flu, dtype=np.float64)
-    return np.array([x, -y, -z])
+    return np.array(flu_from_frd_floats(*np.asarray(v_flu, dtype=np.float64)))
 
 
 def flu_from_frd(v_frd: ArrayLike) -> FloatArray:
     """A body vector from FRD into FLU (the same flip; inverse of :func:`frd_from_flu`)."""
     return frd_from_flu(v_frd)
+
+
+def flu_from_frd_floats(x: float, y: float, z: float) -> tuple[float, float, float]:
+    """:func:`flu_from_frd` of a vector's three components, as a tuple."""
+    return (x, -y, -z)
 
 
 def _multiply(a: tuple[float, ...], b: tuple[float, ...]) -> tuple[float, float, float, float]:
@@ -98,8 +110,14 @@ def quaternion_enu_flu_from_ned_frd(q_ned_frd: ArrayLike) -> FloatArray:
 
     Raises ``ValueError`` for a zero, NaN or infinite quaternion (a corrupt message).
     """
-    q = _multiply(_multiply(_Q_NED_ENU, _unit(q_ned_frd)), _Q_FLU_FRD)
-    return np.array(_unit(q))
+    return np.array(quaternion_enu_flu_from_ned_frd_floats(q_ned_frd))
+
+
+def quaternion_enu_flu_from_ned_frd_floats(
+    q_ned_frd: ArrayLike,
+) -> tuple[float, float, float, float]:
+    """:func:`quaternion_enu_flu_from_ned_frd` as a tuple of floats (the link's decoders)."""
+    return _unit(_multiply(_multiply(_Q_NED_ENU, _unit(q_ned_frd)), _Q_FLU_FRD))
 
 
 def rotation_from_quaternion(q_wxyz: ArrayLike) -> FloatArray:

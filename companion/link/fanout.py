@@ -121,6 +121,10 @@ class FanOut:
             if sub in subs:
                 subs.remove(sub)
 
+    def has_subscribers(self, key: Key) -> bool:
+        """Whether some subscription takes the items of ``key``."""
+        return bool(self._subs.get(key))
+
     def publish(self, key: Key, item: object) -> None:
         """Store ``item`` as the latest of ``key`` and queue it for its subscribers."""
         self.latest[key] = item

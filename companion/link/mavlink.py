@@ -5,8 +5,12 @@ One reader task per link (STYLE.md habit 6). The port is non-blocking; the event
 then drains every available datagram / byte chunk, parses it with pymavlink's MAVLink 2
 codec and fans each message out (:mod:`companion.link.fanout`): to the latest-value cache
 of its type, to every subscriber of its type, and, for the vehicle's telemetry, as
-samples in our frames (:mod:`companion.link.telemetry`). No threads, except one
-short-lived worker that opens the port in ``__aenter__`` (a TCP connect may wait).
+samples in our frames (:mod:`companion.link.telemetry`). A datagram that is one plain
+ODOMETRY frame, the pose of every control cycle, is read without pymavlink
+(:mod:`companion.link.odometry`) and gives only its samples, unless something subscribes
+to the ``"ODOMETRY"`` message itself (it is then not kept as the latest message either).
+No threads, except one short-lived worker that opens the port in ``__aenter__`` (a TCP
+connect may wait).
 
 Besides the reader, two small tasks run while the link is open: the companion's own
 HEARTBEAT at 1 Hz (MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, component
@@ -23,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal, TypeVar, overload
 
@@ -33,6 +38,7 @@ from companion.link.errors import LinkClosedError, LinkLostError, VehicleNotFoun
 from companion.link.events import LinkLost, LinkRegained, VehicleDetected, VehicleId
 from companion.link.fanout import FanOut, Key, Subscription
 from companion.link.messages import CommandAck, MavlinkMessage, MessageInterval, ParamValue
+from companion.link.odometry import ODOMETRY_ID, OdometryFields, odometry_frame
 from companion.link.px4_commands import Px4Commands
 from companion.link.setpoint import (
     ATTITUDE_ONLY_TYPE_MASK,
@@ -52,6 +58,7 @@ if TYPE_CHECKING:
 __all__ = ["LinkStats", "MavlinkLink"]
 
 _MAX_READS_PER_WAKE = 64
+_MAGIC_V2 = bytes((mavlink2.PROTOCOL_MARKER_V2,))
 """Datagrams / chunks read before the reader yields to other tasks once."""
 
 _T = TypeVar("_T")
@@ -426,6 +433,17 @@ class MavlinkLink(Px4Commands):
 
     def _receive(self, data: bytes, now: float) -> None:
         assert self._mav is not None
+        if (
+            data[:1] == _MAGIC_V2
+            and self.signing is None
+            and not self._fanout.has_subscribers("ODOMETRY")
+            and self._mav.buf_len() == 0
+        ):
+            odometry = odometry_frame(data)
+            if odometry is not None:
+                self._counts["received"] += 1
+                self._odometry(odometry, now)
+                return
         for msg in self._mav.parse_buffer(data) or ():
             kind = msg.get_type()
             if kind == "BAD_DATA":
@@ -442,13 +460,27 @@ class MavlinkLink(Px4Commands):
             self._counts["received"] += 1
             self._dispatch(msg, kind, now)
 
-    def _dispatch(self, msg: Any, kind: str, now: float) -> None:
-        src = (msg.get_srcSystem(), msg.get_srcComponent())
-        seq = msg.get_seq()
+    def _sequence_of(self, src: tuple[int, int], seq: int) -> None:
+        """Count the frames lost from ``src`` before this one (its sequence number)."""
         last = self._sequence.get(src)
         if last is not None:
             self._counts["sequence_lost"] += (seq - last - 1) % 256
         self._sequence[src] = seq
+
+    def _odometry(self, fields: OdometryFields, now: float) -> None:
+        """An ODOMETRY read from its frame (:mod:`companion.link.odometry`), taken as
+        :meth:`_dispatch` takes pymavlink's (its samples published; the message itself
+        only while something subscribes to it, which sends it through pymavlink)."""
+        src = (fields.src_system, fields.src_component)
+        self._sequence_of(src, fields.seq)
+        if self._vehicle is None or src[0] != self._vehicle.system_id:
+            return
+        self._from_vehicle[ODOMETRY_ID] += 1
+        self._publish_samples("ODOMETRY", self._decoder.odometry, fields, now)
+
+    def _dispatch(self, msg: Any, kind: str, now: float) -> None:
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        self._sequence_of(src, msg.get_seq())
         self._fanout.publish(kind, msg)
         if kind == "HEARTBEAT":
             if not self._is_vehicle_heartbeat(msg, src):
@@ -458,8 +490,15 @@ class MavlinkLink(Px4Commands):
         elif self._vehicle is None or src[0] != self._vehicle.system_id:
             return
         self._from_vehicle[msg.get_msgId()] += 1
+        self._publish_samples(kind, self._decoder.decode, msg, now)
+
+    def _publish_samples(
+        self, kind: str, decode: Callable[[Any], tuple[object, ...]], msg: Any, now: float
+    ) -> None:
+        """Publish the samples ``decode`` makes of a message of the vehicle's (a refused
+        one counted under its reason), and watch the telemetry's freshness."""
         try:
-            samples = self._decoder.decode(msg)
+            samples = decode(msg)
         except Exception as exc:  # TelemetryError, or a field pymavlink left unusable
             self._rejected[getattr(exc, "reason", type(exc).__name__)] += 1
             return

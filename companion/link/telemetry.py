@@ -30,15 +30,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from math import isfinite
 from typing import Any, Literal
 
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.frames import (
-    enu_from_ned,
+    enu_from_ned_floats,
     euler_zyx_from_quaternion,
     flu_from_frd,
-    quaternion_enu_flu_from_ned_frd,
+    flu_from_frd_floats,
+    quaternion_enu_flu_from_ned_frd_floats,
     rotation_from_quaternion,
 )
 from companion.link.errors import TelemetryError
@@ -165,21 +167,18 @@ class BatteryState:
 
 
 def _finite(reason: str, values: Any) -> tuple[float, ...]:
-    out = tuple(float(v) for v in values)
-    if not all(math.isfinite(v) for v in out):
+    out = tuple(map(float, values))
+    if not all(map(isfinite, out)):
         raise TelemetryError(reason, f"non-finite value in {out}")
     return out
 
 
 def _vec3_enu(values: Any, reason: str) -> Vec3:
-    n, e, d = _finite(reason, values)
-    x, y, z = enu_from_ned((n, e, d))
-    return (float(x), float(y), float(z))
+    return enu_from_ned_floats(*_finite(reason, values))
 
 
 def _vec3_flu(values: Any, reason: str) -> Vec3:
-    x, y, z = flu_from_frd(_finite(reason, values))
-    return (float(x), float(y), float(z))
+    return flu_from_frd_floats(*_finite(reason, values))
 
 
 def _variances(covariance: Any) -> Vec3 | None:
@@ -199,8 +198,7 @@ def _q_enu_flu(q_ned_frd: Any) -> Quat:
     norm = math.sqrt(sum(c * c for c in q))
     if abs(norm - 1.0) > 1e-2:
         raise TelemetryError("bad_quaternion", f"norm {norm:.4g} is not 1")
-    w, x, y, z = quaternion_enu_flu_from_ned_frd(q)
-    return (float(w), float(x), float(y), float(z))
+    return quaternion_enu_flu_from_ned_frd_floats(q)
 
 
 class TelemetryDecoder:
@@ -229,7 +227,7 @@ class TelemetryDecoder:
         """Samples made by one message (none for a message type not listed above)."""
         kind = msg.get_type()
         if kind == "ODOMETRY":
-            return self._odometry(msg) if self.pose_from == "odometry" else ()
+            return self.odometry(msg)
         if kind == "ATTITUDE_QUATERNION":
             return self._attitude_quaternion(msg) if self.pose_from == "local_position" else ()
         if kind == "LOCAL_POSITION_NED":
@@ -259,16 +257,21 @@ class TelemetryDecoder:
             return (LandedState(self.time_boot_ms, state, _LANDED_NAMES[state]),)
         return ()
 
-    def _odometry(self, msg: Any) -> tuple[object, ...]:
+    def odometry(self, msg: Any) -> tuple[object, ...]:
+        """:class:`VehiclePose` and :class:`BodyRates` of one ODOMETRY (pymavlink's message,
+        or the link's :class:`~companion.link.odometry.OdometryFields`: the same field
+        names); none unless ``pose_from`` is ``"odometry"``."""
+        if self.pose_from != "odometry":
+            return ()
         if msg.frame_id != mavlink2.MAV_FRAME_LOCAL_NED:
             raise TelemetryError("unsupported_frame", f"ODOMETRY frame_id {msg.frame_id}")
         q = _q_enu_flu(msg.q)
         position = _vec3_enu((msg.x, msg.y, msg.z), "bad_position")
         velocity: Vec3 | None = None
-        v = (float(msg.vx), float(msg.vy), float(msg.vz))
-        if all(math.isfinite(c) for c in v):
+        vx, vy, vz = v = (float(msg.vx), float(msg.vy), float(msg.vz))
+        if isfinite(vx) and isfinite(vy) and isfinite(vz):
             if msg.child_frame_id == mavlink2.MAV_FRAME_LOCAL_NED:
-                velocity = _vec3_enu(v, "bad_velocity")
+                velocity = enu_from_ned_floats(vx, vy, vz)
             elif msg.child_frame_id == mavlink2.MAV_FRAME_BODY_FRD:
                 world = rotation_from_quaternion(q) @ flu_from_frd(v)
                 velocity = (float(world[0]), float(world[1]), float(world[2]))
@@ -277,15 +280,16 @@ class TelemetryDecoder:
                     "unsupported_frame", f"ODOMETRY child_frame_id {msg.child_frame_id}"
                 )
         rates = _vec3_flu((msg.rollspeed, msg.pitchspeed, msg.yawspeed), "bad_rates")
-        t = self._clock(msg.time_usec // 1000)
+        time_usec = int(msg.time_usec)
+        t = self.time_boot_ms = time_usec // 1000
         pose = VehiclePose(
-            int(msg.time_usec),
+            time_usec,
             position,
             velocity,
             q,
-            position_var_m2=_variances(msg.pose_covariance),
-            velocity_var_m2_s2=_variances(msg.velocity_covariance),
-            reset_counter=int(msg.reset_counter),
+            _variances(msg.pose_covariance),
+            _variances(msg.velocity_covariance),
+            int(msg.reset_counter),
         )
         return (pose, BodyRates(t, rates))
 

@@ -5,9 +5,9 @@ virtual pickup from the grasp on, the estimator running with the payload; made b
 ``benchmarks/record_cycle_inputs.py``) through the flight's own parts, built from the
 user's configuration, one cycle per control period:
 
-- **sense**: the cycle's ODOMETRY (made from the recording before the replay) parsed by
-  pymavlink and decoded into the pose, its ZYX angles taken (what the link's reader and
-  the cycle do with a pose);
+- **sense**: the cycle's ODOMETRY (made from the recording before the replay) read from
+  its frame (:mod:`companion.link.odometry`) and decoded into the pose, its ZYX angles
+  taken (what the link's reader and the cycle do with a pose);
 - **filters**: the state filter's calls of the cycle, in its order
   (:class:`~companion.estimation.state.StateAssembler`: predict, pose, velocity, body
   rates, joints and their rates) and the battery voltage for the thrust scale;
@@ -48,6 +48,7 @@ from companion.coordinates import JOINTS
 from companion.estimation.estimator import Skip
 from companion.estimation.state import StateAssembler
 from companion.frames import ned_from_enu, quaternion_ned_frd_from_enu_flu
+from companion.link.odometry import odometry_frame
 from companion.link.setpoint import (
     ATTITUDE_ONLY_TYPE_MASK,
     attitude_target_ned_frd,
@@ -151,31 +152,37 @@ class TimingResult:
 
 
 def odometry_frames(inputs: dict[str, NDArray[np.float64]], period_s: float) -> list[bytes]:
-    """Each cycle's ODOMETRY as PX4 sends it (NED / FRD, MAVLink 2 frame) from the
-    recording's position and ZYX angles (ENU / FLU) at ``period_s`` [s] apart."""
+    """Each cycle's ODOMETRY as PX4 sends it (MAVLink 2 frame; NED, the velocity in the
+    world's NED too, as ``child_frame_id`` says; FRD) from the recording's position,
+    velocity (zero where it has none) and ZYX angles (ENU / FLU) at ``period_s`` [s]
+    apart."""
     mav = mavlink2.MAVLink(_Discard(), 1, 1)
     frames = []
     unknown = [math.nan] * 21
-    for i, (position, euler) in enumerate(
-        zip(inputs["position_m"], inputs["euler_rad"], strict=True)
+    for i, (position, velocity, euler) in enumerate(
+        zip(inputs["position_m"], inputs["velocity_m_s"], inputs["euler_rad"], strict=True)
     ):
         q_ned = quaternion_ned_frd_from_enu_flu(quaternion_from_euler_zyx(*euler))
         x, y, z = ned_from_enu(position)
+        vx, vy, vz = ned_from_enu(np.nan_to_num(velocity))
         message = mav.odometry_encode(
             int(1e6 + i * period_s * 1e6), mavlink2.MAV_FRAME_LOCAL_NED,
-            mavlink2.MAV_FRAME_BODY_FRD, x, y, z, q_ned, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+            mavlink2.MAV_FRAME_LOCAL_NED, x, y, z, q_ned, vx, vy, vz, 0.0, 0.0, 0.0,
             unknown, unknown,
         )  # fmt: skip
         frames.append(bytes(message.pack(mav)))
     return frames
 
 
-def _sense(frame: bytes, mav: mavlink2.MAVLink, decoder: TelemetryDecoder) -> None:
-    """One ODOMETRY's bytes to the pose's position and ZYX angles (the sense part)."""
-    for message in mav.parse_buffer(frame) or ():
-        for sample in decoder.decode(message):
-            if isinstance(sample, VehiclePose):
-                sample.euler_zyx_rad()
+def _sense(frame: bytes, decoder: TelemetryDecoder) -> None:
+    """One ODOMETRY's bytes to the pose's position and ZYX angles (the sense part: what
+    the link's reader does with a datagram holding one ODOMETRY frame)."""
+    fields = odometry_frame(frame)
+    if fields is None:
+        raise ValueError("the recording's ODOMETRY frames are not plain MAVLink 2 frames")
+    for sample in decoder.odometry(fields):
+        if isinstance(sample, VehiclePose):
+            sample.euler_zyx_rad()
 
 
 def _replay_one(
@@ -228,7 +235,6 @@ def check_timing(
     times = {part: np.zeros(n) for part in PARTS}
     period_s = 1.0 / rate_hz
     frames = odometry_frames(data, period_s)
-    reader = mavlink2.MAVLink(_Discard(), 255, 0)
     decoder = TelemetryDecoder()
     clock = time.perf_counter
     with tempfile.TemporaryDirectory(prefix="companion-timing-") as tmp:
@@ -243,7 +249,7 @@ def check_timing(
                     sleep(wait)
                 next_s = max(next_s + period_s, clock())
                 ts = clock()
-                _sense(frames[i], reader, decoder)
+                _sense(frames[i], decoder)
                 t0 = clock()
                 _replay_one(data, i, assembler, control)
                 t1 = clock()
