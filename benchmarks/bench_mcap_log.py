@@ -9,10 +9,11 @@ two ways and prints, per cycle, the wall time of the log call the control cycle 
 - ``csv + mcap``: :class:`companion.logs.mcap_log.FlightLogWithMcap`, what the app runs.
 
 A call fills one row of the block of columns (:mod:`companion.logs.columns`); the call that
-fills the block writes it (to ``flight.columns``, and the MCAP messages of its cycles, one
-chunk): the maximum. The CPU per cycle is the log's share of the control cycle; the close
-writes ``flight.csv`` and ``flight.timing.csv`` from the columns after the flight. ``--write`` puts
-the table in ``docs/log_speed.md`` with the machine and the commit.
+fills the block writes it to ``flight.columns`` and hands it to the MCAP's writer thread
+(which encodes its cycles' messages and writes them, one chunk): the maximum. The CPU per
+cycle, the writer thread's included, is the log's share of the control cycle; the close
+writes ``flight.csv`` and ``flight.timing.csv`` from the columns after the flight.
+``--write`` puts the table in ``docs/log_speed.md`` with the machine and the commit.
 
 Run: ``python benchmarks/bench_mcap_log.py [--cycles N] [--write]``.
 """
@@ -145,8 +146,9 @@ def main() -> None:
             f"Written by `benchmarks/bench_mcap_log.py` on {platform.node()} "
             f"({platform.machine()}, {os.cpu_count()} cores, Python "
             f"{platform.python_version()}) at commit {this_commit()}. A call fills one row "
-            "of the block of columns; the call that fills a block writes it (the maximum). "
-            "The process CPU per cycle counts every thread (foxglove-sdk's writer "
+            "of the block of columns; the call that fills a block writes it to the columns "
+            "file and hands it to the MCAP's writer thread (the maximum). The process CPU "
+            "per cycle counts every thread (the MCAP's writer thread and foxglove-sdk's "
             "included): the log's share of the control cycle. The close writes the CSV "
             "files from the columns, after the flight.",
             "",
