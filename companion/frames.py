@@ -31,6 +31,7 @@ __all__ = [
     "quaternion_enu_flu_from_ned_frd",
     "quaternion_enu_flu_from_ned_frd_floats",
     "quaternion_ned_frd_from_enu_flu",
+    "quaternion_ned_frd_from_enu_flu_floats",
     "rotation_from_quaternion",
 ]
 
@@ -101,8 +102,14 @@ def _unit(q_wxyz: ArrayLike) -> tuple[float, float, float, float]:
 
 def quaternion_ned_frd_from_enu_flu(q_enu_flu: ArrayLike) -> FloatArray:
     """Attitude body FLU -> world ENU ``[w, x, y, z]`` as body FRD -> world NED (w >= 0)."""
-    q = _multiply(_multiply(_Q_NED_ENU, _unit(q_enu_flu)), _Q_FLU_FRD)
-    return np.array(_unit(q))
+    return np.array(quaternion_ned_frd_from_enu_flu_floats(q_enu_flu))
+
+
+def quaternion_ned_frd_from_enu_flu_floats(
+    q_enu_flu: ArrayLike,
+) -> tuple[float, float, float, float]:
+    """:func:`quaternion_ned_frd_from_enu_flu` as a tuple of floats (the link's setpoints)."""
+    return _unit(_multiply(_multiply(_Q_NED_ENU, _unit(q_enu_flu)), _Q_FLU_FRD))
 
 
 def quaternion_enu_flu_from_ned_frd(q_ned_frd: ArrayLike) -> FloatArray:

@@ -7,7 +7,7 @@ codec and fans each message out (:mod:`companion.link.fanout`): to the latest-va
 of its type, to every subscriber of its type, and, for the vehicle's telemetry, as
 samples in our frames (:mod:`companion.link.telemetry`). A datagram that is one plain
 ODOMETRY frame, the pose of every control cycle, is read without pymavlink
-(:mod:`companion.link.odometry`) and gives only its samples, unless something subscribes
+(:mod:`companion.link.cycle_codec`) and gives only its samples, unless something subscribes
 to the ``"ODOMETRY"`` message itself (it is then not kept as the latest message either).
 No threads, except one short-lived worker that opens the port in ``__aenter__`` (a TCP
 connect may wait).
@@ -34,11 +34,16 @@ from typing import TYPE_CHECKING, Any, Literal, TypeVar, overload
 from numpy.typing import ArrayLike
 from pymavlink.dialects.v20 import common as mavlink2
 
+from companion.link.cycle_codec import (
+    ODOMETRY_ID,
+    OdometryFields,
+    attitude_target_frame,
+    odometry_frame,
+)
 from companion.link.errors import LinkClosedError, LinkLostError, VehicleNotFoundError
 from companion.link.events import LinkLost, LinkRegained, VehicleDetected, VehicleId
 from companion.link.fanout import FanOut, Key, Subscription
 from companion.link.messages import CommandAck, MavlinkMessage, MessageInterval, ParamValue
-from companion.link.odometry import ODOMETRY_ID, OdometryFields, odometry_frame
 from companion.link.px4_commands import Px4Commands
 from companion.link.setpoint import (
     ATTITUDE_ONLY_TYPE_MASK,
@@ -362,25 +367,42 @@ class MavlinkLink(Px4Commands):
         """SET_ATTITUDE_TARGET to the vehicle: attitude body FLU -> world ENU ``[w, x, y,
         z]`` (sent as FRD -> NED), PX4's relative thrust in [0, 1] (a fraction of the
         maximum collective thrust; PX4 linearizes it with THR_MDL_FAC), type_mask 7 (body
-        rates ignored), and ``time_boot_ms`` [ms] (sent modulo 2^32).
+        rates ignored), and ``time_boot_ms`` [ms] (sent modulo 2^32). Framed by
+        :func:`~companion.link.cycle_codec.attitude_target_frame` (through pymavlink when
+        signing).
 
         Raises ``SetpointError`` for a bad value (nothing is sent), and
         ``VehicleNotFoundError`` before the vehicle is detected.
         """
         vehicle = self._require_vehicle()
         q, thrust = attitude_target_ned_frd(q_enu_flu, thrust_relative)
-        msg = self.mav.set_attitude_target_encode(
-            int(time_boot_ms) & 0xFFFFFFFF,
-            vehicle.system_id,
-            vehicle.component_id,
-            ATTITUDE_ONLY_TYPE_MASK,
-            q,
-            0.0,
-            0.0,
-            0.0,
-            thrust,
-        )
-        self.send_message(msg)
+        mav = self.mav
+        if self.signing is not None or mav.signing.sign_outgoing:
+            msg = mav.set_attitude_target_encode(
+                int(time_boot_ms) & 0xFFFFFFFF,
+                vehicle.system_id,
+                vehicle.component_id,
+                ATTITUDE_ONLY_TYPE_MASK,
+                q,
+                0.0,
+                0.0,
+                0.0,
+                thrust,
+            )
+            self.send_message(msg)
+            return
+        if self._closed:
+            raise LinkClosedError("the link is closed") from self._fanout.error
+        # What pymavlink's send does with the frame it packs (the same bytes).
+        frame = attitude_target_frame(
+            mav.seq, mav.srcSystem, mav.srcComponent, int(time_boot_ms) & 0xFFFFFFFF,
+            vehicle.system_id, vehicle.component_id, ATTITUDE_ONLY_TYPE_MASK, q, thrust,
+        )  # fmt: skip
+        mav.file.write(frame)
+        mav.seq = (mav.seq + 1) % 256
+        mav.total_packets_sent += 1
+        mav.total_bytes_sent += len(frame)
+        self._counts["sent"] += 1
 
     def send_setpoint(self, setpoint: AttitudeThrustSetpoint, time_boot_ms: int) -> None:
         """:meth:`send_attitude_target` of a
@@ -468,7 +490,7 @@ class MavlinkLink(Px4Commands):
         self._sequence[src] = seq
 
     def _odometry(self, fields: OdometryFields, now: float) -> None:
-        """An ODOMETRY read from its frame (:mod:`companion.link.odometry`), taken as
+        """An ODOMETRY read from its frame (:mod:`companion.link.cycle_codec`), taken as
         :meth:`_dispatch` takes pymavlink's (its samples published; the message itself
         only while something subscribes to it, which sends it through pymavlink)."""
         src = (fields.src_system, fields.src_component)

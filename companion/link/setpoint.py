@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike
 from companion.frames import (
     euler_ned_frd_from_enu_flu,
     ned_from_enu,
-    quaternion_ned_frd_from_enu_flu,
+    quaternion_ned_frd_from_enu_flu_floats,
 )
 from companion.link.errors import SetpointError
 
@@ -76,10 +76,10 @@ def attitude_target_ned_frd(
         raise SetpointError(f"normalized thrust {thrust!r} is not in [0, 1]")
     q: Any = q_enu_flu
     try:
-        q_ned = quaternion_ned_frd_from_enu_flu(q)
+        q_ned = quaternion_ned_frd_from_enu_flu_floats(q)
     except ValueError as exc:
         raise SetpointError(f"attitude setpoint: {exc}") from None
-    return [float(c) for c in q_ned], thrust
+    return list(q_ned), thrust
 
 
 @dataclass(frozen=True)

@@ -259,7 +259,7 @@ class TelemetryDecoder:
 
     def odometry(self, msg: Any) -> tuple[object, ...]:
         """:class:`VehiclePose` and :class:`BodyRates` of one ODOMETRY (pymavlink's message,
-        or the link's :class:`~companion.link.odometry.OdometryFields`: the same field
+        or the link's :class:`~companion.link.cycle_codec.OdometryFields`: the same field
         names); none unless ``pose_from`` is ``"odometry"``."""
         if self.pose_from != "odometry":
             return ()

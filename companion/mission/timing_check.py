@@ -6,7 +6,7 @@ virtual pickup from the grasp on, the estimator running with the payload; made b
 user's configuration, one cycle per control period:
 
 - **sense**: the cycle's ODOMETRY (made from the recording before the replay) read from
-  its frame (:mod:`companion.link.odometry`) and decoded into the pose, its ZYX angles
+  its frame (:mod:`companion.link.cycle_codec`) and decoded into the pose, its ZYX angles
   taken (what the link's reader and the cycle do with a pose);
 - **filters**: the state filter's calls of the cycle, in its order
   (:class:`~companion.estimation.state.StateAssembler`: predict, pose, velocity, body
@@ -14,7 +14,7 @@ user's configuration, one cycle per control period:
 - **step**: :meth:`FlightControl.step <companion.control.flight.FlightControl.step>`
   (estimator, control law, tilt and thrust mapping);
 - **setpoint**: SET_ATTITUDE_TARGET built as the link builds it (quaternion NED/FRD,
-  pymavlink's encoding, framing and CRC), written to nowhere;
+  its MAVLink 2 frame and CRC, :mod:`companion.link.cycle_codec`), written to nowhere;
 - **log**: the cycle's row into the flight log (``flight.csv`` and ``flight.mcap``, in a
   temporary directory removed afterwards).
 
@@ -48,7 +48,7 @@ from companion.coordinates import JOINTS
 from companion.estimation.estimator import Skip
 from companion.estimation.state import StateAssembler
 from companion.frames import ned_from_enu, quaternion_ned_frd_from_enu_flu
-from companion.link.odometry import odometry_frame
+from companion.link.cycle_codec import attitude_target_frame, odometry_frame
 from companion.link.setpoint import (
     ATTITUDE_ONLY_TYPE_MASK,
     attitude_target_ned_frd,
@@ -231,7 +231,7 @@ def check_timing(
     control = FlightControl(config, "passivity")
     control.estimator.resume()
     assembler = StateAssembler.from_sensors(config.sensors)
-    mav = mavlink2.MAVLink(_Discard(), 1, mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER)
+    sink = _Discard()
     times = {part: np.zeros(n) for part in PARTS}
     period_s = 1.0 / rate_hz
     frames = odometry_frames(data, period_s)
@@ -265,11 +265,11 @@ def check_timing(
                     sp = out.setpoint
                     q = quaternion_from_euler_zyx(sp.roll_rad, sp.pitch_rad, sp.yaw_rad)
                     q_ned, thrust = attitude_target_ned_frd(q, sp.thrust_relative)
-                    mav.send(
-                        mav.set_attitude_target_encode(
-                            i, 1, 1, ATTITUDE_ONLY_TYPE_MASK, q_ned, 0.0, 0.0, 0.0, thrust
-                        )
-                    )
+                    frame = attitude_target_frame(
+                        i % 256, 1, mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER, i, 1, 1,
+                        ATTITUDE_ONLY_TYPE_MASK, q_ned, thrust,
+                    )  # fmt: skip
+                    sink.write(frame)
                 t3 = clock()
                 if out is not None:
                     state = assembler.estimate

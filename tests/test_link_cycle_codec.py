@@ -1,13 +1,15 @@
-"""ODOMETRY read from its frame: the same fields and samples as through pymavlink, and any
-other frame left to pymavlink."""
+"""The control cycle's frames without pymavlink's objects: ODOMETRY read with the same
+fields and samples as through pymavlink (any other frame left to pymavlink), and
+SET_ATTITUDE_TARGET framed byte for byte as pymavlink frames it."""
 
 import struct
 
+import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as m
 
 from companion.link import TelemetryDecoder
-from companion.link.odometry import OdometryFields, odometry_frame
+from companion.link.cycle_codec import OdometryFields, attitude_target_frame, odometry_frame
 
 NAN = float("nan")
 
@@ -65,3 +67,19 @@ def _signed(mav: m.MAVLink) -> bytes:
     signed = bytearray(_frame(mav))
     signed[2] = m.MAVLINK_IFLAG_SIGNED  # a signed frame's flag, no signature
     return bytes(signed)
+
+
+def test_attitude_target_frames_are_pymavlinks():
+    mav = m.MAVLink(_Discard(), 1, m.MAV_COMP_ID_ONBOARD_COMPUTER)
+    rng = np.random.default_rng(3)
+    cases = [((1.0, 0.0, 0.0, 0.0), 0.0, 0), ((0.0, 0.0, 0.0, 1.0), 1.0, 0xFFFFFFFF)]
+    for _ in range(200):
+        q = rng.normal(size=4)
+        cases.append((tuple(q / np.linalg.norm(q)), float(rng.uniform()), int(rng.integers(2**32))))
+    for q, thrust, t_ms in cases:
+        mav.seq = int(rng.integers(256))
+        ours = attitude_target_frame(
+            mav.seq, 1, m.MAV_COMP_ID_ONBOARD_COMPUTER, t_ms, 7, 3, 7, q, thrust
+        )
+        msg = m.MAVLink_set_attitude_target_message(t_ms, 7, 3, 7, list(q), 0.0, 0.0, 0.0, thrust)
+        assert ours == bytes(msg.pack(mav))
