@@ -397,16 +397,16 @@ def test_a_log_is_never_overwritten_and_opens_once(tmp_path):
         writer.event("note", "after the close", 1.0)
 
 
-def test_a_failure_of_the_writer_thread_is_raised_by_the_next_call(tmp_path, monkeypatch):
+def test_a_failure_of_the_writer_thread_is_raised_by_the_close(tmp_path, monkeypatch):
     def full_disk(*args):
         raise OSError("No space left on device")
 
     monkeypatch.setattr("companion.logs.mcap_log.encode_block", full_disk)
-    log = FlightLogWithMcap(tmp_path / "flight.csv", GEOMETRY, block_rows=1)
-    log.open()
-    log.write(record(1.0))  # the block goes to the writer thread, which fails on it
+    writer = McapLogWriter(tmp_path / "flight.mcap", GEOMETRY)
+    writer.open()
+    writer.write_block(np.zeros((1, 1)))  # the writer thread fails on it
     with pytest.raises(FlightLogError, match="No space left"):
-        log.close()
+        writer.close()
 
 
 def test_info_counts_a_file_cut_by_a_crash_and_refuses_what_is_not_mcap(tmp_path):
