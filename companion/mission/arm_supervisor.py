@@ -154,7 +154,8 @@ class ArmSupervisor:
     def command(self, torques_n_m: FloatArray) -> FloatArray:
         """Hand over the joint torques [N m] (clipped to the joints' limits); returns what
         will be written (NaN once the bus is lost)."""
-        sent = np.clip(torques_n_m, -self.torque_limits, self.torque_limits)
+        limits = self.torque_limits
+        sent = np.minimum(np.maximum(torques_n_m, -limits), limits)  # np.clip, without its wrapper
         if self.failed:
             return np.full(len(sent), math.nan)
         self._torques = sent
