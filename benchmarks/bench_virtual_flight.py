@@ -38,6 +38,7 @@ from typing import Any
 from checkout import this_commit
 from pymavlink.dialects.v20 import common as mavlink2
 
+import companion.link.mavlink as companion_link
 from companion.cli.mission import plan_for
 from companion.control.flight import FlightControl
 from companion.logs.flightlog import FlightLogWriter
@@ -60,11 +61,11 @@ PLACE_AT = (-1.0, 0.5, 0.05)
 class Timed:
     """Wall time [s] and calls of methods, wrapped around them while in the ``with``.
 
-    ``parts`` maps a label to ``(class, method name)``; a method called inside another
+    ``parts`` maps a label to ``(class or module, name)``; a method called inside another
     timed one counts in both (the parts are not a partition of the flight).
     """
 
-    def __init__(self, parts: dict[str, tuple[type, str]]) -> None:
+    def __init__(self, parts: dict[str, tuple[object, str]]) -> None:
         self.seconds = dict.fromkeys(parts, 0.0)
         self.calls = dict.fromkeys(parts, 0)
         self._parts = parts
@@ -93,7 +94,7 @@ class Timed:
             setattr(cls, name, self._originals[label])
 
 
-PARTS: dict[str, tuple[type, str]] = {
+PARTS: dict[str, tuple[object, str]] = {
     "vehicle steps": (SitlVehicle, "step"),
     "servo bus answers": (SitlVehicle, "serve"),
     "world steps (World.advance: the servos, the plant, ground and payload)": (
@@ -110,11 +111,15 @@ PARTS: dict[str, tuple[type, str]] = {
     ),
     "MAVLink framing and CRC (pymavlink _pack, both sides)": (mavlink2.MAVLink_message, "_pack"),
     "MAVLink decoding (pymavlink parse_buffer, both sides)": (mavlink2.MAVLink, "parse_buffer"),
-    "flight log rows (FlightLogWriter.write: the row, and its blocks when full)": (
-        FlightLogWriter,
-        "write",
+    "the companion's ODOMETRY frames (cycle_codec.odometry_frame, without pymavlink)": (
+        companion_link,
+        "odometry_frame",
     ),
-    "flight log MCAP messages (McapLogWriter.write_block: a block's)": (
+    "flight log rows (FlightLogWriter.commit: the row in, and its block when full)": (
+        FlightLogWriter,
+        "commit",
+    ),
+    "flight log MCAP blocks handed over (McapLogWriter.write_block; its thread not timed)": (
         McapLogWriter,
         "write_block",
     ),
