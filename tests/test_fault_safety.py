@@ -77,6 +77,15 @@ def test_each_broken_number_is_one_named_line(truth, summary, log_end_s, words):
     assert any(words in line for line in verdict.broken), verdict.broken
 
 
+def test_the_log_is_judged_against_the_disarm_not_the_clean_up_after_it():
+    """A lossy link makes the companion's clean-up after the disarm (PX4's streams given
+    back, each asked twice) last over a second of the run: the log ended at the disarm."""
+    after = [sample(12.0 + 0.5 * i, 0.25, armed=False, mode="AUTO_LAND", ground=True)
+             for i in range(1, 5)]  # fmt: skip
+    assert judge(landing() + after, SUMMARY, PLACE_M, 12.0).safe
+    assert not judge(landing() + after, SUMMARY, PLACE_M, 10.5).safe
+
+
 def test_an_object_let_go_high_is_unsafe_and_one_let_go_low_or_placed_is_not():
     def flight(z_at_release: float, xy=(1.0, 1.0)):
         obj = [*xy, z_at_release]

@@ -145,6 +145,18 @@ def _payload(
     return "let go low", None
 
 
+def _flight_end_s(truth: Sequence[Mapping[str, Any]]) -> float:
+    """The flight's end [s]: the disarm, when the vehicle ends disarmed (the companion's
+    clean-up after it, streams given back over a lossy link, flies nothing), else the
+    truth's last sample."""
+    end = float(truth[-1]["t_s"])
+    for sample in reversed(truth):
+        if sample.get("armed"):
+            break
+        end = float(sample["t_s"])
+    return end
+
+
 def judge(
     truth: Sequence[Mapping[str, Any]],
     summary: Mapping[str, Any],
@@ -186,9 +198,9 @@ def judge(
         broken.append("aborted, but the summary names no fault")
     if log_end_s is None:
         broken.append("the flight log does not read back")
-    elif float(truth[-1]["t_s"]) - log_end_s > LOG_END_WITHIN_S:
+    elif _flight_end_s(truth) - log_end_s > LOG_END_WITHIN_S:
         broken.append(
-            f"the flight log ends {float(truth[-1]['t_s']) - log_end_s:.1f} s before the flight"
+            f"the flight log ends {_flight_end_s(truth) - log_end_s:.1f} s before the flight"
         )
     return Verdict(
         tuple(broken),
