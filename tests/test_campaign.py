@@ -569,7 +569,6 @@ def _rows_when(out: Path, at_least: int, process: subprocess.Popen, timeout_s: f
 
 
 @pytest.mark.slow
-@pytest.mark.background
 def test_a_worker_killed_then_ctrl_c_then_a_rerun_leaves_every_flight_once(tmp_path):
     """The smoke spec: its worker killed (SIGKILL) under its flight, the campaign then
     stopped with Ctrl-C (SIGINT) and the same command run again. Every flight is in the

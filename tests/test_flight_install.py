@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = [pytest.mark.slow, pytest.mark.background]
+pytestmark = pytest.mark.slow
 
 SIMULATOR_ONLY = ("pinocchio", "jsbsim", "mavsdk", "sympy")
 
