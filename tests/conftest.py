@@ -1,7 +1,6 @@
 """Shared test fixtures."""
 
 import asyncio
-import os
 import shutil
 import subprocess
 import sys
@@ -72,23 +71,10 @@ def px4_build():
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """A test that runs PX4 (it needs ``px4_build``, directly or through a fixture) is
     ``slow``: the test command runs those after the rest, two at a time (PX4 boots in real
-    time and takes free ports). The ``alone`` tests share one xdist group and the
-    ``background`` tests another, so that ``--dist loadgroup`` runs the alone ones one at a
-    time with the background ones beside them."""
+    time and takes free ports)."""
     for item in items:
         if "px4_build" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.slow)
-        for group in ("alone", "background"):
-            if item.get_closest_marker(group):
-                item.add_marker(pytest.mark.xdist_group(group))
-
-
-@pytest.fixture(autouse=True)
-def _background_at_lowest_priority(request: pytest.FixtureRequest) -> None:
-    """A ``background`` test runs at the lowest CPU priority (nice 19, inherited by the
-    processes it starts): beside an ``alone`` test it takes only the CPU that test leaves."""
-    if request.node.get_closest_marker("background") and os.getpriority(os.PRIO_PROCESS, 0) < 19:
-        os.setpriority(os.PRIO_PROCESS, 0, 19)
 
 
 @pytest.hookimpl(wrapper=True, tryfirst=True)

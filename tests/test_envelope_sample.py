@@ -18,7 +18,7 @@ import pytest
 
 from sitl.campaign.store import refused
 
-pytestmark = [pytest.mark.slow, pytest.mark.background]
+pytestmark = pytest.mark.slow
 
 SPEC = Path(__file__).resolve().parents[1] / "configs" / "campaigns" / "envelope_sample.toml"
 

@@ -34,7 +34,7 @@ SLICE = (
 before the imitation's Land flew a heavy payload as PX4 does (docs/fault_campaign.md); the
 lossy landing ended with the arm falling, limp, before the joints held after the landing."""
 
-pytestmark = [pytest.mark.slow, pytest.mark.background]
+pytestmark = pytest.mark.slow
 
 
 def test_the_shipped_matrix_has_every_fault_at_every_phase():
