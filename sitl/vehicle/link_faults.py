@@ -13,14 +13,13 @@ Each starts at a simulated time or a mission phase (:mod:`sitl.vehicle.mission_p
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from sitl.px4.modes import Px4Mode
-from sitl.vehicle.mission_phases import FaultStart, MissionPhases, valid_start
+from sitl.vehicle.mission_phases import FaultStart, MissionPhases, check_stretch, valid_start
 
 __all__ = ["GCS_COMPONENT_ID", "GCS_SYSTEM_ID", "LinkFaults", "LinkLoss", "PilotTakeover"]
 
@@ -42,12 +41,7 @@ class LinkLoss:
     drop_fraction: float
 
     def __post_init__(self) -> None:
-        if not valid_start(self.start):
-            raise ValueError(f"a link loss starts at a time >= 0 or a phase, got {self.start!r}")
-        if not (math.isfinite(self.duration_s) and self.duration_s > 0.0):
-            raise ValueError(f"a link loss lasts a positive time, got {self.duration_s!r}")
-        if not (math.isfinite(self.drop_fraction) and 0.0 < self.drop_fraction <= 1.0):
-            raise ValueError(f"drop_fraction must be in (0, 1], got {self.drop_fraction!r}")
+        check_stretch("link loss", self.start, self.duration_s, "drop_fraction", self.drop_fraction)
 
 
 @dataclass(frozen=True)

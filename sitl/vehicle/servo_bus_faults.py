@@ -17,13 +17,12 @@ starts or ends.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from sitl.servo import Faults
 from sitl.servo.responder import RespondingBus
-from sitl.vehicle.mission_phases import FaultStart, MissionPhases, valid_start
+from sitl.vehicle.mission_phases import FaultStart, MissionPhases, check_stretch
 
 if TYPE_CHECKING:
     from sitl.vehicle.options import RunOptions
@@ -41,12 +40,9 @@ class BusCorruption:
     corrupt_fraction: float
 
     def __post_init__(self) -> None:
-        if not valid_start(self.start):
-            raise ValueError(f"a corruption starts at a time >= 0 or a phase, got {self.start!r}")
-        if not (math.isfinite(self.duration_s) and self.duration_s > 0.0):
-            raise ValueError(f"a corruption lasts a positive time, got {self.duration_s!r}")
-        if not (math.isfinite(self.corrupt_fraction) and 0.0 < self.corrupt_fraction <= 1.0):
-            raise ValueError(f"corrupt_fraction must be in (0, 1], got {self.corrupt_fraction!r}")
+        check_stretch(
+            "corruption", self.start, self.duration_s, "corrupt_fraction", self.corrupt_fraction
+        )
 
 
 def bus_faults(
