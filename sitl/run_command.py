@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, NoReturn
 
 import typer
 
@@ -25,6 +25,7 @@ from sitl.physics.jsbsim import Wind
 from sitl.px4 import ParamError, SigningKeyError, load_signing_key
 from sitl.px4_sitl.launcher import Px4Build, Px4BuildError
 from sitl.scenario import MAX_DURATION_S, PayloadSlip, Scenario, load_scenario
+from sitl.vehicle.link_faults import TAKEOVER_MODES, LowBattery, PilotTakeover
 from sitl.vehicle.mission_phases import FAULT_PHASES, FaultStart, PhaseStart
 from sitl.vehicle.options import SERVO_ERRORS, LinkPorts, RunOptions, ServoError
 from sitl.vehicle.runner import SitlVehicle, simulated_servo_ids
@@ -96,6 +97,30 @@ class RunCommand:
             "motor_encoder (e.g. 1:overheating@to_place+2)."
         ),
     ] = None
+    link_cut: Annotated[
+        str | None,
+        typer.Option(
+            help="Fault injection 'DURATION@T' or 'DURATION@PHASE+S': the onboard link silent "
+            "both ways for DURATION [s, sim time] (with --autopilot px4: on the companion "
+            "relay), e.g. 10@excite+0.5."
+        ),
+    ] = None
+    pilot_takeover: Annotated[
+        str | None,
+        typer.Option(
+            help="Fault injection 'MODE@T' or 'MODE@PHASE+S': the ground station switches the "
+            "autopilot to MODE (AUTO_RTL, AUTO_LOITER, AUTO_LAND; POSCTL and ALTCTL need manual "
+            "control), e.g. AUTO_RTL@lift+0.5."
+        ),
+    ] = None
+    low_battery: Annotated[
+        str | None,
+        typer.Option(
+            help="Fault injection 'PERCENT@T' or 'PERCENT@PHASE+S', --autopilot px4: PX4's "
+            "simulated battery falls to PERCENT of its charge within a second (6: below PX4's "
+            "critical level), e.g. 6@to_place+0.5."
+        ),
+    ] = None
     servo_reply_delay_ms: Annotated[
         float,
         typer.Option(
@@ -165,6 +190,8 @@ class RunCommand:
         cfg = load_or_exit(self.config, load_scenario)
         build = self._px4_build()
         self._check_run()
+        if self.low_battery is not None and build is None:
+            fail("--low-battery flies PX4's own battery and failsafe: it needs --autopilot px4")
         silent = None
         if self.servo_silent is not None:
             silent = _servo_fault(self.servo_silent, simulated_servo_ids(cfg))
@@ -193,6 +220,11 @@ class RunCommand:
                 truth_log=self.truth_log,
                 servo_silent=silent,
                 servo_error=error,
+                link_cut=None if self.link_cut is None else _link_cut(self.link_cut),
+                pilot_takeover=None
+                if self.pilot_takeover is None
+                else _pilot_takeover(self.pilot_takeover),
+                low_battery=None if self.low_battery is None else _low_battery(self.low_battery),
                 servo_reply_delay_s=self.servo_reply_delay_ms * 1e-3,
                 physics=self.physics,
                 wind=air,
@@ -303,41 +335,95 @@ def _servo_fault(
     text: str, servo_ids: tuple[int, ...], option: str = "--servo-silent", shown: str = ""
 ) -> tuple[int, FaultStart]:
     """``ID@SECONDS`` or ``ID@PHASE[+SECONDS]`` (``option``'s value, ``shown`` as the user
-    gave it) as (servo id, start): a servo of the simulated bus (``servo_ids``) and a
-    simulated time within the longest run [s], or a moment into a mission phase
-    (:data:`~sitl.vehicle.mission_phases.FAULT_PHASES`)."""
+    gave it) as (servo id, start): a servo of the simulated bus (``servo_ids``) and the
+    start as :func:`_fault_start` reads it."""
     shown = shown or text
     servo, _, at = text.partition("@")
-    phase, plus, offset = at.partition("+")
     try:
         servo_id = int(servo)
+    except ValueError:
+        _bad_fault(option, shown)
+    if servo_id not in servo_ids:
+        ids = ", ".join(str(i) for i in servo_ids)
+        fail(f"{option} {shown}: no servo {servo_id} on the simulated bus (its ids: {ids})")
+    return servo_id, _fault_start(at, option, shown)
+
+
+def _fault_start(at: str, option: str, shown: str) -> FaultStart:
+    """``SECONDS`` or ``PHASE[+SECONDS]`` (after the ``@`` of ``option``'s value ``shown``)
+    as a start: a simulated time within the longest run [s], or a moment into a mission
+    phase (:data:`~sitl.vehicle.mission_phases.FAULT_PHASES`)."""
+    phase, plus, offset = at.partition("+")
+    try:
         start: FaultStart
         if phase in FAULT_PHASES:
             start = PhaseStart(phase, float(offset) if plus else 0.0)
         else:
             start = float(at)
     except ValueError as error:
-        fail(
-            f"{option} needs {_FORMS[option]} (phases: {', '.join(FAULT_PHASES)}), "
-            f"e.g. {_EXAMPLES[option]}, got {shown!r}"
-            + (f": {error}" if phase in FAULT_PHASES else "")
-        )
-    if servo_id not in servo_ids:
-        ids = ", ".join(str(i) for i in servo_ids)
-        fail(f"{option} {shown}: no servo {servo_id} on the simulated bus (its ids: {ids})")
+        _bad_fault(option, shown, f": {error}" if phase in FAULT_PHASES else "")
     if isinstance(start, float) and not (math.isfinite(start) and 0.0 <= start <= MAX_DURATION_S):
         fail(
             f"{option} {shown}: the time must lie in [0, {MAX_DURATION_S:g}] s of "
             f"simulated time, got {start:g}"
         )
-    return servo_id, start
+    return start
+
+
+def _bad_fault(option: str, shown: str, why: str = "") -> NoReturn:
+    """One ``error:`` line: ``option``'s forms and an example, and what was given."""
+    fail(
+        f"{option} needs {_FORMS[option]} (phases: {', '.join(FAULT_PHASES)}), "
+        f"e.g. {_EXAMPLES[option]}, got {shown!r}{why}"
+    )
+
+
+def _link_cut(text: str) -> tuple[FaultStart, float]:
+    """``--link-cut SECONDS@START`` as (start, duration [s])."""
+    duration, _, at = text.partition("@")
+    try:
+        duration_s = float(duration)
+    except ValueError:
+        _bad_fault("--link-cut", text)
+    if not (math.isfinite(duration_s) and 0.0 < duration_s <= MAX_DURATION_S):
+        fail(f"--link-cut {text}: the duration must lie in (0, {MAX_DURATION_S:g}] s")
+    return _fault_start(at, "--link-cut", text), duration_s
+
+
+def _pilot_takeover(text: str) -> PilotTakeover:
+    """``--pilot-takeover MODE@START`` as a :class:`PilotTakeover`."""
+    mode, _, at = text.partition("@")
+    if mode not in TAKEOVER_MODES:
+        fail(f"--pilot-takeover {text}: the mode must be one of {', '.join(TAKEOVER_MODES)}")
+    return PilotTakeover(_fault_start(at, "--pilot-takeover", text), mode)
+
+
+def _low_battery(text: str) -> LowBattery:
+    """``--low-battery PERCENT@START`` as a :class:`LowBattery`."""
+    percent, _, at = text.partition("@")
+    try:
+        remaining = float(percent)
+    except ValueError:
+        _bad_fault("--low-battery", text)
+    if not 0.0 <= remaining < 100.0:
+        fail(f"--low-battery {text}: the remaining charge must be 0 to 100 %")
+    return LowBattery(_fault_start(at, "--low-battery", text), remaining)
 
 
 _FORMS = {
     "--servo-silent": "ID@SECONDS or ID@PHASE+SECONDS",
     "--servo-error": "ID:ERROR@SECONDS or ID:ERROR@PHASE+SECONDS",
+    "--link-cut": "DURATION@SECONDS or DURATION@PHASE+SECONDS",
+    "--pilot-takeover": "MODE@SECONDS or MODE@PHASE+SECONDS",
+    "--low-battery": "PERCENT@SECONDS or PERCENT@PHASE+SECONDS",
 }
-_EXAMPLES = {"--servo-silent": "2@30 or 2@takeoff+8", "--servo-error": "1:overheating@grasp+0.5"}
+_EXAMPLES = {
+    "--servo-silent": "2@30 or 2@takeoff+8",
+    "--servo-error": "1:overheating@grasp+0.5",
+    "--link-cut": "10@excite+0.5",
+    "--pilot-takeover": "AUTO_RTL@lift+0.5",
+    "--low-battery": "6@to_place+0.5",
+}
 
 
 def _servo_error(text: str, servo_ids: tuple[int, ...]) -> ServoError:

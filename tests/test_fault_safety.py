@@ -11,10 +11,10 @@ from pymavlink.dialects.v20 import common as mavlink2
 from companion.mission.announce import STATUSTEXT_CHARS, announcement, phase_of
 from sitl.campaign.safety import judge
 from sitl.campaign.spec import Fault
-from sitl.hil.vehicle import _check_servo_fault_starts
+from sitl.hil.vehicle import _check_fault_starts
 from sitl.servo import XM430Servo
 from sitl.servo.memory_bus import MemoryServoBus
-from sitl.vehicle.link_faults import LinkFaults, LinkLoss, PilotTakeover
+from sitl.vehicle.link_faults import LinkFaults, LinkLoss, LowBattery, PilotTakeover
 from sitl.vehicle.mission_phases import FAULT_PHASES, MissionPhases, PhaseStart
 from sitl.vehicle.options import RunOptions, ServoError
 from sitl.vehicle.servo_bus_faults import BusCorruption, ServoBusFaults
@@ -150,19 +150,42 @@ def test_take_off_and_landing_are_the_autopilots_modes():
         PhaseStart("hover")
 
 
-def test_with_px4_in_the_loop_a_servo_fault_starts_at_a_time_or_px4s_own_phases():
-    for start in (29.0, PhaseStart("takeoff", 8.0), PhaseStart("landing")):
-        _check_servo_fault_starts(RunOptions(servo_silent=(2, start)))
-        _check_servo_fault_starts(RunOptions(servo_error=ServoError(1, "overload", start)))
-        _check_servo_fault_starts(RunOptions(bus_corruption=BusCorruption(start, 5.0, 0.3)))
+def test_with_px4_in_the_loop_a_fault_starts_at_a_mission_phase_only_through_the_relay():
     grasp = PhaseStart("grasp", 0.5)
+    for start in (29.0, PhaseStart("takeoff", 8.0), PhaseStart("landing"), grasp):
+        _check_fault_starts(RunOptions(servo_silent=(2, start)), relayed=True)
+        _check_fault_starts(RunOptions(servo_error=ServoError(1, "overload", start)), relayed=True)
+        _check_fault_starts(RunOptions(link_cut=(start, 2.0)), relayed=True)
+        _check_fault_starts(RunOptions(low_battery=LowBattery(start)), relayed=True)
+    for start in (29.0, PhaseStart("takeoff", 8.0), PhaseStart("landing")):
+        _check_fault_starts(RunOptions(bus_corruption=BusCorruption(start, 5.0, 0.3)), False)
+        _check_fault_starts(RunOptions(pilot_takeover=PilotTakeover(start, "AUTO_RTL")), False)
     for options in (
         RunOptions(servo_silent=(2, grasp)),
         RunOptions(servo_error=ServoError(1, "overheating", grasp)),
         RunOptions(bus_corruption=BusCorruption(grasp, 5.0, 0.3)),
+        RunOptions(low_battery=LowBattery(grasp)),
     ):
         with pytest.raises(ValueError, match="not at the mission phase 'grasp'"):
-            _check_servo_fault_starts(options)
+            _check_fault_starts(options, relayed=False)
+    with pytest.raises(ValueError, match="keep --companion-lockstep"):
+        _check_fault_starts(RunOptions(link_cut=(29.0, 2.0)), relayed=False)
+
+
+def test_a_low_battery_is_two_parameters_set_once_from_the_ground_station():
+    phases = MissionPhases()
+    faults = LinkFaults(phases, 0, battery=LowBattery(PhaseStart("lift", 0.5), 6.0))
+    assert faults.battery(40.0) == []
+    phases.observe_text("pickup: phase lift", 41.0)
+    assert faults.battery(41.2) == []
+    sent = faults.battery(41.5)
+    assert [(m.param_id, m.param_value) for m in sent] == [
+        ("SIM_BAT_DRAIN", 1.0), ("SIM_BAT_MIN_PCT", 6.0),
+    ]  # fmt: skip
+    assert all(m.param_type == mavlink2.MAV_PARAM_TYPE_REAL32 for m in sent)
+    assert faults.battery(42.0) == []
+    with pytest.raises(ValueError, match="remaining_pct"):
+        LowBattery(10.0, 100.0)
 
 
 def test_the_servo_bus_faults_start_at_their_phase_and_the_corruption_ends():
@@ -220,3 +243,11 @@ def test_the_pilots_takeover_is_one_ground_station_mode_command():
     assert faults.takeover(21.0) is None  # once
     with pytest.raises(ValueError, match="mode must be one of"):
         PilotTakeover(20.0, "ACRO")
+
+
+def test_a_killed_companion_needs_no_summary_but_its_log_to_its_last_block():
+    truth = [sample(50.0, 1.5, mode="AUTO_RTL"), sample(60.0, 0.0, armed=False, ground=True)]
+    assert judge(truth, None, PLACE_M, 49.9, killed_at_s=50.0).safe
+    late = judge(truth, None, PLACE_M, 47.0, killed_at_s=50.0)
+    assert late.broken == ("the flight log ends 3.0 s before the kill",)
+    assert judge(truth, None, PLACE_M, 60.0).broken == ("the summary names no outcome",)

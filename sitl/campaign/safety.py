@@ -159,14 +159,18 @@ def _flight_end_s(truth: Sequence[Mapping[str, Any]]) -> float:
 
 def judge(
     truth: Sequence[Mapping[str, Any]],
-    summary: Mapping[str, Any],
+    summary: Mapping[str, Any] | None,
     place_m: Sequence[float],
     log_end_s: float | None,
+    killed_at_s: float | None = None,
 ) -> Verdict:
     """The :class:`Verdict` of a flight: ``truth`` its truth-log samples in time order,
     ``summary`` its ``summary.json``, ``place_m`` the place point [m, world ENU],
     ``log_end_s`` the vehicle time of the flight log's last row [s] (None: the log did not
-    read back). See docs/faults.md for the criteria."""
+    read back). A companion killed (kill -9) at vehicle time ``killed_at_s`` [s] wrote no
+    summary (``None``): its log must then read back to within
+    :data:`LOG_END_WITHIN_S` of the kill (its last block). See docs/faults.md for the
+    criteria."""
     if not truth:
         return Verdict(("no truth log",), "unknown", None, 0.0, "unknown", 0.0)
     broken: list[str] = []
@@ -191,13 +195,17 @@ def judge(
     payload, wrong = _payload(truth, place_m)
     if wrong:
         broken.append(wrong)
-    outcome = summary.get("outcome")
-    if not outcome:
-        broken.append("the summary names no outcome")
-    elif outcome == "aborted" and not summary.get("faults"):
-        broken.append("aborted, but the summary names no fault")
+    if killed_at_s is None:  # a killed companion names nothing: its killer names the kill
+        outcome = None if summary is None else summary.get("outcome")
+        if summary is None or not outcome:
+            broken.append("the summary names no outcome")
+        elif outcome == "aborted" and not summary.get("faults"):
+            broken.append("aborted, but the summary names no fault")
     if log_end_s is None:
         broken.append("the flight log does not read back")
+    elif killed_at_s is not None:
+        if killed_at_s - log_end_s > LOG_END_WITHIN_S:
+            broken.append(f"the flight log ends {killed_at_s - log_end_s:.1f} s before the kill")
     elif _flight_end_s(truth) - log_end_s > LOG_END_WITHIN_S:
         broken.append(
             f"the flight log ends {_flight_end_s(truth) - log_end_s:.1f} s before the flight"

@@ -20,6 +20,8 @@ simulator) and every parameter below replaces what that file sets:
   (MC_ROLL_P 6, MPC_XY_VEL_P_ACC 3, ...) do not stay. MAV_SYS_ID stays PX4's (instance + 1);
 - **navigation** (:func:`navigation_parameters`): EKF2 on motion capture alone, or on GPS
   and barometer;
+- **the low-battery action** the README asks of the vehicle's PX4: ``COM_LOW_BAT_ACT`` 3,
+  Return at the critical level and Land at the emergency one (PX4's default, 0, only warns);
 - **the world's overrides** (``[world] autopilot_params``), last.
 
 Plain data and geometry: no I/O, independent of ``companion.model``.
@@ -39,6 +41,7 @@ __all__ = [
     "EV_CTRL_HPOS_VPOS_YAW",
     "HGT_REF_GNSS",
     "HGT_REF_VISION",
+    "LOW_BATTERY_ACTION",
     "NAVIGATION_MODES",
     "hover_relative_thrust",
     "navigation_parameters",
@@ -56,6 +59,8 @@ HGT_REF_GNSS = 1
 """EKF2_HGT_REF: the GNSS height is EKF2's height reference."""
 HGT_REF_VISION = 3
 """EKF2_HGT_REF: the vision height is EKF2's height reference."""
+LOW_BATTERY_ACTION = 3
+"""``COM_LOW_BAT_ACT``: Return at the critical battery level, Land at the emergency one."""
 _NOT_FROM_THE_IMITATION = ("MAV_SYS_ID", "IMU_INTEG_RATE", "IMU_GYRO_RATEMAX")
 """Parameters of the imitation's table that PX4 sets per instance or that the simulator's
 IMU rate sets (:func:`px4_parameters`)."""
@@ -149,6 +154,7 @@ def px4_parameters(
     params.update(rotor_parameters(scenario))
     params["MPC_THR_HOVER"] = round(hover_relative_thrust(scenario), 4)
     params["IMU_INTEG_RATE"] = round(imu_rate_hz)
+    params["COM_LOW_BAT_ACT"] = LOW_BATTERY_ACTION
     params.update(navigation)
     if scenario.world is not None:
         params.update(scenario.world.autopilot_params)

@@ -5,13 +5,14 @@ companion talks to PX4 over UDP on its own schedule: when the machine is busy it
 a setpoint late in vehicle time while PX4 flies on. :class:`CompanionRelay` closes that
 gap. PX4's onboard MAVLink link is moved onto an internal pair of loopback ports, and the
 relay, in the simulator's process, takes its place on the ports the companion was given:
-every datagram passes through unchanged, both ways. The relay reads two numbers as it
-passes:
+every datagram passes through unchanged, both ways, unless a link fault drops it (a cut
+or a lossy stretch, asked per datagram). The relay reads as it passes:
 
-- PX4's ODOMETRY ``time_usec`` (the pose the companion's control cycle runs on), and
+- PX4's ODOMETRY ``time_usec`` (the pose the companion's control cycle runs on),
 - the companion's SET_ATTITUDE_TARGET or SET_POSITION_TARGET_LOCAL_NED ``time_boot_ms``,
   which ``companion`` stamps with the pose it answers
-  (:meth:`companion.link.mavlink.MavlinkLink.send_setpoint`, ``send_position_target``).
+  (:meth:`companion.link.mavlink.MavlinkLink.send_setpoint`, ``send_position_target``),
+- the text of the companion's STATUSTEXT (its mission phases, which place faults).
 
 Once a setpoint has answered a pose (the client is such a companion, streaming), the
 simulator holds PX4's clock after every frame until the companion has answered the last
@@ -42,6 +43,9 @@ __all__ = ["CompanionRelay", "mavlink_frames"]
 
 _HOST = "127.0.0.1"
 _ODOMETRY = mavlink.MAVLINK_MSG_ID_ODOMETRY
+_STATUSTEXT = mavlink.MAVLINK_MSG_ID_STATUSTEXT
+_TEXT = slice(1, 51)
+"""STATUSTEXT's ``text`` (char[50], after ``severity``) in its payload."""
 _SETPOINTS = (
     mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET,
     mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED,
@@ -96,7 +100,9 @@ class CompanionRelay:
     from), as PX4's onboard link did. ``joint_reads`` counts the servo bus's Sync Reads.
     :meth:`open` binds, and :attr:`px4_ports` gives the (local, remote) pair to start
     PX4's onboard link on. ``answer_timeout_s``: wall time to wait for each of the
-    setpoint and the joint read [s].
+    setpoint and the joint read [s]. ``on_text`` is given the text of each STATUSTEXT the
+    companion sends (its mission phases); ``drops`` is asked before each datagram, either
+    way, whether the link loses it (a link fault: the datagram is read and not forwarded).
     """
 
     def __init__(
@@ -104,10 +110,14 @@ class CompanionRelay:
         companion_side: tuple[int, int],
         joint_reads: Callable[[], int],
         answer_timeout_s: float,
+        on_text: Callable[[str], None] | None = None,
+        drops: Callable[[], bool] | None = None,
     ) -> None:
         if answer_timeout_s <= 0.0:
             raise ValueError(f"answer_timeout_s must be positive, got {answer_timeout_s!r}")
         self._joint_reads = joint_reads
+        self._on_text = on_text
+        self._drops = drops
         self._reads_at_pose = 0
         self._reads_stopped_at = -1
         self._local_port, companion_port = companion_side
@@ -128,6 +138,8 @@ class CompanionRelay:
         """Wall time waited for the companion [s]."""
         self.releases = 0
         """Times the companion did not answer within ``answer_timeout_s`` (hold released)."""
+        self.dropped = 0
+        """Datagrams the link lost (``drops``), both ways."""
 
     @property
     def px4_ports(self) -> tuple[int, int]:
@@ -209,6 +221,8 @@ class CompanionRelay:
             data, _ = self._px4.recvfrom(_MAX_DATAGRAM)
         except (BlockingIOError, ConnectionRefusedError):
             return False
+        if self._lost():
+            return True
         for msgid, payload in mavlink_frames(data):
             if msgid == _ODOMETRY:
                 self.last_pose_ms = _leading_uint(payload, "<Q") // 1000
@@ -226,14 +240,26 @@ class CompanionRelay:
         except (BlockingIOError, ConnectionRefusedError):
             return False
         self._companion_addr = sender
+        if self._lost():
+            return True
         for msgid, payload in mavlink_frames(data):
             if msgid in _SETPOINTS:
                 answered = _leading_uint(payload, "<I")
                 if answered == self.last_pose_ms:
                     self.engaged = True
                 self.answered_ms = max(self.answered_ms, answered)
+            elif msgid == _STATUSTEXT and self._on_text is not None:
+                text = payload[_TEXT].split(b"\0", 1)[0]
+                self._on_text(text.decode("utf-8", errors="replace"))
         try:
             self._px4.sendto(data, self._px4_addr)
         except OSError:
             pass  # PX4's onboard link not started yet
+        return True
+
+    def _lost(self) -> bool:
+        """The link loses the datagram just read (counted)."""
+        if self._drops is None or not self._drops():
+            return False
+        self.dropped += 1
         return True

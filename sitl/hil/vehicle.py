@@ -37,10 +37,17 @@ pose (4. above: the companion in the lockstep); a third PX4 link
 records (PX4's 1 Hz heartbeat: up to a second late); ``armed`` comes with every
 HIL_ACTUATOR_CONTROLS.
 
+Faults (``RunOptions``), at a simulated time or a phase: the servo bus's, as with the
+imitation; on the relayed onboard link a cut or a lossy stretch; from the mode link, as a
+ground station, the pilot's mode switch and a battery falling low
+(:mod:`sitl.vehicle.link_faults`). With the relay, the mission's phases are the companion's
+STATUSTEXT as it passes.
+
 Not simulated: MAVLink signing (PX4's own), RC, a range finder, airspeed, and the battery:
 PX4 reports its own simulated one, held full (``SIM_BAT_MIN_PCT = 100``,
-:mod:`sitl.px4_sitl.launcher`), so the plant flies on an ideal supply whatever the
-scenario's ``plant.battery`` (the thrust per command steady, as the voltage PX4 reports).
+:mod:`sitl.px4_sitl.launcher`) unless a low-battery fault lowers it, so the plant flies on
+an ideal supply whatever the scenario's ``plant.battery`` (the thrust per command steady,
+while the voltage PX4 reports may fall).
 """
 
 from __future__ import annotations
@@ -92,7 +99,8 @@ from sitl.px4_sitl.launcher import (
 from sitl.scenario import Scenario, servo_watchdog_option
 from sitl.servo.pty_server import REPLY_SWITCH_INTERVAL_S
 from sitl.stepping import WallPacer, step_loop
-from sitl.vehicle.mission_phases import PX4_PHASES, MissionPhases, PhaseStart
+from sitl.vehicle.link_faults import LinkFaults
+from sitl.vehicle.mission_phases import PX4_PHASES, FaultStart, MissionPhases, PhaseStart
 from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions
 from sitl.vehicle.runner import build_world, truth_record
 from sitl.vehicle.sensors import PoseSensor
@@ -146,7 +154,7 @@ class Px4InTheLoop:
             raise ValueError(
                 "MAVLink signing is the imitation's: configure PX4's own (MAV_SIGN_CFG)"
             )
-        _check_servo_fault_starts(options)
+        _check_fault_starts(options, hil.companion_lockstep)
         plant_rate_hz = scenario.plant.rate_hz
         imu_rate_hz = scenario.sensors.gyro_rate_hz
         steps = plant_rate_hz / imu_rate_hz
@@ -211,8 +219,19 @@ class Px4InTheLoop:
         self.mode: str | None = None
         """PX4's flight mode from its last heartbeat (a :class:`~sitl.px4.Px4Mode` name)."""
         self.phases = MissionPhases()
-        """When PX4's take-off and landing began (from its modes)."""
+        """When PX4's take-off and landing (from its modes) and the mission's phases (the
+        companion's STATUSTEXT, read by the relay) began."""
         self.servo_faults = ServoBusFaults(options, self.phases)
+        self.link_faults = LinkFaults(
+            self.phases,
+            options.seed,
+            cut=options.link_cut,
+            loss=options.link_loss,
+            takeover=options.pilot_takeover,
+            battery=options.low_battery,
+        )
+        """The onboard link's cut or loss (acted by the relay), and what the ground station
+        sends PX4 (the pilot's mode switch, the battery's parameters) on the mode link."""
         self._lockstep = False
         self._truth_interval_us = 0
         self._next_truth_us = 0
@@ -241,6 +260,8 @@ class Px4InTheLoop:
                     (p.onboard_local, p.onboard_remote),
                     lambda: self.servo_bus.sync_reads,
                     answer_timeout_s=LOCKSTEP_WAIT_S,
+                    on_text=self._companion_text,
+                    drops=lambda: self.link_faults.drops("onboard", self.world.time_s),
                 )
                 self._relay.open()
             self._mode_link = MavlinkEndpoint(0, 0, system_id=255, component_id=190)
@@ -429,6 +450,7 @@ class Px4InTheLoop:
                 relay.hold(frame.stop)
             else:
                 relay.pump()
+        self._ground_station(self.world.time_s)
         t3 = time.perf_counter()
         stats.frames += 1
         stats.sensors_s += t2 - t1
@@ -457,6 +479,27 @@ class Px4InTheLoop:
                 f"({frame.boot.waiting_for}):\n{self.px4.log_tail(15)}"
             )
         return False
+
+    def _companion_text(self, text: str) -> None:
+        """A STATUSTEXT of the companion, relayed: a mission phase begins (told on the
+        console as ``phase NAME at T s``, where a harness that kills the companion at a
+        phase reads it)."""
+        now_s = self.world.time_s
+        phase = self.phases.observe_text(text, now_s)
+        frame = self._frame
+        if phase is not None and frame is not None and frame.console is not None:
+            frame.console(f"phase {phase} at {now_s:.3f} s")
+
+    def _ground_station(self, now_s: float) -> None:
+        """What the ground station sends PX4 when its time has come [s]: the pilot's mode
+        switch, the battery's parameters (on the mode link, from system 255 as
+        QGroundControl)."""
+        assert self._mode_link is not None
+        takeover = self.link_faults.takeover(now_s)
+        if takeover is not None:
+            self._mode_link.send(takeover)
+        for message in self.link_faults.battery(now_s):
+            self._mode_link.send(message)
 
     def _mode_link_port(self) -> int:
         assert self._mode_link is not None
@@ -556,19 +599,31 @@ class _FrameLoop:
     commands: list[float] = field(default_factory=list)
 
 
-def _check_servo_fault_starts(options: RunOptions) -> None:
-    """The servo bus faults' starts checked for PX4 in the loop: a simulated time [s], or
-    PX4's own take-off or landing (its modes, read from its heartbeats); raises ValueError
-    for the companion's phases (told on the companion's link, which PX4 carries here)."""
+def _check_fault_starts(options: RunOptions, relayed: bool) -> None:
+    """The faults' starts checked for PX4 in the loop: a simulated time [s], PX4's own
+    take-off or landing (its modes, read from its heartbeats), or with the companion relay
+    a mission phase (the companion's STATUSTEXT, which the relay reads); link faults need
+    the relay (it is the link they act on). Raises ValueError."""
+    link = [
+        options.link_cut[0] if options.link_cut else None,
+        options.link_loss.start if options.link_loss else None,
+    ]
+    if not relayed and any(start is not None for start in link):
+        raise ValueError(
+            "a link cut or loss acts on the companion relay: keep --companion-lockstep"
+        )
     error, corruption = options.servo_error, options.bus_corruption
-    starts = [
+    starts: list[FaultStart | None] = [
+        *link,
         options.servo_silent[1] if options.servo_silent else None,
         error.start if error else None,
         corruption.start if corruption else None,
+        options.pilot_takeover.start if options.pilot_takeover else None,
+        options.low_battery.start if options.low_battery else None,
     ]
     for start in starts:
-        if isinstance(start, PhaseStart) and start.phase not in PX4_PHASES:
+        if not relayed and isinstance(start, PhaseStart) and start.phase not in PX4_PHASES:
             raise ValueError(
-                f"with PX4 in the loop a servo fault starts at a time or at PX4's "
+                f"without the companion relay a fault starts at a time or at PX4's "
                 f"{' or '.join(PX4_PHASES)}, not at the mission phase {start.phase!r}"
             )

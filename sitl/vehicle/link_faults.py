@@ -6,7 +6,11 @@
   without this fault draws nothing from it, so its other noise is unchanged);
 - a pilot taking over (``pilot_takeover``): a mode switch arriving on the ground-station
   link as QGroundControl sends it (COMMAND_LONG MAV_CMD_DO_SET_MODE from system 255,
-  component 190), which the autopilot handles as it handles any.
+  component 190), which the autopilot handles as it handles any;
+- a battery running low (``low_battery``, PX4 in the loop only): PX4's simulated battery
+  (its ``battery_simulator``) told from the ground station to fall to a remaining charge
+  within a second (PARAM_SET SIM_BAT_DRAIN 1 s, then SIM_BAT_MIN_PCT, the parameter PX4
+  documents for trying its low-battery behaviour in flight); PX4's failsafe does the rest.
 
 Each starts at a simulated time or a mission phase (:mod:`sitl.vehicle.mission_phases`).
 """
@@ -21,7 +25,14 @@ from pymavlink.dialects.v20 import common as mavlink2
 from sitl.px4.modes import Px4Mode
 from sitl.vehicle.mission_phases import FaultStart, MissionPhases, check_stretch, valid_start
 
-__all__ = ["GCS_COMPONENT_ID", "GCS_SYSTEM_ID", "LinkFaults", "LinkLoss", "PilotTakeover"]
+__all__ = [
+    "GCS_COMPONENT_ID",
+    "GCS_SYSTEM_ID",
+    "LinkFaults",
+    "LinkLoss",
+    "LowBattery",
+    "PilotTakeover",
+]
 
 GCS_SYSTEM_ID = 255
 """QGroundControl's MAVLink system id."""
@@ -58,6 +69,26 @@ class PilotTakeover:
             raise ValueError(f"mode must be one of {', '.join(TAKEOVER_MODES)}, got {self.mode!r}")
 
 
+@dataclass(frozen=True)
+class LowBattery:
+    """At ``start``, PX4's simulated battery falls to ``remaining_pct`` [%] of its charge
+    within a second. The default, 6 %, lies between PX4's critical (BAT_CRIT_THR 7 %) and
+    emergency (BAT_EMERGEN_THR 5 %) levels: with COM_LOW_BAT_ACT 3, PX4 returns."""
+
+    start: FaultStart
+    remaining_pct: float = 6.0
+
+    def __post_init__(self) -> None:
+        if not valid_start(self.start):
+            raise ValueError(f"a low battery starts at a time >= 0 or a phase, got {self.start!r}")
+        if not 0.0 <= self.remaining_pct < 100.0:
+            raise ValueError(f"remaining_pct must be 0 to 100 %, got {self.remaining_pct!r}")
+
+    def parameters(self) -> dict[str, float]:
+        """PX4's battery_simulator parameters that make it so, in the order to set them."""
+        return {"SIM_BAT_DRAIN": 1.0, "SIM_BAT_MIN_PCT": self.remaining_pct}
+
+
 class LinkFaults:
     """The link faults of a run: what is dropped, and the pilot's command when it is due."""
 
@@ -69,12 +100,14 @@ class LinkFaults:
         cut: tuple[FaultStart, float] | None = None,
         loss: LinkLoss | None = None,
         takeover: PilotTakeover | None = None,
+        battery: LowBattery | None = None,
         autopilot_system_id: int = 1,
     ) -> None:
         self._phases = phases
         self._cut = cut
         self._loss = loss
         self._takeover = takeover
+        self._battery = battery
         self._system_id = autopilot_system_id
         self._rng = np.random.default_rng([seed, 0x10551])
         self._gcs = mavlink2.MAVLink(None, GCS_SYSTEM_ID, GCS_COMPONENT_ID)
@@ -116,3 +149,20 @@ class LinkFaults:
         )  # fmt: skip
         (received,) = self._gcs.parse_buffer(command.pack(self._gcs))
         return received
+
+    def battery(self, now_s: float) -> list[mavlink2.MAVLink_message]:
+        """The ground station's PARAM_SETs of a low battery, once, when its time has come
+        [s]; else none."""
+        battery = self._battery
+        if battery is None:
+            return []
+        start_s = self._phases.start_s(battery.start)
+        if start_s is None or now_s < start_s:
+            return []
+        self._battery = None
+        return [
+            mavlink2.MAVLink_param_set_message(
+                self._system_id, 1, name.encode(), value, mavlink2.MAV_PARAM_TYPE_REAL32
+            )
+            for name, value in battery.parameters().items()
+        ]

@@ -79,11 +79,14 @@ class MissionPhases:
     def __init__(self) -> None:
         self.began_s: dict[str, float] = {}
 
-    def observe_text(self, text: str, now_s: float) -> None:
-        """A STATUSTEXT's text received from the companion at ``now_s`` [s]."""
+    def observe_text(self, text: str, now_s: float) -> str | None:
+        """A STATUSTEXT's text received from the companion at ``now_s`` [s]; returns the
+        phase it begins, None when it begins none (not a phase, or told before)."""
         phase = phase_of(text)
-        if phase is not None:
-            self.began_s.setdefault(phase, now_s)
+        if phase is None or phase in self.began_s:
+            return None
+        self.began_s[phase] = now_s
+        return phase
 
     def observe_mode(self, mode_name: str, now_s: float) -> None:
         """The autopilot's mode (its display name) at ``now_s`` [s]."""

@@ -230,6 +230,11 @@ class SitlVehicle:
         self.phases = MissionPhases()
         """When the mission's phases began, as the onboard link and the autopilot told."""
         self.servo_faults = ServoBusFaults(options, self.phases)
+        if options.low_battery is not None:
+            raise ValueError(
+                "a low battery is flown by PX4's own battery and failsafe: fly it with PX4 in "
+                "the loop (--autopilot px4); the imitation has no low-battery failsafe"
+            )
         self.link_faults = LinkFaults(
             self.phases,
             options.seed,
