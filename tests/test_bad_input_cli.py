@@ -554,6 +554,21 @@ def test_sitl_run_servo_error_out_of_range(value, words):
     one_error(sitl("run", "--config", PICKUP, "--servo-error", value), *words)
 
 
+@pytest.mark.parametrize(
+    ("option", "value", "words"),
+    [
+        ("--link-cut", "long@grasp", ("--link-cut", "DURATION@PHASE+SECONDS", "'long@grasp'")),
+        ("--link-cut", "0@grasp", ("--link-cut 0@grasp", "duration must lie in (0, 3600] s")),
+        ("--link-cut", "2@hover", ("--link-cut", "DURATION@PHASE+SECONDS", "takeoff, to_object")),
+        ("--pilot-takeover", "MANUAL@lift", ("--pilot-takeover", "one of POSCTL", "AUTO_RTL")),
+        ("--pilot-takeover", "AUTO_RTL@-1", ("--pilot-takeover AUTO_RTL@-1", "[0, 3600] s")),
+        ("--low-battery", "6@lift", ("--low-battery", "needs --autopilot px4")),
+    ],
+)
+def test_sitl_run_link_and_autopilot_faults_out_of_range(option, value, words):
+    one_error(sitl("run", "--config", PICKUP, option, value), *words)
+
+
 @pytest.mark.parametrize("speed", ["-1", "0", "nan", "inf"])
 def test_sitl_run_speed_is_blamed_not_the_config(speed):
     line = one_error(sitl("run", "--config", PICKUP, "--speed", speed), "--speed", "positive")
