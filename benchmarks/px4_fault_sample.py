@@ -17,9 +17,10 @@ Each flight: ``sitl run --autopilot px4`` (PX4 SITL flying the hexacopter with i
 runs them. When the mission's process ends (or is killed) the vehicle flies on under PX4
 until it is disarmed on the ground, or :data:`AFTER_S` of wall time. The flight is judged
 by docs/faults.md's numbers (:func:`sitl.campaign.safety.judge`) on the truth log, the
-summary (none after a kill: the log must then read back to its last block) and the flight
-log; PX4's mode sequence is read from its ULog (``vehicle_status``: nav_state, failsafe,
-arming). With ``--write`` the table goes to ``docs/px4_fault_sample.md``.
+summary (none after a kill) and the flight log, which must reach the moment the mission's
+process ended (its last block after a kill); PX4's mode sequence is read from its ULog
+(``vehicle_status``: nav_state, failsafe, arming). With ``--write`` the table goes to
+``docs/px4_fault_sample.md``.
 
     PX4_SITL_DIR=../shared/px4-sitl python benchmarks/px4_fault_sample.py [--write]
         [--only KIND] [--phases P1,P2,P3] [--out DIR]
@@ -86,7 +87,8 @@ class Flown:
     payload: str
     outcome: str
     px4_modes: str
-    killed_at_s: float | None
+    companion_end_s: float | None
+    """Vehicle time the mission's process ended or was killed [s]."""
     wall_s: float
     work: Path
 
@@ -170,7 +172,7 @@ def fly(build: Px4Build, kind: str, phase: str, work: Path, seed: int = 1) -> Fl
         speed=VALIDATED_SPEED, truth_log=truth_log, px4_dir=build.root, px4_log=work / "px4",
     )  # fmt: skip
     out = work / "mission"
-    killed_at_s = None
+    killed = False
     try:
         with open(work / "mission.txt", "w", encoding="utf-8") as text:
             mission = subprocess.Popen(
@@ -190,12 +192,13 @@ def fly(build: Px4Build, kind: str, phase: str, work: Path, seed: int = 1) -> Fl
                     if began is not None and mission.poll() is None:
                         time.sleep(OFFSET_S / VALIDATED_SPEED)
                         mission.send_signal(signal.SIGKILL)
-                        truth = _read_truth(truth_log)
-                        killed_at_s = truth[-1]["t_s"] if truth else began + OFFSET_S
+                        killed = True
                 mission.wait(timeout=MISSION_TIMEOUT_S)
             finally:
                 if mission.poll() is None:
                     mission.kill()
+        ended = _read_truth(truth_log)  # the truth is written in blocks: up to ~0.5 s behind
+        companion_end_s = ended[-1]["t_s"] if ended else None
         deadline = time.monotonic() + AFTER_S
         while time.monotonic() < deadline:
             truth = _read_truth(truth_log)
@@ -207,10 +210,10 @@ def fly(build: Px4Build, kind: str, phase: str, work: Path, seed: int = 1) -> Fl
     truth = _read_truth(truth_log)
     summary_path = out / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.exists() else None
-    verdict = judge(truth, summary, PLACE_AT, _log_end_s(out), killed_at_s)
+    verdict = judge(truth, summary, PLACE_AT, _log_end_s(out), companion_end_s, killed)
     modes, _ = px4_modes(work / "px4")
-    if killed_at_s is not None:
-        outcome = f"killed at {killed_at_s:.1f} s"
+    if killed:
+        outcome = f"killed at {companion_end_s:.1f} s"
     elif summary is None:
         outcome = "no summary"
     else:
@@ -218,7 +221,7 @@ def fly(build: Px4Build, kind: str, phase: str, work: Path, seed: int = 1) -> Fl
         outcome = summary.get("outcome", "?") + (f" ({faults})" if faults else "")
     return Flown(
         kind, phase, verdict.safe, verdict.broken, verdict.end, verdict.touchdown_m_s,
-        verdict.max_tilt_deg, verdict.payload, outcome, modes, killed_at_s,
+        verdict.max_tilt_deg, verdict.payload, outcome, modes, companion_end_s,
         time.monotonic() - wall0, work,
     )  # fmt: skip
 

@@ -32,7 +32,6 @@ from flight_checks import (
     assert_calm_flight,
     carry_rms_m,
 )
-from test_mission_e2e import LinkCutter
 
 from companion.logs.flightlog import read_flight_log
 from sitl.hil.vehicle import VALIDATED_SPEED
@@ -90,14 +89,12 @@ def fly_pickup(
     *sitl_args: str,
     navigation="mocap",
     controller="passivity",
-    relay=None,
     python=sys.executable,
     speed=VALIDATED_SPEED,
 ):
     """The pickup as a user flies it: ``sitl run --autopilot px4`` at ``speed`` (PX4's
-    validated speed: its results are speed 1's) and the mission command (through
-    ``relay``, a :class:`LinkCutter`, when given; run by ``python``, e.g. the flight
-    install's)."""
+    validated speed: its results are speed 1's) and the mission command (run by
+    ``python``, e.g. the flight install's)."""
     truth_log = tmp / "truth.jsonl"
     px4_dir = tmp / "px4"
     payload_at, place_at = MISSION_POINTS
@@ -106,16 +103,12 @@ def fly_pickup(
         speed=speed, truth_log=truth_log, px4_dir=px4_root, px4_log=px4_dir,
     )  # fmt: skip
     out = tmp / controller
-    port = sitl.onboard_port
     try:
-        if relay is not None:
-            relay.start(sitl)
-            port = relay.app_port
         result = subprocess.run(
             [
                 str(python), "-c", "from companion.cli.main import main; main()",
                 "mission", "pickup", "--config", str(CONFIG),
-                "--connect", f"udpin://127.0.0.1:{port}", "--arm-bus", sitl.arm_bus,
+                "--connect", f"udpin://127.0.0.1:{sitl.onboard_port}", "--arm-bus", sitl.arm_bus,
                 "--payload-at", payload_at, "--place-at", place_at,
                 "--out", str(out), "--controller", controller,
             ],
@@ -124,8 +117,6 @@ def fly_pickup(
             cwd=tmp,  # not the repository: an installed companion must not be shadowed
         )  # fmt: skip
     finally:
-        if relay is not None:
-            relay.stop()
         sitl_output = sitl.stop()
     summary_path = out / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.exists() else None
@@ -325,23 +316,24 @@ def test_a_silenced_servo_under_px4_makes_the_app_land(px4_build, tmp_path):
 
 
 @pytest.mark.slow
-def test_a_2_s_link_cut_under_px4_ends_in_a_landing(px4_build, tmp_path):
-    """The companion's link to PX4 goes silent for 2 s once the vehicle has flown 3 s above
-    1.2 m: the app raises link_lost, PX4 lands, and the vehicle ends on the ground,
-    disarmed."""
-    relay = LinkCutter(tmp_path / "truth.jsonl")  # its cut lasts 2 s of wall time: speed 1
-    flight = fly_pickup(px4_build.root, tmp_path, "linkcut", relay=relay, speed=1.0)
-    assert relay.cut_at is not None and relay.dropped > 0, flight.context()
-    assert flight.result.returncode == 1, flight.context()
-    assert "Traceback" not in flight.result.stderr, flight.context()
-    assert flight.summary is not None, flight.context()
-    assert [f["fault"] for f in flight.summary["faults"]][:1] == ["link_lost"], flight.context()
-    # PX4 flew the landing (its failsafe, or the app's land command once the link was back:
-    # the cut may come in PX4's hold after take-off, before OFFBOARD).
+def test_a_link_cut_in_the_excitation_under_px4_ends_in_a_landing(px4_build, tmp_path):
+    """The companion's link goes silent both ways for 2 s from 0.5 s into the excitation
+    (``--link-cut 2@excite+0.5``: the relay of the onboard link drops it, the phase read
+    from the companion's STATUSTEXT as it passes): PX4 loses the offboard stream after
+    COM_OF_LOSS_T and flies its failsafe, the app raises link_lost, and the vehicle ends
+    on the ground, disarmed, where PX4 put it."""
+    flight = fly_pickup(px4_build.root, tmp_path, "linkcut", "--link-cut", "2@excite+0.5")
+    why = flight.context()
+    assert "phase excite at " in flight.sitl_output, why
+    assert flight.result.returncode == 1, why
+    assert "Traceback" not in flight.result.stderr, why
+    assert flight.summary is not None, why
+    assert [f["fault"] for f in flight.summary["faults"]][:1] == ["link_lost"], why
+    assert [p["phase"] for p in flight.summary["phases"]][-1] == "excite", why
     airborne_modes = {r["mode"] for r in flight.truth if not r["on_ground"]}
-    assert "AUTO_LAND" in airborne_modes, (airborne_modes, flight.context())
+    assert airborne_modes & {"AUTO_RTL", "AUTO_LAND"}, (airborne_modes, why)
     last = flight.truth[-1]
-    assert last["on_ground"] and not last["armed"], flight.context()
+    assert last["on_ground"] and not last["armed"], why
 
 
 def test_autopilot_px4_without_a_px4_build_is_one_line_and_status_2(

@@ -162,15 +162,16 @@ def judge(
     summary: Mapping[str, Any] | None,
     place_m: Sequence[float],
     log_end_s: float | None,
-    killed_at_s: float | None = None,
+    companion_end_s: float | None = None,
+    killed: bool = False,
 ) -> Verdict:
     """The :class:`Verdict` of a flight: ``truth`` its truth-log samples in time order,
     ``summary`` its ``summary.json``, ``place_m`` the place point [m, world ENU],
     ``log_end_s`` the vehicle time of the flight log's last row [s] (None: the log did not
-    read back). A companion killed (kill -9) at vehicle time ``killed_at_s`` [s] wrote no
-    summary (``None``): its log must then read back to within
-    :data:`LOG_END_WITHIN_S` of the kill (its last block). See docs/faults.md for the
-    criteria."""
+    read back). The log must reach the flight's end, or the vehicle time
+    ``companion_end_s`` [s] when the companion's process ended before it (PX4 flying on);
+    a companion ``killed`` (kill -9) wrote no summary (``None``) and its log must reach its
+    last block. See docs/faults.md for the criteria."""
     if not truth:
         return Verdict(("no truth log",), "unknown", None, 0.0, "unknown", 0.0)
     broken: list[str] = []
@@ -195,21 +196,18 @@ def judge(
     payload, wrong = _payload(truth, place_m)
     if wrong:
         broken.append(wrong)
-    if killed_at_s is None:  # a killed companion names nothing: its killer names the kill
+    if not killed:  # a killed companion names nothing: its killer names the kill
         outcome = None if summary is None else summary.get("outcome")
         if summary is None or not outcome:
             broken.append("the summary names no outcome")
         elif outcome == "aborted" and not summary.get("faults"):
             broken.append("aborted, but the summary names no fault")
+    end_s = _flight_end_s(truth) if companion_end_s is None else companion_end_s
     if log_end_s is None:
         broken.append("the flight log does not read back")
-    elif killed_at_s is not None:
-        if killed_at_s - log_end_s > LOG_END_WITHIN_S:
-            broken.append(f"the flight log ends {killed_at_s - log_end_s:.1f} s before the kill")
-    elif _flight_end_s(truth) - log_end_s > LOG_END_WITHIN_S:
-        broken.append(
-            f"the flight log ends {_flight_end_s(truth) - log_end_s:.1f} s before the flight"
-        )
+    elif end_s - log_end_s > LOG_END_WITHIN_S:
+        what = "the flight" if companion_end_s is None else "the companion's end"
+        broken.append(f"the flight log ends {end_s - log_end_s:.1f} s before {what}")
     return Verdict(
         tuple(broken),
         end,
