@@ -17,10 +17,10 @@ Each flight: ``sitl run --autopilot px4`` (PX4 SITL flying the hexacopter with i
 runs them. When the mission's process ends (or is killed) the vehicle flies on under PX4
 until it is disarmed on the ground, or :data:`AFTER_S` of wall time. The flight is judged
 by docs/faults.md's numbers (:func:`sitl.campaign.safety.judge`) on the truth log, the
-summary (none after a kill) and the flight log, which must reach the moment the mission's
-process ended (its last block after a kill); PX4's mode sequence is read from its ULog
-(``vehicle_status``: nav_state, failsafe, arming). With ``--write`` the table goes to
-``docs/px4_fault_sample.md``.
+summary (none after a kill) and the flight log, which must reach the kill (its last
+block) or the moment PX4 last left OFFBOARD (from then on PX4 flies); PX4's mode sequence
+is read from its ULog (``vehicle_status``: nav_state, failsafe, arming). With ``--write``
+the table goes to ``docs/px4_fault_sample.md``.
 
     PX4_SITL_DIR=../shared/px4-sitl python benchmarks/px4_fault_sample.py [--write]
         [--only KIND] [--phases P1,P2,P3] [--out DIR]
@@ -29,6 +29,7 @@ process ended (its last block after a kill); PX4's mode sequence is read from it
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import platform
@@ -87,8 +88,8 @@ class Flown:
     payload: str
     outcome: str
     px4_modes: str
-    companion_end_s: float | None
-    """Vehicle time the mission's process ended or was killed [s]."""
+    log_until_s: float | None
+    """Vehicle time the companion's log must reach [s]: the kill, or PX4 leaving OFFBOARD."""
     wall_s: float
     work: Path
 
@@ -130,6 +131,17 @@ def _read_truth(path: Path) -> list[dict]:
         return []
     lines = path.read_text(encoding="utf-8").splitlines()
     return [json.loads(line) for line in lines if line.strip().endswith("}")]
+
+
+def _handover_s(truth: list[dict]) -> float | None:
+    """When PX4 last left OFFBOARD, armed (the truth's mode, PX4's 1 Hz heartbeat: up to a
+    second late) [s]: from then on PX4 flies, with or without the companion; None when it
+    never flew OFFBOARD."""
+    handover = None
+    for before, after in itertools.pairwise(truth):
+        if before["mode"] == "OFFBOARD" and after["mode"] != "OFFBOARD" and before["armed"]:
+            handover = after["t_s"]
+    return handover
 
 
 def _log_end_s(out: Path) -> float | None:
@@ -198,7 +210,7 @@ def fly(build: Px4Build, kind: str, phase: str, work: Path, seed: int = 1) -> Fl
                 if mission.poll() is None:
                     mission.kill()
         ended = _read_truth(truth_log)  # the truth is written in blocks: up to ~0.5 s behind
-        companion_end_s = ended[-1]["t_s"] if ended else None
+        killed_at_s = ended[-1]["t_s"] if killed and ended else None
         deadline = time.monotonic() + AFTER_S
         while time.monotonic() < deadline:
             truth = _read_truth(truth_log)
@@ -210,10 +222,11 @@ def fly(build: Px4Build, kind: str, phase: str, work: Path, seed: int = 1) -> Fl
     truth = _read_truth(truth_log)
     summary_path = out / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.exists() else None
-    verdict = judge(truth, summary, PLACE_AT, _log_end_s(out), companion_end_s, killed)
+    until_s = killed_at_s if killed else _handover_s(truth)
+    verdict = judge(truth, summary, PLACE_AT, _log_end_s(out), until_s, killed)
     modes, _ = px4_modes(work / "px4")
     if killed:
-        outcome = f"killed at {companion_end_s:.1f} s"
+        outcome = "killed" if killed_at_s is None else f"killed at {killed_at_s:.1f} s"
     elif summary is None:
         outcome = "no summary"
     else:
@@ -221,7 +234,7 @@ def fly(build: Px4Build, kind: str, phase: str, work: Path, seed: int = 1) -> Fl
         outcome = summary.get("outcome", "?") + (f" ({faults})" if faults else "")
     return Flown(
         kind, phase, verdict.safe, verdict.broken, verdict.end, verdict.touchdown_m_s,
-        verdict.max_tilt_deg, verdict.payload, outcome, modes, companion_end_s,
+        verdict.max_tilt_deg, verdict.payload, outcome, modes, until_s,
         time.monotonic() - wall0, work,
     )  # fmt: skip
 

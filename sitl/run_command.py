@@ -121,6 +121,14 @@ class RunCommand:
             "critical level), e.g. 6@to_place+0.5."
         ),
     ] = None
+    pose_dropout: Annotated[
+        str | None,
+        typer.Option(
+            help="Fault injection 'DURATION@T' or 'DURATION@PHASE+S', --autopilot px4 "
+            "--navigation mocap: no motion-capture pose reaches PX4 for DURATION [s, sim "
+            "time], e.g. 3@to_place+0.5."
+        ),
+    ] = None
     servo_reply_delay_ms: Annotated[
         float,
         typer.Option(
@@ -192,6 +200,9 @@ class RunCommand:
         self._check_run()
         if self.low_battery is not None and build is None:
             fail("--low-battery flies PX4's own battery and failsafe: it needs --autopilot px4")
+        if self.pose_dropout is not None and (build is None or self.navigation != "mocap"):
+            fail("--pose-dropout is a motion-capture dropout under PX4's EKF2: it needs "
+                 "--autopilot px4 --navigation mocap")  # fmt: skip
         silent = None
         if self.servo_silent is not None:
             silent = _servo_fault(self.servo_silent, simulated_servo_ids(cfg))
@@ -220,11 +231,14 @@ class RunCommand:
                 truth_log=self.truth_log,
                 servo_silent=silent,
                 servo_error=error,
-                link_cut=None if self.link_cut is None else _link_cut(self.link_cut),
+                link_cut=None if self.link_cut is None else _stretch(self.link_cut, "--link-cut"),
                 pilot_takeover=None
                 if self.pilot_takeover is None
                 else _pilot_takeover(self.pilot_takeover),
                 low_battery=None if self.low_battery is None else _low_battery(self.low_battery),
+                pose_dropout=None
+                if self.pose_dropout is None
+                else _stretch(self.pose_dropout, "--pose-dropout"),
                 servo_reply_delay_s=self.servo_reply_delay_ms * 1e-3,
                 physics=self.physics,
                 wind=air,
@@ -378,16 +392,16 @@ def _bad_fault(option: str, shown: str, why: str = "") -> NoReturn:
     )
 
 
-def _link_cut(text: str) -> tuple[FaultStart, float]:
-    """``--link-cut SECONDS@START`` as (start, duration [s])."""
+def _stretch(text: str, option: str) -> tuple[FaultStart, float]:
+    """``option``'s ``SECONDS@START`` as (start, duration [s])."""
     duration, _, at = text.partition("@")
     try:
         duration_s = float(duration)
     except ValueError:
-        _bad_fault("--link-cut", text)
+        _bad_fault(option, text)
     if not (math.isfinite(duration_s) and 0.0 < duration_s <= MAX_DURATION_S):
-        fail(f"--link-cut {text}: the duration must lie in (0, {MAX_DURATION_S:g}] s")
-    return _fault_start(at, "--link-cut", text), duration_s
+        fail(f"{option} {text}: the duration must lie in (0, {MAX_DURATION_S:g}] s")
+    return _fault_start(at, option, text), duration_s
 
 
 def _pilot_takeover(text: str) -> PilotTakeover:
@@ -416,6 +430,7 @@ _FORMS = {
     "--link-cut": "DURATION@SECONDS or DURATION@PHASE+SECONDS",
     "--pilot-takeover": "MODE@SECONDS or MODE@PHASE+SECONDS",
     "--low-battery": "PERCENT@SECONDS or PERCENT@PHASE+SECONDS",
+    "--pose-dropout": "DURATION@SECONDS or DURATION@PHASE+SECONDS",
 }
 _EXAMPLES = {
     "--servo-silent": "2@30 or 2@takeoff+8",
@@ -423,6 +438,7 @@ _EXAMPLES = {
     "--link-cut": "10@excite+0.5",
     "--pilot-takeover": "AUTO_RTL@lift+0.5",
     "--low-battery": "6@to_place+0.5",
+    "--pose-dropout": "3@to_place+0.5",
 }
 
 

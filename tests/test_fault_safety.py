@@ -247,10 +247,10 @@ def test_the_pilots_takeover_is_one_ground_station_mode_command():
 
 def test_a_killed_companion_needs_no_summary_but_its_log_to_its_last_block():
     truth = [sample(50.0, 1.5, mode="AUTO_RTL"), sample(60.0, 0.0, armed=False, ground=True)]
-    assert judge(truth, None, PLACE_M, 49.9, companion_end_s=50.0, killed=True).safe
-    late = judge(truth, None, PLACE_M, 47.0, companion_end_s=50.0, killed=True)
-    assert late.broken == ("the flight log ends 3.0 s before the companion's end",)
+    assert judge(truth, None, PLACE_M, 49.9, log_until_s=50.0, killed=True).safe
+    late = judge(truth, None, PLACE_M, 47.0, log_until_s=50.0, killed=True)
+    assert late.broken == ("the flight log ends 3.0 s before the companion's last control",)
     assert judge(truth, None, PLACE_M, 60.0).broken == ("the summary names no outcome",)
-    # A companion that ended on a fault while PX4 flew on: its log reaches its own end.
-    assert judge(truth, SUMMARY, PLACE_M, 49.9, companion_end_s=50.0).safe
+    # A companion that handed over to PX4, which flew on: its log reaches the handover.
+    assert judge(truth, SUMMARY, PLACE_M, 49.9, log_until_s=50.0).safe
     assert not judge(truth, SUMMARY, PLACE_M, 49.9).safe

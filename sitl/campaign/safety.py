@@ -162,16 +162,16 @@ def judge(
     summary: Mapping[str, Any] | None,
     place_m: Sequence[float],
     log_end_s: float | None,
-    companion_end_s: float | None = None,
+    log_until_s: float | None = None,
     killed: bool = False,
 ) -> Verdict:
     """The :class:`Verdict` of a flight: ``truth`` its truth-log samples in time order,
     ``summary`` its ``summary.json``, ``place_m`` the place point [m, world ENU],
     ``log_end_s`` the vehicle time of the flight log's last row [s] (None: the log did not
-    read back). The log must reach the flight's end, or the vehicle time
-    ``companion_end_s`` [s] when the companion's process ended before it (PX4 flying on);
-    a companion ``killed`` (kill -9) wrote no summary (``None``) and its log must reach its
-    last block. See docs/faults.md for the criteria."""
+    read back). The log must reach the flight's end, or ``log_until_s`` [s] when the flight
+    went on without the companion (PX4 flying on after it handed over, or after it was
+    killed); a companion ``killed`` (kill -9) wrote no summary (``None``). See
+    docs/faults.md for the criteria."""
     if not truth:
         return Verdict(("no truth log",), "unknown", None, 0.0, "unknown", 0.0)
     broken: list[str] = []
@@ -202,11 +202,11 @@ def judge(
             broken.append("the summary names no outcome")
         elif outcome == "aborted" and not summary.get("faults"):
             broken.append("aborted, but the summary names no fault")
-    end_s = _flight_end_s(truth) if companion_end_s is None else companion_end_s
+    end_s = _flight_end_s(truth) if log_until_s is None else log_until_s
     if log_end_s is None:
         broken.append("the flight log does not read back")
     elif end_s - log_end_s > LOG_END_WITHIN_S:
-        what = "the flight" if companion_end_s is None else "the companion's end"
+        what = "the flight" if log_until_s is None else "the companion's last control"
         broken.append(f"the flight log ends {end_s - log_end_s:.1f} s before {what}")
     return Verdict(
         tuple(broken),

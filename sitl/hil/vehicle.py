@@ -38,7 +38,8 @@ records (PX4's 1 Hz heartbeat: up to a second late); ``armed`` comes with every
 HIL_ACTUATOR_CONTROLS.
 
 Faults (``RunOptions``), at a simulated time or a phase: the servo bus's, as with the
-imitation; on the relayed onboard link a cut or a lossy stretch; from the mode link, as a
+imitation; a motion-capture dropout (no vision ODOMETRY to PX4 for a while); on the
+relayed onboard link a cut or a lossy stretch; from the mode link, as a
 ground station, the pilot's mode switch and a battery falling low
 (:mod:`sitl.vehicle.link_faults`). With the relay, the mission's phases are the companion's
 STATUSTEXT as it passes.
@@ -480,6 +481,14 @@ class Px4InTheLoop:
             )
         return False
 
+    def _pose_lost(self, now_s: float) -> bool:
+        """A motion-capture dropout (``RunOptions.pose_dropout``) at ``now_s`` [s]."""
+        dropout = self.options.pose_dropout
+        if dropout is None:
+            return False
+        start_s = self.phases.start_s(dropout[0])
+        return start_s is not None and start_s <= now_s < start_s + dropout[1]
+
     def _companion_text(self, text: str) -> None:
         """A STATUSTEXT of the companion, relayed: a mission phase begins (told on the
         console as ``phase NAME at T s``, where a harness that kills the companion at a
@@ -520,7 +529,7 @@ class Px4InTheLoop:
             messages = [hil_sensor(time_us, imu)]
         if self._pose is not None:
             pose = self._pose.sample(t_s, state.q)
-            if pose is not None:
+            if pose is not None and not self._pose_lost(t_s):
                 s = self.scenario.sensors
                 messages.append(
                     vision_odometry(time_us, pose, s.position_std_m, s.attitude_std_rad)
@@ -620,6 +629,7 @@ def _check_fault_starts(options: RunOptions, relayed: bool) -> None:
         corruption.start if corruption else None,
         options.pilot_takeover.start if options.pilot_takeover else None,
         options.low_battery.start if options.low_battery else None,
+        options.pose_dropout[0] if options.pose_dropout else None,
     ]
     for start in starts:
         if not relayed and isinstance(start, PhaseStart) and start.phase not in PX4_PHASES:

@@ -135,6 +135,9 @@ class RunOptions:
     """Fault injection: the pilot switching PX4's mode from the ground station."""
     low_battery: LowBattery | None = None
     """Fault injection: PX4's simulated battery falling low (PX4 in the loop only)."""
+    pose_dropout: tuple[FaultStart, float] | None = None
+    """Fault injection: (simulation time [s] or a mission phase, duration [s]) of a
+    motion-capture dropout: no pose reaches PX4's estimator (PX4 in the loop only)."""
     memory: str | None = None
     """Serve the links and the servo bus on in-memory channels ``NAME-onboard``,
     ``NAME-gcs`` and ``NAME-servos`` (:mod:`bytelink.memory`) instead of UDP and a pty:
@@ -161,12 +164,11 @@ class RunOptions:
             raise ValueError(
                 f"servo_reply_delay_s must be 0 to 1 s, got {self.servo_reply_delay_s!r}"
             )
-        if self.link_cut is not None and not (
-            valid_start(self.link_cut[0])
-            and math.isfinite(self.link_cut[1])
-            and self.link_cut[1] > 0.0
-        ):
-            raise ValueError(f"link_cut must be (time, positive duration), got {self.link_cut!r}")
+        for name, stretch in (("link_cut", self.link_cut), ("pose_dropout", self.pose_dropout)):
+            if stretch is not None and not (
+                valid_start(stretch[0]) and math.isfinite(stretch[1]) and stretch[1] > 0.0
+            ):
+                raise ValueError(f"{name} must be (time, positive duration), got {stretch!r}")
         if self.navigation not in ERROR_MODELS:
             raise ValueError(
                 f"navigation must be one of {sorted(ERROR_MODELS)}, got {self.navigation!r}"

@@ -235,6 +235,11 @@ class SitlVehicle:
                 "a low battery is flown by PX4's own battery and failsafe: fly it with PX4 in "
                 "the loop (--autopilot px4); the imitation has no low-battery failsafe"
             )
+        if options.pose_dropout is not None:
+            raise ValueError(
+                "a motion-capture dropout is flown by PX4's own estimator (EKF2): fly it with "
+                "PX4 in the loop (--autopilot px4); the imitation does not model it"
+            )
         self.link_faults = LinkFaults(
             self.phases,
             options.seed,
