@@ -12,6 +12,9 @@ Four faults where PX4 is the one reacting, each at three phases of the pickup (1
   (the phase read from ``sitl run``'s ``phase NAME at T s`` line; the 0.5 s waited in wall
   time at PX4's validated speed).
 
+``--only pose_dropout`` flies a fifth: no motion-capture pose reaches PX4's EKF2 for 10 s
+(``--pose-dropout 10@PHASE+0.5``).
+
 Each flight: ``sitl run --autopilot px4`` (PX4 SITL flying the hexacopter with its arm, at
 :data:`~sitl.hil.vehicle.VALIDATED_SPEED`) and the mission as its own process, as a user
 runs them. When the mission's process ends (or is killed) the vehicle flies on under PX4
@@ -63,7 +66,11 @@ FAULTS: dict[str, tuple[str, str] | None] = {
     "offboard_loss": ("--link-cut", "10@{phase}+{offset}"),
     "low_battery": ("--low-battery", "6@{phase}+{offset}"),
     "companion_kill": None,
+    "pose_dropout": ("--pose-dropout", "10@{phase}+{offset}"),
 }
+SAMPLE = ("pilot_takeover", "offboard_loss", "low_battery", "companion_kill")
+"""The faults the sample flies; ``pose_dropout`` (no motion-capture pose reaches PX4 for
+10 s) with ``--only``."""
 AFTER_S = 90.0
 """Longest wall time the vehicle flies on under PX4 after the mission's process ended [s]."""
 MISSION_TIMEOUT_S = 600.0
@@ -254,7 +261,9 @@ def page(flown: list[Flown], commit: str, machine: str) -> str:
         "Return), `offboard_loss` (the companion's link silent 10 s), `low_battery` (PX4's "
         "simulated battery at 6 %, COM_LOW_BAT_ACT 3), `companion_kill` (SIGKILL). PX4's "
         "modes are its ULog's `vehicle_status` (nav_state, `!` a failsafe, then the "
-        "disarm), in PX4's time, which is the truth's [s].",
+        "disarm; after it PX4 shows the mode last asked for again), in PX4's time, which is "
+        "the truth's [s]. A link cut (offboard loss) ends in AUTO_LAND: the companion's land "
+        "command once the link is back.",
         "",
         "| fault | phase | safe | outcome (companion) | end | touchdown m/s | tilt deg "
         "| payload | PX4's modes (ULog) |",
@@ -284,7 +293,7 @@ def main() -> None:
         sys.exit("error: set PX4_SITL_DIR to the PX4 SITL build")
     root = args.out or Path(tempfile.mkdtemp(prefix="px4-fault-sample-"))
     flown = []
-    for kind in [args.only] if args.only else list(FAULTS):
+    for kind in [args.only] if args.only else SAMPLE:
         for phase in args.phases.split(","):
             work = root / f"{kind}-{phase}"
             work.mkdir(parents=True, exist_ok=False)
