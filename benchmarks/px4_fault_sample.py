@@ -12,8 +12,12 @@ Four faults where PX4 is the one reacting, each at three phases of the pickup (1
   (the phase read from ``sitl run``'s ``phase NAME at T s`` line; the 0.5 s waited in wall
   time at PX4's validated speed).
 
-``--only pose_dropout`` flies a fifth: no motion-capture pose reaches PX4's EKF2 for 10 s
-(``--pose-dropout 10@PHASE+0.5``).
+``--only`` flies two more: ``pose_dropout``, no motion-capture pose reaches PX4's EKF2 for
+10 s (``--pose-dropout 10@PHASE+0.5``); ``companion_starved``, the mission's process left
+:data:`STARVED_SHARE` of a CPU for :data:`STARVED_S` of wall time from 0.5 s into the
+phase (stopped and continued in turn, as a CPU taken by other work starves it), at speed 1
+without the companion lockstep (which would hold PX4's clock for it: the starvation would
+cost no vehicle time); the relay still reads the phases.
 
 Each flight: ``sitl run --autopilot px4`` (PX4 SITL flying the hexacopter with its arm, at
 :data:`~sitl.hil.vehicle.VALIDATED_SPEED`) and the mission as its own process, as a user
@@ -67,10 +71,14 @@ FAULTS: dict[str, tuple[str, str] | None] = {
     "low_battery": ("--low-battery", "6@{phase}+{offset}"),
     "companion_kill": None,
     "pose_dropout": ("--pose-dropout", "10@{phase}+{offset}"),
+    "companion_starved": None,
 }
 SAMPLE = ("pilot_takeover", "offboard_loss", "low_battery", "companion_kill")
-"""The faults the sample flies; ``pose_dropout`` (no motion-capture pose reaches PX4 for
-10 s) with ``--only``."""
+"""The faults the sample flies; ``pose_dropout`` and ``companion_starved`` with ``--only``."""
+STARVED_S = 5.0
+"""How long the starved companion runs at :data:`STARVED_SHARE` of a CPU [s, wall]."""
+STARVED_SHARE = 0.2
+"""The CPU share left to it: stopped (SIGSTOP) 40 ms, run (SIGCONT) 10 ms, in turn."""
 AFTER_S = 90.0
 """Longest wall time the vehicle flies on under PX4 after the mission's process ended [s]."""
 MISSION_TIMEOUT_S = 600.0
@@ -180,15 +188,29 @@ def _await_phase(output: queue.Queue, phase: str, deadline: float) -> float | No
     return None
 
 
+def _starve(process: subprocess.Popen) -> None:
+    """Leave ``process`` :data:`STARVED_SHARE` of a CPU for :data:`STARVED_S` [s, wall]."""
+    run_s = 0.05 * STARVED_SHARE
+    end = time.monotonic() + STARVED_S
+    while time.monotonic() < end and process.poll() is None:
+        process.send_signal(signal.SIGSTOP)
+        time.sleep(0.05 - run_s)
+        process.send_signal(signal.SIGCONT)
+        time.sleep(run_s)
+
+
 def fly(build: Px4Build, kind: str, phase: str, work: Path, seed: int = 1) -> Flown:
     """One flight of the sample (module docstring) in ``work``."""
     wall0 = time.monotonic()
     fault = FAULTS[kind]
     extra = [] if fault is None else [fault[0], fault[1].format(phase=phase, offset=OFFSET_S)]
+    speed = VALIDATED_SPEED
+    if kind == "companion_starved":  # in the lockstep PX4's clock would wait for it
+        extra, speed = ["--no-companion-lockstep"], 1.0
     truth_log = work / "truth.jsonl"
     sitl = start_sitl(
         CONFIG, "--seed", str(seed), "--navigation", "mocap", *extra,
-        speed=VALIDATED_SPEED, truth_log=truth_log, px4_dir=build.root, px4_log=work / "px4",
+        speed=speed, truth_log=truth_log, px4_dir=build.root, px4_log=work / "px4",
     )  # fmt: skip
     out = work / "mission"
     killed = False
@@ -206,12 +228,15 @@ def fly(build: Px4Build, kind: str, phase: str, work: Path, seed: int = 1) -> Fl
                 env=dict(os.environ, PYTHONUNBUFFERED="1"),
             )  # fmt: skip
             try:
-                if kind == "companion_kill":
+                if fault is None:
                     began = _await_phase(sitl.output, phase, time.monotonic() + MISSION_TIMEOUT_S)
                     if began is not None and mission.poll() is None:
-                        time.sleep(OFFSET_S / VALIDATED_SPEED)
-                        mission.send_signal(signal.SIGKILL)
-                        killed = True
+                        time.sleep(OFFSET_S / speed)
+                        if kind == "companion_kill":
+                            mission.send_signal(signal.SIGKILL)
+                            killed = True
+                        else:
+                            _starve(mission)
                 mission.wait(timeout=MISSION_TIMEOUT_S)
             finally:
                 if mission.poll() is None:

@@ -172,10 +172,10 @@ class RunCommand:
         bool,
         typer.Option(
             "--companion-lockstep/--no-companion-lockstep",
-            help="--autopilot px4: relay the onboard link and hold PX4's clock after each "
-            "frame until the companion has answered the last pose (a SET_ATTITUDE_TARGET or "
-            "SET_POSITION_TARGET_LOCAL_NED stamped with its time) and read the joints: its "
-            "computing takes no vehicle time, on an idle or a busy machine.",
+            help="--autopilot px4: hold PX4's clock after each frame until the companion has "
+            "answered the last pose (a SET_ATTITUDE_TARGET or SET_POSITION_TARGET_LOCAL_NED "
+            "stamped with its time) and read the joints: its computing takes no vehicle time, "
+            "on an idle or a busy machine (off: the onboard link's relay only forwards).",
         ),
     ] = True
     nice: Annotated[

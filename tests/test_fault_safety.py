@@ -11,7 +11,6 @@ from pymavlink.dialects.v20 import common as mavlink2
 from companion.mission.announce import STATUSTEXT_CHARS, announcement, phase_of
 from sitl.campaign.safety import judge
 from sitl.campaign.spec import Fault
-from sitl.hil.vehicle import _check_fault_starts
 from sitl.servo import XM430Servo
 from sitl.servo.memory_bus import MemoryServoBus
 from sitl.vehicle.link_faults import LinkFaults, LinkLoss, LowBattery, PilotTakeover
@@ -148,28 +147,6 @@ def test_take_off_and_landing_are_the_autopilots_modes():
     assert FAULT_PHASES[0] == "takeoff" and FAULT_PHASES[-1] == "landing"
     with pytest.raises(ValueError, match="phase must be one of"):
         PhaseStart("hover")
-
-
-def test_with_px4_in_the_loop_a_fault_starts_at_a_mission_phase_only_through_the_relay():
-    grasp = PhaseStart("grasp", 0.5)
-    for start in (29.0, PhaseStart("takeoff", 8.0), PhaseStart("landing"), grasp):
-        _check_fault_starts(RunOptions(servo_silent=(2, start)), relayed=True)
-        _check_fault_starts(RunOptions(servo_error=ServoError(1, "overload", start)), relayed=True)
-        _check_fault_starts(RunOptions(link_cut=(start, 2.0)), relayed=True)
-        _check_fault_starts(RunOptions(low_battery=LowBattery(start)), relayed=True)
-    for start in (29.0, PhaseStart("takeoff", 8.0), PhaseStart("landing")):
-        _check_fault_starts(RunOptions(bus_corruption=BusCorruption(start, 5.0, 0.3)), False)
-        _check_fault_starts(RunOptions(pilot_takeover=PilotTakeover(start, "AUTO_RTL")), False)
-    for options in (
-        RunOptions(servo_silent=(2, grasp)),
-        RunOptions(servo_error=ServoError(1, "overheating", grasp)),
-        RunOptions(bus_corruption=BusCorruption(grasp, 5.0, 0.3)),
-        RunOptions(low_battery=LowBattery(grasp)),
-    ):
-        with pytest.raises(ValueError, match="not at the mission phase 'grasp'"):
-            _check_fault_starts(options, relayed=False)
-    with pytest.raises(ValueError, match="keep --companion-lockstep"):
-        _check_fault_starts(RunOptions(link_cut=(29.0, 2.0)), relayed=False)
 
 
 def test_a_low_battery_is_two_parameters_set_once_from_the_ground_station():

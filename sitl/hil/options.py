@@ -30,10 +30,11 @@ class HilOptions:
     ready_timeout_s
         Longest wall time from starting PX4 until it is ready [s].
     companion_lockstep
-        Relay PX4's onboard link through this process and hold PX4's clock after each
-        frame until the companion has answered the last pose
-        (:mod:`sitl.hil.companion_relay`): the companion's computing then takes no vehicle
-        time, on an idle or a busy machine. Off: the companion runs beside the lockstep.
+        Hold PX4's clock after each frame until the companion has answered the last pose
+        (:mod:`sitl.hil.companion_relay`, which relays PX4's onboard link through this
+        process either way): the companion's computing then takes no vehicle time, on an
+        idle or a busy machine. Off: the companion runs beside the lockstep (a companion
+        starved of CPU then loses vehicle time, as on the vehicle).
     nice
         Lower this process's CPU priority by this much (``os.nice``) once PX4 has started
         (PX4 keeps the normal priority: with PX4 niced as well, one GPS flight on a loaded

@@ -28,11 +28,12 @@ takeoff!") the loop runs as fast as PX4 and the physics go; then it is paced at 
 times real time (as ``sitl run``), and PX4's console lines go to ``console``.
 
 Links: PX4's onboard and GCS links are moved onto the ports of ``RunOptions.ports`` (the
-companion connects where ``sitl run`` says, as with the imitation); with
-``companion_lockstep`` (the default) the onboard link's ports are this process's
-:class:`~sitl.hil.companion_relay.CompanionRelay`, PX4's link moved onto an internal pair,
-and after each frame's motor commands the loop waits for the companion's answer to the last
-pose (4. above: the companion in the lockstep); a third PX4 link
+companion connects where ``sitl run`` says, as with the imitation); the onboard link's
+ports are this process's :class:`~sitl.hil.companion_relay.CompanionRelay`, PX4's link
+moved onto an internal pair (the relay reads the mission's phases and carries the link's
+faults); with ``companion_lockstep`` (the default) after each frame's motor commands the
+loop waits for the companion's answer to the last pose (4. above: the companion in the
+lockstep), without it the relay only forwards, at the end of each frame; a third PX4 link
 (mode ``minimal``) sends its heartbeats to this process, whose flight mode the truth log
 records (PX4's 1 Hz heartbeat: up to a second late); ``armed`` comes with every
 HIL_ACTUATOR_CONTROLS.
@@ -101,7 +102,7 @@ from sitl.scenario import Scenario, servo_watchdog_option
 from sitl.servo.pty_server import REPLY_SWITCH_INTERVAL_S
 from sitl.stepping import WallPacer, step_loop
 from sitl.vehicle.link_faults import LinkFaults
-from sitl.vehicle.mission_phases import PX4_PHASES, FaultStart, MissionPhases, PhaseStart
+from sitl.vehicle.mission_phases import MissionPhases
 from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions
 from sitl.vehicle.runner import build_world, truth_record
 from sitl.vehicle.sensors import PoseSensor
@@ -155,7 +156,6 @@ class Px4InTheLoop:
             raise ValueError(
                 "MAVLink signing is the imitation's: configure PX4's own (MAV_SIGN_CFG)"
             )
-        _check_fault_starts(options, hil.companion_lockstep)
         plant_rate_hz = scenario.plant.rate_hz
         imu_rate_hz = scenario.sensors.gyro_rate_hz
         steps = plant_rate_hz / imu_rate_hz
@@ -255,16 +255,15 @@ class Px4InTheLoop:
             self.ports = ports = free_instance()
             self._link = SimulatorLink(ports.simulator_tcp)
             self._link.open()
-            if self.hil.companion_lockstep:
-                p = self.options.ports
-                self._relay = CompanionRelay(
-                    (p.onboard_local, p.onboard_remote),
-                    lambda: self.servo_bus.sync_reads,
-                    answer_timeout_s=LOCKSTEP_WAIT_S,
-                    on_text=self._companion_text,
-                    drops=lambda: self.link_faults.drops("onboard", self.world.time_s),
-                )
-                self._relay.open()
+            p = self.options.ports
+            self._relay = CompanionRelay(
+                (p.onboard_local, p.onboard_remote),
+                lambda: self.servo_bus.sync_reads,
+                answer_timeout_s=LOCKSTEP_WAIT_S,
+                on_text=self._companion_text,
+                drops=lambda: self.link_faults.drops("onboard", self.world.time_s),
+            )
+            self._relay.open()
             self._mode_link = MavlinkEndpoint(0, 0, system_id=255, component_id=190)
             self._mode_link.open()
             speed = self.options.speed
@@ -447,7 +446,7 @@ class Px4InTheLoop:
         t2 = time.perf_counter()
         self._await_px4(time_us, frame.stop)
         if relay is not None:
-            if frame.ready:
+            if frame.ready and self.hil.companion_lockstep:
                 relay.hold(frame.stop)
             else:
                 relay.pump()
@@ -606,34 +605,3 @@ class _FrameLoop:
     force: np.ndarray = field(default_factory=lambda: np.zeros(3))
     omega: np.ndarray = field(default_factory=lambda: np.zeros(3))
     commands: list[float] = field(default_factory=list)
-
-
-def _check_fault_starts(options: RunOptions, relayed: bool) -> None:
-    """The faults' starts checked for PX4 in the loop: a simulated time [s], PX4's own
-    take-off or landing (its modes, read from its heartbeats), or with the companion relay
-    a mission phase (the companion's STATUSTEXT, which the relay reads); link faults need
-    the relay (it is the link they act on). Raises ValueError."""
-    link = [
-        options.link_cut[0] if options.link_cut else None,
-        options.link_loss.start if options.link_loss else None,
-    ]
-    if not relayed and any(start is not None for start in link):
-        raise ValueError(
-            "a link cut or loss acts on the companion relay: keep --companion-lockstep"
-        )
-    error, corruption = options.servo_error, options.bus_corruption
-    starts: list[FaultStart | None] = [
-        *link,
-        options.servo_silent[1] if options.servo_silent else None,
-        error.start if error else None,
-        corruption.start if corruption else None,
-        options.pilot_takeover.start if options.pilot_takeover else None,
-        options.low_battery.start if options.low_battery else None,
-        options.pose_dropout[0] if options.pose_dropout else None,
-    ]
-    for start in starts:
-        if not relayed and isinstance(start, PhaseStart) and start.phase not in PX4_PHASES:
-            raise ValueError(
-                f"without the companion relay a fault starts at a time or at PX4's "
-                f"{' or '.join(PX4_PHASES)}, not at the mission phase {start.phase!r}"
-            )
