@@ -129,6 +129,14 @@ class RunCommand:
             "time], e.g. 3@to_place+0.5."
         ),
     ] = None
+    pose_jump: Annotated[
+        str | None,
+        typer.Option(
+            help="Fault injection 'METRES@T' or 'METRES@PHASE+S', --autopilot px4 --navigation "
+            "mocap: from then on every motion-capture pose lies METRES east of the truth (a "
+            "re-calibrated frame or a swapped marker: EKF2 resets onto it), e.g. 0.5@lift+0.5."
+        ),
+    ] = None
     servo_reply_delay_ms: Annotated[
         float,
         typer.Option(
@@ -200,9 +208,13 @@ class RunCommand:
         self._check_run()
         if self.low_battery is not None and build is None:
             fail("--low-battery flies PX4's own battery and failsafe: it needs --autopilot px4")
-        if self.pose_dropout is not None and (build is None or self.navigation != "mocap"):
-            fail("--pose-dropout is a motion-capture dropout under PX4's EKF2: it needs "
-                 "--autopilot px4 --navigation mocap")  # fmt: skip
+        for option, value in (
+            ("--pose-dropout", self.pose_dropout),
+            ("--pose-jump", self.pose_jump),
+        ):
+            if value is not None and (build is None or self.navigation != "mocap"):
+                fail(f"{option} is a motion-capture fault under PX4's EKF2: it needs "
+                     "--autopilot px4 --navigation mocap")  # fmt: skip
         silent = None
         if self.servo_silent is not None:
             silent = _servo_fault(self.servo_silent, simulated_servo_ids(cfg))
@@ -239,6 +251,7 @@ class RunCommand:
                 pose_dropout=None
                 if self.pose_dropout is None
                 else _stretch(self.pose_dropout, "--pose-dropout"),
+                pose_jump=None if self.pose_jump is None else _pose_jump(self.pose_jump),
                 servo_reply_delay_s=self.servo_reply_delay_ms * 1e-3,
                 physics=self.physics,
                 wind=air,
@@ -404,6 +417,18 @@ def _stretch(text: str, option: str) -> tuple[FaultStart, float]:
     return _fault_start(at, option, text), duration_s
 
 
+def _pose_jump(text: str) -> tuple[FaultStart, float]:
+    """``--pose-jump METRES@START`` as (start, distance east [m])."""
+    metres, _, at = text.partition("@")
+    try:
+        distance_m = float(metres)
+    except ValueError:
+        _bad_fault("--pose-jump", text)
+    if not (math.isfinite(distance_m) and 0.0 < abs(distance_m) <= 10.0):
+        fail(f"--pose-jump {text}: the jump must be non-zero and at most 10 m")
+    return _fault_start(at, "--pose-jump", text), distance_m
+
+
 def _pilot_takeover(text: str) -> PilotTakeover:
     """``--pilot-takeover MODE@START`` as a :class:`PilotTakeover`."""
     mode, _, at = text.partition("@")
@@ -431,6 +456,7 @@ _FORMS = {
     "--pilot-takeover": "MODE@SECONDS or MODE@PHASE+SECONDS",
     "--low-battery": "PERCENT@SECONDS or PERCENT@PHASE+SECONDS",
     "--pose-dropout": "DURATION@SECONDS or DURATION@PHASE+SECONDS",
+    "--pose-jump": "METRES@SECONDS or METRES@PHASE+SECONDS",
 }
 _EXAMPLES = {
     "--servo-silent": "2@30 or 2@takeoff+8",
@@ -439,6 +465,7 @@ _EXAMPLES = {
     "--pilot-takeover": "AUTO_RTL@lift+0.5",
     "--low-battery": "6@to_place+0.5",
     "--pose-dropout": "3@to_place+0.5",
+    "--pose-jump": "0.5@lift+0.5",
 }
 
 

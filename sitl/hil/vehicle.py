@@ -39,7 +39,8 @@ records (PX4's 1 Hz heartbeat: up to a second late); ``armed`` comes with every
 HIL_ACTUATOR_CONTROLS.
 
 Faults (``RunOptions``), at a simulated time or a phase: the servo bus's, as with the
-imitation; a motion-capture dropout (no vision ODOMETRY to PX4 for a while); on the
+imitation; a motion-capture dropout (no vision ODOMETRY to PX4 for a while) or jump (the
+poses moved east from then on); on the
 relayed onboard link a cut or a lossy stretch; from the mode link, as a
 ground station, the pilot's mode switch and a battery falling low
 (:mod:`sitl.vehicle.link_faults`). With the relay, the mission's phases are the companion's
@@ -60,7 +61,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import IO
 
@@ -105,7 +106,7 @@ from sitl.vehicle.link_faults import LinkFaults
 from sitl.vehicle.mission_phases import MissionPhases
 from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions
 from sitl.vehicle.runner import build_world, truth_record
-from sitl.vehicle.sensors import PoseSensor
+from sitl.vehicle.sensors import PoseMeasurement, PoseSensor
 from sitl.vehicle.servo_bus_faults import ServoBusFaults
 
 __all__ = ["VALIDATED_SPEED", "Px4Exited", "Px4InTheLoop"]
@@ -488,6 +489,18 @@ class Px4InTheLoop:
         start_s = self.phases.start_s(dropout[0])
         return start_s is not None and start_s <= now_s < start_s + dropout[1]
 
+    def _pose_moved(self, pose: PoseMeasurement) -> PoseMeasurement:
+        """The pose after a jump of the motion-capture frame (``RunOptions.pose_jump``),
+        once its start has come: that far east (world x, ENU)."""
+        jump = self.options.pose_jump
+        if jump is None:
+            return pose
+        start_s = self.phases.start_s(jump[0])
+        if start_s is None or pose.t_s < start_s:
+            return pose
+        moved = pose.position_m + np.array([jump[1], 0.0, 0.0])
+        return replace(pose, position_m=moved)
+
     def _companion_text(self, text: str) -> None:
         """A STATUSTEXT of the companion, relayed: a mission phase begins (told on the
         console as ``phase NAME at T s``, where a harness that kills the companion at a
@@ -529,6 +542,7 @@ class Px4InTheLoop:
         if self._pose is not None:
             pose = self._pose.sample(t_s, state.q)
             if pose is not None and not self._pose_lost(t_s):
+                pose = self._pose_moved(pose)
                 s = self.scenario.sensors
                 messages.append(
                     vision_odometry(time_us, pose, s.position_std_m, s.attitude_std_rad)

@@ -138,6 +138,10 @@ class RunOptions:
     pose_dropout: tuple[FaultStart, float] | None = None
     """Fault injection: (simulation time [s] or a mission phase, duration [s]) of a
     motion-capture dropout: no pose reaches PX4's estimator (PX4 in the loop only)."""
+    pose_jump: tuple[FaultStart, float] | None = None
+    """Fault injection: (simulation time [s] or a mission phase, distance [m]) of a jump of
+    the motion-capture frame: from then on every pose lies that far east (world x, ENU) of
+    the truth, as after a re-calibration or a swapped marker (PX4 in the loop only)."""
     memory: str | None = None
     """Serve the links and the servo bus on in-memory channels ``NAME-onboard``,
     ``NAME-gcs`` and ``NAME-servos`` (:mod:`bytelink.memory`) instead of UDP and a pty:

@@ -235,10 +235,10 @@ class SitlVehicle:
                 "a low battery is flown by PX4's own battery and failsafe: fly it with PX4 in "
                 "the loop (--autopilot px4); the imitation has no low-battery failsafe"
             )
-        if options.pose_dropout is not None:
+        if options.pose_dropout is not None or options.pose_jump is not None:
             raise ValueError(
-                "a motion-capture dropout is flown by PX4's own estimator (EKF2): fly it with "
-                "PX4 in the loop (--autopilot px4); the imitation does not model it"
+                "a motion-capture dropout or jump is flown by PX4's own estimator (EKF2): fly "
+                "it with PX4 in the loop (--autopilot px4); the imitation does not model it"
             )
         self.link_faults = LinkFaults(
             self.phases,
