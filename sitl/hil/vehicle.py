@@ -224,14 +224,7 @@ class Px4InTheLoop:
         """When PX4's take-off and landing (from its modes) and the mission's phases (the
         companion's STATUSTEXT, read by the relay) began."""
         self.servo_faults = ServoBusFaults(options, self.phases)
-        self.link_faults = LinkFaults(
-            self.phases,
-            options.seed,
-            cut=options.link_cut,
-            loss=options.link_loss,
-            takeover=options.pilot_takeover,
-            battery=options.low_battery,
-        )
+        self.link_faults = LinkFaults.of_run(options, self.phases)
         """The onboard link's cut or loss (acted by the relay), and what the ground station
         sends PX4 (the pilot's mode switch, the battery's parameters) on the mode link."""
         self._lockstep = False

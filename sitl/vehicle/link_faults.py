@@ -18,12 +18,16 @@ Each starts at a simulated time or a mission phase (:mod:`sitl.vehicle.mission_p
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from sitl.px4.modes import Px4Mode
 from sitl.vehicle.mission_phases import FaultStart, MissionPhases, check_stretch, valid_start
+
+if TYPE_CHECKING:
+    from sitl.vehicle.options import RunOptions
 
 __all__ = [
     "GCS_COMPONENT_ID",
@@ -111,6 +115,21 @@ class LinkFaults:
         self._system_id = autopilot_system_id
         self._rng = np.random.default_rng([seed, 0x10551])
         self._gcs = mavlink2.MAVLink(None, GCS_SYSTEM_ID, GCS_COMPONENT_ID)
+
+    @classmethod
+    def of_run(
+        cls, options: RunOptions, phases: MissionPhases, autopilot_system_id: int = 1
+    ) -> LinkFaults:
+        """The link faults ``options`` asks for (its seed, cut, loss, takeover and battery)."""
+        return cls(
+            phases,
+            options.seed,
+            cut=options.link_cut,
+            loss=options.link_loss,
+            takeover=options.pilot_takeover,
+            battery=options.low_battery,
+            autopilot_system_id=autopilot_system_id,
+        )
 
     def _within(self, start: FaultStart, duration_s: float, now_s: float) -> bool:
         start_s = self._phases.start_s(start)

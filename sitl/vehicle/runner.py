@@ -240,14 +240,7 @@ class SitlVehicle:
                 "a motion-capture dropout or jump is flown by PX4's own estimator (EKF2): fly "
                 "it with PX4 in the loop (--autopilot px4); the imitation does not model it"
             )
-        self.link_faults = LinkFaults(
-            self.phases,
-            options.seed,
-            cut=options.link_cut,
-            loss=options.link_loss,
-            takeover=options.pilot_takeover,
-            autopilot_system_id=self.autopilot.system_id,
-        )
+        self.link_faults = LinkFaults.of_run(options, self.phases, self.autopilot.system_id)
         self._console: Callable[[str], None] | None = None
         self.steps = 0
         """Plant steps taken."""
