@@ -36,7 +36,6 @@ the table goes to ``docs/px4_fault_sample.md``.
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 import os
 import platform
@@ -53,7 +52,7 @@ from pyulog import ULog
 
 from companion.logs.columns import ColumnsError, T, read_columns
 from companion.logs.flightlog import read_flight_log
-from sitl.campaign.safety import judge
+from sitl.campaign.safety import handover_s, judge
 from sitl.hil.vehicle import VALIDATED_SPEED
 from sitl.px4_sitl.launcher import Px4Build
 from sitl.vehicle.launch import start_sitl
@@ -146,17 +145,6 @@ def _read_truth(path: Path) -> list[dict]:
         return []
     lines = path.read_text(encoding="utf-8").splitlines()
     return [json.loads(line) for line in lines if line.strip().endswith("}")]
-
-
-def _handover_s(truth: list[dict]) -> float | None:
-    """When PX4 last left OFFBOARD, armed (the truth's mode, PX4's 1 Hz heartbeat: up to a
-    second late) [s]: from then on PX4 flies, with or without the companion; None when it
-    never flew OFFBOARD."""
-    handover = None
-    for before, after in itertools.pairwise(truth):
-        if before["mode"] == "OFFBOARD" and after["mode"] != "OFFBOARD" and before["armed"]:
-            handover = after["t_s"]
-    return handover
 
 
 def _log_end_s(out: Path) -> float | None:
@@ -254,7 +242,7 @@ def fly(build: Px4Build, kind: str, phase: str, work: Path, seed: int = 1) -> Fl
     truth = _read_truth(truth_log)
     summary_path = out / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.exists() else None
-    until_s = killed_at_s if killed else _handover_s(truth)
+    until_s = killed_at_s if killed else handover_s(truth)
     verdict = judge(truth, summary, PLACE_AT, _log_end_s(out), until_s, killed)
     modes, _ = px4_modes(work / "px4")
     if killed:

@@ -98,11 +98,6 @@ def write_spec(tmp_path: Path, body: str, name: str = "spec.toml") -> Path:
             ("offset_s is the time into at_phase",),
         ),
         (
-            'autopilots = ["px4"]\n[[faults]]\nkind = "servo_silent"\nservo_id = 2\n'
-            'at_phase = "lift"\n',
-            ("a fault at a mission phase flies on the imitation only",),
-        ),
-        (
             '[[faults]]\nkind = "servo_error"\nservo_id = 1\nat_phase = "lift"\n',
             ("servo_error needs error",),
         ),
@@ -118,8 +113,9 @@ def write_spec(tmp_path: Path, body: str, name: str = "spec.toml") -> Path:
         ("[bounds.passivity]\nmass_error_pct = -3.0\n", ("greater than 0",)),
         ('autopilots = ["px5"]\n', ("autopilots", "'imitation' or 'px4'")),
         (
-            'autopilots = ["px4"]\n[[faults]]\nkind = "link_cut"\nat_s = 20.0\nduration_s = 2.0\n',
-            ("link_cut, link_loss, pilot_takeover and bus_corruption fly on the imitation only",),
+            'autopilots = ["px4"]\n[[faults]]\nkind = "link_loss"\nat_s = 20.0\nduration_s = 2.0\n'
+            "drop_fraction = 0.3\n",
+            ("link_loss and bus_corruption fly on the imitation only",),
         ),
     ],
 )

@@ -9,7 +9,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.mission.announce import STATUSTEXT_CHARS, announcement, phase_of
-from sitl.campaign.safety import judge
+from sitl.campaign.safety import handover_s, judge
 from sitl.campaign.spec import Fault
 from sitl.servo import XM430Servo
 from sitl.servo.memory_bus import MemoryServoBus
@@ -231,3 +231,16 @@ def test_a_killed_companion_needs_no_summary_but_its_log_to_its_last_block():
     # A companion that handed over to PX4, which flew on: its log reaches the handover.
     assert judge(truth, SUMMARY, PLACE_M, 49.9, log_until_s=50.0).safe
     assert not judge(truth, SUMMARY, PLACE_M, 49.9).safe
+
+
+def test_the_handover_is_when_px4_last_left_offboard_armed():
+    truth = [
+        sample(30.0, 1.5),
+        sample(40.0, 1.5, mode="AUTO_LOITER"),
+        sample(41.0, 1.5),
+        sample(50.0, 1.2, mode="AUTO_RTL"),
+        sample(60.0, 0.0, mode="AUTO_RTL", armed=False, ground=True),
+        sample(61.0, 0.0, armed=False, ground=True),
+    ]
+    assert handover_s(truth) == 50.0
+    assert handover_s([sample(5.0, 1.0, mode="AUTO_LOITER")]) is None

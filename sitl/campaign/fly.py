@@ -31,7 +31,7 @@ from companion.logs.flightlog import read_flight_log
 from companion.mission.pickup import Phase, PickupPlan
 from companion.mission.report import MissionReport
 from sitl.campaign.flights import CRUISE_ALTITUDE_M, Flight, scenario_of
-from sitl.campaign.safety import judge
+from sitl.campaign.safety import handover_s, judge
 from sitl.scenario import Scenario
 from sitl.vehicle.link_faults import LinkLoss, PilotTakeover
 from sitl.vehicle.mission_phases import FaultStart, PhaseStart
@@ -117,7 +117,14 @@ def flight_row(
     summary = report.as_dict()
     latency = summary["cycle_latency_us"] or {}
     log_end_s = None if log is None or not len(log["t_vehicle_s"]) else log["t_vehicle_s"][-1]
-    verdict = judge(truth, summary, place, None if log_end_s is None else float(log_end_s))
+    # With PX4 in the loop PX4 flies on while the mission winds up: the log reaches the handover.
+    verdict = judge(
+        truth,
+        summary,
+        place,
+        None if log_end_s is None else float(log_end_s),
+        handover_s(truth) if flight.autopilot == "px4" else None,
+    )
     return {
         "status": "ok",
         "outcome": report.outcome,
@@ -261,10 +268,19 @@ def _fly_px4(
     config.write_text(tomlkit.dumps(document), encoding="utf-8")
     extra = ["--seed", str(flight.seed), "--navigation", "mocap"]
     fault = flight.fault
+    at = (
+        f"{fault.at_phase}+{fault.offset_s or 0.0:g}"
+        if fault.at_phase is not None
+        else f"{fault.at_s:g}"
+    )
     if fault.kind == "servo_silent":
-        extra += ["--servo-silent", f"{fault.servo_id}@{fault.at_s:g}"]
+        extra += ["--servo-silent", f"{fault.servo_id}@{at}"]
     if fault.kind == "servo_error":
-        extra += ["--servo-error", f"{fault.servo_id}:{fault.error}@{fault.at_s:g}"]
+        extra += ["--servo-error", f"{fault.servo_id}:{fault.error}@{at}"]
+    if fault.kind == "link_cut":
+        extra += ["--link-cut", f"{fault.duration_s:g}@{at}"]
+    if fault.kind == "pilot_takeover":
+        extra += ["--pilot-takeover", f"{fault.mode}@{at}"]
     sitl = start_sitl(
         config,
         *extra,

@@ -24,6 +24,7 @@ __all__ = [
     "TILT_MAX_DEG",
     "TOUCHDOWN_MAX_M_S",
     "Verdict",
+    "handover_s",
     "judge",
 ]
 
@@ -155,6 +156,22 @@ def _flight_end_s(truth: Sequence[Mapping[str, Any]]) -> float:
             break
         end = float(sample["t_s"])
     return end
+
+
+def handover_s(truth: Sequence[Mapping[str, Any]]) -> float | None:
+    """When PX4 last left OFFBOARD while armed [s] (the truth's mode: PX4's 1 Hz heartbeat
+    with PX4 in the loop, up to a second late): from then on PX4 flies, with or without the
+    companion, so its flight log need reach no further (``judge``'s ``log_until_s``); None
+    when it never flew OFFBOARD."""
+    handover = None
+    for before, after in itertools.pairwise(truth):
+        if (
+            before.get("mode") == "OFFBOARD"
+            and after.get("mode") != "OFFBOARD"
+            and before.get("armed")
+        ):
+            handover = float(after["t_s"])
+    return handover
 
 
 def judge(
