@@ -351,3 +351,13 @@ def test_autopilot_px4_without_a_px4_build_is_one_line_and_status_2(
         assert result.returncode == 2, (extra, result.stderr)
         lines = [line for line in result.stderr.splitlines() if line.strip()]
         assert len(lines) == 1 and lines[0].startswith("error:") and says in lines[0], extra
+
+
+def test_on_motion_capture_px4_fuses_the_barometer_beside_vision():
+    """Vision is EKF2's height reference and the barometer is fused beside it: without it a
+    motion-capture dropout leaves EKF2 no height and PX4's descent blind (docs/faults.md)."""
+    from sitl.hil.airframe import HGT_REF_VISION, navigation_parameters
+
+    params = navigation_parameters("mocap", vision_delay_s=0.01)
+    assert params["EKF2_HGT_REF"] == HGT_REF_VISION
+    assert params["EKF2_BARO_CTRL"] == 1 and params["EKF2_GPS_CTRL"] == 0

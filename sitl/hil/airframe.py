@@ -104,8 +104,11 @@ def navigation_parameters(
 
     ``mocap`` (the paper's lab, as :func:`sitl.px4_sitl.mocap.mocap_parameters` measured on
     PX4 SIH):
-    GPS, barometer and range finder off; vision position (horizontal and vertical) and yaw
-    fused, vision as the height reference, the poses' own variances bounded below by
+    GPS and range finder off; vision position (horizontal and vertical) and yaw fused,
+    vision as the height reference, the barometer fused beside it (the height and climb
+    rate that carry EKF2 through a motion-capture dropout: without it a 10 s dropout ended
+    in a blind descent touching down at 1.03 m/s, with it at 0.76 m/s, measured on the
+    build), the poses' own variances bounded below by
     EKF2's minimum noises (10 mm, 0.05 rad); ``EKF2_EV_DELAY`` = ``vision_delay_s``, the
     pose's age when PX4 receives it.
 
@@ -119,7 +122,7 @@ def navigation_parameters(
     if navigation == "mocap":
         return {
             "EKF2_GPS_CTRL": 0,
-            "EKF2_BARO_CTRL": 0,
+            "EKF2_BARO_CTRL": 1,
             "EKF2_RNG_CTRL": 0,
             "EKF2_EV_CTRL": EV_CTRL_HPOS_VPOS_YAW,
             "EKF2_HGT_REF": HGT_REF_VISION,
