@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 import math
 import tomllib
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +29,8 @@ from companion.control.setpoints import ThrustModel
 from companion.estimation import filters
 from companion.estimation.estimator import Skip
 from companion.estimation.filters import FilteredState, StateFilter
+from companion.frames import quaternion_ned_frd_from_enu_flu_floats
+from companion.link.setpoint import quaternion_from_euler_zyx
 from sitl.offline.simulation import COLUMNS, SimOptions, simulate
 from sitl.scenario import load_scenario, parse_scenario
 
@@ -279,7 +282,7 @@ def random_cycles(control: FlightControl, seed: int, n: int) -> tuple[list, dict
         outputs.append(
             (
                 out.tau,
-                [getattr(out.setpoint, f) for f in out.setpoint.__dataclass_fields__],
+                [getattr(out.setpoint, f.name) for f in fields(out.setpoint) if f.compare],
                 [est.theta, est.excitation, est.confident, est.frozen, est.thrust_scale],
                 [est.spread if math.isfinite(est.spread) else -1.0],
                 out.theta_hat,
@@ -287,6 +290,7 @@ def random_cycles(control: FlightControl, seed: int, n: int) -> tuple[list, dict
                 control.trim.force_n,
                 estimator_state(control),
                 sorted((k.value, v) for k, v in control.estimator.skipped.items()),
+                out.setpoint,
             )
         )
     return outputs, seen
@@ -335,6 +339,27 @@ def test_random_cycles_agree(case):
                     close(u, v, f"cycle {i}, item {k}")
             else:
                 close(x, y, f"cycle {i}, item {k}")
+
+
+def test_the_compiled_setpoint_carries_the_links_quaternion_bit_for_bit():
+    """GIVEN the compiled step WHEN seeded random cycles run (tilt and thrust saturated
+    among them) THEN every setpoint carries the quaternion body FRD -> world NED that the
+    link computes from its Euler angles, with the same bits (the link sends it as it is);
+    the Python step leaves it to the link."""
+    config = load_config(CONFIGS / "sitl_pickup.toml")
+    for compiled in (True, False):
+        control = FlightControl(config, compiled=compiled)
+        control.thrust = ThrustModel(control.thrust.max_thrust_n, 0.1)
+        outputs, _ = random_cycles(control, seed=3, n=600)
+        for i, output in enumerate(outputs):
+            sp = output[9]
+            if not compiled:
+                assert sp.q_ned_frd is None
+                continue
+            q_enu = quaternion_from_euler_zyx(sp.roll_rad, sp.pitch_rad, sp.yaw_rad)
+            link = quaternion_ned_frd_from_enu_flu_floats(q_enu)
+            assert sp.q_ned_frd is not None
+            assert [v.hex() for v in sp.q_ned_frd] == [v.hex() for v in link], f"cycle {i}"
 
 
 def test_the_python_step_when_the_extension_is_missing(monkeypatch, caplog):
@@ -519,6 +544,7 @@ def test_frozen_record_builds_what_the_constructor_builds():
         thrust_relative=0.4,
         tilt_saturated=False,
         thrust_saturated=True,
+        q_ned_frd=(0.5, 0.5, -0.5, 0.5),
     )
     made = compiled_step.frozen_record(AttitudeThrustSetpoint, **fields)
     assert made == AttitudeThrustSetpoint(**fields) and hash(made) is not None

@@ -350,11 +350,11 @@ class CompiledStep:
             slice(at[name], at[name] + size)
             for name, size in (
                 ("tau", 8), ("theta", 3), ("theta_used", 3), ("ref_q", 8), ("ref_qd", 8),
-                ("ref_qdd", 8),
+                ("ref_qdd", 8), ("q_ned", 4),
             )
         )  # fmt: skip
         """Slices of the outputs' block: tau, theta, theta used, the reference q, q_dot,
-        q_ddot."""
+        q_ddot, the setpoint's quaternion body FRD -> world NED."""
         n = len(estimator.rows)
         par: dict[str, Any] = {
             "model": model_params,
@@ -542,7 +542,8 @@ class CompiledStep:
         roll, pitch, yaw, thrust, rel, tilt_sat, thrust_sat, exc, spread, conf, frozen, scale = (
             self._scalars
         )
-        at_tau, at_theta, at_used, at_q, at_qd, at_qdd = self._vectors
+        at_tau, at_theta, at_used, at_q, at_qd, at_qdd, at_q_ned = self._vectors
+        q_ned = v[at_q_ned]
         setpoint = frozen_record(
             AttitudeThrustSetpoint,
             roll_rad=v[roll],
@@ -552,6 +553,7 @@ class CompiledStep:
             thrust_relative=v[rel],
             tilt_saturated=v[tilt_sat] == 1.0,
             thrust_saturated=v[thrust_sat] == 1.0,
+            q_ned_frd=tuple(q_ned) if q_ned[0] == q_ned[0] else None,
         )
         estimate = frozen_record(
             Estimate,

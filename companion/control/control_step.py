@@ -24,7 +24,10 @@ the same floating-point operations:
    toward the new roll and pitch,
 6. if enabled, the roll/pitch offset of PX4's tilt loop inverted for the model's torque on
    the tilt rows at the reference attitude, low-passed
-   (:mod:`companion.control.attitude_feedforward`).
+   (:mod:`companion.control.attitude_feedforward`),
+7. the setpoint's attitude as the quaternion body FRD -> world NED that SET_ATTITUDE_TARGET
+   carries, by the link's operations (:mod:`companion.link.setpoint`,
+   :mod:`companion.frames`), so that the link sends it as it is.
 
 The Python classes (:mod:`companion.estimation.estimator`, :mod:`companion.control.laws`,
 :mod:`companion.control.trajectory`, :mod:`companion.control.setpoints`) are the reference;
@@ -103,6 +106,7 @@ _PIECE = cython.declare(cython.Py_ssize_t, 136)  # one piece of the model: 8 x [
 N_SKIP = cython.declare(cython.int, 5)
 """Skip reasons (companion.estimation.estimator.Skip), in its order."""
 _PI = cython.declare(cython.double, 3.141592653589793)
+_NAN = cython.declare(cython.double, float("nan"))
 
 # The parameters (offsets in the buffer, which starts with them).
 _P_MODEL = cython.declare(cython.Py_ssize_t, 0)  # ModelParameters.vector() (14)
@@ -183,10 +187,12 @@ _O_THETA_USED = cython.declare(cython.Py_ssize_t, _OUT + 23)  # (3)
 _O_REF_Q = cython.declare(cython.Py_ssize_t, _OUT + 26)  # (8 each)
 _O_REF_QD = cython.declare(cython.Py_ssize_t, _OUT + 34)
 _O_REF_QDD = cython.declare(cython.Py_ssize_t, _OUT + 42)
-OUT_SIZE = cython.declare(cython.Py_ssize_t, 50)
+_O_Q_NED = cython.declare(cython.Py_ssize_t, _OUT + 50)  # (4)
+OUT_SIZE = cython.declare(cython.Py_ssize_t, 54)
 """Values of the outputs' block: tau (8); roll, pitch, yaw [rad], thrust [N], relative
 thrust, tilt and thrust saturated; theta (3), excitation, spread, confident, frozen, thrust
-scale; theta used (3); the reference q, q_dot, q_ddot (8 each)."""
+scale; theta used (3); the reference q, q_dot, q_ddot (8 each); the setpoint's attitude as
+SET_ATTITUDE_TARGET carries it, body FRD -> world NED [w, x, y, z] (NaN if it is none)."""
 
 # The scratch (offsets in the buffer).
 _IN = cython.declare(cython.Py_ssize_t, _OUT + OUT_SIZE)
@@ -380,6 +386,7 @@ LAYOUT = {
     "Out.ref_q": (_O_REF_Q - _OUT, 8),
     "Out.ref_qd": (_O_REF_QD - _OUT, 8),
     "Out.ref_qdd": (_O_REF_QDD - _OUT, 8),
+    "Out.q_ned": (_O_Q_NED - _OUT, 4),
 }
 """``"Params.<field>"`` / ``"State.<field>"`` / ``"Out.<field>"`` -> (offset in its block,
 number of values)."""
@@ -891,6 +898,71 @@ def _setpoint(b: cython.p_double, yaw: cython.double, yaw_d: cython.double):
 
 
 @cython.cfunc
+def _unit(q: cython.p_double) -> cython.bint:
+    """companion.frames' normalization of the quaternion q [w, x, y, z] in place (w >= 0);
+    False (q unchanged) where it is no rotation (a zero or non-finite norm)."""
+    norm: cython.double = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if not isfinite(norm) or norm < 1e-9:
+        return False
+    if q[0] < 0.0:
+        norm = -norm
+    i: cython.Py_ssize_t
+    for i in range(4):
+        q[i] = q[i] / norm
+    return True
+
+
+@cython.cfunc
+def _multiply(a: cython.p_double, b: cython.p_double, out: cython.p_double):
+    """The Hamilton product a b of quaternions [w, x, y, z] into out (companion.frames')."""
+    out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3]
+    out[1] = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2]
+    out[2] = a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1]
+    out[3] = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]
+
+
+@cython.cfunc
+def _setpoint_quaternion(b: cython.p_double):
+    """The outputs' roll, pitch, yaw (ZYX, ENU/FLU) [rad] as the quaternion body FRD ->
+    world NED into Out.q_ned, by the operations of the link's conversion
+    (companion.link.setpoint.quaternion_from_euler_zyx, then
+    companion.frames.quaternion_ned_frd_from_enu_flu_floats); NaN where it is none."""
+    cr: cython.double = cos(0.5 * b[_O_ROLL])
+    sr: cython.double = sin(0.5 * b[_O_ROLL])
+    cp: cython.double = cos(0.5 * b[_O_PITCH])
+    sp: cython.double = sin(0.5 * b[_O_PITCH])
+    cy: cython.double = cos(0.5 * b[_O_YAW])
+    sy: cython.double = sin(0.5 * b[_O_YAW])
+    q = cython.declare(cython.double[4])
+    ned_enu = cython.declare(cython.double[4])
+    flu_frd = cython.declare(cython.double[4])
+    rotated = cython.declare(cython.double[4])
+    q[0] = cr * cp * cy + sr * sp * sy
+    q[1] = sr * cp * cy - cr * sp * sy
+    q[2] = cr * sp * cy + sr * cp * sy
+    q[3] = cr * cp * sy - sr * sp * cy
+    half: cython.double = sqrt(0.5)
+    ned_enu[0] = 0.0  # ENU -> NED: 180 deg about (1, 1, 0) / sqrt(2)
+    ned_enu[1] = half
+    ned_enu[2] = half
+    ned_enu[3] = 0.0
+    flu_frd[0] = 0.0  # FRD -> FLU: 180 deg about the body x axis
+    flu_frd[1] = 1.0
+    flu_frd[2] = 0.0
+    flu_frd[3] = 0.0
+    i: cython.Py_ssize_t
+    if _unit(q):
+        _multiply(ned_enu, q, rotated)
+        _multiply(rotated, flu_frd, q)
+        if _unit(q):
+            for i in range(4):
+                b[_O_Q_NED + i] = q[i]
+            return
+    for i in range(4):
+        b[_O_Q_NED + i] = _NAN
+
+
+@cython.cfunc
 def _tilt_step(b: cython.p_double, dt: cython.double):
     """TiltReference.step toward the outputs' (roll, pitch)."""
     w: cython.double = b[_P_TILT_W]
@@ -1233,7 +1305,9 @@ def _step(
         delayed = est_skip != -2
         if not delayed:
             skip = _WARMING_UP
-    return _control_step(b, step_work, delayed, dt, est_skip if delayed else skip)
+    _control_step(b, step_work, delayed, dt, est_skip if delayed else skip)
+    _setpoint_quaternion(b)
+    return 0
 
 
 @cython.cfunc

@@ -8,7 +8,7 @@ between newtons and PX4's relative thrust by :class:`ThrustModel`, the one place
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -121,6 +121,10 @@ class AttitudeThrustSetpoint:
     """PX4's relative thrust in [0, 1] (:class:`ThrustModel`)."""
     tilt_saturated: bool
     thrust_saturated: bool
+    q_ned_frd: tuple[float, float, float, float] | None = field(default=None, compare=False)
+    """The attitude as SET_ATTITUDE_TARGET carries it, body FRD -> world NED ``[w, x, y,
+    z]``, where the compiled step computed it with the link's own operations (the same
+    bits); None: the link converts the Euler angles."""
 
 
 @dataclass(frozen=True)

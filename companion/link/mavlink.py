@@ -49,6 +49,7 @@ from companion.link.setpoint import (
     ATTITUDE_ONLY_TYPE_MASK,
     POSITION_VELOCITY_ACCELERATION_YAW_TYPE_MASK,
     attitude_target_ned_frd,
+    checked_thrust,
     position_target_local_ned,
     quaternion_from_euler_zyx,
 )
@@ -376,6 +377,17 @@ class MavlinkLink(Px4Commands):
         """
         vehicle = self._require_vehicle()
         q, thrust = attitude_target_ned_frd(q_enu_flu, thrust_relative)
+        self._send_attitude_target(vehicle, q, thrust, time_boot_ms)
+
+    def _send_attitude_target(
+        self,
+        vehicle: VehicleId,
+        q: tuple[float, float, float, float] | list[float],
+        thrust: float,
+        time_boot_ms: int,
+    ) -> None:
+        """SET_ATTITUDE_TARGET to ``vehicle`` of ``q`` body FRD -> world NED and the
+        relative ``thrust`` (both checked), as :meth:`send_attitude_target` sends it."""
         mav = self.mav
         if self.signing is not None or mav.signing.sign_outgoing:
             msg = mav.set_attitude_target_encode(
@@ -407,9 +419,16 @@ class MavlinkLink(Px4Commands):
     def send_setpoint(self, setpoint: AttitudeThrustSetpoint, time_boot_ms: int) -> None:
         """:meth:`send_attitude_target` of a
         :class:`companion.control.setpoints.AttitudeThrustSetpoint` (its ZYX Euler angles as a
-        quaternion, and its relative thrust)."""
-        q = quaternion_from_euler_zyx(setpoint.roll_rad, setpoint.pitch_rad, setpoint.yaw_rad)
-        self.send_attitude_target(q, setpoint.thrust_relative, time_boot_ms)
+        quaternion, or the quaternion NED/FRD the compiled step made of them, and its
+        relative thrust)."""
+        q_ned = setpoint.q_ned_frd
+        if q_ned is None:
+            q = quaternion_from_euler_zyx(setpoint.roll_rad, setpoint.pitch_rad, setpoint.yaw_rad)
+            self.send_attitude_target(q, setpoint.thrust_relative, time_boot_ms)
+            return
+        vehicle = self._require_vehicle()
+        thrust = checked_thrust(setpoint.thrust_relative)
+        self._send_attitude_target(vehicle, q_ned, thrust, time_boot_ms)
 
     def send_position_target(self, setpoint: PositionSetpoint, time_boot_ms: int) -> None:
         """SET_POSITION_TARGET_LOCAL_NED to the vehicle (MAV_FRAME_LOCAL_NED): position,

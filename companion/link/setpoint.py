@@ -38,6 +38,7 @@ __all__ = [
     "POSITION_VELOCITY_ACCELERATION_YAW_TYPE_MASK",
     "PositionTargetNed",
     "attitude_target_ned_frd",
+    "checked_thrust",
     "position_target_local_ned",
     "quaternion_from_euler_zyx",
 ]
@@ -63,6 +64,16 @@ def quaternion_from_euler_zyx(phi: float, theta: float, psi: float) -> tuple[flo
     )
 
 
+def checked_thrust(thrust_relative: float) -> float:
+    """The relative thrust for SET_ATTITUDE_TARGET, as a float; ``SetpointError`` if it is
+    not a finite number in [0, 1] (clamping is the setpoint mapping's job, not the
+    link's)."""
+    thrust = float(thrust_relative)
+    if not (math.isfinite(thrust) and 0.0 <= thrust <= 1.0):
+        raise SetpointError(f"normalized thrust {thrust!r} is not in [0, 1]")
+    return thrust
+
+
 def attitude_target_ned_frd(
     q_enu_flu: ArrayLike, thrust_relative: float
 ) -> tuple[list[float], float]:
@@ -71,9 +82,7 @@ def attitude_target_ned_frd(
     Raises ``SetpointError`` for a non-finite or zero quaternion, or a thrust that is not
     a finite number in [0, 1] (clamping is the setpoint mapping's job, not the link's).
     """
-    thrust = float(thrust_relative)
-    if not (math.isfinite(thrust) and 0.0 <= thrust <= 1.0):
-        raise SetpointError(f"normalized thrust {thrust!r} is not in [0, 1]")
+    thrust = checked_thrust(thrust_relative)
     q: Any = q_enu_flu
     try:
         q_ned = quaternion_ned_frd_from_enu_flu_floats(q)

@@ -13,8 +13,9 @@ user's configuration, one cycle per control period:
   rates, joints and their rates) and the battery voltage for the thrust scale;
 - **step**: :meth:`FlightControl.step <companion.control.flight.FlightControl.step>`
   (estimator, control law, tilt and thrust mapping);
-- **setpoint**: SET_ATTITUDE_TARGET built as the link builds it (quaternion NED/FRD,
-  its MAVLink 2 frame and CRC, :mod:`companion.link.cycle_codec`), written to nowhere;
+- **setpoint**: SET_ATTITUDE_TARGET built as the link builds it (the quaternion NED/FRD
+  the compiled step made, or the link's conversion on the Python step; its MAVLink 2
+  frame and CRC, :mod:`companion.link.cycle_codec`), written to nowhere;
 - **log**: the cycle's row into the flight log (``flight.csv`` and ``flight.mcap``, in a
   temporary directory removed afterwards).
 
@@ -52,6 +53,7 @@ from companion.link.cycle_codec import attitude_target_frame, odometry_frame
 from companion.link.setpoint import (
     ATTITUDE_ONLY_TYPE_MASK,
     attitude_target_ned_frd,
+    checked_thrust,
     quaternion_from_euler_zyx,
 )
 from companion.link.telemetry import TelemetryDecoder, VehiclePose
@@ -263,8 +265,12 @@ def check_timing(
                 t2 = clock()
                 if out is not None:
                     sp = out.setpoint
-                    q = quaternion_from_euler_zyx(sp.roll_rad, sp.pitch_rad, sp.yaw_rad)
-                    q_ned, thrust = attitude_target_ned_frd(q, sp.thrust_relative)
+                    q_ned: tuple[float, float, float, float] | list[float]
+                    if sp.q_ned_frd is None:
+                        q = quaternion_from_euler_zyx(sp.roll_rad, sp.pitch_rad, sp.yaw_rad)
+                        q_ned, thrust = attitude_target_ned_frd(q, sp.thrust_relative)
+                    else:
+                        q_ned, thrust = sp.q_ned_frd, checked_thrust(sp.thrust_relative)
                     frame = attitude_target_frame(
                         i % 256, 1, mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER, i, 1, 1,
                         ATTITUDE_ONLY_TYPE_MASK, q_ned, thrust,
