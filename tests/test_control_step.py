@@ -30,6 +30,7 @@ from companion.control.setpoints import ThrustModel
 from companion.estimation.estimator import Skip
 from companion.estimation.filters import FilteredState
 from companion.estimation.inputs import DelayedInputs, delay_cycles
+from companion.estimation.state import euler_rates_from_body_rates
 from sitl.scenario import parse_scenario
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
@@ -287,6 +288,50 @@ def test_the_filter_functions_twin_is_their_python_source_bit_for_bit() -> None:
         assert bits(states[0]) == bits(states[1])
         rejected += errors[0] is not None
     assert rejected >= 150
+
+
+def value_of_angle(a: float) -> float:
+    """An angle [rad] as StateFilter.value reads it: wrapped to [-pi, pi) only outside."""
+    if -math.pi <= a < math.pi:
+        return a
+    w = (a + math.pi) % (2.0 * math.pi) - math.pi
+    return w - 2.0 * math.pi if w >= math.pi else w
+
+
+@pytest.mark.parametrize("build", ["twin", "python"])
+def test_the_body_rate_update_is_the_conversion_and_the_update_bit_for_bit(build: str) -> None:
+    """GIVEN random stacked states of 8 rows (roll and pitch a turn off now and then) WHEN
+    ``update_body_rates`` fuses gyro body rates THEN the state has the bits of
+    ``euler_rates_from_body_rates`` at the filter's wrapped roll and pitch followed by
+    ``update`` of the Euler rates (what StateAssembler.body_rates did in two steps), and
+    a bad measurement is refused alike."""
+    module = twin(control_step) if build == "twin" else control_step
+    rng = np.random.default_rng(5)
+    for i in range(300):
+        x = stacked_state(rng, 8)
+        if i % 3 == 0:
+            x[0, 3:5] += 2.0 * math.pi * rng.choice([-1.0, 1.0], 2)
+        omega = rng.normal(0.0, 1.0, 3).tolist()
+        latency = float(rng.choice([0.0, rng.uniform(0.0, 0.03)]))
+        if i % 10 == 1:
+            omega[1] = math.nan
+        phi, theta = (value_of_angle(a) for a in x[0, 3:5].tolist())
+        rates = euler_rates_from_body_rates(phi, theta, omega)
+        states = [x.copy() for _ in range(2)]
+        errors = []
+        for k, state in enumerate(states):
+            try:
+                if k == 0:
+                    module.update_body_rates(state, latency, omega)
+                else:
+                    module.update(state, 1, latency, (3, 4, 5), rates, ())
+                errors.append(None)
+            except ValueError as error:
+                errors.append(str(error))
+        assert errors[0] == errors[1]
+        assert bits(states[0]) == bits(states[1]), f"case {i}"
+    with pytest.raises(ValueError, match="3 numbers"):
+        module.update_body_rates(stacked_state(rng, 8), 0.0, [0.1, 0.2])
 
 
 @pytest.mark.parametrize("build", ["twin", "python"])

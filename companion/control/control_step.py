@@ -74,6 +74,7 @@ from cython.cimports.libc.math import (
     pow,
     sin,
     sqrt,
+    tan,
 )
 
 from companion.model import _mcg
@@ -1612,6 +1613,43 @@ def update(X, order: cython.int, latency_s: cython.double, rows: tuple, z, wrap:
         for c in range(n):
             x[_X_Z, c] = 0.0
         raise
+
+
+@cython.ccall
+def update_body_rates(X, latency_s: cython.double, omega) -> None:
+    """The state filter's update of the Euler rates (rows 3, 4, 5 of q_dot: phi, theta, psi,
+    ZYX) from gyro body rates ``omega`` (FLU, 3 values) [rad/s], ``latency_s`` [s] old,
+    with their default variance: the rates turned into Euler rates with the filter's roll
+    and pitch (rows 3 and 4 of q, wrapped to [-pi, pi) as ``StateFilter.value`` reads them)
+    by the operations of ``euler_rates_from_body_rates``, then :func:`update`. ValueError
+    as :func:`update`; ZeroDivisionError at a pitch whose cosine is 0, as the Python
+    conversion."""
+    x: cython.double[:, ::1] = X
+    if _columns(x) < 6:
+        raise ValueError("X must hold the Euler rows 3, 4, 5")
+    try:
+        values = list(omega)
+    except TypeError:
+        raise ValueError("the body rates must be a sequence of 3 numbers") from None
+    if len(values) != 3:
+        raise ValueError(f"the body rates must be 3 numbers, got {len(values)}")
+    wx: cython.double = float(values[0])
+    wy: cython.double = float(values[1])
+    wz: cython.double = float(values[2])
+    phi: cython.double = x[0, 3]
+    theta: cython.double = x[0, 4]
+    if not (-_PI <= phi and phi < _PI):
+        phi = _wrap_angle(phi)
+    if not (-_PI <= theta and theta < _PI):
+        theta = _wrap_angle(theta)
+    sp: cython.double = sin(phi)
+    cp: cython.double = cos(phi)
+    ct: cython.double = cos(theta)
+    tt: cython.double = tan(theta)
+    if ct == 0.0:
+        raise ZeroDivisionError("float division by zero")
+    rates = (wx + sp * tt * wy + cp * tt * wz, cp * wy - sp * wz, (sp * wy + cp * wz) / ct)
+    update(X, 1, latency_s, (3, 4, 5), rates, ())
 
 
 @cython.ccall

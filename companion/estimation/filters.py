@@ -83,7 +83,7 @@ velocity measurements of that row are ignored and :attr:`StateFilter.estimate` r
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -112,6 +112,8 @@ _CACHE_SIZE = 32
 """Entries kept per cache (transition matrices per dt, measurement rows per latency)."""
 
 _TWO_PI = 2.0 * math.pi
+_EULER_ROWS = (3, 4, 5)
+"""The rows of q's ZYX Euler angles (phi, theta, psi), the default angle rows."""
 
 
 class FilterNotReadyError(RuntimeError):
@@ -259,7 +261,7 @@ class StateFilter:
         jerk_psd: ArrayLike = DEFAULT_JERK_PSD,
         position_std: ArrayLike = 1e-3,
         velocity_std: ArrayLike = 1e-2,
-        wrap_rows: Sequence[int] = (3, 4, 5),
+        wrap_rows: Sequence[int] = _EULER_ROWS,
         initial_velocity_std: ArrayLike = 1.0,
         initial_acceleration_std: ArrayLike = 5.0,
         compiled: bool | None = None,
@@ -294,6 +296,10 @@ class StateFilter:
         self._native_update = None if native is None else native.update
         """The common update (default variance, every row started) in one compiled call,
         or None: the numpy steps of :meth:`_update` then run, which stay its reference."""
+        self._native_body_rates = (
+            None if native is None or self._wrap != _EULER_ROWS else native.update_body_rates
+        )
+        """:meth:`update_body_rates` in one compiled call, or None."""
 
     # -- properties -------------------------------------------------------------------
 
@@ -459,6 +465,24 @@ class StateFilter:
             On a wrong shape or a non-finite value; the estimate is then unchanged.
         """
         self._update(1, q_dot_meas, std, latency_s, rows)
+
+    def update_body_rates(
+        self, omega_flu_rad_s: Iterable[float], *, latency_s: float = 0.0
+    ) -> bool:
+        """Fuse gyro body rates (FLU) [rad/s], ``latency_s`` [s] old, as the Euler rates of
+        rows 3, 4, 5 (phi, theta, psi; ZYX), turned into them with this filter's roll and
+        pitch (:meth:`value`), in one compiled call (``control_step.update_body_rates``:
+        the operations of :func:`companion.estimation.state.euler_rates_from_body_rates`
+        and :meth:`update_velocity`). Returns False, nothing fused, where that call does not
+        run (no compiled twin, a row not started, other angle rows than the Euler
+        angles): the caller converts and calls :meth:`update_velocity`, the reference.
+
+        Raises ValueError as :meth:`update_velocity`.
+        """
+        if self._native_body_rates is None or not self._ready:
+            return False
+        self._native_body_rates(self._X, latency_s, omega_flu_rad_s)
+        return True
 
     # -- internals --------------------------------------------------------------------
 

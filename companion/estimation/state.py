@@ -133,12 +133,14 @@ class StateAssembler:
         self.filter.reset_rows(position_m, rows=_POSITION_ROWS)
 
     def body_rates(self, omega_body_rad_s: Iterable[float], age_s: float = 0.0) -> None:
-        """Gyro body rates (FLU) [rad/s], converted with the filter's attitude."""
-        if not self.filter.ready:
+        """Gyro body rates (FLU) [rad/s], converted with the filter's attitude (in one
+        compiled call where the filter can: :meth:`StateFilter.update_body_rates`)."""
+        f = self.filter
+        if not f.ready or f.update_body_rates(omega_body_rad_s, latency_s=age_s):
             return
-        phi, theta = self.filter.value(PHI), self.filter.value(THETA)
+        phi, theta = f.value(PHI), f.value(THETA)
         rates = euler_rates_from_body_rates(phi, theta, omega_body_rad_s)
-        self.filter.update_velocity(rates, latency_s=age_s, rows=_EULER_ROWS)
+        f.update_velocity(rates, latency_s=age_s, rows=_EULER_ROWS)
 
     def joints(self, eta_rad: ArrayLike, age_s: float = 0.0) -> None:
         """Servo joint angles [rad]."""
