@@ -277,8 +277,7 @@ def test_a_land_right_after_arming_waits_for_a_newer_heartbeat_that_says_disarme
                 link.status = _heartbeat(True, "LAND")
             if cycle == 350:
                 link.status, newer_s = _heartbeat(False, "LAND"), app.t_s
-            async with app._tick:
-                app._tick.notify_all()
+            app._tick.set()
             if landing.done():
                 break
         await landing
@@ -299,8 +298,7 @@ def test_a_land_without_a_newer_heartbeat_is_a_mission_error_not_a_disarm():
         for cycle in range(1, 400):
             await asyncio.sleep(0)
             app.t_s = 0.004 * cycle
-            async with app._tick:
-                app._tick.notify_all()
+            app._tick.set()
         await landing
 
     with pytest.raises(MissionError, match="did not land and disarm"):

@@ -212,8 +212,9 @@ class PickupApp:
         """The link's streams: set at preflight, given back to PX4's defaults at the end."""
         self._faults: asyncio.Queue[FaultEvent] = asyncio.Queue()
         self.control.estimator.freeze()  # until the mission flies in OFFBOARD
-        self._tick = asyncio.Condition()
-        """Notified after every control cycle (vehicle time advanced)."""
+        self._tick = asyncio.Event()
+        """Set after every control cycle (vehicle time advanced); the sequence clears it
+        before it waits for the next."""
 
     @property
     def t_s(self) -> float:
@@ -375,8 +376,8 @@ class PickupApp:
             except SequenceFailed as exc:
                 raise MissionError(str(exc)) from None
             if command is WAIT:
-                async with self._tick:
-                    await self._tick.wait()
+                self._tick.clear()
+                await self._tick.wait()
             elif isinstance(command, Px4Request):
                 error = await self._ask_px4(command)
                 sequence.done(self._observe(), error)
@@ -483,8 +484,7 @@ class PickupApp:
                         if self.cycle.collecting:
                             gc.enable()
                     self.arm.due()  # write this cycle's torques, read for the next
-                    async with self._tick:  # vehicle time advanced, whatever the cycle did
-                        self._tick.notify_all()
+                    self._tick.set()  # vehicle time advanced, whatever the cycle did
                 late = self.loop_period.late_cycles - late
                 window.push(thread_times.read(), self.link.take_longest_socket_wait_s())
                 if late > 0 or dropped > 0:
