@@ -335,6 +335,55 @@ def test_the_body_rate_update_is_the_conversion_and_the_update_bit_for_bit(build
 
 
 @pytest.mark.parametrize("build", ["twin", "python"])
+def test_the_cycle_in_one_call_is_the_prediction_and_the_updates_bit_for_bit(build: str) -> None:
+    """GIVEN random stacked states of q's 8 rows and a prediction matrix WHEN
+    ``fuse_cycle`` takes a cycle's pose, velocity, body rates and joints (each there or
+    not; now and then a non-finite one) THEN the predicted state has the bits of
+    ``predict`` followed by the updates one by one in StateAssembler's order, and a bad
+    measurement is refused alike, the steps before it done."""
+    module = twin(control_step) if build == "twin" else control_step
+    rng = np.random.default_rng(8)
+    seen = dict.fromkeys(("velocity", "omega", "joints", "refused"), 0)
+    for i in range(300):
+        x = stacked_state(rng, 8)
+        a = np.eye(17) + rng.normal(0.0, 0.01, (17, 17))
+        pose = rng.normal(0.0, 2.0, 6).tolist()
+        velocity = rng.normal(0.0, 1.0, 3) if i % 2 else None
+        omega = rng.normal(0.0, 1.0, 3).tolist() if i % 3 else None
+        joints = rng.normal(0.0, 1.0, 2).tolist() if i % 5 else None
+        rates = rng.normal(0.0, 1.0, 2).tolist()
+        age = float(rng.uniform(0.0, 0.05))
+        if i % 11 == 1:
+            pose[2] = math.nan
+        states = [np.empty_like(x) for _ in range(2)]
+        errors = []
+        for k, state in enumerate(states):
+            try:
+                if k == 0:
+                    module.fuse_cycle(a, x, state, pose, velocity, omega, joints, rates, age)
+                else:
+                    module.predict(a, x, state)
+                    module.update(state, 0, 0.0, (0, 1, 2, 3, 4, 5), pose, (3, 4, 5))
+                    if velocity is not None:
+                        module.update(state, 1, 0.0, (0, 1, 2), velocity, ())
+                    if omega is not None:
+                        module.update_body_rates(state, 0.0, omega)
+                    if joints is not None:
+                        module.update(state, 0, age, (6, 7), joints, ())
+                        module.update(state, 1, age, (6, 7), rates, ())
+                errors.append(None)
+            except ValueError as error:
+                errors.append(str(error))
+        assert errors[0] == errors[1]
+        assert bits(states[0]) == bits(states[1]), f"case {i}"
+        seen["velocity"] += velocity is not None
+        seen["omega"] += omega is not None
+        seen["joints"] += joints is not None
+        seen["refused"] += errors[0] is not None
+    assert all(count > 0 for count in seen.values()), seen
+
+
+@pytest.mark.parametrize("build", ["twin", "python"])
 def test_the_filter_product_leaving_out_zeros_is_the_whole_sum(build: str) -> None:
     """GIVEN sparse A (exact zeros of both signs, as the filter's F, Q and G have) and
     stacked states with zeros, negative values and, in some, an infinity or a NaN WHEN

@@ -1653,6 +1653,29 @@ def update_body_rates(X, latency_s: cython.double, omega) -> None:
 
 
 @cython.ccall
+def fuse_cycle(
+    A, X, X_next, pose, velocity, omega, joints, joint_rates, joint_age_s: cython.double
+) -> None:
+    """One control cycle of the state filter of q (8 rows) in one call, in the order
+    StateAssembler takes them: the prediction ``X_next = A X`` (:func:`predict`), then on
+    ``X_next``, each with its default variance, the updates (:func:`update`) of the pose
+    (rows 0-5: ENU position [m], ZYX angles [rad], the angles' innovations wrapped), the
+    velocity (rows 0-2 of q_dot, ENU [m/s]), the gyro body rates (FLU [rad/s],
+    :func:`update_body_rates`), the joint angles [rad] and the joint rates [rad/s] (rows 6,
+    7, ``joint_age_s`` [s] old); None: not measured this cycle (the joint rates come
+    with the angles). ValueError as :func:`update`, the updates before it done."""
+    predict(A, X, X_next)
+    update(X_next, 0, 0.0, (0, 1, 2, 3, 4, 5), pose, (3, 4, 5))
+    if velocity is not None:
+        update(X_next, 1, 0.0, (0, 1, 2), velocity, ())
+    if omega is not None:
+        update_body_rates(X_next, 0.0, omega)
+    if joints is not None:
+        update(X_next, 0, joint_age_s, (6, 7), joints, ())
+        update(X_next, 1, joint_age_s, (6, 7), joint_rates, ())
+
+
+@cython.ccall
 @cython.locals(a=_Matrix, x=_Matrix)
 def predict(A, X, X_next) -> None:
     """The state filter's prediction product ``X_next = A X`` (A 17 x 17, X and

@@ -300,6 +300,10 @@ class StateFilter:
             None if native is None or self._wrap != _EULER_ROWS else native.update_body_rates
         )
         """:meth:`update_body_rates` in one compiled call, or None."""
+        self._native_cycle = (
+            None if native is None or self._wrap != _EULER_ROWS or n != N_Q else native.fuse_cycle
+        )
+        """:meth:`fuse_cycle` in one compiled call, or None."""
 
     # -- properties -------------------------------------------------------------------
 
@@ -482,6 +486,43 @@ class StateFilter:
         if self._native_body_rates is None or not self._ready:
             return False
         self._native_body_rates(self._X, latency_s, omega_flu_rad_s)
+        return True
+
+    def fuse_cycle(
+        self,
+        dt_s: float,
+        pose: Sequence[float],
+        velocity_enu_m_s: ArrayLike | None,
+        omega_flu_rad_s: Iterable[float] | None,
+        eta_rad: Sequence[float] | None,
+        eta_dot_rad_s: Sequence[float] | None,
+        joint_age_s: float,
+    ) -> bool:
+        """One control cycle of the filter of q (8 rows, the Euler angles' innovations
+        wrapped) in one compiled call (``control_step.fuse_cycle``): :meth:`predict` by
+        ``dt_s`` [s], then with their default variances the ``pose`` (rows 0-5: ENU
+        position [m], ZYX angles [rad]), the velocity (rows 0-2 of q_dot, ENU [m/s]), the
+        gyro body rates (:meth:`update_body_rates`), the joint angles [rad] and rates
+        [rad/s] (rows 6, 7, ``joint_age_s`` [s] old); None: not measured this cycle.
+        Returns False, nothing done, where that call does not run (no compiled twin, a row
+        not started, another layout): the caller predicts and updates one by one, the
+        reference.
+
+        Raises ValueError as :meth:`predict` and :meth:`update_position` (the prediction
+        and the updates before the refused one done).
+        """
+        if self._native_cycle is None or not self._ready:
+            return False
+        A = self._predict_cache.get(dt_s)
+        if A is None:
+            A = self._predict_matrix(dt_s)
+        try:
+            self._native_cycle(
+                A, self._X, self._X_next, pose, velocity_enu_m_s, omega_flu_rad_s, eta_rad,
+                eta_dot_rad_s, joint_age_s,
+            )  # fmt: skip
+        finally:
+            self._X, self._X_next = self._X_next, self._X
         return True
 
     # -- internals --------------------------------------------------------------------

@@ -10,7 +10,7 @@ measurements, never from truth.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -141,6 +141,37 @@ class StateAssembler:
         phi, theta = f.value(PHI), f.value(THETA)
         rates = euler_rates_from_body_rates(phi, theta, omega_body_rad_s)
         f.update_velocity(rates, latency_s=age_s, rows=_EULER_ROWS)
+
+    def cycle(
+        self,
+        dt_s: float,
+        position_m: Iterable[float],
+        euler_rad: Iterable[float],
+        velocity_enu_m_s: ArrayLike | None,
+        omega_body_rad_s: Iterable[float] | None,
+        eta_rad: Sequence[float] | None,
+        eta_dot_rad_s: Sequence[float] | None,
+        joint_age_s: float = 0.0,
+    ) -> None:
+        """One control cycle's measurements on a started filter, in this order:
+        :meth:`predict` by ``dt_s`` [s], :meth:`pose`, :meth:`velocity`,
+        :meth:`body_rates`, :meth:`joints` and :meth:`joint_rates` (``joint_age_s`` [s]
+        old); None: not measured this cycle (the joint rates come with the angles). In one
+        compiled call where the filter can (:meth:`StateFilter.fuse_cycle`)."""
+        pose = (*position_m, *euler_rad)
+        if self.filter.fuse_cycle(
+            dt_s, pose, velocity_enu_m_s, omega_body_rad_s, eta_rad, eta_dot_rad_s, joint_age_s
+        ):
+            return
+        self.predict(dt_s)
+        self.filter.update_position(pose, rows=_POSE_ROWS)
+        if velocity_enu_m_s is not None:
+            self.velocity(velocity_enu_m_s)
+        if omega_body_rad_s is not None:
+            self.body_rates(omega_body_rad_s)
+        if eta_rad is not None and eta_dot_rad_s is not None:
+            self.joints(eta_rad, joint_age_s)
+            self.joint_rates(eta_dot_rad_s, joint_age_s)
 
     def joints(self, eta_rad: ArrayLike, age_s: float = 0.0) -> None:
         """Servo joint angles [rad]."""

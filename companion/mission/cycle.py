@@ -332,8 +332,7 @@ class ControlCycle:
         if period is not None and period.late and t_s - self._late_noted_s >= 1.0:
             self._late_noted_s = t_s
             self._note("loop", f"late cycle: {period.period_s * 1e3:.1f} ms since the last")
-        self._sense(pose, dt)
-        joints = self._fuse_joints()
+        joints = self._sense(pose, dt)
         a = self.assembler
         if not a.ready or dt is None:
             return
@@ -479,43 +478,53 @@ class ControlCycle:
         self._note("preflight", f"servo check: {'; '.join(words)}{missed}")
         self.servos_checked = True
 
-    def _sense(self, pose: VehiclePose, dt: float | None) -> None:
-        """Feed one pose to the state filter, after the navigation watch: an estimator reset
-        restarts the position rows, a lasting invalid estimate is the navigation fault."""
+    def _sense(self, pose: VehiclePose, dt: float | None) -> dict[str, JointState] | None:
+        """Feed one pose, the body rates, and the joint state the arm task read since the
+        last cycle (fused with its age, bounded) to the state filter, after the navigation
+        watch: an estimator reset restarts the position rows, a lasting invalid estimate is
+        the navigation fault. Returns the joint state, or None if none came. A started
+        filter takes the cycle in one call (:meth:`StateAssembler.cycle`)."""
         a = self.assembler
-        if dt is not None and a.ready:
-            a.predict(dt)
         check = self.navigation.update(pose.time_s, pose)
-        if check.reset and a.ready:
-            a.reset_position(pose.position_enu_m)
-            self.control.restart_estimator_inputs()
-            self._note(
-                "navigation",
-                f"PX4's estimate jumped (reset counter {pose.reset_counter}): "
-                "the position filter starts again from it",
-            )
-        a.pose(pose.position_enu_m, pose.euler_zyx_rad())
-        if pose.velocity_enu_m_s is not None and a.ready:
-            a.velocity(pose.velocity_enu_m_s)
         rates = self.link.latest(BodyRates)
-        if rates is not None:
-            a.body_rates(rates.omega_flu_rad_s)
+        omega = None if rates is None else rates.omega_flu_rad_s
+        joints = eta = eta_dot = None
+        age_s = 0.0
+        taken = self.arm.take()
+        if taken is not None:
+            joints, age_s = taken
+            age_s = min(age_s, _MAX_JOINT_AGE_S)
+            names = self.arm.names
+            eta = [joints[n].position_rad for n in names]
+            eta_dot = [joints[n].velocity_rad_s for n in names]
+        if dt is not None and a.ready and not check.reset:
+            a.cycle(
+                dt, pose.position_enu_m, pose.euler_zyx_rad(), pose.velocity_enu_m_s, omega,
+                eta, eta_dot, age_s,
+            )  # fmt: skip
+        else:
+            if dt is not None and a.ready:
+                a.predict(dt)
+            if check.reset and a.ready:
+                a.reset_position(pose.position_enu_m)
+                self.control.restart_estimator_inputs()
+                self._note(
+                    "navigation",
+                    f"PX4's estimate jumped (reset counter {pose.reset_counter}): "
+                    "the position filter starts again from it",
+                )
+            a.pose(pose.position_enu_m, pose.euler_zyx_rad())
+            if pose.velocity_enu_m_s is not None and a.ready:
+                a.velocity(pose.velocity_enu_m_s)
+            if omega is not None:
+                a.body_rates(omega)
+            if eta is not None and eta_dot is not None:
+                a.joints(eta, age_s)
+                a.joint_rates(eta_dot, age_s)
         battery = self.link.latest(BatteryState)
         self.control.supply(None if battery is None else battery.voltage_v)
         if check.fault is not None and self.offboard.flying:
             self._fault(Fault.NAVIGATION, check.fault)
-
-    def _fuse_joints(self) -> dict[str, JointState] | None:
-        """Fuse the joint state the arm task read since the last cycle, with its age
-        (bounded); returns it, or None if none came."""
-        taken = self.arm.take()
-        if taken is None:
-            return None
-        joints, age_s = taken
-        age_s = min(age_s, _MAX_JOINT_AGE_S)
-        names = self.arm.names
-        self.assembler.joints([joints[n].position_rad for n in names], age_s)
-        self.assembler.joint_rates([joints[n].velocity_rad_s for n in names], age_s)
         return joints
 
     def _applied_force(

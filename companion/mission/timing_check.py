@@ -10,7 +10,8 @@ user's configuration, one cycle per control period:
   taken (what the link's reader and the cycle do with a pose);
 - **filters**: the state filter's calls of the cycle, in its order
   (:class:`~companion.estimation.state.StateAssembler`: predict, pose, velocity, body
-  rates, joints and their rates) and the battery voltage for the thrust scale;
+  rates, joints and their rates; once the filter is started in one call, as the flight's
+  cycle makes them) and the battery voltage for the thrust scale;
 - **step**: :meth:`FlightControl.step <companion.control.flight.FlightControl.step>`
   (estimator, control law, tilt and thrust mapping);
 - **setpoint**: SET_ATTITUDE_TARGET built as the link builds it (the quaternion NED/FRD
@@ -193,24 +194,35 @@ def _replay_one(
     assembler: StateAssembler,
     control: FlightControl,
 ) -> None:
-    """The filter's calls of cycle ``i`` and the voltage (the filters part)."""
-    dt = inputs["predict_dt_s"][i]
-    if math.isfinite(dt):
-        assembler.predict(float(dt))
-    assembler.pose(inputs["position_m"][i], inputs["euler_rad"][i])
-    velocity = inputs["velocity_m_s"][i]
-    if math.isfinite(velocity[0]):
-        assembler.velocity(velocity)
-    omega = inputs["omega_rad_s"][i]
-    if math.isfinite(omega[0]):
-        assembler.body_rates(omega)
+    """The filter's calls of cycle ``i`` and the voltage (the filters part): on a started
+    filter the cycle in one call, as the flight's cycle makes it
+    (:meth:`StateAssembler.cycle`), before that one by one."""
+    dt = float(inputs["predict_dt_s"][i])
+    position, euler = inputs["position_m"][i], inputs["euler_rad"][i]
+    velocity, omega = inputs["velocity_m_s"][i], inputs["omega_rad_s"][i]
+    eta, eta_dot = inputs["eta_rad"][i], inputs["eta_dot_rad_s"][i]
+    age = float(inputs["joint_age_s"][i])
+    measured_velocity = velocity if math.isfinite(velocity[0]) else None
+    measured_omega = omega if math.isfinite(omega[0]) else None
+    joints = math.isfinite(eta[0])
+    if math.isfinite(dt) and assembler.ready:
+        assembler.cycle(
+            dt, position, euler, measured_velocity, measured_omega,
+            eta.tolist() if joints else None, eta_dot.tolist() if joints else None, age,
+        )  # fmt: skip
+    else:
+        if math.isfinite(dt):
+            assembler.predict(dt)
+        assembler.pose(position, euler)
+        if measured_velocity is not None:
+            assembler.velocity(measured_velocity)
+        if measured_omega is not None:
+            assembler.body_rates(measured_omega)
+        if joints:
+            assembler.joints(eta, age)
+            assembler.joint_rates(eta_dot, age)
     voltage = float(inputs["voltage_v"][i])
     control.supply(voltage if math.isfinite(voltage) else None)
-    eta = inputs["eta_rad"][i]
-    if math.isfinite(eta[0]):
-        age = float(inputs["joint_age_s"][i])
-        assembler.joints(eta, age)
-        assembler.joint_rates(inputs["eta_dot_rad_s"][i], age)
 
 
 def check_timing(
