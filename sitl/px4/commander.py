@@ -96,6 +96,10 @@ ORIGIN_SETTLE_S = 4.0
 ORIGIN_RESETS = 3
 """Estimator resets (ODOMETRY.reset_counter) a new global origin makes (measured)."""
 
+_DEADLINE_EARLY_S = 1e-6
+"""How much earlier than its sum a deadline of :meth:`Commander.next_deadline_s` is given
+[s]: the rules compare differences (``now - since >= delay``), which may round otherwise."""
+
 _MANUAL_CONTROL = (
     Px4Mode.MANUAL, Px4Mode.STABILIZED, Px4Mode.ACRO, Px4Mode.ALTCTL, Px4Mode.POSCTL,
 )  # fmt: skip
@@ -236,6 +240,32 @@ class Commander:
     def hover_thrust(self) -> float:
         """The relative hover thrust the position controller flies with [-]."""
         return self._position.hover_thrust
+
+    def decisions(self) -> tuple:
+        """Everything :meth:`update` and :meth:`setpoint` decide, as the objects held now
+        (and the console's length): two snapshots whose entries are the same objects mean
+        that nothing was decided between them."""
+        return (*vars(self).values(), len(self.console))
+
+    def next_deadline_s(self, now_s: float) -> float:
+        """The earliest simulated time [s] after ``now_s`` at which :meth:`update` may
+        decide otherwise for the passing of time alone (the same measurement, no command):
+        the offboard signal's loss, a stalled descent counting as landed, an auto-disarm
+        (armed only); 1 us early, for the rounding of the sums; inf when none is ahead."""
+        if not self.armed:
+            return math.inf
+        p = self._params
+        deadline = math.inf
+        if self.offboard_alive(now_s):
+            deadline = self._offboard_last_s + p["COM_OF_LOSS_T"]
+        if self._stall_since_s is not None and not self.landed:
+            deadline = min(deadline, self._stall_since_s + LAND_STALL_TIME_S)
+        rule = self._auto_disarm_rule()
+        if rule is not None:
+            since, delay, _ = rule
+            if delay > 0.0:
+                deadline = min(deadline, since + delay)
+        return deadline - _DEADLINE_EARLY_S
 
     # -------------------------------------------------------------- commands
 
@@ -573,16 +603,22 @@ class Commander:
                 self._print(mavlink.MAV_SEVERITY_INFO, "Takeoff detected")
         self.landed = landed
 
-    def _auto_disarm(self, now_s: float) -> None:
+    def _auto_disarm_rule(self) -> tuple[float, float, str] | None:
+        """(since [s], delay [s], reason) of the auto-disarm that waits now, armed and
+        landed: after landing, or after arming without a takeoff; None otherwise."""
         if not self.armed or self._landed_since_s is None:
-            return
+            return None
         p = self._params
         if self._taken_off:
-            delay, reason = p["COM_DISARM_LAND"], "landing"
-            since = self._landed_since_s
-        else:
-            delay, reason = p["COM_DISARM_PRFLT"], "auto preflight disarming"
-            since = self._armed_at_s + p["COM_SPOOLUP_TIME"]
+            return self._landed_since_s, p["COM_DISARM_LAND"], "landing"
+        since = self._armed_at_s + p["COM_SPOOLUP_TIME"]
+        return since, p["COM_DISARM_PRFLT"], "auto preflight disarming"
+
+    def _auto_disarm(self, now_s: float) -> None:
+        rule = self._auto_disarm_rule()
+        if rule is None:
+            return
+        since, delay, reason = rule
         if delay > 0.0 and now_s - since >= delay:
             self._disarm(reason)
 

@@ -120,6 +120,12 @@ class StreamScheduler:
         """Message ids this link can stream."""
         return sorted(self._known)
 
+    @property
+    def next_due_us(self) -> int:
+        """Simulation time [us] before which :meth:`due` without a fresh estimate returns
+        nothing and changes nothing (estimator streams come with the next estimate)."""
+        return self._earliest_us
+
     def interval_us(self, msg_id: int) -> int | None:
         """Current interval [us] of a stream, None when disabled or not a stream."""
         return self._interval_us.get(msg_id)

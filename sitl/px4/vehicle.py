@@ -1,8 +1,11 @@
 """The simulated PX4 as seen over MAVLink: messages in, replies, setpoints and telemetry out.
 
 Pure: no sockets, no clock, no asyncio. The runner drives it with simulation time:
-``handle()`` every decoded incoming message, ``control()`` once per plant step, and
-``telemetry()`` once per plant step; each returns what goes out, as ``(link, message)``.
+``handle()`` every decoded incoming message, ``control()`` and ``telemetry()`` at the plant
+steps where they may do something (every step, or only before
+:attr:`Px4Vehicle.control_held_until_s` and at :attr:`Px4Vehicle.next_telemetry_us` or a new
+estimate: the steps between change nothing); each returns what goes out, as ``(link,
+message)``.
 What PX4 would print to its console (arming refused, failsafe, ...) is drained with
 :meth:`Px4Vehicle.console`: PX4 main reports these as events, not STATUSTEXT (measured on
 the real build: no STATUSTEXT on either link).
@@ -46,6 +49,7 @@ Message handling follows PX4's ``mavlink_receiver.cpp`` and commander as measure
 from __future__ import annotations
 
 import math
+import operator
 from collections import Counter
 from collections.abc import Collection, Mapping
 from typing import ClassVar
@@ -136,6 +140,7 @@ class Px4Vehicle:
         self._origin_pending = origin is not None
         self._last: VehicleMeasurement | None = None
         self._last_estimate_us: int | None = None
+        self._held_until_s = -math.inf
         self.counters: Counter[str] = Counter()
         """Dropped or ignored input by reason (e.g. ``invalid_setpoint``, ``not_for_us``)."""
 
@@ -212,8 +217,30 @@ class Px4Vehicle:
         """Run the state machine at ``now_s`` [s] and return the attitude setpoint for this
         plant step (body FLU -> world ENU, relative thrust), or None while disarmed."""
         self._last = m
-        self._commander.update(now_s, m)
-        return self._commander.setpoint(now_s, m)
+        commander = self._commander
+        before = commander.decisions()
+        commander.update(now_s, m)
+        setpoint = commander.setpoint(now_s, m)
+        after = commander.decisions()
+        settled = len(before) == len(after) and all(map(operator.is_, before, after))
+        self._held_until_s = commander.next_deadline_s(now_s) if settled else -math.inf
+        return setpoint
+
+    @property
+    def control_held_until_s(self) -> float:
+        """Simulation time [s] before which :meth:`control` with the same measurement, and
+        no message handled since the last call, returns the same setpoint and decides
+        nothing: the last call decided nothing, and no deadline of the commander falls
+        before it (-inf after a call that decided something, or a message)."""
+        return self._held_until_s
+
+    @property
+    def next_telemetry_us(self) -> int:
+        """Simulation time [us] before which :meth:`telemetry` with the same estimate
+        returns nothing and changes nothing (0 while a new global origin waits to go out)."""
+        if self._origin_pending and self._commander.origin is not None:
+            return 0
+        return min(scheduler.next_due_us for scheduler in self._schedulers.values())
 
     def telemetry(
         self, now_s: float, m: VehicleMeasurement, unheard: Collection[str] = ()
@@ -261,6 +288,7 @@ class Px4Vehicle:
         """
         if link not in self._schedulers:
             raise ValueError(f"unknown link {link!r}; links are {self.links}")
+        self._held_until_s = -math.inf
         kind = msg.get_type()
         handler = self._handlers.get(kind)
         if handler is None:

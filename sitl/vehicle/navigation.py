@@ -232,6 +232,13 @@ class Navigation:
         """Where the local frame's origin is in the world [m, ENU]: the world origin with
         motion capture, the vehicle's position at the first estimate with GPS."""
 
+    @property
+    def next_output_us(self) -> int | None:
+        """Simulation time [us] of the next estimator output: before it, :meth:`measure`
+        returns the last estimate (None before the first)."""
+        last = self._last_output_us
+        return None if last is None else last + self._output_period_us
+
     def measure(self, world: World) -> VehicleMeasurement:
         """The estimate at the world's current time: a new one when an estimator output
         time has passed since the last, else the last one (the same object)."""

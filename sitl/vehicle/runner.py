@@ -6,13 +6,16 @@ Every plant step (``1 / plant.rate_hz`` of simulation time) the runner
    (:class:`~sitl.px4.Px4Vehicle`) and sends its replies; after a PARAM_SET the plant's
    attitude loop takes the new gains and THR_MDL_FAC,
 2. takes the estimate (:class:`~sitl.vehicle.navigation.Navigation`, EKF2-like, motion capture
-   or GPS aiding) and asks the autopilot for the attitude/thrust setpoint of this step
-   (``None``: disarmed),
+   or GPS aiding; a new one at each estimator output, held between) and asks the autopilot
+   for the attitude/thrust setpoint of this step (``None``: disarmed) when its control may
+   decide something: a new estimate, a message handled, a decision at the last step or a
+   deadline of the commander; at the other steps the setpoint is held (the call would
+   return it and change nothing),
 3. steps the world under the servo bus lock (the bus thread reads and writes the same
    servo models),
-4. sends the telemetry due at this time (built only for the links someone listens on: on
-   simulated time the GCS link usually has no one), hands what PX4 would print to its
-   console to the caller and, at its rate, writes a truth-log line.
+4. sends the telemetry due at this time, if any (built only for the links someone listens
+   on: on simulated time the GCS link usually has no one), hands what PX4 would print to
+   its console to the caller and, at its rate, writes a truth-log line.
 
 Time is simulation time everywhere (message rates, offboard loss, auto-disarm,
 ``time_boot_ms``); the wall clock only paces the loop at ``speed`` times real time. When
@@ -42,7 +45,7 @@ from bytelink.memory import MemoryChannel, MemoryEnd, create_channel
 from companion.config import arm_bus_configs
 from companion.coordinates import POSITION
 from companion.frames import ned_from_enu
-from sitl.physics import Plant, make_plant
+from sitl.physics import AttitudeSetpoint, Plant, make_plant
 from sitl.physics.jsbsim import GearGeometry, JsbsimPlant
 from sitl.px4 import (
     GeoReference,
@@ -53,6 +56,7 @@ from sitl.px4 import (
     attitude_loop_params,
     load_signing_key,
 )
+from sitl.px4.measurement import VehicleMeasurement
 from sitl.scenario import Scenario, servo_watchdog_option
 from sitl.servo import PtyServoBus, XM430Parameters, XM430Servo
 from sitl.servo.memory_bus import MemoryServoBus
@@ -267,6 +271,10 @@ class SitlVehicle:
         self._streaming_until_s = -math.inf
         self._mode_seen: Px4Mode | None = None
         """The autopilot's mode at the last step (:attr:`phases` sees each change)."""
+        self._measurement: VehicleMeasurement | None = None
+        """The estimate of the last estimator output (held until the next)."""
+        self._setpoint: AttitudeSetpoint | None = None
+        """The autopilot's setpoint, held while its control decides nothing new."""
         self._open = False
 
     def _make_links(self) -> dict[str, MavlinkEndpoint]:
@@ -442,26 +450,28 @@ class SitlVehicle:
         if autopilot.params.revision != self._params_revision:
             self._params_revision = autopilot.params.revision
             world.plant.configure_autopilot(attitude_loop_params(autopilot.params))
-        measurement = self.navigation.measure(world)
-        setpoint = autopilot.control(now_s, measurement)
-        mode = autopilot.mode
-        if mode is not self._mode_seen:  # a phase begins with a mode, not in it
-            self._mode_seen = mode
-            self.phases.observe_mode(mode.name, now_s)
+        now_us = round(now_s * 1e6)
+        next_estimate_us = self.navigation.next_output_us
+        fresh = next_estimate_us is None or now_us >= next_estimate_us
+        if fresh:
+            self._measurement = self.navigation.measure(world)
+        measurement = self._measurement
+        assert measurement is not None  # made at the first step
+        if fresh or now_s >= autopilot.control_held_until_s:
+            self._setpoint = autopilot.control(now_s, measurement)
+            mode = autopilot.mode
+            if mode is not self._mode_seen:  # a phase begins with a mode, not in it
+                self._mode_seen = mode
+                self.phases.observe_mode(mode.name, now_s)
         with self.servo_bus.lock:
-            world.advance(setpoint)
+            world.advance(self._setpoint)
         self._pose_sent_ms = None
-        unheard = [name for name, link in links.items() if not link.heard]
         takeover = faults.takeover(now_s)
         if takeover is not None:
             for reply_link, reply in autopilot.handle(takeover, "gcs", now_s):
                 links[reply_link].send(reply)
-        for link_name, message in autopilot.telemetry(now_s, measurement, unheard):
-            if not faults.drops(link_name, now_s):
-                links[link_name].send(message)
-                if lockstep and link_name == "onboard" and message.get_type() == _ODOMETRY:
-                    self._pose_sent_ms = message.time_usec // 1000
-                    self._reads_at_pose = self.servo_bus.sync_reads
+        if fresh or now_us >= autopilot.next_telemetry_us:
+            self._send_telemetry(now_s, measurement)
         if autopilot.console_waiting:
             lines = autopilot.console()
             if self._console is not None:
@@ -472,6 +482,19 @@ class SitlVehicle:
             self._write_truth()
         self.steps += 1
         self._last_step_wall_s = time.perf_counter()
+
+    def _send_telemetry(self, now_s: float, measurement: VehicleMeasurement) -> None:
+        """Send the telemetry due at ``now_s`` [s] on the links someone listens on (the
+        link faults may drop it); note the pose a lockstep client answers."""
+        links, faults = self.links, self.link_faults
+        unheard = [name for name, link in links.items() if not link.heard]
+        lockstep = self.options.lockstep
+        for link_name, message in self.autopilot.telemetry(now_s, measurement, unheard):
+            if not faults.drops(link_name, now_s):
+                links[link_name].send(message)
+                if lockstep and link_name == "onboard" and message.get_type() == _ODOMETRY:
+                    self._pose_sent_ms = message.time_usec // 1000
+                    self._reads_at_pose = self.servo_bus.sync_reads
 
     def flight_times(self) -> dict[str, float]:
         """The flight's simulated and wall-clock seconds from the start of the first plant
