@@ -94,17 +94,23 @@ class Timed:
             setattr(cls, name, self._originals[label])
 
 
+VEHICLE = "vehicle steps (SitlVehicle.step_until: a step, and the quiet ones after it)"
+WORLD_STEPS = "world steps (World.advance: the servos, the plant, ground and payload)"
 PARTS: dict[str, tuple[object, str]] = {
-    "vehicle steps": (SitlVehicle, "step"),
+    VEHICLE: (SitlVehicle, "step_until"),
     "servo bus answers": (SitlVehicle, "serve"),
-    "world steps (World.advance: the servos, the plant, ground and payload)": (
-        World,
-        "advance",
+    "the vehicle's full steps (SitlVehicle.step: messages, estimate, control, telemetry)": (
+        SitlVehicle,
+        "step",
     ),
+    WORLD_STEPS: (World, "advance"),
     "truth plant steps (and the joint servos)": (TruthPlant, "advance_coupled"),
-    "the imitation's estimates (Navigation.measure, every step)": (Navigation, "measure"),
-    "the imitation's commander (Px4Vehicle.control, every step)": (Px4Vehicle, "control"),
-    "the imitation's telemetry (Px4Vehicle.telemetry, every step)": (Px4Vehicle, "telemetry"),
+    "the imitation's estimates (Navigation.measure, at its outputs)": (Navigation, "measure"),
+    "the imitation's commander (Px4Vehicle.control, when it may decide)": (
+        Px4Vehicle,
+        "control",
+    ),
+    "the imitation's telemetry (Px4Vehicle.telemetry, when due)": (Px4Vehicle, "telemetry"),
     "the servo emulator's answers (MemoryServoBus.serve, with instructions waiting)": (
         MemoryServoBus,
         "serve",
@@ -143,7 +149,7 @@ def fly_once(seed: int, work: Path, profile: cProfile.Profile | None) -> dict[st
         if profile is not None:
             profile.disable()
         wall_s, cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
-    steps = timed.calls["vehicle steps"]
+    steps = timed.calls[WORLD_STEPS]
     sim_s = steps * 1e-3
     summary = json.loads((out / "summary.json").read_text())
     parts = {f"{label} [s]": seconds for label, seconds in timed.seconds.items()}
@@ -157,9 +163,9 @@ def fly_once(seed: int, work: Path, profile: cProfile.Profile | None) -> dict[st
         "factor": sim_s / wall_s,
         "flight_factor": summary["flight_sim_s"] / summary["flight_wall_s"],
         "per_hour": 3600.0 / cpu_s,
-        "step_share": timed.seconds["vehicle steps"] / wall_s,
+        "step_share": timed.seconds[VEHICLE] / wall_s,
         "serve_share": timed.seconds["servo bus answers"] / wall_s,
-        "step_us": timed.seconds["vehicle steps"] / max(steps, 1) * 1e6,
+        "step_us": timed.seconds[VEHICLE] / max(steps, 1) * 1e6,
         "cycles": float(report.control_cycles),
         **parts,
     }

@@ -30,8 +30,8 @@ class Counter:
     def time_s(self) -> float:
         return self.steps * 1e-3
 
-    def step(self) -> None:
-        self.steps += 1
+    def step_until(self, until_s: float) -> None:
+        self.steps += 1  # every step may send: one at a time
         if self.steps in self.send_at:
             self.channel.server.send(f"step {self.steps}".encode())
 

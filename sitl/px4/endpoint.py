@@ -231,6 +231,18 @@ class MavlinkEndpoint:
             return
         self.counters["sent"] += 1
 
+    @property
+    def sent(self) -> int:
+        """Messages sent so far."""
+        return self.counters["sent"]
+
+    @property
+    def idle(self) -> bool:
+        """Nothing waits to be received, as far as it can tell without a system call: an
+        in-memory end with an empty inbox (on UDP: False, a datagram may wait)."""
+        port = self._port
+        return port is not None and not port.readable
+
     def wait_readable(self, timeout_s: float) -> None:
         """Block until a datagram waits or ``timeout_s`` [s] has passed (UDP only; an
         in-memory end returns at once)."""

@@ -14,6 +14,7 @@ here.
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Mapping
 
@@ -87,6 +88,16 @@ class MemoryServoBus(RespondingBus):
         (the usual plant step), or the line is stopped."""
         channel = self._channel
         return channel is None or (not channel.server.readable and not self._pending)
+
+    @property
+    def quiet_until_s(self) -> float:
+        """Simulation time [s] before which :meth:`serve` has nothing to do: 1 us before
+        the first reply waiting goes out, inf for none; -inf while an instruction waits to
+        be read."""
+        channel = self._channel
+        if channel is not None and channel.server.readable:
+            return -math.inf
+        return self._pending[0][0] - 1e-6 if self._pending else math.inf
 
     def serve(self, now_s: float) -> None:
         """Carry out the instructions written since the last call, at simulation time

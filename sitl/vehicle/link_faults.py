@@ -151,6 +151,11 @@ class LinkFaults:
             return False
         return bool(self._rng.random() < loss.drop_fraction)
 
+    @property
+    def takeover_pending(self) -> bool:
+        """The pilot's takeover is still to come (:meth:`takeover` looks at every step)."""
+        return self._takeover is not None
+
     def takeover(self, now_s: float) -> mavlink2.MAVLink_message | None:
         """The ground station's mode command, once, when its time has come [s]."""
         takeover = self._takeover

@@ -10,8 +10,9 @@ selector event loop with two parts replaced:
 - its selector (:class:`LockstepSelector`) watches in-memory channel ends
   (:mod:`bytelink.memory`) instead of file descriptors. When the loop would block (every
   task of the companion waits for a message or a timer), the selector steps the
-  simulation, one plant step at a time, until a message for the companion arrives or the
-  earliest timer is due.
+  simulation until a message for the companion arrives or the earliest timer is due: a
+  plant step and those after it that make nothing readable, in one call
+  (:meth:`Lockstep.step_until`), then again.
 
 So the vehicle never steps while the companion has work to do: the setpoint the companion
 computes from a pose is in before the step that follows it, as PX4 and its simulator do in
@@ -29,6 +30,7 @@ simulation, and the bytes between the parts stay MAVLink 2 and Dynamixel Protoco
 from __future__ import annotations
 
 import asyncio
+import math
 import selectors
 import signal
 import threading
@@ -52,15 +54,17 @@ class LockstepStall(RuntimeError):
 
 
 class Lockstep(Protocol):
-    """What the loop drives: a clock, one step, and the devices answering at once."""
+    """What the loop drives: a clock, its steps, and the devices answering at once."""
 
     @property
     def time_s(self) -> float:
         """Simulation time [s]."""
         ...
 
-    def step(self) -> None:
-        """Advance the simulation by one step."""
+    def step_until(self, until_s: float) -> None:
+        """Advance the simulation by one step, then by more while its time is below
+        ``until_s`` [s] and they make nothing readable nor need the host (the vehicle's
+        steps with nothing due but the world's)."""
         ...
 
     def serve(self) -> None:
@@ -127,15 +131,15 @@ class LockstepSelector(selectors.BaseSelector):
         if ready or (timeout is not None and timeout <= 0.0):
             return ready
         start_s = sim.time_s
-        deadline_s = None if timeout is None else start_s + timeout
+        until_s = math.inf if timeout is None else start_s + timeout - 1e-9
         while True:
-            sim.step()
+            sim.step_until(until_s)
             sim.serve()
             ready = self._ready()
             if ready:
                 return ready
             now_s = sim.time_s
-            if deadline_s is not None and now_s >= deadline_s - 1e-9:
+            if now_s >= until_s:
                 return []
             if now_s - start_s > self._max_idle_s:
                 raise LockstepStall(

@@ -24,8 +24,9 @@ reported. Step jitter is the lateness of each step's start behind its wall-clock
 
 On simulated time (``RunOptions.memory``), nothing paces the steps: the links and the servo
 bus are in-memory channels, and :class:`~sitl.vehicle.lockstep.LockstepLoop` calls
-:meth:`SitlVehicle.step` and :meth:`SitlVehicle.serve` whenever the companion in the same
-process waits.
+:meth:`SitlVehicle.step_until` and :meth:`SitlVehicle.serve` whenever the companion in the
+same process waits: a step, and the steps after it with nothing due but the world's, which
+run without the rest of the step.
 """
 
 from __future__ import annotations
@@ -482,6 +483,65 @@ class SitlVehicle:
             self._write_truth()
         self.steps += 1
         self._last_step_wall_s = time.perf_counter()
+
+    def step_until(self, until_s: float) -> None:
+        """Plant steps while simulation time is below ``until_s`` [s] and each changes
+        nothing but the world (quiet steps, :meth:`_quiet_until_s`: no message in, no
+        estimate, no decision or deadline of the autopilot, no telemetry, no servo reply or
+        instruction, no fault or truth-log line due; the world steps under the setpoint
+        held, which is what :meth:`step` does then); if there are none, one :meth:`step`,
+        followed by quiet steps if it sent nothing (else the companion may have something
+        to read). At least one step.
+
+        Raises :class:`~sitl.physics.PlantError` if the plant diverges.
+        """
+        if self.steps and self._quiet_steps(until_s):
+            return
+        links = self.links.values()
+        sent = [link.sent for link in links]
+        self.step()
+        if all(link.sent == before for link, before in zip(links, sent, strict=True)):
+            self._quiet_steps(until_s)
+
+    def _quiet_steps(self, until_s: float) -> int:
+        """The quiet steps from now on, while simulation time is below ``until_s`` [s];
+        returns how many."""
+        world = self.world
+        limit_s = min(until_s, self._quiet_until_s())
+        steps = start = self.steps
+        if self._truth_file is not None:
+            last = steps + (-steps) % self._truth_every  # the next truth-log line's step
+        else:
+            last = -1
+        setpoint, lock = self._setpoint, self.servo_bus.lock
+        while world.time_s < limit_s and steps != last:
+            with lock:
+                world.advance(setpoint)
+            steps += 1
+        if steps != start:
+            self.steps = steps
+            self._last_step_wall_s = time.perf_counter()
+        return steps - start
+
+    def _quiet_until_s(self) -> float:
+        """Simulation time [s] before which, with the companion waiting, a plant step
+        changes nothing but the world (1 us early for the times in microseconds); -inf
+        when the next may (a message waiting, a console line, a fault to come, a bus
+        that answers from its own thread)."""
+        bus, autopilot = self.servo_bus, self.autopilot
+        if (
+            self._held
+            or not isinstance(bus, MemoryServoBus)
+            or autopilot.console_waiting
+            or self.servo_faults.pending
+            or self.link_faults.takeover_pending
+            or not all(link.idle for link in self.links.values())
+        ):
+            return -math.inf
+        estimate_us = self.navigation.next_output_us
+        assert estimate_us is not None  # after a step
+        due_us = min(estimate_us, autopilot.next_telemetry_us)
+        return min((due_us - 1) * 1e-6, autopilot.control_held_until_s, bus.quiet_until_s)
 
     def _send_telemetry(self, now_s: float, measurement: VehicleMeasurement) -> None:
         """Send the telemetry due at ``now_s`` [s] on the links someone listens on (the
