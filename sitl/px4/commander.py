@@ -100,6 +100,12 @@ _DEADLINE_EARLY_S = 1e-6
 """How much earlier than its sum a deadline of :meth:`Commander.next_deadline_s` is given
 [s]: the rules compare differences (``now - since >= delay``), which may round otherwise."""
 
+_CALL_RECORDS = frozenset({"_last_m", "_last_estimate_us", "_setpoint"})
+"""What :meth:`Commander.update` and :meth:`Commander.setpoint` keep of their call: the
+measurement, its estimate time and the setpoint returned. Called again with the same
+measurement, they find them so (the estimate is not new, the setpoint is held) and decide
+as before."""
+
 _MANUAL_CONTROL = (
     Px4Mode.MANUAL, Px4Mode.STABILIZED, Px4Mode.ACRO, Px4Mode.ALTCTL, Px4Mode.POSCTL,
 )  # fmt: skip
@@ -244,8 +250,11 @@ class Commander:
     def decisions(self) -> tuple:
         """Everything :meth:`update` and :meth:`setpoint` decide, as the objects held now
         (and the console's length): two snapshots whose entries are the same objects mean
-        that nothing was decided between them."""
-        return (*vars(self).values(), len(self.console))
+        that nothing was decided between them. What a call only keeps of its measurement
+        and returns (:data:`_CALL_RECORDS`) is left out: a second call with the same
+        measurement finds the same there."""
+        held = vars(self)
+        return (*(held[name] for name in held if name not in _CALL_RECORDS), len(self.console))
 
     def next_deadline_s(self, now_s: float) -> float:
         """The earliest simulated time [s] after ``now_s`` at which :meth:`update` may
