@@ -58,6 +58,7 @@ link); this commander writes them to :attr:`Commander.console`, as PX4 does to i
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass
 
 import numpy as np
@@ -194,6 +195,8 @@ class Commander:
         self._last_m: VehicleMeasurement | None = None
         self._last_estimate_us: int | None = None
         self._setpoint: AttitudeSetpoint | None = None
+        self._decided = operator.attrgetter(*(n for n in vars(self) if n not in _CALL_RECORDS))
+        """Reads the attributes :meth:`decisions` holds (every one set above)."""
 
     # ---------------------------------------------------------------- queries
 
@@ -253,8 +256,7 @@ class Commander:
         that nothing was decided between them. What a call only keeps of its measurement
         and returns (:data:`_CALL_RECORDS`) is left out: a second call with the same
         measurement finds the same there."""
-        held = vars(self)
-        return (*(held[name] for name in held if name not in _CALL_RECORDS), len(self.console))
+        return (*self._decided(self), len(self.console))
 
     def next_deadline_s(self, now_s: float) -> float:
         """The earliest simulated time [s] after ``now_s`` at which :meth:`update` may
