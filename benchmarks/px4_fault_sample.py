@@ -12,12 +12,13 @@ Four faults where PX4 is the one reacting, each at three phases of the pickup (1
   (the phase read from ``sitl run``'s ``phase NAME at T s`` line; the 0.5 s waited in wall
   time at PX4's validated speed).
 
-``--only`` flies two more: ``pose_dropout``, no motion-capture pose reaches PX4's EKF2 for
-10 s (``--pose-dropout 10@PHASE+0.5``); ``companion_starved``, the mission's process left
-:data:`STARVED_SHARE` of a CPU for :data:`STARVED_S` of wall time from 0.5 s into the
-phase (stopped and continued in turn, as a CPU taken by other work starves it), at speed 1
-without the companion lockstep (which would hold PX4's clock for it: the starvation would
-cost no vehicle time); the relay still reads the phases.
+``--only`` flies three more: ``pose_dropout``, no motion-capture pose reaches PX4's EKF2
+for 10 s (``--pose-dropout 10@PHASE+0.5``); ``link_latency``, every message of the onboard
+link held back 0.3 s for 5 s (``--link-latency 0.3:5@PHASE+0.5``); ``companion_starved``,
+the mission's process left :data:`STARVED_SHARE` of a CPU for :data:`STARVED_S` of wall
+time from 0.5 s into the phase (stopped and continued in turn, as a CPU taken by other
+work starves it), at speed 1 without the companion lockstep (which would hold PX4's clock
+for it: the starvation would cost no vehicle time); the relay still reads the phases.
 
 Each flight: ``sitl run --autopilot px4`` (PX4 SITL flying the hexacopter with its arm, at
 :data:`~sitl.hil.vehicle.VALIDATED_SPEED`) and the mission as its own process, as a user
@@ -71,9 +72,10 @@ FAULTS: dict[str, tuple[str, str] | None] = {
     "companion_kill": None,
     "pose_dropout": ("--pose-dropout", "10@{phase}+{offset}"),
     "companion_starved": None,
+    "link_latency": ("--link-latency", "0.3:5@{phase}+{offset}"),
 }
 SAMPLE = ("pilot_takeover", "offboard_loss", "low_battery", "companion_kill")
-"""The faults the sample flies; ``pose_dropout`` and ``companion_starved`` with ``--only``."""
+"""The faults the sample flies; the others with ``--only``."""
 STARVED_S = 5.0
 """How long the starved companion runs at :data:`STARVED_SHARE` of a CPU [s, wall]."""
 STARVED_SHARE = 0.2

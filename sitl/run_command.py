@@ -25,7 +25,7 @@ from sitl.physics.jsbsim import Wind
 from sitl.px4 import ParamError, SigningKeyError, load_signing_key
 from sitl.px4_sitl.launcher import Px4Build, Px4BuildError
 from sitl.scenario import MAX_DURATION_S, PayloadSlip, Scenario, load_scenario
-from sitl.vehicle.link_faults import TAKEOVER_MODES, LowBattery, PilotTakeover
+from sitl.vehicle.link_faults import TAKEOVER_MODES, LinkLatency, LowBattery, PilotTakeover
 from sitl.vehicle.mission_phases import FAULT_PHASES, FaultStart, PhaseStart
 from sitl.vehicle.options import SERVO_ERRORS, LinkPorts, RunOptions, ServoError
 from sitl.vehicle.runner import SitlVehicle, simulated_servo_ids
@@ -103,6 +103,14 @@ class RunCommand:
             help="Fault injection 'DURATION@T' or 'DURATION@PHASE+S': the onboard link silent "
             "both ways for DURATION [s, sim time] (with --autopilot px4: on the companion "
             "relay), e.g. 10@excite+0.5."
+        ),
+    ] = None
+    link_latency: Annotated[
+        str | None,
+        typer.Option(
+            help="Fault injection 'DELAY:DURATION@T' or 'DELAY:DURATION@PHASE+S', --autopilot "
+            "px4: every message of the onboard link held back DELAY [s] for DURATION [s, sim "
+            "time], in order, e.g. 0.3:5@excite+0.5."
         ),
     ] = None
     pilot_takeover: Annotated[
@@ -206,6 +214,9 @@ class RunCommand:
         cfg = load_or_exit(self.config, load_scenario)
         build = self._px4_build()
         self._check_run()
+        if self.link_latency is not None and build is None:
+            fail("--link-latency is flown on the relay of PX4's onboard link: it needs "
+                 "--autopilot px4")  # fmt: skip
         if self.low_battery is not None and build is None:
             fail("--low-battery flies PX4's own battery and failsafe: it needs --autopilot px4")
         for option, value in (
@@ -248,6 +259,9 @@ class RunCommand:
                 if self.pilot_takeover is None
                 else _pilot_takeover(self.pilot_takeover),
                 low_battery=None if self.low_battery is None else _low_battery(self.low_battery),
+                link_latency=None
+                if self.link_latency is None
+                else _link_latency(self.link_latency),
                 pose_dropout=None
                 if self.pose_dropout is None
                 else _stretch(self.pose_dropout, "--pose-dropout"),
@@ -397,6 +411,14 @@ def _fault_start(at: str, option: str, shown: str) -> FaultStart:
     return start
 
 
+def _number(text: str, option: str, shown: str) -> float:
+    """The number ``text`` of ``option``'s value ``shown``; one ``error:`` line otherwise."""
+    try:
+        return float(text)
+    except ValueError:
+        _bad_fault(option, shown)
+
+
 def _bad_fault(option: str, shown: str, why: str = "") -> NoReturn:
     """One ``error:`` line: ``option``'s forms and an example, and what was given."""
     fail(
@@ -405,28 +427,34 @@ def _bad_fault(option: str, shown: str, why: str = "") -> NoReturn:
     )
 
 
-def _stretch(text: str, option: str) -> tuple[FaultStart, float]:
-    """``option``'s ``SECONDS@START`` as (start, duration [s])."""
+def _stretch(text: str, option: str, shown: str = "") -> tuple[FaultStart, float]:
+    """``option``'s ``SECONDS@START`` (``shown`` as the user gave it) as (start,
+    duration [s])."""
+    shown = shown or text
     duration, _, at = text.partition("@")
-    try:
-        duration_s = float(duration)
-    except ValueError:
-        _bad_fault(option, text)
+    duration_s = _number(duration, option, shown)
     if not (math.isfinite(duration_s) and 0.0 < duration_s <= MAX_DURATION_S):
-        fail(f"{option} {text}: the duration must lie in (0, {MAX_DURATION_S:g}] s")
-    return _fault_start(at, option, text), duration_s
+        fail(f"{option} {shown}: the duration must lie in (0, {MAX_DURATION_S:g}] s")
+    return _fault_start(at, option, shown), duration_s
 
 
 def _pose_jump(text: str) -> tuple[FaultStart, float]:
     """``--pose-jump METRES@START`` as (start, distance east [m])."""
     metres, _, at = text.partition("@")
-    try:
-        distance_m = float(metres)
-    except ValueError:
-        _bad_fault("--pose-jump", text)
+    distance_m = _number(metres, "--pose-jump", text)
     if not (math.isfinite(distance_m) and 0.0 < abs(distance_m) <= 10.0):
         fail(f"--pose-jump {text}: the jump must be non-zero and at most 10 m")
     return _fault_start(at, "--pose-jump", text), distance_m
+
+
+def _link_latency(text: str) -> LinkLatency:
+    """``--link-latency DELAY:DURATION@START`` as a :class:`LinkLatency`."""
+    delay, colon, stretch = text.partition(":")
+    delay_s = _number(delay, "--link-latency", text)
+    if not colon or not (math.isfinite(delay_s) and 0.0 < delay_s <= 2.0):
+        fail(f"--link-latency {text}: the delay must lie in (0, 2] s, before a ':'")
+    start, duration_s = _stretch(stretch, "--link-latency", text)
+    return LinkLatency(start, duration_s, delay_s)
 
 
 def _pilot_takeover(text: str) -> PilotTakeover:
@@ -440,10 +468,7 @@ def _pilot_takeover(text: str) -> PilotTakeover:
 def _low_battery(text: str) -> LowBattery:
     """``--low-battery PERCENT@START`` as a :class:`LowBattery`."""
     percent, _, at = text.partition("@")
-    try:
-        remaining = float(percent)
-    except ValueError:
-        _bad_fault("--low-battery", text)
+    remaining = _number(percent, "--low-battery", text)
     if not 0.0 <= remaining < 100.0:
         fail(f"--low-battery {text}: the remaining charge must be 0 to 100 %")
     return LowBattery(_fault_start(at, "--low-battery", text), remaining)
@@ -457,6 +482,7 @@ _FORMS = {
     "--low-battery": "PERCENT@SECONDS or PERCENT@PHASE+SECONDS",
     "--pose-dropout": "DURATION@SECONDS or DURATION@PHASE+SECONDS",
     "--pose-jump": "METRES@SECONDS or METRES@PHASE+SECONDS",
+    "--link-latency": "DELAY:DURATION@SECONDS or DELAY:DURATION@PHASE+SECONDS",
 }
 _EXAMPLES = {
     "--servo-silent": "2@30 or 2@takeoff+8",
@@ -466,6 +492,7 @@ _EXAMPLES = {
     "--low-battery": "6@to_place+0.5",
     "--pose-dropout": "3@to_place+0.5",
     "--pose-jump": "0.5@lift+0.5",
+    "--link-latency": "0.3:5@excite+0.5",
 }
 
 

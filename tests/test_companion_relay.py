@@ -45,10 +45,10 @@ def heartbeat() -> bytes:
 class Ends:
     """PX4's onboard link and the companion as two loopback sockets around a relay."""
 
-    def __init__(self, timeout_s: float = 0.5) -> None:
+    def __init__(self, timeout_s: float = 0.5, **faults) -> None:
         self.reads = 0
         local, app_port = free_udp_port(), free_udp_port()
-        self.relay = CompanionRelay((local, app_port), lambda: self.reads, timeout_s)
+        self.relay = CompanionRelay((local, app_port), lambda: self.reads, timeout_s, **faults)
         self.relay.open()
         px4_local, relay_px4_port = self.relay.px4_ports
         self.px4 = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -170,3 +170,28 @@ def test_a_companion_that_stops_streaming_releases_the_hold_once(ends):
 def test_a_bad_timeout_is_refused():
     with pytest.raises(ValueError, match="answer_timeout_s"):
         CompanionRelay((free_udp_port(), free_udp_port()), lambda: 0, 0.0)
+
+
+def test_a_latency_spike_holds_datagrams_back_in_order_until_they_are_due():
+    now_s, delay_s = [10.0], [0.3]
+    ends = Ends(delay=lambda: delay_s[0], clock=lambda: now_s[0])
+    ends.app.settimeout(0.2)
+    try:
+        first, second = odometry(10_000_000), odometry(10_004_000)
+        ends.px4_sends(first)
+        ends.relay.pump()
+        delay_s[0] = 0.0  # the spike is over, but the link keeps its order
+        ends.px4_sends(second)
+        ends.relay.pump()
+        with pytest.raises(TimeoutError):
+            ends.app.recvfrom(1024)
+        assert ends.relay.delayed == 2 and ends.relay.last_pose_ms == -1
+        now_s[0] = 10.3
+        ends.relay.pump()
+        assert ends.app.recvfrom(1024)[0] == first
+        assert ends.app.recvfrom(1024)[0] == second
+        assert ends.relay.last_pose_ms == 10_004
+    finally:
+        ends.close()
+    with pytest.raises(ValueError, match="clock"):
+        CompanionRelay((free_udp_port(), free_udp_port()), lambda: 0, 0.5, delay=lambda: 0.1)

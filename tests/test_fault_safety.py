@@ -13,7 +13,7 @@ from sitl.campaign.safety import handover_s, judge
 from sitl.campaign.spec import Fault
 from sitl.servo import XM430Servo
 from sitl.servo.memory_bus import MemoryServoBus
-from sitl.vehicle.link_faults import LinkFaults, LinkLoss, LowBattery, PilotTakeover
+from sitl.vehicle.link_faults import LinkFaults, LinkLatency, LinkLoss, LowBattery, PilotTakeover
 from sitl.vehicle.mission_phases import FAULT_PHASES, MissionPhases, PhaseStart
 from sitl.vehicle.options import RunOptions, ServoError
 from sitl.vehicle.servo_bus_faults import BusCorruption, ServoBusFaults
@@ -244,3 +244,15 @@ def test_the_handover_is_when_px4_last_left_offboard_armed():
     ]
     assert handover_s(truth) == 50.0
     assert handover_s([sample(5.0, 1.0, mode="AUTO_LOITER")]) is None
+
+
+def test_a_latency_spike_delays_the_onboard_link_while_it_lasts():
+    phases = MissionPhases()
+    faults = LinkFaults(phases, 0, latency=LinkLatency(PhaseStart("excite", 0.5), 5.0, 0.3))
+    assert faults.delay_s("onboard", 60.0) == 0.0
+    phases.observe_text("pickup: phase excite", 60.0)
+    assert faults.delay_s("onboard", 60.4) == 0.0
+    assert faults.delay_s("onboard", 60.5) == 0.3 and faults.delay_s("gcs", 61.0) == 0.0
+    assert faults.delay_s("onboard", 65.5) == 0.0
+    with pytest.raises(ValueError, match=r"delay_s must be in \(0, 2\]"):
+        LinkLatency(10.0, 5.0, 3.0)

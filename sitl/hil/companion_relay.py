@@ -6,7 +6,8 @@ a setpoint late in vehicle time while PX4 flies on. :class:`CompanionRelay` clos
 gap. PX4's onboard MAVLink link is moved onto an internal pair of loopback ports, and the
 relay, in the simulator's process, takes its place on the ports the companion was given:
 every datagram passes through unchanged, both ways, unless a link fault drops it (a cut
-or a lossy stretch, asked per datagram). The relay reads as it passes:
+or a lossy stretch, asked per datagram) or holds it back (a latency spike: the datagram
+goes on once the simulation has run that long, in order). The relay reads as it passes:
 
 - PX4's ODOMETRY ``time_usec`` (the pose the companion's control cycle runs on),
 - the companion's SET_ATTITUDE_TARGET or SET_POSITION_TARGET_LOCAL_NED ``time_boot_ms``,
@@ -35,6 +36,7 @@ import socket
 import struct
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterator
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -102,7 +104,9 @@ class CompanionRelay:
     PX4's onboard link on. ``answer_timeout_s``: wall time to wait for each of the
     setpoint and the joint read [s]. ``on_text`` is given the text of each STATUSTEXT the
     companion sends (its mission phases); ``drops`` is asked before each datagram, either
-    way, whether the link loses it (a link fault: the datagram is read and not forwarded).
+    way, whether the link loses it (a link fault: the datagram is read and not forwarded);
+    ``delay`` gives each datagram's extra latency [s of simulated time, ``clock``'s], a
+    held datagram going on at the first :meth:`pump` after it is due, in order.
     """
 
     def __init__(
@@ -112,12 +116,20 @@ class CompanionRelay:
         answer_timeout_s: float,
         on_text: Callable[[str], None] | None = None,
         drops: Callable[[], bool] | None = None,
+        delay: Callable[[], float] | None = None,
+        clock: Callable[[], float] | None = None,
     ) -> None:
+        if (delay is None) != (clock is None):
+            raise ValueError("a delay needs the clock it is counted on")
         if answer_timeout_s <= 0.0:
             raise ValueError(f"answer_timeout_s must be positive, got {answer_timeout_s!r}")
         self._joint_reads = joint_reads
         self._on_text = on_text
         self._drops = drops
+        self._delay = delay
+        self._clock = clock
+        self._late: deque[tuple[float, bool, bytes]] = deque()
+        """Held datagrams: (due time [s], towards the companion, bytes), in order."""
         self._reads_at_pose = 0
         self._reads_stopped_at = -1
         self._local_port, companion_port = companion_side
@@ -140,6 +152,8 @@ class CompanionRelay:
         """Times the companion did not answer within ``answer_timeout_s`` (hold released)."""
         self.dropped = 0
         """Datagrams the link lost (``drops``), both ways."""
+        self.delayed = 0
+        """Datagrams held back (``delay``), both ways."""
 
     @property
     def px4_ports(self) -> tuple[int, int]:
@@ -177,6 +191,15 @@ class CompanionRelay:
     def pump(self) -> None:
         """Forward every datagram waiting on either side, without blocking."""
         assert self._companion is not None and self._px4 is not None
+        if self._late:
+            assert self._clock is not None
+            now_s = self._clock()
+            while self._late and self._late[0][0] <= now_s:
+                _, to_companion, data = self._late.popleft()
+                if to_companion:
+                    self._to_companion(data)
+                else:
+                    self._to_px4(data)
         while self._from_px4():
             pass
         while self._from_companion():
@@ -221,8 +244,13 @@ class CompanionRelay:
             data, _ = self._px4.recvfrom(_MAX_DATAGRAM)
         except (BlockingIOError, ConnectionRefusedError):
             return False
-        if self._lost():
-            return True
+        if not self._lost() and not self._held(data, to_companion=True):
+            self._to_companion(data)
+        return True
+
+    def _to_companion(self, data: bytes) -> None:
+        """Forward PX4's datagram, reading its pose time."""
+        assert self._companion is not None
         for msgid, payload in mavlink_frames(data):
             if msgid == _ODOMETRY:
                 self.last_pose_ms = _leading_uint(payload, "<Q") // 1000
@@ -231,7 +259,6 @@ class CompanionRelay:
             self._companion.sendto(data, self._companion_addr)
         except OSError:
             pass  # nobody on the companion's port yet: PX4's link would drop it too
-        return True
 
     def _from_companion(self) -> bool:
         assert self._px4 is not None and self._companion is not None and self._px4_addr
@@ -240,8 +267,14 @@ class CompanionRelay:
         except (BlockingIOError, ConnectionRefusedError):
             return False
         self._companion_addr = sender
-        if self._lost():
-            return True
+        if not self._lost() and not self._held(data, to_companion=False):
+            self._to_px4(data)
+        return True
+
+    def _to_px4(self, data: bytes) -> None:
+        """Forward the companion's datagram, reading its setpoint's pose time and its
+        STATUSTEXT."""
+        assert self._px4 is not None and self._px4_addr is not None
         for msgid, payload in mavlink_frames(data):
             if msgid in _SETPOINTS:
                 answered = _leading_uint(payload, "<I")
@@ -255,6 +288,20 @@ class CompanionRelay:
             self._px4.sendto(data, self._px4_addr)
         except OSError:
             pass  # PX4's onboard link not started yet
+
+    def _held(self, data: bytes, to_companion: bool) -> bool:
+        """Hold the datagram just read back for its delay (counted), behind any held
+        before it: the link keeps its order."""
+        if self._delay is None or self._clock is None:
+            return False
+        delay_s = self._delay()
+        if delay_s <= 0.0 and not self._late:
+            return False
+        due_s = self._clock() + max(delay_s, 0.0)
+        if self._late:
+            due_s = max(due_s, self._late[-1][0])
+        self._late.append((due_s, to_companion, data))
+        self.delayed += 1
         return True
 
     def _lost(self) -> bool:

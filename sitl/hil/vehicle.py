@@ -41,7 +41,7 @@ HIL_ACTUATOR_CONTROLS.
 Faults (``RunOptions``), at a simulated time or a phase: the servo bus's, as with the
 imitation; a motion-capture dropout (no vision ODOMETRY to PX4 for a while) or jump (the
 poses moved east from then on); on the
-relayed onboard link a cut or a lossy stretch; from the mode link, as a
+relayed onboard link a cut, a lossy stretch or a latency spike; from the mode link, as a
 ground station, the pilot's mode switch and a battery falling low
 (:mod:`sitl.vehicle.link_faults`). With the relay, the mission's phases are the companion's
 STATUSTEXT as it passes.
@@ -256,6 +256,8 @@ class Px4InTheLoop:
                 answer_timeout_s=LOCKSTEP_WAIT_S,
                 on_text=self._companion_text,
                 drops=lambda: self.link_faults.drops("onboard", self.world.time_s),
+                delay=lambda: self.link_faults.delay_s("onboard", self.world.time_s),
+                clock=lambda: self.world.time_s,
             )
             self._relay.open()
             self._mode_link = MavlinkEndpoint(0, 0, system_id=255, component_id=190)

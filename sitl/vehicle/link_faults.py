@@ -7,6 +7,9 @@
 - a pilot taking over (``pilot_takeover``): a mode switch arriving on the ground-station
   link as QGroundControl sends it (COMMAND_LONG MAV_CMD_DO_SET_MODE from system 255,
   component 190), which the autopilot handles as it handles any;
+- a latency spike (``link_latency``, PX4 in the loop only: the relay of its onboard link):
+  every message on the onboard link, either way, held back ``delay_s`` for ``duration_s``
+  (a congested radio, a USB adapter's buffering), in order;
 - a battery running low (``low_battery``, PX4 in the loop only): PX4's simulated battery
   (its ``battery_simulator``) told from the ground station to fall to a remaining charge
   within a second (PARAM_SET SIM_BAT_DRAIN 1 s, then SIM_BAT_MIN_PCT, the parameter PX4
@@ -33,6 +36,7 @@ __all__ = [
     "GCS_COMPONENT_ID",
     "GCS_SYSTEM_ID",
     "LinkFaults",
+    "LinkLatency",
     "LinkLoss",
     "LowBattery",
     "PilotTakeover",
@@ -57,6 +61,19 @@ class LinkLoss:
 
     def __post_init__(self) -> None:
         check_stretch("link loss", self.start, self.duration_s, "drop_fraction", self.drop_fraction)
+
+
+@dataclass(frozen=True)
+class LinkLatency:
+    """Every message of the onboard link held back ``delay_s`` [s], both ways, for
+    ``duration_s`` [s] from ``start``."""
+
+    start: FaultStart
+    duration_s: float
+    delay_s: float
+
+    def __post_init__(self) -> None:
+        check_stretch("latency spike", self.start, self.duration_s, "delay_s", self.delay_s, 2.0)
 
 
 @dataclass(frozen=True)
@@ -105,6 +122,7 @@ class LinkFaults:
         loss: LinkLoss | None = None,
         takeover: PilotTakeover | None = None,
         battery: LowBattery | None = None,
+        latency: LinkLatency | None = None,
         autopilot_system_id: int = 1,
     ) -> None:
         self._phases = phases
@@ -112,6 +130,7 @@ class LinkFaults:
         self._loss = loss
         self._takeover = takeover
         self._battery = battery
+        self._latency = latency
         self._system_id = autopilot_system_id
         self._rng = np.random.default_rng([seed, 0x10551])
         self._gcs = mavlink2.MAVLink(None, GCS_SYSTEM_ID, GCS_COMPONENT_ID)
@@ -128,6 +147,7 @@ class LinkFaults:
             loss=options.link_loss,
             takeover=options.pilot_takeover,
             battery=options.low_battery,
+            latency=options.link_latency,
             autopilot_system_id=autopilot_system_id,
         )
 
@@ -155,6 +175,14 @@ class LinkFaults:
     def takeover_pending(self) -> bool:
         """The pilot's takeover is still to come (:meth:`takeover` looks at every step)."""
         return self._takeover is not None
+
+    def delay_s(self, link: str, now_s: float) -> float:
+        """The extra latency of a message on ``link`` at ``now_s`` [s]: a spike's delay
+        while it lasts, else 0."""
+        latency = self._latency
+        if link != "onboard" or latency is None:
+            return 0.0
+        return latency.delay_s if self._within(latency.start, latency.duration_s, now_s) else 0.0
 
     def takeover(self, now_s: float) -> mavlink2.MAVLink_message | None:
         """The ground station's mode command, once, when its time has come [s]."""

@@ -60,17 +60,17 @@ def valid_start(start: FaultStart) -> bool:
 
 
 def check_stretch(
-    what: str, start: FaultStart, duration_s: float, name: str, fraction: float
+    what: str, start: FaultStart, duration_s: float, name: str, value: float, most: float = 1.0
 ) -> None:
-    """Raise ValueError unless the fault ``what``, acting on a fraction of its traffic for a
-    while, starts at a valid moment, lasts a positive time [s] and has ``name`` (the
-    fraction) in (0, 1]."""
+    """Raise ValueError unless the fault ``what``, acting on its traffic for a while, starts
+    at a valid moment, lasts a positive time [s] and has ``name`` (a fraction of the
+    traffic, or a delay [s]) in (0, ``most``]."""
     if not valid_start(start):
         raise ValueError(f"a {what} starts at a time >= 0 or a phase, got {start!r}")
     if not (math.isfinite(duration_s) and duration_s > 0.0):
         raise ValueError(f"a {what} lasts a positive time, got {duration_s!r}")
-    if not (math.isfinite(fraction) and 0.0 < fraction <= 1.0):
-        raise ValueError(f"{name} must be in (0, 1], got {fraction!r}")
+    if not (math.isfinite(value) and 0.0 < value <= most):
+        raise ValueError(f"{name} must be in (0, {most:g}], got {value!r}")
 
 
 class MissionPhases:

@@ -13,7 +13,7 @@ import numpy as np
 from arm_driver.errors import HardwareErrorStatus
 from sitl.physics.jsbsim import Wind
 from sitl.stepping import LoopStats
-from sitl.vehicle.link_faults import LinkLoss, LowBattery, PilotTakeover
+from sitl.vehicle.link_faults import LinkLatency, LinkLoss, LowBattery, PilotTakeover
 from sitl.vehicle.mission_phases import FaultStart, valid_start
 from sitl.vehicle.navigation import ERROR_MODELS
 from sitl.vehicle.servo_bus_faults import BusCorruption
@@ -133,6 +133,9 @@ class RunOptions:
     both ways (a weak radio)."""
     pilot_takeover: PilotTakeover | None = None
     """Fault injection: the pilot switching PX4's mode from the ground station."""
+    link_latency: LinkLatency | None = None
+    """Fault injection: a stretch of the onboard link held back, both ways (PX4 in the loop
+    only)."""
     low_battery: LowBattery | None = None
     """Fault injection: PX4's simulated battery falling low (PX4 in the loop only)."""
     pose_dropout: tuple[FaultStart, float] | None = None

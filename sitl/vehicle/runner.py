@@ -235,6 +235,11 @@ class SitlVehicle:
         self.phases = MissionPhases()
         """When the mission's phases began, as the onboard link and the autopilot told."""
         self.servo_faults = ServoBusFaults(options, self.phases)
+        if options.link_latency is not None:
+            raise ValueError(
+                "a latency spike is flown on the relay of PX4's onboard link: fly it with PX4 in "
+                "the loop (--autopilot px4)"
+            )
         if options.low_battery is not None:
             raise ValueError(
                 "a low battery is flown by PX4's own battery and failsafe: fly it with PX4 in "
