@@ -133,13 +133,16 @@ _EXACT = EstimateErrorModel(0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 1.0, Estimat
 
 
 class _SmoothOffset:
-    """Gauss-Markov offsets seen through a first-order lag: position and rate errors.
+    """Gauss-Markov offsets seen through first-order lags: position and attitude errors.
 
-    ``rough`` is the exactly discretized Gauss-Markov process (stationary standard
-    deviation ``std``, correlation time ``tau``), ``smooth`` follows it through the lag
-    ``smoothing_s``; the error is ``smooth`` and its rate ``(rough - smooth) /
-    smoothing_s``. Both start at a draw of standard deviation ``boot_std`` (the offset
-    after boot), which then wanders towards the stationary ``std``.
+    One process per component: ``rough`` is the exactly discretized Gauss-Markov process
+    (stationary standard deviation ``std``, correlation time ``tau``), ``smooth`` follows
+    it through its group's lag (``smoothing_s`` [s]: the position's, then the attitude's); the
+    error is ``smooth`` and its rate ``(rough - smooth) / smoothing_s``. Both start at a
+    draw of standard deviation ``boot_std`` (the offset after boot), which then wanders
+    towards the stationary ``std``. The components are the position's three [m, ENU]
+    then the attitude's three Euler angles [rad]; each step draws all six noises in one
+    block, the position's first (the order of one draw per group).
     """
 
     def __init__(
@@ -147,14 +150,14 @@ class _SmoothOffset:
         rng: np.random.Generator,
         std: np.ndarray,
         tau_s: np.ndarray,
-        smoothing_s: float,
+        smoothing_s: tuple[float, float],
         boot_std: np.ndarray,
     ) -> None:
         self._rng = rng
         self._std = std
         self._tau = tau_s
         self._smoothing_s = smoothing_s
-        self._factors: tuple[float, np.ndarray, np.ndarray, float] | None = None
+        self._factors: tuple[float, np.ndarray, np.ndarray, np.ndarray] | None = None
         self.rough = rng.standard_normal(std.size) * boot_std
         self.smooth = self.rough.copy()
 
@@ -162,15 +165,16 @@ class _SmoothOffset:
         factors = self._factors
         if factors is None or factors[0] != dt_s:  # computed once for the output period
             a = np.exp(-dt_s / self._tau)
-            gain = 1.0 - math.exp(-dt_s / self._smoothing_s)
+            gain = np.repeat([1.0 - math.exp(-dt_s / s) for s in self._smoothing_s], 3)
             factors = self._factors = (dt_s, a, self._std * np.sqrt(1.0 - a * a), gain)
         _, a, noise, gain = factors
         self.rough = a * self.rough + noise * self._rng.standard_normal(self._std.size)
         self.smooth += gain * (self.rough - self.smooth)
 
     @property
-    def rate(self) -> np.ndarray:
-        return (self.rough - self.smooth) / self._smoothing_s
+    def position_rate(self) -> np.ndarray:
+        """Rate of the position error [m/s, ENU]."""
+        return (self.rough[:3] - self.smooth[:3]) / self._smoothing_s[0]
 
 
 class Navigation:
@@ -213,16 +217,16 @@ class Navigation:
         self.output_period_s = self._output_period_us * 1e-6
         """Time between two estimates [s] (8 ms at 250 Hz)."""
         h, v = model.horizontal_std_m, model.vertical_std_m
-        self._position = _SmoothOffset(
-            rng,
-            np.array([h, h, v]),
-            np.array([model.horizontal_tau_s, model.horizontal_tau_s, model.vertical_tau_s]),
-            model.smoothing_s,
-            np.full(3, model.boot_std_m),
-        )
         tilt, yaw = model.tilt_std_rad, model.yaw_std_rad
-        angles = np.array([tilt, tilt, yaw])
-        self._attitude = _SmoothOffset(rng, angles, np.full(3, model.attitude_tau_s), 1e-3, angles)
+        htau, vtau, atau = model.horizontal_tau_s, model.vertical_tau_s, model.attitude_tau_s
+        boot = model.boot_std_m
+        self._offset = _SmoothOffset(
+            rng,
+            np.array([h, h, v, tilt, tilt, yaw]),
+            np.array([htau, htau, vtau, atau, atau, atau]),
+            (model.smoothing_s, 1e-3),
+            np.array([boot, boot, boot, tilt, tilt, yaw]),
+        )
         s = scenario.sensors
         self._gyro = GyroSensor(rng, rate_std_rad_s=s.gyro_std_rad_s, rate_hz=s.gyro_rate_hz)
         self._last: VehicleMeasurement | None = None
@@ -250,30 +254,27 @@ class Navigation:
         if self._noise:
             gyro = self._gyro.sample(state.time_s, state.omega_body_rad_s)
             if gyro is not None:
-                self._omega = np.array(gyro.omega_body_rad_s)
+                self._omega = gyro.omega_body_rad_s
         dt_s = (
             self.output_period_s
             if self._last_output_us is None
             else (output_us - self._last_output_us) * 1e-6
         )
         self._last_output_us = output_us
-        self._position.step(dt_s)
-        self._attitude.step(dt_s)
+        offset = self._offset
+        offset.step(dt_s)
         q = state.q
         if self.local_origin_enu_m is None:
             self.local_origin_enu_m = np.array(q[POSITION])
-        position = np.array(q[POSITION]) - self.local_origin_enu_m + self._position.smooth
-        velocity = np.array(state.q_dot[POSITION]) + self._position.rate
+        smooth = offset.smooth
+        position = q[POSITION] - self.local_origin_enu_m + smooth[:3]
+        velocity = state.q_dot[POSITION] + offset.position_rate
         if self._noise:
-            angles = np.array(q[ATTITUDE]) + self._attitude.smooth
+            angles = q[ATTITUDE] + smooth[3:]
             quaternion = quaternion_from_euler(*angles.tolist())
         else:
-            quaternion = np.array(state.quaternion_wxyz)
-        omega = (
-            self._omega
-            if self._noise and self._omega is not None
-            else np.array(state.omega_body_rad_s)
-        )
+            quaternion = state.quaternion_wxyz
+        omega = self._omega if self._noise and self._omega is not None else state.omega_body_rad_s
         battery = world.battery
         self._last = VehicleMeasurement(
             time_s=state.time_s,
