@@ -13,6 +13,7 @@ from pymavlink.dialects.v20 import common as M
 
 from bytelink.memory import attach, create_channel
 from sitl.px4 import MavlinkEndpoint, SigningKeyError, load_signing_key
+from sitl.px4.endpoint import odometry_frame
 
 KEY = bytes(range(32))
 
@@ -209,3 +210,53 @@ def test_an_in_memory_end_is_heard_once_a_client_attaches_and_udp_always():
             assert endpoint.counters["sent"] == 1 and channel.client.readable
     with MavlinkEndpoint(0, free_port()) as udp:
         assert udp.heard
+
+
+def random_odometry(rng: random.Random):
+    def value():
+        return rng.choice([0.0, -0.0, 1.0, rng.uniform(-1e3, 1e3), rng.gauss(0.0, 1e-6)])
+
+    def covariance():
+        return rng.choice([[0.0] * 21, [value() for _ in range(21)], [*[value()] * 20, 0.0]])
+
+    return M.MAVLink_odometry_message(
+        rng.choice([0, rng.randrange(2**64)]), rng.randrange(256), rng.randrange(256),
+        *(value() for _ in range(3)), [value() for _ in range(4)],
+        *(value() for _ in range(6)), covariance(), covariance(),
+        rng.choice([0, rng.randrange(256)]), rng.choice([0, rng.randrange(256)]),
+        rng.choice([0, rng.randrange(-128, 128)]),
+    )  # fmt: skip
+
+
+def test_the_odometry_frame_is_pymavlinks_byte_for_byte():
+    rng = random.Random(7)
+    for _ in range(5000):
+        msg = random_odometry(rng)
+        mav = M.MAVLink(None, rng.randrange(256), rng.randrange(256))
+        mav.seq = rng.randrange(256)
+        assert odometry_frame(msg, mav) == msg.pack(mav)
+    zeros = M.MAVLink_odometry_message(0, 0, 0, 0.0, 0.0, 0.0, [0.0] * 4, *[0.0] * 6,
+                                       [0.0] * 21, [0.0] * 21, 0, 0, 0)  # fmt: skip
+    assert odometry_frame(zeros, M.MAVLink(None, 1, 1)) == zeros.pack(M.MAVLink(None, 1, 1))
+
+
+def test_the_endpoint_sends_odometry_as_pymavlink_packs_it_signed_or_not():
+    for key in (None, KEY):
+        with create_channel("endpoint-odometry") as channel:
+            with MavlinkEndpoint(0, 0, port=channel.server, signing_key=key) as endpoint:
+                client = attach("endpoint-odometry")
+                reader = M.MAVLink(None, 255, 190)
+                reader.signing.secret_key = key
+                mirror = M.MAVLink(None, 1, 1)
+                rng = random.Random(3)
+                for seq in range(300):
+                    sent = random_odometry(rng)
+                    endpoint.send(sent)
+                    data = client.receive()
+                    received = reader.parse_char(data)
+                    assert received.get_type() == "ODOMETRY" and received.get_seq() == seq % 256
+                    if key is None:
+                        mirror.seq = seq % 256
+                        assert data == sent.pack(mirror)
+                    else:
+                        assert received.get_signed() and len(data) == len(sent.get_msgbuf())
