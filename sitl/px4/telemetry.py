@@ -34,7 +34,6 @@ from sitl.px4.measurement import VehicleMeasurement
 from sitl.px4.modes import Px4Mode, base_mode_flags
 from sitl.px4.streams import CURRENT_MODE, GCS_RATES_HZ, ONBOARD_RATES_HZ
 
-_NedAttitude = tuple[NDArray[np.float64], tuple[float, float, float]]
 """A NED/FRD quaternion [w, x, y, z] and its ZYX Euler angles [rad]."""
 
 __all__ = ["Home", "TelemetryEncoder", "VehicleStatus"]
@@ -156,8 +155,10 @@ class TelemetryEncoder:
         self.flight_sw_version = flight_sw_version
         self.unix_time_at_boot_us = int(unix_time_at_boot_us)
         self._ping_seq = 0
-        self._attitude_of: VehicleMeasurement | None = None
-        self._attitude_ned: _NedAttitude | None = None
+        self._quaternion_of: VehicleMeasurement | None = None
+        self._quaternion_ned: NDArray[np.float64] | None = None
+        self._euler_of: VehicleMeasurement | None = None
+        self._euler_ned: tuple[float, float, float] | None = None
 
     def build(
         self, msg_id: int, now_s: float, m: VehicleMeasurement, status: VehicleStatus
@@ -259,27 +260,35 @@ class TelemetryEncoder:
     def _timesync(self, now_s, m, status):
         return M.MAVLink_timesync_message(0, round(now_s * 1e9))
 
-    def _ned_attitude(self, m: VehicleMeasurement) -> _NedAttitude:
-        """The measured attitude as a NED/FRD quaternion ``[w, x, y, z]`` and its ZYX Euler
-        angles (roll, pitch, yaw from north) [rad]; converted once per estimate, which every
-        attitude stream due at its step shares."""
-        if m is not self._attitude_of or self._attitude_ned is None:
-            q = quaternion_ned_frd_from_enu_flu(m.quaternion_enu_flu_wxyz)
-            self._attitude_ned = (q, euler_from_rotation(rotation_from_quaternion_wxyz(q)))
-            self._attitude_of = m
-        return self._attitude_ned
+    def _ned_quaternion(self, m: VehicleMeasurement) -> NDArray[np.float64]:
+        """The measured attitude as a NED/FRD quaternion ``[w, x, y, z]``; converted once
+        per estimate, which every attitude stream due at its step shares."""
+        if m is not self._quaternion_of or self._quaternion_ned is None:
+            self._quaternion_ned = quaternion_ned_frd_from_enu_flu(m.quaternion_enu_flu_wxyz)
+            self._quaternion_of = m
+        return self._quaternion_ned
+
+    def _ned_euler(self, m: VehicleMeasurement) -> tuple[float, float, float]:
+        """The ZYX Euler angles of :meth:`_ned_quaternion` (roll, pitch, yaw from north)
+        [rad]; computed once per estimate, and only when a stream due needs them (not for
+        ODOMETRY alone)."""
+        if m is not self._euler_of or self._euler_ned is None:
+            rotation = rotation_from_quaternion_wxyz(self._ned_quaternion(m))
+            self._euler_ned = euler_from_rotation(rotation)
+            self._euler_of = m
+        return self._euler_ned
 
     def _heading(self, m: VehicleMeasurement) -> float:
         """NED yaw of the measured attitude [rad] (heading from north, clockwise)."""
-        return self._ned_attitude(m)[1][2]
+        return self._ned_euler(m)[2]
 
     def _attitude(self, now_s, m, status):
-        roll, pitch, yaw = self._ned_attitude(m)[1]
+        roll, pitch, yaw = self._ned_euler(m)
         p, q_rate, r = frd_from_flu(m.omega_flu_rad_s)
         return M.MAVLink_attitude_message(self._estimate_ms(m), roll, pitch, yaw, p, q_rate, r)
 
     def _attitude_quaternion(self, now_s, m, status):
-        w, x, y, z = self._ned_attitude(m)[0]
+        w, x, y, z = self._ned_quaternion(m)
         p, q_rate, r = frd_from_flu(m.omega_flu_rad_s)
         return M.MAVLink_attitude_quaternion_message(
             self._estimate_ms(m), w, x, y, z, p, q_rate, r, [0.0] * 4
@@ -310,7 +319,7 @@ class TelemetryEncoder:
 
     def _odometry(self, now_s, m, status):
         x, y, z = ned_from_enu(m.position_enu_m)
-        q = self._ned_attitude(m)[0]
+        q = self._ned_quaternion(m)
         vx, vy, vz = ned_from_enu(m.velocity_enu_m_s)
         p, q_rate, r = frd_from_flu(m.omega_flu_rad_s)
         report = m.estimator
