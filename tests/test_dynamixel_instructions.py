@@ -14,6 +14,7 @@ from arm_driver.dynamixel import (
     BROADCAST_ID,
     PingReply,
     StatusPacket,
+    SyncWriteFrame,
     decode_int,
     decode_status,
     decode_uint,
@@ -31,7 +32,7 @@ from arm_driver.dynamixel import (
     parse_sync_read_replies,
     parse_write_reply,
 )
-from arm_driver.dynamixel.control_table import GOAL_POSITION, PRESENT_POSITION
+from arm_driver.dynamixel.control_table import GOAL_CURRENT, GOAL_POSITION, PRESENT_POSITION
 from arm_driver.errors import CommunicationError, HardwareError, InstructionError, StatusError
 
 
@@ -73,6 +74,40 @@ def test_sync_write_goal_position() -> None:
         {1: GOAL_POSITION.encode(150), 2: GOAL_POSITION.encode(170)},
     )
     assert packet == h("FF FF FD 00 FE 11 00 83 74 00 04 00 01 96 00 00 00 02 AA 00 00 00 82 87")
+
+
+@given(
+    st.sampled_from([GOAL_CURRENT, GOAL_POSITION]),
+    st.lists(st.integers(0, 252), min_size=1, max_size=4, unique=True),
+    st.data(),
+)
+def test_sync_write_frame_is_encode_sync_write(entry, ids: list[int], data: st.DataObject) -> None:
+    half = 1 << (8 * entry.size - 1)
+    frame = SyncWriteFrame(entry.address, entry.size, ids)
+    # Values that need byte stuffing (FF FF FD inside a 4-byte goal) come often.
+    value = st.one_of(st.integers(-half, half - 1), st.sampled_from([-1, -3, -131073 % half]))
+    for _ in range(20):
+        values = [entry.encode(data.draw(value)) for _ in ids]
+        assert frame.packet(values) == encode_sync_write(
+            entry.address, entry.size, dict(zip(ids, values, strict=True))
+        )
+
+
+def test_sync_write_frame_stuffs_a_goal() -> None:
+    frame = SyncWriteFrame(GOAL_POSITION.address, GOAL_POSITION.size, [1, 2])
+    values = [GOAL_POSITION.encode(-131073), GOAL_POSITION.encode(5)]
+    assert b"\xff\xff\xfd\xfd" in frame.packet(values)
+    assert frame.packet(values) == encode_sync_write(116, 4, dict(zip([1, 2], values, strict=True)))
+
+
+def test_sync_write_frame_argument_errors() -> None:
+    frame = SyncWriteFrame(116, 4, [1, 2])
+    with pytest.raises(ValueError, match="servo 2: 2 bytes of data, expected 4"):
+        frame.packet([bytes(4), bytes(2)])
+    with pytest.raises(ValueError, match="1 values for servo ids"):
+        frame.packet([bytes(4)])
+    with pytest.raises(ValueError, match="duplicate"):
+        SyncWriteFrame(116, 4, [1, 1])
 
 
 def test_builder_argument_errors() -> None:

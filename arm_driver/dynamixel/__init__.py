@@ -16,6 +16,7 @@ from arm_driver.dynamixel import control_table, units
 from arm_driver.dynamixel.instructions import (
     FIELD_SIZES,
     PingReply,
+    SyncWriteFrame,
     decode_int,
     decode_uint,
     encode_int,
@@ -64,6 +65,7 @@ __all__ = [
     "PingReply",
     "StatusPacket",
     "StatusParser",
+    "SyncWriteFrame",
     "check_status",
     "control_table",
     "crc16",

@@ -101,10 +101,10 @@ from arm_driver.bus import (
 from arm_driver.dynamixel import control_table as ct
 from arm_driver.dynamixel import units
 from arm_driver.dynamixel.instructions import (
+    SyncWriteFrame,
     encode_ping,
     encode_read,
     encode_sync_read,
-    encode_sync_write,
     encode_write,
     parse_ping_reply,
     parse_read_reply,
@@ -248,6 +248,8 @@ class DynamixelBus(ArmBus):
         self._transport = open_transport(device, baudrate, low_latency=low_latency)
         self._parser = StatusParser()
         self._servos: dict[int, _Servo] = {}
+        self._state_request = encode_sync_read(_STATE_START, _STATE_LENGTH, self._joint_ids)
+        self._sync_writes: dict[tuple[int, tuple[int, ...]], SyncWriteFrame] = {}
         self.stale_replies = 0
         """Status packets skipped as late answers to an earlier request (see the module
         docstring)."""
@@ -424,8 +426,13 @@ class DynamixelBus(ArmBus):
             parse_write_reply(reply, servo_id)
 
     async def _sync_write(self, entry: ct.ControlTableEntry, values: Mapping[int, int]) -> None:
-        data = {servo_id: entry.encode(value) for servo_id, value in values.items()}
-        await self._exchange(encode_sync_write(entry.address, entry.size, data), [], 0)
+        ids = tuple(values)
+        frame = self._sync_writes.get((entry.address, ids))
+        if frame is None:
+            frame = SyncWriteFrame(entry.address, entry.size, ids)
+            self._sync_writes[entry.address, ids] = frame
+        packet = frame.packet([entry.encode(value) for value in values.values()])
+        await self._exchange(packet, [], 0)
 
     # -- hooks ------------------------------------------------------------------------------
 
@@ -553,8 +560,7 @@ class DynamixelBus(ArmBus):
     @_hardware_details
     async def _read_states_hook(self) -> dict[str, JointState]:
         ids = self._joint_ids
-        packet = encode_sync_read(_STATE_START, _STATE_LENGTH, ids)
-        replies = await self._exchange(packet, ids, _STATE_LENGTH)
+        replies = await self._exchange(self._state_request, ids, _STATE_LENGTH)
         stamp = time.monotonic()
         data = parse_sync_read_replies(replies, ids, _STATE_LENGTH)
         states = {}

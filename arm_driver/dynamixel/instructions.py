@@ -41,10 +41,13 @@ from dataclasses import dataclass
 
 from arm_driver.dynamixel.protocol import (
     BROADCAST_ID,
+    PREAMBLE,
+    STUFF_PATTERN,
     Instruction,
     StatusPacket,
     _check_id,
     check_status,
+    crc16,
     encode_instruction,
 )
 from arm_driver.errors import CommunicationError
@@ -52,6 +55,7 @@ from arm_driver.errors import CommunicationError
 __all__ = [
     "FIELD_SIZES",
     "PingReply",
+    "SyncWriteFrame",
     "decode_int",
     "decode_uint",
     "encode_int",
@@ -216,6 +220,66 @@ def encode_sync_write(address: int, length: int, data: Mapping[int, bytes]) -> b
         params.append(servo_id)
         params += value
     return encode_instruction(BROADCAST_ID, Instruction.SYNC_WRITE, bytes(params))
+
+
+class SyncWriteFrame:
+    """Sync Write packets of one field to the same servos in the same order: the bytes of
+    :func:`encode_sync_write`, with the fixed start (header, broadcast id, length,
+    instruction, address, data length) and its CRC-16 made once; each packet adds the ids
+    and data and continues the CRC over them.
+
+    Byte stuffing can only come from inside one servo's data (ids are at most 0xFC, so
+    ``FF FF FD`` cannot span an id); a packet whose data needs it is made by
+    :func:`encode_sync_write`.
+
+    Parameters
+    ----------
+    address, length
+        As for :func:`encode_sync_write`: the control-table address and the bytes
+        written to each servo.
+    ids
+        Servo ids, in the order their data is given and sent.
+
+    Raises
+    ------
+    ValueError
+        No servo, an id out of range or twice, or an address or length out of range.
+    """
+
+    def __init__(self, address: int, length: int, ids: Sequence[int]) -> None:
+        self.ids = tuple(ids)
+        _check_ids(self.ids)
+        self._address = address
+        self._length = length
+        blank = encode_sync_write(address, length, dict.fromkeys(self.ids, bytes(length)))
+        self._start = blank[: PREAMBLE + 5]
+        self._start_crc = crc16(self._start)
+        self._id_bytes = tuple(bytes((servo_id,)) for servo_id in self.ids)
+
+    def packet(self, data: Sequence[bytes]) -> bytes:
+        """The Sync Write packet of ``data``, one value of ``length`` bytes per id, in the
+        order of :attr:`ids`.
+
+        Raises
+        ------
+        ValueError
+            Not one value per id, or a value of the wrong length.
+        """
+        if len(data) != len(self.ids):
+            raise ValueError(f"{len(data)} values for servo ids {list(self.ids)}")
+        parts = []
+        for id_byte, value in zip(self._id_bytes, data, strict=True):
+            if len(value) != self._length:
+                raise ValueError(
+                    f"servo {id_byte[0]}: {len(value)} bytes of data, expected {self._length}"
+                )
+            parts.append(id_byte)
+            parts.append(value)
+        tail = b"".join(parts)
+        if STUFF_PATTERN in tail:
+            by_id = dict(zip(self.ids, data, strict=True))
+            return encode_sync_write(self._address, self._length, by_id)
+        return self._start + tail + crc16(tail, self._start_crc).to_bytes(2, "little")
 
 
 @dataclass(frozen=True)

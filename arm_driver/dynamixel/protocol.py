@@ -177,11 +177,13 @@ def _unframe(data: bytes) -> tuple[int, bytes]:
         raise CrcError(computed, received, servo_id=servo_id)
     if servo_id > BROADCAST_ID or servo_id == 0xFD:
         raise CommunicationError(f"malformed packet: invalid id {servo_id}")
+    body = data[PREAMBLE:-2]
+    if STUFF_PATTERN not in body:
+        return servo_id, body
     try:
-        body = unstuff(data[PREAMBLE:-2])
+        return servo_id, unstuff(body)
     except CommunicationError as error:
         raise CommunicationError(f"id {servo_id}: {error}", servo_id=servo_id) from None
-    return servo_id, body
 
 
 @dataclass(frozen=True)
