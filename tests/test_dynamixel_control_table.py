@@ -122,3 +122,25 @@ def test_shutdown_factory_value_uses_the_hardware_error_bits() -> None:
         | HardwareErrorStatus.ELECTRICAL_SHOCK
         | HardwareErrorStatus.OVERLOAD
     )
+
+
+def test_block_struct_decodes_as_each_entry() -> None:
+    entries = (ct.PRESENT_CURRENT, ct.PRESENT_VELOCITY, ct.PRESENT_POSITION)
+    block = ct.block_struct(entries)
+    assert block.size == ct.PRESENT_POSITION.end - ct.PRESENT_CURRENT.address
+    samples = (bytes(range(10)), b"\xff" * 10, b"\x00\x80" + b"\xff\xff\xff\x7f" + b"\x00" * 4)
+    for data in samples:
+        offsets = [e.address - ct.PRESENT_CURRENT.address for e in entries]
+        expected = tuple(
+            e.decode(data[o : o + e.size]) for e, o in zip(entries, offsets, strict=True)
+        )
+        assert block.unpack(data) == expected
+    unsigned = ct.block_struct((ct.TORQUE_ENABLE, ct.LED))
+    assert unsigned.unpack(b"\x01\xff") == (1, 255)
+
+
+def test_block_struct_refuses_a_gap() -> None:
+    with pytest.raises(ValueError, match="does not follow"):
+        ct.block_struct((ct.PRESENT_CURRENT, ct.PRESENT_POSITION))
+    with pytest.raises(ValueError, match="no control-table entry"):
+        ct.block_struct(())

@@ -135,8 +135,10 @@ _WATCHDOG_FIRMWARE = 38
 """First firmware version with Bus Watchdog(98) (e-Manual)."""
 _INFO_START = ct.RETURN_DELAY_TIME.address
 _INFO_LENGTH = ct.HARDWARE_ERROR_STATUS.end - _INFO_START
+_STATE = ct.block_struct((ct.PRESENT_CURRENT, ct.PRESENT_VELOCITY, ct.PRESENT_POSITION))
+"""Present Current, Velocity and Position, read in one Sync Read [raw units]."""
 _STATE_START = ct.PRESENT_CURRENT.address
-_STATE_LENGTH = ct.PRESENT_POSITION.end - _STATE_START
+_STATE_LENGTH = _STATE.size
 _MODES = {
     OperatingMode.CURRENT: ct.OperatingMode.CURRENT,
     OperatingMode.POSITION: ct.OperatingMode.POSITION,
@@ -565,10 +567,7 @@ class DynamixelBus(ArmBus):
         data = parse_sync_read_replies(replies, ids, _STATE_LENGTH)
         states = {}
         for joint in self.joints:
-            raw = data[joint.servo_id]
-            current = ct.PRESENT_CURRENT.decode(raw[0:2])
-            velocity = ct.PRESENT_VELOCITY.decode(raw[2:6])
-            position = ct.PRESENT_POSITION.decode(raw[6:10])
+            current, velocity, position = _STATE.unpack(data[joint.servo_id])
             rate_rad_s = joint.direction * units.velocity_units_to_rad_s(velocity)
             states[joint.name] = JointState(
                 name=joint.name,
@@ -600,9 +599,10 @@ class DynamixelBus(ArmBus):
         packet = encode_sync_read(_STATE_START, _STATE_LENGTH, ids)
         replies = await self._exchange(packet, ids, _STATE_LENGTH)
         raw = parse_sync_read_replies(replies, ids, _STATE_LENGTH)[gripper.servo_id]
+        current, _, position = _STATE.unpack(raw)
         return GripperState(
-            position_rad=units.ticks_to_rad(ct.PRESENT_POSITION.decode(raw[6:10])),
-            current_a=units.current_units_to_a(ct.PRESENT_CURRENT.decode(raw[0:2])),
+            position_rad=units.ticks_to_rad(position),
+            current_a=units.current_units_to_a(current),
             timestamp_s=time.monotonic(),
         )
 

@@ -35,6 +35,9 @@ Enable(64) is 1. Unit conversions to SI live in :mod:`arm_driver.dynamixel.units
 from __future__ import annotations
 
 import enum
+import itertools
+import struct
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from arm_driver.dynamixel.instructions import decode_int, decode_uint, encode_int, encode_uint
@@ -86,6 +89,7 @@ __all__ = [
     "DriveMode",
     "OperatingMode",
     "StatusReturnLevel",
+    "block_struct",
 ]
 
 XM430_W350_MODEL_NUMBER = 1020
@@ -282,3 +286,25 @@ CONTROL_TABLE: tuple[ControlTableEntry, ...] = (
     PRESENT_TEMPERATURE,
 )
 """Every entry above, in address order."""
+
+
+_STRUCT_CODES = {1: "B", 2: "H", 4: "I"}
+
+
+def block_struct(entries: Sequence[ControlTableEntry]) -> struct.Struct:
+    """The decoder of consecutive entries read in one go (a Read or Sync Read of their
+    whole range): its ``unpack`` gives their raw values in address order, each as the
+    entry's :meth:`~ControlTableEntry.decode` gives it.
+
+    Raises
+    ------
+    ValueError
+        No entry, or entries that do not follow one another without a gap.
+    """
+    if not entries:
+        raise ValueError("no control-table entry given")
+    for before, after in itertools.pairwise(entries):
+        if after.address != before.end:
+            raise ValueError(f"{after.name}({after.address}) does not follow {before.name}")
+    codes = (_STRUCT_CODES[e.size].lower() if e.signed else _STRUCT_CODES[e.size] for e in entries)
+    return struct.Struct("<" + "".join(codes))
