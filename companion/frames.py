@@ -89,7 +89,7 @@ def _multiply(a: tuple[float, ...], b: tuple[float, ...]) -> tuple[float, float,
 
 def _unit(q_wxyz: ArrayLike) -> tuple[float, float, float, float]:
     if type(q_wxyz) is tuple and len(q_wxyz) == 4:  # the codec's and the setpoint's
-        w, x, y, z = (float(c) for c in q_wxyz)
+        w, x, y, z = map(float, q_wxyz)
     else:
         w, x, y, z = np.asarray(q_wxyz, dtype=np.float64).reshape(4).tolist()
     norm = math.sqrt(w * w + x * x + y * y + z * z)

@@ -185,17 +185,18 @@ def _variances(covariance: Any) -> Vec3 | None:
     """The x, y, z diagonal of a MAVLink upper-triangle 6x6 covariance (entries 0, 6, 11),
     NED axes reordered to ENU; None when not reported (NaN or negative)."""
     try:
-        n, e, d = (float(covariance[i]) for i in (0, 6, 11))
+        n, e, d = float(covariance[0]), float(covariance[6]), float(covariance[11])
     except (TypeError, IndexError):
         return None
-    if not all(math.isfinite(v) and v >= 0.0 for v in (n, e, d)):
-        return None
-    return (e, n, d)
+    if isfinite(n) and isfinite(e) and isfinite(d) and n >= 0.0 and e >= 0.0 and d >= 0.0:
+        return (e, n, d)
+    return None
 
 
 def _q_enu_flu(q_ned_frd: Any) -> Quat:
     q = _finite("bad_quaternion", q_ned_frd)
-    norm = math.sqrt(sum(c * c for c in q))
+    w, x, y, z = q
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
     if abs(norm - 1.0) > 1e-2:
         raise TelemetryError("bad_quaternion", f"norm {norm:.4g} is not 1")
     return quaternion_enu_flu_from_ned_frd_floats(q)
