@@ -206,7 +206,8 @@ class _Layout:
         """The messages of the rows of ``values`` [n, columns], one after the other
         (:attr:`width` bytes each)."""
         n = len(values)
-        out = np.tile(self.template, (n, 1))
+        out = np.empty((n, self.width), dtype=np.uint8)
+        out[:] = self.template
         doubles = np.ascontiguousarray(values[:, self.order], dtype="<f8")
         out[:, self.slots] = doubles.view(np.uint8).reshape(n, -1)
         return out.tobytes()
