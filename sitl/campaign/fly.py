@@ -268,11 +268,11 @@ def _fly_px4(
     config.write_text(tomlkit.dumps(document), encoding="utf-8")
     extra = ["--seed", str(flight.seed), "--navigation", "mocap"]
     fault = flight.fault
-    at = (
-        f"{fault.at_phase}+{fault.offset_s or 0.0:g}"
-        if fault.at_phase is not None
-        else f"{fault.at_s:g}"
-    )
+    at = None  # the start, as sitl run's options take it (faults that have one)
+    if fault.at_phase is not None:
+        at = f"{fault.at_phase}+{fault.offset_s or 0.0:g}"
+    elif fault.at_s is not None:
+        at = f"{fault.at_s:g}"
     if fault.kind == "servo_silent":
         extra += ["--servo-silent", f"{fault.servo_id}@{at}"]
     if fault.kind == "servo_error":

@@ -40,11 +40,10 @@ HIL_ACTUATOR_CONTROLS.
 
 Faults (``RunOptions``), at a simulated time or a phase: the servo bus's, as with the
 imitation; a motion-capture dropout (no vision ODOMETRY to PX4 for a while) or jump (the
-poses moved east from then on); on the
-relayed onboard link a cut, a lossy stretch or a latency spike; from the mode link, as a
-ground station, the pilot's mode switch and a battery falling low
-(:mod:`sitl.vehicle.link_faults`). With the relay, the mission's phases are the companion's
-STATUSTEXT as it passes.
+poses moved east from then on); on the relayed onboard link a cut, a lossy stretch or a
+latency spike; from the mode link, as a ground station, the pilot's mode switch and a
+battery falling low (:mod:`sitl.vehicle.link_faults`). The mission's phases are the
+companion's STATUSTEXT, read by the relay as it passes.
 
 Not simulated: MAVLink signing (PX4's own), RC, a range finder, airspeed, and the battery:
 PX4 reports its own simulated one, held full (``SIM_BAT_MIN_PCT = 100``,
@@ -225,8 +224,9 @@ class Px4InTheLoop:
         companion's STATUSTEXT, read by the relay) began."""
         self.servo_faults = ServoBusFaults(options, self.phases)
         self.link_faults = LinkFaults.of_run(options, self.phases)
-        """The onboard link's cut or loss (acted by the relay), and what the ground station
-        sends PX4 (the pilot's mode switch, the battery's parameters) on the mode link."""
+        """The onboard link's cut, loss or latency (acted by the relay), and what the ground
+        station sends PX4 (the pilot's mode switch, the battery's parameters) on the mode
+        link."""
         self._lockstep = False
         self._truth_interval_us = 0
         self._next_truth_us = 0
