@@ -481,8 +481,7 @@ class Px4InTheLoop:
         dropout = self.options.pose_dropout
         if dropout is None:
             return False
-        start_s = self.phases.start_s(dropout[0])
-        return start_s is not None and start_s <= now_s < start_s + dropout[1]
+        return self.phases.within(*dropout, now_s)
 
     def _pose_moved(self, pose: PoseMeasurement) -> PoseMeasurement:
         """The pose after a jump of the motion-capture frame (``RunOptions.pose_jump``),
@@ -490,8 +489,7 @@ class Px4InTheLoop:
         jump = self.options.pose_jump
         if jump is None:
             return pose
-        start_s = self.phases.start_s(jump[0])
-        if start_s is None or pose.t_s < start_s:
+        if not self.phases.reached(jump[0], pose.t_s):
             return pose
         moved = pose.position_m + np.array([jump[1], 0.0, 0.0])
         return replace(pose, position_m=moved)

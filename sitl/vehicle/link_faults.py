@@ -151,13 +151,9 @@ class LinkFaults:
             autopilot_system_id=autopilot_system_id,
         )
 
-    def _within(self, start: FaultStart, duration_s: float, now_s: float) -> bool:
-        start_s = self._phases.start_s(start)
-        return start_s is not None and start_s <= now_s < start_s + duration_s
-
     def cut(self, now_s: float) -> bool:
         """The onboard link is cut at ``now_s`` [s]."""
-        return self._cut is not None and self._within(*self._cut, now_s)
+        return self._cut is not None and self._phases.within(*self._cut, now_s)
 
     def drops(self, link: str, now_s: float) -> bool:
         """Drop one message on ``link`` at ``now_s`` [s]: the link is cut, or lossy and the
@@ -167,7 +163,7 @@ class LinkFaults:
         if self.cut(now_s):
             return True
         loss = self._loss
-        if loss is None or not self._within(loss.start, loss.duration_s, now_s):
+        if loss is None or not self._phases.within(loss.start, loss.duration_s, now_s):
             return False
         return bool(self._rng.random() < loss.drop_fraction)
 
@@ -182,15 +178,18 @@ class LinkFaults:
         latency = self._latency
         if link != "onboard" or latency is None:
             return 0.0
-        return latency.delay_s if self._within(latency.start, latency.duration_s, now_s) else 0.0
+        return (
+            latency.delay_s
+            if self._phases.within(latency.start, latency.duration_s, now_s)
+            else 0.0
+        )
 
     def takeover(self, now_s: float) -> mavlink2.MAVLink_message | None:
         """The ground station's mode command, once, when its time has come [s]."""
         takeover = self._takeover
         if takeover is None:
             return None
-        start_s = self._phases.start_s(takeover.start)
-        if start_s is None or now_s < start_s:
+        if not self._phases.reached(takeover.start, now_s):
             return None
         self._takeover = None
         mode = Px4Mode[takeover.mode]
@@ -208,8 +207,7 @@ class LinkFaults:
         battery = self._battery
         if battery is None:
             return []
-        start_s = self._phases.start_s(battery.start)
-        if start_s is None or now_s < start_s:
+        if not self._phases.reached(battery.start, now_s):
             return []
         self._battery = None
         return [

@@ -100,3 +100,13 @@ class MissionPhases:
             return start
         began = self.began_s.get(start.phase)
         return None if began is None else began + start.offset_s
+
+    def reached(self, start: FaultStart, now_s: float) -> bool:
+        """``start`` has come by ``now_s`` [s]."""
+        start_s = self.start_s(start)
+        return start_s is not None and now_s >= start_s
+
+    def within(self, start: FaultStart, duration_s: float, now_s: float) -> bool:
+        """``now_s`` [s] lies in the stretch of ``duration_s`` [s] from ``start``."""
+        start_s = self.start_s(start)
+        return start_s is not None and start_s <= now_s < start_s + duration_s

@@ -85,16 +85,16 @@ class ServoBusFaults:
             return
         changed = False
         silent = self._silent
-        if silent is not None and self._due(silent[1], now_s):
+        if silent is not None and self._phases.reached(silent[1], now_s):
             self._silent_id, self._silent = silent[0], None
             changed = True
         error = self._error
-        if error is not None and self._due(error.start, now_s):
+        if error is not None and self._phases.reached(error.start, now_s):
             with bus.lock:
                 bus.servos[error.servo_id].inject_hardware_error(error.bits)
             self._error = None
         corruption = self._corruption
-        if corruption is not None and self._due(corruption.start, now_s):
+        if corruption is not None and self._phases.reached(corruption.start, now_s):
             start_s = self._phases.start_s(corruption.start)
             assert start_s is not None
             active = now_s < start_s + corruption.duration_s
@@ -106,10 +106,6 @@ class ServoBusFaults:
         if changed:
             bus.set_faults(self.faults())
         self.pending = self._any_pending()
-
-    def _due(self, start: FaultStart, now_s: float) -> bool:
-        start_s = self._phases.start_s(start)
-        return start_s is not None and now_s >= start_s
 
     def _any_pending(self) -> bool:
         return self._silent is not None or self._error is not None or self._corruption is not None
