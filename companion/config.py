@@ -587,6 +587,10 @@ class Flight(_Section):
     """Largest standard deviation of PX4's velocity estimate that counts as valid [m/s]."""
     nav_invalid_hold_s: Positive = 0.5
     """Time the navigation may be invalid before the ``navigation`` fault [s]."""
+    max_round_trip_s: Positive = 0.1
+    """Longest round trip of the link (a pose down, a TIMESYNC request up, in vehicle
+    time) the loops fly on; three replies in a row over it are the ``link_latency`` fault
+    [s]."""
     ground_margin_m: Positive = 0.05
     """Height above the take-off height below which the vehicle counts as on the ground
     [m] (PX4's land detector says it too, later)."""

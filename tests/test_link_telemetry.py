@@ -12,6 +12,7 @@ from companion.link import (
     LandedState,
     TelemetryDecoder,
     TelemetryError,
+    TimesyncReply,
     VehiclePose,
     VehicleStatus,
     px4_mode,
@@ -121,6 +122,13 @@ def test_heartbeat_and_landed_state():
     assert (landed.name, landed.on_ground) == ("IN_AIR", False)
     with pytest.raises(TelemetryError):
         decoder.decode(m.MAVLink_extended_sys_state_message(0, 42))
+
+
+def test_a_timesync_answer_is_a_reply_and_the_vehicles_own_request_is_not():
+    decoder = TelemetryDecoder()
+    assert decoder.decode(m.MAVLink_timesync_message(0, 5_000_000_000)) == ()
+    (reply,) = decoder.decode(m.MAVLink_timesync_message(5_020_000_000, 5_000_000_000))
+    assert reply == TimesyncReply(5_020_000_000, 5_000_000_000)
 
 
 def test_unknown_pose_source_is_refused():

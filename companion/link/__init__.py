@@ -35,6 +35,7 @@ from companion.link.telemetry import (
     ImuSample,
     LandedState,
     TelemetryDecoder,
+    TimesyncReply,
     VehiclePose,
     VehicleStatus,
 )
@@ -68,6 +69,7 @@ __all__ = [
     "Subscription",
     "TelemetryDecoder",
     "TelemetryError",
+    "TimesyncReply",
     "UnknownModeError",
     "VehicleDetected",
     "VehicleId",

@@ -454,6 +454,11 @@ class MavlinkLink(Px4Commands):
         )
         self.send_message(msg)
 
+    def send_timesync(self, ts1_ns: int) -> None:
+        """A TIMESYNC request (``tc1`` 0) stamped ``ts1_ns`` [ns]; the vehicle answers with
+        its clock and the stamp echoed (:class:`~companion.link.telemetry.TimesyncReply`)."""
+        self.send_message(self.mav.timesync_encode(0, int(ts1_ns)))
+
     # --- tasks -------------------------------------------------------------------------
 
     async def _read_loop(self) -> None:

@@ -23,6 +23,8 @@ sample                 from
 :class:`VehicleStatus` HEARTBEAT of the vehicle (armed, PX4 mode)
 :class:`LandedState`   EXTENDED_SYS_STATE
 :class:`BatteryState`  SYS_STATUS (the battery's voltage and current)
+:class:`TimesyncReply` TIMESYNC answering a request (``tc1`` > 0; PX4's own
+                       requests give none)
 =====================  =========================================================
 """
 
@@ -53,6 +55,7 @@ __all__ = [
     "LandedState",
     "PoseSource",
     "TelemetryDecoder",
+    "TimesyncReply",
     "VehiclePose",
     "VehicleStatus",
 ]
@@ -166,6 +169,16 @@ class BatteryState:
     """Current drawn [A]; None when not measured (-1)."""
 
 
+@dataclass(frozen=True)
+class TimesyncReply:
+    """The vehicle's answer to a TIMESYNC request (:mod:`companion.mission.round_trip`)."""
+
+    tc1_ns: int
+    """The vehicle's clock when the request came in [ns]."""
+    ts1_ns: int
+    """The request's own timestamp, echoed [ns]."""
+
+
 def _finite(reason: str, values: Any) -> tuple[float, ...]:
     out = tuple(map(float, values))
     if not all(map(isfinite, out)):
@@ -256,6 +269,9 @@ class TelemetryDecoder:
             if state not in _LANDED_NAMES:
                 raise TelemetryError("bad_landed_state", str(state))
             return (LandedState(self.time_boot_ms, state, _LANDED_NAMES[state]),)
+        if kind == "TIMESYNC":
+            tc1 = int(msg.tc1)
+            return (TimesyncReply(tc1, int(msg.ts1)),) if tc1 > 0 else ()
         return ()
 
     def odometry(self, msg: Any) -> tuple[object, ...]:

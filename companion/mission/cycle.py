@@ -40,6 +40,7 @@ from companion.link.telemetry import (
     BatteryState,
     BodyRates,
     LandedState,
+    TimesyncReply,
     VehiclePose,
     VehicleStatus,
 )
@@ -58,6 +59,7 @@ from companion.mission.navigation import NavigationWatch
 from companion.mission.offboard import HoldBias, Offboard, Stream
 from companion.mission.pickup import EstimatorAction, MissionCommand, Outcome, Phase, PickupMission
 from companion.mission.report import FlightFigures, MissionReport, carrying
+from companion.mission.round_trip import RoundTripWatch
 from companion.mission.sequence import Observation
 from companion.mission.servo_check import MIN_POSES, ServoCheck, check_poses, fit_servo_check
 
@@ -203,6 +205,8 @@ class ControlCycle:
             flight.nav_max_velocity_std_m_s,
             flight.nav_invalid_hold_s,
         )
+        self.round_trip = RoundTripWatch(flight.max_round_trip_s)
+        """The link's round trip (:mod:`companion.mission.round_trip`)."""
         self.hold_bias = HoldBias(_HOLD_WINDOW_S)
         self._empty_m2_kg = config.nominal_theta.m2_kg
         """m2 of the empty link 2 [kg]."""
@@ -377,6 +381,7 @@ class ControlCycle:
         if self.collecting:
             gc.enable()  # garbage collection may run from here on, after the setpoint
         self._last_thrust_n = sp.thrust_n if sp is not None and self.offboard.flying else math.nan
+        self._time_link(pose.time_usec)
         tau_cmd = self.arm.command(out.tau[JOINTS])
         if command is not None:
             self.arm.grip(command.gripper)
@@ -389,6 +394,20 @@ class ControlCycle:
         timing = (dt * 1e3, setpoint_us, cycle_us, setpoint_cpu_us)
         self._log_row(t_s, state, out, sp, joints, phase, tau_cmd, timing)
         self.report.cycle_cpu_us.append((time.process_time() - received_process) * 1e6)
+
+    def _time_link(self, pose_us: int) -> None:
+        """Take the vehicle's latest TIMESYNC reply and send the next request when due
+        (:mod:`companion.mission.round_trip`), after the setpoint; a link too slow for the
+        loops in flight is the ``link_latency`` fault."""
+        watch = self.round_trip
+        reply = self.link.latest(TimesyncReply)
+        if reply is not None:
+            trip = watch.reply(reply.tc1_ns, reply.ts1_ns)
+            if trip is not None and trip.fault is not None and self.offboard.flying:
+                self._fault(Fault.LINK_LATENCY, trip.fault)
+        ts1_ns = watch.request(pose_us)
+        if ts1_ns is not None:
+            self.link.send_timesync(ts1_ns)
 
     def _setpoints(
         self, q: FloatArray, out: ControlOutput, desired: DesiredState
@@ -768,6 +787,7 @@ class ControlCycle:
         report.estimator_skipped_steps = estimator.skipped_steps
         report.estimator_skipped = {reason.value: n for reason, n in estimator.skipped.items()}
         report.navigation_resets = self.navigation.resets
+        report.round_trip_ms = [t * 1e3 for t in self.round_trip.round_trips_s]
         self.figures.finish(report)
         report.phases = [(t, p.value) for t, p in self.mission.phase_log] or report.phases
         outcome = self.mission.outcome

@@ -18,6 +18,11 @@
     the velocity gains tolerate (:mod:`companion.mission.loop_period`): the onboard computer (or
     the pose stream) cannot keep the rate. Abort: PX4 holds position, then lands. (Single
     late cycles only pause the estimator.)
+``link_latency``
+    The link's round trip (a pose down, a TIMESYNC request up; :mod:`companion.mission.round_trip`)
+    over ``flight.max_round_trip_s`` in three replies in a row: the position loop flies on
+    old poses and PX4 flies old setpoints. Freeze the estimate and abort: PX4 holds position
+    on its own estimate (AUTO.LOITER), then lands; the commands arrive late, but arrive.
 ``offboard_lost``
     PX4 left OFFBOARD while the mission flew in it (pilot, PX4 failsafe). Abort: leave the
     vehicle to PX4 and the pilot; never re-enter OFFBOARD.
@@ -71,6 +76,7 @@ class Fault(StrEnum):
     ESTIMATE_BOUND = "estimate_bound"
     SATURATION = "saturation"
     LOOP_OVERRUN = "loop_overrun"
+    LINK_LATENCY = "link_latency"
     OFFBOARD_LOST = "offboard_lost"
     NAVIGATION = "navigation"
     GROUND_CONTACT = "ground_contact"
@@ -98,6 +104,7 @@ REACTIONS: dict[Fault, tuple[Reaction, ...]] = {
     Fault.ESTIMATE_BOUND: (Reaction.FREEZE_ESTIMATE,),
     Fault.SATURATION: (Reaction.FREEZE_ESTIMATE, Reaction.HOLD_THEN_LAND),
     Fault.LOOP_OVERRUN: (Reaction.FREEZE_ESTIMATE, Reaction.HOLD_THEN_LAND),
+    Fault.LINK_LATENCY: (Reaction.FREEZE_ESTIMATE, Reaction.HOLD_THEN_LAND),
     Fault.OFFBOARD_LOST: (Reaction.FREEZE_ESTIMATE, Reaction.RELEASE_TO_PX4),
     Fault.NAVIGATION: (Reaction.FREEZE_ESTIMATE, Reaction.LAND),
     Fault.GROUND_CONTACT: (Reaction.FREEZE_ESTIMATE, Reaction.LEVEL_ON_GROUND, Reaction.LAND),

@@ -66,6 +66,9 @@ class MissionReport:
     ``calibrated`` on this servo (``companion arm calibrate``), or the ``datasheet``'s."""
     navigation_resets: int = 0
     """Jumps of PX4's estimate (its reset counter) seen in flight."""
+    round_trip_ms: list[float] = field(default_factory=list)
+    """The link's round trip per TIMESYNC reply, in vehicle time [ms]
+    (:mod:`companion.mission.round_trip`)."""
     cycle_latency_us: list[float] = field(default_factory=list)
     """Pose taken from the link -> joint torques written, per cycle [us]."""
     setpoint_latency_us: list[float] = field(default_factory=list)
@@ -132,6 +135,7 @@ class MissionReport:
             "vehicle_params": self.vehicle_params,
             "servo_torque_constants": self.servo_torque,
             "navigation_resets": self.navigation_resets,
+            "round_trip_ms": _percentiles(self.round_trip_ms, longest=True),
             "cycle_latency_us": _percentiles(self.cycle_latency_us),
             "setpoint_latency_us": _percentiles(self.setpoint_latency_us),
             "setpoint_cpu_us": _percentiles(self.setpoint_cpu_us),
@@ -152,11 +156,15 @@ class MissionReport:
         }
 
 
-def _percentiles(samples: list[float]) -> dict[str, float] | None:
+def _percentiles(samples: list[float], longest: bool = False) -> dict[str, float] | None:
+    """Median and 99th percentile of ``samples`` (and the ``max`` if ``longest``)."""
     if not samples:
         return None
     arr = np.asarray(samples)
-    return {"median": float(np.median(arr)), "p99": float(np.percentile(arr, 99))}
+    out = {"median": float(np.median(arr)), "p99": float(np.percentile(arr, 99))}
+    if longest:
+        out["max"] = float(arr.max())
+    return out
 
 
 class FlightFigures:
