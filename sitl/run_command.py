@@ -108,9 +108,10 @@ class RunCommand:
     link_latency: Annotated[
         str | None,
         typer.Option(
-            help="Fault injection 'DELAY:DURATION@T' or 'DELAY:DURATION@PHASE+S', --autopilot "
-            "px4: every message of the onboard link held back DELAY [s] for DURATION [s, sim "
-            "time], in order, e.g. 0.3:5@excite+0.5."
+            help="Fault injection 'DELAY:DURATION@T' or 'DELAY:DURATION@PHASE+S': every "
+            "message of the onboard link held back DELAY [s] for DURATION [s, sim time], both "
+            "ways, in order (with --autopilot px4: on the companion relay), e.g. "
+            "0.3:5@excite+0.5."
         ),
     ] = None
     pilot_takeover: Annotated[
@@ -214,9 +215,6 @@ class RunCommand:
         cfg = load_or_exit(self.config, load_scenario)
         build = self._px4_build()
         self._check_run()
-        if self.link_latency is not None and build is None:
-            fail("--link-latency is flown on the relay of PX4's onboard link: it needs "
-                 "--autopilot px4")  # fmt: skip
         if self.low_battery is not None and build is None:
             fail("--low-battery flies PX4's own battery and failsafe: it needs --autopilot px4")
         for option, value in (

@@ -565,7 +565,7 @@ def test_sitl_run_servo_error_out_of_range(value, words):
         ("--low-battery", "6@lift", ("--low-battery", "needs --autopilot px4")),
         ("--pose-dropout", "3@lift", ("--pose-dropout", "needs --autopilot px4")),
         ("--pose-jump", "0.5@lift", ("--pose-jump", "needs --autopilot px4")),
-        ("--link-latency", "0.3:5@lift", ("--link-latency", "needs --autopilot px4")),
+        ("--link-latency", "3:5@lift", ("--link-latency 3:5@lift", "delay must lie in (0, 2] s")),
     ],
 )
 def test_sitl_run_link_and_autopilot_faults_out_of_range(option, value, words):

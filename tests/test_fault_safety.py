@@ -13,7 +13,14 @@ from sitl.campaign.safety import handover_s, judge
 from sitl.campaign.spec import Fault
 from sitl.servo import XM430Servo
 from sitl.servo.memory_bus import MemoryServoBus
-from sitl.vehicle.link_faults import LinkFaults, LinkLatency, LinkLoss, LowBattery, PilotTakeover
+from sitl.vehicle.link_faults import (
+    DelayLine,
+    LinkFaults,
+    LinkLatency,
+    LinkLoss,
+    LowBattery,
+    PilotTakeover,
+)
 from sitl.vehicle.mission_phases import FAULT_PHASES, MissionPhases, PhaseStart
 from sitl.vehicle.options import RunOptions, ServoError
 from sitl.vehicle.servo_bus_faults import BusCorruption, ServoBusFaults
@@ -256,3 +263,13 @@ def test_a_latency_spike_delays_the_onboard_link_while_it_lasts():
     assert faults.delay_s("onboard", 65.5) == 0.0
     with pytest.raises(ValueError, match=r"delay_s must be in \(0, 2\]"):
         LinkLatency(10.0, 5.0, 3.0)
+
+
+def test_a_delay_line_keeps_the_order_and_lets_go_when_each_is_due():
+    line: DelayLine[str] = DelayLine()
+    assert not line.hold("before", 10.0, 0.0) and not line  # no delay: goes on now
+    assert line.hold("a", 10.0, 0.3) and line.hold("b", 10.1, 0.3)
+    assert line.hold("after", 10.2, 0.0)  # the spike is over, but "a" and "b" are ahead
+    assert line.due(10.29) == []
+    assert line.due(10.3) == ["a"]
+    assert line.due(10.4) == ["b", "after"] and not line

@@ -33,7 +33,7 @@ from companion.mission.report import MissionReport
 from sitl.campaign.flights import CRUISE_ALTITUDE_M, Flight, scenario_of
 from sitl.campaign.safety import handover_s, judge
 from sitl.scenario import Scenario
-from sitl.vehicle.link_faults import LinkLoss, PilotTakeover
+from sitl.vehicle.link_faults import LinkLatency, LinkLoss, PilotTakeover
 from sitl.vehicle.mission_phases import FaultStart, PhaseStart
 from sitl.vehicle.options import RunOptions, ServoError
 from sitl.vehicle.servo_bus_faults import BusCorruption
@@ -238,6 +238,9 @@ def _run_options(flight: Flight, work: Path) -> RunOptions:
         link_loss=LinkLoss(start, fault.duration_s, fault.drop_fraction)  # type: ignore[arg-type]
         if fault.kind == "link_loss"
         else None,
+        link_latency=LinkLatency(start, fault.duration_s, fault.delay_s)  # type: ignore[arg-type]
+        if fault.kind == "link_latency"
+        else None,
         pilot_takeover=PilotTakeover(start, fault.mode)  # type: ignore[arg-type]
         if fault.kind == "pilot_takeover"
         else None,
@@ -279,6 +282,8 @@ def _fly_px4(
         extra += ["--servo-error", f"{fault.servo_id}:{fault.error}@{at}"]
     if fault.kind == "link_cut":
         extra += ["--link-cut", f"{fault.duration_s:g}@{at}"]
+    if fault.kind == "link_latency":
+        extra += ["--link-latency", f"{fault.delay_s:g}:{fault.duration_s:g}@{at}"]
     if fault.kind == "pilot_takeover":
         extra += ["--pilot-takeover", f"{fault.mode}@{at}"]
     sitl = start_sitl(

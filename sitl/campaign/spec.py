@@ -36,14 +36,16 @@ Format (every key but ``name`` and ``scenario`` optional)::
     kind = "payload_slip"                    # grasp_fails; link_cut (at_s, duration_s);
     after_grasp_s = 2.5                      # servo_silent (servo_id, at_s); link_loss
                                              # (at_s, duration_s, drop_fraction);
+                                             # link_latency (at_s, duration_s, delay_s);
                                              # pilot_takeover (at_s, mode = "POSCTL")
     [[faults]]
     kind = "link_cut"                        # a fault at a phase instead of a time:
     at_phase = "grasp"                       # takeoff, to_object ... to_home, landing
     offset_s = 0.5                           # (docs/faults.md), this long into it
-    duration_s = 2.0                         # with px4: link_cut, pilot_takeover and the
-                                             # servo faults (sitl run's options), at a time
-                                             # or a phase; link_loss, bus_corruption: imitation
+    duration_s = 2.0                         # with px4: link_cut, link_latency,
+                                             # pilot_takeover and the servo faults (sitl
+                                             # run's options), at a time or a phase;
+                                             # link_loss, bus_corruption: imitation
 
     [bounds.passivity]                       # per controller: a completed flight whose
     mass_error_pct = 3.0                     # |figure| exceeds one of these is outside the
@@ -89,14 +91,16 @@ __all__ = [
 ]
 
 FAULT_KINDS = (
-    "none", "payload_slip", "grasp_fails", "link_cut", "link_loss", "pilot_takeover",
-    "servo_silent", "servo_error", "bus_corruption",
+    "none", "payload_slip", "grasp_fails", "link_cut", "link_loss", "link_latency",
+    "pilot_takeover", "servo_silent", "servo_error", "bus_corruption",
 )  # fmt: skip
 """Faults a flight can be given: in the truth (``payload_slip``, ``grasp_fails``: the
-scenario's ``[world]``) or in the links (``link_cut``, ``link_loss``, ``pilot_takeover``,
-``servo_silent``, ``servo_error``, ``bus_corruption``: the run options)."""
+scenario's ``[world]``) or in the links (``link_cut``, ``link_loss``, ``link_latency``,
+``pilot_takeover``, ``servo_silent``, ``servo_error``, ``bus_corruption``: the run
+options)."""
 LINK_FAULTS = (
-    "link_cut", "link_loss", "pilot_takeover", "servo_silent", "servo_error", "bus_corruption",
+    "link_cut", "link_loss", "link_latency", "pilot_takeover", "servo_silent", "servo_error",
+    "bus_corruption",
 )  # fmt: skip
 """The faults that start at a time or a phase, injected by the simulator's links."""
 BoundFigure = Literal[
@@ -146,7 +150,7 @@ class Design(_Table):
 
 _FAULT_VALUES = (
     "servo_id", "error", "mode", "after_grasp_s", "at_s", "at_phase", "offset_s",
-    "duration_s", "drop_fraction", "corrupt_fraction",
+    "duration_s", "drop_fraction", "delay_s", "corrupt_fraction",
 )  # fmt: skip
 """A fault's values, in the order its label gives them."""
 
@@ -155,13 +159,14 @@ class Fault(_Table):
     """A fault injected into each flight of a draw (``none``: a healthy flight)."""
 
     kind: Literal[
-        "none", "payload_slip", "grasp_fails", "link_cut", "link_loss", "pilot_takeover",
-        "servo_silent", "servo_error", "bus_corruption",
+        "none", "payload_slip", "grasp_fails", "link_cut", "link_loss", "link_latency",
+        "pilot_takeover", "servo_silent", "servo_error", "bus_corruption",
     ]  # fmt: skip
     after_grasp_s: Annotated[float, Field(strict=True, ge=0.0, allow_inf_nan=False)] | None = None
     """payload_slip: the object slips out this long after the grasp [s]."""
     at_s: Annotated[float, Field(strict=True, ge=0.0, allow_inf_nan=False)] | None = None
-    """link_cut, link_loss, pilot_takeover, servo_silent, servo_error: when the fault starts
+    """link_cut, link_loss, link_latency, pilot_takeover, servo_silent, servo_error: when the
+    fault starts
     [s, simulated time]; or ``at_phase``."""
     at_phase: str | None = None
     """The fault's mission phase instead (``docs/faults.md``),
@@ -170,10 +175,13 @@ class Fault(_Table):
     """With ``at_phase``: how long after the phase began [s, simulated time] (0 if not
     given)."""
     duration_s: Annotated[float, Field(strict=True, gt=0.0, allow_inf_nan=False)] | None = None
-    """link_cut, link_loss, bus_corruption: how long the onboard link stays silent or lossy,
-    or the servo bus's replies corrupted [s]."""
+    """link_cut, link_loss, link_latency, bus_corruption: how long the onboard link stays
+    silent, lossy or slow, or the servo bus's replies corrupted [s]."""
     drop_fraction: Annotated[float, Field(strict=True, gt=0.0, le=1.0)] | None = None
     """link_loss: the fraction of the onboard link's messages dropped, both ways."""
+    delay_s: Annotated[float, Field(strict=True, gt=0.0, le=2.0)] | None = None
+    """link_latency: how long every message of the onboard link is held back, both ways
+    [s]."""
     corrupt_fraction: Annotated[float, Field(strict=True, gt=0.0, le=1.0)] | None = None
     """bus_corruption: the fraction of the servos' replies sent with a broken CRC."""
     mode: Literal["POSCTL", "ALTCTL", "AUTO_LOITER", "AUTO_RTL", "AUTO_LAND"] | None = None
@@ -204,6 +212,7 @@ class Fault(_Table):
             "payload_slip": ("after_grasp_s",),
             "link_cut": (*start, "duration_s"),
             "link_loss": (*start, "duration_s", "drop_fraction"),
+            "link_latency": (*start, "duration_s", "delay_s"),
             "pilot_takeover": (*start, "mode"),
             "servo_silent": ("servo_id", *start),
             "servo_error": ("servo_id", "error", *start),

@@ -36,10 +36,11 @@ import socket
 import struct
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Iterator
 
 from pymavlink.dialects.v20 import common as mavlink
+
+from sitl.vehicle.link_faults import DelayLine
 
 __all__ = ["CompanionRelay", "mavlink_frames"]
 
@@ -128,8 +129,8 @@ class CompanionRelay:
         self._drops = drops
         self._delay = delay
         self._clock = clock
-        self._late: deque[tuple[float, bool, bytes]] = deque()
-        """Held datagrams: (due time [s], towards the companion, bytes), in order."""
+        self._late: DelayLine[tuple[bool, bytes]] = DelayLine()
+        """Held datagrams: (towards the companion, bytes), in order."""
         self._reads_at_pose = 0
         self._reads_stopped_at = -1
         self._local_port, companion_port = companion_side
@@ -193,9 +194,7 @@ class CompanionRelay:
         assert self._companion is not None and self._px4 is not None
         if self._late:
             assert self._clock is not None
-            now_s = self._clock()
-            while self._late and self._late[0][0] <= now_s:
-                _, to_companion, data = self._late.popleft()
+            for to_companion, data in self._late.due(self._clock()):
                 if to_companion:
                     self._to_companion(data)
                 else:
@@ -294,13 +293,8 @@ class CompanionRelay:
         before it: the link keeps its order."""
         if self._delay is None or self._clock is None:
             return False
-        delay_s = self._delay()
-        if delay_s <= 0.0 and not self._late:
+        if not self._late.hold((to_companion, data), self._clock(), self._delay()):
             return False
-        due_s = self._clock() + max(delay_s, 0.0)
-        if self._late:
-            due_s = max(due_s, self._late[-1][0])
-        self._late.append((due_s, to_companion, data))
         self.delayed += 1
         return True
 

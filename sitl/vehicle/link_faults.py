@@ -7,9 +7,9 @@
 - a pilot taking over (``pilot_takeover``): a mode switch arriving on the ground-station
   link as QGroundControl sends it (COMMAND_LONG MAV_CMD_DO_SET_MODE from system 255,
   component 190), which the autopilot handles as it handles any;
-- a latency spike (``link_latency``, PX4 in the loop only: the relay of its onboard link):
-  every message on the onboard link, either way, held back ``delay_s`` for ``duration_s``
-  (a congested radio, a USB adapter's buffering), in order;
+- a latency spike (``link_latency``): every message on the onboard link, either way, held
+  back ``delay_s`` for ``duration_s`` (a congested radio, a USB adapter's buffering), in
+  order (:class:`DelayLine`: the imitation's links, and the relay of PX4's onboard link);
 - a battery running low (``low_battery``, PX4 in the loop only): PX4's simulated battery
   (its ``battery_simulator``) told from the ground station to fall to a remaining charge
   within a second (PARAM_SET SIM_BAT_DRAIN 1 s, then SIM_BAT_MIN_PCT, the parameter PX4
@@ -20,8 +20,9 @@ Each starts at a simulated time or a mission phase (:mod:`sitl.vehicle.mission_p
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Generic, TypeVar
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
@@ -35,6 +36,7 @@ if TYPE_CHECKING:
 __all__ = [
     "GCS_COMPONENT_ID",
     "GCS_SYSTEM_ID",
+    "DelayLine",
     "LinkFaults",
     "LinkLatency",
     "LinkLoss",
@@ -48,6 +50,39 @@ GCS_COMPONENT_ID = mavlink2.MAV_COMP_ID_MISSIONPLANNER
 """QGroundControl's component id (190)."""
 TAKEOVER_MODES = ("POSCTL", "ALTCTL", "AUTO_LOITER", "AUTO_RTL", "AUTO_LAND")
 """The modes a pilot switches to."""
+
+
+_T = TypeVar("_T")
+
+
+class DelayLine(Generic[_T]):
+    """Messages held back on a link, in order: each goes on once its delay has passed and
+    never before one held earlier (a link's buffer keeps the order)."""
+
+    def __init__(self) -> None:
+        self._held: deque[tuple[float, _T]] = deque()
+
+    def __bool__(self) -> bool:
+        return bool(self._held)
+
+    def hold(self, item: _T, now_s: float, delay_s: float) -> bool:
+        """Hold ``item`` arriving at ``now_s`` [s] for ``delay_s`` [s], behind any held
+        before it; False (not held: it goes on now) without a delay and with nothing held."""
+        held = self._held
+        if delay_s <= 0.0 and not held:
+            return False
+        due_s = now_s + max(delay_s, 0.0)
+        if held:
+            due_s = max(due_s, held[-1][0])
+        held.append((due_s, item))
+        return True
+
+    def due(self, now_s: float) -> list[_T]:
+        """The items whose time has come at ``now_s`` [s], in order (taken off the line)."""
+        held, out = self._held, []
+        while held and held[0][0] <= now_s:
+            out.append(held.popleft()[1])
+        return out
 
 
 @dataclass(frozen=True)

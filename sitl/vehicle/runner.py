@@ -3,8 +3,9 @@
 Every plant step (``1 / plant.rate_hz`` of simulation time) the runner
 
 1. hands each MAVLink message received on the two links to the simulated autopilot
-   (:class:`~sitl.px4.Px4Vehicle`) and sends its replies; after a PARAM_SET the plant's
-   attitude loop takes the new gains and THR_MDL_FAC,
+   (:class:`~sitl.px4.Px4Vehicle`) and sends its replies (the onboard link's faults act on
+   both: a message lost, or held back by a latency spike, :mod:`sitl.vehicle.link_faults`);
+   after a PARAM_SET the plant's attitude loop takes the new gains and THR_MDL_FAC,
 2. takes the estimate (:class:`~sitl.vehicle.navigation.Navigation`, EKF2-like, motion capture
    or GPS aiding; a new one at each estimator output, held between) and asks the autopilot
    for the attitude/thrust setpoint of this step (``None``: disarmed) when its control may
@@ -62,7 +63,7 @@ from sitl.scenario import Scenario, servo_watchdog_option
 from sitl.servo import PtyServoBus, XM430Parameters, XM430Servo
 from sitl.servo.memory_bus import MemoryServoBus
 from sitl.stepping import WallPacer, step_loop
-from sitl.vehicle.link_faults import LinkFaults
+from sitl.vehicle.link_faults import DelayLine, LinkFaults
 from sitl.vehicle.mission_phases import MissionPhases
 from sitl.vehicle.navigation import Navigation
 from sitl.vehicle.options import LOCKSTEP_WAIT_S, RunOptions, RunStats
@@ -235,11 +236,6 @@ class SitlVehicle:
         self.phases = MissionPhases()
         """When the mission's phases began, as the onboard link and the autopilot told."""
         self.servo_faults = ServoBusFaults(options, self.phases)
-        if options.link_latency is not None:
-            raise ValueError(
-                "a latency spike is flown on the relay of PX4's onboard link: fly it with PX4 in "
-                "the loop (--autopilot px4)"
-            )
         if options.low_battery is not None:
             raise ValueError(
                 "a low battery is flown by PX4's own battery and failsafe: fly it with PX4 in "
@@ -266,6 +262,10 @@ class SitlVehicle:
         self._held: list = []
         """Onboard messages received while waiting for a setpoint (``lockstep``), handed to
         the autopilot at the next step."""
+        self._uplink: DelayLine = DelayLine()
+        self._downlink: DelayLine = DelayLine()
+        """The onboard link's messages held back by a latency spike, towards the autopilot
+        and towards the companion."""
         self._pose_sent_ms: int | None = None
         """``time_boot_ms`` of the ODOMETRY sent this step (``lockstep``), else None."""
         self._reads_at_pose = 0
@@ -438,21 +438,16 @@ class SitlVehicle:
         if not self.steps:
             self._first_step_wall_s, self._first_step_sim_s = time.perf_counter(), now_s
         faults = self.link_faults
-        lockstep = self.options.lockstep
         held, self._held = self._held, []
         for name, link in links.items():
             messages = link.receive()
-            if name == "onboard" and held:
-                messages = held + messages
+            if name == "onboard":
+                messages = self._uplink_messages(held + messages if held else messages, now_s)
             for message in messages:
-                if faults.drops(name, now_s):
-                    continue
                 if message.get_type() == "STATUSTEXT":
                     self.phases.observe_text(message.text, now_s)
-                if lockstep and name == "onboard" and message.get_type() in _SETPOINTS:
-                    self._note_setpoint(message, now_s)
                 for reply_link, reply in autopilot.handle(message, name, now_s):
-                    links[reply_link].send(reply)
+                    self._send(reply_link, reply, now_s)
         if autopilot.params.revision != self._params_revision:
             self._params_revision = autopilot.params.revision
             world.plant.configure_autopilot(attitude_loop_params(autopilot.params))
@@ -475,7 +470,10 @@ class SitlVehicle:
         takeover = faults.takeover(now_s)
         if takeover is not None:
             for reply_link, reply in autopilot.handle(takeover, "gcs", now_s):
-                links[reply_link].send(reply)
+                self._send(reply_link, reply, now_s)
+        if self._downlink:
+            for message in self._downlink.due(now_s):
+                self._deliver("onboard", message)
         if fresh or now_us >= autopilot.next_telemetry_us:
             self._send_telemetry(now_s, measurement)
         if autopilot.console_waiting:
@@ -536,6 +534,8 @@ class SitlVehicle:
         bus, autopilot = self.servo_bus, self.autopilot
         if (
             self._held
+            or self._uplink
+            or self._downlink
             or not isinstance(bus, MemoryServoBus)
             or autopilot.console_waiting
             or self.servo_faults.pending
@@ -553,13 +553,42 @@ class SitlVehicle:
         link faults may drop it); note the pose a lockstep client answers."""
         links, faults = self.links, self.link_faults
         unheard = [name for name, link in links.items() if not link.heard]
-        lockstep = self.options.lockstep
         for link_name, message in self.autopilot.telemetry(now_s, measurement, unheard):
             if not faults.drops(link_name, now_s):
-                links[link_name].send(message)
-                if lockstep and link_name == "onboard" and message.get_type() == _ODOMETRY:
-                    self._pose_sent_ms = message.time_usec // 1000
-                    self._reads_at_pose = self.servo_bus.sync_reads
+                self._send(link_name, message, now_s)
+
+    def _uplink_messages(self, messages: list, now_s: float) -> list:
+        """The onboard link's messages the autopilot takes at ``now_s`` [s]: those the link
+        does not lose (a setpoint noted as it comes, for the lockstep), after a latency
+        spike's delay, in order."""
+        faults, lockstep, line = self.link_faults, self.options.lockstep, self._uplink
+        delay_s = faults.delay_s("onboard", now_s)
+        now = []
+        for message in messages:
+            if faults.drops("onboard", now_s):
+                continue
+            if lockstep and message.get_type() in _SETPOINTS:
+                self._note_setpoint(message, now_s)
+            if not line.hold(message, now_s, delay_s):
+                now.append(message)
+        return now + line.due(now_s) if line else now
+
+    def _send(self, link_name: str, message, now_s: float) -> None:
+        """Send ``message`` on ``link_name`` at ``now_s`` [s], or hold it back on the
+        onboard link for a latency spike's delay (:meth:`step` delivers it when due)."""
+        if link_name == "onboard" and self._downlink.hold(
+            message, now_s, self.link_faults.delay_s("onboard", now_s)
+        ):
+            return
+        self._deliver(link_name, message)
+
+    def _deliver(self, link_name: str, message) -> None:
+        """Put ``message`` on the wire of ``link_name``; note the pose a lockstep client
+        answers."""
+        self.links[link_name].send(message)
+        if self.options.lockstep and link_name == "onboard" and message.get_type() == _ODOMETRY:
+            self._pose_sent_ms = message.time_usec // 1000
+            self._reads_at_pose = self.servo_bus.sync_reads
 
     def flight_times(self) -> dict[str, float]:
         """The flight's simulated and wall-clock seconds from the start of the first plant
