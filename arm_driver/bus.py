@@ -430,6 +430,12 @@ class ArmBus(abc.ABC):
         self._require_gripper()
         return await self._transact(self._read_gripper_hook)
 
+    async def joints_without_torque(self) -> list[str]:
+        """The joints whose servos say their torque is off: a servo that rebooted by itself
+        (its RAM back at the defaults) answers again limp. :class:`BusStateError` from a
+        backend that cannot read it."""
+        return await self._transact(self._torque_off_hook)
+
     # -- shared policy --------------------------------------------------------------------
 
     def _check_open(self) -> None:
@@ -525,6 +531,10 @@ class ArmBus(abc.ABC):
     async def _read_gripper_hook(self) -> GripperState:
         """Read the gripper servo's position and current (default: not supported)."""
         raise BusStateError(f"{type(self).__name__} cannot read the gripper's state")
+
+    async def _torque_off_hook(self) -> list[str]:
+        """Names of the joints whose servos report torque off (default: not supported)."""
+        raise BusStateError(f"{type(self).__name__} cannot read the servos' torque state")
 
     @abc.abstractmethod
     async def _safe_state_hook(self) -> None:

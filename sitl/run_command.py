@@ -29,6 +29,7 @@ from sitl.vehicle.link_faults import TAKEOVER_MODES, LinkLatency, LowBattery, Pi
 from sitl.vehicle.mission_phases import FAULT_PHASES, FaultStart, PhaseStart
 from sitl.vehicle.options import SERVO_ERRORS, LinkPorts, RunOptions, ServoError
 from sitl.vehicle.runner import SitlVehicle, simulated_servo_ids
+from sitl.vehicle.servo_bus_faults import ServoReboot
 
 __all__ = ["RunCommand"]
 
@@ -95,6 +96,14 @@ class RunCommand:
             "hardware error as an XM430 does: the alert bit, and torque off for overload, "
             "overheating and electrical_shock (Shutdown's default), not for input_voltage and "
             "motor_encoder (e.g. 1:overheating@to_place+2)."
+        ),
+    ] = None
+    servo_reboot: Annotated[
+        str | None,
+        typer.Option(
+            help="Fault injection 'ID:BOOT@T' or 'ID:BOOT@PHASE+S': servo ID reboots by itself "
+            "(a brown-out): its RAM back at the defaults, torque off, no answer for BOOT [s, sim "
+            "time], then limp until torque is enabled (e.g. 1:0.1@excite+0.5)."
         ),
     ] = None
     link_cut: Annotated[
@@ -230,6 +239,9 @@ class RunCommand:
         error = None
         if self.servo_error is not None:
             error = _servo_error(self.servo_error, simulated_servo_ids(cfg))
+        reboot = None
+        if self.servo_reboot is not None:
+            reboot = _servo_reboot(self.servo_reboot, simulated_servo_ids(cfg))
         if not (
             math.isfinite(self.servo_reply_delay_ms) and 0.0 <= self.servo_reply_delay_ms < 1000.0
         ):
@@ -252,6 +264,7 @@ class RunCommand:
                 truth_log=self.truth_log,
                 servo_silent=silent,
                 servo_error=error,
+                servo_reboot=reboot,
                 link_cut=None if self.link_cut is None else _stretch(self.link_cut, "--link-cut"),
                 pilot_takeover=None
                 if self.pilot_takeover is None
@@ -475,6 +488,7 @@ def _low_battery(text: str) -> LowBattery:
 _FORMS = {
     "--servo-silent": "ID@SECONDS or ID@PHASE+SECONDS",
     "--servo-error": "ID:ERROR@SECONDS or ID:ERROR@PHASE+SECONDS",
+    "--servo-reboot": "ID:BOOT@SECONDS or ID:BOOT@PHASE+SECONDS",
     "--link-cut": "DURATION@SECONDS or DURATION@PHASE+SECONDS",
     "--pilot-takeover": "MODE@SECONDS or MODE@PHASE+SECONDS",
     "--low-battery": "PERCENT@SECONDS or PERCENT@PHASE+SECONDS",
@@ -485,6 +499,7 @@ _FORMS = {
 _EXAMPLES = {
     "--servo-silent": "2@30 or 2@takeoff+8",
     "--servo-error": "1:overheating@grasp+0.5",
+    "--servo-reboot": "1:0.1@excite+0.5",
     "--link-cut": "10@excite+0.5",
     "--pilot-takeover": "AUTO_RTL@lift+0.5",
     "--low-battery": "6@to_place+0.5",
@@ -492,6 +507,24 @@ _EXAMPLES = {
     "--pose-jump": "0.5@lift+0.5",
     "--link-latency": "0.3:5@excite+0.5",
 }
+
+
+def _servo_reboot(text: str, servo_ids: tuple[int, ...]) -> ServoReboot:
+    """``--servo-reboot ID:BOOT@START`` as a :class:`ServoReboot` (the boot time in (0, 10]
+    s, the start as ``--servo-silent``'s)."""
+    servo, _, rest = text.partition(":")
+    boot, at, start = rest.partition("@")
+    try:
+        boot_s = float(boot)
+    except ValueError:
+        _bad_fault("--servo-reboot", text)
+    if not at:
+        _bad_fault("--servo-reboot", text)
+    servo_id, when = _servo_fault(f"{servo}@{start}", servo_ids, "--servo-reboot", text)
+    try:
+        return ServoReboot(servo_id, when, boot_s)
+    except ValueError as exc:
+        fail(f"--servo-reboot {text}: {exc}")
 
 
 def _servo_error(text: str, servo_ids: tuple[int, ...]) -> ServoError:

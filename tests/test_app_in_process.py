@@ -3,8 +3,8 @@
 - Preflight: the ODOMETRY stream that clocks the control loop must come fast enough
   (a scripted pose stream; the link and bus stand-ins provide only what ``PickupApp``
   reads before take-off).
-- Joints stopped by the servos' Bus Watchdog after a silent bus are enabled again (the
-  real Dynamixel driver against the XM430 emulator on a pty).
+- Joints stopped by the servos' Bus Watchdog after a silent bus, or by a servo rebooting by
+  itself, are enabled again (the real Dynamixel driver against the XM430 emulator on a pty).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from companion.mission.offboard import Stream
 from companion.mission.pickup import PickupPlan
 from companion.mission.preflight import PreflightError, check_pose_rate
 from companion.mission.servo_check import torque_constant_sources
-from sitl.servo import PtyServoBus, XM430Servo
+from sitl.servo import Faults, PtyServoBus, XM430Servo
 
 SCENARIO = load_config("configs/sitl_pickup.toml")
 PLAN = PickupPlan(home_m=(0.0, 0.0), payload_at_m=(1.0, 0.0, 0.0), place_at_m=(2.0, 0.0, 0.0))
@@ -158,6 +158,46 @@ def test_joints_stopped_by_the_servo_watchdog_are_enabled_again():
             await app.arm.rearm_after_silence()
             assert [kind for kind, _ in notes] == ["servo"] and "watchdog 100 ms" in notes[0][1]
             assert not sim.servos[1].watchdog_tripped
+            await app.arm.write_torques(np.array([0.89, 0.0]))
+            await asyncio.sleep(0.02)
+            assert (await bus.read_joint_states())["eta1"].torque_n_m > 0.8
+
+    with PtyServoBus({i: XM430Servo(i) for i in (1, 2)}) as sim:
+        asyncio.run(asyncio.wait_for(body(sim), 10.0))
+
+
+def test_a_servo_that_rebooted_by_itself_gets_its_torque_back_after_its_silence():
+    notes: list[tuple[str, str]] = []
+
+    async def body(sim: PtyServoBus) -> None:
+        url = f"dynamixel://{sim.device}?timeout_margin_ms=20&watchdog_ms=100"
+        async with open_bus(url, JOINTS) as bus:
+            await bus.set_operating_mode(OperatingMode.CURRENT)
+            await bus.enable_torque()
+            app = PickupApp(
+                SCENARIO,
+                PoseLink(ScriptedPoses(4000)),
+                bus,
+                PLAN,
+                event=lambda kind, detail, t_s: notes.append((kind, detail)),
+            )
+            sim.set_faults(Faults(silent_ids=frozenset({2})))  # a timeout, no reboot
+            assert await app.arm.read_joints() is None
+            sim.set_faults(Faults())
+            assert await app.arm.read_joints() is not None
+            assert notes == [] and app.arm.rearmed == 0
+            with sim.lock:
+                sim.servos[1].reboot()  # a brown-out: RAM at the defaults, torque off
+            sim.set_faults(Faults(silent_ids=frozenset({1})))  # booting
+            assert await app.arm.read_joints() is None
+            assert await app.arm.read_joints() is None
+            sim.set_faults(Faults())
+            assert await app.arm.read_joints() is not None
+            assert app.arm.rearmed == 1 and sim.servos[1].torque_enabled
+            assert notes == [
+                ("servo", "eta1: torque off after 2 failed transactions (the servo rebooted): "
+                 "torque enabled again")
+            ]  # fmt: skip
             await app.arm.write_torques(np.array([0.89, 0.0]))
             await asyncio.sleep(0.02)
             assert (await bus.read_joint_states())["eta1"].torque_n_m > 0.8

@@ -557,6 +557,9 @@ def test_sitl_run_servo_error_out_of_range(value, words):
 @pytest.mark.parametrize(
     ("option", "value", "words"),
     [
+        ("--servo-reboot", "1@grasp", ("--servo-reboot", "ID:BOOT@PHASE+SECONDS", "'1@grasp'")),
+        ("--servo-reboot", "1:20@grasp", ("--servo-reboot 1:20@grasp", "boot_s", "(0, 10]")),
+        ("--servo-reboot", "7:0.1@grasp", ("--servo-reboot 7:0.1@grasp", "no servo 7")),
         ("--link-cut", "long@grasp", ("--link-cut", "DURATION@PHASE+SECONDS", "'long@grasp'")),
         ("--link-cut", "0@grasp", ("--link-cut 0@grasp", "duration must lie in (0, 3600] s")),
         ("--link-cut", "2@hover", ("--link-cut", "DURATION@PHASE+SECONDS", "takeoff, to_object")),

@@ -29,6 +29,7 @@ SLICE = (
     ),
     ("link_loss(at_phase=landing, offset_s=0.5, duration_s=5, drop_fraction=0.3)", HEAVY),
     ("link_latency(at_phase=excite, offset_s=0.5, duration_s=5, delay_s=0.3)", HEAVY_AT_JAWS),
+    ("servo_reboot(servo_id=1, at_phase=excite, offset_s=0.5, boot_s=0.1)", HEAVY_AT_JAWS),
     ("pilot_takeover(mode=AUTO_RTL, at_phase=excite, offset_s=0.5)", LIGHT),
 )
 """Faults of the matrix that end safe. The first two touched down at 1.09 and 1.32 m/s
@@ -42,7 +43,7 @@ def test_the_shipped_matrix_has_every_fault_at_every_phase():
     flights = expand(load_spec(SPEC), SPEC)
     assert len(flights) >= 200
     phased = {(f.fault.kind, f.fault.at_phase) for f in flights if f.fault.at_phase}
-    assert len(phased) == 7 * 12  # the seven kinds that start at a phase, at each of 12
+    assert len(phased) == 8 * 12  # the eight kinds that start at a phase, at each of 12
 
 
 @pytest.mark.parametrize(("label", "payload"), SLICE)
@@ -59,6 +60,8 @@ def test_a_fault_of_the_matrix_ends_safe(label, payload):
         assert row["completed"] == 1 and row["late_cycles"] > 0
     elif label.startswith("bus_corruption"):  # 30 % of the replies: asked again
         assert row["completed"] == 1 and row["servo_retries"] > 50
+    elif label.startswith("servo_reboot"):  # limp after its boot: torque enabled again
+        assert row["completed"] == 1 and row["servo_failures"] > 0
     elif label.startswith("link_latency"):  # 0.3 s each way: PX4 holds, then lands
         assert row["outcome"] == "aborted" and "link_latency" in row["faults"]
     else:  # each of the others ends the pickup, named

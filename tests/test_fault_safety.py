@@ -23,7 +23,7 @@ from sitl.vehicle.link_faults import (
 )
 from sitl.vehicle.mission_phases import FAULT_PHASES, MissionPhases, PhaseStart
 from sitl.vehicle.options import RunOptions, ServoError
-from sitl.vehicle.servo_bus_faults import BusCorruption, ServoBusFaults
+from sitl.vehicle.servo_bus_faults import BusCorruption, ServoBusFaults, ServoReboot
 
 PLACE_M = (-1.0, 0.5, 0.05)
 
@@ -198,6 +198,26 @@ def test_the_servo_bus_faults_start_at_their_phase_and_the_corruption_ends():
     faults.update(35.0, bus)
     assert bus._responder.faults.crc_corruption_rate == 0.0 and not faults.pending
     assert bus._responder.faults.silent_ids == {2}
+
+
+def test_a_rebooting_servo_loses_its_torque_and_answers_nothing_while_it_boots():
+    bus = MemoryServoBus({i: XM430Servo(i) for i in (1, 2, 3)}, name="servo-reboot-test")
+    bus.servos[1].write(64, b"\x01")  # Torque Enable
+    phases = MissionPhases()
+    options = RunOptions(seed=4, servo_reboot=ServoReboot(1, PhaseStart("excite", 0.5), 0.1))
+    faults = ServoBusFaults(options, phases)
+    phases.observe_text("pickup: phase excite", 30.0)
+    faults.update(30.4, bus)
+    assert bus.servos[1].torque_enabled and bus._responder.faults.silent_ids == frozenset()
+    faults.update(30.5, bus)
+    assert not bus.servos[1].torque_enabled and bus._responder.faults.silent_ids == {1}
+    faults.update(30.59, bus)
+    assert bus._responder.faults.silent_ids == {1} and faults.pending
+    faults.update(30.6, bus)
+    assert bus._responder.faults.silent_ids == frozenset() and not faults.pending
+    assert not bus.servos[1].torque_enabled  # limp until the host enables it
+    with pytest.raises(ValueError, match=r"boot_s must be in \(0, 10\]"):
+        ServoReboot(1, 5.0, 12.0)
 
 
 def test_a_fault_at_a_phase_is_labelled_with_it():

@@ -579,6 +579,15 @@ class DynamixelBus(ArmBus):
         return states
 
     @_hardware_details
+    async def _torque_off_hook(self) -> list[str]:
+        off = []
+        for joint in self.joints:
+            data = await self._read(joint.servo_id, ct.TORQUE_ENABLE)
+            if ct.TORQUE_ENABLE.decode(data) == 0:
+                off.append(joint.name)
+        return off
+
+    @_hardware_details
     async def _write_gripper_hook(self, servo_angle_rad: float) -> None:
         gripper = self.gripper
         assert gripper is not None

@@ -322,6 +322,7 @@ class PickupApp:
             self.cycle.finish_report()
             self.report.servo_retries = self.arm.bus.retried_replies
             self.report.servo_failures = self.arm.failed_transactions
+            self.report.servo_rearmed = self.arm.rearmed
 
     # ------------------------------------------------------------- preflight
 

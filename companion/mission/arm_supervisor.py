@@ -23,7 +23,12 @@ bus that cannot read it is noted once and not asked again.
 
 With the servos' Bus Watchdog armed (``watchdog_ms``), a bus silent for most of its
 timeout (a lost MAVLink link pauses the loop) has stopped the current-mode joints, which
-then refuse torque without a word: the task enables them again first.
+then refuse torque without a word: the task enables them again first. A servo that stopped
+answering for a few transactions and answers again may have rebooted by itself (a
+brown-out): its RAM is back at the defaults and its torque off, and it says nothing of it.
+After every run of failed joint transactions the task asks the joints' torque state
+(:meth:`~arm_driver.bus.ArmBus.joints_without_torque`) and enables torque again where it
+is off (noted, counted in :attr:`ArmSupervisor.rearmed`).
 
 After the landing (:meth:`ArmSupervisor.hold_after_landing`) the joints hold their pose
 on the servos' position loop: the mission's end leaves the arm holding, not falling.
@@ -140,6 +145,10 @@ class ArmSupervisor:
         self._last_transaction_s = -math.inf
         """Event-loop time of the last joint transaction [s] (the servos' watchdog clock;
         none yet before :meth:`prepare`)."""
+        self.rearmed = 0
+        """Times joints answered with their torque off after failed transactions (a servo
+        rebooted) and got it back."""
+        self._torque_readable = True
 
     # --------------------------------------------------------------- the cycle's side
 
@@ -234,8 +243,41 @@ class ArmSupervisor:
             return None
         finally:
             self._last_transaction_s = _now()
+        failed = self._failures
         self._failures, self._failing_since = 0, math.nan
+        if failed:
+            await self._rearm_limp_joints(failed)
         return joints
+
+    async def _rearm_limp_joints(self, failed: int) -> None:
+        """After ``failed`` joint transactions failed in a row, enable torque again if a
+        joint's servo says it is off (it rebooted meanwhile); a bus that cannot tell is
+        noted once."""
+        if not self._torque_readable:
+            return
+        try:
+            limp = await self.bus.joints_without_torque()
+            if limp:
+                await self.bus.enable_torque()
+        except BusFailedError as exc:
+            self._failed_once(exc)
+            return
+        except BusStateError as exc:
+            self._torque_readable = False
+            self._note("servo", f"torque state not read ({exc}): a rebooted servo goes unseen")
+            return
+        except ArmDriverError as exc:
+            self._failed_once(exc)
+            return
+        finally:
+            self._last_transaction_s = _now()
+        if limp:
+            self.rearmed += 1
+            self._note(
+                "servo",
+                f"{', '.join(limp)}: torque off after {failed} failed transactions (the servo "
+                "rebooted): torque enabled again",
+            )
 
     async def write_torques(self, torques_n_m: FloatArray) -> None:
         """One Sync Write of the joint torques [N m] (already clipped); failures counted."""

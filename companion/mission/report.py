@@ -104,6 +104,9 @@ class MissionReport:
     """Damaged servo replies (CRC, framing) asked for again by the arm bus."""
     servo_failures: int = 0
     """Servo bus transactions that failed (timed out, or damaged past the retries)."""
+    servo_rearmed: int = 0
+    """Times joints answered with their torque off after failed transactions (a servo
+    rebooted by itself) and had it enabled again."""
     longest_period_ms: float | None = None
     """Longest vehicle-time gap between two control cycles [ms]."""
     estimator_skipped_steps: int = 0
@@ -150,6 +153,7 @@ class MissionReport:
             "poses_dropped_by_cause": self.poses_dropped_by_cause,
             "servo_retries": self.servo_retries,
             "servo_failures": self.servo_failures,
+            "servo_rearmed": self.servo_rearmed,
             "longest_period_ms": self.longest_period_ms,
             "estimator_skipped_steps": self.estimator_skipped_steps,
             "estimator_skipped_by_reason": self.estimator_skipped,

@@ -36,7 +36,7 @@ from sitl.scenario import Scenario
 from sitl.vehicle.link_faults import LinkLatency, LinkLoss, PilotTakeover
 from sitl.vehicle.mission_phases import FaultStart, PhaseStart
 from sitl.vehicle.options import RunOptions, ServoError
-from sitl.vehicle.servo_bus_faults import BusCorruption
+from sitl.vehicle.servo_bus_faults import BusCorruption, ServoReboot
 from sitl.vehicle.virtual_flight import fly_virtual, normally_scheduled
 
 __all__ = [
@@ -232,6 +232,9 @@ def _run_options(flight: Flight, work: Path) -> RunOptions:
         servo_error=ServoError(fault.servo_id, fault.error, start)  # type: ignore[arg-type]
         if fault.kind == "servo_error"
         else None,
+        servo_reboot=ServoReboot(fault.servo_id, start, fault.boot_s)  # type: ignore[arg-type]
+        if fault.kind == "servo_reboot"
+        else None,
         bus_corruption=BusCorruption(start, fault.duration_s, fault.corrupt_fraction)  # type: ignore[arg-type]
         if fault.kind == "bus_corruption"
         else None,
@@ -280,6 +283,8 @@ def _fly_px4(
         extra += ["--servo-silent", f"{fault.servo_id}@{at}"]
     if fault.kind == "servo_error":
         extra += ["--servo-error", f"{fault.servo_id}:{fault.error}@{at}"]
+    if fault.kind == "servo_reboot":
+        extra += ["--servo-reboot", f"{fault.servo_id}:{fault.boot_s:g}@{at}"]
     if fault.kind == "link_cut":
         extra += ["--link-cut", f"{fault.duration_s:g}@{at}"]
     if fault.kind == "link_latency":

@@ -92,15 +92,15 @@ __all__ = [
 
 FAULT_KINDS = (
     "none", "payload_slip", "grasp_fails", "link_cut", "link_loss", "link_latency",
-    "pilot_takeover", "servo_silent", "servo_error", "bus_corruption",
+    "pilot_takeover", "servo_silent", "servo_error", "servo_reboot", "bus_corruption",
 )  # fmt: skip
 """Faults a flight can be given: in the truth (``payload_slip``, ``grasp_fails``: the
 scenario's ``[world]``) or in the links (``link_cut``, ``link_loss``, ``link_latency``,
-``pilot_takeover``, ``servo_silent``, ``servo_error``, ``bus_corruption``: the run
-options)."""
+``pilot_takeover``, ``servo_silent``, ``servo_error``, ``servo_reboot``,
+``bus_corruption``: the run options)."""
 LINK_FAULTS = (
     "link_cut", "link_loss", "link_latency", "pilot_takeover", "servo_silent", "servo_error",
-    "bus_corruption",
+    "servo_reboot", "bus_corruption",
 )  # fmt: skip
 """The faults that start at a time or a phase, injected by the simulator's links."""
 BoundFigure = Literal[
@@ -150,7 +150,7 @@ class Design(_Table):
 
 _FAULT_VALUES = (
     "servo_id", "error", "mode", "after_grasp_s", "at_s", "at_phase", "offset_s",
-    "duration_s", "drop_fraction", "delay_s", "corrupt_fraction",
+    "duration_s", "drop_fraction", "delay_s", "corrupt_fraction", "boot_s",
 )  # fmt: skip
 """A fault's values, in the order its label gives them."""
 
@@ -160,7 +160,7 @@ class Fault(_Table):
 
     kind: Literal[
         "none", "payload_slip", "grasp_fails", "link_cut", "link_loss", "link_latency",
-        "pilot_takeover", "servo_silent", "servo_error", "bus_corruption",
+        "pilot_takeover", "servo_silent", "servo_error", "servo_reboot", "bus_corruption",
     ]  # fmt: skip
     after_grasp_s: Annotated[float, Field(strict=True, ge=0.0, allow_inf_nan=False)] | None = None
     """payload_slip: the object slips out this long after the grasp [s]."""
@@ -187,7 +187,10 @@ class Fault(_Table):
     mode: Literal["POSCTL", "ALTCTL", "AUTO_LOITER", "AUTO_RTL", "AUTO_LAND"] | None = None
     """pilot_takeover: the PX4 mode the pilot switches to from the ground station."""
     servo_id: Annotated[int, Field(strict=True, ge=0, le=252)] | None = None
-    """servo_silent, servo_error: the servo that stops answering, or detects the error."""
+    """servo_silent, servo_error, servo_reboot: the servo that stops answering, detects the
+    error or reboots."""
+    boot_s: Annotated[float, Field(strict=True, gt=0.0, le=10.0)] | None = None
+    """servo_reboot: how long the rebooting servo answers nothing [s]."""
     error: Literal[
         "overload", "overheating", "input_voltage", "electrical_shock", "motor_encoder"
     ] | None = None  # fmt: skip
@@ -216,6 +219,7 @@ class Fault(_Table):
             "pilot_takeover": (*start, "mode"),
             "servo_silent": ("servo_id", *start),
             "servo_error": ("servo_id", "error", *start),
+            "servo_reboot": ("servo_id", "boot_s", *start),
             "bus_corruption": (*start, "duration_s", "corrupt_fraction"),
         }[self.kind]
         given = {k for k in _FAULT_VALUES if getattr(self, k) is not None}

@@ -16,7 +16,7 @@ from sitl.stepping import LoopStats
 from sitl.vehicle.link_faults import LinkLatency, LinkLoss, LowBattery, PilotTakeover
 from sitl.vehicle.mission_phases import FaultStart, valid_start
 from sitl.vehicle.navigation import ERROR_MODELS
-from sitl.vehicle.servo_bus_faults import BusCorruption
+from sitl.vehicle.servo_bus_faults import BusCorruption, ServoReboot
 
 __all__ = ["LOCKSTEP_WAIT_S", "SERVO_ERRORS", "LinkPorts", "RunOptions", "RunStats", "ServoError"]
 
@@ -122,6 +122,9 @@ class RunOptions:
     """Fault injection: a servo's hardware error (overload, overheating, ...) and when."""
     bus_corruption: BusCorruption | None = None
     """Fault injection: a stretch of the servo bus's replies corrupted at a rate."""
+    servo_reboot: ServoReboot | None = None
+    """Fault injection: a servo rebooting by itself (RAM at defaults, torque off) and
+    answering nothing while it boots."""
     servo_reply_delay_s: float = 0.0
     """Extra delay before every servo reply [s] (a USB-serial adapter's latency timer: an
     FTDI chip's default is 16 ms): wall time on the pty bus, simulated time in memory."""

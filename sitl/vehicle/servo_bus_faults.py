@@ -6,6 +6,9 @@
 - a servo's hardware error (``servo_error``): the bit in its Hardware Error Status(70),
   with the shutdown its Shutdown(63) selects
   (:meth:`sitl.servo.xm430.XM430Servo.inject_hardware_error`);
+- a servo rebooting by itself (``servo_reboot``: its supply dipped, a brown-out): its RAM
+  back at the defaults, torque off (:meth:`sitl.servo.xm430.XM430Servo.reboot`), and no
+  answer while it boots (``boot_s``); then it answers again, limp until torque is enabled;
 - corrupted replies for a while (``bus_corruption``): each reply's CRC broken with a
   probability (electrical noise on the line), drawn from the responder's generator seeded
   by the run's seed (a flight without this fault draws nothing from it).
@@ -27,7 +30,7 @@ from sitl.vehicle.mission_phases import FaultStart, MissionPhases, check_stretch
 if TYPE_CHECKING:
     from sitl.vehicle.options import RunOptions
 
-__all__ = ["BusCorruption", "ServoBusFaults", "bus_faults"]
+__all__ = ["BusCorruption", "ServoBusFaults", "ServoReboot", "bus_faults"]
 
 
 @dataclass(frozen=True)
@@ -45,13 +48,25 @@ class BusCorruption:
         )
 
 
+@dataclass(frozen=True)
+class ServoReboot:
+    """Servo ``servo_id`` reboots at ``start`` and answers nothing for ``boot_s`` [s]."""
+
+    servo_id: int
+    start: FaultStart
+    boot_s: float
+
+    def __post_init__(self) -> None:
+        check_stretch("servo reboot", self.start, self.boot_s, "boot_s", self.boot_s, 10.0)
+
+
 def bus_faults(
-    options: RunOptions, silent_id: int | None = None, corrupt_fraction: float = 0.0
+    options: RunOptions, silent_ids: frozenset[int] = frozenset(), corrupt_fraction: float = 0.0
 ) -> Faults:
-    """The servo bus's faults: the run's reply delay, servo ``silent_id`` silent, replies
+    """The servo bus's faults: the run's reply delay, servos ``silent_ids`` silent, replies
     corrupted at ``corrupt_fraction``, the corruption drawn from the run's seed."""
     return Faults(
-        silent_ids=frozenset() if silent_id is None else frozenset({silent_id}),
+        silent_ids=silent_ids,
         crc_corruption_rate=corrupt_fraction,
         reply_delay_s=options.servo_reply_delay_s,
         seed=options.seed,
@@ -68,7 +83,9 @@ class ServoBusFaults:
         self._silent: tuple[int, FaultStart] | None = options.servo_silent
         self._error = options.servo_error
         self._corruption: BusCorruption | None = options.bus_corruption
+        self._reboot: ServoReboot | None = options.servo_reboot
         self._silent_id: int | None = None
+        self._booting_id: int | None = None
         self._corrupting = False
         self.pending = self._any_pending()
         """Some fault has yet to start or end (else :meth:`update` returns at once)."""
@@ -77,7 +94,8 @@ class ServoBusFaults:
         """The bus's faults now (:func:`bus_faults`)."""
         corruption = self._corruption
         fraction = corruption.corrupt_fraction if corruption and self._corrupting else 0.0
-        return bus_faults(self._options, self._silent_id, fraction)
+        silent = frozenset(i for i in (self._silent_id, self._booting_id) if i is not None)
+        return bus_faults(self._options, silent, fraction)
 
     def update(self, now_s: float, bus: RespondingBus) -> None:
         """Start or end what is due at simulated time ``now_s`` [s] on ``bus``."""
@@ -93,6 +111,19 @@ class ServoBusFaults:
             with bus.lock:
                 bus.servos[error.servo_id].inject_hardware_error(error.bits)
             self._error = None
+        reboot = self._reboot
+        if reboot is not None and self._phases.reached(reboot.start, now_s):
+            start_s = self._phases.start_s(reboot.start)
+            assert start_s is not None
+            booting = now_s < start_s + reboot.boot_s
+            if booting and self._booting_id is None:
+                with bus.lock:
+                    bus.servos[reboot.servo_id].reboot()
+                self._booting_id = reboot.servo_id
+                changed = True
+            elif not booting:
+                self._booting_id, self._reboot = None, None
+                changed = True
         corruption = self._corruption
         if corruption is not None and self._phases.reached(corruption.start, now_s):
             start_s = self._phases.start_s(corruption.start)
@@ -108,4 +139,7 @@ class ServoBusFaults:
         self.pending = self._any_pending()
 
     def _any_pending(self) -> bool:
-        return self._silent is not None or self._error is not None or self._corruption is not None
+        return any(
+            fault is not None
+            for fault in (self._silent, self._error, self._corruption, self._reboot)
+        )
