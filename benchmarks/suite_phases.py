@@ -7,6 +7,9 @@
 Run it in the installed virtual environment, on an otherwise idle machine (the real-time
 tests are timed as they run); ``PX4_SITL_DIR`` as ``.ci/run`` sets it, or the PX4 tests are
 skipped (the table says so). Stops at the first phase that fails, as the command would.
+Each pytest phase also reports its slowest tests (``PYTEST_ADDOPTS=--durations``, which
+leaves the command as it is) and the tests that failed; every phase's whole output is kept
+in ``--logs`` (a temporary directory by default, printed).
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import re
 import shlex
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -27,6 +31,9 @@ ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "suite_time.md"
 CONTRACT_MIN = 20.0
 """The repository contract's bound on the whole command [min], on 2 cores."""
+SLOWEST = 15
+"""Slowest tests listed per pytest phase."""
+_DURATION = re.compile(r"^\s*([0-9.]+)s (call|setup|teardown)\s+(\S+)")
 
 
 def phases() -> list[str]:
@@ -37,28 +44,55 @@ def phases() -> list[str]:
     return [p for p in parts if not re.match(r"(python3 -m venv|\. \.venv|pip install)", p)]
 
 
-def run(command: str) -> tuple[int, float, str]:
-    """Run one phase from the repository's root; its status, wall time [s], last line."""
+def run(command: str, log: Path) -> tuple[int, float, list[str]]:
+    """Run one phase from the repository's root, its output kept in ``log``; its status,
+    wall time [s] and output lines."""
+    env = dict(os.environ)
+    if command.startswith("pytest"):
+        env["PYTEST_ADDOPTS"] = f"{env.get('PYTEST_ADDOPTS', '')} --durations={SLOWEST}".strip()
     start = time.perf_counter()
-    done = subprocess.run(shlex.split(command), cwd=ROOT, capture_output=True, text=True)
+    done = subprocess.run(shlex.split(command), cwd=ROOT, capture_output=True, text=True, env=env)
     wall_s = time.perf_counter() - start
+    log.write_text(done.stdout + done.stderr, encoding="utf-8")
     lines = [row for row in (done.stdout + done.stderr).splitlines() if row.strip()]
-    return done.returncode, wall_s, lines[-1].strip("= ") if lines else ""
+    return done.returncode, wall_s, lines
+
+
+def slowest(lines: list[str]) -> list[tuple[float, str]]:
+    """(seconds, test) of the phase's slowest setups, calls and teardowns, as pytest's
+    ``--durations`` lists them (a module's shared flight shows as a setup)."""
+    out = []
+    for row in lines:
+        match = _DURATION.match(row)
+        if match:
+            out.append((float(match.group(1)), f"{match.group(3)} ({match.group(2)})"))
+    return sorted(out, reverse=True)[:SLOWEST]
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--write", action="store_true", help="write docs/suite_time.md")
+    parser.add_argument("--logs", type=Path, help="keep each phase's output here")
     args = parser.parse_args()
-    rows, total_s, failed = [], 0.0, False
-    for command in phases():
-        status, wall_s, last = run(command)
+    logs = args.logs or Path(tempfile.mkdtemp(prefix="suite-phases-"))
+    logs.mkdir(parents=True, exist_ok=True)
+    rows, total_s, failed, details = [], 0.0, False, []
+    for number, command in enumerate(phases(), 1):
+        status, wall_s, lines = run(command, logs / f"phase{number}.log")
+        last = lines[-1].strip("= ") if lines else ""
         total_s += wall_s
         rows.append((command, status, wall_s, last))
         print(f"{wall_s:7.1f} s  status {status}  {command}  ({last})", flush=True)
+        if command.startswith("pytest"):
+            failures = [row for row in lines if row.startswith(("FAILED ", "ERROR "))]
+            details += [f"`{command}`: the slowest", ""]
+            details += [f"- {s:.0f} s {test}" for s, test in slowest(lines)]
+            details += [f"- {row}" for row in failures]
+            details.append("")
         if status != 0:
             failed = True
             break
+    print(f"each phase's output: {logs}")
     px4 = os.environ.get("PX4_SITL_DIR") or "unset: the PX4 tests skipped"
     load = os.getloadavg()[0]
     lines = [
@@ -78,6 +112,9 @@ def main() -> None:
         + f", against the contract's {CONTRACT_MIN:g} min for the whole command (the install "
         "not included here).",
         "",
+        "## Where the time goes",
+        "",
+        *details,
     ]
     print("\n".join(lines))
     if args.write:
