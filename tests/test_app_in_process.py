@@ -131,21 +131,31 @@ def test_too_slow_for_the_gains_refuses_to_fly():
         check(100_000)
 
 
-def test_joints_stopped_by_the_servo_watchdog_are_enabled_again():
-    notes: list[tuple[str, str]] = []
-
-    async def body(sim: PtyServoBus) -> None:
-        url = f"dynamixel://{sim.device}?timeout_margin_ms=50&watchdog_ms=100"
-        async with open_bus(url, JOINTS) as bus:
-            await bus.set_operating_mode(OperatingMode.CURRENT)
-            await bus.enable_torque()
-            app = PickupApp(
+@contextlib.asynccontextmanager
+async def app_on_servos(sim: PtyServoBus, margin_ms: int, notes: list[tuple[str, str]]):
+    """The app on the real Dynamixel driver against the emulator ``sim``: joints in current
+    mode, torque on, the watchdog at 100 ms; its events go to ``notes``."""
+    url = f"dynamixel://{sim.device}?timeout_margin_ms={margin_ms}&watchdog_ms=100"
+    async with open_bus(url, JOINTS) as bus:
+        await bus.set_operating_mode(OperatingMode.CURRENT)
+        await bus.enable_torque()
+        yield (
+            bus,
+            PickupApp(
                 SCENARIO,
                 PoseLink(ScriptedPoses(4000)),
                 bus,
                 PLAN,
                 event=lambda kind, detail, t_s: notes.append((kind, detail)),
-            )
+            ),
+        )
+
+
+def test_joints_stopped_by_the_servo_watchdog_are_enabled_again():
+    notes: list[tuple[str, str]] = []
+
+    async def body(sim: PtyServoBus) -> None:
+        async with app_on_servos(sim, 50, notes) as (bus, app):
             await app.arm.rearm_after_silence()
             assert notes == []  # a bus in use is left alone
             deadline = time.monotonic() + 2.0
@@ -170,17 +180,7 @@ def test_a_servo_that_rebooted_by_itself_gets_its_torque_back_after_its_silence(
     notes: list[tuple[str, str]] = []
 
     async def body(sim: PtyServoBus) -> None:
-        url = f"dynamixel://{sim.device}?timeout_margin_ms=20&watchdog_ms=100"
-        async with open_bus(url, JOINTS) as bus:
-            await bus.set_operating_mode(OperatingMode.CURRENT)
-            await bus.enable_torque()
-            app = PickupApp(
-                SCENARIO,
-                PoseLink(ScriptedPoses(4000)),
-                bus,
-                PLAN,
-                event=lambda kind, detail, t_s: notes.append((kind, detail)),
-            )
+        async with app_on_servos(sim, 20, notes) as (bus, app):
             sim.set_faults(Faults(silent_ids=frozenset({2})))  # a timeout, no reboot
             assert await app.arm.read_joints() is None
             sim.set_faults(Faults())
