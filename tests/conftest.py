@@ -8,6 +8,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from filelock import FileLock
 
 from arm_driver.bus import open_buses
 
@@ -87,11 +88,25 @@ def pytest_runtest_makereport(item, call):
 
 
 @pytest.fixture(scope="session")
-def flight_install(tmp_path_factory) -> Path:
+def flight_install(tmp_path_factory, worker_id: str) -> Path:
     """The python of a fresh venv holding only the flight install (``pip install .``, no
-    extra), as on the vehicle's companion computer; built once per session from the
-    repository's files (tracked and new, not ignored: no stale ``build/``)."""
-    where = tmp_path_factory.mktemp("flight-install")
+    extra), as on the vehicle's companion computer; built once per run from the
+    repository's files (tracked and new, not ignored: no stale ``build/``), the xdist
+    workers sharing it (the first builds it under a file lock, the others wait for it)."""
+    base = tmp_path_factory.getbasetemp()
+    shared = base if worker_id == "master" else base.parent
+    where = shared / "flight-install"
+    python = where / "venv" / "bin" / "python"
+    with FileLock(str(shared / "flight-install.lock")):
+        if not (where / "built").exists():
+            shutil.rmtree(where, ignore_errors=True)
+            _build_flight_install(where)
+            (where / "built").touch()
+    return python
+
+
+def _build_flight_install(where: Path) -> None:
+    """``pip install .`` of a copy of the repository into a fresh venv at ``where``."""
     source = where / "source"
     listed = subprocess.run(
         ["git", "ls-files", "-co", "--exclude-standard", "-z"],
@@ -129,4 +144,3 @@ def flight_install(tmp_path_factory) -> Path:
     if done.returncode != 0:
         output = done.stdout[-3000:] + done.stderr[-3000:]
         pytest.fail(f"pip install . failed in a fresh venv:\n{output}")
-    return python
