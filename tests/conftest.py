@@ -8,7 +8,6 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from filelock import FileLock
 
 from arm_driver.bus import open_buses
 
@@ -93,6 +92,8 @@ def flight_install(tmp_path_factory, worker_id: str) -> Path:
     extra), as on the vehicle's companion computer; built once per run from the
     repository's files (tracked and new, not ignored: no stale ``build/``), the xdist
     workers sharing it (the first builds it under a file lock, the others wait for it)."""
+    from filelock import FileLock  # here: the flight install runs this conftest without it
+
     base = tmp_path_factory.getbasetemp()
     shared = base if worker_id == "master" else base.parent
     where = shared / "flight-install"
