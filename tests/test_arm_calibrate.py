@@ -25,8 +25,8 @@ from sitl.scenario import Scenario, load_scenario
 from sitl.servo import Faults
 from sitl.servo.arm_stand import ArmStand
 
-# The stand steps in real time and the calibration waits on it: run alone.
-pytestmark = [pytest.mark.slow, pytest.mark.alone]
+# The stand steps in real time and the calibration waits on it: those tests run alone (the
+# user errors need no stand).
 
 CONFIG = Path(__file__).parent.parent / "configs" / "px4_sih_pickup.toml"
 
@@ -57,6 +57,8 @@ def comments(text: str) -> list[str]:
     return [line.split("#", 1)[1] for line in text.splitlines() if "#" in line]
 
 
+@pytest.mark.slow
+@pytest.mark.alone
 @pytest.mark.parametrize("mismatch", [1.1])
 def test_calibrate_recovers_the_torque_constant_and_friction_and_writes_them(
     run_cli, tmp_path: Path, mismatch: float
@@ -99,6 +101,8 @@ def test_calibrate_recovers_the_torque_constant_and_friction_and_writes_them(
     assert [c for c in new if not dated.fullmatch(c)] == old
 
 
+@pytest.mark.slow
+@pytest.mark.alone
 def test_too_little_gravity_torque_at_the_poses_is_refused(run_cli, tmp_path: Path) -> None:
     """Limits that keep the arm hanging straight down: no gravity torque to calibrate on."""
     scenario = load_scenario(CONFIG)
@@ -160,6 +164,8 @@ def test_user_errors_are_one_line_and_status_2(run_cli, tmp_path: Path) -> None:
         assert "Traceback" not in done.stderr
 
 
+@pytest.mark.slow
+@pytest.mark.alone
 def test_a_servo_that_does_not_answer_is_a_user_error(run_cli, stand: ArmStand) -> None:
     stand.bus.set_faults(Faults(silent_ids=frozenset({2})))
     done = run_cli("arm", "calibrate", "--bus", url(stand), "--config", str(CONFIG))
@@ -188,6 +194,8 @@ def calibrate_in_background(stand: ArmStand, config: Path) -> subprocess.Popen:
     return process
 
 
+@pytest.mark.slow
+@pytest.mark.alone
 def test_a_servo_that_stops_answering_midway_leaves_the_arm_without_torque(
     stand: ArmStand,
 ) -> None:
@@ -203,6 +211,8 @@ def test_a_servo_that_stops_answering_midway_leaves_the_arm_without_torque(
     assert not any(servo.torque_enabled for _, servo in stand.joints)
 
 
+@pytest.mark.slow
+@pytest.mark.alone
 def test_ctrl_c_stops_the_calibration_with_torque_off(stand: ArmStand) -> None:
     process = calibrate_in_background(stand, CONFIG)
     process.send_signal(signal.SIGINT)
