@@ -22,13 +22,13 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Generic, TypeVar
+from typing import TYPE_CHECKING, ClassVar, Generic, TypeVar
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from sitl.px4.modes import Px4Mode
-from sitl.vehicle.mission_phases import FaultStart, MissionPhases, check_stretch, valid_start
+from sitl.vehicle.mission_phases import FaultStart, MissionPhases, Stretch, valid_start
 
 if TYPE_CHECKING:
     from sitl.vehicle.options import RunOptions
@@ -86,29 +86,24 @@ class DelayLine(Generic[_T]):
 
 
 @dataclass(frozen=True)
-class LinkLoss:
+class LinkLoss(Stretch):
     """``drop_fraction`` of the onboard link's messages dropped, both ways, for
     ``duration_s`` [s] from ``start``."""
 
-    start: FaultStart
-    duration_s: float
     drop_fraction: float
-
-    def __post_init__(self) -> None:
-        check_stretch("link loss", self.start, self.duration_s, "drop_fraction", self.drop_fraction)
+    WHAT: ClassVar[str] = "link loss"
+    STRENGTH: ClassVar[str] = "drop_fraction"
 
 
 @dataclass(frozen=True)
-class LinkLatency:
+class LinkLatency(Stretch):
     """Every message of the onboard link held back ``delay_s`` [s], both ways, for
     ``duration_s`` [s] from ``start``."""
 
-    start: FaultStart
-    duration_s: float
     delay_s: float
-
-    def __post_init__(self) -> None:
-        check_stretch("latency spike", self.start, self.duration_s, "delay_s", self.delay_s, 2.0)
+    WHAT: ClassVar[str] = "latency spike"
+    STRENGTH: ClassVar[str] = "delay_s"
+    MOST: ClassVar[float] = 2.0
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 from companion.mission.announce import phase_of
 from companion.mission.pickup import Phase
@@ -22,6 +23,7 @@ __all__ = [
     "FaultStart",
     "MissionPhases",
     "PhaseStart",
+    "Stretch",
     "valid_start",
 ]
 
@@ -59,18 +61,28 @@ def valid_start(start: FaultStart) -> bool:
     return isinstance(start, PhaseStart) or (math.isfinite(start) and start >= 0.0)
 
 
-def check_stretch(
-    what: str, start: FaultStart, duration_s: float, name: str, value: float, most: float = 1.0
-) -> None:
-    """Raise ValueError unless the fault ``what``, acting on its traffic for a while, starts
-    at a valid moment, lasts a positive time [s] and has ``name`` (a fraction of the
-    traffic, or a delay [s]) in (0, ``most``]."""
-    if not valid_start(start):
-        raise ValueError(f"a {what} starts at a time >= 0 or a phase, got {start!r}")
-    if not (math.isfinite(duration_s) and duration_s > 0.0):
-        raise ValueError(f"a {what} lasts a positive time, got {duration_s!r}")
-    if not (math.isfinite(value) and 0.0 < value <= most):
-        raise ValueError(f"{name} must be in (0, {most:g}], got {value!r}")
+@dataclass(frozen=True)
+class Stretch:
+    """A fault acting on its traffic for ``duration_s`` [s] from ``start``, at a strength:
+    the subclass's own field named :attr:`STRENGTH` (a fraction of the traffic, or a delay
+    [s]) in (0, :attr:`MOST`]. Checked when made (ValueError)."""
+
+    start: FaultStart
+    duration_s: float
+    WHAT: ClassVar[str]
+    """The fault, as the error says it."""
+    STRENGTH: ClassVar[str]
+    """The subclass's field of the strength."""
+    MOST: ClassVar[float] = 1.0
+
+    def __post_init__(self) -> None:
+        what, value = self.WHAT, getattr(self, self.STRENGTH)
+        if not valid_start(self.start):
+            raise ValueError(f"a {what} starts at a time >= 0 or a phase, got {self.start!r}")
+        if not (math.isfinite(self.duration_s) and self.duration_s > 0.0):
+            raise ValueError(f"a {what} lasts a positive time, got {self.duration_s!r}")
+        if not (math.isfinite(value) and 0.0 < value <= self.MOST):
+            raise ValueError(f"{self.STRENGTH} must be in (0, {self.MOST:g}], got {value!r}")
 
 
 class MissionPhases:

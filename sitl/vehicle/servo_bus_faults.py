@@ -20,12 +20,13 @@ starts or ends.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 from sitl.servo import Faults
 from sitl.servo.responder import RespondingBus
-from sitl.vehicle.mission_phases import FaultStart, MissionPhases, check_stretch
+from sitl.vehicle.mission_phases import FaultStart, MissionPhases, Stretch, valid_start
 
 if TYPE_CHECKING:
     from sitl.vehicle.options import RunOptions
@@ -34,18 +35,13 @@ __all__ = ["BusCorruption", "ServoBusFaults", "ServoReboot", "bus_faults"]
 
 
 @dataclass(frozen=True)
-class BusCorruption:
+class BusCorruption(Stretch):
     """``corrupt_fraction`` of the servos' replies sent with a broken CRC for
     ``duration_s`` [s] from ``start``."""
 
-    start: FaultStart
-    duration_s: float
     corrupt_fraction: float
-
-    def __post_init__(self) -> None:
-        check_stretch(
-            "corruption", self.start, self.duration_s, "corrupt_fraction", self.corrupt_fraction
-        )
+    WHAT: ClassVar[str] = "corruption"
+    STRENGTH: ClassVar[str] = "corrupt_fraction"
 
 
 @dataclass(frozen=True)
@@ -57,7 +53,10 @@ class ServoReboot:
     boot_s: float
 
     def __post_init__(self) -> None:
-        check_stretch("servo reboot", self.start, self.boot_s, "boot_s", self.boot_s, 10.0)
+        if not valid_start(self.start):
+            raise ValueError(f"a servo reboot starts at a time >= 0 or a phase, got {self.start!r}")
+        if not (math.isfinite(self.boot_s) and 0.0 < self.boot_s <= 10.0):
+            raise ValueError(f"boot_s must be in (0, 10], got {self.boot_s!r}")
 
 
 def bus_faults(
