@@ -207,6 +207,8 @@ class ControlCycle:
         )
         self.round_trip = RoundTripWatch(flight.max_round_trip_s)
         """The link's round trip (:mod:`companion.mission.round_trip`)."""
+        self._timesync_taken: TimesyncReply | None = None
+        """The last TIMESYNC reply taken (the link keeps the latest until the next)."""
         self.hold_bias = HoldBias(_HOLD_WINDOW_S)
         self._empty_m2_kg = config.nominal_theta.m2_kg
         """m2 of the empty link 2 [kg]."""
@@ -401,7 +403,8 @@ class ControlCycle:
         loops in flight is the ``link_latency`` fault."""
         watch = self.round_trip
         reply = self.link.latest(TimesyncReply)
-        if reply is not None:
+        if reply is not None and reply is not self._timesync_taken:
+            self._timesync_taken = reply
             trip = watch.reply(reply.tc1_ns, reply.ts1_ns)
             if trip is not None and trip.fault is not None and self.offboard.flying:
                 self._fault(Fault.LINK_LATENCY, trip.fault)
